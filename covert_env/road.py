@@ -1,0 +1,171 @@
+"""The road and the target driving along it (paper §2.1): q[k], phi[k] and their predictions.
+
+The target follows a known route (a polyline) at a speed profile. The planner at slot k sees the
+predicted positions q[k+1..k+N]; the prediction error is bounded by a disk gamma(q) of radius r_u
+(eq. 5), which the feasible zone absorbs by erosion (see :mod:`covert_env.zone`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+from shapely.geometry import LineString
+
+__all__ = ["Road", "TargetTrack"]
+
+
+@dataclass(frozen=True, eq=False)
+class Road:
+    """A road centreline: a polyline parametrised by arc length.
+
+    Attributes:
+        points: (K, 2) vertices, K >= 2, consecutive points distinct.
+    """
+
+    points: np.ndarray
+
+    def __post_init__(self) -> None:
+        pts = np.asarray(self.points, dtype=float)
+        if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 2:
+            raise ValueError(f"Road.points must be a (K, 2) array with K >= 2, got shape {pts.shape}")
+        if not np.all(np.isfinite(pts)):
+            raise ValueError("Road.points must be finite (no NaN or inf)")
+        seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+        if np.any(seg <= 1e-9):
+            raise ValueError("Road.points: consecutive points must be distinct")
+        pts.setflags(write=False)
+        object.__setattr__(self, "points", pts)
+
+    @classmethod
+    def from_points(cls, points) -> Road:
+        """A road through the given (K, 2) points, in driving order."""
+        return cls(points)
+
+    @classmethod
+    def random(cls, seed: int | np.random.Generator | None = None, *, length: float = 900.0,
+               start=(120.0, 0.0), heading: float = 0.0, step: float = 2.0,
+               max_curvature: float = 1 / 120, straight_start: float = 60.0) -> Road:
+        """A random smooth road: heading integrates a smooth random curvature, bounded by ``max_curvature``.
+
+        The first ``straight_start`` metres are straight along ``heading``, so a scenario's UAV
+        starts (placed relative to the start pose) sit in the zone regardless of the seed.
+        """
+        rng = np.random.default_rng(seed)
+        n = max(2, int(np.ceil(length / step)) + 1)
+        s = np.arange(n) * step
+        # Smooth curvature: a few random sinusoids over arc length, scaled into the bound.
+        kappa = np.zeros(n)
+        for _ in range(4):
+            wavelength = rng.uniform(150.0, 600.0)
+            kappa += rng.normal() * np.sin(2 * np.pi * s / wavelength + rng.uniform(0, 2 * np.pi))
+        kappa *= max_curvature / max(np.abs(kappa).max(), 1e-12) * rng.uniform(0.4, 1.0)
+        kappa *= np.clip((s - straight_start) / 40.0, 0.0, 1.0)   # ease in after the straight start
+        th = heading + np.concatenate([[0.0], np.cumsum(kappa[:-1] * step)])
+        xy = np.asarray(start, float) + np.concatenate(
+            [[[0.0, 0.0]], np.cumsum(step * np.column_stack([np.cos(th[:-1]), np.sin(th[:-1])]), axis=0)])
+        return cls(xy)
+
+    # ------------------------------------------------------------------ arc-length queries
+    @cached_property
+    def cumulative_length(self) -> np.ndarray:
+        """(K,) arc length at each vertex."""
+        return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(self.points, axis=0), axis=1))])
+
+    @property
+    def length(self) -> float:
+        return float(self.cumulative_length[-1])
+
+    @cached_property
+    def linestring(self) -> LineString:
+        return LineString(self.points)
+
+    def point_at(self, s) -> np.ndarray:
+        """Position(s) at arc length ``s`` (clamped to [0, length]); shape (..., 2)."""
+        s = np.clip(np.asarray(s, dtype=float), 0.0, self.length)
+        cl = self.cumulative_length
+        i = np.clip(np.searchsorted(cl, s, side="right") - 1, 0, len(cl) - 2)
+        t = ((s - cl[i]) / (cl[i + 1] - cl[i]))[..., None]
+        return self.points[i] * (1 - t) + self.points[i + 1] * t
+
+    def heading_at(self, s) -> np.ndarray:
+        """Heading(s) phi (rad, the road tangent) at arc length ``s``."""
+        s = np.clip(np.asarray(s, dtype=float), 0.0, self.length)
+        cl = self.cumulative_length
+        i = np.clip(np.searchsorted(cl, s, side="right") - 1, 0, len(cl) - 2)
+        d = self.points[i + 1] - self.points[i]
+        return np.arctan2(d[..., 1], d[..., 0])
+
+    def distance_to(self, xy) -> np.ndarray:
+        """Horizontal distance(s) from point(s) ``xy`` (..., 2) to the centreline (vectorised)."""
+        xy = np.asarray(xy, dtype=float)
+        a, b = self.points[:-1], self.points[1:]
+        ab = b - a
+        ap = xy[..., None, :] - a
+        t = np.clip(np.einsum("...sk,sk->...s", ap, ab) / np.einsum("sk,sk->s", ab, ab), 0, 1)
+        return np.linalg.norm(ap - t[..., None] * ab, axis=-1).min(axis=-1)
+
+    def to_json(self) -> dict:
+        return {"points": self.points.tolist()}
+
+
+@dataclass(frozen=True, eq=False)
+class TargetTrack:
+    """The target's motion along a road: positions q[k] and headings phi[k] for every slot.
+
+    Attributes:
+        road: the route.
+        speeds: (n,) speed (m/s) during each slot k -> k+1 (the speed profile), n >= number of slots.
+        delta: slot length (s).
+        z: height z_q of the filmed point (m).
+        s0: arc length where the target is at slot 0.
+    """
+
+    road: Road
+    speeds: np.ndarray
+    delta: float = 1.0
+    z: float = 1.5
+    s0: float = 0.0
+
+    def __post_init__(self) -> None:
+        sp = np.atleast_1d(np.asarray(self.speeds, dtype=float))
+        if sp.ndim != 1 or not np.all(np.isfinite(sp)) or np.any(sp < 0):
+            raise ValueError("TargetTrack.speeds must be a 1-D array of finite speeds >= 0")
+        sp.setflags(write=False)
+        object.__setattr__(self, "speeds", sp)
+
+    @classmethod
+    def constant(cls, road: Road, speed: float, n_slots: int, *, delta: float = 1.0, z: float = 1.5,
+                 s0: float = 0.0) -> TargetTrack:
+        """A target at constant ``speed`` for ``n_slots`` slots."""
+        return cls(road, np.full(n_slots, float(speed)), delta=delta, z=z, s0=s0)
+
+    @cached_property
+    def arc(self) -> np.ndarray:
+        """(n + 1,) arc length at slots 0..n."""
+        return self.s0 + np.concatenate([[0.0], np.cumsum(self.speeds * self.delta)])
+
+    @property
+    def n_slots(self) -> int:
+        return len(self.speeds)
+
+    def position(self, k) -> np.ndarray:
+        """q[k] as (x, y, z); k may be an int or an integer array (clamped to the track's end)."""
+        s = self.arc[np.clip(np.asarray(k), 0, self.n_slots)]
+        xy = self.road.point_at(s)
+        return np.concatenate([xy, np.full(xy.shape[:-1] + (1,), self.z)], axis=-1)
+
+    def heading(self, k) -> np.ndarray | float:
+        """phi[k], the road tangent at the target's position (rad)."""
+        h = self.road.heading_at(self.arc[np.clip(np.asarray(k), 0, self.n_slots)])
+        return float(h) if np.ndim(h) == 0 else h
+
+    def predict(self, k: int, horizon: int) -> tuple[np.ndarray, np.ndarray]:
+        """Predicted (q, phi) for slots k+1..k+horizon: arrays (horizon, 3) and (horizon,).
+
+        The route and speed profile are known (paper §2.1), so the prediction is the nominal track;
+        its error is bounded by the uncertainty radius r_u, absorbed by the eroded zone (eq. 5).
+        """
+        ks = np.arange(k + 1, k + horizon + 1)
+        return self.position(ks), np.asarray(self.heading(ks))
