@@ -156,6 +156,13 @@ class TargetTrack:
         xy = self.road.point_at(s)
         return np.concatenate([xy, np.full(xy.shape[:-1] + (1,), self.z)], axis=-1)
 
+    def position_between(self, k: int, fractions) -> np.ndarray:
+        """Target positions (len(fractions), 3) at times (k + f) delta within slot k, f in [0, 1]."""
+        k = int(np.clip(k, 0, self.n_slots - 1))
+        s = self.arc[k] + np.asarray(fractions, dtype=float) * (self.arc[k + 1] - self.arc[k])
+        xy = self.road.point_at(s)
+        return np.concatenate([xy, np.full(xy.shape[:-1] + (1,), self.z)], axis=-1)
+
     def heading(self, k) -> np.ndarray | float:
         """phi[k], the road tangent at the target's position (rad)."""
         h = self.road.heading_at(self.arc[np.clip(np.asarray(k), 0, self.n_slots)])
