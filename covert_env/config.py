@@ -80,6 +80,10 @@ class Config:
     """(decided) Largest footprint circumradius (m) of a random polytope."""
     road_clearance: float = 6.0
     """(decided) Minimum horizontal gap (m) between a footprint and the road centreline."""
+    road_max_offset: float = 45.0
+    """(decided) Random footprints lie within this distance (m) of the road centreline (radius
+    permitting): buildings close to the road are the ones whose shadows fall on the zone behind the
+    target (55-100 m behind it, at most ~40 m to its side)."""
 
     # --- target -----------------------------------------------------------------------------
     target_speed: float = 10.0
@@ -154,7 +158,7 @@ class Config:
 
 _POSITIVE = ("v_max", "w_max", "altitude", "delta", "eta", "lam", "d_safe1", "d_safe2", "r1", "r2",
              "min_height", "min_radius", "max_radius", "target_speed", "grid_step")
-_NON_NEGATIVE = ("r_u", "road_clearance", "target_height", "shadow_margin")
+_NON_NEGATIVE = ("r_u", "road_clearance", "road_max_offset", "target_height", "shadow_margin")
 _INTS = {"horizon": 1, "n_slots": 1, "n_polytopes": 0, "min_vertices": 3, "max_vertices": 3, "n_uavs": 1}
 
 

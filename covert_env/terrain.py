@@ -233,9 +233,6 @@ class Polytope:
 
 
 # ---------------------------------------------------------------------------------- random generator
-_MAX_OFFSET = 70.0
-"""(decided) Random footprints lie within this distance (m) of the road centreline (when the radius and
-``road_clearance`` allow): the UAVs fly 55-100 m behind the target, at most ~40 m to its side."""
 _MIN_GAP = 2.0
 """(decided) Minimum gap (m) between two random footprints (a street between buildings)."""
 _HILL_FRACTION = 0.4
@@ -425,7 +422,7 @@ class Terrain:
 
         Polytope i is placed at a random arc length in the i-th of n equal stretches of the road (any
         stretch if that fails), on a random side, with its footprint at least ``road_clearance`` from
-        the centreline and (radius permitting) within ``_MAX_OFFSET`` = 70 m of it, and at least
+        the centreline and (radius permitting) within ``config.road_max_offset`` of it, and at least
         ``_MIN_GAP`` = 2 m from every other footprint (rejection sampling, ValueError if a polytope
         cannot be placed). Footprint: ``U{min_vertices..max_vertices}`` vertices on a randomly rotated
         ellipse of radius ``U(min_radius, max_radius)``. Top: 60 % flat-topped buildings (the base
@@ -460,7 +457,7 @@ class Terrain:
                 k = int(rng.integers(cfg.min_vertices, cfg.max_vertices + 1))
                 r = rng.uniform(cfg.min_radius, cfg.max_radius)
                 near = clear + r
-                off = rng.uniform(near, max(near, _MAX_OFFSET - r)) * rng.choice((-1.0, 1.0))
+                off = rng.uniform(near, max(near, cfg.road_max_offset - r)) * rng.choice((-1.0, 1.0))
                 th = float(road.heading_at(s))
                 centre = road.point_at(s) + off * np.array([-math.sin(th), math.cos(th)])
                 base = _random_footprint(rng, k, r) + centre

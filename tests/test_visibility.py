@@ -1,0 +1,320 @@
+"""Line of sight (eq. 6) and shadows (eqs. 8-9): exact clipping, projection, and their agreement."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import shapely
+from shapely.geometry import Point, Polygon
+
+from covert_env.config import Config
+from covert_env.terrain import Polytope, Terrain
+from covert_env.visibility import (
+    line_of_sight,
+    line_of_sight_cfg,
+    shadow_h_min,
+    shadow_polygons,
+    shadow_polygons_cfg,
+    shadow_union,
+    shadow_union_cfg,
+)
+
+H = 80.0
+R2 = 100.0
+
+
+# ----------------------------------------------------------------------------- random scenes
+def random_polytope(rng: np.random.Generator, centre, radius: float) -> Polytope:
+    """A convex footprint (sorted random angles on a circle, then a random stretch and rotation), its top
+    a homothetic shrink lifted onto a random slanted plane with heights in [20, 70] m."""
+    n = int(rng.integers(3, 9))
+    while True:
+        ang = np.sort(rng.uniform(0, 2 * np.pi, n))
+        gaps = np.diff(np.concatenate([ang, ang[:1] + 2 * np.pi]))
+        if gaps.min() > 0.25 and gaps.max() < np.pi - 0.1:
+            break
+    unit = np.column_stack([np.cos(ang), np.sin(ang)])
+    rot = rng.uniform(0, 2 * np.pi)
+    rmat = np.array([[np.cos(rot), -np.sin(rot)], [np.sin(rot), np.cos(rot)]])
+    # An affine image of a convex CCW polygon is convex and CCW; the stretch makes walls as well as blocks.
+    base = np.asarray(centre) + radius * unit @ np.diag([1.0, rng.uniform(0.2, 1.0)]) @ rmat.T
+    c = base.mean(axis=0)
+    top_xy = c + rng.uniform(0.3, 0.95) * (base - c)
+    z0 = rng.uniform(22, 68)
+    g = rng.normal(size=2)
+    g *= rng.uniform(0, 0.6) / max(np.linalg.norm(g), 1e-12)
+    z = z0 + (top_xy - c) @ g
+    f = min(1.0, (z0 - 20) / max(z0 - z.min(), 1e-9), (70 - z0) / max(z.max() - z0, 1e-9))
+    return Polytope(base, np.column_stack([top_xy, z0 + f * (z - z0)]))
+
+
+def random_terrain(rng: np.random.Generator, n: int | None = None, keep_clear: float = 3.5) -> Terrain:
+    """4-16 non-overlapping polytopes 20-120 m from the origin, footprints >= keep_clear from it."""
+    n = int(rng.integers(4, 17)) if n is None else n
+    cs, rs = [], []
+    for _ in range(5000):
+        if len(cs) == n:
+            break
+        r, d, a = rng.uniform(4, 16), rng.uniform(20, 120), rng.uniform(0, 2 * np.pi)
+        c = d * np.array([np.cos(a), np.sin(a)])
+        overlap = any(np.hypot(*(c - c2)) < r + r2 + 0.5 for c2, r2 in zip(cs, rs, strict=True))
+        if overlap or d - r < keep_clear:
+            continue
+        cs.append(c)
+        rs.append(r)
+    return Terrain([random_polytope(rng, c, r) for c, r in zip(cs, rs, strict=True)])
+
+
+def random_target(rng: np.random.Generator) -> np.ndarray:
+    """On the ground near the origin (within 3 m, so >= 0.5 m from every footprint), z_q in [0, 3]."""
+    a, r = rng.uniform(0, 2 * np.pi), 3 * math.sqrt(rng.uniform())
+    return np.array([r * math.cos(a), r * math.sin(a), rng.uniform(0, 3)])
+
+
+def disk_points(rng: np.random.Generator, q, n: int, radius: float = R2) -> np.ndarray:
+    r, a = radius * np.sqrt(rng.uniform(size=n)), rng.uniform(0, 2 * np.pi, n)
+    return np.asarray(q)[:2] + np.column_stack([r * np.cos(a), r * np.sin(a)])
+
+
+def box(x0, x1, y0, y1, z) -> Polytope:
+    base = np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]], float)
+    return Polytope(base, np.column_stack([base, np.full(4, float(z))]))
+
+
+def in_union(geom, xy):
+    if geom.is_empty:
+        return np.zeros(len(xy), bool), np.full(len(xy), np.inf)
+    return shapely.contains_xy(geom, xy[:, 0], xy[:, 1]), shapely.distance(geom.boundary, shapely.points(xy))
+
+
+# ----------------------------------------------------------------------------- the invariant
+def test_shadows_equal_blocked_los_on_random_scenes():
+    """Inside the union of shadows (auto h_min, radius R2) <=> LoS blocked, for points within R2 of the
+    target, except within 1 cm of a shadow boundary. 200 scenes x 600 points."""
+    rng = np.random.default_rng(20240914)
+    n_blocked = n_checked = 0
+    for scene in range(200):
+        terrain = random_terrain(rng)
+        q = random_target(rng)
+        xy = disk_points(rng, q, 600)
+        clear = line_of_sight(terrain, xy, H, q)
+        inside, dist = in_union(shadow_union(terrain, q, H, R2), xy)
+        far = dist >= 0.01
+        bad = far & (inside == clear)
+        assert not bad.any(), f"scene {scene}: {bad.sum()} points disagree, e.g. {xy[bad][:3]} (q={q})"
+        # The general path (one target per point) must give the same answers as the fast path.
+        per_point = line_of_sight(terrain, xy, np.full(len(xy), H), np.broadcast_to(q, (len(xy), 3)))
+        np.testing.assert_array_equal(per_point, clear)
+        n_blocked += int((~clear).sum())
+        n_checked += int(far.sum())
+    # The comparison is not vacuous: a fair share of the points is blocked.
+    assert n_checked > 0.99 * 200 * 600
+    assert 0.02 < n_blocked / (200 * 600) < 0.6
+
+
+def test_invariant_detects_truncated_shadows():
+    """The same comparison fails with the paper's fixed h_min = 45 m (shadows miss blocked points)."""
+    rng = np.random.default_rng(7)
+    missed = 0
+    for _ in range(20):
+        terrain, q = random_terrain(rng, n=16), random_target(rng)
+        xy = disk_points(rng, q, 600)
+        inside, dist = in_union(shadow_union(terrain, q, H, R2, h_min=45.0), xy)
+        clear = line_of_sight(terrain, xy, H, q)
+        missed += int((~inside & ~clear & (dist > 0.01)).sum())
+        assert not (inside & clear & (dist > 0.01)).any()     # still never shadows a clear point
+    assert missed > 100
+
+
+# ----------------------------------------------------------------------------- hand-made cases
+WALL = box(40, 42, -20, 20, 40)          # 2 m thick, 40 m wide, 40 m high, 40 m in front of the target
+
+
+@pytest.mark.parametrize("per_point", [False, True])
+def test_wall_blocks_and_touching_is_clear(per_point):
+    terrain = Terrain([WALL])
+    q = np.array([0.0, 0.0, 0.0])
+    uav = np.array([[80.0, 0.0],          # segment z = x: touches the wall's near top edge (40, y, 40) only
+                    [80.001, 0.0],        # passes just under that edge: blocked
+                    [79.999, 0.0],        # just over it: clear
+                    [120.0, 0.0],         # far behind the wall, low ray: blocked
+                    [-80.0, 0.0],         # on the other side of the target: clear
+                    [41.0, 0.0],          # over the wall itself: the ray is above it
+                    [80.0, 40.0],         # ray through the top corner (40, 20, 40) exactly: touching, clear
+                    [80.01, 39.99]])      # just under and beside that corner: blocked
+    expect = np.array([True, False, True, False, True, True, True, False])
+    tq = np.broadcast_to(q, (len(uav), 3)) if per_point else q
+    np.testing.assert_array_equal(line_of_sight(terrain, uav, H, tq), expect)
+
+
+def test_segment_in_a_face_plane_is_clear():
+    terrain = Terrain([box(40, 42, -20, 20, 60)])
+    for y, expect in [(20.0, True), (19.99, False), (20.01, True), (-20.0, True), (-19.99, False)]:
+        q = np.array([0.0, y, 0.0])
+        assert line_of_sight(terrain, np.array([80.0, y]), H, q) == expect, y
+
+
+def test_tolerance_is_tiny():
+    """1 micrometre inside the wall's top edge is blocked, 1 micrometre outside is clear."""
+    terrain = Terrain([WALL])
+    q = np.zeros(3)
+    # The ray z = 80 x / X passes the edge x = 40 at height 3200 / X; X slightly > 80 dips below.
+    eps = 1e-6
+    assert not line_of_sight(terrain, np.array([3200 / (40 - eps), 0.0]), H, q)
+    assert line_of_sight(terrain, np.array([3200 / (40 + eps), 0.0]), H, q)
+
+
+def test_polytope_behind_the_uav_or_target_does_not_block():
+    q = np.array([0.0, 0.0, 1.5])
+    behind_uav = box(70, 90, -10, 10, 70)
+    behind_target = box(-30, -10, -10, 10, 70)
+    terrain = Terrain([behind_uav, behind_target])
+    assert line_of_sight(terrain, np.array([60.0, 0.0]), H, q)
+    assert line_of_sight(terrain, np.array([0.0, 60.0]), H, q)
+    # ... while the same segment extended past the UAV would be blocked by the first box:
+    assert not line_of_sight(terrain, np.array([95.0, 0.0]), H, q)
+    # ... and the shadows agree: the first box's lies beyond x = 80, the second's behind the target.
+    s = shadow_union(terrain, q, H, R2)
+    assert s.intersection(Polygon([(0, -300), (80, -300), (80, 300), (0, 300)])).area < 1e-9
+    assert s.intersection(Polygon([(-300, -300), (0, -300), (0, 300), (-300, 300)])).area > 100
+
+
+def test_wall_shadow_matches_closed_form():
+    """Target at the origin on the ground: inside R = 100 the wall's shadow is x >= 80, |y| <= x / 2."""
+    terrain = Terrain([WALL])
+    q = np.zeros(3)
+    (s,) = shadow_polygons(terrain, q, H, R2)
+    assert shadow_h_min(terrain, q, H, R2)[0] == pytest.approx(32.0)
+    disk = Point(0, 0).buffer(R2, 512)
+    expected = Polygon([(80, -40), (80, 40), (300, 150), (300, -150)]).intersection(disk)
+    assert s.intersection(disk).symmetric_difference(expected).area < 1e-8
+    # The exact corners: the near top edge's image and the lateral edges cut at z = 32 (the far top
+    # edge's image (84, +-42) lies on the sides |y| = x / 2).
+    want = {(80, -40), (80, 40), (100, -50), (100, 50), (105, -50), (105, 50)}
+    got = {(float(a), float(b)) for a, b in np.round(s.exterior.coords[:-1], 9)}
+    assert got == {(float(a), float(b)) for a, b in want}
+
+
+def test_vectorised_shapes_and_targets():
+    rng = np.random.default_rng(3)
+    terrain = random_terrain(rng, n=10)
+    q = random_target(rng)
+    xy = disk_points(rng, q, 24).reshape(2, 3, 4, 2)
+    clear = line_of_sight(terrain, xy, H, q)
+    assert clear.shape == (2, 3, 4) and clear.dtype == bool
+    flat = line_of_sight(terrain, xy.reshape(-1, 2), H, q)
+    np.testing.assert_array_equal(clear.reshape(-1), flat)
+    single = line_of_sight(terrain, xy[0, 0, 0], H, q)
+    assert single.shape == () and bool(single) == flat[0]
+    # One target per point, broadcast against the points; per-point altitudes.
+    np.testing.assert_array_equal(line_of_sight(terrain, xy, H, np.broadcast_to(q, (3, 4, 3))), clear)
+    np.testing.assert_array_equal(line_of_sight(terrain, xy, np.full((2, 3, 4), H), q), clear)
+    # Different targets per point agree with separate single-target calls.
+    targets = np.stack([random_target(rng) for _ in range(4)])
+    pts = disk_points(rng, (0, 0), 4 * 50).reshape(4, 50, 2)
+    many = line_of_sight(terrain, pts, H, targets[:, None, :])
+    for i in range(4):
+        np.testing.assert_array_equal(many[i], line_of_sight(terrain, pts[i], H, targets[i]))
+    assert line_of_sight(Terrain([]), xy, H, q).all()
+    assert line_of_sight(terrain, np.zeros((0, 2)), H, q).shape == (0,)
+
+
+def test_general_segments_against_brute_force_sampling():
+    """Arbitrary 3-D segments (UAV below, level with or above the target; per-point altitudes) agree
+    with dense sampling of the polytopes' depth along the segment (depth is 1-Lipschitz, so samples
+    every L / 1000 bound the true maximum depth within L / 2000)."""
+    rng = np.random.default_rng(17)
+    for _ in range(4):
+        terrain = random_terrain(rng, n=10)
+        n = 300
+        tq = np.column_stack([rng.uniform(-130, 130, (n, 2)), rng.uniform(0, 75, n)])
+        u = np.column_stack([rng.uniform(-130, 130, (n, 2)), rng.uniform(0, 90, n)])
+        u[:40, 2] = tq[:40, 2]                                   # level segments
+        clear = line_of_sight(terrain, u[:, :2], u[:, 2], tq)
+        s = np.linspace(0, 1, 1001)[None, :, None]
+        depth = np.full(n, -np.inf)
+        for p in terrain:
+            # Face values are affine along the segment: interpolate between the two ends.
+            vu = u @ p.halfspaces[:, :3].T + p.halfspaces[:, 3]
+            vt = tq @ p.halfspaces[:, :3].T + p.halfspaces[:, 3]
+            v = vu[:, None, :] + s * (vt - vu)[:, None, :]                      # (n, S, F)
+            depth = np.maximum(depth, (-v.max(axis=2)).max(axis=1))
+        slack = np.linalg.norm(tq - u, axis=1) / 2000 + 1e-7
+        assert not clear[depth > 1e-7].any()
+        assert clear[depth < -slack].all()
+        assert (depth > 1e-7).sum() > 20
+
+
+# ----------------------------------------------------------------------------- h_min
+def test_fixed_h_min_is_a_subset_of_the_exact_shadow_near_the_target():
+    rng = np.random.default_rng(11)
+    losses = []
+    for _ in range(25):
+        terrain, q = random_terrain(rng, n=12), random_target(rng)
+        d = Point(q[:2]).buffer(R2, 512)
+        exact = shadow_union(terrain, q, H, R2).intersection(d)
+        for h_min in (10.0, 30.0):
+            fixed = shadow_union(terrain, q, H, R2, h_min=h_min).intersection(d)
+            assert fixed.difference(exact).area < 1e-6 * max(exact.area, 1.0)
+            if h_min == 30.0:
+                losses.append(exact.area - fixed.area)
+        # Every point well inside a fixed-h_min shadow is really blocked.
+        xy = disk_points(rng, q, 400)
+        inside, dist = in_union(shadow_union(terrain, q, H, R2, h_min=30.0), xy)
+        assert not line_of_sight(terrain, xy[inside & (dist > 0.01)], H, q).any()
+    # A high fixed h_min loses part of the exact shadow in some scenes (why the default is automatic).
+    assert max(losses) > 1.0
+
+
+def test_shadow_polygons_empty_cases_and_errors():
+    q = np.array([0.0, 0.0, 1.5])
+    far = box(150, 160, -5, 5, 60)             # beyond the radius: h_min_m > h
+    low = box(30, 40, -5, 5, 28)                # lower than a fixed h_min, above the auto one (25.05)
+    near = box(30, 40, 10, 20, 50)
+    terrain = Terrain([far, low, near])
+    auto = shadow_polygons(terrain, q, H, R2)
+    assert len(auto) == 3 and auto[0].is_empty and not auto[1].is_empty and auto[2].area > 0
+    fixed = shadow_polygons(terrain, q, H, R2, h_min=30.0)
+    assert fixed[1].is_empty and not fixed[2].is_empty
+    assert all(isinstance(p, Polygon) for p in auto + fixed)
+    assert shadow_polygons(Terrain([]), q, H, R2) == []
+    assert shadow_union(Terrain([far]), q, H, R2).is_empty
+    with pytest.raises(ValueError, match="inside/under"):
+        shadow_polygons(terrain, np.array([35.0, 15.0, 1.0]), H, R2)
+    with pytest.raises(ValueError, match="altitude"):
+        shadow_polygons(terrain, np.array([0.0, 0.0, 90.0]), H, R2)
+    # A target higher than a polytope sees over it: no shadow, and the LoS agrees.
+    assert shadow_polygons(Terrain([low]), np.array([0.0, 0.0, 28.0]), H, R2)[0].is_empty
+    high_q = np.array([0.0, 0.0, 28.0])
+    assert line_of_sight(Terrain([low]), np.array([[60.0, 0.0], [90.0, 1.0]]), H, high_q).all()
+
+
+def test_slanted_top_higher_than_altitude_is_clipped_at_h():
+    """A polytope reaching above h: the slab top z = h is used, its image is the polytope's own section."""
+    base = np.array([[30, -5], [40, -5], [40, 5], [30, 5]], float)
+    tall = Polytope(base, np.column_stack([base, [70, 95, 95, 70]]))
+    q = np.array([0.0, 0.0, 1.0])
+    (s,) = shadow_polygons(Terrain([tall]), q, H, R2)
+    section = Polygon([(36, -5), (40, -5), (40, 5), (36, 5)])   # where the top is above z = 80
+    assert section.difference(s).area < 1e-9
+    xy = disk_points(np.random.default_rng(0), q, 3000)
+    inside, dist = in_union(s, xy)
+    clear = line_of_sight(Terrain([tall]), xy, H, q)
+    assert not ((inside == clear) & (dist > 0.01)).any()
+
+
+def test_config_wrappers():
+    cfg = Config()
+    terrain = random_terrain(np.random.default_rng(5), n=8)
+    q = np.array([1.0, -1.0, cfg.target_height])
+    xy = disk_points(np.random.default_rng(6), q, 100)
+    np.testing.assert_array_equal(line_of_sight_cfg(terrain, xy, q, cfg),
+                                  line_of_sight(terrain, xy, cfg.altitude, q))
+    r = cfg.r2 + cfg.shadow_margin
+    a = shadow_union_cfg(terrain, q, cfg)
+    assert a.symmetric_difference(shadow_union(terrain, q, cfg.altitude, r)).area < 1e-9
+    b = shadow_polygons_cfg(terrain, q, cfg.replace(h_min=30.0))
+    c = shadow_polygons(terrain, q, cfg.altitude, r, h_min=30.0)
+    assert all(x.equals(y) or (x.is_empty and y.is_empty) for x, y in zip(b, c, strict=True))
