@@ -2,12 +2,48 @@
 
 The model (terrain, shadows, feasible zone, line of sight, dynamics, cost, engine) implements
 Almuzaini & Savkin, "Navigation of a Team of UAVs for Covert Video Sensing of a Target Moving on an
-Uneven Terrain", Remote Sensing 16(22):4273, 2024.
+Uneven Terrain", Remote Sensing 16(22):4273, 2024. The environments are thin adapters over it:
+
+    import covert_env
+    penv = covert_env.parallel_env(n_uavs=3)                     # PettingZoo ParallelEnv
+    aec = covert_env.env(n_uavs=3)                               # PettingZoo AEC
+    import gymnasium as gym
+    genv = gym.make("covert_env/CovertSensing-v0")               # Gymnasium, one UAV
 """
 
 from covert_env.config import Config
+from covert_env.engine import Engine
 from covert_env.road import Road, TargetTrack
+from covert_env.scenario import Scenario
 from covert_env.terrain import Polytope, Terrain
+from covert_env.trajectory import Trajectory
 
-__all__ = ["Config", "Polytope", "Road", "TargetTrack", "Terrain"]
 __version__ = "0.1.0"
+
+# Environments are imported after the model: the model modules never import them.
+from covert_env import covert_sensing_v0  # noqa: E402
+from covert_env.envs import env, parallel_env, raw_env  # noqa: E402
+
+__all__ = ["Config", "Engine", "Polytope", "Road", "Scenario", "TargetTrack", "Terrain", "Trajectory",
+           "covert_sensing_v0", "env", "parallel_env", "raw_env"]
+
+
+def _register() -> None:
+    """Register the Gymnasium ids (Gymnasium 1.x has no plugin entry point) and PettingZoo ids."""
+    import gymnasium
+
+    for env_id, entry in (("covert_env/CovertSensing-v0", "covert_env.envs.single:CovertSensingEnv"),
+                          ("covert_env/CovertSensingWaypoint-v0", "covert_env.envs.single:CovertSensingWaypointEnv")):
+        if env_id not in gymnasium.registry:
+            gymnasium.register(id=env_id, entry_point=entry)
+    try:
+        from pettingzoo import aec_registry, parallel_registry, register
+    except ImportError:  # older PettingZoo without a registry
+        return
+    if "covert_env/CovertSensing-v0" not in parallel_registry:
+        register("parallel", "covert_env/CovertSensing-v0", "covert_env.envs.covert_sensing:parallel_env")
+    if "covert_env/CovertSensing-v0" not in aec_registry:
+        register("aec", "covert_env/CovertSensing-v0", "covert_env.envs.covert_sensing:env")
+
+
+_register()

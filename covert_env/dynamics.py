@@ -1,0 +1,482 @@
+"""UAV kinematics and the turn-then-straight manoeuvre (Almuzaini & Savkin 2024, eqs. 1, 7, 22-29).
+
+Every UAV flies at the fixed altitude h as a unicycle (eq. 1)::
+
+    x' = v cos(theta),   y' = v sin(theta),   theta' = omega,   0 < v <= V_max,   |omega| <= W_max.
+
+Two tools live here:
+
+* :func:`unicycle_step` / :func:`unicycle_path` integrate the unicycle **exactly** for constant
+  ``(v, omega)``: the path is a circular arc (a segment when ``omega = 0``). The paper's discrete model
+  (eq. 7) is one explicit Euler step; over a whole slot of ``delta = 1 s`` at ``omega = 3 rad/s`` that
+  step would put the UAV tens of metres from where the kinematics actually take it, so we never use it.
+* :func:`solve_manoeuvre` finds, for many (start pose, waypoint) pairs at once, the paper's
+  turn-then-straight manoeuvre (eqs. 22-29): turn at ``+-W_max`` with constant speed ``v`` until the
+  heading points at the waypoint (the tangent point ``z``), then fly straight to it at the same ``v``,
+  arriving exactly at the end of the slot. It returns a :class:`Manoeuvre` (speed, turn side, turn time,
+  heading on arrival, feasibility), which :func:`fly_manoeuvre` and :meth:`Manoeuvre.points` fly exactly.
+
+Geometry of the manoeuvre (derived here; the paper's text copy lost its layout)
+------------------------------------------------------------------------------------
+Work in the UAV frame: start at the origin, heading +x, and mirror y so that the waypoint lies on the
+turn side, ``g = (a, b)`` with ``b >= 0``. Turning left at radius ``r = v / W_max`` (eq. 23) goes around
+the centre ``c = (0, r)``; after turning by ``tau`` the UAV is at ``z = (r sin tau, r (1 - cos tau))``
+with heading ``tau``. ``z`` is the tangent point iff ``g = z + L (cos tau, sin tau)`` with ``L >= 0``.
+Writing ``g - c = r e2 + L e1`` with ``e1 = (cos tau, sin tau)`` and the outward radius
+``e2 = (sin tau, -cos tau)`` gives
+
+* ``D = |g - c| = sqrt(a^2 + (b - r)^2)`` and ``L = sqrt(D^2 - r^2) = sqrt(|g - p|^2 - 2 b r)``;
+* ``tau = (atan2(b - r, a) - arccos(r / D) + pi / 2) mod 2 pi`` (``arccos(r / D)`` is the paper's rho,
+  eq. 24: the angle between ``c -> z`` and ``c -> g``).
+
+So DESIGN.md's tau **is correct**. Two remarks: the paper's eq. 28, ``tau = arccos(...)``, only returns
+angles in ``[0, pi]``, which is wrong for turns beyond a half circle (possible when ``W_max delta > pi``),
+hence the ``mod 2 pi`` form. We do not evaluate that form literally: at ``r = R_c`` (waypoint on the
+circle, an end of the root bracket below) ``r / D`` rounds above 1 in about one case in six and
+``arccos`` returns NaN, and for small ``b`` it subtracts O(1) terms, so a small tau keeps few correct
+digits. Instead we use the equivalent heading vector ``e1 ~ (L a - r (b - r), r (a - L) + L b)`` (solve
+the 2x2 system above for ``e1``), with ``a - L = b (2 r - b) / (a + L)`` when ``a > 0``, so that no
+terms cancel.
+
+The speed solves eq. 29, arc plus straight equals the distance flown in one slot::
+
+    F(r) = r tau(r) + L(r) - delta W_max r = 0,        v = W_max r.
+
+A root counts only if ``D >= r``, i.e. ``r <= R_c = |g - p|^2 / (2 b)`` (the waypoint is not inside
+the turning circle), and ``r <= V_max / W_max``. Since the path is at least ``|g - p|`` long, every root has
+``r >= |g - p| / (delta W_max)``.
+
+**Root structure (verified; DESIGN.md's "one root" holds only for waypoints ahead).** With
+``h(r) = F(r) / r + delta W_max = tau + L / r`` one finds ``h'(r) = -phi(r) / D^2`` where
+``phi(r) = L (L^2 + r b) / r^2 + a``. ``phi`` is strictly decreasing in r, so h is strictly decreasing when
+``a >= 0`` (exactly one root, found by bracketing) but, for a waypoint *behind* the UAV (``a < 0``), h
+decreases to a minimum at ``phi(r*) = 0`` and then increases, so eq. 29 can have **two** roots. We take
+the smaller one, the slowest and therefore shortest and cheapest manoeuvre (the stage cost, eq. 18,
+charges the path length ``v delta``); it is the unique root in ``(0, min(r*, R_c, V_max / W_max)]``,
+found by a vectorised safeguarded Newton iteration (Newton steps kept inside a shrinking sign-change
+bracket, bisection otherwise) with the closed-form derivative
+``F'(r) = tau + (L (r - b) - a r) / D^2 - delta W_max``, which stays finite as ``L -> 0``.
+With the paper's defaults the second root never matters: when ``W_max delta <= pi`` no waypoint behind
+the UAV (``a < 0``) is reachable in one slot by *any* admissible control, since
+``|theta(t)| <= W_max t <= pi`` gives ``x(delta) >= (v / W_max) sin(W_max delta) >= 0``. Two roots do
+occur for e.g. ``W_max = 5`` (waypoint ``(-6.88, -4.66)`` in the UAV frame).
+
+Conventions (decided): the turn side is the sign of ``cross(heading, g - p)`` (eq. 22's sigma - theta
+test); a waypoint dead ahead needs no turn (``v = |g - p| / delta``); a waypoint dead behind is taken
+with a left turn; a waypoint equal to the start is infeasible (v must be > 0). Infeasible entries have
+NaN in every float field and are never reported feasible.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = [
+    "Manoeuvre",
+    "fly_manoeuvre",
+    "solve_manoeuvre",
+    "unicycle_path",
+    "unicycle_step",
+]
+
+_TWO_PI = 2.0 * np.pi
+# A waypoint whose lateral offset is below this fraction of its distance counts as dead ahead: flying
+# straight then misses it by at most 1e-12 of the distance, far below any tolerance that matters.
+_STRAIGHT_REL = 1e-12
+# Relative step size at which the Newton iteration stops; ~50 ulp, well below 1e-9 m on any real slot.
+_NEWTON_RTOL = 1e-14
+_NEWTON_MAX_ITER = 100
+_PHI_BISECT_ITER = 60
+
+
+def _wrap_2pi(a):
+    """Wrap into [0, 2 pi). ``np.mod`` can return exactly 2 pi for tiny negative input; fold that to 0."""
+    w = np.mod(a, _TWO_PI)
+    return np.where(w >= _TWO_PI, 0.0, w)
+
+
+def _scalar_or_array(a):
+    a = np.asarray(a)
+    return a[()] if a.ndim == 0 else a
+
+
+# --------------------------------------------------------------------------------------- unicycle
+
+
+def unicycle_step(x, y, theta, v, omega, dt):
+    """Fly the unicycle (eq. 1) for ``dt`` seconds with constant speed ``v`` and turn rate ``omega``.
+
+    The integration is exact: the path is a circular arc of radius ``v / omega``, whose chord has length
+    ``v dt sinc(omega dt / 2)`` and direction ``theta + omega dt / 2``. Writing it with
+    ``sinc(u) = sin(u) / u`` instead of ``(v / omega)(sin(theta + omega dt) - sin(theta))`` keeps it
+    accurate as ``omega -> 0`` (no 0/0; ``omega = 0`` gives the straight segment of eq. 7). This replaces
+    the paper's Euler step (eq. 7), which ignores the heading change within the slot.
+
+    Args:
+        x, y: start position (m). theta: start heading (rad, counter-clockwise from +x).
+        v: linear speed (m/s). omega: turn rate (rad/s, positive = left). dt: duration (s).
+        All arguments broadcast against each other (numpy rules).
+
+    Returns:
+        ``(x, y, theta)`` after ``dt``, broadcast; theta wrapped into ``[0, 2 pi)``. Scalars for scalar input.
+    """
+    x, y, theta, v, omega, dt = (np.asarray(t, dtype=float) for t in (x, y, theta, v, omega, dt))
+    half = 0.5 * omega * dt
+    # np.sinc(t) = sin(pi t) / (pi t): the exact arc-to-chord ratio, smooth through half = 0.
+    chord = v * dt * np.sinc(half / np.pi)
+    mid = theta + half
+    x1 = x + chord * np.cos(mid)
+    y1 = y + chord * np.sin(mid)
+    th1 = _wrap_2pi(theta + omega * dt)
+    x1, y1, th1 = np.broadcast_arrays(x1, y1, th1)
+    return _scalar_or_array(x1), _scalar_or_array(y1), _scalar_or_array(th1)
+
+
+def unicycle_path(x, y, theta, v, omega, dt, n_points):
+    """Poses at ``n_points`` equally spaced times in ``[0, dt]`` along the exact arc of :func:`unicycle_step`.
+
+    Used to check line of sight and separation *between* slot times, where the paper only checks
+    the slot end points.
+
+    Returns:
+        Array of shape ``(n_points, *batch, 3)`` holding ``(x, y, theta)``; the first entry is the start
+        pose (heading wrapped into ``[0, 2 pi)``), the last the pose after ``dt``.
+    """
+    n_points = int(n_points)
+    if n_points < 1:
+        raise ValueError(f"unicycle_path: n_points must be >= 1, got {n_points}")
+    args = np.broadcast_arrays(*(np.asarray(t, dtype=float) for t in (x, y, theta, v, omega, dt)))
+    batch = args[0].shape
+    frac = np.linspace(0.0, 1.0, n_points).reshape((n_points,) + (1,) * len(batch))
+    x, y, theta, v, omega, dt = args
+    xs, ys, ths = unicycle_step(x, y, theta, v, omega, frac * dt)
+    return np.stack(np.broadcast_arrays(xs, ys, ths), axis=-1)
+
+
+# -------------------------------------------------------------------------- manoeuvre geometry
+
+
+def _lateral_len(d2, b, r):
+    """L = |z - g|, the straight leg; clamped at 0 so that rounding at r = R_c never gives NaN."""
+    return np.sqrt(np.maximum(d2 - 2.0 * b * r, 0.0))
+
+
+def _tau(a, b, r, L):
+    """Turn angle in [0, 2 pi) for the left-turn frame (b >= 0), from the cancellation-free heading vector."""
+    # a - L loses all its digits when the goal is nearly dead ahead (L ~ a); a^2 - L^2 = b (2r - b) is exact.
+    a_minus_l = np.where(a > 0, b * (2.0 * r - b) / np.where(a > 0, a + L, 1.0), a - L)
+    ex = L * a - r * (b - r)
+    ey = r * a_minus_l + L * b
+    t = np.arctan2(ey, ex)
+    return np.where(t < 0, t + _TWO_PI, t)
+
+
+def _F(a, b, d2, r, wd):
+    """Eq. 29 as a function of the radius r: arc + straight - distance flown in the slot at v = W_max r."""
+    L = _lateral_len(d2, b, r)
+    tau = _tau(a, b, r, L)
+    return r * tau + L - wd * r, tau, L
+
+
+def _dF(a, b, r, tau, L, wd):
+    """dF/dr = tau + (L (r - b) - a r) / D^2 - delta W_max (the r tau' and L' singularities cancel)."""
+    return tau + (L * (r - b) - a * r) / (L * L + r * r) - wd
+
+
+def _phi(a, b, d2, r):
+    """phi(r) = L (L^2 + r b) / r^2 + a; h'(r) = -phi / D^2, and phi is strictly decreasing in r."""
+    L = _lateral_len(d2, b, r)
+    return L * (L * L + r * b) / (r * r) + a
+
+
+def _solve_turn(a, b, d, d2, wd, r_max):
+    """Smallest root r of eq. 29 for left-frame goals (b >= 0, not dead ahead). Returns (ok, r).
+
+    All arrays are 1-D of equal length; the work shrinks to the still-unconverged entries each iteration.
+    """
+    n = a.shape[0]
+    ok = np.zeros(n, dtype=bool)
+    r_out = np.full(n, np.nan)
+    if n == 0:
+        return ok, r_out
+
+    # Bracket [lo, hi]: lo from "path >= |g - p|" (so F(lo) >= 0), hi from the turning circle and V_max.
+    lo = d / wd
+    r_c = np.where(b > 0, d2 / (2.0 * np.where(b > 0, b, 1.0)), np.inf)
+    hi = np.minimum(r_c, r_max)
+    alive = lo < hi
+
+    if wd <= np.pi:
+        # Unreachable by any control: |theta(t)| <= W t <= pi gives x(T) >= (v / W) sin(W T) >= 0 > a.
+        alive &= a >= 0
+    # Behind the UAV, eq. 29 may have two roots; cap hi at the minimiser r* of h so that the bracket holds
+    # only the smaller one. phi is monotone, so plain bisection finds r*.
+    behind = np.flatnonzero(alive & (a < 0))
+    if behind.size:
+        ab, bb, d2b = a[behind], b[behind], d2[behind]
+        blo, bhi = lo[behind], hi[behind]
+        phi_hi = _phi(ab, bb, d2b, bhi)
+        phi_lo = _phi(ab, bb, d2b, blo)
+        # phi(lo) <= 0: h increases on the whole bracket from h(lo) >= delta W_max, so there is no root.
+        alive[behind[phi_lo <= 0]] = False
+        need = (phi_hi < 0) & (phi_lo > 0)
+        if need.any():
+            sub = np.flatnonzero(need)
+            s_a, s_b, s_d2 = ab[sub], bb[sub], d2b[sub]
+            s_lo, s_hi = blo[sub].copy(), bhi[sub].copy()
+            for _ in range(_PHI_BISECT_ITER):
+                mid = 0.5 * (s_lo + s_hi)
+                pos = _phi(s_a, s_b, s_d2, mid) > 0
+                s_lo = np.where(pos, mid, s_lo)
+                s_hi = np.where(pos, s_hi, mid)
+            # s_hi has phi <= 0, i.e. lies just past r*, where h is within rounding of its minimum.
+            hi[behind[sub]] = s_hi
+
+    idx = np.flatnonzero(alive)
+    if idx.size == 0:
+        return ok, r_out
+    a, b, d2, lo, hi = a[idx], b[idx], d2[idx], lo[idx], hi[idx]
+    f_hi, _, _ = _F(a, b, d2, hi, wd)
+    # F(hi) > 0: even the largest admissible radius cannot cover the path in one slot -> infeasible.
+    keep = f_hi <= 0
+    idx, a, b, d2, lo, hi = idx[keep], a[keep], b[keep], d2[keep], lo[keep], hi[keep]
+
+    # Safeguarded Newton ("rtsafe"): start at lo, the straight-line estimate, exact for small turns.
+    x = lo.copy()
+    f, tau, L = _F(a, b, d2, x, wd)
+    fp = _dF(a, b, x, tau, L, wd)
+    dx_old = hi - lo
+    dx = dx_old.copy()
+    act = np.arange(idx.size)
+    r_res = np.full(idx.size, np.nan)
+    for _ in range(_NEWTON_MAX_ITER):
+        pos = f > 0
+        lo = np.where(pos, x, lo)
+        hi = np.where(pos, hi, x)
+        newton = x - f / fp  # fp may be 0: inf/NaN fails the bracket test below and bisects instead
+        # Bisect when Newton leaves the bracket or is not at least halving the step (guaranteed progress).
+        bis = ~((newton > lo) & (newton < hi)) | (np.abs(2.0 * f) > np.abs(dx_old * fp))
+        x_new = np.where(bis, 0.5 * (lo + hi), newton)
+        dx_old = dx
+        dx = x_new - x
+        done = (np.abs(dx) <= _NEWTON_RTOL * x_new) | (f == 0) | (hi - lo <= _NEWTON_RTOL * hi)
+        x = x_new
+        if done.any():
+            r_res[act[done]] = np.where(f[done] == 0, x[done] - dx[done], x[done])
+            nd = ~done
+            act, a, b, d2, x, lo, hi, dx, dx_old = (t[nd] for t in (act, a, b, d2, x, lo, hi, dx, dx_old))
+            if act.size == 0:
+                break
+        f, tau, L = _F(a, b, d2, x, wd)
+        fp = _dF(a, b, x, tau, L, wd)
+    # Anything still unconverged (never seen in practice) stays NaN and is reported infeasible.
+
+    good = np.isfinite(r_res)
+    idx = idx[good]
+    r = r_res[good]
+    ok[idx] = True
+    r_out[idx] = r
+    return ok, r_out
+
+
+# ------------------------------------------------------------------------------------ Manoeuvre
+
+
+@dataclass(frozen=True, eq=False)
+class Manoeuvre:
+    """Turn-then-straight manoeuvres for a batch of (start pose, waypoint) pairs (eqs. 22-29).
+
+    Every field has the batch shape (``()`` for a single pair, then numpy scalars). Float fields are NaN
+    where ``feasible`` is False.
+
+    Attributes:
+        feasible: bool, a manoeuvre with ``0 < v <= v_max`` exists (eq. 29 has a root, the waypoint is not
+            inside the turning circle).
+        v: speed (m/s) held for the whole slot.
+        turn: +1 left (``omega = +W_max``), -1 right, 0 no turn (waypoint dead ahead). 0 where infeasible.
+        omega: signed turn rate ``turn * W_max`` (rad/s) during the turn phase.
+        turn_time: seconds of turning, ``tau / W_max``, in ``[0, delta]``; the rest of the slot is straight.
+        heading_after: heading (rad, ``[0, 2 pi)``) at the waypoint, ``theta + turn * tau``.
+        length: path length ``v * delta`` (m), the energy term of the stage cost (eq. 18).
+        tangent: ``(..., 2)`` tangent point z (eq. 26) where the turn ends.
+        start, theta0, goal: the inputs, broadcast to the batch shape.
+        delta: slot length (s).
+    """
+
+    feasible: np.ndarray
+    v: np.ndarray
+    turn: np.ndarray
+    omega: np.ndarray
+    turn_time: np.ndarray
+    heading_after: np.ndarray
+    length: np.ndarray
+    tangent: np.ndarray
+    start: np.ndarray
+    theta0: np.ndarray
+    goal: np.ndarray
+    delta: float
+
+    @property
+    def shape(self) -> tuple[int, ...]:
+        """Batch shape (``()`` for a single pair)."""
+        return np.shape(self.feasible)
+
+    def controls(self):
+        """Piecewise-constant controls ``(v, omega, turn_time)``.
+
+        Fly ``(v, omega)`` for ``turn_time`` seconds, then ``(v, 0)`` for ``delta - turn_time``.
+        """
+        return self.v, self.omega, self.turn_time
+
+    def points(self, n: int = 20) -> np.ndarray:
+        """Positions at ``n`` equally spaced times in ``[0, delta]`` along the path (turn, then straight).
+
+        Speed is constant, so the points are also equally spaced in arc length; the first is the start and
+        the last the waypoint. Use them to check line of sight and UAV separation between slot times.
+
+        Returns:
+            ``(*batch, n, 2)`` array (``(K, n, 2)`` for K pairs); NaN rows where infeasible.
+        """
+        n = int(n)
+        if n < 1:
+            raise ValueError(f"Manoeuvre.points: n must be >= 1, got {n}")
+        t = np.linspace(0.0, self.delta, n)
+        ex = (Ellipsis, None)
+        v, om, tt = (np.asarray(q, dtype=float)[ex] for q in (self.v, self.omega, self.turn_time))
+        th0 = np.asarray(self.theta0, dtype=float)[ex]
+        tha = np.asarray(self.heading_after, dtype=float)[ex]
+        sx, sy = self.start[..., 0][ex], self.start[..., 1][ex]
+        zx, zy = self.tangent[..., 0][ex], self.tangent[..., 1][ex]
+        in_turn = t <= tt
+        # Each phase is flown exactly from its own start; times outside a phase are clipped, then discarded.
+        x1, y1, _ = unicycle_step(sx, sy, th0, v, om, np.minimum(t, tt))
+        x2, y2, _ = unicycle_step(zx, zy, tha, v, 0.0, np.maximum(t - tt, 0.0))
+        return np.stack([np.where(in_turn, x1, x2), np.where(in_turn, y1, y2)], axis=-1)
+
+
+def solve_manoeuvre(p, theta, goals, *, v_max: float = 50.0, w_max: float = 3.0,
+                    delta: float = 1.0) -> Manoeuvre:
+    """Turn-then-straight manoeuvres from poses ``(p, theta)`` to waypoints ``goals`` (eqs. 22-29).
+
+    Turn at ``+-w_max`` (left if the waypoint is left of the heading) at constant speed v until the
+    heading points at the waypoint (tangent point z, eq. 26), then fly straight at the same v, arriving
+    exactly after ``delta`` seconds (eq. 27/29). See the module docstring for the geometry, the verified
+    formula for tau and the root structure of eq. 29 (the slowest root is returned).
+
+    Vectorised over any batch shape: ``p`` is ``(..., 2)``, ``theta`` is ``(...)``, ``goals`` is ``(..., 2)``,
+    broadcast against each other (e.g. ``p`` ``(2,)`` with ``goals`` ``(K, 2)``, or ``p`` ``(S, 1, 2)`` with
+    ``goals`` ``(1, S, 2)`` for all S x S node pairs). No Python loop runs over pairs.
+
+    Args:
+        p: start positions (m). theta: start headings (rad). goals: waypoints (m).
+        v_max, w_max, delta: V_max (m/s), W_max (rad/s) and the slot length (s); defaults as in ``Config``.
+
+    Returns:
+        A :class:`Manoeuvre` with the broadcast batch shape.
+    """
+    for name, val in (("v_max", v_max), ("w_max", w_max), ("delta", delta)):
+        if not (isinstance(val, (int, float, np.floating, np.integer)) and math.isfinite(val) and val > 0):
+            raise ValueError(f"solve_manoeuvre: {name} must be a finite number > 0, got {val!r}")
+    v_max, w_max, delta = float(v_max), float(w_max), float(delta)
+    p = np.asarray(p, dtype=float)
+    goals = np.asarray(goals, dtype=float)
+    theta = np.asarray(theta, dtype=float)
+    if p.ndim < 1 or p.shape[-1] != 2:
+        raise ValueError(f"solve_manoeuvre: p must have shape (..., 2), got {p.shape}")
+    if goals.ndim < 1 or goals.shape[-1] != 2:
+        raise ValueError(f"solve_manoeuvre: goals must have shape (..., 2), got {goals.shape}")
+    shape = np.broadcast_shapes(p.shape[:-1], goals.shape[:-1], theta.shape)
+    start = np.broadcast_to(p, shape + (2,))
+    goal = np.broadcast_to(goals, shape + (2,))
+    th0 = np.broadcast_to(theta, shape)
+    P = start.reshape(-1, 2)
+    G = goal.reshape(-1, 2)
+    TH = th0.reshape(-1)
+    n = TH.shape[0]
+
+    with np.errstate(all="ignore"):
+        c, s = np.cos(TH), np.sin(TH)
+        rx, ry = G[:, 0] - P[:, 0], G[:, 1] - P[:, 1]
+        a = c * rx + s * ry  # forward offset
+        cross = c * ry - s * rx  # lateral offset, > 0 on the left
+        b = np.abs(cross)
+        d2 = a * a + b * b
+        d = np.sqrt(d2)
+        wd = w_max * delta
+        # d <= v_max delta is necessary (the path is at least the chord); it prunes most far-away pairs.
+        usable = np.isfinite(d) & (d > 0) & (d <= v_max * delta)
+        straight = usable & (a > 0) & (b <= _STRAIGHT_REL * d)
+        turn = np.where(cross < 0, -1, 1).astype(np.int8)  # dead behind (cross == 0, a <= 0): left
+        turn[straight] = 0
+
+        feasible = straight.copy()
+        r = np.full(n, np.nan)
+        tau = np.full(n, np.nan)
+        v = np.full(n, np.nan)
+        v[straight] = d[straight] / delta
+        tau[straight] = 0.0
+
+        ti = np.flatnonzero(usable & ~straight)
+        ok_t, r_t = _solve_turn(a[ti], b[ti], d[ti], d2[ti], wd, v_max / w_max)
+        ti = ti[ok_t]
+        r_t = r_t[ok_t]
+        at, bt, d2t = a[ti], b[ti], d2[ti]
+        tau_t = _tau(at, bt, r_t, _lateral_len(d2t, bt, r_t))
+        # tau <= delta W_max holds at the root up to rounding; never report a turn longer than the slot.
+        tau_t = np.minimum(tau_t, wd)
+        feasible[ti] = True
+        r[ti] = r_t
+        tau[ti] = tau_t
+        v[ti] = np.minimum(w_max * r_t, v_max)
+
+        turn = np.where(feasible, turn, 0).astype(np.int8)
+        omega = np.where(feasible, turn * w_max, np.nan)
+        turn_time = np.where(feasible, np.minimum(tau / w_max, delta), np.nan)
+        heading_after = np.where(feasible, _wrap_2pi(TH + turn * tau), np.nan)
+        length = v * delta
+        # Tangent point z, mapped back from the UAV frame: (r sin tau, turn * r (1 - cos tau)).
+        rr = np.where(turn != 0, r, 0.0)
+        zf = rr * np.sin(tau)
+        zl = turn * rr * (1.0 - np.cos(tau))
+        tangent = np.stack([P[:, 0] + c * zf - s * zl, P[:, 1] + s * zf + c * zl], axis=-1)
+        tangent[~feasible] = np.nan
+
+    def shaped(arr, extra=()):
+        out = arr.reshape(shape + extra)
+        return out[()] if out.ndim == 0 else out
+
+    return Manoeuvre(
+        feasible=shaped(feasible),
+        v=shaped(v),
+        turn=shaped(turn),
+        omega=shaped(omega),
+        turn_time=shaped(turn_time),
+        heading_after=shaped(heading_after),
+        length=shaped(length),
+        tangent=tangent.reshape(shape + (2,)),
+        start=np.array(start),
+        theta0=shaped(np.array(TH)),
+        goal=np.array(goal),
+        delta=delta,
+    )
+
+
+def fly_manoeuvre(p, theta, m: Manoeuvre):
+    """Fly a :class:`Manoeuvre` from ``(p, theta)`` with two exact :func:`unicycle_step` calls.
+
+    ``(v, omega)`` for ``turn_time``, then ``(v, 0)`` for ``delta - turn_time``; vectorised over the batch.
+    ``p`` and ``theta`` broadcast against the manoeuvre's batch shape (normally they are the start pose
+    it was solved for; another pose flies the same controls from there).
+
+    Returns:
+        ``(end_xy, end_theta)``: ``(*batch, 2)`` positions and headings in ``[0, 2 pi)``; NaN if infeasible.
+    """
+    p = np.asarray(p, dtype=float)
+    v, om, tt = (np.asarray(q, dtype=float) for q in m.controls())
+    x1, y1, th1 = unicycle_step(p[..., 0], p[..., 1], theta, v, om, tt)
+    x2, y2, th2 = unicycle_step(x1, y1, th1, v, 0.0, m.delta - tt)
+    end = np.stack(np.broadcast_arrays(x2, y2), axis=-1)
+    return end, _scalar_or_array(th2)

@@ -1,0 +1,204 @@
+"""The world: terrain, the target on its road, and the UAV team, advanced one slot at a time.
+
+The engine is the single place where physics happens. Environments, the DP planner and the
+evaluation harness all drive an :class:`Engine`, so a DP rollout and an env rollout are the same
+thing, and every episode ends as a :class:`~covert_env.trajectory.Trajectory` that
+:mod:`covert_env.metrics` scores.
+
+Each UAV's move over a slot is either
+
+* a unicycle control (v, omega) held for the whole slot (eq. 1, integrated exactly), or
+* a waypoint, flown by the turn-then-straight manoeuvre (eqs. 22-29): a turn at +-W_max then a
+  straight leg, at one constant speed, ending on the waypoint at the end of the slot.
+
+A waypoint the manoeuvre cannot reach in one slot (inside the turning circle, or needing v > V_max)
+is flown as a documented best effort instead: turn toward it at up to W_max and fly at the speed that
+would cover the straight-line distance, capped at V_max. The slot is flagged ``infeasible``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from covert_env.angles import wrap_angle
+from covert_env.dynamics import solve_manoeuvre, unicycle_step
+from covert_env.metrics import SlotQuantities, slot_quantities
+from covert_env.scenario import Scenario
+from covert_env.trajectory import Trajectory
+
+__all__ = ["Engine"]
+
+
+class Engine:
+    """Advance a :class:`Scenario` slot by slot and record the episode.
+
+    Args:
+        scenario: the world and the start poses.
+        path_samples: samples per slot along each path (endpoints included), used for LoS and
+            separation checks between slot times.
+    """
+
+    def __init__(self, scenario: Scenario, path_samples: int = 11):
+        if path_samples < 2:
+            raise ValueError(f"Engine.path_samples must be >= 2, got {path_samples}")
+        self.scenario = scenario
+        self.config = scenario.config
+        self.terrain = scenario.terrain
+        self.track = scenario.track
+        self.path_samples = int(path_samples)
+        self._fractions = np.linspace(0.0, 1.0, self.path_samples)
+        self.reset()
+
+    # ------------------------------------------------------------------ state
+    def reset(self, uav_xy=None, uav_theta=None) -> None:
+        """Put the target at slot 0 and the UAVs at ``uav_xy``/``uav_theta`` (default: the scenario's)."""
+        xy = self.scenario.uav_xy if uav_xy is None else np.asarray(uav_xy, dtype=float).reshape(-1, 2)
+        th = self.scenario.uav_theta if uav_theta is None else np.asarray(uav_theta, dtype=float).reshape(-1)
+        if len(xy) != len(th):
+            raise ValueError(f"Engine.reset: {len(xy)} positions but {len(th)} headings")
+        self.k = 0
+        self.uav_xy = xy.copy()
+        self.uav_theta = np.mod(th, 2 * math.pi)
+        u = len(xy)
+        self._xy = [self.uav_xy.copy()]
+        self._theta = [self.uav_theta.copy()]
+        self._path: list[np.ndarray] = []
+        self._length: list[np.ndarray] = []
+        self._tpath: list[np.ndarray] = []
+        self._vmax: list[np.ndarray] = []
+        self._wmax: list[np.ndarray] = []
+        self._infeasible: list[np.ndarray] = []
+        self._dtime: list[np.ndarray] = []
+        self.n_uavs = u
+
+    @property
+    def done(self) -> bool:
+        """True once the episode's ``config.n_slots`` slots have been flown."""
+        return self.k >= self.config.n_slots
+
+    @property
+    def target_xyz(self) -> np.ndarray:
+        """q[k], the target's current position (x, y, z)."""
+        return self.track.position(self.k)
+
+    @property
+    def target_phi(self) -> float:
+        """phi[k], the target's current heading."""
+        return float(self.track.heading(self.k))
+
+    def predict(self, horizon: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Predicted target (positions (N, 3), headings (N,)) for slots k+1..k+N (N = config.horizon)."""
+        return self.track.predict(self.k, self.config.horizon if horizon is None else horizon)
+
+    # ------------------------------------------------------------------ stepping
+    def step(self, *, unicycle=None, waypoints=None, decision_time=None, infeasible=None) -> SlotQuantities:
+        """Fly one slot and return its :class:`SlotQuantities` (arrays of shape (1, U)).
+
+        Exactly one of:
+            unicycle: (U, 2) array of (v, omega); requires 0 < v <= V_max and |omega| <= W_max.
+            waypoints: (U, 2) array of next positions, flown by the manoeuvre.
+        Optional:
+            decision_time: (U,) seconds the policy spent deciding (recorded for the metrics).
+            infeasible: (U,) bool, the policy's own flag that its move is a fallback.
+        """
+        if self.done:
+            raise RuntimeError("Engine.step called after the episode ended; call reset()")
+        if (unicycle is None) == (waypoints is None):
+            raise ValueError("Engine.step: pass exactly one of unicycle= or waypoints=")
+        u = self.n_uavs
+        flagged = np.zeros(u, bool) if infeasible is None else np.asarray(infeasible, bool).reshape(u).copy()
+        if unicycle is not None:
+            ctl = np.asarray(unicycle, dtype=float).reshape(u, 2)
+            self._check_unicycle(ctl)
+            v, w, t_turn = ctl[:, 0], ctl[:, 1], np.full(u, self.config.delta)
+        else:
+            v, w, t_turn, fallback = self._waypoint_controls(np.asarray(waypoints, dtype=float).reshape(u, 2))
+            flagged |= fallback
+        path, end_theta = self._fly(v, w, t_turn)
+        self._record(path, end_theta, v, w, flagged, decision_time)
+        return self.last_quantities()
+
+    def _check_unicycle(self, ctl: np.ndarray) -> None:
+        c = self.config
+        if not np.all(np.isfinite(ctl)):
+            raise ValueError("Engine.step: unicycle controls must be finite (got NaN or inf)")
+        v, w = ctl[:, 0], ctl[:, 1]
+        if np.any(v <= 0) or np.any(v > c.v_max * (1 + 1e-9)):
+            raise ValueError(f"Engine.step: speed v must be in (0, V_max={c.v_max:g}], got {v.tolist()}")
+        if np.any(np.abs(w) > c.w_max * (1 + 1e-9)):
+            raise ValueError(f"Engine.step: turn rate omega must be in [-W_max, W_max] = "
+                             f"[{-c.w_max:g}, {c.w_max:g}], got {w.tolist()}")
+
+    def _waypoint_controls(self, goals: np.ndarray):
+        """Manoeuvre controls (v, omega, turn time) per UAV, with the best-effort fallback."""
+        c = self.config
+        if not np.all(np.isfinite(goals)):
+            raise ValueError("Engine.step: waypoints must be finite (got NaN or inf)")
+        m = solve_manoeuvre(self.uav_xy, self.uav_theta, goals, v_max=c.v_max, w_max=c.w_max, delta=c.delta)
+        feasible = np.asarray(m.feasible, bool).reshape(-1)
+        v = np.where(feasible, np.nan_to_num(m.v), 0.0)
+        w = np.where(feasible, np.nan_to_num(m.omega), 0.0)
+        t_turn = np.where(feasible, np.nan_to_num(m.turn_time), 0.0)
+        bad = ~feasible
+        if bad.any():
+            rel = goals[bad] - self.uav_xy[bad]
+            bearing = wrap_angle(np.arctan2(rel[:, 1], rel[:, 0]) - self.uav_theta[bad])
+            v[bad] = np.clip(np.hypot(rel[:, 0], rel[:, 1]) / c.delta, 1e-3, c.v_max)
+            rate = np.minimum(np.abs(bearing) / c.delta, c.w_max)
+            w[bad] = np.sign(bearing) * rate
+            # Turn only until facing the goal, then straight: same two-segment shape as the manoeuvre.
+            t_turn[bad] = np.where(rate > 0, np.abs(bearing) / np.maximum(rate, 1e-12), 0.0).clip(0, c.delta)
+        return v, w, t_turn, bad
+
+    def _fly(self, v, w, t_turn):
+        """Integrate turn (v, w) for t_turn then straight (v, 0): path samples (U, P, 2), end heading."""
+        c = self.config
+        t = self._fractions[:, None] * c.delta                        # (P, 1)
+        t1 = np.minimum(t, t_turn)
+        t2 = np.maximum(t - t_turn, 0.0)
+        x1, y1, th1 = unicycle_step(self.uav_xy[:, 0], self.uav_xy[:, 1], self.uav_theta, v, w, t1)
+        x2, y2, th2 = unicycle_step(x1, y1, th1, v, 0.0, t2)
+        path = np.stack([x2, y2], axis=-1).swapaxes(0, 1)             # (U, P, 2)
+        path[:, 0] = self.uav_xy                                      # exact start, no round-off
+        return path, th2[-1]
+
+    def _record(self, path, end_theta, v, w, flagged, decision_time) -> None:
+        u = self.n_uavs
+        self._path.append(path)
+        self._length.append(v * self.config.delta)
+        self._tpath.append(self.track.position_between(self.k, self._fractions))
+        self._vmax.append(np.asarray(v, float))
+        self._wmax.append(np.abs(np.asarray(w, float)))
+        self._infeasible.append(flagged)
+        self._dtime.append(np.full(u, np.nan) if decision_time is None
+                           else np.asarray(decision_time, float).reshape(u))
+        self.uav_xy = path[:, -1].copy()
+        self.uav_theta = np.mod(end_theta, 2 * math.pi)
+        self.k += 1
+        self._xy.append(self.uav_xy.copy())
+        self._theta.append(self.uav_theta.copy())
+
+    # ------------------------------------------------------------------ records
+    def trajectory(self, last: int | None = None) -> Trajectory:
+        """The episode so far as a :class:`Trajectory` (only the last ``last`` slots if given)."""
+        k0 = 0 if last is None else max(self.k - last, 0)
+        ks = np.arange(k0, self.k + 1)
+        u = self.n_uavs
+
+        def stack(xs, shape):
+            return np.array(xs[k0:]) if len(xs[k0:]) else np.zeros((0,) + shape)
+
+        p = self.path_samples
+        return Trajectory(
+            uav_xy=np.array(self._xy[k0:]), uav_theta=np.array(self._theta[k0:]),
+            path_xy=stack(self._path, (u, p, 2)), path_length=stack(self._length, (u,)),
+            target_xyz=self.track.position(ks), target_phi=np.asarray(self.track.heading(ks)).reshape(-1),
+            target_path_xyz=stack(self._tpath, (p, 3)), max_speed=stack(self._vmax, (u,)),
+            max_turn_rate=stack(self._wmax, (u,)), infeasible=stack(self._infeasible, (u,)).astype(bool),
+            decision_time=stack(self._dtime, (u,)))
+
+    def last_quantities(self) -> SlotQuantities:
+        """Quantities of the slot just flown (arrays of shape (1, U))."""
+        return slot_quantities(self.trajectory(last=1), self.terrain, self.config)

@@ -1,0 +1,7 @@
+"""Environments on the covert-sensing model: PettingZoo (multi-UAV) and Gymnasium (single UAV)."""
+
+from covert_env.envs.covert_sensing import CovertSensingParallelEnv, env, parallel_env, raw_env
+from covert_env.envs.single import CovertSensingEnv, CovertSensingWaypointEnv
+
+__all__ = ["CovertSensingParallelEnv", "CovertSensingEnv", "CovertSensingWaypointEnv", "env", "parallel_env",
+           "raw_env"]

@@ -1,0 +1,527 @@
+"""PettingZoo ParallelEnv: a team of UAVs covertly filming a target on uneven terrain.
+
+A thin adapter over :class:`covert_env.engine.Engine`: the engine flies the UAVs and records the
+episode; this module turns agent actions into engine controls, engine state into observations, and
+the paper's stage cost into rewards. No geometry or physics is written here.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from collections import OrderedDict
+from typing import Any
+
+import gymnasium
+import numpy as np
+from gymnasium import spaces
+from pettingzoo import ParallelEnv
+from pettingzoo.utils import parallel_to_aec, wrappers
+
+from covert_env.angles import wrap_angle
+from covert_env.config import Config
+from covert_env.dynamics import solve_manoeuvre
+from covert_env.engine import Engine
+from covert_env.scenario import Scenario
+from covert_env.visibility import line_of_sight
+from covert_env.zone import in_feasible_zone, lattice_offsets, zone_distance
+
+__all__ = ["CovertSensingParallelEnv", "env", "parallel_env", "raw_env", "ACTION_MODES"]
+
+ACTION_MODES = ("unicycle", "waypoint")
+#: Smallest commanded speed as a fraction of V_max: the unicycle needs v > 0 (eq. 1).
+MIN_SPEED_FRACTION = 0.01
+#: Offsets in observations are divided by R2 and clipped to this magnitude (500 m at R2 = 100 m).
+OFFSET_CLIP = 5.0
+
+
+class _SceneCache:
+    """Per-scene, per-slot results that do not depend on the UAVs (shared by all agents and resets)."""
+
+    def __init__(self, scenario: Scenario, map_offsets: np.ndarray, lattice: np.ndarray):
+        self.scenario = scenario
+        self._map_offsets = map_offsets
+        self._lattice = lattice
+        self._maps: dict[int, np.ndarray] = {}
+        self._lattice_ok: dict[int, np.ndarray] = {}
+
+    def _visible(self, offsets: np.ndarray, k: int) -> np.ndarray:
+        c = self.scenario.config
+        q = self.scenario.track.position(k)
+        phi = float(self.scenario.track.heading(k))
+        xy = _to_world(offsets, q[:2], phi)
+        ok = in_feasible_zone(xy, q[:2], phi, c.r1, c.r2, c.mu, c.r_u)
+        if ok.any():
+            ok[ok] = line_of_sight(self.scenario.terrain, xy[ok], c.altitude, q)
+        return ok
+
+    def visibility_map(self, k: int) -> np.ndarray:
+        """Cells of the observation map that are in the eroded zone with clear LoS at slot k (float32)."""
+        if k not in self._maps:
+            self._maps[k] = self._visible(self._map_offsets, k).astype(np.float32)
+        return self._maps[k]
+
+    def lattice_visible(self, k: int) -> np.ndarray:
+        """Waypoint lattice nodes in the eroded zone with clear LoS at slot k (bool)."""
+        if k not in self._lattice_ok:
+            self._lattice_ok[k] = self._visible(self._lattice, k)
+        return self._lattice_ok[k]
+
+
+def _to_world(offsets: np.ndarray, q_xy: np.ndarray, phi: float) -> np.ndarray:
+    """Target-frame offsets (x forward along phi, y to the left) to world positions."""
+    c, s = math.cos(phi), math.sin(phi)
+    return np.column_stack([q_xy[0] + c * offsets[:, 0] - s * offsets[:, 1],
+                            q_xy[1] + s * offsets[:, 0] + c * offsets[:, 1]])
+
+
+def _to_target_frame(xy: np.ndarray, q_xy: np.ndarray, phi: float) -> np.ndarray:
+    c, s = math.cos(phi), math.sin(phi)
+    d = np.asarray(xy, float) - q_xy
+    return np.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1]], axis=-1)
+
+
+class CovertSensingParallelEnv(ParallelEnv):
+    """Covert video sensing of a ground target by a team of UAVs on uneven terrain.
+
+    ## Description
+
+    A target drives along a road through buildings and hills (convex polytopes). U UAVs at a fixed
+    altitude h must film it covertly, as in Almuzaini & Savkin (2024): stay inside the feasible flight
+    zone behind the target (an annular sector between radii R1 and R2 and within mu/2 of straight
+    behind, eq. 4), keep a clear line of sight (outside the terrain's "shadows", eqs. 6-10), change
+    bearing and range every slot (the disguise kappa, eq. 11), fly short paths (energy, eq. 15), keep
+    d_safe1 from each other (eq. 2) and d_safe2 from the terrain (eq. 3). One step is one slot of
+    ``delta`` seconds. Agents are ``uav_0 .. uav_{U-1}``; all act at once.
+
+    ## Action Space
+
+    ``action_mode="unicycle"`` (default): ``Box(-1, 1, (2,), float32)``, held for the whole slot and
+    integrated exactly (a circular arc):
+
+    | index | meaning | scaling |
+    |---|---|---|
+    | 0 | speed v | ``v = V_max * (0.01 + 0.99 * (a0 + 1) / 2)``, so 0 < v <= V_max |
+    | 1 | turn rate omega | ``omega = W_max * a1`` |
+
+    Out-of-range values are clipped to [-1, 1] (documented, as SB3 expects); NaN or inf raise ``ValueError``.
+
+    ``action_mode="waypoint"``: ``Discrete(L)``: the index of a node of a fixed lattice in the target's
+    frame (spacing ``grid_step``, the nodes of the eroded zone), placed at the target's next pose
+    q[k+1], phi[k+1]. The env flies the turn-then-straight manoeuvre (eqs. 22-29) to it. The planner
+    of ``baselines.dp`` uses the same lattice, so it acts exactly through this env.
+    ``infos[agent]["action_mask"]`` (int8, length L) marks nodes that are reachable in one slot and in
+    the visible zone (eq. 10) at k+1; with ``dict_obs=True`` the observation is
+    ``{"observation": ..., "action_mask": ...}``. If no node qualifies, reachable nodes are unmasked,
+    and if none is reachable every node is, so a masked sampler always has a choice. A masked-out or
+    unreachable node is flown as a best effort (turn toward it, speed capped at V_max) and flagged
+    ``infos[agent]["infeasible"]``.
+
+    ## Observation Space
+
+    ``Box(float32)`` in the target's frame at the current slot (x forward along the target's heading,
+    y to its left), roughly unit scale. For agent i:
+
+    | index | observation | scale |
+    |---|---|---|
+    | 0-1 | own offset from the target | / R2, clipped to +-5 |
+    | 2-3 | cos, sin of own heading minus target heading | |
+    | 4 | own speed in the last slot | / V_max |
+    | 5 | LoS to the target is clear (eq. 6) | 0 or 1 |
+    | 6 | inside the feasible zone (eq. 4) | 0 or 1 |
+    | 7 | signed distance to the zone boundary (negative inside) | / (R2 - R1), clipped to +-5 |
+    | 8-9 | target's displacement to its next slot, in the current target frame | / (V_max delta) |
+    | 10 | fraction of the episode remaining | 0..1 |
+    | 11 .. 11+2(U-1) | teammates' offsets from the target, by agent index | / R2, clipped to +-5 |
+    | then S*S | map of cells around the zone: 1 if in the eroded zone with clear LoS, now | 0 or 1 |
+    | then S*S | the same map at the next predicted slot k+1 | 0 or 1 |
+
+    S = ``map_size``. The maps cover the zone's bounding box in the target's frame, row-major,
+    computed with the exact vectorised line of sight.
+
+    ``state()`` (for centralised critics) concatenates, for every UAV, indices 0-7 above, then the
+    target displacement, the time remaining and both maps.
+
+    ## Rewards
+
+    Per agent and slot, from the paper's stage cost g = v delta - lambda (eta |d alpha| + |d d|)
+    (eq. 18), divided by ``reward_scale``, plus penalties (each term is in
+    ``infos[agent]["reward_terms"]``):
+
+    * ``path``: ``-v delta / reward_scale`` (energy, eq. 15);
+    * ``disguise``: ``+lambda kappa / reward_scale`` (eq. 11);
+    * ``los``: ``-los_penalty`` if LoS to the target is blocked at the end of the slot;
+    * ``zone``: ``-zone_penalty * (1 + min(outside distance / (R2 - R1), 2))`` if outside the zone;
+    * ``separation``: ``-separation_penalty`` if closer than d_safe1 to a teammate at any sample of the slot;
+    * ``terrain``: ``-terrain_penalty`` if closer than d_safe2 to a polytope's highest point.
+
+    ## Starting State
+
+    ``scenario="paper"``: the paper's map and UAV starts (40, 10), (60, 0), (50, -10) with headings
+    2pi, pi, pi/2 (the first U of them). ``scenario="random"`` (default): every reset draws a scene
+    seed from the env's RNG (or takes ``options={"scene_seed": s}``): a random road and terrain and
+    UAV starts on distinct visible zone nodes with random headings. Training seeds are drawn from
+    ``range(scene_pool)``; evaluate on seeds outside it. A :class:`~covert_env.scenario.Scenario`
+    instance may also be passed.
+
+    ## Episode End
+
+    Truncation after ``max_cycles`` slots (default ``config.n_slots`` = 70, the end of the route).
+    Termination only if ``terminate_on_collision=True`` and two UAVs come closer than d_safe1.
+
+    ## Arguments
+
+    * ``config``: a :class:`~covert_env.config.Config` or dict (paper defaults).
+    * ``n_uavs``: team size U (default ``config.n_uavs``).
+    * ``scenario``: ``"random"``, ``"paper"`` or a ``Scenario``.
+    * ``action_mode``: ``"unicycle"`` or ``"waypoint"``.
+    * ``max_cycles``: episode length in slots (<= ``config.n_slots``).
+    * ``render_mode``: ``None``, ``"human"`` or ``"rgb_array"``.
+    * ``map_size``: side S of the observation maps (default 8).
+    * ``dict_obs``: in waypoint mode, Dict observations with the action mask.
+    * ``reward_scale``, ``los_penalty``, ``zone_penalty``, ``separation_penalty``, ``terrain_penalty``.
+    * ``terminate_on_collision``: end the episode when separation < d_safe1.
+    * ``scene_pool``: number of training scene seeds for ``scenario="random"`` (default 10000).
+    * ``path_samples``: samples per slot for LoS/separation checks along the path (default 11).
+
+    ## Version History
+
+    * v0: initial release.
+    """
+
+    metadata = {"name": "covert_sensing_v0", "render_modes": ["human", "rgb_array"], "render_fps": 4,
+                "is_parallelizable": True}
+
+    def __init__(self, config: Config | dict | None = None, *, n_uavs: int | None = None,
+                 scenario: str | Scenario = "random", action_mode: str = "unicycle",
+                 max_cycles: int | None = None, render_mode: str | None = None, map_size: int = 8,
+                 dict_obs: bool = False, reward_scale: float = 100.0, los_penalty: float = 1.0,
+                 zone_penalty: float = 1.0, separation_penalty: float = 1.0, terrain_penalty: float = 1.0,
+                 terminate_on_collision: bool = False, scene_pool: int = 10_000, path_samples: int = 11):
+        super().__init__()
+        cfg = Config.from_dict(config) if isinstance(config, dict) else (config or Config())
+        if n_uavs is not None:
+            cfg = cfg.replace(n_uavs=int(n_uavs))
+        if isinstance(scenario, Scenario):
+            cfg = scenario.config if n_uavs is None else cfg
+            if scenario.n_uavs != cfg.n_uavs:
+                raise ValueError(f"n_uavs={cfg.n_uavs} but the scenario has {scenario.n_uavs} UAVs")
+        elif scenario not in ("random", "paper"):
+            raise ValueError(f"scenario must be 'random', 'paper' or a Scenario, got {scenario!r}")
+        if action_mode not in ACTION_MODES:
+            raise ValueError(f"action_mode must be one of {ACTION_MODES}, got {action_mode!r}")
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, "
+                             f"got {render_mode!r}")
+        if max_cycles is None:
+            max_cycles = cfg.n_slots
+        if not (isinstance(max_cycles, (int, np.integer)) and 1 <= max_cycles <= cfg.n_slots):
+            raise ValueError(f"max_cycles must be an integer in [1, config.n_slots={cfg.n_slots}], "
+                             f"got {max_cycles!r}")
+        if not (isinstance(map_size, (int, np.integer)) and 2 <= map_size <= 64):
+            raise ValueError(f"map_size must be an integer in [2, 64], got {map_size!r}")
+        if not (isinstance(scene_pool, (int, np.integer)) and scene_pool >= 1):
+            raise ValueError(f"scene_pool must be an integer >= 1, got {scene_pool!r}")
+        for name, val in (("reward_scale", reward_scale),):
+            if not (math.isfinite(val) and val > 0):
+                raise ValueError(f"{name} must be a finite number > 0, got {val!r}")
+        for name, val in (("los_penalty", los_penalty), ("zone_penalty", zone_penalty),
+                          ("separation_penalty", separation_penalty), ("terrain_penalty", terrain_penalty)):
+            if not (math.isfinite(val) and val >= 0):
+                raise ValueError(f"{name} must be a finite number >= 0, got {val!r}")
+
+        self.config = cfg
+        self.scenario_spec = scenario
+        self.action_mode = action_mode
+        self.max_cycles = int(max_cycles)
+        self.render_mode = render_mode
+        self.map_size = int(map_size)
+        self.dict_obs = bool(dict_obs) and action_mode == "waypoint"
+        self.reward_scale = float(reward_scale)
+        self.penalties = {"los": float(los_penalty), "zone": float(zone_penalty),
+                          "separation": float(separation_penalty), "terrain": float(terrain_penalty)}
+        self.terminate_on_collision = bool(terminate_on_collision)
+        self.scene_pool = int(scene_pool)
+        self.path_samples = int(path_samples)
+
+        self.possible_agents = [f"uav_{i}" for i in range(cfg.n_uavs)]
+        self.agents: list[str] = []
+        self._index = {a: i for i, a in enumerate(self.possible_agents)}
+
+        c = cfg
+        self.lattice = lattice_offsets(c.r1, c.r2, c.mu, c.grid_step)
+        inside = in_feasible_zone(self.lattice, np.zeros(2), 0.0, c.r1, c.r2, c.mu, c.r_u)
+        self.lattice = self.lattice[inside]                   # nodes of the eroded zone, target frame
+        lo, hi = lattice_offsets(c.r1, c.r2, c.mu, c.grid_step).min(0), lattice_offsets(
+            c.r1, c.r2, c.mu, c.grid_step).max(0)
+        s = self.map_size
+        gx = lo[0] + (np.arange(s) + 0.5) * (hi[0] - lo[0]) / s
+        gy = lo[1] + (np.arange(s) + 0.5) * (hi[1] - lo[1]) / s
+        self.map_offsets = np.array([(x, y) for y in gy[::-1] for x in gx])   # row-major, +y on top
+
+        n_mate = 2 * (c.n_uavs - 1)
+        low = np.concatenate([[-OFFSET_CLIP] * 2, [-1, -1, 0, 0, 0, -OFFSET_CLIP], [-2, -2, 0],
+                              [-OFFSET_CLIP] * n_mate, np.zeros(2 * s * s)]).astype(np.float32)
+        high = np.concatenate([[OFFSET_CLIP] * 2, [1, 1, 1, 1, 1, OFFSET_CLIP], [2, 2, 1],
+                               [OFFSET_CLIP] * n_mate, np.ones(2 * s * s)]).astype(np.float32)
+        self._obs_box = spaces.Box(low, high, dtype=np.float32)
+        n_own = 8
+        st_low = np.concatenate([np.tile(low[:n_own], c.n_uavs), low[8:11], np.zeros(2 * s * s)])
+        st_high = np.concatenate([np.tile(high[:n_own], c.n_uavs), high[8:11], np.ones(2 * s * s)])
+        self.state_space = spaces.Box(st_low.astype(np.float32), st_high.astype(np.float32), dtype=np.float32)
+        if action_mode == "unicycle":
+            self._act_space = spaces.Box(-1.0, 1.0, (2,), dtype=np.float32)
+        else:
+            self._act_space = spaces.Discrete(len(self.lattice))
+        if self.dict_obs:
+            self._obs_space = spaces.Dict({"observation": self._obs_box,
+                                           "action_mask": spaces.Box(0, 1, (len(self.lattice),), dtype=np.int8)})
+        else:
+            self._obs_space = self._obs_box
+        self.observation_spaces = {a: self._obs_space for a in self.possible_agents}
+        self.action_spaces = {a: self._act_space for a in self.possible_agents}
+
+        self._scenes: OrderedDict[Any, _SceneCache] = OrderedDict()
+        self._np_random, _ = gymnasium.utils.seeding.np_random(None)
+        self.engine: Engine | None = None
+        self._masks: np.ndarray | None = None
+        self._last_speed = np.zeros(c.n_uavs)
+        self._renderer = None
+
+    # ------------------------------------------------------------------ spaces
+    @functools.cache  # noqa: B019 - spaces are per-env constants
+    def observation_space(self, agent: str) -> gymnasium.Space:
+        return self.observation_spaces[agent]
+
+    @functools.cache  # noqa: B019
+    def action_space(self, agent: str) -> gymnasium.Space:
+        return self.action_spaces[agent]
+
+    # ------------------------------------------------------------------ scenes
+    def _scene(self, scene_seed: int | None) -> _SceneCache:
+        spec = self.scenario_spec
+        key = id(spec) if isinstance(spec, Scenario) else ("paper" if spec == "paper" else int(scene_seed))
+        if key not in self._scenes:
+            if isinstance(spec, Scenario):
+                sc = spec
+            elif spec == "paper":
+                sc = Scenario.paper(self.config)
+            else:
+                sc = Scenario.random(int(scene_seed), self.config)
+            self._scenes[key] = _SceneCache(sc, self.map_offsets, self.lattice)
+            while len(self._scenes) > 32:                     # bounded memory over long training runs
+                self._scenes.popitem(last=False)
+        self._scenes.move_to_end(key)
+        return self._scenes[key]
+
+    # ------------------------------------------------------------------ API
+    def reset(self, seed: int | None = None, options: dict | None = None):
+        if seed is not None:
+            self._np_random, _ = gymnasium.utils.seeding.np_random(seed)
+        options = options or {}
+        scene_seed = options.get("scene_seed")
+        if scene_seed is None and self.scenario_spec == "random":
+            scene_seed = int(self._np_random.integers(self.scene_pool))
+        self._cache = self._scene(scene_seed)
+        self.scenario = self._cache.scenario
+        self.engine = Engine(self.scenario, path_samples=self.path_samples)
+        self.agents = list(self.possible_agents)
+        self._last_speed = np.zeros(len(self.agents))
+        self._last_q = None
+        self._update_masks()
+        obs = self._observations()
+        infos = {a: self._base_info(i) for i, a in enumerate(self.agents)}
+        if self.render_mode == "human":
+            self.render()
+        return obs, infos
+
+    def step(self, actions: dict[str, Any]):
+        if self.engine is None or not self.agents:
+            raise RuntimeError("step() called before reset() or after the episode ended; call reset()")
+        eng, c = self.engine, self.config
+        missing = [a for a in self.agents if a not in actions]
+        if missing:
+            raise ValueError(f"step(): missing actions for {missing}")
+        decision = np.zeros(len(self.agents), bool)
+        if self.action_mode == "unicycle":
+            ctl = np.empty((len(self.agents), 2))
+            for i, a in enumerate(self.agents):
+                act = np.asarray(actions[a], dtype=float).reshape(-1)
+                if act.shape != (2,):
+                    raise ValueError(f"action for {a} must have shape (2,), got {act.shape}")
+                if not np.all(np.isfinite(act)):
+                    raise ValueError(f"action for {a} must be finite, got {act.tolist()}")
+                act = np.clip(act, -1.0, 1.0)
+                ctl[i] = (c.v_max * (MIN_SPEED_FRACTION + (1 - MIN_SPEED_FRACTION) * (act[0] + 1) / 2),
+                          c.w_max * act[1])
+            quant = eng.step(unicycle=ctl)
+        else:
+            idx = np.empty(len(self.agents), dtype=int)
+            for i, a in enumerate(self.agents):
+                act = np.asarray(actions[a])
+                if act.size != 1 or not np.all(np.isfinite(act.astype(float))) or float(act) != int(act) \
+                        or not 0 <= int(act) < len(self.lattice):
+                    raise ValueError(f"action for {a} must be an integer in [0, {len(self.lattice) - 1}], "
+                                     f"got {actions[a]!r}")
+                idx[i] = int(act)
+            decision = self._masks[np.arange(len(idx)), idx] == 0
+            q1, phi1 = eng.predict(1)
+            goals = _to_world(self.lattice[idx], q1[0, :2], float(phi1[0]))
+            quant = eng.step(waypoints=goals, infeasible=decision)
+        self._last_speed = quant.path_length[0] / c.delta
+        rewards, terms = self._rewards(quant)
+        collided = bool(np.any(quant.separation_path[0] < c.d_safe1))
+        terminate = self.terminate_on_collision and collided
+        truncate = eng.k >= self.max_cycles and not terminate
+        self._update_masks()
+        obs = self._observations()
+        infos = {}
+        for i, a in enumerate(self.agents):
+            info = self._base_info(i)
+            info.update(reward_terms=terms[i], los=bool(quant.los[0, i]), in_zone=bool(quant.in_zone[0, i]),
+                        kappa=float(quant.kappa[0, i]), g=float(quant.g[0, i]), v=float(self._last_speed[i]),
+                        separation=float(quant.separation_path[0, i]),
+                        terrain_clearance=float(quant.terrain_clearance[0, i]),
+                        infeasible=bool(eng._infeasible[-1][i]))
+            infos[a] = info
+        agents = list(self.agents)
+        terminations = {a: terminate for a in agents}
+        truncations = {a: truncate for a in agents}
+        if terminate or truncate:
+            self.agents = []
+        if self.render_mode == "human":
+            self.render()
+        return obs, {a: rewards[i] for i, a in enumerate(agents)}, terminations, truncations, infos
+
+    # ------------------------------------------------------------------ internals
+    def _rewards(self, quant) -> tuple[np.ndarray, list[dict[str, float]]]:
+        c, p = self.config, self.penalties
+        eng = self.engine
+        q, phi = eng.target_xyz, eng.target_phi
+        outside = np.maximum(zone_distance(eng.uav_xy, q[:2], phi, c.r1, c.r2, c.mu), 0.0)
+        terms = []
+        total = np.zeros(len(self.agents))
+        for i in range(len(self.agents)):
+            t = {
+                "path": -float(quant.path_length[0, i]) / self.reward_scale,
+                "disguise": c.lam * float(quant.kappa[0, i]) / self.reward_scale,
+                "los": -p["los"] * float(not quant.los[0, i]),
+                "zone": -p["zone"] * float(not quant.in_zone[0, i]) * (1 + min(outside[i] / (c.r2 - c.r1), 2.0)),
+                "separation": -p["separation"] * float(quant.separation_path[0, i] < c.d_safe1),
+                "terrain": -p["terrain"] * float(quant.terrain_clearance[0, i] < c.d_safe2),
+            }
+            terms.append(t)
+            total[i] = sum(t.values())
+        return total, terms
+
+    def _update_masks(self) -> None:
+        if self.action_mode != "waypoint":
+            return
+        eng, c = self.engine, self.config
+        if eng.k >= c.n_slots + c.horizon:
+            return
+        q1, phi1 = eng.predict(1)
+        goals = _to_world(self.lattice, q1[0, :2], float(phi1[0]))
+        visible = self._cache.lattice_visible(eng.k + 1)
+        u, n = len(eng.uav_xy), len(goals)
+        m = solve_manoeuvre(np.repeat(eng.uav_xy, n, axis=0), np.repeat(eng.uav_theta, n),
+                            np.tile(goals, (u, 1)), v_max=c.v_max, w_max=c.w_max, delta=c.delta)
+        reach = np.asarray(m.feasible, bool).reshape(u, n)
+        mask = reach & visible
+        for i in range(u):
+            if not mask[i].any():
+                mask[i] = reach[i] if reach[i].any() else True
+        self._masks = mask.astype(np.int8)
+
+    def action_mask(self, agent: str) -> np.ndarray:
+        """The waypoint action mask of ``agent`` (int8, 1 = allowed); all ones in unicycle mode."""
+        if self.action_mode != "waypoint":
+            return np.ones(2, np.int8)
+        return self._masks[self._index[agent]].copy()
+
+    def _base_info(self, i: int) -> dict:
+        info: dict[str, Any] = {"slot": int(self.engine.k)}
+        if self.action_mode == "waypoint":
+            info["action_mask"] = self._masks[i].copy()
+        return info
+
+    def _own_features(self) -> np.ndarray:
+        """(U, 8) per-UAV features 0-7 of the observation table."""
+        eng, c = self.engine, self.config
+        q, phi = eng.target_xyz, eng.target_phi
+        rel = _to_target_frame(eng.uav_xy, q[:2], phi) / c.r2
+        dth = eng.uav_theta - phi
+        los = line_of_sight(self.scenario.terrain, eng.uav_xy, c.altitude, q)
+        zd = zone_distance(eng.uav_xy, q[:2], phi, c.r1, c.r2, c.mu)
+        return np.column_stack([np.clip(rel, -OFFSET_CLIP, OFFSET_CLIP), np.cos(dth), np.sin(dth),
+                                np.clip(self._last_speed / c.v_max, 0, 1), los, zd <= 0,
+                                np.clip(zd / (c.r2 - c.r1), -OFFSET_CLIP, OFFSET_CLIP)])
+
+    def _shared_features(self) -> np.ndarray:
+        """Target displacement, time remaining and both maps (shared by all agents)."""
+        eng, c = self.engine, self.config
+        q, phi = eng.target_xyz, eng.target_phi
+        k = eng.k
+        q1 = self.scenario.track.position(k + 1)
+        disp = _to_target_frame(q1[:2], q[:2], phi) / (c.v_max * c.delta)
+        remaining = max(self.max_cycles - k, 0) / self.max_cycles
+        return np.concatenate([np.clip(disp, -2, 2), [remaining], self._cache.visibility_map(k),
+                               self._cache.visibility_map(k + 1)])
+
+    def _observations(self) -> dict[str, Any]:
+        own = self._own_features()
+        self._own = own
+        shared = self._shared_features()
+        self._shared = shared
+        u = len(own)
+        out = {}
+        for i, a in enumerate(self.possible_agents):
+            mates = np.delete(own[:, :2], i, axis=0).reshape(-1)
+            obs = np.concatenate([own[i], shared[:3], mates, shared[3:]]).astype(np.float32)
+            out[a] = {"observation": obs, "action_mask": self._masks[i].copy()} if self.dict_obs else obs
+        del u
+        return out
+
+    def state(self) -> np.ndarray:
+        """Global state for centralised critics (see the class docstring)."""
+        if self.engine is None:
+            raise RuntimeError("state() called before reset()")
+        own = self._own_features()
+        return np.concatenate([own.reshape(-1), self._shared_features()]).astype(np.float32)
+
+    def render(self):
+        if self.render_mode is None:
+            gymnasium.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' or 'human'")
+            return None
+        if self.engine is None:
+            return None
+        from covert_env.render import EpisodeRenderer
+
+        if self._renderer is None:
+            self._renderer = EpisodeRenderer(human=self.render_mode == "human")
+        frame = self._renderer.draw(self.scenario, self.engine)
+        return frame if self.render_mode == "rgb_array" else None
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+
+def raw_env(**kwargs) -> CovertSensingParallelEnv:
+    """The bare parallel environment (no wrappers)."""
+    return CovertSensingParallelEnv(**kwargs)
+
+
+def parallel_env(**kwargs) -> CovertSensingParallelEnv:
+    """The PettingZoo ParallelEnv (see :class:`CovertSensingParallelEnv` for the arguments)."""
+    return CovertSensingParallelEnv(**kwargs)
+
+
+def env(**kwargs):
+    """The AEC version, through ``parallel_to_aec`` with PettingZoo's order-enforcing wrappers."""
+    aec = parallel_to_aec(parallel_env(**kwargs))
+    return wrappers.OrderEnforcingWrapper(aec)
+
+
+_ = wrap_angle

@@ -1,0 +1,126 @@
+"""Gymnasium single-UAV environments, thin wrappers over the PettingZoo env with one agent.
+
+Registered at ``import covert_env`` as ``covert_env/CovertSensing-v0`` (continuous unicycle actions)
+and ``covert_env/CovertSensingWaypoint-v0`` (discrete waypoint actions with ``action_masks()`` for
+sb3-contrib's MaskablePPO).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from covert_env.envs.covert_sensing import CovertSensingParallelEnv
+
+__all__ = ["CovertSensingEnv", "CovertSensingWaypointEnv"]
+
+
+class CovertSensingEnv(gym.Env):
+    """One UAV covertly filming a target on uneven terrain (Almuzaini & Savkin 2024).
+
+    ## Description
+
+    The single-UAV case of :class:`~covert_env.envs.covert_sensing.CovertSensingParallelEnv`: keep
+    the target in view from inside the feasible flight zone behind it (eq. 4), out of the terrain's
+    shadows (eqs. 8-10), changing bearing and range every slot (disguise, eq. 11) on a short path
+    (eq. 15). One step is one slot of ``delta`` = 1 s.
+
+    ## Action Space
+
+    ``Box(-1, 1, (2,), float32)``: (speed, turn rate) scaled to 0 < v <= V_max = 50 m/s and
+    |omega| <= W_max = 3 rad/s, integrated exactly over the slot. Out-of-range values are clipped;
+    NaN/inf raise ``ValueError``. (``CovertSensingWaypoint-v0``: ``Discrete(L)`` lattice waypoints.)
+
+    ## Observation Space
+
+    ``Box(float32)`` in the target's frame, the single-agent version of the parallel env's table:
+
+    | index | observation |
+    |---|---|
+    | 0-1 | own offset from the target / R2 |
+    | 2-3 | cos, sin of own heading relative to the target's |
+    | 4 | last speed / V_max |
+    | 5 | LoS clear (0/1) |
+    | 6 | inside the feasible zone (0/1) |
+    | 7 | signed distance to the zone boundary / (R2 - R1) |
+    | 8-9 | target's next displacement / (V_max delta) |
+    | 10 | fraction of the episode remaining |
+    | 11 .. 11+S*S | visible-zone map now (S = map_size, default 8) |
+    | then S*S | visible-zone map at the next slot |
+
+    ## Rewards
+
+    ``-g / reward_scale`` (eq. 18: path length minus lambda times disguise) minus penalties for lost LoS,
+    leaving the zone and terrain clearance; ``info["reward_terms"]`` itemises them.
+
+    ## Starting State
+
+    ``scenario="random"`` (default): a random road, terrain and visible start per reset (pass
+    ``options={"scene_seed": s}`` to choose); ``scenario="paper"``: the paper's map and start
+    (40, 10) heading 2 pi.
+
+    ## Episode End
+
+    Truncated after ``max_cycles`` slots (default 70, the end of the route); never terminated.
+
+    ## Arguments
+
+    Every keyword of the parallel env except ``n_uavs`` (always 1): ``config``, ``scenario``,
+    ``max_cycles``, ``render_mode``, ``map_size``, reward weights, ``scene_pool``, ``path_samples``.
+
+    ## Version History
+
+    * v0: initial release.
+    """
+
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 4}
+    _action_mode = "unicycle"
+
+    def __init__(self, render_mode: str | None = None, **kwargs: Any):
+        kwargs.pop("n_uavs", None)
+        kwargs.pop("action_mode", None)
+        kwargs.pop("dict_obs", None)
+        self.par = CovertSensingParallelEnv(n_uavs=1, action_mode=self._action_mode, render_mode=render_mode,
+                                            **kwargs)
+        self.render_mode = render_mode
+        self._agent = self.par.possible_agents[0]
+        self.observation_space = self.par.observation_space(self._agent)
+        self.action_space = self.par.action_space(self._agent)
+
+    @property
+    def config(self):
+        return self.par.config
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        obs, infos = self.par.reset(seed=seed, options=options)
+        return obs[self._agent], infos[self._agent]
+
+    def step(self, action):
+        obs, rew, term, trunc, infos = self.par.step({self._agent: action})
+        a = self._agent
+        return obs[a], float(rew[a]), bool(term[a]), bool(trunc[a]), infos[a]
+
+    def render(self):
+        return self.par.render()
+
+    def close(self):
+        self.par.close()
+
+
+class CovertSensingWaypointEnv(CovertSensingEnv):
+    """The single-UAV env with discrete waypoint actions (``Discrete(L)``) and ``action_masks()``.
+
+    Each action is a node of the fixed lattice in the target's frame (the DP planner's node set),
+    placed at the target's next pose; the env flies the turn-then-straight manoeuvre (eqs. 22-29)
+    to it. ``action_masks()`` (and ``info["action_mask"]``) mark nodes reachable in one slot and in
+    the visible zone (eq. 10). See :class:`CovertSensingEnv` for everything else.
+    """
+
+    _action_mode = "waypoint"
+
+    def action_masks(self) -> np.ndarray:
+        """Boolean mask of valid actions, the interface of sb3-contrib's MaskablePPO."""
+        return self.par.action_mask(self._agent).astype(bool)

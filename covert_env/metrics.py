@@ -1,0 +1,152 @@
+"""One set of metrics for every policy (DESIGN.md §4), computed from a recorded :class:`Trajectory`.
+
+:func:`slot_quantities` turns positions into the per-slot quantities (LoS at slot times and along
+the path, zone membership, alpha, d, kappa, g, separation, terrain clearance); the environments'
+rewards and infos use the same function, so an env rollout and an evaluation agree by construction.
+:func:`episode_metrics` aggregates them per UAV.
+
+Conventions: slot k moves every UAV from p[k] to p[k+1] while the target moves from q[k] to q[k+1];
+the slot's disguise and cost (eqs. 11, 18) compare alpha/d at k and k+1; LoS and zone membership
+"at slot k" are evaluated at p[k+1] against q[k+1] (the paper's I_LoS at each instant).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from covert_env.config import Config
+from covert_env.cost import disguise, stage_cost, uav_target_angle, uav_target_distance
+from covert_env.terrain import Terrain
+from covert_env.trajectory import Trajectory
+from covert_env.visibility import line_of_sight
+from covert_env.zone import in_feasible_zone
+
+__all__ = ["SlotQuantities", "slot_quantities", "episode_metrics", "METRIC_DESCRIPTIONS"]
+
+
+@dataclass
+class SlotQuantities:
+    """Per-slot, per-UAV quantities of a trajectory (arrays of shape (T, U) unless noted).
+
+    Attributes:
+        los: LoS clear at the end of the slot (p[k+1] to q[k+1]), eq. 6.
+        los_path: LoS clear at every sample along the slot's path (against the target at the same instant).
+        in_zone: p[k+1] inside the feasible zone Phi(q[k+1]) of eq. 4 (not eroded: the true target).
+        alpha, d: UAV-target angle and distance at the end of the slot, eqs. 12-13.
+        kappa: disguise of the slot, eq. 11.
+        g: stage cost of the slot, eq. 18.
+        path_length: distance flown, v delta.
+        separation: distance to the nearest teammate at the end of the slot (inf with one UAV).
+        separation_path: nearest-teammate distance over the samples along the path (synchronous).
+        terrain_clearance: distance from the UAV to the nearest polytope top point, eq. 3 (inf if none).
+    """
+
+    los: np.ndarray
+    los_path: np.ndarray
+    in_zone: np.ndarray
+    alpha: np.ndarray
+    d: np.ndarray
+    kappa: np.ndarray
+    g: np.ndarray
+    path_length: np.ndarray
+    separation: np.ndarray
+    separation_path: np.ndarray
+    terrain_clearance: np.ndarray
+
+
+def _nearest_teammate(xy: np.ndarray) -> np.ndarray:
+    """(..., U, 2) -> (..., U) distance to the nearest other UAV (inf with one UAV)."""
+    diff = xy[..., :, None, :] - xy[..., None, :, :]
+    dist = np.hypot(diff[..., 0], diff[..., 1])
+    u = xy.shape[-2]
+    dist[..., np.arange(u), np.arange(u)] = np.inf
+    return dist.min(axis=-1)
+
+
+def _terrain_clearance(xy: np.ndarray, altitude: float, terrain: Terrain) -> np.ndarray:
+    """(..., 2) -> (...) distance from (x, y, h) to the nearest polytope highest point (eq. 3)."""
+    if len(terrain) == 0:
+        return np.full(xy.shape[:-1], np.inf)
+    top = terrain.highest_points
+    dxy = xy[..., None, :] - top[:, :2]
+    dz = altitude - top[:, 2]
+    return np.sqrt((dxy ** 2).sum(-1) + dz ** 2).min(axis=-1)
+
+
+def slot_quantities(traj: Trajectory, terrain: Terrain, config: Config) -> SlotQuantities:
+    """Evaluate every slot of ``traj`` (see the module docstring for the conventions)."""
+    c = config
+    t_count = traj.n_slots
+    end_xy = traj.uav_xy[1:]                                    # (T, U, 2)
+    alpha_all = uav_target_angle(traj.uav_xy, traj.target_xyz[:, None, :2], traj.target_phi[:, None])
+    d_all = uav_target_distance(traj.uav_xy, traj.target_xyz[:, None, :2])
+    kappa = disguise(alpha_all[:-1], alpha_all[1:], d_all[:-1], d_all[1:], c.eta)
+    g = stage_cost(traj.path_length, alpha_all[:-1], alpha_all[1:], d_all[:-1], d_all[1:], c.eta, c.lam)
+
+    los = np.ones(end_xy.shape[:2], dtype=bool)
+    los_path = np.ones(end_xy.shape[:2], dtype=bool)
+    in_zone = np.zeros(end_xy.shape[:2], dtype=bool)
+    # One call per slot: each slot has its own target position; points within a slot are vectorised.
+    for k in range(t_count):
+        q_end = traj.target_xyz[k + 1]
+        los[k] = line_of_sight(terrain, end_xy[k], c.altitude, q_end)
+        in_zone[k] = in_feasible_zone(end_xy[k], q_end[:2], float(traj.target_phi[k + 1]), c.r1, c.r2, c.mu)
+        pts = traj.path_xy[k]                                    # (U, P, 2)
+        tq = traj.target_path_xyz[k]                             # (P, 3)
+        clear = np.ones(pts.shape[:2], dtype=bool)
+        for j in range(pts.shape[1]):
+            clear[:, j] = line_of_sight(terrain, pts[:, j], c.altitude, tq[j])
+        los_path[k] = clear.all(axis=1)
+
+    sep = _nearest_teammate(end_xy)
+    sep_path = _nearest_teammate(np.swapaxes(traj.path_xy, 1, 2)).min(axis=1)   # (T, P, U) -> (T, U)
+    clearance = _terrain_clearance(end_xy, c.altitude, terrain)
+    return SlotQuantities(los=los, los_path=los_path, in_zone=in_zone, alpha=alpha_all[1:], d=d_all[1:],
+                          kappa=kappa, g=g, path_length=np.asarray(traj.path_length, float),
+                          separation=sep, separation_path=sep_path, terrain_clearance=clearance)
+
+
+METRIC_DESCRIPTIONS = {
+    "occlusion_rate": "fraction of slots whose end position has blocked LoS (the paper's I_LoS = 1)",
+    "occlusion_rate_path": "fraction of slots with blocked LoS somewhere along the flown path",
+    "zone_violation_rate": "fraction of slots ending outside the feasible zone Phi(q) (eq. 4)",
+    "mean_disguise": "mean kappa per slot (eq. 11); higher is better disguised",
+    "path_length": "total distance flown (m), the paper's energy proxy (eq. 15)",
+    "objective": "sum of the stage cost g over the episode (eq. 17); lower is better",
+    "min_separation": "smallest distance to a teammate, at slot times and along paths (m)",
+    "separation_violations": "slots with separation < d_safe1 at the slot time or along the path (eq. 2)",
+    "terrain_violations": "slots ending closer than d_safe2 to a polytope's highest point (eq. 3)",
+    "speed_violations": "slots whose commanded speed exceeded V_max or turn rate exceeded W_max",
+    "infeasible_slots": "slots the policy flagged as fallback moves (no feasible plan found)",
+    "decision_time_ms": "mean time the policy took per slot and UAV (ms)",
+}
+
+
+def episode_metrics(traj: Trajectory, terrain: Terrain, config: Config,
+                    quantities: SlotQuantities | None = None) -> list[dict[str, float]]:
+    """Per-UAV episode metrics (DESIGN.md §4): one dict per UAV with the keys of METRIC_DESCRIPTIONS."""
+    q = quantities if quantities is not None else slot_quantities(traj, terrain, config)
+    eps = 1e-9
+    sep_bad = (q.separation < config.d_safe1 - eps) | (q.separation_path < config.d_safe1 - eps)
+    speed_bad = (traj.max_speed > config.v_max + 1e-6) | (traj.max_turn_rate > config.w_max + 1e-6)
+    out = []
+    for i in range(traj.n_uavs):
+        min_sep = float(min(q.separation[:, i].min(initial=np.inf), q.separation_path[:, i].min(initial=np.inf)))
+        dt = traj.decision_time[:, i]
+        out.append({
+            "occlusion_rate": float(1.0 - q.los[:, i].mean()),
+            "occlusion_rate_path": float(1.0 - q.los_path[:, i].mean()),
+            "zone_violation_rate": float(1.0 - q.in_zone[:, i].mean()),
+            "mean_disguise": float(q.kappa[:, i].mean()),
+            "path_length": float(q.path_length[:, i].sum()),
+            "objective": float(q.g[:, i].sum()),
+            "min_separation": min_sep,
+            "separation_violations": int(sep_bad[:, i].sum()),
+            "terrain_violations": int((q.terrain_clearance[:, i] < config.d_safe2 - eps).sum()),
+            "speed_violations": int(speed_bad[:, i].sum()),
+            "infeasible_slots": int(np.asarray(traj.infeasible[:, i], bool).sum()),
+            "decision_time_ms": float(np.nanmean(dt) * 1e3) if np.isfinite(dt).any() else float("nan"),
+        })
+    return out

@@ -1,0 +1,77 @@
+"""A recorded episode: everything the metrics need, and nothing a policy could fake.
+
+The engine writes one :class:`Trajectory` per episode, whatever drives the UAVs (the DP planner, a
+trained agent, a random policy); :mod:`covert_env.metrics` scores it. It saves to and loads from
+plain JSON.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, fields
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["Trajectory"]
+
+
+@dataclass(eq=False)
+class Trajectory:
+    """Positions of the team and the target over T slots.
+
+    Shapes use T = number of slots flown, U = number of UAVs, P = samples per slot along the path
+    (both slot endpoints included).
+
+    Attributes:
+        uav_xy: (T+1, U, 2) UAV positions at slot times 0..T.
+        uav_theta: (T+1, U) headings at slot times.
+        path_xy: (T, U, P, 2) positions along the path flown during each slot.
+        path_length: (T, U) distance flown in each slot (v[k] delta; eq. 15).
+        target_xyz: (T+1, 3) target positions q[k].
+        target_phi: (T+1,) target headings phi[k].
+        target_path_xyz: (T, P, 3) target positions at the same instants as ``path_xy``.
+        max_speed: (T, U) highest speed commanded during each slot.
+        max_turn_rate: (T, U) highest |omega| commanded during each slot.
+        infeasible: (T, U) True where the policy flagged its move as a fallback (no feasible plan).
+        decision_time: (T, U) seconds the policy took to choose the move (NaN if not measured).
+    """
+
+    uav_xy: np.ndarray
+    uav_theta: np.ndarray
+    path_xy: np.ndarray
+    path_length: np.ndarray
+    target_xyz: np.ndarray
+    target_phi: np.ndarray
+    target_path_xyz: np.ndarray
+    max_speed: np.ndarray
+    max_turn_rate: np.ndarray
+    infeasible: np.ndarray
+    decision_time: np.ndarray
+
+    @property
+    def n_slots(self) -> int:
+        return len(self.path_length)
+
+    @property
+    def n_uavs(self) -> int:
+        return self.uav_xy.shape[1]
+
+    def to_dict(self) -> dict:
+        return {f.name: np.asarray(getattr(self, f.name)).tolist() for f in fields(self)}
+
+    @classmethod
+    def from_dict(cls, data: dict) -> Trajectory:
+        names = {f.name for f in fields(cls)}
+        missing = sorted(names - set(data))
+        if missing:
+            raise ValueError(f"Trajectory: missing field(s) {missing}")
+        kw = {n: np.asarray(data[n], dtype=bool if n == "infeasible" else float) for n in names}
+        return cls(**kw)
+
+    def save(self, path: str | Path) -> None:
+        Path(path).write_text(json.dumps(self.to_dict()))
+
+    @classmethod
+    def load(cls, path: str | Path) -> Trajectory:
+        return cls.from_dict(json.loads(Path(path).read_text()))
