@@ -92,6 +92,11 @@ _NEWTON_MAX_ITER = 100
 _PHI_BISECT_ITER = 60
 
 
+MIN_GOAL_DISTANCE = 1e-9
+"""Goals closer than this (m) to the start count as the start itself: infeasible, since v > 0 (eq. 1).
+(Below it the side of the turn is decided by rounding, and mirrored goals would disagree.)"""
+
+
 def _wrap_2pi(a):
     """Wrap into [0, 2 pi). ``np.mod`` can return exactly 2 pi for tiny negative input; fold that to 0."""
     w = np.mod(a, _TWO_PI)
@@ -407,7 +412,7 @@ def solve_manoeuvre(p, theta, goals, *, v_max: float = 50.0, w_max: float = 3.0,
         d = np.sqrt(d2)
         wd = w_max * delta
         # d <= v_max delta is necessary (the path is at least the chord); it prunes most far-away pairs.
-        usable = np.isfinite(d) & (d > 0) & (d <= v_max * delta)
+        usable = np.isfinite(d) & (d > MIN_GOAL_DISTANCE) & (d <= v_max * delta)
         straight = usable & (a > 0) & (b <= _STRAIGHT_REL * d)
         turn = np.where(cross < 0, -1, 1).astype(np.int8)  # dead behind (cross == 0, a <= 0): left
         turn[straight] = 0

@@ -38,9 +38,11 @@ class Engine:
         scenario: the world and the start poses.
         path_samples: samples per slot along each path (endpoints included), used for LoS and
             separation checks between slot times.
+        path_los: whether :meth:`step`'s quantities include LoS along the path (environments turn it
+            off for speed; the episode metrics compute it from the trajectory in any case).
     """
 
-    def __init__(self, scenario: Scenario, path_samples: int = 11):
+    def __init__(self, scenario: Scenario, path_samples: int = 11, path_los: bool = True):
         if path_samples < 2:
             raise ValueError(f"Engine.path_samples must be >= 2, got {path_samples}")
         self.scenario = scenario
@@ -48,6 +50,7 @@ class Engine:
         self.terrain = scenario.terrain
         self.track = scenario.track
         self.path_samples = int(path_samples)
+        self.path_los = bool(path_los)
         self._fractions = np.linspace(0.0, 1.0, self.path_samples)
         self.reset()
 
@@ -201,4 +204,14 @@ class Engine:
 
     def last_quantities(self) -> SlotQuantities:
         """Quantities of the slot just flown (arrays of shape (1, U))."""
-        return slot_quantities(self.trajectory(last=1), self.terrain, self.config)
+        if self.k == 0:
+            raise RuntimeError("Engine.last_quantities: no slot flown yet")
+        k = self.k
+        one = Trajectory(
+            uav_xy=np.stack(self._xy[-2:]), uav_theta=np.stack(self._theta[-2:]),
+            path_xy=self._path[-1][None], path_length=self._length[-1][None],
+            target_xyz=self.track.position(np.array([k - 1, k])), target_phi=self.track.heading(np.array([k - 1, k])),
+            target_path_xyz=self._tpath[-1][None], max_speed=self._vmax[-1][None],
+            max_turn_rate=self._wmax[-1][None], infeasible=self._infeasible[-1][None],
+            decision_time=self._dtime[-1][None])
+        return slot_quantities(one, self.terrain, self.config, path_los=self.path_los)

@@ -32,7 +32,8 @@ class SlotQuantities:
 
     Attributes:
         los: LoS clear at the end of the slot (p[k+1] to q[k+1]), eq. 6.
-        los_path: LoS clear at every sample along the slot's path (against the target at the same instant).
+        los_path: LoS clear at every sample along the slot's path (against the target at the same instant);
+            NaN when not computed (``path_los=False``).
         in_zone: p[k+1] inside the feasible zone Phi(q[k+1]) of eq. 4 (not eroded: the true target).
         alpha, d: UAV-target angle and distance at the end of the slot, eqs. 12-13.
         kappa: disguise of the slot, eq. 11.
@@ -75,30 +76,29 @@ def _terrain_clearance(xy: np.ndarray, altitude: float, terrain: Terrain) -> np.
     return np.sqrt((dxy ** 2).sum(-1) + dz ** 2).min(axis=-1)
 
 
-def slot_quantities(traj: Trajectory, terrain: Terrain, config: Config) -> SlotQuantities:
-    """Evaluate every slot of ``traj`` (see the module docstring for the conventions)."""
+def slot_quantities(traj: Trajectory, terrain: Terrain, config: Config, *, path_los: bool = True) -> SlotQuantities:
+    """Evaluate every slot of ``traj`` (see the module docstring for the conventions).
+
+    ``path_los=False`` skips LoS along the path (``los_path`` is then NaN): environments use it for
+    their per-step rewards, which do not need it; episode metrics always compute it.
+    """
     c = config
-    t_count = traj.n_slots
     end_xy = traj.uav_xy[1:]                                    # (T, U, 2)
     alpha_all = uav_target_angle(traj.uav_xy, traj.target_xyz[:, None, :2], traj.target_phi[:, None])
     d_all = uav_target_distance(traj.uav_xy, traj.target_xyz[:, None, :2])
     kappa = disguise(alpha_all[:-1], alpha_all[1:], d_all[:-1], d_all[1:], c.eta)
     g = stage_cost(traj.path_length, alpha_all[:-1], alpha_all[1:], d_all[:-1], d_all[1:], c.eta, c.lam)
 
-    los = np.ones(end_xy.shape[:2], dtype=bool)
-    los_path = np.ones(end_xy.shape[:2], dtype=bool)
-    in_zone = np.zeros(end_xy.shape[:2], dtype=bool)
-    # One call per slot: each slot has its own target position; points within a slot are vectorised.
-    for k in range(t_count):
-        q_end = traj.target_xyz[k + 1]
-        los[k] = line_of_sight(terrain, end_xy[k], c.altitude, q_end)
-        in_zone[k] = in_feasible_zone(end_xy[k], q_end[:2], float(traj.target_phi[k + 1]), c.r1, c.r2, c.mu)
-        pts = traj.path_xy[k]                                    # (U, P, 2)
-        tq = traj.target_path_xyz[k]                             # (P, 3)
-        clear = np.ones(pts.shape[:2], dtype=bool)
-        for j in range(pts.shape[1]):
-            clear[:, j] = line_of_sight(terrain, pts[:, j], c.altitude, tq[j])
-        los_path[k] = clear.all(axis=1)
+    in_zone = in_feasible_zone(end_xy, traj.target_xyz[1:, None, :2], traj.target_phi[1:, None], c.r1, c.r2, c.mu)
+    if path_los:
+        # Sample j of every UAV against the target at the same instant, in one vectorised call (every
+        # slot has its own target). Sample 0 is the previous slot's end, checked there; the last
+        # sample is this slot's end, so the slot-time LoS comes with it.
+        clear = line_of_sight(terrain, traj.path_xy[:, :, 1:], c.altitude, traj.target_path_xyz[:, None, 1:])
+        los, los_path = clear[..., -1], clear.all(axis=-1)
+    else:
+        los = line_of_sight(terrain, end_xy, c.altitude, traj.target_xyz[1:, None, :])
+        los_path = np.full(los.shape, np.nan)
 
     sep = _nearest_teammate(end_xy)
     sep_path = _nearest_teammate(np.swapaxes(traj.path_xy, 1, 2)).min(axis=1)   # (T, P, U) -> (T, U)
@@ -128,6 +128,8 @@ def episode_metrics(traj: Trajectory, terrain: Terrain, config: Config,
                     quantities: SlotQuantities | None = None) -> list[dict[str, float]]:
     """Per-UAV episode metrics (DESIGN.md §4): one dict per UAV with the keys of METRIC_DESCRIPTIONS."""
     q = quantities if quantities is not None else slot_quantities(traj, terrain, config)
+    if np.isnan(np.asarray(q.los_path, float)).any():
+        q = slot_quantities(traj, terrain, config)
     eps = 1e-9
     sep_bad = (q.separation < config.d_safe1 - eps) | (q.separation_path < config.d_safe1 - eps)
     speed_bad = (traj.max_speed > config.v_max + 1e-6) | (traj.max_turn_rate > config.w_max + 1e-6)

@@ -150,23 +150,48 @@ class TargetTrack:
     def n_slots(self) -> int:
         return len(self.speeds)
 
+    @cached_property
+    def _positions(self) -> np.ndarray:
+        xy = self.road.point_at(self.arc)
+        out = np.column_stack([xy, np.full(len(xy), self.z)])
+        out.setflags(write=False)
+        return out
+
+    @cached_property
+    def _headings(self) -> np.ndarray:
+        out = self.road.heading_at(self.arc)
+        out.setflags(write=False)
+        return out
+
     def position(self, k) -> np.ndarray:
         """q[k] as (x, y, z); k may be an int or an integer array (clamped to the track's end)."""
-        s = self.arc[np.clip(np.asarray(k), 0, self.n_slots)]
-        xy = self.road.point_at(s)
-        return np.concatenate([xy, np.full(xy.shape[:-1] + (1,), self.z)], axis=-1)
+        if isinstance(k, (int, np.integer)):
+            return self._positions[min(max(int(k), 0), self.n_slots)].copy()
+        return self._positions[np.clip(np.asarray(k), 0, self.n_slots)]
 
     def position_between(self, k: int, fractions) -> np.ndarray:
         """Target positions (len(fractions), 3) at times (k + f) delta within slot k, f in [0, 1]."""
         k = int(np.clip(k, 0, self.n_slots - 1))
-        s = self.arc[k] + np.asarray(fractions, dtype=float) * (self.arc[k + 1] - self.arc[k])
-        xy = self.road.point_at(s)
-        return np.concatenate([xy, np.full(xy.shape[:-1] + (1,), self.z)], axis=-1)
+        f = np.asarray(fractions, dtype=float)
+        key = f.tobytes()
+        table = self._between.get(key)
+        if table is None:   # one road lookup per set of fractions, for every slot at once
+            s = self.arc[:-1, None] + f * np.diff(self.arc)[:, None]
+            xy = self.road.point_at(s)
+            table = np.concatenate([xy, np.full(xy.shape[:-1] + (1,), self.z)], axis=-1)
+            table.setflags(write=False)
+            self._between[key] = table
+        return table[k]
+
+    @cached_property
+    def _between(self) -> dict:
+        return {}
 
     def heading(self, k) -> np.ndarray | float:
         """phi[k], the road tangent at the target's position (rad)."""
-        h = self.road.heading_at(self.arc[np.clip(np.asarray(k), 0, self.n_slots)])
-        return float(h) if np.ndim(h) == 0 else h
+        if isinstance(k, (int, np.integer)):
+            return float(self._headings[min(max(int(k), 0), self.n_slots)])
+        return self._headings[np.clip(np.asarray(k), 0, self.n_slots)]
 
     def predict(self, k: int, horizon: int) -> tuple[np.ndarray, np.ndarray]:
         """Predicted (q, phi) for slots k+1..k+horizon: arrays (horizon, 3) and (horizon,).

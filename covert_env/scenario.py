@@ -104,17 +104,27 @@ class Scenario:
         Starts are distinct grid nodes of the eroded zone at slot 0 with clear LoS, at least
         ``2 d_safe1`` apart, with headings drawn uniformly.
         """
-        from covert_env.visibility import line_of_sight
-        from covert_env.zone import grid_nodes
-
         c = config or Config()
         u = c.n_uavs if n_uavs is None else n_uavs
         rng = np.random.default_rng(seed)
         road, track = cls._road_and_track(c, rng)
         terrain = Terrain.random(seed=rng, road=road, config=c)
-        q0, phi0 = track.position(0), float(track.heading(0))
+        sc = cls(c, terrain, track, np.zeros((u, 2)), np.zeros(u), name=f"random-{seed}")
+        xy, th = sc.sample_starts(rng, u)
+        return cls(c, terrain, track, xy, th, name=f"random-{seed}")
+
+    def sample_starts(self, rng: np.random.Generator, n_uavs: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Random start poses: distinct lattice nodes of the eroded zone at slot 0 with clear LoS, at
+        least ``2 d_safe1`` apart, headings uniform in [0, 2 pi). Returns (xy (U, 2), theta (U,)).
+        """
+        from covert_env.visibility import line_of_sight
+        from covert_env.zone import grid_nodes
+
+        c = self.config
+        u = self.n_uavs if n_uavs is None else n_uavs
+        q0, phi0 = self.track.position(0), float(self.track.heading(0))
         nodes = grid_nodes(q0[:2], phi0, c.grid_step, c.r1, c.r2, c.mu, c.r_u)
-        nodes = nodes[line_of_sight(terrain, nodes, c.altitude, q0)]
+        nodes = nodes[line_of_sight(self.terrain, nodes, c.altitude, q0)]
         picked: list[np.ndarray] = []
         for idx in rng.permutation(len(nodes)):
             p = nodes[idx]
@@ -123,5 +133,5 @@ class Scenario:
                 if len(picked) == u:
                     break
         if len(picked) < u:
-            raise ValueError(f"Scenario.random(seed={seed}): could not place {u} UAVs in the visible zone")
-        return cls(c, terrain, track, np.array(picked), rng.uniform(0, 2 * math.pi, u), name=f"random-{seed}")
+            raise ValueError(f"Scenario {self.name}: could not place {u} UAVs in the visible zone")
+        return np.array(picked), rng.uniform(0, 2 * math.pi, u)

@@ -63,6 +63,7 @@ so a segment that only touches a face, an edge or a vertex -- or passes within r
 one -- is *clear*. 10 nm is far above float64 rounding of plane values for scenes of a few km and far
 below any physical size."""
 
+_BRUTE_PAIRS = 480  # (points x polytopes) up to which every pair is clipped without a broad phase
 _CHUNK = 8192  # points per block: bounds the (K, M) and (pairs, F, 4) temporaries to a few MB
 
 
@@ -170,6 +171,13 @@ def line_of_sight(terrain: Terrain, uav_xy, altitude, target_xyz, *,
     if len(terrain) == 0:
         return np.ones(shape, dtype=bool)
     arr = _arrays(terrain)
+    n_points = int(np.prod(shape))
+    if n_points * len(terrain) <= _BRUTE_PAIRS:
+        # Few points (an env step): the broad phase's fixed cost exceeds clipping every pair.
+        u = np.concatenate([np.broadcast_to(uav_xy, shape + (2,)), np.broadcast_to(alt, shape)[..., None]],
+                           axis=-1).reshape(-1, 3)
+        t = np.broadcast_to(target, shape + (3,)).reshape(-1, 3)
+        return _los_brute(arr, u, t, tol).reshape(shape)
     if target.ndim == 1 and alt.ndim == 0 and float(alt) > target[2]:
         pts = np.broadcast_to(uav_xy, shape + (2,)).reshape(-1, 2)
         out = np.ones(len(pts), dtype=bool)
@@ -183,6 +191,16 @@ def line_of_sight(terrain: Terrain, uav_xy, altitude, target_xyz, *,
     for s in range(0, len(u), _CHUNK):
         out[s:s + _CHUNK] = _los_general(arr, u[s:s + _CHUNK], t[s:s + _CHUNK], tol)
     return out.reshape(shape)
+
+
+def _los_brute(arr: _TerrainArrays, u: np.ndarray, t: np.ndarray, tol: float) -> np.ndarray:
+    """Every (point, polytope) pair clipped exactly, no broad phase. ``u``, ``t`` (K, 3) -> (K,) clear."""
+    m, f = arr.hs.shape[:2]
+    n, d = arr.hs[..., :3].reshape(-1, 3), arr.hs[..., 3].reshape(-1) + tol
+    num = u @ n.T + d                                                   # (K, M F) face values at the UAV
+    den = t @ n.T + d - num                                             # target minus UAV
+    blocked = _clip(num.reshape(-1, f), den.reshape(-1, f)).reshape(len(u), m)
+    return ~blocked.any(axis=1)
 
 
 def _los_single(arr: _TerrainArrays, xy: np.ndarray, h: float, q: np.ndarray, tol: float) -> np.ndarray:

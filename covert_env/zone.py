@@ -312,6 +312,16 @@ def grid_nodes(q_xy, phi: float, step: float, r1: float, r2: float, mu: float,
     return to_world(off[zone_mask(off, r1, r2, mu, r_u)], q_xy, phi)
 
 
+def zone_lattice(config) -> np.ndarray:
+    """(L, 2) target-frame offsets of the lattice nodes inside the eroded zone (eq. 5).
+
+    THE node set shared by the DP planner (its states at every stage) and the waypoint environments
+    (their discrete actions): node j at slot k is ``to_world(zone_lattice(c)[j], q[k], phi[k])``.
+    """
+    off = lattice_offsets_cfg(config)
+    return off[zone_mask(off, config.r1, config.r2, config.mu, config.r_u)]
+
+
 def grid_nodes_cfg(q_xy, phi: float, config, *, uncertain: bool = True) -> np.ndarray:
     """:func:`grid_nodes` with ``config``'s grid_step, r1, r2, mu and (if ``uncertain``) r_u."""
     return grid_nodes(q_xy, phi, config.grid_step, config.r1, config.r2, config.mu,

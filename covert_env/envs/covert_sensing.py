@@ -18,13 +18,12 @@ from gymnasium import spaces
 from pettingzoo import ParallelEnv
 from pettingzoo.utils import parallel_to_aec, wrappers
 
-from covert_env.angles import wrap_angle
 from covert_env.config import Config
 from covert_env.dynamics import solve_manoeuvre
 from covert_env.engine import Engine
 from covert_env.scenario import Scenario
 from covert_env.visibility import line_of_sight
-from covert_env.zone import in_feasible_zone, lattice_offsets, zone_distance
+from covert_env.zone import in_feasible_zone, lattice_offsets, to_world, zone_distance, zone_lattice
 
 __all__ = ["CovertSensingParallelEnv", "env", "parallel_env", "raw_env", "ACTION_MODES"]
 
@@ -49,7 +48,7 @@ class _SceneCache:
         c = self.scenario.config
         q = self.scenario.track.position(k)
         phi = float(self.scenario.track.heading(k))
-        xy = _to_world(offsets, q[:2], phi)
+        xy = to_world(offsets, q[:2], phi)
         ok = in_feasible_zone(xy, q[:2], phi, c.r1, c.r2, c.mu, c.r_u)
         if ok.any():
             ok[ok] = line_of_sight(self.scenario.terrain, xy[ok], c.altitude, q)
@@ -66,13 +65,6 @@ class _SceneCache:
         if k not in self._lattice_ok:
             self._lattice_ok[k] = self._visible(self._lattice, k)
         return self._lattice_ok[k]
-
-
-def _to_world(offsets: np.ndarray, q_xy: np.ndarray, phi: float) -> np.ndarray:
-    """Target-frame offsets (x forward along phi, y to the left) to world positions."""
-    c, s = math.cos(phi), math.sin(phi)
-    return np.column_stack([q_xy[0] + c * offsets[:, 0] - s * offsets[:, 1],
-                            q_xy[1] + s * offsets[:, 0] + c * offsets[:, 1]])
 
 
 def _to_target_frame(xy: np.ndarray, q_xy: np.ndarray, phi: float) -> np.ndarray:
@@ -159,10 +151,12 @@ class CovertSensingParallelEnv(ParallelEnv):
 
     ``scenario="paper"``: the paper's map and UAV starts (40, 10), (60, 0), (50, -10) with headings
     2pi, pi, pi/2 (the first U of them). ``scenario="random"`` (default): every reset draws a scene
-    seed from the env's RNG (or takes ``options={"scene_seed": s}``): a random road and terrain and
-    UAV starts on distinct visible zone nodes with random headings. Training seeds are drawn from
-    ``range(scene_pool)``; evaluate on seeds outside it. A :class:`~covert_env.scenario.Scenario`
-    instance may also be passed.
+    seed from the env's RNG in ``range(scene_pool)`` (a random road and terrain) and UAV starts from
+    the same RNG: distinct visible-zone nodes, ``2 d_safe1`` apart, with uniform headings.
+    ``options={"scene_seed": s}`` picks the scene and then uses ``Scenario.random(s)``'s own starts,
+    exactly what the evaluation harness and ``reproduce`` fly (evaluate on seeds outside the pool).
+    A :class:`~covert_env.scenario.Scenario` instance may also be passed.
+    ``random_starts=True`` samples the starts from the env's RNG for every scenario.
 
     ## Episode End
 
@@ -183,6 +177,7 @@ class CovertSensingParallelEnv(ParallelEnv):
     * ``terminate_on_collision``: end the episode when separation < d_safe1.
     * ``scene_pool``: number of training scene seeds for ``scenario="random"`` (default 10000).
     * ``path_samples``: samples per slot for LoS/separation checks along the path (default 11).
+    * ``random_starts``: sample start poses from the env's RNG even for a fixed scenario.
 
     ## Version History
 
@@ -197,7 +192,8 @@ class CovertSensingParallelEnv(ParallelEnv):
                  max_cycles: int | None = None, render_mode: str | None = None, map_size: int = 8,
                  dict_obs: bool = False, reward_scale: float = 100.0, los_penalty: float = 1.0,
                  zone_penalty: float = 1.0, separation_penalty: float = 1.0, terrain_penalty: float = 1.0,
-                 terminate_on_collision: bool = False, scene_pool: int = 10_000, path_samples: int = 11):
+                 terminate_on_collision: bool = False, scene_pool: int = 10_000, path_samples: int = 11,
+                 random_starts: bool = False):
         super().__init__()
         cfg = Config.from_dict(config) if isinstance(config, dict) else (config or Config())
         if n_uavs is not None:
@@ -243,17 +239,16 @@ class CovertSensingParallelEnv(ParallelEnv):
         self.terminate_on_collision = bool(terminate_on_collision)
         self.scene_pool = int(scene_pool)
         self.path_samples = int(path_samples)
+        self.random_starts = bool(random_starts)
 
         self.possible_agents = [f"uav_{i}" for i in range(cfg.n_uavs)]
         self.agents: list[str] = []
         self._index = {a: i for i, a in enumerate(self.possible_agents)}
 
         c = cfg
-        self.lattice = lattice_offsets(c.r1, c.r2, c.mu, c.grid_step)
-        inside = in_feasible_zone(self.lattice, np.zeros(2), 0.0, c.r1, c.r2, c.mu, c.r_u)
-        self.lattice = self.lattice[inside]                   # nodes of the eroded zone, target frame
-        lo, hi = lattice_offsets(c.r1, c.r2, c.mu, c.grid_step).min(0), lattice_offsets(
-            c.r1, c.r2, c.mu, c.grid_step).max(0)
+        self.lattice = zone_lattice(c)                        # the DP planner's nodes, target frame
+        box = lattice_offsets(c.r1, c.r2, c.mu, c.grid_step)
+        lo, hi = box.min(0), box.max(0)
         s = self.map_size
         gx = lo[0] + (np.arange(s) + 0.5) * (hi[0] - lo[0]) / s
         gy = lo[1] + (np.arange(s) + 0.5) * (hi[1] - lo[1]) / s
@@ -324,10 +319,15 @@ class CovertSensingParallelEnv(ParallelEnv):
             scene_seed = int(self._np_random.integers(self.scene_pool))
         self._cache = self._scene(scene_seed)
         self.scenario = self._cache.scenario
-        self.engine = Engine(self.scenario, path_samples=self.path_samples)
+        self.engine = Engine(self.scenario, path_samples=self.path_samples, path_los=False)
+        if self.random_starts or (self.scenario_spec == "random" and options.get("scene_seed") is None):
+            self.engine.reset(*self.scenario.sample_starts(self._np_random))
         self.agents = list(self.possible_agents)
         self._last_speed = np.zeros(len(self.agents))
-        self._last_q = None
+        c = self.config
+        self._los = line_of_sight(self.scenario.terrain, self.engine.uav_xy, c.altitude, self.engine.target_xyz)
+        self._zone_dist = zone_distance(self.engine.uav_xy, self.engine.target_xyz[:2], self.engine.target_phi,
+                                        c.r1, c.r2, c.mu)
         self._update_masks()
         obs = self._observations()
         infos = {a: self._base_info(i) for i, a in enumerate(self.agents)}
@@ -366,9 +366,11 @@ class CovertSensingParallelEnv(ParallelEnv):
                 idx[i] = int(act)
             decision = self._masks[np.arange(len(idx)), idx] == 0
             q1, phi1 = eng.predict(1)
-            goals = _to_world(self.lattice[idx], q1[0, :2], float(phi1[0]))
+            goals = to_world(self.lattice[idx], q1[0, :2], float(phi1[0]))
             quant = eng.step(waypoints=goals, infeasible=decision)
         self._last_speed = quant.path_length[0] / c.delta
+        self._los = quant.los[0]
+        self._zone_dist = zone_distance(eng.uav_xy, eng.target_xyz[:2], eng.target_phi, c.r1, c.r2, c.mu)
         rewards, terms = self._rewards(quant)
         collided = bool(np.any(quant.separation_path[0] < c.d_safe1))
         terminate = self.terminate_on_collision and collided
@@ -396,23 +398,18 @@ class CovertSensingParallelEnv(ParallelEnv):
     # ------------------------------------------------------------------ internals
     def _rewards(self, quant) -> tuple[np.ndarray, list[dict[str, float]]]:
         c, p = self.config, self.penalties
-        eng = self.engine
-        q, phi = eng.target_xyz, eng.target_phi
-        outside = np.maximum(zone_distance(eng.uav_xy, q[:2], phi, c.r1, c.r2, c.mu), 0.0)
-        terms = []
-        total = np.zeros(len(self.agents))
-        for i in range(len(self.agents)):
-            t = {
-                "path": -float(quant.path_length[0, i]) / self.reward_scale,
-                "disguise": c.lam * float(quant.kappa[0, i]) / self.reward_scale,
-                "los": -p["los"] * float(not quant.los[0, i]),
-                "zone": -p["zone"] * float(not quant.in_zone[0, i]) * (1 + min(outside[i] / (c.r2 - c.r1), 2.0)),
-                "separation": -p["separation"] * float(quant.separation_path[0, i] < c.d_safe1),
-                "terrain": -p["terrain"] * float(quant.terrain_clearance[0, i] < c.d_safe2),
-            }
-            terms.append(t)
-            total[i] = sum(t.values())
-        return total, terms
+        outside = np.maximum(self._zone_dist, 0.0) / (c.r2 - c.r1)
+        cols = {
+            "path": -quant.path_length[0] / self.reward_scale,
+            "disguise": c.lam * quant.kappa[0] / self.reward_scale,
+            "los": -p["los"] * ~quant.los[0],
+            "zone": -p["zone"] * ~quant.in_zone[0] * (1 + np.minimum(outside, 2.0)),
+            "separation": -p["separation"] * (quant.separation_path[0] < c.d_safe1),
+            "terrain": -p["terrain"] * (quant.terrain_clearance[0] < c.d_safe2),
+        }
+        total = sum(cols.values())
+        terms = [{name: float(v[i]) for name, v in cols.items()} for i in range(len(total))]
+        return total.astype(float), terms
 
     def _update_masks(self) -> None:
         if self.action_mode != "waypoint":
@@ -421,7 +418,7 @@ class CovertSensingParallelEnv(ParallelEnv):
         if eng.k >= c.n_slots + c.horizon:
             return
         q1, phi1 = eng.predict(1)
-        goals = _to_world(self.lattice, q1[0, :2], float(phi1[0]))
+        goals = to_world(self.lattice, q1[0, :2], float(phi1[0]))
         visible = self._cache.lattice_visible(eng.k + 1)
         u, n = len(eng.uav_xy), len(goals)
         m = solve_manoeuvre(np.repeat(eng.uav_xy, n, axis=0), np.repeat(eng.uav_theta, n),
@@ -451,10 +448,9 @@ class CovertSensingParallelEnv(ParallelEnv):
         q, phi = eng.target_xyz, eng.target_phi
         rel = _to_target_frame(eng.uav_xy, q[:2], phi) / c.r2
         dth = eng.uav_theta - phi
-        los = line_of_sight(self.scenario.terrain, eng.uav_xy, c.altitude, q)
-        zd = zone_distance(eng.uav_xy, q[:2], phi, c.r1, c.r2, c.mu)
+        zd = self._zone_dist
         return np.column_stack([np.clip(rel, -OFFSET_CLIP, OFFSET_CLIP), np.cos(dth), np.sin(dth),
-                                np.clip(self._last_speed / c.v_max, 0, 1), los, zd <= 0,
+                                np.minimum(self._last_speed / c.v_max, 1.0), self._los, zd <= 0,
                                 np.clip(zd / (c.r2 - c.r1), -OFFSET_CLIP, OFFSET_CLIP)])
 
     def _shared_features(self) -> np.ndarray:
@@ -473,13 +469,11 @@ class CovertSensingParallelEnv(ParallelEnv):
         self._own = own
         shared = self._shared_features()
         self._shared = shared
-        u = len(own)
         out = {}
         for i, a in enumerate(self.possible_agents):
             mates = np.delete(own[:, :2], i, axis=0).reshape(-1)
             obs = np.concatenate([own[i], shared[:3], mates, shared[3:]]).astype(np.float32)
             out[a] = {"observation": obs, "action_mask": self._masks[i].copy()} if self.dict_obs else obs
-        del u
         return out
 
     def state(self) -> np.ndarray:
@@ -523,5 +517,3 @@ def env(**kwargs):
     aec = parallel_to_aec(parallel_env(**kwargs))
     return wrappers.OrderEnforcingWrapper(aec)
 
-
-_ = wrap_angle

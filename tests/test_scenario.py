@@ -1,0 +1,193 @@
+"""covert_env.scenario: the paper preset (§3) and seeded random scenes."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from covert_env.config import Config
+from covert_env.road import Road, TargetTrack
+from covert_env.scenario import PAPER_UAV_STARTS, Scenario
+from covert_env.terrain import Terrain
+from covert_env.visibility import line_of_sight
+from covert_env.zone import in_feasible_zone
+
+PAPER_XY = np.array([[40.0, 10.0], [60.0, 0.0], [50.0, -10.0]])
+PAPER_THETA = np.array([2 * math.pi, math.pi, math.pi / 2])
+
+
+@pytest.fixture(scope="module")
+def paper():
+    return Scenario.paper()
+
+
+def terrain_vertices(terrain):
+    return [np.asarray(p.vertices) for p in terrain]
+
+
+def assert_same_terrain(a, b):
+    va, vb = terrain_vertices(a), terrain_vertices(b)
+    assert len(va) == len(vb)
+    for x, y in zip(va, vb, strict=True):
+        np.testing.assert_array_equal(x, y)
+
+
+# ----------------------------------------------------------------------------- paper preset
+def test_paper_target_at_slot_0(paper):
+    c = paper.config
+    np.testing.assert_allclose(paper.track.position(0), [120.0, 0.0, c.target_height], atol=1e-9)
+    assert paper.track.heading(0) == pytest.approx(0.0, abs=1e-12)
+    # The road is straight through the zone at the start: the target keeps heading 0 for the first slots.
+    for k in range(3):
+        assert paper.track.heading(k) == pytest.approx(0.0, abs=1e-12)
+        assert paper.track.position(k)[1] == pytest.approx(0.0, abs=1e-9)
+    assert paper.track.position(1)[0] == pytest.approx(120.0 + c.target_speed * c.delta, abs=1e-9)
+
+
+def test_paper_starts_are_the_papers(paper):
+    assert paper.n_uavs == 3
+    np.testing.assert_array_equal(paper.uav_xy, PAPER_XY)
+    np.testing.assert_allclose(paper.uav_theta, PAPER_THETA, atol=1e-12)
+    np.testing.assert_array_equal(PAPER_UAV_STARTS[:, :2], PAPER_XY)
+
+
+def test_paper_starts_are_in_the_eroded_zone_with_clear_los(paper):
+    c = paper.config
+    q0, phi0 = paper.track.position(0), paper.track.heading(0)
+    assert c.r_u > 0
+    assert in_feasible_zone(paper.uav_xy, q0[:2], phi0, c.r1, c.r2, c.mu, c.r_u).all()
+    assert line_of_sight(paper.terrain, paper.uav_xy, c.altitude, q0).all()
+
+
+def test_paper_terrain_and_track(paper):
+    c = paper.config
+    assert len(paper.terrain) == 16 == c.n_polytopes
+    assert paper.track.n_slots >= c.n_slots + c.horizon
+    assert paper.track.position(c.n_slots + c.horizon).shape == (3,)
+    # The track really drives at target_speed until n_slots + horizon (no clamping at the road's end).
+    arc = paper.track.arc
+    assert arc[c.n_slots + c.horizon] <= paper.road.length
+    steps = np.linalg.norm(np.diff(paper.track.position(np.arange(c.n_slots + c.horizon + 1))[:, :2], axis=0), axis=1)
+    assert np.all(steps <= c.target_speed * c.delta + 1e-9)
+    assert np.all(steps >= 0.9 * c.target_speed * c.delta)      # chords of a gently curving road
+    for p in paper.terrain:
+        assert p.z_max < c.altitude
+
+
+def test_paper_is_deterministic():
+    a, b = Scenario.paper(), Scenario.paper()
+    assert_same_terrain(a.terrain, b.terrain)
+    np.testing.assert_array_equal(a.road.points, b.road.points)
+
+
+@pytest.mark.parametrize("u", [1, 2, 3])
+def test_paper_team_sizes(u):
+    s = Scenario.paper(n_uavs=u)
+    assert s.n_uavs == u
+    np.testing.assert_array_equal(s.uav_xy, PAPER_XY[:u])
+    np.testing.assert_allclose(s.uav_theta, PAPER_THETA[:u])
+
+
+def test_paper_team_size_from_config():
+    s = Scenario.paper(Config(n_uavs=1))
+    assert s.n_uavs == 1
+    np.testing.assert_array_equal(s.uav_xy, PAPER_XY[:1])
+
+
+@pytest.mark.parametrize("u", [0, 4, -1])
+def test_paper_invalid_team_size_names_n_uavs(u):
+    with pytest.raises(ValueError, match="n_uavs"):
+        Scenario.paper(n_uavs=u)
+
+
+def test_paper_respects_config_lengths():
+    c = Config(n_slots=12, horizon=3)
+    s = Scenario.paper(c)
+    assert s.config is c
+    assert s.track.n_slots >= 15
+
+
+# ----------------------------------------------------------------------------- random scenes
+@pytest.mark.parametrize("seed", [0, 5, 123])
+def test_random_is_deterministic_per_seed(seed):
+    a, b = Scenario.random(seed), Scenario.random(seed)
+    assert_same_terrain(a.terrain, b.terrain)
+    np.testing.assert_array_equal(a.road.points, b.road.points)
+    np.testing.assert_array_equal(a.uav_xy, b.uav_xy)
+    np.testing.assert_array_equal(a.uav_theta, b.uav_theta)
+    np.testing.assert_array_equal(a.track.speeds, b.track.speeds)
+
+
+def test_random_differs_between_seeds():
+    a, b = Scenario.random(1), Scenario.random(2)
+    assert not (a.road.points.shape == b.road.points.shape and np.allclose(a.road.points, b.road.points))
+    assert not np.allclose(terrain_vertices(a.terrain)[0].mean(0), terrain_vertices(b.terrain)[0].mean(0))
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_random_starts_visible_and_separated(seed):
+    s = Scenario.random(seed)
+    c = s.config
+    assert s.n_uavs == c.n_uavs == 3
+    assert len(s.terrain) == c.n_polytopes
+    q0, phi0 = s.track.position(0), s.track.heading(0)
+    assert in_feasible_zone(s.uav_xy, q0[:2], phi0, c.r1, c.r2, c.mu, c.r_u).all()
+    assert line_of_sight(s.terrain, s.uav_xy, c.altitude, q0).all()
+    diff = s.uav_xy[:, None] - s.uav_xy[None]
+    dist = np.hypot(diff[..., 0], diff[..., 1])[np.triu_indices(s.n_uavs, 1)]
+    assert dist.min() >= 2 * c.d_safe1 - 1e-9
+    assert np.all((s.uav_theta >= 0) & (s.uav_theta < 2 * math.pi))
+    assert s.track.n_slots >= c.n_slots + c.horizon
+    # Starts are waypoint-lattice nodes: multiples of grid_step in the target's frame.
+    rel = s.uav_xy - q0[:2]
+    cph, sph = math.cos(phi0), math.sin(phi0)
+    local = np.column_stack([cph * rel[:, 0] + sph * rel[:, 1], -sph * rel[:, 0] + cph * rel[:, 1]])
+    np.testing.assert_allclose(local / c.grid_step, np.round(local / c.grid_step), atol=1e-6)
+
+
+@pytest.mark.parametrize("u", [1, 3, 5])
+def test_random_team_sizes(u):
+    s = Scenario.random(4, n_uavs=u)
+    assert s.uav_xy.shape == (u, 2) and s.uav_theta.shape == (u,)
+
+
+@pytest.mark.xfail(strict=True, raises=AssertionError,
+                   reason="Scenario.random does not validate n_uavs: n_uavs=0 places every "
+                          "lattice node and fails with a length-mismatch error that never names "
+                          "n_uavs (negative values raise numpy's 'negative dimensions')")
+@pytest.mark.parametrize("u", [0, -1])
+def test_random_invalid_team_size_names_n_uavs(u):
+    with pytest.raises(ValueError, match="n_uavs"):
+        Scenario.random(0, n_uavs=u)
+
+
+# ----------------------------------------------------------------------------- validation
+def _track(n, road=None):
+    road = road or Road([[0.0, 0.0], [2000.0, 0.0]])
+    return TargetTrack.constant(road, 10.0, n, s0=100.0)
+
+
+def test_scenario_requires_track_long_enough():
+    c = Config(n_slots=10, horizon=5)
+    Scenario(c, Terrain(), _track(15), [[0.0, 0.0]], [0.0])
+    with pytest.raises(ValueError, match="track"):
+        Scenario(c, Terrain(), _track(14), [[0.0, 0.0]], [0.0])
+
+
+def test_scenario_rejects_mismatched_or_non_finite_starts():
+    c = Config(n_slots=10, horizon=5)
+    with pytest.raises(ValueError, match="start"):
+        Scenario(c, Terrain(), _track(20), [[0.0, 0.0], [1.0, 1.0]], [0.0])
+    with pytest.raises(ValueError, match="finite"):
+        Scenario(c, Terrain(), _track(20), [[0.0, np.nan]], [0.0])
+    with pytest.raises(ValueError, match="finite"):
+        Scenario(c, Terrain(), _track(20), [[0.0, 0.0]], [np.inf])
+
+
+def test_scenario_normalises_start_arrays():
+    c = Config(n_slots=10, horizon=5)
+    s = Scenario(c, Terrain(), _track(20), [1.0, 2.0], 0.5)
+    assert s.uav_xy.shape == (1, 2) and s.uav_theta.shape == (1,)
+    assert s.n_uavs == 1
