@@ -30,6 +30,9 @@ def _scene(args: argparse.Namespace) -> int:
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=args.dpi)
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
     print(f"wrote {out} ({out.stat().st_size / 1024:.0f} KiB): {scenario.name}, slot {args.slot}")
     return 0
 

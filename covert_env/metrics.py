@@ -101,7 +101,8 @@ def slot_quantities(traj: Trajectory, terrain: Terrain, config: Config, *, path_
         los_path = np.full(los.shape, np.nan)
 
     sep = _nearest_teammate(end_xy)
-    sep_path = _nearest_teammate(np.swapaxes(traj.path_xy, 1, 2)).min(axis=1)   # (T, P, U) -> (T, U)
+    # Like LoS: sample 0 is the previous slot's end (counted there), so each instant counts once.
+    sep_path = _nearest_teammate(np.swapaxes(traj.path_xy[:, :, 1:], 1, 2)).min(axis=1)   # (T, U)
     clearance = _terrain_clearance(end_xy, c.altitude, terrain)
     return SlotQuantities(los=los, los_path=los_path, in_zone=in_zone, alpha=alpha_all[1:], d=d_all[1:],
                           kappa=kappa, g=g, path_length=np.asarray(traj.path_length, float),

@@ -27,7 +27,7 @@ class Road:
     points: np.ndarray
 
     def __post_init__(self) -> None:
-        pts = np.asarray(self.points, dtype=float)
+        pts = np.array(self.points, dtype=float)   # a copy: freezing it must not freeze the caller's
         if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 2:
             raise ValueError(f"Road.points must be a (K, 2) array with K >= 2, got shape {pts.shape}")
         if not np.all(np.isfinite(pts)):
@@ -129,7 +129,7 @@ class TargetTrack:
     s0: float = 0.0
 
     def __post_init__(self) -> None:
-        sp = np.atleast_1d(np.asarray(self.speeds, dtype=float))
+        sp = np.atleast_1d(np.array(self.speeds, dtype=float))
         if sp.ndim != 1 or not np.all(np.isfinite(sp)) or np.any(sp < 0):
             raise ValueError("TargetTrack.speeds must be a 1-D array of finite speeds >= 0")
         sp.setflags(write=False)

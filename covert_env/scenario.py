@@ -106,6 +106,7 @@ class Scenario:
         """
         c = config or Config()
         u = c.n_uavs if n_uavs is None else n_uavs
+        _check_team(u, "Scenario.random")
         rng = np.random.default_rng(seed)
         road, track = cls._road_and_track(c, rng)
         terrain = Terrain.random(seed=rng, road=road, config=c)
@@ -122,6 +123,7 @@ class Scenario:
 
         c = self.config
         u = self.n_uavs if n_uavs is None else n_uavs
+        _check_team(u, "Scenario.sample_starts")
         q0, phi0 = self.track.position(0), float(self.track.heading(0))
         nodes = grid_nodes(q0[:2], phi0, c.grid_step, c.r1, c.r2, c.mu, c.r_u)
         nodes = nodes[line_of_sight(self.terrain, nodes, c.altitude, q0)]
@@ -135,3 +137,8 @@ class Scenario:
         if len(picked) < u:
             raise ValueError(f"Scenario {self.name}: could not place {u} UAVs in the visible zone")
         return np.array(picked), rng.uniform(0, 2 * math.pi, u)
+
+
+def _check_team(u, where: str) -> None:
+    if isinstance(u, bool) or not isinstance(u, (int, np.integer)) or u < 1:
+        raise ValueError(f"{where}: n_uavs must be an integer >= 1, got {u!r}")

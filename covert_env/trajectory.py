@@ -58,19 +58,34 @@ class Trajectory:
         return self.uav_xy.shape[1]
 
     def to_dict(self) -> dict:
-        return {f.name: np.asarray(getattr(self, f.name)).tolist() for f in fields(self)}
+        """Plain JSON types: nested lists, NaN written as null, and each field's shape under ``"shapes"``
+        (so an empty episode keeps its (0, U, P, 2)-style shapes)."""
+        out: dict = {}
+        for f in fields(self):
+            a = np.asarray(getattr(self, f.name))
+            out[f.name] = np.where(np.isnan(a), None, a).tolist() if a.dtype.kind == "f" else a.tolist()
+        out["shapes"] = {f.name: list(np.shape(getattr(self, f.name))) for f in fields(self)}
+        return out
 
     @classmethod
     def from_dict(cls, data: dict) -> Trajectory:
-        names = {f.name for f in fields(cls)}
-        missing = sorted(names - set(data))
+        names = [f.name for f in fields(cls)]
+        missing = sorted(set(names) - set(data))
         if missing:
             raise ValueError(f"Trajectory: missing field(s) {missing}")
-        kw = {n: np.asarray(data[n], dtype=bool if n == "infeasible" else float) for n in names}
+        shapes = data.get("shapes", {})
+        kw = {}
+        for n in names:
+            if n == "infeasible":
+                a = np.asarray(data[n], dtype=bool)
+            else:
+                a = np.asarray(data[n], dtype=object)
+                a = np.where(a == None, np.nan, a).astype(float)  # noqa: E711 - null -> NaN elementwise
+            kw[n] = a.reshape(shapes[n]) if n in shapes else a
         return cls(**kw)
 
     def save(self, path: str | Path) -> None:
-        Path(path).write_text(json.dumps(self.to_dict()))
+        Path(path).write_text(json.dumps(self.to_dict(), allow_nan=False))
 
     @classmethod
     def load(cls, path: str | Path) -> Trajectory:

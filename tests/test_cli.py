@@ -112,8 +112,6 @@ def test_parser_defaults_and_usage_errors(capsys):
     assert "--slot" in capsys.readouterr().err
 
 
-@pytest.mark.xfail(strict=True, raises=AssertionError,
-                   reason="cli._scene never closes its figure: every in-process call leaks one pyplot figure")
 def test_scene_does_not_leak_figures(tmp_path):
     plt.close("all")
     main(["scene", "--seed", "0", "--slot", "0", "--out", str(tmp_path / "a.png"), "--dpi", "30"])

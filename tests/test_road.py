@@ -181,8 +181,6 @@ def test_road_points_are_read_only(poly):
         poly.points[0, 0] = 99.0
 
 
-@pytest.mark.xfail(strict=True, reason="Road.__post_init__ freezes the caller's float array in place "
-                                       "(np.asarray without copy, then setflags(write=False))")
 def test_road_does_not_freeze_or_alias_the_callers_array():
     pts = POLY.copy()
     road = Road(pts)
@@ -275,8 +273,6 @@ def test_track_speeds_are_read_only(track):
         track.speeds[0] = 10.0
 
 
-@pytest.mark.xfail(strict=True, reason="TargetTrack.__post_init__ freezes the caller's float speeds array in "
-                                       "place (np.asarray without copy, then setflags(write=False))")
 def test_track_does_not_freeze_or_alias_the_callers_speeds(poly):
     speeds = np.array([1.0, 2.0, 3.0])
     t = TargetTrack(poly, speeds)
