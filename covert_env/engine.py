@@ -159,10 +159,13 @@ class Engine:
         """Integrate turn (v, w) for t_turn then straight (v, 0): path samples (U, P, 2), end heading."""
         c = self.config
         t = self._fractions[:, None] * c.delta                        # (P, 1)
-        t1 = np.minimum(t, t_turn)
-        t2 = np.maximum(t - t_turn, 0.0)
-        x1, y1, th1 = unicycle_step(self.uav_xy[:, 0], self.uav_xy[:, 1], self.uav_theta, v, w, t1)
-        x2, y2, th2 = unicycle_step(x1, y1, th1, v, 0.0, t2)
+        if np.all(t_turn >= c.delta):                                 # one constant control: one arc
+            x2, y2, th2 = unicycle_step(self.uav_xy[:, 0], self.uav_xy[:, 1], self.uav_theta, v, w, t)
+        else:
+            t1 = np.minimum(t, t_turn)
+            t2 = np.maximum(t - t_turn, 0.0)
+            x1, y1, th1 = unicycle_step(self.uav_xy[:, 0], self.uav_xy[:, 1], self.uav_theta, v, w, t1)
+            x2, y2, th2 = unicycle_step(x1, y1, th1, v, 0.0, t2)
         path = np.stack([x2, y2], axis=-1).swapaxes(0, 1)             # (U, P, 2)
         path[:, 0] = self.uav_xy                                      # exact start, no round-off
         return path, th2[-1]
@@ -210,7 +213,7 @@ class Engine:
         one = Trajectory(
             uav_xy=np.stack(self._xy[-2:]), uav_theta=np.stack(self._theta[-2:]),
             path_xy=self._path[-1][None], path_length=self._length[-1][None],
-            target_xyz=self.track.position(np.array([k - 1, k])), target_phi=self.track.heading(np.array([k - 1, k])),
+            target_xyz=self.track.positions[k - 1:k + 1], target_phi=self.track.headings[k - 1:k + 1],
             target_path_xyz=self._tpath[-1][None], max_speed=self._vmax[-1][None],
             max_turn_rate=self._wmax[-1][None], infeasible=self._infeasible[-1][None],
             decision_time=self._dtime[-1][None])

@@ -151,14 +151,16 @@ class TargetTrack:
         return len(self.speeds)
 
     @cached_property
-    def _positions(self) -> np.ndarray:
+    def positions(self) -> np.ndarray:
+        """(n + 1, 3) q[k] for every slot k = 0..n (read-only)."""
         xy = self.road.point_at(self.arc)
         out = np.column_stack([xy, np.full(len(xy), self.z)])
         out.setflags(write=False)
         return out
 
     @cached_property
-    def _headings(self) -> np.ndarray:
+    def headings(self) -> np.ndarray:
+        """(n + 1,) phi[k] for every slot (read-only)."""
         out = self.road.heading_at(self.arc)
         out.setflags(write=False)
         return out
@@ -166,8 +168,8 @@ class TargetTrack:
     def position(self, k) -> np.ndarray:
         """q[k] as (x, y, z); k may be an int or an integer array (clamped to the track's end)."""
         if isinstance(k, (int, np.integer)):
-            return self._positions[min(max(int(k), 0), self.n_slots)].copy()
-        return self._positions[np.clip(np.asarray(k), 0, self.n_slots)]
+            return self.positions[min(max(int(k), 0), self.n_slots)].copy()
+        return self.positions[np.clip(np.asarray(k), 0, self.n_slots)]
 
     def position_between(self, k: int, fractions) -> np.ndarray:
         """Target positions (len(fractions), 3) at times (k + f) delta within slot k, f in [0, 1]."""
@@ -190,8 +192,8 @@ class TargetTrack:
     def heading(self, k) -> np.ndarray | float:
         """phi[k], the road tangent at the target's position (rad)."""
         if isinstance(k, (int, np.integer)):
-            return float(self._headings[min(max(int(k), 0), self.n_slots)])
-        return self._headings[np.clip(np.asarray(k), 0, self.n_slots)]
+            return float(self.headings[min(max(int(k), 0), self.n_slots)])
+        return self.headings[np.clip(np.asarray(k), 0, self.n_slots)]
 
     def predict(self, k: int, horizon: int) -> tuple[np.ndarray, np.ndarray]:
         """Predicted (q, phi) for slots k+1..k+horizon: arrays (horizon, 3) and (horizon,).

@@ -34,8 +34,10 @@ gives a subset of the exact shadow (possibly missing blocked points near the tar
 
 from __future__ import annotations
 
+import math
 import weakref
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import shapely
@@ -69,7 +71,7 @@ _CHUNK = 8192  # points per block: bounds the (K, M) and (pairs, F, 4) temporari
 
 # ----------------------------------------------------------------------------- per-terrain cache
 @dataclass(frozen=True)
-class _TerrainArrays:
+class _TerrainArrays:  # noqa: B903
     """Padded arrays derived once per terrain (cached by identity, see :func:`_arrays`)."""
 
     hs: np.ndarray        # (M, F, 4) half-spaces, padded with the always-true row 0.x - 1 <= 0
@@ -80,6 +82,16 @@ class _TerrainArrays:
     verts: np.ndarray     # (M, W, 3) vertices, padded by repeating the last vertex
     pair_i: np.ndarray    # (P,) index pairs i < j over W: every vertex-vertex segment
     pair_j: np.ndarray
+
+    @cached_property
+    def normals_t(self) -> np.ndarray:
+        """(3, M F) face normals, transposed for ``points @ normals_t``."""
+        return np.ascontiguousarray(self.hs[..., :3].reshape(-1, 3).T)
+
+    @cached_property
+    def offsets(self) -> np.ndarray:
+        """(M F,) face offsets d."""
+        return self.hs[..., 3].reshape(-1).copy()
 
 
 _CACHE: weakref.WeakKeyDictionary[Terrain, _TerrainArrays] = weakref.WeakKeyDictionary()
@@ -171,13 +183,14 @@ def line_of_sight(terrain: Terrain, uav_xy, altitude, target_xyz, *,
     if len(terrain) == 0:
         return np.ones(shape, dtype=bool)
     arr = _arrays(terrain)
-    n_points = int(np.prod(shape))
-    if n_points * len(terrain) <= _BRUTE_PAIRS:
+    if math.prod(shape) * len(terrain) <= _BRUTE_PAIRS:
         # Few points (an env step): the broad phase's fixed cost exceeds clipping every pair.
-        u = np.concatenate([np.broadcast_to(uav_xy, shape + (2,)), np.broadcast_to(alt, shape)[..., None]],
-                           axis=-1).reshape(-1, 3)
-        t = np.broadcast_to(target, shape + (3,)).reshape(-1, 3)
-        return _los_brute(arr, u, t, tol).reshape(shape)
+        u = np.empty(shape + (3,))
+        u[..., :2] = uav_xy
+        u[..., 2] = alt
+        t = np.empty(shape + (3,))
+        t[...] = target
+        return _los_brute(arr, u.reshape(-1, 3), t.reshape(-1, 3), tol).reshape(shape)
     if target.ndim == 1 and alt.ndim == 0 and float(alt) > target[2]:
         pts = np.broadcast_to(uav_xy, shape + (2,)).reshape(-1, 2)
         out = np.ones(len(pts), dtype=bool)
@@ -196,10 +209,17 @@ def line_of_sight(terrain: Terrain, uav_xy, altitude, target_xyz, *,
 def _los_brute(arr: _TerrainArrays, u: np.ndarray, t: np.ndarray, tol: float) -> np.ndarray:
     """Every (point, polytope) pair clipped exactly, no broad phase. ``u``, ``t`` (K, 3) -> (K,) clear."""
     m, f = arr.hs.shape[:2]
-    n, d = arr.hs[..., :3].reshape(-1, 3), arr.hs[..., 3].reshape(-1) + tol
-    num = u @ n.T + d                                                   # (K, M F) face values at the UAV
-    den = t @ n.T + d - num                                             # target minus UAV
-    blocked = _clip(num.reshape(-1, f), den.reshape(-1, f)).reshape(len(u), m)
+    n_t = arr.normals_t                                                 # (3, M F)
+    d = arr.offsets + tol
+    num = (u @ n_t + d).reshape(-1, f)                                  # face values at the UAV
+    den = (t @ n_t + d).reshape(-1, f) - num                            # target minus UAV
+    # Cyrus-Beck as in _clip, written for small inputs (fewer temporaries).
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = -num / den
+    entering = den < 0
+    s_in = np.where(entering, s, 0.0).max(axis=1)
+    s_out = np.fmin.reduce(np.where(entering, 1.0, s), axis=1)
+    blocked = (np.maximum(s_in, 0.0) <= np.minimum(s_out, 1.0)).reshape(len(u), m)
     return ~blocked.any(axis=1)
 
 

@@ -318,3 +318,17 @@ def test_config_wrappers():
     b = shadow_polygons_cfg(terrain, q, cfg.replace(h_min=30.0))
     c = shadow_polygons(terrain, q, cfg.altitude, r, h_min=30.0)
     assert all(x.equals(y) or (x.is_empty and y.is_empty) for x, y in zip(b, c, strict=True))
+
+
+def test_small_input_path_equals_broad_phase_paths():
+    """Few points take the all-pairs path; it must agree with the broad-phase paths point for point."""
+    rng = np.random.default_rng(11)
+    for _ in range(40):
+        terrain = random_terrain(rng)
+        q = random_target(rng)
+        pts = disk_points(rng, q, 600)
+        big = line_of_sight(terrain, pts, 80.0, q)                       # single-target broad phase
+        per_point = line_of_sight(terrain, pts, 80.0, np.broadcast_to(q, pts.shape[:-1] + (3,)) + 0.0)
+        small = np.concatenate([line_of_sight(terrain, pts[i:i + 5], 80.0, q) for i in range(0, 600, 5)])
+        assert np.array_equal(small, big) and np.array_equal(per_point, big)
+        assert (~big).any() or len(terrain) < 6
