@@ -85,15 +85,23 @@ def _median_time(fn, repeat: int) -> float:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--seed", type=int, default=0, help="terrain/road seed (default 0)")
+    ap.add_argument("--seed", type=int, default=None,
+                    help="a random scene's seed (default: the paper scenario, Scenario.paper)")
     ap.add_argument("--slots", type=int, default=50, help="slots for the per-slot timing (default 50)")
     ap.add_argument("--repeat", type=int, default=5, help="repetitions of each LoS timing (median)")
     args = ap.parse_args(argv)
 
     cfg = Config()
-    road = Road.random(args.seed)
-    terrain, source = paper_like_terrain(args.seed, road, cfg)
-    track = TargetTrack.constant(road, cfg.target_speed, args.slots + 1, z=cfg.target_height)
+    if args.seed is None:
+        from covert_env.scenario import Scenario
+
+        scenario = Scenario.paper(cfg)
+        terrain, track, source = scenario.terrain, scenario.track, "Scenario.paper"
+        args.seed = 0
+    else:
+        road = Road.random(args.seed)
+        terrain, source = paper_like_terrain(args.seed, road, cfg)
+        track = TargetTrack.constant(road, cfg.target_speed, args.slots + 1, z=cfg.target_height)
     radius = cfg.r2 + cfg.shadow_margin
 
     # --- per slot: zone (eq. 5), shadows (eqs. 8-9), visible zone (eq. 10)
@@ -115,7 +123,7 @@ def main(argv: list[str] | None = None) -> int:
     # --- line of sight per point
     rng = np.random.default_rng(args.seed)
     k_busy = int(np.argmax(n_shadows))
-    scenes = [("paper-like", terrain, track.position(k_busy)),
+    scenes = [("paper" if source == "Scenario.paper" else "paper-like", terrain, track.position(k_busy)),
               ("dense", dense_terrain(args.seed), np.array([0.0, 0.0, cfg.target_height]))]
     los_rows = []
     for name, ter, q in scenes:
