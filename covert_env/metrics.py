@@ -21,7 +21,7 @@ from covert_env.cost import disguise, stage_cost, uav_target_angle, uav_target_d
 from covert_env.terrain import Terrain
 from covert_env.trajectory import Trajectory
 from covert_env.visibility import line_of_sight
-from covert_env.zone import in_feasible_zone
+from covert_env.zone import zone_distance
 
 __all__ = ["SlotQuantities", "slot_quantities", "episode_metrics", "METRIC_DESCRIPTIONS"]
 
@@ -35,6 +35,7 @@ class SlotQuantities:
         los_path: LoS clear at every sample along the slot's path (against the target at the same instant);
             NaN when not computed (``path_los=False``).
         in_zone: p[k+1] inside the feasible zone Phi(q[k+1]) of eq. 4 (not eroded: the true target).
+        zone_distance: signed distance (m) from p[k+1] to that zone's boundary, negative inside.
         alpha, d: UAV-target angle and distance at the end of the slot, eqs. 12-13.
         kappa: disguise of the slot, eq. 11.
         g: stage cost of the slot, eq. 18.
@@ -47,6 +48,7 @@ class SlotQuantities:
     los: np.ndarray
     los_path: np.ndarray
     in_zone: np.ndarray
+    zone_distance: np.ndarray
     alpha: np.ndarray
     d: np.ndarray
     kappa: np.ndarray
@@ -89,7 +91,7 @@ def slot_quantities(traj: Trajectory, terrain: Terrain, config: Config, *, path_
     kappa = disguise(alpha_all[:-1], alpha_all[1:], d_all[:-1], d_all[1:], c.eta)
     g = stage_cost(traj.path_length, alpha_all[:-1], alpha_all[1:], d_all[:-1], d_all[1:], c.eta, c.lam)
 
-    in_zone = in_feasible_zone(end_xy, traj.target_xyz[1:, None, :2], traj.target_phi[1:, None], c.r1, c.r2, c.mu)
+    zd = zone_distance(end_xy, traj.target_xyz[1:, None, :2], traj.target_phi[1:, None], c.r1, c.r2, c.mu)
     if path_los:
         # Sample j of every UAV against the target at the same instant, in one vectorised call (every
         # slot has its own target). Sample 0 is the previous slot's end, checked there; the last
@@ -104,7 +106,7 @@ def slot_quantities(traj: Trajectory, terrain: Terrain, config: Config, *, path_
     # Like LoS: sample 0 is the previous slot's end (counted there), so each instant counts once.
     sep_path = _nearest_teammate(np.swapaxes(traj.path_xy[:, :, 1:], 1, 2)).min(axis=1)   # (T, U)
     clearance = _terrain_clearance(end_xy, c.altitude, terrain)
-    return SlotQuantities(los=los, los_path=los_path, in_zone=in_zone, alpha=alpha_all[1:], d=d_all[1:],
+    return SlotQuantities(los=los, los_path=los_path, in_zone=zd <= 0.0, zone_distance=zd, alpha=alpha_all[1:], d=d_all[1:],
                           kappa=kappa, g=g, path_length=np.asarray(traj.path_length, float),
                           separation=sep, separation_path=sep_path, terrain_clearance=clearance)
 

@@ -244,6 +244,9 @@ class CovertSensingParallelEnv(ParallelEnv):
         self.possible_agents = [f"uav_{i}" for i in range(cfg.n_uavs)]
         self.agents: list[str] = []
         self._index = {a: i for i, a in enumerate(self.possible_agents)}
+        u = cfg.n_uavs
+        # Teammates of agent i, by index, skipping i: the observation's fixed-size teammate block.
+        self._mates = np.array([[j for j in range(u) if j != i] for i in range(u)], dtype=int).reshape(u, u - 1)
 
         c = cfg
         self.lattice = zone_lattice(c)                        # the DP planner's nodes, target frame
@@ -342,49 +345,31 @@ class CovertSensingParallelEnv(ParallelEnv):
         missing = [a for a in self.agents if a not in actions]
         if missing:
             raise ValueError(f"step(): missing actions for {missing}")
-        decision = np.zeros(len(self.agents), bool)
         if self.action_mode == "unicycle":
-            ctl = np.empty((len(self.agents), 2))
-            for i, a in enumerate(self.agents):
-                act = np.asarray(actions[a], dtype=float).reshape(-1)
-                if act.shape != (2,):
-                    raise ValueError(f"action for {a} must have shape (2,), got {act.shape}")
-                if not np.all(np.isfinite(act)):
-                    raise ValueError(f"action for {a} must be finite, got {act.tolist()}")
-                act = np.clip(act, -1.0, 1.0)
-                ctl[i] = (c.v_max * (MIN_SPEED_FRACTION + (1 - MIN_SPEED_FRACTION) * (act[0] + 1) / 2),
-                          c.w_max * act[1])
-            quant = eng.step(unicycle=ctl)
+            quant = eng.step(unicycle=self._unicycle_controls(actions))
         else:
-            idx = np.empty(len(self.agents), dtype=int)
-            for i, a in enumerate(self.agents):
-                act = np.asarray(actions[a])
-                if act.size != 1 or not np.all(np.isfinite(act.astype(float))) or float(act) != int(act) \
-                        or not 0 <= int(act) < len(self.lattice):
-                    raise ValueError(f"action for {a} must be an integer in [0, {len(self.lattice) - 1}], "
-                                     f"got {actions[a]!r}")
-                idx[i] = int(act)
+            idx = self._waypoint_indices(actions)
             decision = self._masks[np.arange(len(idx)), idx] == 0
             q1, phi1 = eng.predict(1)
             goals = to_world(self.lattice[idx], q1[0, :2], float(phi1[0]))
             quant = eng.step(waypoints=goals, infeasible=decision)
         self._last_speed = quant.path_length[0] / c.delta
         self._los = quant.los[0]
-        self._zone_dist = zone_distance(eng.uav_xy, eng.target_xyz[:2], eng.target_phi, c.r1, c.r2, c.mu)
+        self._zone_dist = quant.zone_distance[0]
         rewards, terms = self._rewards(quant)
         collided = bool(np.any(quant.separation_path[0] < c.d_safe1))
         terminate = self.terminate_on_collision and collided
         truncate = eng.k >= self.max_cycles and not terminate
         self._update_masks()
         obs = self._observations()
+        per_agent = zip(terms, quant.los[0].tolist(), quant.in_zone[0].tolist(), quant.kappa[0].tolist(),
+                        quant.g[0].tolist(), self._last_speed.tolist(), quant.separation_path[0].tolist(),
+                        quant.terrain_clearance[0].tolist(), eng._infeasible[-1].tolist(), strict=True)
         infos = {}
-        for i, a in enumerate(self.agents):
+        for i, (a, row) in enumerate(zip(self.agents, per_agent, strict=True)):
             info = self._base_info(i)
-            info.update(reward_terms=terms[i], los=bool(quant.los[0, i]), in_zone=bool(quant.in_zone[0, i]),
-                        kappa=float(quant.kappa[0, i]), g=float(quant.g[0, i]), v=float(self._last_speed[i]),
-                        separation=float(quant.separation_path[0, i]),
-                        terrain_clearance=float(quant.terrain_clearance[0, i]),
-                        infeasible=bool(eng._infeasible[-1][i]))
+            info.update(zip(("reward_terms", "los", "in_zone", "kappa", "g", "v", "separation",
+                             "terrain_clearance", "infeasible"), row, strict=True))
             infos[a] = info
         agents = list(self.agents)
         terminations = {a: terminate for a in agents}
@@ -396,6 +381,36 @@ class CovertSensingParallelEnv(ParallelEnv):
         return obs, {a: rewards[i] for i, a in enumerate(agents)}, terminations, truncations, infos
 
     # ------------------------------------------------------------------ internals
+    def _unicycle_controls(self, actions: dict[str, Any]) -> np.ndarray:
+        """(U, 2) controls (v, omega) from Box(-1, 1) actions: clipped, then scaled (class docstring)."""
+        c = self.config
+        try:
+            act = np.array([actions[a] for a in self.agents], dtype=float)
+        except (TypeError, ValueError):
+            act = None
+        if act is None or act.shape != (len(self.agents), 2) or not np.isfinite(act).all():
+            for a in self.agents:   # find the culprit for the message
+                one = np.asarray(actions[a], dtype=float).reshape(-1)
+                if one.shape != (2,):
+                    raise ValueError(f"action for {a} must have shape (2,), got {np.shape(actions[a])}")
+                if not np.all(np.isfinite(one)):
+                    raise ValueError(f"action for {a} must be finite, got {one.tolist()}")
+        act = np.clip(act, -1.0, 1.0)
+        v = c.v_max * (MIN_SPEED_FRACTION + (1 - MIN_SPEED_FRACTION) * (act[:, 0] + 1) / 2)
+        return np.column_stack([v, c.w_max * act[:, 1]])
+
+    def _waypoint_indices(self, actions: dict[str, Any]) -> np.ndarray:
+        """(U,) lattice indices from Discrete(L) actions, validated."""
+        n = len(self.lattice)
+        idx = np.empty(len(self.agents), dtype=int)
+        for i, a in enumerate(self.agents):
+            act = np.asarray(actions[a])
+            val = float(act.reshape(-1)[0]) if act.size == 1 and act.dtype.kind in "biuf" else math.nan
+            if not (math.isfinite(val) and val == int(val) and 0 <= val < n):
+                raise ValueError(f"action for {a} must be an integer in [0, {n - 1}], got {actions[a]!r}")
+            idx[i] = int(val)
+        return idx
+
     def _rewards(self, quant) -> tuple[np.ndarray, list[dict[str, float]]]:
         c, p = self.config, self.penalties
         outside = np.maximum(self._zone_dist, 0.0) / (c.r2 - c.r1)
@@ -466,15 +481,14 @@ class CovertSensingParallelEnv(ParallelEnv):
 
     def _observations(self) -> dict[str, Any]:
         own = self._own_features()
-        self._own = own
         shared = self._shared_features()
-        self._shared = shared
-        out = {}
-        for i, a in enumerate(self.possible_agents):
-            mates = np.delete(own[:, :2], i, axis=0).reshape(-1)
-            obs = np.concatenate([own[i], shared[:3], mates, shared[3:]]).astype(np.float32)
-            out[a] = {"observation": obs, "action_mask": self._masks[i].copy()} if self.dict_obs else obs
-        return out
+        u = len(own)
+        rows = np.concatenate([own, np.broadcast_to(shared[:3], (u, 3)), own[self._mates, :2].reshape(u, -1),
+                               np.broadcast_to(shared[3:], (u, len(shared) - 3))], axis=1).astype(np.float32)
+        if self.dict_obs:
+            return {a: {"observation": rows[i], "action_mask": self._masks[i].copy()}
+                    for i, a in enumerate(self.possible_agents)}
+        return dict(zip(self.possible_agents, rows, strict=True))
 
     def state(self) -> np.ndarray:
         """Global state for centralised critics (see the class docstring)."""
