@@ -12,8 +12,8 @@ Each UAV's move over a slot is either
   straight leg, at one constant speed, ending on the waypoint at the end of the slot.
 
 A waypoint the manoeuvre cannot reach in one slot (inside the turning circle, or needing v > V_max)
-is flown as a documented best effort instead: turn toward it at up to W_max and fly at the speed that
-would cover the straight-line distance, capped at V_max. The slot is flagged ``infeasible``.
+is flown as a documented best effort instead: the constant admissible control (v, omega), from a
+17 x 17 grid, whose end point lies closest to the waypoint. The slot is flagged ``infeasible``.
 """
 
 from __future__ import annotations
@@ -22,7 +22,6 @@ import math
 
 import numpy as np
 
-from covert_env.angles import wrap_angle
 from covert_env.dynamics import solve_manoeuvre, unicycle_step
 from covert_env.metrics import SlotQuantities, slot_quantities
 from covert_env.scenario import Scenario
@@ -146,14 +145,21 @@ class Engine:
         t_turn = np.where(feasible, np.nan_to_num(m.turn_time), 0.0)
         bad = ~feasible
         if bad.any():
-            rel = goals[bad] - self.uav_xy[bad]
-            bearing = wrap_angle(np.arctan2(rel[:, 1], rel[:, 0]) - self.uav_theta[bad])
-            v[bad] = np.clip(np.hypot(rel[:, 0], rel[:, 1]) / c.delta, 1e-3, c.v_max)
-            rate = np.minimum(np.abs(bearing) / c.delta, c.w_max)
-            w[bad] = np.sign(bearing) * rate
-            # Turn only until facing the goal, then straight: same two-segment shape as the manoeuvre.
-            t_turn[bad] = np.where(rate > 0, np.abs(bearing) / np.maximum(rate, 1e-12), 0.0).clip(0, c.delta)
+            v[bad], w[bad] = self._closest_constant_control(goals[bad], bad)
+            t_turn[bad] = c.delta
         return v, w, t_turn, bad
+
+    def _closest_constant_control(self, goals: np.ndarray, which: np.ndarray):
+        """Best effort for unreachable waypoints: the constant (v, omega) on a 17 x 17 grid of the
+        admissible controls whose exact end point lies closest to the waypoint."""
+        c = self.config
+        vs = c.v_max * np.linspace(0.01, 1.0, 17)
+        ws = c.w_max * np.linspace(-1.0, 1.0, 17)
+        gv, gw = (a.ravel() for a in np.meshgrid(vs, ws, indexing="ij"))
+        x, y, _ = unicycle_step(self.uav_xy[which, 0, None], self.uav_xy[which, 1, None],
+                                self.uav_theta[which, None], gv, gw, c.delta)
+        best = np.argmin((x - goals[:, :1]) ** 2 + (y - goals[:, 1:]) ** 2, axis=1)
+        return gv[best], gw[best]
 
     def _fly(self, v, w, t_turn):
         """Integrate turn (v, w) for t_turn then straight (v, 0): path samples (U, P, 2), end heading."""

@@ -379,3 +379,30 @@ def test_empty_trajectory_round_trip_keeps_shapes(paper):
     back = Trajectory.from_dict(json.loads(json.dumps(t.to_dict())))
     for name in (f.name for f in dataclasses.fields(t)):
         assert getattr(back, name).shape == getattr(t, name).shape, name
+
+
+@pytest.mark.parametrize("offset", [[-20.0, 0.0], [0.0, 1.0], [200.0, 0.0], [-150.0, 130.0]])
+def test_fallback_is_the_closest_constant_control(paper, offset):
+    """An unreachable waypoint (behind, inside the turning circle, too far) is flown by the admissible
+    constant control that ends closest to it: no control on a fine grid ends much closer."""
+    from covert_env.dynamics import unicycle_step
+
+    eng = Engine(paper)
+    c = paper.config
+    p0, th0 = eng.uav_xy.copy(), eng.uav_theta.copy()
+    rot = np.array([[np.cos(th0[0]), -np.sin(th0[0])], [np.sin(th0[0]), np.cos(th0[0])]])
+    goal = p0[0] + rot @ np.asarray(offset)
+    goals = p0.copy()
+    goals[0] = goal
+    goals[1:] += 200.0                      # the others fly far waypoints too
+    eng.step(waypoints=goals)
+    traj = eng.trajectory()
+    assert traj.infeasible[0, 0]
+    assert traj.max_speed[0, 0] <= c.v_max + 1e-9 and traj.max_turn_rate[0, 0] <= c.w_max + 1e-9
+    got = np.hypot(*(eng.uav_xy[0] - goal))
+    vs, ws = np.meshgrid(np.linspace(0.005, 1, 101) * c.v_max, np.linspace(-1, 1, 101) * c.w_max)
+    x, y, _ = unicycle_step(p0[0, 0], p0[0, 1], th0[0], vs, ws, c.delta)
+    best = np.hypot(x - goal[0], y - goal[1]).min()
+    assert got <= best + 0.1 * c.v_max * c.delta / 16 + 1e-9   # within the 17 x 17 grid's resolution
+    if offset[0] > 100:                    # far ahead: it gets as close as the speed limit allows
+        assert got == pytest.approx(np.hypot(*offset) - c.v_max * c.delta, abs=0.5)
