@@ -12,8 +12,8 @@ Each UAV's move over a slot is either
   straight leg, at one constant speed, ending on the waypoint at the end of the slot.
 
 A waypoint the manoeuvre cannot reach in one slot (inside the turning circle, or needing v > V_max)
-is flown as a documented best effort instead: the constant admissible control (v, omega), from a
-17 x 17 grid, whose end point lies closest to the waypoint. The slot is flagged ``infeasible``.
+is flown as a documented best effort instead: the constant admissible control (v, omega) whose end
+point lies closest to the waypoint (a 17 x 17 grid search, refined twice). The slot is flagged ``infeasible``.
 """
 
 from __future__ import annotations
@@ -150,16 +150,24 @@ class Engine:
         return v, w, t_turn, bad
 
     def _closest_constant_control(self, goals: np.ndarray, which: np.ndarray):
-        """Best effort for unreachable waypoints: the constant (v, omega) on a 17 x 17 grid of the
-        admissible controls whose exact end point lies closest to the waypoint."""
+        """Best effort for unreachable waypoints: the admissible constant (v, omega) whose exact end
+        point lies closest to the waypoint, found on a 17 x 17 grid refined twice around the best."""
         c = self.config
-        vs = c.v_max * np.linspace(0.01, 1.0, 17)
-        ws = c.w_max * np.linspace(-1.0, 1.0, 17)
-        gv, gw = (a.ravel() for a in np.meshgrid(vs, ws, indexing="ij"))
-        x, y, _ = unicycle_step(self.uav_xy[which, 0, None], self.uav_xy[which, 1, None],
-                                self.uav_theta[which, None], gv, gw, c.delta)
-        best = np.argmin((x - goals[:, :1]) ** 2 + (y - goals[:, 1:]) ** 2, axis=1)
-        return gv[best], gw[best]
+        x0, y0, th0 = self.uav_xy[which, 0, None], self.uav_xy[which, 1, None], self.uav_theta[which, None]
+        lo_v, hi_v = np.full(len(goals), 0.01 * c.v_max), np.full(len(goals), c.v_max)
+        lo_w, hi_w = np.full(len(goals), -c.w_max), np.full(len(goals), c.w_max)
+        f = np.linspace(0.0, 1.0, 17)
+        for _ in range(3):
+            gv = (lo_v[:, None] + (hi_v - lo_v)[:, None] * f)[:, :, None] * np.ones(17)       # (B, 17, 17)
+            gw = (lo_w[:, None] + (hi_w - lo_w)[:, None] * f)[:, None, :] * np.ones((17, 1))
+            gv, gw = gv.reshape(len(goals), -1), gw.reshape(len(goals), -1)
+            x, y, _ = unicycle_step(x0, y0, th0, gv, gw, c.delta)
+            best = np.argmin((x - goals[:, :1]) ** 2 + (y - goals[:, 1:]) ** 2, axis=1)
+            bv, bw = gv[np.arange(len(goals)), best], gw[np.arange(len(goals)), best]
+            dv, dw = (hi_v - lo_v) / 16, (hi_w - lo_w) / 16
+            lo_v, hi_v = np.maximum(bv - dv, 0.01 * c.v_max), np.minimum(bv + dv, c.v_max)
+            lo_w, hi_w = np.maximum(bw - dw, -c.w_max), np.minimum(bw + dw, c.w_max)
+        return bv, bw
 
     def _fly(self, v, w, t_turn):
         """Integrate turn (v, w) for t_turn then straight (v, 0): path samples (U, P, 2), end heading."""

@@ -106,7 +106,8 @@ def slot_quantities(traj: Trajectory, terrain: Terrain, config: Config, *, path_
     # Like LoS: sample 0 is the previous slot's end (counted there), so each instant counts once.
     sep_path = _nearest_teammate(np.swapaxes(traj.path_xy[:, :, 1:], 1, 2)).min(axis=1)   # (T, U)
     clearance = _terrain_clearance(end_xy, c.altitude, terrain)
-    return SlotQuantities(los=los, los_path=los_path, in_zone=zd <= 0.0, zone_distance=zd, alpha=alpha_all[1:], d=d_all[1:],
+    return SlotQuantities(los=los, los_path=los_path, in_zone=zd <= 0.0, zone_distance=zd,
+                          alpha=alpha_all[1:], d=d_all[1:],
                           kappa=kappa, g=g, path_length=np.asarray(traj.path_length, float),
                           separation=sep, separation_path=sep_path, terrain_clearance=clearance)
 
