@@ -1,0 +1,268 @@
+"""Reference policies with one interface, for the PettingZoo and Gymnasium environments of covert_env.
+
+Every policy has a ``name`` and two methods::
+
+    policy.reset(env, seed=None)            # after env.reset(); seeds the policy's own randomness
+    actions = policy.act(observations, env)
+
+``env`` is either the PettingZoo :class:`~covert_env.envs.covert_sensing.CovertSensingParallelEnv` or one
+of the Gymnasium single-UAV envs (``gym.make("covert_env/CovertSensing-v0")`` or
+``"covert_env/CovertSensingWaypoint-v0"``, wrapped or not; the parallel env inside is
+``env.unwrapped.par``). For the parallel env ``act`` returns ``{agent: action}``; for a Gymnasium env it
+returns the single agent's action. Policies read the world from the env's public attributes
+(``engine``, ``scenario``, ``config``, ``lattice``, ``action_mask``) as a planner with full knowledge
+of the scene would; learned agents see only the observations.
+
+Policies:
+
+* :class:`DPPolicy` -- the paper's DP planner (:mod:`baselines.dp`), shadow-aware or shadow-blind, with
+  the team negotiation. In waypoint mode its action is the planned node, exactly the move the planner
+  makes (the env's lattice is the planner's node set), so an env rollout equals
+  :func:`baselines.reproduce.rollout` for the same scene. In unicycle mode see :func:`arc_action`.
+* :class:`RandomPolicy` -- uniform over the allowed waypoints (the action mask), or uniform in the box.
+* :class:`HoldZoneCentrePolicy` -- heads for the centre of the feasible zone behind the target, every slot:
+  covert-naive (no disguise) but always in the zone when it can be reached.
+
+:func:`run_episode` runs any of them to the end and scores the episode with
+:func:`covert_env.metrics.episode_metrics`, the code every policy is scored with.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+import numpy as np
+
+from baselines.dp import DPPlanner, DPTeamPlanner, TeamPlan
+from covert_env.metrics import episode_metrics
+from covert_env.zone import to_world
+
+__all__ = [
+    "DPPolicy",
+    "HoldZoneCentrePolicy",
+    "POLICIES",
+    "Policy",
+    "RandomPolicy",
+    "arc_action",
+    "make_policy",
+    "parallel_env_of",
+    "run_episode",
+]
+
+#: Smallest commanded speed as a fraction of V_max in the env's unicycle action scaling.
+MIN_SPEED_FRACTION = 0.01
+
+
+def parallel_env_of(env) -> tuple[Any, str | None]:
+    """The parallel env behind ``env`` and, for a Gymnasium single-UAV env, its agent's name (else None)."""
+    if hasattr(env, "engine") and hasattr(env, "possible_agents"):
+        return env, None
+    inner = getattr(env, "unwrapped", env)
+    par = getattr(inner, "par", None)
+    if par is None:
+        raise TypeError(f"{type(env).__name__} is neither a CovertSensingParallelEnv nor a covert_env "
+                        "Gymnasium env (no .unwrapped.par)")
+    return par, par.possible_agents[0]
+
+
+def arc_action(xy, theta, goal, config) -> np.ndarray:
+    """The unicycle action (env scaling, in [-1, 1]^2) whose constant (v, omega) arc ends at ``goal``.
+
+    Holding (v, omega) for the slot flies a circular arc tangent to the heading (eq. 1). The arc from
+    (xy, theta) through ``goal`` turns by twice the goal's bearing beta, so ``omega = 2 beta / delta`` and
+    ``v = chord * beta / (delta sin beta)``. What this loses against the turn-then-straight manoeuvre the
+    planner assumes (a turn at +-W_max, then straight):
+
+    * the heading on arrival is ``theta + 2 beta`` instead of the manoeuvre's, so the next plan starts
+      from another heading than the one planned for (the policy replans every slot from the true pose);
+    * goals with ``|beta| > W_max delta / 2`` need ``|omega| > W_max`` in a single arc: omega is clipped and
+      the arc misses the goal, although the two-segment manoeuvre reaches it;
+    * the path length, hence the energy term of eq. 18, differs from the planned one;
+    * speeds below 1% of V_max cannot be commanded.
+
+    Returns:
+        (2,) float32 action: ``a0`` maps to ``v = V_max (0.01 + 0.99 (a0 + 1) / 2)``, ``a1`` to ``omega = W_max a1``.
+    """
+    c = config
+    rel = np.asarray(goal, float) - np.asarray(xy, float)
+    ct, st = math.cos(theta), math.sin(theta)
+    a, b = ct * rel[0] + st * rel[1], -st * rel[0] + ct * rel[1]
+    chord = math.hypot(a, b)
+    beta = math.atan2(b, a)
+    if chord < 1e-9:
+        v, omega = 0.0, 0.0
+    else:
+        omega = 2.0 * beta / c.delta
+        v = chord / c.delta * (beta / math.sin(beta) if abs(beta) > 1e-9 else 1.0)
+    a0 = 2.0 * ((min(v / c.v_max, 1.0) - MIN_SPEED_FRACTION) / (1.0 - MIN_SPEED_FRACTION)) - 1.0
+    a1 = omega / c.w_max
+    return np.clip(np.array([a0, a1]), -1.0, 1.0).astype(np.float32)
+
+
+class Policy:
+    """The common interface (see the module docstring). Subclasses implement :meth:`act_parallel`."""
+
+    name = "policy"
+
+    def reset(self, env, seed: int | None = None) -> None:
+        """Start a new episode (call after ``env.reset()``); ``seed`` seeds the policy's own RNG."""
+        self._rng = np.random.default_rng(seed)
+
+    def act(self, observations, env):
+        """Actions for the current slot: ``{agent: action}`` for a parallel env, one action for a Gymnasium env."""
+        par, single = parallel_env_of(env)
+        if not hasattr(self, "_rng"):
+            self._rng = np.random.default_rng()
+        acts = self.act_parallel(par)
+        return acts[single] if single is not None else acts
+
+    def act_parallel(self, par) -> dict[str, Any]:  # pragma: no cover - interface
+        raise NotImplementedError
+
+
+class DPPolicy(Policy):
+    """The paper's DP planner as a policy (:class:`baselines.dp.DPTeamPlanner` over the env's engine).
+
+    Args:
+        shadow_aware: the paper's method (visible zone, eq. 10); False is the shadow-blind method [1].
+        heading: ``"inherited"`` (the paper) or ``"binned"``; heading_bins: B for ``"binned"``.
+        check_path: also keep LoS and the zone along every manoeuvre (see :class:`~baselines.dp.DPPlanner`).
+        max_rounds, separation_margin: negotiation settings (:class:`~baselines.dp.DPTeamPlanner`).
+
+    Waypoint mode acts with the planned node indices (exact). Unicycle mode flies :func:`arc_action` toward
+    the planned first waypoint; read its docstring for what that mapping loses. ``last_plan`` holds the
+    latest :class:`~baselines.dp.TeamPlan` (per-UAV fallback flags, negotiation rounds, timing).
+    """
+
+    def __init__(self, shadow_aware: bool = True, heading: str = "inherited", heading_bins: int = 16,
+                 check_path: bool = False, max_rounds: int = 5, separation_margin: float = 0.5):
+        self.kw = dict(shadow_aware=shadow_aware, heading=heading, heading_bins=heading_bins,
+                       check_path=check_path)
+        self.team_kw = dict(max_rounds=max_rounds, separation_margin=separation_margin)
+        self._scenario = None
+        self.team: DPTeamPlanner | None = None
+        self.last_plan: TeamPlan | None = None
+        h = "inherited" if heading == "inherited" else f"binned{heading_bins}"
+        self.name = f"dp-{'aware' if shadow_aware else 'blind'}-{h}{'-path' if check_path else ''}"
+
+    def _team(self, par) -> DPTeamPlanner:
+        # One planner per scene: its caches are keyed by the target's poses, which only hold for one terrain.
+        if self.team is None or self._scenario is not par.scenario:
+            self._scenario = par.scenario
+            self.team = DPTeamPlanner(DPPlanner(par.config, par.scenario.terrain, **self.kw), **self.team_kw)
+        return self.team
+
+    def reset(self, env, seed: int | None = None) -> None:
+        super().reset(env, seed)
+        self.last_plan = None
+
+    def act_parallel(self, par) -> dict[str, Any]:
+        team = self._team(par)
+        plan = team.plan_engine(par.engine)
+        self.last_plan = plan
+        if par.action_mode == "waypoint":
+            return {a: int(plan.nodes[i]) for i, a in enumerate(par.possible_agents) if a in par.agents}
+        eng = par.engine
+        return {a: arc_action(eng.uav_xy[i], eng.uav_theta[i], plan.waypoints[i], par.config)
+                for i, a in enumerate(par.possible_agents) if a in par.agents}
+
+
+class RandomPolicy(Policy):
+    """Uniformly random actions: a random allowed waypoint (per the action mask), or a uniform box action."""
+
+    name = "random"
+
+    def act_parallel(self, par) -> dict[str, Any]:
+        out = {}
+        for a in par.agents:
+            if par.action_mode == "waypoint":
+                out[a] = int(self._rng.choice(np.flatnonzero(par.action_mask(a))))
+            else:
+                out[a] = self._rng.uniform(-1.0, 1.0, 2).astype(np.float32)
+        return out
+
+
+class HoldZoneCentrePolicy(Policy):
+    """Head for the centre of the feasible zone at the target's next pose, every slot.
+
+    The centre is the point (R1 + R2) / 2 straight behind the target. Waypoint mode picks the allowed node
+    (action mask) nearest to it; unicycle mode flies :func:`arc_action` toward it. It keeps the UAV in the
+    zone but never changes bearing or range on purpose: the "no disguise" reference.
+    """
+
+    name = "hold-centre"
+
+    def act_parallel(self, par) -> dict[str, Any]:
+        c = par.config
+        eng = par.engine
+        q1, phi1 = eng.predict(1)
+        centre = np.array([-(c.r1 + c.r2) / 2.0, 0.0])
+        goal = to_world(centre[None], q1[0, :2], float(phi1[0]))[0]
+        out = {}
+        for i, a in enumerate(par.possible_agents):
+            if a not in par.agents:
+                continue
+            if par.action_mode == "waypoint":
+                d = np.hypot(*(par.lattice - centre).T)
+                out[a] = int(np.argmin(np.where(par.action_mask(a) > 0, d, np.inf)))
+            else:
+                out[a] = arc_action(eng.uav_xy[i], eng.uav_theta[i], goal, c)
+        return out
+
+
+POLICIES = {
+    "dp": lambda **kw: DPPolicy(**kw),
+    "dp-blind": lambda **kw: DPPolicy(shadow_aware=False, **kw),
+    "dp-binned": lambda **kw: DPPolicy(heading="binned", **kw),
+    "random": lambda **kw: RandomPolicy(**kw),
+    "hold-centre": lambda **kw: HoldZoneCentrePolicy(**kw),
+}
+
+
+def make_policy(name: str, **kwargs) -> Policy:
+    """A policy by name: one of :data:`POLICIES` (``dp``, ``dp-blind``, ``dp-binned``, ``random``, ``hold-centre``)."""
+    if name not in POLICIES:
+        raise ValueError(f"unknown policy {name!r}; choose one of {sorted(POLICIES)}")
+    return POLICIES[name](**kwargs)
+
+
+def run_episode(policy: Policy, env, *, seed: int | None = None, options: dict | None = None) -> dict:
+    """Reset ``env``, run ``policy`` to the end of the episode and score it.
+
+    Returns:
+        dict with ``trajectory`` (:class:`~covert_env.trajectory.Trajectory` recorded by the engine),
+        ``metrics`` (one dict per UAV, :func:`covert_env.metrics.episode_metrics`, with the measured
+        ``decision_time_ms`` of ``act`` split over the UAVs), ``return`` (sum of rewards per agent) and
+        ``steps``.
+    """
+    obs, _ = env.reset(seed=seed, options=options)
+    policy.reset(env, seed)
+    par, single = parallel_env_of(env)
+    agents = list(par.possible_agents)
+    total = {a: 0.0 for a in agents}
+    times = []
+    steps = 0
+    while True:
+        t0 = time.perf_counter()
+        act = policy.act(obs, env)
+        times.append(time.perf_counter() - t0)
+        if single is not None:
+            obs, r, term, trunc, _ = env.step(act)
+            total[single] += float(r)
+            done = term or trunc
+        else:
+            obs, r, term, trunc, _ = env.step(act)
+            for a, v in r.items():
+                total[a] += float(v)
+            done = not par.agents
+        steps += 1
+        if done:
+            break
+    traj = par.engine.trajectory()
+    metrics = episode_metrics(traj, par.scenario.terrain, par.config)
+    per_uav_ms = 1e3 * float(np.mean(times)) / len(agents)
+    for m in metrics:
+        m["decision_time_ms"] = per_uav_ms
+    return {"trajectory": traj, "metrics": metrics, "return": total, "steps": steps}

@@ -1,0 +1,388 @@
+"""baselines.dp: the paper's DP planner (eqs. 17-21), its heading variants, team negotiation and fallbacks.
+
+References here are independent of the planner's pruning: a dense DP that solves every transition
+exactly, and a brute force over every node sequence with the heading propagated continuously.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from baselines.dp import DPPlanner, DPTeamPlanner, brute_force_plan, evaluate_plan, manoeuvre_table
+from baselines.reproduce import HELDOUT_SEED_BASE, make_scenario, rollout
+from covert_env import Config, Engine, Road, Scenario, TargetTrack, Terrain
+from covert_env.angles import wrap_angle
+from covert_env.cost import uav_target_angle, uav_target_distance
+from covert_env.dynamics import solve_manoeuvre
+from covert_env.metrics import episode_metrics, slot_quantities
+from covert_env.terrain import Polytope
+from covert_env.zone import to_world, zone_lattice
+
+TWO_PI = 2 * np.pi
+
+
+def targets(scenario: Scenario, k: int):
+    """(N+1, 3) and (N+1,) target poses for slots k..k+N."""
+    n = scenario.config.horizon
+    ks = np.arange(k, k + n + 1)
+    return scenario.track.position(ks), np.asarray(scenario.track.heading(ks))
+
+
+def dense_dp(config, start, theta, tq, tphi, allowed, bins):
+    """Reference: eqs. 19-21 with every transition solved exactly; states (node, heading bin) keep the
+    exact heading of their best arrival (bins = 1: the paper's inherited heading)."""
+    c = config
+    lat = zone_lattice(c)
+    n = len(tq) - 1
+    xy = [to_world(lat, tq[j, :2], tphi[j]) for j in range(1, n + 1)]
+    al = [uav_target_angle(xy[j - 1], tq[j, :2], tphi[j]) for j in range(1, n + 1)]
+    dd = [uav_target_distance(xy[j - 1], tq[j, :2]) for j in range(1, n + 1)]
+    a0, d0 = uav_target_angle(start, tq[0, :2], tphi[0]), uav_target_distance(start, tq[0, :2])
+
+    def g(length, aa, ab, da, db):
+        return length - c.lam * (c.eta * np.abs(wrap_angle(ab - aa)) + np.abs(db - da))
+
+    cols = np.flatnonzero(allowed[0])
+    m = solve_manoeuvre(start, theta, xy[0][cols], v_max=c.v_max, w_max=c.w_max, delta=c.delta)
+    ok = np.asarray(m.feasible)
+    node, th, J = cols[ok], np.asarray(m.heading_after)[ok], g(m.length, a0, al[0][cols], d0, dd[0][cols])[ok]
+    hist = node[:, None]
+    for j in range(1, n):
+        cols = np.flatnonzero(allowed[j])
+        m = solve_manoeuvre(xy[j - 1][node][:, None], th[:, None], xy[j][cols][None], v_max=c.v_max,
+                            w_max=c.w_max, delta=c.delta)
+        cost = J[:, None] + g(m.length, al[j - 1][node][:, None], al[j][cols][None], dd[j - 1][node][:, None],
+                              dd[j][cols][None])
+        r, q = np.nonzero(np.asarray(m.feasible))
+        if r.size == 0:
+            return np.inf, None
+        head = np.asarray(m.heading_after)[r, q]
+        key = cols[q] * bins + (np.floor(np.mod(head, TWO_PI) * bins / TWO_PI).astype(int) % bins)
+        order = np.lexsort((cost[r, q], key))
+        first = np.concatenate([[True], key[order][1:] != key[order][:-1]])
+        w = order[first]
+        node, th, J = cols[q[w]], head[w], cost[r[w], q[w]]
+        hist = np.column_stack([hist[r[w]], node])
+    best = int(np.argmin(J))
+    return float(J[best]), hist[best]
+
+
+# ------------------------------------------------------------------------------------ the table
+def test_table_bounds_hold_against_exact_manoeuvres():
+    """The lookup table only decides which transitions are solved: its length bound must never exceed the
+    exact path length, it must never call a feasible goal unreachable, and its heading-change interval must
+    contain the exact heading change (4e5 random goals)."""
+    c = Config()
+    tab = manoeuvre_table(c.v_max, c.w_max, c.delta)
+    rng = np.random.default_rng(0)
+    n = 400_000
+    rho = rng.uniform(0, c.v_max * c.delta * 1.02, n)
+    psi = rng.uniform(-np.pi, np.pi, n)
+    theta = rng.uniform(0, TWO_PI, n)
+    rel = np.column_stack([rho * np.cos(psi + theta), rho * np.sin(psi + theta)])
+    m = solve_manoeuvre(np.zeros((n, 2)), theta, rel, v_max=c.v_max, w_max=c.w_max, delta=c.delta)
+    ok = np.asarray(m.feasible)
+    cell = tab.cell(tab.base_index(rel), theta)
+    lb = tab.lb[cell]
+    assert np.all(np.isfinite(lb[ok]))
+    assert np.all(lb[ok] <= m.length[ok] + 1e-9)
+    dth = wrap_angle(m.heading_after[ok] - theta[ok])
+    assert np.all(tab.dlo[cell[ok]] <= dth + 1e-9) and np.all(dth <= tab.dhi[cell[ok]] + 1e-9)
+    # The bound is tight: the median gap is well under a metre.
+    assert np.median(m.length[ok] - lb[ok]) < 0.6
+
+
+# ------------------------------------------------------------------ exactness of the pruned recursion
+def test_inherited_dp_equals_dense_reference_on_the_paper_lattice():
+    """At the default 2 m grid (577 nodes per stage) the pruned planner returns exactly the dense DP."""
+    c = Config()
+    sc = Scenario.paper(c, 1)
+    tq, tp = targets(sc, 0)
+    pl = DPPlanner(c, sc.terrain)
+    allowed = np.stack([pl.allowed_nodes(tq[j], tp[j]) for j in range(1, c.horizon + 1)])
+    ref, ref_nodes = dense_dp(c, sc.uav_xy[0], sc.uav_theta[0], tq, tp, allowed, 1)
+    plan = pl.plan(sc.uav_xy[0], sc.uav_theta[0], tq, tp)
+    assert plan.status == "ok" and not plan.infeasible
+    assert plan.cost == pytest.approx(ref, abs=1e-9)
+    np.testing.assert_array_equal(plan.nodes, ref_nodes)
+    # The plan is what the engine flies: re-evaluating it with continuous headings gives the same cost.
+    assert evaluate_plan(c, sc.uav_xy[0], sc.uav_theta[0], tq, tp, plan.waypoints) == pytest.approx(plan.cost)
+    assert plan.n_exact < 0.02 * plan.n_bounded    # few transitions are solved exactly
+
+
+@pytest.mark.parametrize("bins", [4, 16])
+def test_binned_dp_equals_dense_reference(bins):
+    """Binned (hybrid) states with and without the upper-bound pruning equal the dense recursion."""
+    c = Config(grid_step=6.0)
+    rng = np.random.default_rng(bins)
+    done = 0
+    while done < 3:
+        sc = make_scenario("random", HELDOUT_SEED_BASE + int(rng.integers(0, 4)), 1, c)
+        k = int(rng.integers(0, 40))
+        tq, tp = targets(sc, k)
+        start = to_world(zone_lattice(c)[[rng.integers(len(zone_lattice(c)))]], tq[0, :2], tp[0])[0]
+        theta = float(tp[0] + rng.uniform(-1.5, 1.5))          # roughly along the road: plans exist
+        pl = DPPlanner(c, sc.terrain, heading="binned", heading_bins=bins)
+        allowed = np.stack([pl.allowed_nodes(tq[j], tp[j]) for j in range(1, c.horizon + 1)])
+        ref, ref_nodes = dense_dp(c, start, theta, tq, tp, allowed, bins)
+        inh, _ = dense_dp(c, start, theta, tq, tp, allowed, 1)
+        if not math.isfinite(min(ref, inh)):
+            continue
+        done += 1
+        for prune in (True, False):
+            plan = DPPlanner(c, sc.terrain, heading="binned", heading_bins=bins, prune=prune).plan(start, theta, tq, tp)
+            # The planner returns the better of its inherited and binned passes (both exact recursions).
+            assert plan.cost == pytest.approx(min(ref, inh), abs=1e-9)
+
+
+# --------------------------------------------------------------------------- optimality vs brute force
+def _optimality_instances(count: int, grid_step: float = 14.0):
+    c = Config(grid_step=grid_step, horizon=3)
+    lat = zone_lattice(c)
+    assert len(lat) <= 12
+    rng = np.random.default_rng(2024)
+    out = []
+    seeds = [HELDOUT_SEED_BASE + i for i in range(6)]
+    scenes = {s: make_scenario("random", s, 1, c) for s in seeds}
+    while len(out) < count:
+        sc = scenes[seeds[int(rng.integers(len(seeds)))]]
+        k = int(rng.integers(0, 60))
+        tq, tp = targets(sc, k)
+        # A start near the zone at slot k (zone nodes jittered), any heading: the planner's real situation.
+        p = to_world(lat[[rng.integers(len(lat))]], tq[0, :2], tp[0])[0] + rng.normal(0, 4.0, 2)
+        theta = float(rng.uniform(0, TWO_PI))
+        pl = DPPlanner(c, sc.terrain)
+        allowed = np.stack([pl.allowed_nodes(tq[j], tp[j]) for j in range(1, c.horizon + 1)])
+        jstar, _ = brute_force_plan(c, p, theta, tq, tp, allowed)
+        if math.isfinite(jstar):
+            out.append((c, sc, p, theta, tq, tp, jstar))
+    return out
+
+
+def test_dp_against_brute_force_on_small_lattices(record_property):
+    """N = 3, <= 12 nodes per stage: J* by enumeration with continuous headings. Both variants' plans cost
+    >= J*; the binned variant converges to J* as B grows (B = 64 within 1% on >= 95% of instances); the
+    paper's inherited variant misses J* on some instances (reported)."""
+    inst = _optimality_instances(80)
+    gaps = {"inherited": [], 4: [], 16: [], 64: []}
+    for c, sc, p, theta, tq, tp, jstar in inst:
+        for key in gaps:
+            kw = dict(heading="inherited") if key == "inherited" else dict(heading="binned", heading_bins=key)
+            plan = DPPlanner(c, sc.terrain, **kw).plan(p, theta, tq, tp)
+            assert plan.status in ("ok", "truncated")
+            if plan.depth < c.horizon:
+                # Inherited headings can dead-end although a full sequence exists: a miss.
+                gaps[key].append(np.inf)
+                continue
+            cost = evaluate_plan(c, p, theta, tq, tp, plan.waypoints)
+            assert cost == pytest.approx(plan.cost, abs=1e-6)          # plans are flyable as reported
+            assert cost >= jstar - 1e-6
+            gaps[key].append((cost - jstar) / abs(jstar))
+    g = {k: np.array(v) for k, v in gaps.items()}
+    miss = g["inherited"] > 1e-9
+    record_property("inherited_miss_rate", float(miss.mean()))
+    record_property("inherited_mean_gap_when_missing", float(g["inherited"][miss].mean()) if miss.any() else 0.0)
+    print(f"\ninherited misses J* on {miss.mean():.0%} of {len(inst)} instances "
+          f"(mean gap {g['inherited'][miss].mean() if miss.any() else 0:.2%}, max {g['inherited'].max():.2%}); "
+          f"binned B=4/16/64 within 1%: {(g[4] <= 0.01).mean():.0%} / {(g[16] <= 0.01).mean():.0%} / "
+          f"{(g[64] <= 0.01).mean():.0%}")
+    assert (g[64] <= 0.01).mean() >= 0.95
+    assert g[64].mean() <= g[16].mean() + 1e-12 <= g[4].mean() + 2e-12
+    assert g[64].mean() <= g["inherited"].mean()
+    assert miss.any(), "the position-only DP is not optimal: some instance should show it"
+
+
+# ---------------------------------------------------------------------------------- never crash
+def _wall_scenario(n_uavs: int = 1) -> Scenario:
+    """A straight road with a 70 m wall 30-95 m behind the target's start: the whole zone is in shadow."""
+    c = Config(n_slots=12, n_uavs=n_uavs)
+    road = Road.from_points([[0.0, 0.0], [400.0, 0.0]])
+    track = TargetTrack.constant(road, c.target_speed, c.n_slots + c.horizon + 1, z=c.target_height, s0=120.0)
+    wall = Polytope.prism([[25.0, -60.0], [90.0, -60.0], [90.0, 60.0], [25.0, 60.0]], 70.0)
+    starts = np.array([[40.0, 10.0], [45.0, -10.0], [50.0, 25.0]])[:n_uavs]
+    return Scenario(c, Terrain((wall,)), track, starts, np.zeros(n_uavs), name="wall")
+
+
+def test_planner_never_crashes_when_the_visible_zone_is_empty():
+    sc = _wall_scenario()
+    tq, tp = targets(sc, 0)
+    c = sc.config
+    pl = DPPlanner(c, sc.terrain)
+    assert not pl.visible_nodes(tq[1], tp[1]).any()
+    plan = pl.plan(sc.uav_xy[0], sc.uav_theta[0], tq, tp)
+    # Level 2: the plain zone with a penalty per node without LoS; flagged.
+    assert plan.status == "fallback" and plan.infeasible and plan.depth == c.horizon
+    assert 0 <= plan.nodes[0] < len(pl.lattice) and np.all(np.isfinite(plan.waypoints))
+    # The shadow-blind planner does not care: its zone is all there.
+    blind = DPPlanner(c, sc.terrain, shadow_aware=False).plan(sc.uav_xy[0], sc.uav_theta[0], tq, tp)
+    assert blind.status == "ok" and not blind.infeasible
+
+
+def test_planner_never_crashes_when_the_zone_is_unreachable():
+    sc = Scenario.paper(Config(), 1)
+    tq, tp = targets(sc, 0)
+    for aware in (True, False):
+        pl = DPPlanner(sc.config, sc.terrain, shadow_aware=aware)
+        far = pl.plan(np.array([600.0, 400.0]), 1.0, tq, tp)      # hundreds of metres away
+        assert far.status == "fallback" and far.infeasible and far.depth == 1
+        node = far.nodes[0]
+        assert 0 <= node < len(pl.lattice)
+        # Level 3 heads for the zone node nearest to the UAV.
+        nodes = to_world(pl.lattice, tq[1, :2], tp[1])
+        d = np.hypot(*(nodes - [600.0, 400.0]).T)
+        assert d[node] <= d.min() + sc.config.grid_step + 1e-9
+
+
+def test_truncated_plan_when_a_later_stage_is_empty():
+    c = Config()
+    sc = Scenario.paper(c, 1)
+    tq, tp = targets(sc, 0)
+    pl = DPPlanner(c, sc.terrain)
+    blocked = np.zeros((c.horizon, len(pl.lattice)), bool)
+    blocked[2] = True
+    plan = pl.plan(sc.uav_xy[0], sc.uav_theta[0], tq, tp, blocked=blocked)
+    assert plan.status == "truncated" and not plan.infeasible and plan.depth == 2
+    assert np.all(plan.nodes[2:] == -1) and pl.allowed_nodes(tq[1], tp[1])[plan.nodes[0]]
+
+
+def test_rollout_through_a_fully_shadowed_zone_never_crashes():
+    """Team of 3 in the wall scene: every slot is planned, fallbacks are flagged, nothing collides."""
+    sc = _wall_scenario(3)
+    out = rollout(sc)
+    traj = out["trajectory"]
+    assert traj.n_slots == sc.config.n_slots
+    m = episode_metrics(traj, sc.terrain, sc.config)
+    q = slot_quantities(traj, sc.terrain, sc.config)
+    assert traj.infeasible.any()
+    assert not np.any(~q.los & ~traj.infeasible)            # unflagged slots have LoS
+    assert all(r["separation_violations"] == 0 and r["speed_violations"] == 0 for r in m)
+
+
+# ------------------------------------------------------------------------------------------ team
+def test_team_plans_are_conflict_free_at_slots_and_along_manoeuvres():
+    c = Config()
+    sc = Scenario.paper(c, 3)
+    eng = Engine(sc)
+    team = DPTeamPlanner(DPPlanner(c, sc.terrain))
+    lim = c.d_safe1 + team.margin
+    negotiated = 0
+    for _ in range(12):
+        tp = team.plan_engine(eng)
+        negotiated += tp.rounds > 0
+        assert tp.conflicts == 0
+        pts = [p.path_points(21) for p in tp.plans]
+        for i in range(3):
+            for j in range(i + 1, 3):
+                d = min(tp.plans[i].depth, tp.plans[j].depth)
+                assert np.hypot(*(pts[i][:d, 1:] - pts[j][:d, 1:]).transpose(2, 0, 1)).min() >= lim - 1e-9
+        eng.step(waypoints=tp.waypoints, infeasible=tp.infeasible)
+    assert negotiated > 0, "the negotiation should have been exercised"
+
+
+def test_negotiation_priority_rule_lower_index_keeps_its_plan():
+    c = Config()
+    sc = Scenario.paper(c, 3)
+    tq, tp = targets(sc, 3)
+    pl = DPPlanner(c, sc.terrain)
+    # Three UAVs side by side (7 m apart) with the same heading want similar plans: conflicts.
+    xy = np.array([[60.0, 0.0], [60.0, 7.0], [60.0, -7.0]])
+    th = np.array([0.1, 0.1, 0.1])
+    alone = pl.plan_batch(xy, th, tq, tp)
+    team = DPTeamPlanner(pl).plan(xy, th, tq, tp)
+    assert team.rounds >= 1 and team.conflicts == 0
+    np.testing.assert_array_equal(team.plans[0].nodes, alone[0].nodes)     # uav_0 has priority
+    assert team.plans[2].cost >= alone[2].cost - 1e-9                       # losers only lose
+
+
+def test_safety_layer_separates_the_flown_slot_when_negotiation_gives_up():
+    """With no negotiation rounds at all, the first moves are still separated (status "safety")."""
+    c = Config()
+    sc = Scenario.paper(c, 3)
+    tq, tp = targets(sc, 3)
+    xy = np.array([[60.0, 0.0], [60.0, 6.0], [60.0, -6.0]])
+    th = np.array([0.1, 0.1, 0.1])
+    team = DPTeamPlanner(DPPlanner(c, sc.terrain), max_rounds=0)
+    before = team._conflicts(team.planner.plan_batch(xy, th, tq, tp))
+    assert any(t == 0 for _, _, t, _ in before)
+    plan = team.plan(xy, th, tq, tp)
+    assert not any(t == 0 for _, _, t, _ in team._conflicts(plan.plans))
+    assert "safety" in [p.status for p in plan.plans] and plan.plans[0].status == "ok"
+    pts = [p.path_points(21)[0] for p in plan.plans]
+    for i in range(3):
+        for j in range(i + 1, 3):
+            assert np.hypot(*(pts[i][1:] - pts[j][1:]).T).min() >= c.d_safe1 + team.margin - 1e-9
+
+
+# ------------------------------------------------------------------------------ the paper's claims
+@pytest.fixture(scope="module")
+def claim_runs():
+    """A reduced but honest run: the paper scene (3 UAVs) and the first 4 held-out scenes (1 UAV), the
+    first 30 of their 70 slots, both methods. Same scenes and code as `covert-env reproduce`."""
+    runs = []
+    scenes = [("paper", 0, 3)] + [("random", HELDOUT_SEED_BASE + i, 1) for i in range(4)]
+    for kind, seed, u in scenes:
+        sc = make_scenario(kind, seed, u)
+        for aware in (True, False):
+            out = rollout(sc, shadow_aware=aware, n_slots=30)
+            q = slot_quantities(out["trajectory"], sc.terrain, sc.config)
+            runs.append(dict(aware=aware, sc=sc, out=out, q=q,
+                             m=episode_metrics(out["trajectory"], sc.terrain, sc.config, q)))
+    return runs
+
+
+def test_shadow_aware_keeps_los_at_every_unflagged_slot(claim_runs):
+    aware = [r for r in claim_runs if r["aware"]]
+    blocked_unflagged = sum(int((~r["q"].los & ~r["out"]["trajectory"].infeasible).sum()) for r in aware)
+    flagged = sum(int(r["out"]["trajectory"].infeasible.sum()) for r in aware)
+    assert blocked_unflagged == 0
+    assert flagged <= 2
+
+
+def test_shadow_blind_loses_los_in_aggregate(claim_runs):
+    blind = [r for r in claim_runs if not r["aware"]]
+    assert sum(int((~r["q"].los).sum()) for r in blind) > 0
+
+
+def test_disguise_of_aware_is_at_least_80_percent_of_blind(claim_runs):
+    k_aware = np.mean([m["mean_disguise"] for r in claim_runs if r["aware"] for m in r["m"]])
+    k_blind = np.mean([m["mean_disguise"] for r in claim_runs if not r["aware"] for m in r["m"]])
+    assert k_aware >= 0.8 * k_blind
+
+
+def test_safety_and_control_limits(claim_runs):
+    for r in claim_runs:
+        traj, c = r["out"]["trajectory"], r["sc"].config
+        assert all(m["separation_violations"] == 0 and m["terrain_violations"] == 0 for m in r["m"])
+        assert np.all(traj.max_speed <= c.v_max + 1e-9) and np.all(traj.max_speed > 0)
+        assert np.all(traj.max_turn_rate <= c.w_max + 1e-9)
+
+
+def test_check_path_keeps_los_between_slots():
+    """With check_path=True no UAV-slot has blocked LoS along the flown path (held-out scenes)."""
+    total = flagged = 0
+    for i in range(3):
+        sc = make_scenario("random", HELDOUT_SEED_BASE + i, 1)
+        out = rollout(sc, check_path=True, n_slots=25)
+        traj = out["trajectory"]
+        q = slot_quantities(traj, sc.terrain, sc.config)
+        total += int((~q.los_path & ~traj.infeasible).sum())
+        flagged += int(traj.infeasible.sum())
+    assert total == 0
+    assert flagged <= 2
+
+
+def test_planner_rejects_bad_arguments():
+    c = Config()
+    t = Terrain(())
+    with pytest.raises(ValueError, match="heading"):
+        DPPlanner(c, t, heading="sideways")
+    with pytest.raises(ValueError, match="heading_bins"):
+        DPPlanner(c, t, heading="binned", heading_bins=0)
+    pl = DPPlanner(c, t)
+    with pytest.raises(ValueError, match="target_xyz"):
+        pl.plan([0.0, 0.0], 0.0, np.zeros((1, 3)), np.zeros(1))
+    with pytest.raises(ValueError, match="finite"):
+        pl.plan([np.nan, 0.0], 0.0, np.zeros((6, 3)), np.zeros(6))

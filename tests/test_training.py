@@ -1,0 +1,270 @@
+"""CI smoke tests of training/ (small budgets): the SB3 VecEnv adapter, every SB3 script (train a few thousand
+steps, save, reload, evaluate through the harness), RLlib (one iteration, skipped without ray) and the harness."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+pytest.importorskip("stable_baselines3")
+pytest.importorskip("sb3_contrib")
+
+import torch  # noqa: E402
+from stable_baselines3 import PPO  # noqa: E402
+from stable_baselines3.common.vec_env import VecMonitor, VecNormalize  # noqa: E402
+
+from training.vec_env import ParallelEnvVecAdapter, make_vec_env  # noqa: E402
+
+torch.set_num_threads(1)
+
+SMALL = dict(n_uavs=3, max_cycles=8)
+
+
+# ---------------------------------------------------------------------- adapter
+def _params(model) -> np.ndarray:
+    return torch.nn.utils.parameters_to_vector(model.policy.parameters()).detach().numpy().copy()
+
+
+def _ppo(seed: int) -> PPO:
+    venv = VecNormalize(VecMonitor(make_vec_env(2, SMALL)))
+    model = PPO("MlpPolicy", venv, n_steps=16, batch_size=48, n_epochs=2, seed=seed, device="cpu")
+    model.learn(2 * 16 * venv.num_envs)
+    return model
+
+
+def test_adapter_shapes_and_rows():
+    venv = make_vec_env(2, SMALL)
+    assert venv.num_envs == 6 and venv.n_agents == 3 and venv.n_copies == 2
+    obs = venv.reset()
+    assert obs.shape == (6, *venv.observation_space.shape) and obs.dtype == np.float32
+    # row j*U + i is agent i of copy j
+    par = venv.envs[1]
+    own = par._observations()
+    np.testing.assert_array_equal(obs[4], own["uav_1"])
+    venv.close()
+
+
+def test_seeded_ppo_runs_are_identical():
+    a, b = _ppo(0), _ppo(0)
+    np.testing.assert_array_equal(_params(a), _params(b))
+    c = _ppo(1)
+    assert not np.array_equal(_params(a), _params(c))
+
+
+def test_seed_reproduces_scenes():
+    def first_obs(seed):
+        v = make_vec_env(2, SMALL)
+        v.seed(seed)
+        return v.reset()
+
+    np.testing.assert_array_equal(first_obs(3), first_obs(3))
+    assert not np.array_equal(first_obs(3), first_obs(4))
+
+
+def test_truncation_flags_and_terminal_observation():
+    venv = make_vec_env(2, SMALL)
+    venv.seed(0)
+    obs = venv.reset()
+    acts = np.zeros((venv.num_envs, 2), np.float32)
+    for t in range(SMALL["max_cycles"]):
+        prev = obs
+        obs, rew, dones, infos = venv.step(acts)
+        assert rew.shape == (6,) and np.isfinite(rew).all()
+        if t < SMALL["max_cycles"] - 1:
+            assert not dones.any()
+            assert all("terminal_observation" not in i for i in infos)
+            assert all(not i.get("TimeLimit.truncated", False) for i in infos)
+    assert dones.all()
+    for r, info in enumerate(infos):
+        assert info["TimeLimit.truncated"] is True
+        term = info["terminal_observation"]
+        assert term.shape == venv.observation_space.shape
+        # the terminal observation is the last one of the episode (time remaining 0), the returned one is fresh
+        assert term[10] == pytest.approx(0.0)
+        assert obs[r, 10] == pytest.approx(1.0)
+        assert not np.array_equal(term, prev[r])
+    venv.close()
+
+
+class _EndsEarly:
+    """A minimal ParallelEnv whose two agents are terminated (not truncated) at step 3."""
+
+    possible_agents = ["a", "b"]
+    render_mode = None
+
+    def __init__(self):
+        from gymnasium import spaces
+
+        self._obs, self._act = spaces.Box(-1, 1, (3,), np.float32), spaces.Box(-1, 1, (2,), np.float32)
+        self.agents, self.t = [], 0
+
+    def observation_space(self, agent):
+        return self._obs
+
+    def action_space(self, agent):
+        return self._act
+
+    def _o(self):
+        return {a: np.full(3, self.t / 10, np.float32) for a in self.possible_agents}
+
+    def reset(self, seed=None, options=None):
+        self.agents, self.t = list(self.possible_agents), 0
+        return self._o(), {a: {} for a in self.agents}
+
+    def step(self, actions):
+        self.t += 1
+        end = self.t >= 3
+        agents = list(self.agents)
+        if end:
+            self.agents = []
+        return (self._o(), {a: 1.0 for a in agents}, {a: end for a in agents}, {a: False for a in agents},
+                {a: {} for a in agents})
+
+    def close(self):
+        pass
+
+
+def test_termination_is_not_truncation():
+    venv = ParallelEnvVecAdapter([_EndsEarly, _EndsEarly])
+    venv.reset()
+    for _ in range(3):
+        obs, _, dones, infos = venv.step(np.zeros((4, 2), np.float32))
+    assert dones.all()
+    for r, info in enumerate(infos):
+        assert info["TimeLimit.truncated"] is False
+        assert info["terminal_observation"] == pytest.approx(np.full(3, 0.3))
+        assert obs[r] == pytest.approx(np.zeros(3))           # auto-reset
+
+
+def test_vecmonitor_and_vecnormalize():
+    venv = VecNormalize(VecMonitor(make_vec_env(1, SMALL)), gamma=0.97)
+    venv.seed(0)
+    obs = venv.reset()
+    assert np.abs(obs).max() <= 10.0
+    episodes = []
+    for _ in range(SMALL["max_cycles"]):
+        obs, rew, dones, infos = venv.step(np.zeros((3, 2), np.float32))
+    episodes = [i["episode"] for i in infos if "episode" in i]
+    assert len(episodes) == 3 and all(e["l"] == SMALL["max_cycles"] for e in episodes)
+    # VecNormalize normalises the terminal observation too, and the raw reward is recoverable
+    assert all("terminal_observation" in i for i in infos)
+    assert venv.get_original_reward().shape == (3,)
+    assert venv.obs_rms.count > 1
+
+
+def test_action_masks_through_env_method():
+    venv = make_vec_env(1, dict(n_uavs=2, max_cycles=5, action_mode="waypoint"))
+    venv.reset()
+    masks = np.stack(venv.env_method("action_masks"))
+    assert masks.shape == (2, venv.action_space.n) and masks.dtype == bool and masks.any(axis=1).all()
+
+
+def test_reward_fn_shaping():
+    from training.ppo_multi import shaped_reward
+
+    venv = make_vec_env(1, SMALL, reward_fn=shaped_reward(True))
+    venv.reset()
+    _, rew, _, infos = venv.step(np.ones((3, 2), np.float32))
+    for r, info in zip(rew, infos, strict=True):
+        t = info["reward_terms"]
+        expect = sum(t.values()) - (0.0 if info["in_zone"] else t["disguise"])
+        assert r == pytest.approx(expect, abs=1e-5) and "env_reward" in info
+
+
+# ---------------------------------------------------------------------- scripts + harness
+def _evaluate(tmp_path, spec, n_uavs, extra=()):
+    from training.evaluate import main as evaluate_main
+
+    out = tmp_path / "lb"
+    assert evaluate_main(["--policies", "random", spec, *extra, "--episodes", "1", "--n-uavs", str(n_uavs),
+                          "--out", str(out), "--no-progress"]) == 0
+    md = (out / "leaderboard.md").read_text()
+    csv_text = (out / "leaderboard.csv").read_text()
+    assert (out / "comparison.png").exists()
+    assert csv_text.count("\n") == 3 + len(extra)   # header, random, spec, extras
+    return md
+
+
+def _common(tmp_path):
+    return ["--runs-dir", str(tmp_path / "runs"), "--run-name", "r", "--progress-bar", "false",
+            "--max-cycles", "16"]
+
+
+def test_ppo_multi_train_resume_evaluate(tmp_path):
+    from training import ppo_multi
+
+    run = ppo_multi.main(["--recipe", "smoke", *_common(tmp_path)])
+    assert (run / "model.zip").exists() and (run / "vecnormalize.pkl").exists()
+    assert json.loads((run / "train_summary.json").read_text())["timesteps"] >= 3000
+    assert list((run / "checkpoints").glob("ppo_multi_*_steps.zip"))
+    assert list((run / "checkpoints").glob("ppo_multi_vecnormalize_*_steps.pkl"))
+    assert list((run / "tb").iterdir())
+    run2 = ppo_multi.main(["--recipe", "smoke", "--resume", str(run), "--total-timesteps", "4500",
+                           "--progress-bar", "false"])
+    assert run2 == run and json.loads((run / "train_summary.json").read_text())["timesteps"] >= 4500
+    ckpt = sorted((run / "checkpoints").glob("ppo_multi_*_steps.zip"))[0]
+    md = _evaluate(tmp_path, f"sb3:{run}", 3, extra=(f"sb3:{ckpt}",))
+    assert "ppo_multi" in md
+
+
+def test_ppo_single_train_evaluate(tmp_path):
+    from training import ppo_single
+
+    run = ppo_single.main(["--total-timesteps", "2048", "--n-envs", "2", "--n-steps", "512", "--checkpoint-freq",
+                           "1024", *_common(tmp_path)])
+    assert (run / "model.zip").exists() and (run / "vecnormalize.pkl").exists()
+    assert "ppo_single" in _evaluate(tmp_path, f"sb3:{run}", 1)
+
+
+def test_sac_single_train_evaluate(tmp_path):
+    from training import sac_single
+
+    run = sac_single.main(["--total-timesteps", "1000", "--learning-starts", "500", "--batch-size", "64",
+                           "--net-arch", "64", "64", "--checkpoint-freq", "500", *_common(tmp_path)])
+    assert (run / "model.zip").exists() and (run / "vecnormalize.pkl").exists()
+    assert "sac_single" in _evaluate(tmp_path, f"sb3:{run}", 1)
+
+
+def test_maskable_ppo_single_train_evaluate(tmp_path):
+    from training import maskable_ppo_single
+
+    run = maskable_ppo_single.main(["--total-timesteps", "2048", "--n-envs", "2", "--n-steps", "512",
+                                    "--checkpoint-freq", "1024", *_common(tmp_path)])
+    assert (run / "model.zip").exists()
+    md = _evaluate(tmp_path, f"sb3:{run}", 1)
+    assert "maskable_ppo_single" in md and "| waypoint |" in md
+
+
+def test_harness_rejects_team_size_mismatch(tmp_path):
+    from training import ppo_single
+    from training.evaluate import load_policy
+
+    run = ppo_single.main(["--total-timesteps", "256", "--n-envs", "1", "--n-steps", "256", "--batch-size", "64",
+                           "--checkpoint-freq", "0", *_common(tmp_path)])
+    with pytest.raises(ValueError, match="--n-uavs 1"):
+        load_policy(f"sb3:{run}", 3)
+    with pytest.raises(ValueError, match="action mode"):
+        load_policy("random@hover", 3)
+
+
+def test_rllib_one_iteration_and_harness(tmp_path):
+    pytest.importorskip("ray.rllib")
+    from training import rllib_ppo
+
+    ckpt = rllib_ppo.main(["--iterations", "1", "--num-env-runners", "0", "--train-batch-size", "256",
+                           "--minibatch-size", "128", "--num-epochs", "1", "--max-cycles", "16",
+                           "--runs-dir", str(tmp_path / "runs"), "--run-name", "r"])
+    assert ckpt.exists()
+    assert "rllib" in _evaluate(tmp_path, f"rllib:{ckpt}", 3)
+
+
+def test_time_budget_stops_and_saves(tmp_path):
+    from training import ppo_multi
+
+    run = ppo_multi.main(["--recipe", "smoke", *_common(tmp_path), "--total-timesteps", "1000000",
+                          "--time-budget-minutes", "0.001", "--checkpoint-freq", "0"])
+    summary = json.loads((run / "train_summary.json").read_text())
+    assert summary["stopped_by_time_budget"] is True and summary["timesteps"] < 1_000_000
+    assert (run / "model.zip").exists() and (run / "vecnormalize.pkl").exists()

@@ -1,0 +1,12 @@
+"""Training and evaluation for covert_env (DESIGN.md §5, issue #5).
+
+* :mod:`training.vec_env` -- :class:`~training.vec_env.ParallelEnvVecAdapter`, our small SB3 ``VecEnv``
+  over PettingZoo ParallelEnvs: copies x agents flattened, one shared policy (no SuperSuit).
+* :mod:`training.ppo_multi` -- parameter-shared multi-agent PPO (the 3-UAV recipe of :mod:`training.recipes`).
+* :mod:`training.ppo_single`, :mod:`training.sac_single`, :mod:`training.maskable_ppo_single` -- single-UAV SB3.
+* :mod:`training.rllib_ppo` -- multi-agent PPO on RLlib (``[rllib]`` extra), one shared policy.
+* :mod:`training.evaluate` -- ``python -m training.evaluate``: every policy on the same held-out seeds,
+  scored by :func:`covert_env.metrics.episode_metrics`, written to ``leaderboard.md`` / ``.csv`` and a figure.
+
+Outputs go to the git-ignored ``runs/`` (training) and ``outputs/`` (evaluation) folders.
+"""

@@ -1,0 +1,363 @@
+"""The evaluation harness: every policy on the same held-out scenes, scored by the shared metrics code.
+
+    python -m training.evaluate --policies random hold-centre dp dp-blind sb3:runs/<run> --episodes 20
+    python -m training.evaluate --policies random sb3:runs/<run>/checkpoints/ppo_multi_500000_steps.zip
+    python -m training.evaluate --policies dp rllib:runs/<rllib-run>/checkpoint
+    covert-env evaluate ...                          # the same (forwards to training.evaluate.main)
+
+Policy specs (``SPEC[@MODE]``, MODE = ``unicycle`` or ``waypoint`` picks the env's action mode):
+
+* ``dp`` (shadow-aware, the paper's method), ``dp-blind`` (shadow-blind), ``dp-binned``, ``random``,
+  ``hold-centre`` (alias ``heuristic``): :mod:`baselines.policies`. DP defaults to waypoint mode, where it acts
+  exactly as planned (the env's lattice is its node set); ``random`` and ``hold-centre`` default to unicycle
+  mode, the action space of the learned continuous policies (``random@waypoint`` is masked-random waypoints).
+* ``sb3:PATH``: an SB3 model (PPO, SAC, MaskablePPO) -- a run folder (its ``model.zip``) or a ``.zip``
+  checkpoint; its ``args.json`` gives the env settings and the VecNormalize statistics beside the model are
+  applied. Single-UAV models act for every UAV independently (each sees its own observation), so they need
+  ``--n-uavs 1`` unless they were trained with the same team size.
+* ``rllib:PATH``: an RLlib checkpoint of :mod:`training.rllib_ppo`; inference runs in plain torch, no Ray
+  cluster is started.
+
+Held-out scenes: episode i flies ``reset(seed=s, options={"scene_seed": s})`` with ``s = seed_offset + i``
+(default 1_000_000 + i, outside the training pool ``range(scene_pool)``). Every policy sees the same scenes and
+start poses. The env uses its DEFAULT reward settings, whatever a policy was trained with, so "reward" is
+comparable across rows (it is the mean over UAVs of the episode return).
+
+Writes ``leaderboard.md``, ``leaderboard.csv`` (mean and std over episodes of the team-mean per-UAV metrics of
+:func:`covert_env.metrics.episode_metrics`), ``episodes.csv`` (one row per policy and episode) and
+``comparison.png`` into ``--out`` (default ``outputs/leaderboard``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import pickle
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["main", "load_policy", "evaluate", "SB3Policy", "COLUMNS", "HELD_OUT_OFFSET"]
+
+HELD_OUT_OFFSET = 1_000_000
+
+#: (key, header, format) of the leaderboard columns; keys are metric names of covert_env.metrics or "reward".
+COLUMNS = [
+    ("reward", "episode reward", "{:.1f}"),
+    ("occlusion_rate", "blocked LoS at slots", "{:.3f}"),
+    ("occlusion_rate_path", "blocked LoS along path", "{:.3f}"),
+    ("zone_violation_rate", "zone violations", "{:.3f}"),
+    ("mean_disguise", "disguise kappa", "{:.1f}"),
+    ("path_length", "path length (m)", "{:.0f}"),
+    ("separation_violations", "separation violations", "{:.2f}"),
+    ("min_separation", "min separation (m)", "{:.1f}"),
+    ("terrain_violations", "terrain violations", "{:.2f}"),
+    ("decision_time_ms", "decision time per slot (ms)", "{:.2f}"),
+]
+
+BUILTIN_ALIASES = {"heuristic": "hold-centre"}
+
+
+# ---------------------------------------------------------------------- learned policies
+class SB3Policy:
+    """An SB3 model behind the common policy interface (``reset(env, seed)``, ``act(observations, env)``).
+
+    Observations of the agents still flying are stacked, normalised with the saved VecNormalize statistics and
+    passed to ``model.predict(deterministic=True)`` in one batch (parameter sharing); MaskablePPO also gets the
+    env's action masks.
+    """
+
+    def __init__(self, model, obs_rms=None, clip_obs: float = 10.0, epsilon: float = 1e-8, *, name: str = "sb3",
+                 env_settings: dict | None = None, deterministic: bool = True):
+        self.model = model
+        self.obs_rms = obs_rms
+        self.clip_obs = clip_obs
+        self.epsilon = epsilon
+        self.name = name
+        self.env_settings = env_settings or {}
+        self.deterministic = deterministic
+        self.masked = type(model).__name__ == "MaskablePPO"
+
+    def reset(self, env, seed: int | None = None) -> None:
+        pass
+
+    def _par(self, env):
+        from baselines.policies import parallel_env_of
+
+        return parallel_env_of(env)
+
+    def act(self, observations, env):
+        par, single = self._par(env)
+        agents = [a for a in par.possible_agents if a in par.agents]
+        obs_d = observations if single is None else {single: observations}
+        obs = np.stack([np.asarray(obs_d[a], np.float32) for a in agents])
+        if self.obs_rms is not None:
+            obs = np.clip((obs - self.obs_rms.mean) / np.sqrt(self.obs_rms.var + self.epsilon),
+                          -self.clip_obs, self.clip_obs).astype(np.float32)
+        kw = {}
+        if self.masked:
+            kw["action_masks"] = np.stack([par.action_mask(a).astype(bool) for a in agents])
+        actions, _ = self.model.predict(obs, deterministic=self.deterministic, **kw)
+        out = {a: (int(actions[i]) if np.ndim(actions[i]) == 0 else np.asarray(actions[i]))
+               for i, a in enumerate(agents)}
+        return out[single] if single is not None else out
+
+
+def _find_args_json(path: Path) -> Path | None:
+    for d in [path if path.is_dir() else path.parent, *(path if path.is_dir() else path.parent).parents][:3]:
+        if (d / "args.json").exists():
+            return d / "args.json"
+    return None
+
+
+def load_sb3(path: str | Path) -> SB3Policy:
+    """Load an SB3 run folder or checkpoint (.zip) with its VecNormalize statistics and env settings."""
+    import torch
+
+    torch.set_num_threads(1)
+    path = Path(path)
+    if path.is_dir():
+        model_path = path / "model.zip"
+        vn_path = path / "vecnormalize.pkl"
+    else:
+        model_path = path
+        name = path.name
+        vn_path = path.parent / "vecnormalize.pkl"
+        if name.endswith("_steps.zip"):                              # CheckpointCallback naming
+            head, steps = name[: -len("_steps.zip")].rsplit("_", 1)
+            vn_path = path.parent / f"{head}_vecnormalize_{steps}_steps.pkl"
+    if not model_path.exists():
+        raise FileNotFoundError(f"no SB3 model at {model_path}")
+    args_json = _find_args_json(path)
+    meta = json.loads(args_json.read_text()) if args_json else {}
+    cls_name = meta.get("sb3_class", "PPO")
+    if cls_name == "MaskablePPO":
+        from sb3_contrib import MaskablePPO as cls
+    else:
+        import stable_baselines3
+
+        cls = getattr(stable_baselines3, cls_name)
+    model = cls.load(str(model_path), device="cpu")
+    obs_rms, clip_obs, eps = None, 10.0, 1e-8
+    if vn_path.exists():
+        with open(vn_path, "rb") as f:
+            vn = pickle.load(f)
+        if getattr(vn, "norm_obs", False):
+            obs_rms, clip_obs, eps = vn.obs_rms, vn.clip_obs, vn.epsilon
+    ekw = meta.get("env_kwargs", {})
+    settings = {"n_uavs": int(ekw.get("n_uavs", 1)), "action_mode": ekw.get("action_mode", "unicycle"),
+                "map_size": int(ekw.get("map_size", 8))}
+    label = meta.get("algo", cls_name.lower())
+    if path.is_dir():
+        name = f"{label} ({path.name})"
+    elif path.parent.name == "checkpoints":
+        steps = path.stem.rsplit("_", 2)[-2] if path.stem.endswith("_steps") else path.stem
+        name = f"{label} ({path.parent.parent.name} @ {steps} steps)"
+    else:
+        name = f"{label} ({path.parent.name}/{path.name})"
+    return SB3Policy(model, obs_rms, clip_obs, eps, name=name, env_settings=settings)
+
+
+def load_policy(spec: str, n_uavs: int) -> tuple[Any, dict]:
+    """A policy object and its env settings (``n_uavs``, ``action_mode``) from a spec (see the module docstring)."""
+    mode = None
+    if "@" in spec:
+        spec, mode = spec.rsplit("@", 1)
+        if mode not in ("unicycle", "waypoint"):
+            raise ValueError(f"unknown action mode {mode!r} in policy spec (use @unicycle or @waypoint)")
+    if spec.startswith("sb3:"):
+        pol = load_sb3(spec[4:])
+        settings = dict(pol.env_settings)
+    elif spec.startswith("rllib:"):
+        from training.rllib_ppo import load_policy as load_rllib
+
+        pol = load_rllib(spec[6:])
+        settings = dict(pol.env_settings)
+    else:
+        from baselines.policies import make_policy
+
+        name = BUILTIN_ALIASES.get(spec, spec)
+        pol = make_policy(name)
+        settings = {"n_uavs": n_uavs, "action_mode": "waypoint" if name.startswith("dp") else "unicycle"}
+    if mode is not None:
+        if (spec.startswith(("sb3:", "rllib:"))) and mode != settings["action_mode"]:
+            raise ValueError(f"{spec} was trained in {settings['action_mode']} mode; it cannot act in {mode} mode")
+        settings["action_mode"] = mode
+    if settings["n_uavs"] != n_uavs:
+        raise ValueError(f"{spec} acts for teams of {settings['n_uavs']} UAV(s) but --n-uavs is {n_uavs}; "
+                         f"pass --n-uavs {settings['n_uavs']}")
+    return pol, settings
+
+
+# ---------------------------------------------------------------------- evaluation
+def _team_row(result: dict) -> dict:
+    """Team mean of the per-UAV metrics of one episode, plus the mean episode reward over UAVs."""
+    ms = result["metrics"]
+    row = {k: float(np.mean([m[k] for m in ms])) for k in ms[0]}
+    row["reward"] = float(np.mean(list(result["return"].values())))
+    return row
+
+
+def evaluate(policy, settings: dict, episodes: int, seed_offset: int = HELD_OUT_OFFSET,
+             env_kwargs: dict | None = None, progress: bool = True, label: str | None = None) -> list[dict]:
+    """Run ``policy`` on held-out scenes ``seed_offset + i`` and return one metrics row per episode."""
+    from baselines.policies import run_episode
+    from covert_env.envs.covert_sensing import CovertSensingParallelEnv
+
+    kw = dict(env_kwargs or {})
+    kw.update(n_uavs=settings["n_uavs"], action_mode=settings["action_mode"])
+    if "map_size" in settings:
+        kw["map_size"] = settings["map_size"]
+    env = CovertSensingParallelEnv(**kw)
+    rows = []
+    it = range(episodes)
+    if progress:
+        from tqdm.auto import tqdm
+
+        it = tqdm(it, desc=label or getattr(policy, "name", "policy"), leave=False, file=sys.stderr,
+                  mininterval=1.0 if sys.stderr.isatty() else 30.0)
+    for i in it:
+        s = seed_offset + i
+        res = run_episode(policy, env, seed=s, options={"scene_seed": s})
+        row = _team_row(res)
+        row["scene_seed"] = s
+        rows.append(row)
+    env.close()
+    return rows
+
+
+def summarise(rows: list[dict]) -> dict:
+    out = {}
+    for key, _, _ in COLUMNS:
+        v = np.array([r[key] for r in rows], float)
+        v = v[np.isfinite(v)]
+        out[key] = (float(v.mean()) if len(v) else math.nan, float(v.std()) if len(v) else math.nan)
+    return out
+
+
+def write_outputs(results: dict[str, dict], out: Path, meta: dict) -> None:
+    out.mkdir(parents=True, exist_ok=True)
+    with open(out / "leaderboard.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["policy", "mode", "uavs", "episodes"] + [x for k, _, _ in COLUMNS for x in (k, k + "_std")])
+        for name, r in results.items():
+            s = r["summary"]
+            w.writerow([name, r["settings"]["action_mode"], r["settings"]["n_uavs"], len(r["rows"])]
+                       + [f"{x:.6g}" for k, _, _ in COLUMNS for x in s[k]])
+    with open(out / "episodes.csv", "w", newline="") as f:
+        keys = ["scene_seed", "reward"] + [k for k in next(iter(results.values()))["rows"][0] if k not in
+                                          ("scene_seed", "reward")]
+        w = csv.writer(f)
+        w.writerow(["policy"] + keys)
+        for name, r in results.items():
+            for row in r["rows"]:
+                w.writerow([name] + [row[k] for k in keys])
+    lines = [f"# Leaderboard: {meta['episodes']} held-out scenes (scene seeds {meta['seed_offset']} .. "
+             f"{meta['seed_offset'] + meta['episodes'] - 1}), {meta['n_uavs']} UAV(s)", "",
+             "Mean ± std over episodes of the team-mean per-UAV metrics (covert_env.metrics.episode_metrics); "
+             "episode reward = env default reward, mean over UAVs. Lower is better except reward, disguise and "
+             "min separation.", "",
+             "| policy | mode | " + " | ".join(h for _, h, _ in COLUMNS) + " |",
+             "|---|---|" + "---|" * len(COLUMNS)]
+    for name, r in results.items():
+        cells = []
+        for k, _, fmt in COLUMNS:
+            m, s = r["summary"][k]
+            cells.append(f"{fmt.format(m)} ± {fmt.format(s)}")
+        lines.append(f"| {name} | {r['settings']['action_mode']} | " + " | ".join(cells) + " |")
+    lines += ["", f"Command: `{meta['command']}`", ""]
+    (out / "leaderboard.md").write_text("\n".join(lines))
+    _figure(results, out / "comparison.png")
+
+
+def _figure(results: dict[str, dict], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    keys = [c for c in COLUMNS if c[0] in ("reward", "occlusion_rate", "occlusion_rate_path", "zone_violation_rate",
+                                           "mean_disguise", "path_length")]
+    names = list(results)
+    fig, axes = plt.subplots(2, 3, figsize=(13, 7))
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for ax, (k, header, _) in zip(axes.ravel(), keys, strict=True):
+        m = [results[n]["summary"][k][0] for n in names]
+        s = [results[n]["summary"][k][1] for n in names]
+        ax.bar(range(len(names)), m, yerr=s, capsize=3, color=[colors[i % len(colors)] for i in range(len(names))])
+        ax.set_xticks(range(len(names)))
+        ax.set_xticklabels([n if len(n) < 22 else n[:20] + "…" for n in names], rotation=30, ha="right", fontsize=8)
+        ax.set_title(header)
+        ax.grid(axis="y", alpha=0.3)
+    fig.suptitle("covert_env: policies on the same held-out scenes (mean ± std over episodes)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m training.evaluate", description=__doc__.split("\n")[0],
+                                formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    p.add_argument("--policies", nargs="+", default=["random", "hold-centre", "dp", "dp-blind"],
+                   help="policy specs: dp, dp-blind, dp-binned, random, hold-centre/heuristic, sb3:PATH, rllib:PATH, "
+                        "each optionally @unicycle or @waypoint")
+    p.add_argument("--episodes", type=int, default=20, help="held-out scenes per policy")
+    p.add_argument("--n-uavs", type=int, default=3, help="team size")
+    p.add_argument("--seed-offset", type=int, default=HELD_OUT_OFFSET, help="first held-out scene seed")
+    p.add_argument("--out", default="outputs/leaderboard", help="output folder (git-ignored outputs/)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    p.add_argument("--reuse", action="store_true",
+                   help="reuse the per-episode results of built-in policies (dp, random, ...) cached in OUT/cache "
+                        "by an earlier run with the same episodes, seed offset and team size (they are deterministic)")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    import torch
+
+    torch.set_num_threads(1)
+    args = build_parser().parse_args(argv)
+    if args.episodes < 1:
+        raise SystemExit("--episodes must be >= 1")
+    results: dict[str, dict] = {}
+    for spec in args.policies:
+        pol, settings = load_policy(spec, args.n_uavs)
+        name = getattr(pol, "name", spec)
+        if "@" in spec and not name.endswith(spec.rsplit("@", 1)[1]):
+            name = f"{name}@{spec.rsplit('@', 1)[1]}"
+        while name in results:
+            name += "'"
+        t0 = time.perf_counter()
+        builtin = not spec.startswith(("sb3:", "rllib:"))
+        key = f"{spec}__{args.episodes}__{args.seed_offset}__{args.n_uavs}".replace("/", "_").replace("@", "-")
+        cache = Path(args.out) / "cache" / f"{key}.json"
+        if builtin and args.reuse and cache.exists():
+            rows = json.loads(cache.read_text())
+        else:
+            rows = evaluate(pol, settings, args.episodes, args.seed_offset, progress=not args.no_progress,
+                            label=name)
+            if builtin:
+                cache.parent.mkdir(parents=True, exist_ok=True)
+                cache.write_text(json.dumps(rows))
+        results[name] = {"rows": rows, "summary": summarise(rows), "settings": settings, "spec": spec}
+        s = results[name]["summary"]
+        print(f"{name:40s} reward {s['reward'][0]:8.1f} ± {s['reward'][1]:6.1f}  blocked LoS "
+              f"{s['occlusion_rate'][0]:.3f}  zone viol. {s['zone_violation_rate'][0]:.3f}  "
+              f"({time.perf_counter() - t0:.0f} s)", flush=True)
+    out = Path(args.out)
+    cmd = "python -m training.evaluate " + " ".join(argv if argv is not None else sys.argv[1:])
+    write_outputs(results, out, {"episodes": args.episodes, "seed_offset": args.seed_offset, "n_uavs": args.n_uavs,
+                                 "command": cmd})
+    (out / "results.json").write_text(json.dumps({n: {"summary": r["summary"], "settings": r["settings"],
+                                                      "spec": r["spec"]} for n, r in results.items()}, indent=2))
+    print(f"wrote {out / 'leaderboard.md'}, {out / 'leaderboard.csv'}, {out / 'comparison.png'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,225 @@
+"""Parameter-shared multi-agent PPO on the covert_env PettingZoo env (SB3, our own VecEnv adapter, no SuperSuit).
+
+One policy acts for every UAV of every env copy: :class:`training.vec_env.ParallelEnvVecAdapter` flattens
+``n_copies x n_uavs`` agents into SB3 rows. Timesteps count agent-steps (rows), as in SB3.
+
+    OMP_NUM_THREADS=1 python -m training.ppo_multi --recipe 3uav-ppo            # the documented recipe
+    python -m training.ppo_multi --recipe 3uav-ppo --resume runs/<run>          # continue from the last checkpoint
+    tensorboard --logdir runs
+
+Outputs in ``runs/{env}__ppo_multi__{seed}__{time}/`` (see :mod:`training.common`). Evaluate with
+``python -m training.evaluate --policies random dp sb3:runs/<run>``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from training.common import latest_checkpoint, make_callbacks, parse_args, run_name, save_run, setup_torch
+from training.recipes import RECIPES
+
+ALGO = "ppo_multi"
+
+
+@dataclass
+class Args:
+    env_id: str = "covert_sensing_v0"
+    """name of the env in run names (the PettingZoo env covert_env.parallel_env)"""
+    seed: int = 0
+    """seed of the env copies, the policy and the action sampling"""
+    n_uavs: int = 3
+    """UAVs per env copy (all share one policy)"""
+    n_copies: int = 8
+    """env copies; SB3 sees n_copies * n_uavs envs"""
+    action_mode: str = "unicycle"
+    """'unicycle' (continuous (v, omega)) or 'waypoint' (discrete lattice, plain PPO without masks)"""
+    max_cycles: int = 70
+    """episode length in slots (70 = the whole route)"""
+    scene_pool: int = 10_000
+    """training scene seeds are drawn from range(scene_pool); evaluation uses seeds >= 1_000_000"""
+    los_penalty: float = 2.0
+    """training reward: penalty per slot with blocked LoS (env default 1)"""
+    zone_penalty: float = 2.0
+    """training reward: base penalty per slot outside the feasible zone (env default 1)"""
+    separation_penalty: float = 1.0
+    """training reward: penalty per slot closer than d_safe1 to a teammate"""
+    disguise_in_zone_only: bool = True
+    """training reward: count the disguise bonus only while inside the zone (blocks the circle-the-target exploit)"""
+    total_timesteps: int = 20_000_000
+    """upper bound on agent-steps (the time budget usually stops training first)"""
+    time_budget_minutes: float = 50.0
+    """stop gracefully after this much wall-clock training time and save (0: no budget)"""
+    learning_rate: float = 3e-4
+    """Adam learning rate"""
+    n_steps: int = 256
+    """rollout length per SB3 env row (a rollout has n_steps * n_copies * n_uavs samples)"""
+    batch_size: int = 1024
+    """minibatch size"""
+    n_epochs: int = 5
+    """PPO epochs per rollout"""
+    gamma: float = 0.97
+    """discount factor (also used by VecNormalize's reward scaling)"""
+    gae_lambda: float = 0.95
+    """GAE lambda"""
+    clip_range: float = 0.2
+    """PPO clip range"""
+    ent_coef: float = 0.0
+    """entropy bonus"""
+    vf_coef: float = 0.5
+    """value-loss coefficient"""
+    max_grad_norm: float = 0.5
+    """gradient clipping"""
+    net_arch: tuple[int, ...] = (128, 128)
+    """hidden layers of the policy and value MLPs (separate networks)"""
+    log_std_init: float = -0.5
+    """initial log standard deviation of the Gaussian policy (unicycle mode)"""
+    norm_obs: bool = True
+    """VecNormalize observations"""
+    norm_reward: bool = True
+    """VecNormalize rewards (by the running std of the discounted return)"""
+    checkpoint_freq: int = 500_000
+    """save model + VecNormalize statistics every this many agent-steps (0: never)"""
+    runs_dir: str = "runs"
+    """folder of the runs (git-ignored)"""
+    run_name: str = ""
+    """run folder name (default {env}__ppo_multi__{seed}__{time})"""
+    resume: str = ""
+    """a run folder to continue from its newest checkpoint (same settings)"""
+    torch_threads: int = 1
+    """torch threads (1: 2 threads on 2 busy cores can be 50x slower)"""
+    progress_bar: bool = True
+    """show a tqdm progress bar"""
+    verbose: int = 1
+    """1: print a short progress line every 10 rollouts"""
+
+
+def env_kwargs(args: Args) -> dict:
+    """Keyword arguments of ``CovertSensingParallelEnv`` for training (evaluation uses the env's defaults)."""
+    return dict(n_uavs=args.n_uavs, action_mode=args.action_mode, max_cycles=args.max_cycles,
+                scene_pool=args.scene_pool, los_penalty=args.los_penalty, zone_penalty=args.zone_penalty,
+                separation_penalty=args.separation_penalty)
+
+
+def shaped_reward(disguise_in_zone_only: bool):
+    """Training-time reward: the env reward, without the disguise bonus outside the zone if asked."""
+    if not disguise_in_zone_only:
+        return None
+
+    def fn(reward: float, info: dict) -> float:
+        terms = info.get("reward_terms")
+        if terms is None or info.get("in_zone", True):
+            return reward
+        return reward - terms["disguise"]
+
+    return fn
+
+
+def _info_stats_callback(verbose: int):
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    class InfoStats(BaseCallback):
+        """Logs LoS / in-zone rates and the unshaped env reward per slot of every rollout to TensorBoard."""
+
+        def _on_rollout_start(self) -> None:
+            self.n = self.los = self.zone = 0
+            self.env_r = 0.0
+
+        def _on_training_start(self) -> None:
+            self.t0, self.s0, self.rollouts = time.monotonic(), self.model.num_timesteps, 0
+            self._on_rollout_start()
+
+        def _on_step(self) -> bool:
+            for info in self.locals["infos"]:
+                if "los" in info:
+                    self.n += 1
+                    self.los += info["los"]
+                    self.zone += info["in_zone"]
+                    self.env_r += info.get("env_reward", sum(info["reward_terms"].values()))
+            return True
+
+        def _on_rollout_end(self) -> None:
+            if not self.n:
+                return
+            los, zone, r = self.los / self.n, self.zone / self.n, self.env_r / self.n
+            self.logger.record("covert/los_rate", los)
+            self.logger.record("covert/zone_rate", zone)
+            self.logger.record("covert/env_reward_per_slot", r)
+            self.rollouts += 1
+            if verbose and self.rollouts % 10 == 0:
+                dt = time.monotonic() - self.t0
+                fps = (self.model.num_timesteps - self.s0) / max(dt, 1e-9)
+                print(f"[{dt / 60:6.1f} min] steps {self.model.num_timesteps:>9d}  fps {fps:6.0f}  "
+                      f"los {los:.3f}  in-zone {zone:.3f}  env reward/slot {r:+.3f}", flush=True)
+
+    return InfoStats()
+
+
+def train(args: Args) -> Path:
+    """Train (or resume) and return the run folder (holding model.zip, vecnormalize.pkl, args.json)."""
+    setup_torch(args.torch_threads)
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import VecMonitor, VecNormalize
+
+    from training.vec_env import make_vec_env
+
+    if args.resume:
+        run_dir = Path(args.resume)
+        saved = json.loads((run_dir / "args.json").read_text())
+        keep = {"resume", "total_timesteps", "time_budget_minutes", "progress_bar", "torch_threads", "verbose"}
+        fields = {f.name for f in dataclasses.fields(Args)}
+        vals = {k: v for k, v in saved.items() if k in fields and k not in keep}
+        vals["net_arch"] = tuple(vals.get("net_arch", args.net_arch))
+        args = dataclasses.replace(args, **vals)
+    else:
+        run_dir = Path(args.runs_dir) / (args.run_name or run_name(args.env_id, ALGO, args.seed))
+    ekw = env_kwargs(args)
+    save_run(run_dir, args, {"algo": ALGO, "sb3_class": "PPO", "multi_agent": True, "env_kwargs": ekw})
+
+    venv = VecMonitor(make_vec_env(args.n_copies, ekw, reward_fn=shaped_reward(args.disguise_in_zone_only)))
+    ckpt = latest_checkpoint(run_dir) if args.resume else None
+    if ckpt is not None:
+        model_path, vn_path = ckpt
+        venv = VecNormalize.load(str(vn_path), venv) if vn_path else venv
+        model = PPO.load(str(model_path), env=venv, device="cpu")
+        print(f"resumed from {model_path} at {model.num_timesteps} steps", flush=True)
+    else:
+        if args.norm_obs or args.norm_reward:
+            venv = VecNormalize(venv, norm_obs=args.norm_obs, norm_reward=args.norm_reward, gamma=args.gamma,
+                                clip_obs=10.0, clip_reward=10.0)
+        policy_kwargs = dict(net_arch=dict(pi=list(args.net_arch), vf=list(args.net_arch)))
+        if args.action_mode == "unicycle":
+            policy_kwargs["log_std_init"] = args.log_std_init
+        model = PPO("MlpPolicy", venv, learning_rate=args.learning_rate, n_steps=args.n_steps,
+                    batch_size=args.batch_size, n_epochs=args.n_epochs, gamma=args.gamma, gae_lambda=args.gae_lambda,
+                    clip_range=args.clip_range, ent_coef=args.ent_coef, vf_coef=args.vf_coef,
+                    max_grad_norm=args.max_grad_norm, policy_kwargs=policy_kwargs, seed=args.seed, device="cpu",
+                    tensorboard_log=str(run_dir / "tb"), verbose=0)
+    remaining = max(args.total_timesteps - model.num_timesteps, 0)
+    cbs, budget = make_callbacks(run_dir, ALGO, args.total_timesteps, venv.num_envs, args.checkpoint_freq,
+                                 args.time_budget_minutes, args.progress_bar)
+    cbs.append(_info_stats_callback(args.verbose))
+    t0 = time.monotonic()
+    model.learn(remaining, callback=cbs, tb_log_name=ALGO, reset_num_timesteps=ckpt is None)
+    minutes = (time.monotonic() - t0) / 60
+    model.save(run_dir / "model.zip")
+    if isinstance(model.get_env(), VecNormalize):
+        model.get_env().save(str(run_dir / "vecnormalize.pkl"))
+    info = {"timesteps": int(model.num_timesteps), "train_minutes": round(minutes, 2),
+            "stopped_by_time_budget": budget.stopped}
+    (run_dir / "train_summary.json").write_text(json.dumps(info, indent=2))
+    print(f"saved {run_dir / 'model.zip'}: {info}", flush=True)
+    venv.close()
+    return run_dir
+
+
+def main(argv: list[str] | None = None) -> Path:
+    args = parse_args(Args, argv, description=__doc__.split("\n")[0], presets=RECIPES)
+    return train(args)
+
+
+if __name__ == "__main__":
+    main()
