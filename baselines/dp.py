@@ -80,8 +80,9 @@ The planner never raises for lack of a plan. In order:
    (keep LoS as soon as possible); with ``check_path`` a manoeuvre losing LoS along the way pays the same
    penalty, and leaving the zone between slots is tolerated. ``status="fallback"``.
 3. If no zone node at all is reachable in one slot: the waypoint is the zone node nearest to the UAV
-   (a visible one if one is as near), which the engine flies as a best effort (turn toward it, speed
-   capped at V_max). ``status="fallback"``.
+   (a visible one if one is as near), which the engine flies as its documented best effort (the
+   admissible constant control ending closest to it, see :class:`covert_env.engine.Engine`).
+   ``status="fallback"``.
 
 ``plan.infeasible`` is True exactly for ``status="fallback"``: the slot is then flagged to the engine.
 
@@ -228,8 +229,8 @@ class DPPlan:
     def path_points(self, n: int) -> np.ndarray:
         """(depth, n, 2) positions at n equally spaced instants of each slot along the planned path.
 
-        A best-effort fallback move is drawn as the straight segment to its waypoint (the engine turns
-        toward it first, so this is an approximation used only for conflict checks).
+        A best-effort fallback move is drawn as the straight segment to its waypoint (the engine flies its own
+        best-effort control instead, so this is an approximation used only for conflict checks).
         """
         m = self.manoeuvres()
         pts = m.points(n)

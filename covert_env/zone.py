@@ -58,8 +58,7 @@ __all__ = [
     "visible_zone_cfg",
     "zone_distance",
     "zone_distance_cfg",
-    "zone_mask",
-]
+    "zone_mask", "zone_lattice"]
 
 ARC_RESOLUTION = math.radians(0.25)
 """Default largest angle (rad) spanned by one chord of a polygon arc."""
