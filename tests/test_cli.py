@@ -119,3 +119,16 @@ def test_scene_does_not_leak_figures(tmp_path):
         assert plt.get_fignums() == []
     finally:
         plt.close("all")
+
+
+@pytest.mark.parametrize("command, expected", [("reproduce", "--quick"), ("evaluate", "--policies")])
+def test_forwarded_subcommands_reach_their_parsers(command, expected, capsys):
+    """`covert-env reproduce/evaluate ...` hand every argument, --help included, to their own parser."""
+    from covert_env.cli import main
+
+    with pytest.raises(SystemExit) as exc:
+        main([command, "--help"])
+    assert exc.value.code == 0
+    out = capsys.readouterr().out
+    assert f"usage: covert-env {command}" in out or "usage:" in out
+    assert expected in out
