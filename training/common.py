@@ -119,6 +119,21 @@ def save_run(run_dir: Path, args: Any, extra: dict | None = None) -> None:
     (run_dir / "args.json").write_text(json.dumps(data, indent=2, default=str))
 
 
+#: Arguments a resumed run takes from the command line rather than from the saved run.
+RESUME_OVERRIDES = frozenset({"resume", "total_timesteps", "iterations", "time_budget_minutes", "progress_bar",
+                              "torch_threads", "verbose", "address", "num_env_runners"})
+
+
+def resumed_args(args: Any, run_dir: Path) -> Any:
+    """``args`` with the saved run's settings (``run_dir/args.json``), except :data:`RESUME_OVERRIDES`."""
+    saved = json.loads((Path(run_dir) / "args.json").read_text())
+    names = {f.name for f in dataclasses.fields(args)}
+    vals = {k: v for k, v in saved.items() if k in names and k not in RESUME_OVERRIDES}
+    if "net_arch" in names:
+        vals["net_arch"] = tuple(vals.get("net_arch", args.net_arch))
+    return dataclasses.replace(args, **vals)
+
+
 def latest_checkpoint(run_dir: Path) -> tuple[Path, Path | None] | None:
     """The newest ``(model.zip, vecnormalize.pkl or None)`` in ``run_dir/checkpoints`` or the final model."""
     run_dir = Path(run_dir)

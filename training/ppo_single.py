@@ -9,13 +9,12 @@ Outputs in ``runs/{env}__ppo_single__{seed}__{time}/`` (model.zip, vecnormalize.
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from training.common import latest_checkpoint, make_callbacks, parse_args, run_name, save_run, setup_torch
+from training.common import latest_checkpoint, make_callbacks, parse_args, resumed_args, run_name, save_run, setup_torch
 
 ALGO = "ppo_single"
 
@@ -88,11 +87,7 @@ def train(args: Args) -> Path:
 
     if args.resume:
         run_dir = Path(args.resume)
-        saved = json.loads((run_dir / "args.json").read_text())
-        keep = {"resume", "total_timesteps", "time_budget_minutes", "progress_bar", "torch_threads"}
-        vals = {k: v for k, v in saved.items() if k in {f.name for f in dataclasses.fields(Args)} and k not in keep}
-        vals["net_arch"] = tuple(vals.get("net_arch", args.net_arch))
-        args = dataclasses.replace(args, **vals)
+        args = resumed_args(args, run_dir)
     else:
         run_dir = Path(args.runs_dir) / (args.run_name or run_name(args.env_id, ALGO, args.seed))
     ekw = env_kwargs(args)

@@ -40,7 +40,6 @@ Pitfalls (each cost us time):
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import os
 import time
@@ -50,7 +49,7 @@ from pathlib import Path
 
 import numpy as np
 
-from training.common import parse_args, run_name, save_run, setup_torch
+from training.common import parse_args, resumed_args, run_name, save_run, setup_torch
 
 ALGO = "rllib_ppo"
 ENV_NAME = "covert_sensing_v0"
@@ -172,11 +171,7 @@ def train(args: Args) -> Path:
     if args.resume:
         ckpt_dir = Path(args.resume).resolve()
         run_dir = ckpt_dir.parent
-        saved = json.loads((run_dir / "args.json").read_text())
-        keep = {"resume", "iterations", "time_budget_minutes", "progress_bar", "address", "num_env_runners"}
-        vals = {k: v for k, v in saved.items() if k in {f.name for f in dataclasses.fields(Args)} and k not in keep}
-        vals["net_arch"] = tuple(vals.get("net_arch", args.net_arch))
-        args = dataclasses.replace(args, **vals)
+        args = resumed_args(args, run_dir)
     else:
         run_dir = (Path(args.runs_dir) / (args.run_name or run_name(args.env_id, ALGO, args.seed))).resolve()
         ckpt_dir = run_dir / "checkpoint"
