@@ -41,7 +41,6 @@ from functools import cached_property
 
 import numpy as np
 import shapely
-from scipy.spatial import ConvexHull
 from shapely.geometry import Polygon
 
 from covert_env.terrain import Terrain
@@ -111,11 +110,9 @@ def _build_arrays(terrain: Terrain) -> _TerrainArrays:
         e2, e3 = np.zeros((0, 1, 2)), np.zeros((0, 1, 3))
         return _TerrainArrays(np.zeros((0, 1, 4)), np.zeros(0), e2, np.zeros((0, 2)), np.zeros(0), e3,
                               np.zeros(0, int), np.zeros(0, int))
-    plans = []
-    for p in terrain:
-        xy = p.vertices[:, :2]
-        # The plan view of C_m is the hull of all its vertices (= the base when the top lies inside it).
-        plans.append(xy[ConvexHull(xy).vertices])  # scipy returns 2-D hull vertices counter-clockwise
+    # The plan view of C_m is its base Q_m: Polytope validation guarantees that the top's plan view lies
+    # inside the base, and bases are stored counter-clockwise.
+    plans = [p.base for p in terrain]
     v = max(len(a) for a in plans)
     plan = np.stack([np.vstack([a, np.repeat(a[-1:], v - len(a), axis=0)]) for a in plans])
     centre = np.array([a.mean(axis=0) for a in plans])

@@ -345,3 +345,33 @@ def test_episode_gif(tmp_path):
     save_episode_gif(frames, tmp_path / "ep.gif")
     data = (tmp_path / "ep.gif").read_bytes()
     assert data[:6] in (b"GIF89a", b"GIF87a") and len(data) > 10_000
+
+
+@pytest.mark.parametrize("scene_seed", [3, 11])
+def test_visibility_maps_match_exact_per_cell_check(scene_seed):
+    """The observation maps (computed for many slots in one batched call) equal, cell by cell, "in the
+    eroded zone (eq. 4) and clear LoS (eq. 6)" evaluated at that slot's target pose."""
+    from covert_env.visibility import line_of_sight
+    from covert_env.zone import in_feasible_zone, to_world
+
+    env = covert_sensing_v0.parallel_env(n_uavs=2, map_size=10)
+    obs, _ = env.reset(seed=0, options={"scene_seed": scene_seed})
+    c, s, u = env.config, env.map_size, 2
+    start = 11 + 2 * (u - 1)
+    track = env.scenario.track
+    blocked = 0
+    for k in range(env.max_cycles):
+        o = obs["uav_0"]
+        for j, kk in enumerate((k, k + 1)):
+            q, phi = track.position(kk), float(track.heading(kk))
+            xy = to_world(env.map_offsets, q[:2], phi)
+            zone = in_feasible_zone(xy, q[:2], phi, c.r1, c.r2, c.mu, c.r_u)
+            clear = line_of_sight(env.scenario.terrain, xy, c.altitude, q)
+            np.testing.assert_array_equal(o[start + j * s * s: start + (j + 1) * s * s], zone & clear)
+            blocked += int((zone & ~clear).sum())
+        obs, *_ = env.step({a: env.action_space(a).sample() for a in env.agents})
+        if not env.agents:
+            break
+    assert 0 < zone.sum() < s * s
+    if scene_seed == 3:
+        assert blocked > 0, "the check would be vacuous without shadowed cells"

@@ -12,7 +12,7 @@ from shapely.geometry import Point
 
 from covert_env.config import Config
 from covert_env.road import Road
-from covert_env.terrain import Polytope, Terrain
+from covert_env.terrain import Polytope, Terrain, _check_polytope
 
 SQUARE = np.array([[0.0, 0.0], [10.0, 0.0], [10.0, 10.0], [0.0, 10.0]])
 
@@ -294,6 +294,11 @@ def test_random_properties_over_many_seeds(random_terrains):
             b, top = p.base, p.top
             k = len(b)
             assert cfg.min_vertices <= k <= cfg.max_vertices
+            # the generator skips Polytope validation (valid by construction): the full validator agrees
+            b2, t2 = _check_polytope(b, top)
+            np.testing.assert_array_equal(b2, b)
+            np.testing.assert_array_equal(t2, top)
+            assert not b.flags.writeable and not top.flags.writeable
             # convex, counter-clockwise footprint
             e = np.roll(b, -1, axis=0) - b
             turn = e[:, 0] * np.roll(e[:, 1], -1) - e[:, 1] * np.roll(e[:, 0], -1)

@@ -35,13 +35,24 @@ OFFSET_CLIP = 5.0
 
 
 class _SceneCache:
-    """Per-scene, per-slot results that do not depend on the UAVs (shared by all agents and resets)."""
+    """Per-scene, per-slot results that do not depend on the UAVs (shared by all agents and resets).
 
-    def __init__(self, scenario: Scenario, map_offsets: np.ndarray, lattice: np.ndarray):
+    The observation maps' cells are fixed in the target's frame, so which cells lie in the eroded zone
+    is one mask for every slot; only their line of sight changes. It is computed for ``_MAP_CHUNK``
+    slots at once (one vectorised call with a target per slot): a new scene costs a few ms for the
+    whole episode instead of a broad phase per slot.
+    """
+
+    _MAP_CHUNK = 32
+
+    def __init__(self, scenario: Scenario, map_offsets: np.ndarray, map_in_zone: np.ndarray,
+                 lattice: np.ndarray):
         self.scenario = scenario
-        self._map_offsets = map_offsets
+        self._map_offsets = map_offsets[map_in_zone]
+        self._map_in_zone = map_in_zone
         self._lattice = lattice
-        self._maps: dict[int, np.ndarray] = {}
+        self._maps = np.zeros((scenario.track.n_slots, len(map_offsets)), np.float32)
+        self._chunks: set[int] = set()
         self._lattice_ok: dict[int, np.ndarray] = {}
 
     def _visible(self, offsets: np.ndarray, k: int) -> np.ndarray:
@@ -56,8 +67,20 @@ class _SceneCache:
 
     def visibility_map(self, k: int) -> np.ndarray:
         """Cells of the observation map that are in the eroded zone with clear LoS at slot k (float32)."""
-        if k not in self._maps:
-            self._maps[k] = self._visible(self._map_offsets, k).astype(np.float32)
+        chunk = k // self._MAP_CHUNK
+        if chunk not in self._chunks:
+            self._chunks.add(chunk)
+            track, c = self.scenario.track, self.scenario.config
+            ks = np.arange(chunk * self._MAP_CHUNK, min((chunk + 1) * self._MAP_CHUNK, track.n_slots))
+            if len(ks) and len(self._map_offsets):
+                q, phi = track.positions[ks], track.headings[ks]
+                cs, sn = np.cos(phi)[:, None], np.sin(phi)[:, None]
+                ox, oy = self._map_offsets[:, 0], self._map_offsets[:, 1]
+                xy = np.stack([q[:, :1] + cs * ox - sn * oy, q[:, 1:2] + sn * ox + cs * oy], axis=-1)
+                clear = line_of_sight(self.scenario.terrain, xy, c.altitude, q[:, None, :])
+                rows = self._maps[ks]
+                rows[:, self._map_in_zone] = clear
+                self._maps[ks] = rows
         return self._maps[k]
 
     def lattice_visible(self, k: int) -> np.ndarray:
@@ -256,6 +279,7 @@ class CovertSensingParallelEnv(ParallelEnv):
         gx = lo[0] + (np.arange(s) + 0.5) * (hi[0] - lo[0]) / s
         gy = lo[1] + (np.arange(s) + 0.5) * (hi[1] - lo[1]) / s
         self.map_offsets = np.array([(x, y) for y in gy[::-1] for x in gx])   # row-major, +y on top
+        self._map_in_zone = in_feasible_zone(self.map_offsets, np.zeros(2), 0.0, c.r1, c.r2, c.mu, c.r_u)
 
         n_mate = 2 * (c.n_uavs - 1)
         low = np.concatenate([[-OFFSET_CLIP] * 2, [-1, -1, 0, 0, 0, -OFFSET_CLIP], [-2, -2, 0],
@@ -306,7 +330,7 @@ class CovertSensingParallelEnv(ParallelEnv):
                 sc = Scenario.paper(self.config)
             else:
                 sc = Scenario.random(int(scene_seed), self.config)
-            self._scenes[key] = _SceneCache(sc, self.map_offsets, self.lattice)
+            self._scenes[key] = _SceneCache(sc, self.map_offsets, self._map_in_zone, self.lattice)
             while len(self._scenes) > 32:                     # bounded memory over long training runs
                 self._scenes.popitem(last=False)
         self._scenes.move_to_end(key)
