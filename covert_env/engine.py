@@ -124,9 +124,12 @@ class Engine:
 
     def _check_unicycle(self, ctl: np.ndarray) -> None:
         c = self.config
+        v, w = ctl[:, 0], ctl[:, 1]
+        # One combined test on the hot path (NaN fails every comparison); the messages below find the culprit.
+        if (np.all(v > 0) and np.all(v <= c.v_max * (1 + 1e-9)) and np.all(np.abs(w) <= c.w_max * (1 + 1e-9))):
+            return
         if not np.all(np.isfinite(ctl)):
             raise ValueError("Engine.step: unicycle controls must be finite (got NaN or inf)")
-        v, w = ctl[:, 0], ctl[:, 1]
         if np.any(v <= 0) or np.any(v > c.v_max * (1 + 1e-9)):
             raise ValueError(f"Engine.step: speed v must be in (0, V_max={c.v_max:g}], got {v.tolist()}")
         if np.any(np.abs(w) > c.w_max * (1 + 1e-9)):

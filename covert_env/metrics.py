@@ -102,9 +102,10 @@ def slot_quantities(traj: Trajectory, terrain: Terrain, config: Config, *, path_
         los = line_of_sight(terrain, end_xy, c.altitude, traj.target_xyz[1:, None, :])
         los_path = np.full(los.shape, np.nan)
 
-    sep = _nearest_teammate(end_xy)
-    # Like LoS: sample 0 is the previous slot's end (counted there), so each instant counts once.
-    sep_path = _nearest_teammate(np.swapaxes(traj.path_xy[:, :, 1:], 1, 2)).min(axis=1)   # (T, U)
+    # Like LoS: sample 0 is the previous slot's end (counted there), so each instant counts once. The last
+    # sample is the slot's end, so the slot-time separation comes with it.
+    sep_all = _nearest_teammate(np.swapaxes(traj.path_xy[:, :, 1:], 1, 2))            # (T, P-1, U)
+    sep, sep_path = sep_all[:, -1], sep_all.min(axis=1)
     clearance = _terrain_clearance(end_xy, c.altitude, terrain)
     return SlotQuantities(los=los, los_path=los_path, in_zone=zd <= 0.0, zone_distance=zd,
                           alpha=alpha_all[1:], d=d_all[1:],

@@ -90,12 +90,6 @@ class _SceneCache:
         return self._lattice_ok[k]
 
 
-def _to_target_frame(xy: np.ndarray, q_xy: np.ndarray, phi: float) -> np.ndarray:
-    c, s = math.cos(phi), math.sin(phi)
-    d = np.asarray(xy, float) - q_xy
-    return np.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1]], axis=-1)
-
-
 class CovertSensingParallelEnv(ParallelEnv):
     """Covert video sensing of a ground target by a team of UAVs on uneven terrain.
 
@@ -419,9 +413,11 @@ class CovertSensingParallelEnv(ParallelEnv):
                     raise ValueError(f"action for {a} must have shape (2,), got {np.shape(actions[a])}")
                 if not np.all(np.isfinite(one)):
                     raise ValueError(f"action for {a} must be finite, got {one.tolist()}")
-        act = np.clip(act, -1.0, 1.0)
-        v = c.v_max * (MIN_SPEED_FRACTION + (1 - MIN_SPEED_FRACTION) * (act[:, 0] + 1) / 2)
-        return np.column_stack([v, c.w_max * act[:, 1]])
+        act = np.minimum(np.maximum(act, -1.0), 1.0)
+        ctl = np.empty_like(act)
+        ctl[:, 0] = c.v_max * (MIN_SPEED_FRACTION + (1 - MIN_SPEED_FRACTION) * (act[:, 0] + 1) / 2)
+        ctl[:, 1] = c.w_max * act[:, 1]
+        return ctl
 
     def _waypoint_indices(self, actions: dict[str, Any]) -> np.ndarray:
         """(U,) lattice indices from Discrete(L) actions, validated."""
@@ -447,7 +443,8 @@ class CovertSensingParallelEnv(ParallelEnv):
             "terrain": -p["terrain"] * (quant.terrain_clearance[0] < c.d_safe2),
         }
         total = sum(cols.values())
-        terms = [{name: float(v[i]) for name, v in cols.items()} for i in range(len(total))]
+        names = tuple(cols)
+        terms = [dict(zip(names, row, strict=True)) for row in zip(*(v.tolist() for v in cols.values()), strict=True)]
         return total.astype(float), terms
 
     def _update_masks(self) -> None:
@@ -481,34 +478,55 @@ class CovertSensingParallelEnv(ParallelEnv):
             info["action_mask"] = self._masks[i].copy()
         return info
 
-    def _own_features(self) -> np.ndarray:
-        """(U, 8) per-UAV features 0-7 of the observation table."""
+    # The feature functions fill preallocated columns with scalar-trigonometry frame changes: on the
+    # few-element arrays of one step, numpy's per-call overhead (not the maths) is the cost.
+    def _own_features(self, out: np.ndarray | None = None) -> np.ndarray:
+        """(U, 8) per-UAV features 0-7 of the observation table (written into ``out`` if given)."""
         eng, c = self.engine, self.config
-        q, phi = eng.target_xyz, eng.target_phi
-        rel = _to_target_frame(eng.uav_xy, q[:2], phi) / c.r2
+        tr = self.scenario.track
+        k = min(eng.k, tr.n_slots)
+        qx, qy = tr.positions[k, 0], tr.positions[k, 1]
+        phi = float(tr.headings[k])
+        cs, sn = math.cos(phi), math.sin(phi)
+        dx, dy = eng.uav_xy[:, 0] - qx, eng.uav_xy[:, 1] - qy
+        f = np.empty((len(dx), 8)) if out is None else out
+        f[:, 0] = (cs * dx + sn * dy) / c.r2
+        f[:, 1] = (cs * dy - sn * dx) / c.r2
+        np.minimum(np.maximum(f[:, :2], -OFFSET_CLIP), OFFSET_CLIP, out=f[:, :2])
         dth = eng.uav_theta - phi
+        f[:, 2] = np.cos(dth)
+        f[:, 3] = np.sin(dth)
+        f[:, 4] = np.minimum(self._last_speed / c.v_max, 1.0)
+        f[:, 5] = self._los
         zd = self._zone_dist
-        return np.column_stack([np.clip(rel, -OFFSET_CLIP, OFFSET_CLIP), np.cos(dth), np.sin(dth),
-                                np.minimum(self._last_speed / c.v_max, 1.0), self._los, zd <= 0,
-                                np.clip(zd / (c.r2 - c.r1), -OFFSET_CLIP, OFFSET_CLIP)])
+        f[:, 6] = zd <= 0
+        f[:, 7] = np.minimum(np.maximum(zd / (c.r2 - c.r1), -OFFSET_CLIP), OFFSET_CLIP)
+        return f
 
     def _shared_features(self) -> np.ndarray:
         """Target displacement, time remaining and both maps (shared by all agents)."""
         eng, c = self.engine, self.config
-        q, phi = eng.target_xyz, eng.target_phi
+        tr = self.scenario.track
         k = eng.k
-        q1 = self.scenario.track.position(k + 1)
-        disp = _to_target_frame(q1[:2], q[:2], phi) / (c.v_max * c.delta)
+        q, q1 = tr.positions[min(k, tr.n_slots)], tr.positions[min(k + 1, tr.n_slots)]
+        phi = float(tr.headings[min(k, tr.n_slots)])
+        cs, sn = math.cos(phi), math.sin(phi)
+        dx, dy = q1[0] - q[0], q1[1] - q[1]
+        scale = c.v_max * c.delta
+        disp = [min(max((cs * dx + sn * dy) / scale, -2.0), 2.0), min(max((cs * dy - sn * dx) / scale, -2.0), 2.0)]
         remaining = max(self.max_cycles - k, 0) / self.max_cycles
-        return np.concatenate([np.clip(disp, -2, 2), [remaining], self._cache.visibility_map(k),
-                               self._cache.visibility_map(k + 1)])
+        return np.concatenate([disp, [remaining], self._cache.visibility_map(k), self._cache.visibility_map(k + 1)])
 
     def _observations(self) -> dict[str, Any]:
-        own = self._own_features()
         shared = self._shared_features()
-        u = len(own)
-        rows = np.concatenate([own, np.broadcast_to(shared[:3], (u, 3)), own[self._mates, :2].reshape(u, -1),
-                               np.broadcast_to(shared[3:], (u, len(shared) - 3))], axis=1).astype(np.float32)
+        u, n_own = len(self.possible_agents), 8
+        rows = np.empty((u, self._obs_box.shape[0]), np.float32)
+        own = self._own_features()
+        rows[:, :n_own] = own
+        rows[:, n_own:n_own + 3] = shared[:3]
+        n_mate = 2 * (u - 1)
+        rows[:, n_own + 3:n_own + 3 + n_mate] = own[self._mates, :2].reshape(u, -1)
+        rows[:, n_own + 3 + n_mate:] = shared[3:]
         if self.dict_obs:
             return {a: {"observation": rows[i], "action_mask": self._masks[i].copy()}
                     for i, a in enumerate(self.possible_agents)}
