@@ -149,8 +149,11 @@ class DPPolicy(Policy):
 
     def _team(self, par) -> DPTeamPlanner:
         # One planner per scene: its caches are keyed by the target's poses, which only hold for one terrain.
-        if self.team is None or self._scenario is not par.scenario:
-            self._scenario = par.scenario
+        # (The env builds a new Scenario object per reset when it draws the starts, so compare the world.)
+        world = (par.scenario.terrain, par.scenario.track)
+        if self.team is None or self._scenario is None or world[0] is not self._scenario[0] \
+                or world[1] is not self._scenario[1]:
+            self._scenario = world
             self.team = DPTeamPlanner(DPPlanner(par.config, par.scenario.terrain, **self.kw), **self.team_kw)
         return self.team
 

@@ -68,11 +68,10 @@ class Engine:
         self._theta = [self.uav_theta.copy()]
         self._path: list[np.ndarray] = []
         self._length: list[np.ndarray] = []
-        self._tpath: list[np.ndarray] = []
         self._vmax: list[np.ndarray] = []
         self._wmax: list[np.ndarray] = []
         self._infeasible: list[np.ndarray] = []
-        self._dtime: list[np.ndarray] = []
+        self._dtime: list[np.ndarray | None] = []
         self.n_uavs = u
 
     @property
@@ -191,12 +190,11 @@ class Engine:
         u = self.n_uavs
         self._path.append(path)
         self._length.append(v * self.config.delta)
-        self._tpath.append(self.track.position_between(self.k, self._fractions))
         self._vmax.append(np.asarray(v, float))
         self._wmax.append(np.abs(np.asarray(w, float)))
         self._infeasible.append(flagged)
-        self._dtime.append(np.full(u, np.nan) if decision_time is None
-                           else np.asarray(decision_time, float).reshape(u))
+        # None = not measured: turned into NaN rows only when a trajectory is built (saves the hot path an array).
+        self._dtime.append(None if decision_time is None else np.asarray(decision_time, float).reshape(u))
         self.uav_xy = path[:, -1].copy()
         self.uav_theta = np.mod(end_theta, 2 * math.pi)
         self.k += 1
@@ -214,13 +212,15 @@ class Engine:
             return np.array(xs[k0:]) if len(xs[k0:]) else np.zeros((0,) + shape)
 
         p = self.path_samples
+        nan = np.full(u, np.nan)
         return Trajectory(
             uav_xy=np.array(self._xy[k0:]), uav_theta=np.array(self._theta[k0:]),
             path_xy=stack(self._path, (u, p, 2)), path_length=stack(self._length, (u,)),
             target_xyz=self.track.position(ks), target_phi=np.asarray(self.track.heading(ks)).reshape(-1),
-            target_path_xyz=stack(self._tpath, (p, 3)), max_speed=stack(self._vmax, (u,)),
-            max_turn_rate=stack(self._wmax, (u,)), infeasible=stack(self._infeasible, (u,)).astype(bool),
-            decision_time=stack(self._dtime, (u,)))
+            target_path_xyz=np.array(self.track.position_between(ks[:-1], self._fractions)).reshape(-1, p, 3),
+            max_speed=stack(self._vmax, (u,)), max_turn_rate=stack(self._wmax, (u,)),
+            infeasible=stack(self._infeasible, (u,)).astype(bool),
+            decision_time=stack([nan if d is None else d for d in self._dtime], (u,)))
 
     def last_quantities(self) -> SlotQuantities:
         """Quantities of the slot just flown (arrays of shape (1, U))."""
@@ -231,7 +231,7 @@ class Engine:
             uav_xy=np.stack(self._xy[-2:]), uav_theta=np.stack(self._theta[-2:]),
             path_xy=self._path[-1][None], path_length=self._length[-1][None],
             target_xyz=self.track.positions[k - 1:k + 1], target_phi=self.track.headings[k - 1:k + 1],
-            target_path_xyz=self._tpath[-1][None], max_speed=self._vmax[-1][None],
-            max_turn_rate=self._wmax[-1][None], infeasible=self._infeasible[-1][None],
-            decision_time=self._dtime[-1][None])
+            target_path_xyz=self.track.position_between(k - 1, self._fractions)[None],
+            max_speed=self._vmax[-1][None], max_turn_rate=self._wmax[-1][None],
+            infeasible=self._infeasible[-1][None], decision_time=np.full((1, self.n_uavs), np.nan))
         return slot_quantities(one, self.terrain, self.config, path_los=self.path_los)

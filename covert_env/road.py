@@ -172,8 +172,14 @@ class TargetTrack:
         return self.positions[np.clip(np.asarray(k), 0, self.n_slots)]
 
     def position_between(self, k: int, fractions) -> np.ndarray:
-        """Target positions (len(fractions), 3) at times (k + f) delta within slot k, f in [0, 1]."""
-        k = int(np.clip(k, 0, self.n_slots - 1))
+        """Target positions (len(fractions), 3) at times (k + f) delta within slot k, f in [0, 1].
+
+        ``k`` may also be an integer array (..., ): the result is then (..., len(fractions), 3).
+        """
+        if isinstance(k, (int, np.integer)):
+            k = min(max(int(k), 0), self.n_slots - 1)
+        else:
+            k = np.clip(np.asarray(k, dtype=int), 0, self.n_slots - 1)
         f = np.asarray(fractions, dtype=float)
         key = f.tobytes()
         table = self._between.get(key)

@@ -107,36 +107,48 @@ class Scenario:
         c = config or Config()
         u = c.n_uavs if n_uavs is None else n_uavs
         _check_team(u, "Scenario.random")
-        rng = np.random.default_rng(seed)
-        road, track = cls._road_and_track(c, rng)
-        terrain = Terrain.random(seed=rng, road=road, config=c)
-        sc = cls(c, terrain, track, np.zeros((u, 2)), np.zeros(u), name=f"random-{seed}")
-        xy, th = sc.sample_starts(rng, u)
+        terrain, track, rng = cls._random_world(seed, c)
+        xy, th = _sample_starts(c, terrain, track, rng, u, f"random-{seed}")
         return cls(c, terrain, track, xy, th, name=f"random-{seed}")
+
+    @classmethod
+    def _random_world(cls, seed: int, config: Config) -> tuple[Terrain, TargetTrack, np.random.Generator]:
+        """The terrain and track of :meth:`random` (seed), and the generator positioned to draw its starts.
+
+        Environments that draw their own starts use this and skip the seeded ones."""
+        rng = np.random.default_rng(seed)
+        road, track = cls._road_and_track(config, rng)
+        terrain = Terrain.random(seed=rng, road=road, config=config)
+        return terrain, track, rng
 
     def sample_starts(self, rng: np.random.Generator, n_uavs: int | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Random start poses: distinct lattice nodes of the eroded zone at slot 0 with clear LoS, at
         least ``2 d_safe1`` apart, headings uniform in [0, 2 pi). Returns (xy (U, 2), theta (U,)).
         """
-        from covert_env.visibility import line_of_sight
-        from covert_env.zone import grid_nodes
-
-        c = self.config
         u = self.n_uavs if n_uavs is None else n_uavs
         _check_team(u, "Scenario.sample_starts")
-        q0, phi0 = self.track.position(0), float(self.track.heading(0))
-        nodes = grid_nodes(q0[:2], phi0, c.grid_step, c.r1, c.r2, c.mu, c.r_u)
-        nodes = nodes[line_of_sight(self.terrain, nodes, c.altitude, q0)]
-        picked: list[np.ndarray] = []
-        for idx in rng.permutation(len(nodes)):
-            p = nodes[idx]
-            if all(np.hypot(*(p - o)) >= 2 * c.d_safe1 for o in picked):
-                picked.append(p)
-                if len(picked) == u:
-                    break
-        if len(picked) < u:
-            raise ValueError(f"Scenario {self.name}: could not place {u} UAVs in the visible zone")
-        return np.array(picked), rng.uniform(0, 2 * math.pi, u)
+        return _sample_starts(self.config, self.terrain, self.track, rng, u, self.name)
+
+
+def _sample_starts(c: Config, terrain: Terrain, track: TargetTrack, rng: np.random.Generator, u: int,
+                   name: str) -> tuple[np.ndarray, np.ndarray]:
+    """:meth:`Scenario.sample_starts` on the parts of a scenario."""
+    from covert_env.visibility import line_of_sight
+    from covert_env.zone import grid_nodes
+
+    q0, phi0 = track.position(0), float(track.heading(0))
+    nodes = grid_nodes(q0[:2], phi0, c.grid_step, c.r1, c.r2, c.mu, c.r_u)
+    nodes = nodes[line_of_sight(terrain, nodes, c.altitude, q0)]
+    picked: list[np.ndarray] = []
+    for idx in rng.permutation(len(nodes)):
+        p = nodes[idx]
+        if all(np.hypot(*(p - o)) >= 2 * c.d_safe1 for o in picked):
+            picked.append(p)
+            if len(picked) == u:
+                break
+    if len(picked) < u:
+        raise ValueError(f"Scenario {name}: could not place {u} UAVs in the visible zone")
+    return np.array(picked), rng.uniform(0, 2 * math.pi, u)
 
 
 def _check_team(u, where: str) -> None:

@@ -375,3 +375,32 @@ def test_visibility_maps_match_exact_per_cell_check(scene_seed):
     assert 0 < zone.sum() < s * s
     if scene_seed == 3:
         assert blocked > 0, "the check would be vacuous without shadowed cells"
+
+
+def test_starts_scene_seed_and_random_starts():
+    """options={"scene_seed": s} flies Scenario.random(s)'s own starts; random_starts draws them from the env
+    seed (any team size, fixed scenarios too); env.scenario always holds the starts actually flown."""
+    from covert_env.scenario import Scenario
+    from covert_env.visibility import line_of_sight
+    from covert_env.zone import in_feasible_zone
+
+    env = covert_sensing_v0.parallel_env(n_uavs=3)
+    env.reset(seed=1, options={"scene_seed": 42})
+    ref = Scenario.random(42, env.config)
+    np.testing.assert_array_equal(env.engine.uav_xy, ref.uav_xy)
+    np.testing.assert_array_equal(env.scenario.uav_theta, ref.uav_theta)
+    env.reset(seed=1)                                   # a pool scene: starts from the env's RNG
+    np.testing.assert_array_equal(env.engine.uav_xy, env.scenario.uav_xy)
+
+    starts = []
+    for seed in (0, 1):
+        penv = covert_sensing_v0.parallel_env(n_uavs=2, scenario="paper", random_starts=True)
+        penv.reset(seed=seed)
+        sc, c = penv.scenario, penv.config
+        assert sc.n_uavs == 2
+        np.testing.assert_array_equal(penv.engine.uav_xy, sc.uav_xy)
+        q, phi = sc.track.position(0), float(sc.track.heading(0))
+        assert in_feasible_zone(sc.uav_xy, q[:2], phi, c.r1, c.r2, c.mu, c.r_u).all()
+        assert line_of_sight(sc.terrain, sc.uav_xy, c.altitude, q).all()
+        starts.append(sc.uav_xy)
+    assert not np.array_equal(*starts)

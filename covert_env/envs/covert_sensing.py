@@ -21,7 +21,7 @@ from pettingzoo.utils import parallel_to_aec, wrappers
 from covert_env.config import Config
 from covert_env.dynamics import solve_manoeuvre
 from covert_env.engine import Engine
-from covert_env.scenario import Scenario
+from covert_env.scenario import Scenario, _sample_starts
 from covert_env.visibility import line_of_sight
 from covert_env.zone import in_feasible_zone, lattice_offsets, to_world, zone_distance, zone_lattice
 
@@ -45,24 +45,32 @@ class _SceneCache:
 
     _MAP_CHUNK = 32
 
-    def __init__(self, scenario: Scenario, map_offsets: np.ndarray, map_in_zone: np.ndarray,
-                 lattice: np.ndarray):
-        self.scenario = scenario
+    def __init__(self, scenario: Scenario | None, map_offsets: np.ndarray, map_in_zone: np.ndarray,
+                 lattice: np.ndarray, *, seed: int | None = None, config: Config | None = None):
+        if scenario is None:
+            # A random scene: build the world now, its seeded starts only if a reset asks for them
+            # (training resets draw their own starts).
+            terrain, track, self._rng = Scenario._random_world(seed, config)
+            self.world = (config, terrain, track, f"random-{seed}")
+        else:
+            self.world = (scenario.config, scenario.terrain, scenario.track, scenario.name)
+        self._seeded = scenario
+        self.parts = _World(*self.world)
         self._map_offsets = map_offsets[map_in_zone]
         self._map_in_zone = map_in_zone
         self._lattice = lattice
-        self._maps = np.zeros((scenario.track.n_slots, len(map_offsets)), np.float32)
+        self._maps = np.zeros((self.parts.track.n_slots, len(map_offsets)), np.float32)
         self._chunks: set[int] = set()
         self._lattice_ok: dict[int, np.ndarray] = {}
 
     def _visible(self, offsets: np.ndarray, k: int) -> np.ndarray:
-        c = self.scenario.config
-        q = self.scenario.track.position(k)
-        phi = float(self.scenario.track.heading(k))
+        c = self.parts.config
+        q = self.parts.track.position(k)
+        phi = float(self.parts.track.heading(k))
         xy = to_world(offsets, q[:2], phi)
         ok = in_feasible_zone(xy, q[:2], phi, c.r1, c.r2, c.mu, c.r_u)
         if ok.any():
-            ok[ok] = line_of_sight(self.scenario.terrain, xy[ok], c.altitude, q)
+            ok[ok] = line_of_sight(self.parts.terrain, xy[ok], c.altitude, q)
         return ok
 
     def visibility_map(self, k: int) -> np.ndarray:
@@ -70,14 +78,14 @@ class _SceneCache:
         chunk = k // self._MAP_CHUNK
         if chunk not in self._chunks:
             self._chunks.add(chunk)
-            track, c = self.scenario.track, self.scenario.config
+            track, c = self.parts.track, self.parts.config
             ks = np.arange(chunk * self._MAP_CHUNK, min((chunk + 1) * self._MAP_CHUNK, track.n_slots))
             if len(ks) and len(self._map_offsets):
                 q, phi = track.positions[ks], track.headings[ks]
                 cs, sn = np.cos(phi)[:, None], np.sin(phi)[:, None]
                 ox, oy = self._map_offsets[:, 0], self._map_offsets[:, 1]
                 xy = np.stack([q[:, :1] + cs * ox - sn * oy, q[:, 1:2] + sn * ox + cs * oy], axis=-1)
-                clear = line_of_sight(self.scenario.terrain, xy, c.altitude, q[:, None, :])
+                clear = line_of_sight(self.parts.terrain, xy, c.altitude, q[:, None, :])
                 rows = self._maps[ks]
                 rows[:, self._map_in_zone] = clear
                 self._maps[ks] = rows
@@ -88,6 +96,29 @@ class _SceneCache:
         if k not in self._lattice_ok:
             self._lattice_ok[k] = self._visible(self._lattice, k)
         return self._lattice_ok[k]
+
+    def seeded_scenario(self) -> Scenario:
+        """The scene with its own starts: ``Scenario.random(seed)`` exactly (or the given scenario)."""
+        if self._seeded is None:
+            c, terrain, track, name = self.world
+            xy, th = _sample_starts(c, terrain, track, self._rng, c.n_uavs, name)
+            self._seeded = Scenario(c, terrain, track, xy, th, name=name)
+        return self._seeded
+
+    def with_starts(self, rng: np.random.Generator, n_uavs: int) -> Scenario:
+        """The scene with ``n_uavs`` starts drawn from ``rng`` (see :meth:`Scenario.sample_starts`)."""
+        c, terrain, track, name = self.world
+        xy, th = _sample_starts(c, terrain, track, rng, n_uavs, name)
+        return Scenario(c, terrain, track, xy, th, name=name)
+
+
+class _World:
+    """The scene without starts (what the scene cache's slot computations need)."""
+
+    __slots__ = ("config", "terrain", "track", "name")
+
+    def __init__(self, config: Config, terrain, track, name: str):
+        self.config, self.terrain, self.track, self.name = config, terrain, track, name
 
 
 class CovertSensingParallelEnv(ParallelEnv):
@@ -323,8 +354,9 @@ class CovertSensingParallelEnv(ParallelEnv):
             elif spec == "paper":
                 sc = Scenario.paper(self.config)
             else:
-                sc = Scenario.random(int(scene_seed), self.config)
-            self._scenes[key] = _SceneCache(sc, self.map_offsets, self._map_in_zone, self.lattice)
+                sc = None                                     # built by the cache, starts on demand
+            self._scenes[key] = _SceneCache(sc, self.map_offsets, self._map_in_zone, self.lattice,
+                                            seed=None if sc is not None else int(scene_seed), config=self.config)
             while len(self._scenes) > 32:                     # bounded memory over long training runs
                 self._scenes.popitem(last=False)
         self._scenes.move_to_end(key)
@@ -339,10 +371,11 @@ class CovertSensingParallelEnv(ParallelEnv):
         if scene_seed is None and self.scenario_spec == "random":
             scene_seed = int(self._np_random.integers(self.scene_pool))
         self._cache = self._scene(scene_seed)
-        self.scenario = self._cache.scenario
-        self.engine = Engine(self.scenario, path_samples=self.path_samples, path_los=False)
         if self.random_starts or (self.scenario_spec == "random" and options.get("scene_seed") is None):
-            self.engine.reset(*self.scenario.sample_starts(self._np_random))
+            self.scenario = self._cache.with_starts(self._np_random, self.config.n_uavs)
+        else:
+            self.scenario = self._cache.seeded_scenario()
+        self.engine = Engine(self.scenario, path_samples=self.path_samples, path_los=False)
         self.agents = list(self.possible_agents)
         self._last_speed = np.zeros(len(self.agents))
         c = self.config
