@@ -97,6 +97,17 @@ class Road:
         d = self.points[i + 1] - self.points[i]
         return np.arctan2(d[..., 1], d[..., 0])
 
+    def _pose_at(self, s: float) -> tuple[np.ndarray, float]:
+        """``(point_at(s), heading_at(s))`` for one float ``s`` with one lookup (the terrain generator's
+        inner loop calls it per candidate; same arithmetic as the vectorised methods)."""
+        cl = self.cumulative_length
+        s = min(max(float(s), 0.0), float(cl[-1]))
+        i = min(max(int(np.searchsorted(cl, s, side="right")) - 1, 0), len(cl) - 2)
+        a, b = self.points[i], self.points[i + 1]
+        t = (s - cl[i]) / (cl[i + 1] - cl[i])
+        d = b - a
+        return a * (1 - t) + b * t, float(np.arctan2(d[1], d[0]))
+
     def distance_to(self, xy) -> np.ndarray:
         """Horizontal distance(s) from point(s) ``xy`` (..., 2) to the centreline (vectorised)."""
         xy = np.asarray(xy, dtype=float)

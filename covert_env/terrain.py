@@ -289,9 +289,11 @@ def _random_top(rng: np.random.Generator, base: np.ndarray, zmin: float, zmax: f
     """
     n = len(base)
     x, y = base[:, 0], base[:, 1]
-    cross = x * np.roll(y, -1) - np.roll(x, -1) * y
+    nxt = np.roll(base, -1, axis=0)                 # one roll for both coordinates (same values as two)
+    x1, y1 = nxt[:, 0], nxt[:, 1]
+    cross = x * y1 - x1 * y
     area = 0.5 * cross.sum()
-    c = np.array([((x + np.roll(x, -1)) * cross).sum(), ((y + np.roll(y, -1)) * cross).sum()]) / (6 * area)
+    c = np.array([((x + x1) * cross).sum(), ((y + y1) * cross).sum()]) / (6 * area)
     hill = rng.random() < _HILL_FRACTION
     f = rng.uniform(*(_HILL_SHRINK if hill else _BUILDING_SHRINK))
     z0 = 1.0 - f                                    # plane height above the centroid; apex at height 1
@@ -308,7 +310,7 @@ def _random_top(rng: np.random.Generator, base: np.ndarray, zmin: float, zmax: f
     else:
         lam, ratio = np.full(n, z0), 1.0
     top_z = rng.uniform(zmin * ratio, zmax) if zmin * ratio < zmax else zmax
-    z = np.clip(lam * (top_z / lam.max()), zmin, zmax)
+    z = np.minimum(np.maximum(lam * (top_z / lam.max()), zmin), zmax)
     xy = base + lam[:, None] * (c - base)
     return np.column_stack([xy, z])
 
@@ -475,8 +477,8 @@ class Terrain:
                 r = rng.uniform(cfg.min_radius, cfg.max_radius)
                 near = clear + r
                 off = rng.uniform(near, max(near, cfg.road_max_offset - r)) * rng.choice((-1.0, 1.0))
-                th = float(road.heading_at(s))
-                centre = road.point_at(s) + off * np.array([-math.sin(th), math.cos(th)])
+                point, th = road._pose_at(s)
+                centre = point + off * np.array([-math.sin(th), math.cos(th)])
                 base = _random_footprint(rng, k, r) + centre
                 close = np.flatnonzero(np.linalg.norm(centres - centre, axis=1) < radii + r + _MIN_GAP)
                 fp = Polygon(base)

@@ -278,3 +278,13 @@ def test_track_does_not_freeze_or_alias_the_callers_speeds(poly):
     t = TargetTrack(poly, speeds)
     speeds[0] = 9.0                            # the caller's own array must stay writable
     assert t.speeds[0] == 1.0
+
+
+def test_pose_at_matches_point_and_heading():
+    """The generator's scalar lookup gives exactly point_at/heading_at (so scenes do not depend on it)."""
+    road = Road.random(3)
+    rng = np.random.default_rng(0)
+    for s in [*rng.uniform(-10.0, road.length + 10.0, 500), 0.0, road.length, float(road.cumulative_length[5])]:
+        p, h = road._pose_at(s)
+        np.testing.assert_array_equal(p, road.point_at(s))
+        assert h == float(road.heading_at(s))
