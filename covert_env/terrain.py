@@ -142,6 +142,21 @@ def _first_overlap(polys) -> tuple[int, int, float] | None:
     return None
 
 
+def _frustum_halfspaces(base: np.ndarray, top: np.ndarray) -> np.ndarray:
+    """Faces ``[nx, ny, nz, d]`` (unit outward normals, ``n.x + d <= 0`` inside) of a frustum: the base at
+    z = 0, the planar top and one planar side per base edge (counter-clockwise base). (n + 2, 4)."""
+    n = len(base)
+    b3 = np.column_stack([base, np.zeros(n)])
+    e = np.roll(b3, -1, axis=0) - b3                          # base edge j
+    side = np.cross(e, top - b3)                              # outward for a CCW base and a top above it
+    # Newell's normal of the top polygon: exact for a planar polygon, robust to near-collinear vertices.
+    up = np.cross(top, np.roll(top, -1, axis=0)).sum(axis=0)
+    normals = np.vstack([[0.0, 0.0, -1.0], up, side])
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    points = np.vstack([b3[:1], top.mean(axis=0, keepdims=True), b3])
+    return np.column_stack([normals, -np.einsum("ij,ij->i", normals, points)])
+
+
 # ---------------------------------------------------------------------------------- polytope
 @dataclass(frozen=True, eq=False)
 class Polytope:
@@ -171,10 +186,15 @@ class Polytope:
         object.__setattr__(self, "top", t)
 
     @classmethod
-    def _prevalidated(cls, base: np.ndarray, top: np.ndarray, footprint: Polygon | None = None) -> Polytope:
+    def _prevalidated(cls, base: np.ndarray, top: np.ndarray, footprint: Polygon | None = None, *,
+                      frustum: bool = False) -> Polytope:
         """A polytope from arrays that are valid by construction (the random generator's), skipping the
         checks of ``__post_init__`` (~0.2 ms each, most of a scene's build time). ``base`` must already be
-        counter-clockwise; tests run every generated polytope through the full validator."""
+        counter-clockwise; tests run every generated polytope through the full validator.
+
+        ``frustum=True`` promises a planar top whose side quads ``base[j], base[j+1], top[j+1], top[j]`` are
+        planar (a pyramid cut by a plane, see :func:`_random_top`): the faces are then written down
+        directly instead of by a convex hull (tests compare them with the hull's)."""
         obj = object.__new__(cls)
         b, t = np.array(base, dtype=float), np.array(top, dtype=float)
         b.setflags(write=False)
@@ -183,6 +203,8 @@ class Polytope:
         object.__setattr__(obj, "top", t)
         if footprint is not None:
             obj.__dict__["footprint"] = footprint      # the cached_property's slot
+        if frustum:
+            obj.__dict__["halfspaces"] = _frustum_halfspaces(b, t)
         return obj
 
     @classmethod
@@ -486,7 +508,7 @@ class Terrain:
                     continue
                 if line.distance(fp) < clear:   # the polygon's distance: also covers every vertex
                     continue
-                polys.append(Polytope._prevalidated(base, _random_top(rng, base, zmin, zmax), fp))
+                polys.append(Polytope._prevalidated(base, _random_top(rng, base, zmin, zmax), fp, frustum=True))
                 centres = np.vstack([centres, centre])
                 radii = np.append(radii, r)
                 break

@@ -299,6 +299,11 @@ def test_random_properties_over_many_seeds(random_terrains):
             np.testing.assert_array_equal(b2, b)
             np.testing.assert_array_equal(t2, top)
             assert not b.flags.writeable and not top.flags.writeable
+            # the generator writes the frustum's faces down directly: they are the convex hull's faces
+            hull = Polytope(b, top)   # validated, faces from the hull
+            assert len(p.halfspaces) == len(hull.halfspaces), (seed, m)
+            diff = np.abs(p.halfspaces[:, None, :] - hull.halfspaces[None, :, :]).max(axis=-1)
+            assert diff.min(axis=1).max() < 1e-8 and diff.min(axis=0).max() < 1e-8, (seed, m)
             # convex, counter-clockwise footprint
             e = np.roll(b, -1, axis=0) - b
             turn = e[:, 0] * np.roll(e[:, 1], -1) - e[:, 1] * np.roll(e[:, 0], -1)
