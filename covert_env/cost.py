@@ -43,10 +43,13 @@ def disguise(alpha_prev, alpha_next, d_prev, d_next, eta: float):
         np.asarray(d_next, dtype=float) - np.asarray(d_prev, dtype=float))
 
 
-def stage_cost(path_length, alpha_prev, alpha_next, d_prev, d_next, eta: float, lam: float):
+def stage_cost(path_length, alpha_prev, alpha_next, d_prev, d_next, eta: float, lam: float, *, kappa=None):
     """g = v delta - lambda eta |d alpha| - lambda |d d|, eq. 18 (the summand of eq. 17).
 
     ``path_length`` is v[k] delta, the distance flown in the slot (the paper's energy proxy, eq. 15).
-    Equivalent to ``path_length - lam * disguise(...)``. Broadcasts over any shapes.
+    Equivalent to ``path_length - lam * disguise(...)``. Broadcasts over any shapes. ``kappa``: the slot's
+    disguise if the caller already has it (eq. 11), so it is not computed twice.
     """
-    return np.asarray(path_length, dtype=float) - lam * disguise(alpha_prev, alpha_next, d_prev, d_next, eta)
+    if kappa is None:
+        kappa = disguise(alpha_prev, alpha_next, d_prev, d_next, eta)
+    return np.asarray(path_length, dtype=float) - lam * kappa

@@ -128,7 +128,8 @@ def unicycle_step(x, y, theta, v, omega, dt):
     Returns:
         ``(x, y, theta)`` after ``dt``, broadcast; theta wrapped into ``[0, 2 pi)``. Scalars for scalar input.
     """
-    x, y, theta, v, omega, dt = (np.asarray(t, dtype=float) for t in (x, y, theta, v, omega, dt))
+    x, y, theta = np.asarray(x, dtype=float), np.asarray(y, dtype=float), np.asarray(theta, dtype=float)
+    v, omega, dt = np.asarray(v, dtype=float), np.asarray(omega, dtype=float), np.asarray(dt, dtype=float)
     half = 0.5 * omega * dt
     # sin(half) / half: the exact arc-to-chord ratio, 1 at half = 0. No cancellation near 0 (sin(h) ~ h in
     # floating point too), and several times cheaper than np.sinc on the few-element arrays of an env step.
@@ -141,6 +142,8 @@ def unicycle_step(x, y, theta, v, omega, dt):
     th1 = _wrap_2pi(theta + omega * dt)
     if not x1.shape == y1.shape == th1.shape:
         x1, y1, th1 = np.broadcast_arrays(x1, y1, th1)
+    if x1.ndim:
+        return x1, y1, th1
     return _scalar_or_array(x1), _scalar_or_array(y1), _scalar_or_array(th1)
 
 

@@ -113,7 +113,7 @@ class Engine:
         if unicycle is not None:
             ctl = np.asarray(unicycle, dtype=float).reshape(u, 2)
             self._check_unicycle(ctl)
-            v, w, t_turn = ctl[:, 0], ctl[:, 1], np.full(u, self.config.delta)
+            v, w, t_turn = ctl[:, 0], ctl[:, 1], None                 # held for the whole slot
         else:
             v, w, t_turn, fallback = self._waypoint_controls(np.asarray(waypoints, dtype=float).reshape(u, 2))
             flagged |= fallback
@@ -175,14 +175,16 @@ class Engine:
         """Integrate turn (v, w) for t_turn then straight (v, 0): path samples (U, P, 2), end heading."""
         c = self.config
         t = self._fractions[:, None] * c.delta                        # (P, 1)
-        if np.all(t_turn >= c.delta):                                 # one constant control: one arc
+        if t_turn is None or (t_turn >= c.delta).all():               # one constant control: one arc
             x2, y2, th2 = unicycle_step(self.uav_xy[:, 0], self.uav_xy[:, 1], self.uav_theta, v, w, t)
         else:
             t1 = np.minimum(t, t_turn)
             t2 = np.maximum(t - t_turn, 0.0)
             x1, y1, th1 = unicycle_step(self.uav_xy[:, 0], self.uav_xy[:, 1], self.uav_theta, v, w, t1)
             x2, y2, th2 = unicycle_step(x1, y1, th1, v, 0.0, t2)
-        path = np.stack([x2, y2], axis=-1).swapaxes(0, 1)             # (U, P, 2)
+        path = np.empty((x2.shape[1], x2.shape[0], 2))                # (U, P, 2)
+        path[..., 0] = x2.T
+        path[..., 1] = y2.T
         path[:, 0] = self.uav_xy                                      # exact start, no round-off
         return path, th2[-1]
 

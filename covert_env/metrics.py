@@ -89,7 +89,7 @@ def slot_quantities(traj: Trajectory, terrain: Terrain, config: Config, *, path_
     alpha_all = uav_target_angle(traj.uav_xy, traj.target_xyz[:, None, :2], traj.target_phi[:, None])
     d_all = uav_target_distance(traj.uav_xy, traj.target_xyz[:, None, :2])
     kappa = disguise(alpha_all[:-1], alpha_all[1:], d_all[:-1], d_all[1:], c.eta)
-    g = stage_cost(traj.path_length, alpha_all[:-1], alpha_all[1:], d_all[:-1], d_all[1:], c.eta, c.lam)
+    g = stage_cost(traj.path_length, alpha_all[:-1], alpha_all[1:], d_all[:-1], d_all[1:], c.eta, c.lam, kappa=kappa)
 
     zd = zone_distance(end_xy, traj.target_xyz[1:, None, :2], traj.target_phi[1:, None], c.r1, c.r2, c.mu)
     if path_los:

@@ -176,7 +176,11 @@ def line_of_sight(terrain: Terrain, uav_xy, altitude, target_xyz, *,
     if uav_xy.shape[-1:] != (2,) or target.shape[-1:] != (3,):
         raise ValueError(f"uav_xy must be (..., 2) and target_xyz (..., 3); "
                          f"got {uav_xy.shape}, {target.shape}")
-    shape = np.broadcast_shapes(uav_xy.shape[:-1], target.shape[:-1], alt.shape)
+    one_target = target.size == 3 and target.ndim <= uav_xy.ndim and alt.ndim == 0
+    if one_target:                      # the common case, without broadcast_shapes' cost on tiny inputs
+        shape = uav_xy.shape[:-1]
+    else:
+        shape = np.broadcast_shapes(uav_xy.shape[:-1], target.shape[:-1], alt.shape)
     if len(terrain) == 0:
         return np.ones(shape, dtype=bool)
     arr = _arrays(terrain)
@@ -185,8 +189,11 @@ def line_of_sight(terrain: Terrain, uav_xy, altitude, target_xyz, *,
         u = np.empty(shape + (3,))
         u[..., :2] = uav_xy
         u[..., 2] = alt
-        t = np.empty(shape + (3,))
-        t[...] = target
+        if one_target:
+            t = target.reshape(1, 3)
+        else:
+            t = np.empty(shape + (3,))
+            t[...] = target
         return _los_brute(arr, u.reshape(-1, 3), t.reshape(-1, 3), tol).reshape(shape)
     if target.ndim == 1 and alt.ndim == 0 and float(alt) > target[2]:
         pts = np.broadcast_to(uav_xy, shape + (2,)).reshape(-1, 2)
@@ -204,12 +211,14 @@ def line_of_sight(terrain: Terrain, uav_xy, altitude, target_xyz, *,
 
 
 def _los_brute(arr: _TerrainArrays, u: np.ndarray, t: np.ndarray, tol: float) -> np.ndarray:
-    """Every (point, polytope) pair clipped exactly, no broad phase. ``u``, ``t`` (K, 3) -> (K,) clear."""
+    """Every (point, polytope) pair clipped exactly, no broad phase. ``u`` (K, 3), ``t`` (K, 3) or one
+    target (1, 3) -> (K,) clear."""
     m, f = arr.hs.shape[:2]
     n_t = arr.normals_t                                                 # (3, M F)
     d = arr.offsets + tol
-    num = (u @ n_t + d).reshape(-1, f)                                  # face values at the UAV
-    den = (t @ n_t + d).reshape(-1, f) - num                            # target minus UAV
+    num = u @ n_t + d                                                   # face values at the UAV (K, M F)
+    den = ((t @ n_t + d) - num).reshape(-1, f)                          # target minus UAV
+    num = num.reshape(-1, f)
     # Cyrus-Beck as in _clip, written for small inputs (fewer temporaries).
     with np.errstate(divide="ignore", invalid="ignore"):
         s = -num / den

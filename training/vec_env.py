@@ -119,7 +119,8 @@ class ParallelEnvVecAdapter(VecEnv):
                 self._infos[r] = info
             if ended:
                 self._reset_copy(j)
-        return self._obs.copy(), self._rews.copy(), self._dones.copy(), [dict(i) for i in self._infos]
+        # The info dicts are new every step (copied from the env's above), so the list can hand them out.
+        return self._obs.copy(), self._rews.copy(), self._dones.copy(), list(self._infos)
 
     def seed(self, seed: int | None = None) -> Sequence[int | None]:
         seeds = super().seed(seed)

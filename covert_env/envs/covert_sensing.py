@@ -32,6 +32,8 @@ ACTION_MODES = ("unicycle", "waypoint")
 MIN_SPEED_FRACTION = 0.01
 #: Offsets in observations are divided by R2 and clipped to this magnitude (500 m at R2 = 100 m).
 OFFSET_CLIP = 5.0
+#: The reward's terms, as reported in ``infos[agent]["reward_terms"]`` (class docstring, Rewards).
+_REWARD_TERMS = ("path", "disguise", "los", "zone", "separation", "terrain")
 
 
 class _SceneCache:
@@ -62,6 +64,8 @@ class _SceneCache:
         self._maps = np.zeros((self.parts.track.n_slots, len(map_offsets)), np.float32)
         self._chunks: set[int] = set()
         self._lattice_ok: dict[int, np.ndarray] = {}
+        #: The observation's shared block per slot (see CovertSensingParallelEnv._shared_features).
+        self.shared: dict[int, np.ndarray] = {}
 
     def _visible(self, offsets: np.ndarray, k: int) -> np.ndarray:
         c = self.parts.config
@@ -408,7 +412,7 @@ class CovertSensingParallelEnv(ParallelEnv):
         self._los = quant.los[0]
         self._zone_dist = quant.zone_distance[0]
         rewards, terms = self._rewards(quant)
-        collided = bool(np.any(quant.separation_path[0] < c.d_safe1))
+        collided = bool((quant.separation_path[0] < c.d_safe1).any())
         terminate = self.terminate_on_collision and collided
         truncate = eng.k >= self.max_cycles and not terminate
         self._update_masks()
@@ -467,18 +471,21 @@ class CovertSensingParallelEnv(ParallelEnv):
     def _rewards(self, quant) -> tuple[np.ndarray, list[dict[str, float]]]:
         c, p = self.config, self.penalties
         outside = np.maximum(self._zone_dist, 0.0) / (c.r2 - c.r1)
-        cols = {
-            "path": -quant.path_length[0] / self.reward_scale,
-            "disguise": c.lam * quant.kappa[0] / self.reward_scale,
-            "los": -p["los"] * ~quant.los[0],
-            "zone": -p["zone"] * ~quant.in_zone[0] * (1 + np.minimum(outside, 2.0)),
-            "separation": -p["separation"] * (quant.separation_path[0] < c.d_safe1),
-            "terrain": -p["terrain"] * (quant.terrain_clearance[0] < c.d_safe2),
-        }
-        total = sum(cols.values())
-        names = tuple(cols)
-        terms = [dict(zip(names, row, strict=True)) for row in zip(*(v.tolist() for v in cols.values()), strict=True)]
-        return total.astype(float), terms
+        cols = np.empty((len(_REWARD_TERMS), len(outside)))       # rows in the order of _REWARD_TERMS
+        np.divide(quant.path_length[0], -self.reward_scale, out=cols[0])
+        np.multiply(quant.kappa[0], c.lam, out=cols[1])
+        cols[1] /= self.reward_scale
+        cols[2] = ~quant.los[0]
+        cols[2] *= -p["los"]
+        cols[3] = np.minimum(outside, 2.0) + 1.0
+        cols[3] *= ~quant.in_zone[0]
+        cols[3] *= -p["zone"]
+        cols[4] = quant.separation_path[0] < c.d_safe1
+        cols[4] *= -p["separation"]
+        cols[5] = quant.terrain_clearance[0] < c.d_safe2
+        cols[5] *= -p["terrain"]
+        terms = [dict(zip(_REWARD_TERMS, row, strict=True)) for row in cols.T.tolist()]
+        return cols.sum(axis=0), terms
 
     def _update_masks(self) -> None:
         if self.action_mode != "waypoint":
@@ -537,21 +544,29 @@ class CovertSensingParallelEnv(ParallelEnv):
         return f
 
     def _shared_features(self) -> np.ndarray:
-        """Target displacement, time remaining and both maps (shared by all agents)."""
-        eng, c = self.engine, self.config
-        tr = self.scenario.track
-        k = eng.k
-        q, q1 = tr.positions[min(k, tr.n_slots)], tr.positions[min(k + 1, tr.n_slots)]
-        phi = float(tr.headings[min(k, tr.n_slots)])
-        cs, sn = math.cos(phi), math.sin(phi)
-        dx, dy = q1[0] - q[0], q1[1] - q[1]
-        scale = c.v_max * c.delta
-        disp = [min(max((cs * dx + sn * dy) / scale, -2.0), 2.0), min(max((cs * dy - sn * dx) / scale, -2.0), 2.0)]
-        remaining = max(self.max_cycles - k, 0) / self.max_cycles
-        return np.concatenate([disp, [remaining], self._cache.visibility_map(k), self._cache.visibility_map(k + 1)])
+        """Target displacement, time remaining and both maps (shared by all agents; float32).
+
+        Everything but the time remaining depends only on the scene and the slot, so it is cached per
+        scene (a scene is flown many times; the copy keeps the hot path to one lookup)."""
+        k = self.engine.k
+        block = self._cache.shared.get(k)
+        if block is None:
+            c, tr = self.config, self.scenario.track
+            q, q1 = tr.positions[min(k, tr.n_slots)], tr.positions[min(k + 1, tr.n_slots)]
+            phi = float(tr.headings[min(k, tr.n_slots)])
+            cs, sn = math.cos(phi), math.sin(phi)
+            dx, dy = q1[0] - q[0], q1[1] - q[1]
+            scale = c.v_max * c.delta
+            disp = [min(max((cs * dx + sn * dy) / scale, -2.0), 2.0), min(max((cs * dy - sn * dx) / scale, -2.0), 2.0)]
+            block = np.concatenate([disp, [0.0], self._cache.visibility_map(k),
+                                    self._cache.visibility_map(k + 1)]).astype(np.float32)
+            self._cache.shared[k] = block
+        out = block.copy()
+        out[2] = max(self.max_cycles - k, 0) / self.max_cycles
+        return out
 
     def _observations(self) -> dict[str, Any]:
-        shared = self._shared_features()
+        shared = self._shared_features()                      # a fresh copy: rows below copy it again
         u, n_own = len(self.possible_agents), 8
         rows = np.empty((u, self._obs_box.shape[0]), np.float32)
         own = self._own_features()
@@ -570,7 +585,7 @@ class CovertSensingParallelEnv(ParallelEnv):
         if self.engine is None:
             raise RuntimeError("state() called before reset()")
         own = self._own_features()
-        return np.concatenate([own.reshape(-1), self._shared_features()]).astype(np.float32)
+        return np.concatenate([own.reshape(-1).astype(np.float32), self._shared_features()])
 
     def render(self):
         if self.render_mode is None:
