@@ -146,15 +146,23 @@ def _frustum_halfspaces(base: np.ndarray, top: np.ndarray) -> np.ndarray:
     """Faces ``[nx, ny, nz, d]`` (unit outward normals, ``n.x + d <= 0`` inside) of a frustum: the base at
     z = 0, the planar top and one planar side per base edge (counter-clockwise base). (n + 2, 4)."""
     n = len(base)
-    b3 = np.column_stack([base, np.zeros(n)])
-    e = np.roll(b3, -1, axis=0) - b3                          # base edge j
-    side = np.cross(e, top - b3)                              # outward for a CCW base and a top above it
-    # Newell's normal of the top polygon: exact for a planar polygon, robust to near-collinear vertices.
-    up = np.cross(top, np.roll(top, -1, axis=0)).sum(axis=0)
-    normals = np.vstack([[0.0, 0.0, -1.0], up, side])
-    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
-    points = np.vstack([b3[:1], top.mean(axis=0, keepdims=True), b3])
-    return np.column_stack([normals, -np.einsum("ij,ij->i", normals, points)])
+    out = np.empty((n + 2, 4))
+    # Cross products written out: np.cross costs more than the arithmetic on arrays this small.
+    e = np.roll(base, -1, axis=0) - base                      # base edge j (z = 0)
+    w = top - np.column_stack([base, np.zeros(n)])            # base vertex j -> top vertex j
+    out[0, :3] = (0.0, 0.0, -1.0)                             # the base, z = 0
+    t1 = np.roll(top, -1, axis=0)                             # Newell's normal of the planar top
+    out[1, 0] = (top[:, 1] * t1[:, 2] - top[:, 2] * t1[:, 1]).sum()
+    out[1, 1] = (top[:, 2] * t1[:, 0] - top[:, 0] * t1[:, 2]).sum()
+    out[1, 2] = (top[:, 0] * t1[:, 1] - top[:, 1] * t1[:, 0]).sum()
+    out[2:, 0] = e[:, 1] * w[:, 2]                            # e x w: outward for a CCW base, top above
+    out[2:, 1] = -e[:, 0] * w[:, 2]
+    out[2:, 2] = e[:, 0] * w[:, 1] - e[:, 1] * w[:, 0]
+    out[:, :3] /= np.sqrt((out[:, :3] ** 2).sum(axis=1))[:, None]
+    out[0, 3] = 0.0
+    out[1, 3] = -(out[1, :3] @ top.mean(axis=0))
+    out[2:, 3] = -(out[2:, 0] * base[:, 0] + out[2:, 1] * base[:, 1])
+    return out
 
 
 # ---------------------------------------------------------------------------------- polytope
