@@ -141,7 +141,7 @@ class DPPolicy(Policy):
         self.kw = dict(shadow_aware=shadow_aware, heading=heading, heading_bins=heading_bins,
                        check_path=check_path)
         self.team_kw = dict(max_rounds=max_rounds, separation_margin=separation_margin)
-        self._scenario = None
+        self._world = None
         self.team: DPTeamPlanner | None = None
         self.last_plan: TeamPlan | None = None
         h = "inherited" if heading == "inherited" else f"binned{heading_bins}"
@@ -151,9 +151,9 @@ class DPPolicy(Policy):
         # One planner per scene: its caches are keyed by the target's poses, which only hold for one terrain.
         # (The env builds a new Scenario object per reset when it draws the starts, so compare the world.)
         world = (par.scenario.terrain, par.scenario.track)
-        if self.team is None or self._scenario is None or world[0] is not self._scenario[0] \
-                or world[1] is not self._scenario[1]:
-            self._scenario = world
+        if self.team is None or self._world is None or world[0] is not self._world[0] \
+                or world[1] is not self._world[1]:
+            self._world = world
             self.team = DPTeamPlanner(DPPlanner(par.config, par.scenario.terrain, **self.kw), **self.team_kw)
         return self.team
 

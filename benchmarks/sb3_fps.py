@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import statistics
 import sys
 import time
 from pathlib import Path
@@ -84,13 +85,13 @@ def main(argv=None) -> int:
         print(f"  covert_sensing (our adapter) {ours[-1]:8.0f} fps   simple_spread (SuperSuit) {theirs[-1]:8.0f} fps"
               f"   ratio {ours[-1] / theirs[-1]:.2f}", flush=True)
     a, b = max(ours), max(theirs)
-    paired = sorted(x / y for x, y in zip(ours, theirs, strict=True))
+    paired = [x / y for x, y in zip(ours, theirs, strict=True)]
     print(f"SB3 PPO, 3 agents x {args.n_copies} copies, {args.timesteps} agent-steps, best of {args.repeats}:")
     print(f"  covert_sensing_v0 via training.vec_env : {a:8.0f} agent-steps/s")
     print(f"  mpe2 simple_spread_v3 via SuperSuit    : {b:8.0f} agent-steps/s")
     print(f"  ratio ours / simple_spread = {a / b:.2f} (target >= 1)")
     # On a shared machine the load moves between runs; back-to-back pairs see about the same load.
-    print(f"  median of the {len(paired)} back-to-back ratios = {paired[len(paired) // 2]:.2f}")
+    print(f"  median of the {len(paired)} back-to-back ratios = {statistics.median(paired):.2f}")
     return 0
 
 

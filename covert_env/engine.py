@@ -195,7 +195,7 @@ class Engine:
         self._vmax.append(np.asarray(v, float))
         self._wmax.append(np.abs(np.asarray(w, float)))
         self._infeasible.append(flagged)
-        # None = not measured: turned into NaN rows only when a trajectory is built (saves the hot path an array).
+        # None = not measured (NaN in trajectories).
         self._dtime.append(None if decision_time is None else np.asarray(decision_time, float).reshape(u))
         self.uav_xy = path[:, -1].copy()
         self.uav_theta = np.mod(end_theta, 2 * math.pi)
@@ -235,5 +235,6 @@ class Engine:
             target_xyz=self.track.positions[k - 1:k + 1], target_phi=self.track.headings[k - 1:k + 1],
             target_path_xyz=self.track.position_between(k - 1, self._fractions)[None],
             max_speed=self._vmax[-1][None], max_turn_rate=self._wmax[-1][None],
-            infeasible=self._infeasible[-1][None], decision_time=np.full((1, self.n_uavs), np.nan))
+            infeasible=self._infeasible[-1][None],
+            decision_time=np.full((1, self.n_uavs), np.nan) if self._dtime[-1] is None else self._dtime[-1][None])
         return slot_quantities(one, self.terrain, self.config, path_los=self.path_los)

@@ -202,7 +202,7 @@ class Polytope:
 
         ``frustum=True`` promises a planar top whose side quads ``base[j], base[j+1], top[j+1], top[j]`` are
         planar (a pyramid cut by a plane, see :func:`_random_top`): the faces are then written down
-        directly instead of by a convex hull (tests compare them with the hull's)."""
+        directly instead of by a convex hull (tests compare them with the hull's, within 1e-8)."""
         obj = object.__new__(cls)
         b, t = np.array(base, dtype=float), np.array(top, dtype=float)
         b.setflags(write=False)
@@ -213,6 +213,7 @@ class Polytope:
             obj.__dict__["footprint"] = footprint      # the cached_property's slot
         if frustum:
             obj.__dict__["halfspaces"] = _frustum_halfspaces(b, t)
+            obj.__dict__["plan_view"] = b               # the top is cut from a pyramid over the base
         return obj
 
     @classmethod
@@ -253,6 +254,20 @@ class Polytope:
         first = np.ones(len(order), bool)
         first[1:] = np.any(key[order[1:]] != key[order[:-1]], axis=1)
         return eq[np.sort(order[first])]
+
+    @cached_property
+    def plan_view(self) -> np.ndarray:
+        """(k, 2) the polytope's plan view (its shadow on the ground seen from above), counter-clockwise.
+
+        The base, unless the top overhangs it (validation accepts up to 1e-6 of the footprint's size):
+        then the convex hull of base and top."""
+        b, t = self.base, self.top[:, :2]
+        e = np.roll(b, -1, axis=0) - b
+        rel = t[None, :, :] - b[:, None, :]
+        if np.all(e[:, None, 0] * rel[..., 1] - e[:, None, 1] * rel[..., 0] >= 0.0):
+            return b
+        xy = self.vertices[:, :2]
+        return xy[ConvexHull(xy).vertices]      # scipy returns 2-D hull vertices counter-clockwise
 
     @property
     def z_max(self) -> float:

@@ -110,9 +110,7 @@ def _build_arrays(terrain: Terrain) -> _TerrainArrays:
         e2, e3 = np.zeros((0, 1, 2)), np.zeros((0, 1, 3))
         return _TerrainArrays(np.zeros((0, 1, 4)), np.zeros(0), e2, np.zeros((0, 2)), np.zeros(0), e3,
                               np.zeros(0, int), np.zeros(0, int))
-    # The plan view of C_m is its base Q_m: Polytope validation guarantees that the top's plan view lies
-    # inside the base, and bases are stored counter-clockwise.
-    plans = [p.base for p in terrain]
+    plans = [p.plan_view for p in terrain]
     v = max(len(a) for a in plans)
     plan = np.stack([np.vstack([a, np.repeat(a[-1:], v - len(a), axis=0)]) for a in plans])
     centre = np.array([a.mean(axis=0) for a in plans])

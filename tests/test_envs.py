@@ -404,3 +404,25 @@ def test_starts_scene_seed_and_random_starts():
         assert line_of_sight(sc.terrain, sc.uav_xy, c.altitude, q).all()
         starts.append(sc.uav_xy)
     assert not np.array_equal(*starts)
+
+
+def test_shortest_allowed_track_runs_to_the_end():
+    """A scenario whose track has exactly n_slots + horizon slots (the minimum Scenario accepts): the last
+    observation looks one slot past the track's end, clamped like TargetTrack.position."""
+    from covert_env.config import Config
+    from covert_env.road import Road, TargetTrack
+    from covert_env.scenario import Scenario
+
+    base = Scenario.paper(Config())
+    c = base.config.replace(n_slots=10, horizon=1)
+    track = TargetTrack.constant(Road(base.track.road.points), c.target_speed, c.n_slots + c.horizon,
+                                 delta=c.delta, z=c.target_height, s0=base.track.s0)
+    sc = Scenario(c, base.terrain, track, base.uav_xy, base.uav_theta)
+    env = covert_sensing_v0.parallel_env(scenario=sc)
+    obs, _ = env.reset(seed=0)
+    steps = 0
+    while env.agents:
+        obs, *_ = env.step({a: env.action_space(a).sample() for a in env.agents})
+        steps += 1
+    assert steps == 10
+    assert all(env.observation_space(a).contains(o) for a, o in obs.items())

@@ -8,7 +8,7 @@ import time
 
 import numpy as np
 import pytest
-from shapely.geometry import Point
+from shapely.geometry import Point, Polygon
 
 from covert_env.config import Config
 from covert_env.road import Road
@@ -608,3 +608,15 @@ def test_geojson_clockwise_top_order_follows_footprint():
     # top vertex i still above base vertex i (both shrunk toward (5, 5) by 0.8)
     np.testing.assert_allclose(p.top[:, :2], p.base * 0.8 + 1)
     assert p.z_max == 30.0
+
+
+def test_plan_view_is_the_base_unless_the_top_overhangs():
+    sq = np.array([[0.0, 0.0], [10.0, 0.0], [10.0, 10.0], [0.0, 10.0]])
+    inside = Polytope(sq, np.column_stack([sq * 0.5 + 2.5, np.full(4, 5.0)]))
+    np.testing.assert_array_equal(inside.plan_view, inside.base)
+    # validation tolerates a tiny overhang; the plan view (used by LoS's broad phase) must still cover it
+    top = np.column_stack([sq + [[-5e-6, 0.0], [0.0, 0.0], [0.0, 0.0], [0.0, 0.0]], np.full(4, 5.0)])
+    over = Polytope(sq, top)
+    assert Polygon(over.plan_view).exterior.is_ccw
+    assert Polygon(over.plan_view).buffer(1e-12).contains(Polygon(over.top[:, :2]))
+    assert Polygon(over.plan_view).area > Polygon(sq).area

@@ -7,6 +7,7 @@ the paper's stage cost into rewards. No geometry or physics is written here.
 
 from __future__ import annotations
 
+import copy
 import functools
 import math
 from collections import OrderedDict
@@ -53,15 +54,15 @@ class _SceneCache:
             # A random scene: build the world now, its seeded starts only if a reset asks for them
             # (training resets draw their own starts).
             terrain, track, self._rng = Scenario._random_world(seed, config)
-            self.world = (config, terrain, track, f"random-{seed}")
+            self.parts = _World(config, terrain, track, f"random-{seed}")
         else:
-            self.world = (scenario.config, scenario.terrain, scenario.track, scenario.name)
+            self.parts = _World(scenario.config, scenario.terrain, scenario.track, scenario.name)
         self._seeded = scenario
-        self.parts = _World(*self.world)
         self._map_offsets = map_offsets[map_in_zone]
         self._map_in_zone = map_in_zone
         self._lattice = lattice
-        self._maps = np.zeros((self.parts.track.n_slots, len(map_offsets)), np.float32)
+        # One row per slot 0..n of the track (positions are clamped at its end, like TargetTrack.position).
+        self._maps = np.zeros((self.parts.track.n_slots + 1, len(map_offsets)), np.float32)
         self._chunks: set[int] = set()
         self._lattice_ok: dict[int, np.ndarray] = {}
         #: The observation's shared block per slot (see CovertSensingParallelEnv._shared_features).
@@ -79,11 +80,12 @@ class _SceneCache:
 
     def visibility_map(self, k: int) -> np.ndarray:
         """Cells of the observation map that are in the eroded zone with clear LoS at slot k (float32)."""
+        k = min(k, len(self._maps) - 1)
         chunk = k // self._MAP_CHUNK
         if chunk not in self._chunks:
             self._chunks.add(chunk)
             track, c = self.parts.track, self.parts.config
-            ks = np.arange(chunk * self._MAP_CHUNK, min((chunk + 1) * self._MAP_CHUNK, track.n_slots))
+            ks = np.arange(chunk * self._MAP_CHUNK, min((chunk + 1) * self._MAP_CHUNK, len(self._maps)))
             if len(ks) and len(self._map_offsets):
                 q, phi = track.positions[ks], track.headings[ks]
                 cs, sn = np.cos(phi)[:, None], np.sin(phi)[:, None]
@@ -104,16 +106,17 @@ class _SceneCache:
     def seeded_scenario(self) -> Scenario:
         """The scene with its own starts: ``Scenario.random(seed)`` exactly (or the given scenario)."""
         if self._seeded is None:
-            c, terrain, track, name = self.world
-            xy, th = _sample_starts(c, terrain, track, self._rng, c.n_uavs, name)
-            self._seeded = Scenario(c, terrain, track, xy, th, name=name)
+            w = self.parts
+            # A copy of the generator: a failed attempt must not shift the starts of the next one.
+            xy, th = _sample_starts(w.config, w.terrain, w.track, copy.deepcopy(self._rng), w.config.n_uavs, w.name)
+            self._seeded = Scenario(w.config, w.terrain, w.track, xy, th, name=w.name)
         return self._seeded
 
     def with_starts(self, rng: np.random.Generator, n_uavs: int) -> Scenario:
         """The scene with ``n_uavs`` starts drawn from ``rng`` (see :meth:`Scenario.sample_starts`)."""
-        c, terrain, track, name = self.world
-        xy, th = _sample_starts(c, terrain, track, rng, n_uavs, name)
-        return Scenario(c, terrain, track, xy, th, name=name)
+        w = self.parts
+        xy, th = _sample_starts(w.config, w.terrain, w.track, rng, n_uavs, w.name)
+        return Scenario(w.config, w.terrain, w.track, xy, th, name=w.name)
 
 
 class _World:
@@ -209,6 +212,7 @@ class CovertSensingParallelEnv(ParallelEnv):
     exactly what the evaluation harness and ``reproduce`` fly (evaluate on seeds outside the pool).
     A :class:`~covert_env.scenario.Scenario` instance may also be passed.
     ``random_starts=True`` samples the starts from the env's RNG for every scenario.
+    After a reset, ``env.scenario`` is the scene with the starts actually flown in this episode.
 
     ## Episode End
 
@@ -518,10 +522,10 @@ class CovertSensingParallelEnv(ParallelEnv):
             info["action_mask"] = self._masks[i].copy()
         return info
 
-    # The feature functions fill preallocated columns with scalar-trigonometry frame changes: on the
+    # The feature functions fill columns of one array and change frames with scalar trigonometry: on the
     # few-element arrays of one step, numpy's per-call overhead (not the maths) is the cost.
-    def _own_features(self, out: np.ndarray | None = None) -> np.ndarray:
-        """(U, 8) per-UAV features 0-7 of the observation table (written into ``out`` if given)."""
+    def _own_features(self) -> np.ndarray:
+        """(U, 8) per-UAV features 0-7 of the observation table."""
         eng, c = self.engine, self.config
         tr = self.scenario.track
         k = min(eng.k, tr.n_slots)
@@ -529,7 +533,7 @@ class CovertSensingParallelEnv(ParallelEnv):
         phi = float(tr.headings[k])
         cs, sn = math.cos(phi), math.sin(phi)
         dx, dy = eng.uav_xy[:, 0] - qx, eng.uav_xy[:, 1] - qy
-        f = np.empty((len(dx), 8)) if out is None else out
+        f = np.empty((len(dx), 8))
         f[:, 0] = (cs * dx + sn * dy) / c.r2
         f[:, 1] = (cs * dy - sn * dx) / c.r2
         np.minimum(np.maximum(f[:, :2], -OFFSET_CLIP), OFFSET_CLIP, out=f[:, :2])
@@ -544,10 +548,19 @@ class CovertSensingParallelEnv(ParallelEnv):
         return f
 
     def _shared_features(self) -> np.ndarray:
-        """Target displacement, time remaining and both maps (shared by all agents; float32).
+        """Target displacement, time remaining and both maps (shared by all agents; a new float32 array)."""
+        out = self._shared_block().copy()
+        out[2] = self._remaining()
+        return out
 
-        Everything but the time remaining depends only on the scene and the slot, so it is cached per
-        scene (a scene is flown many times; the copy keeps the hot path to one lookup)."""
+    def _remaining(self) -> float:
+        return max(self.max_cycles - self.engine.k, 0) / self.max_cycles
+
+    def _shared_block(self) -> np.ndarray:
+        """:meth:`_shared_features` with 0 for the time remaining, cached per scene and slot (read-only).
+
+        Everything but the time remaining depends only on the scene and the slot, and a scene is flown
+        many times (every agent, every reset on it)."""
         k = self.engine.k
         block = self._cache.shared.get(k)
         if block is None:
@@ -560,18 +573,18 @@ class CovertSensingParallelEnv(ParallelEnv):
             disp = [min(max((cs * dx + sn * dy) / scale, -2.0), 2.0), min(max((cs * dy - sn * dx) / scale, -2.0), 2.0)]
             block = np.concatenate([disp, [0.0], self._cache.visibility_map(k),
                                     self._cache.visibility_map(k + 1)]).astype(np.float32)
+            block.setflags(write=False)
             self._cache.shared[k] = block
-        out = block.copy()
-        out[2] = max(self.max_cycles - k, 0) / self.max_cycles
-        return out
+        return block
 
     def _observations(self) -> dict[str, Any]:
-        shared = self._shared_features()                      # a fresh copy: rows below copy it again
+        shared = self._shared_block()
         u, n_own = len(self.possible_agents), 8
         rows = np.empty((u, self._obs_box.shape[0]), np.float32)
         own = self._own_features()
         rows[:, :n_own] = own
         rows[:, n_own:n_own + 3] = shared[:3]
+        rows[:, n_own + 2] = self._remaining()
         n_mate = 2 * (u - 1)
         rows[:, n_own + 3:n_own + 3 + n_mate] = own[self._mates, :2].reshape(u, -1)
         rows[:, n_own + 3 + n_mate:] = shared[3:]
