@@ -12,6 +12,7 @@ the slot's disguise and cost (eqs. 11, 18) compare alpha/d at k and k+1; LoS and
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -20,10 +21,10 @@ from covert_env.config import Config
 from covert_env.cost import disguise, stage_cost, uav_target_angle, uav_target_distance
 from covert_env.terrain import Terrain
 from covert_env.trajectory import Trajectory
-from covert_env.visibility import line_of_sight
+from covert_env.visibility import TerrainStack, line_of_sight
 from covert_env.zone import zone_distance
 
-__all__ = ["SlotQuantities", "slot_quantities", "episode_metrics", "METRIC_DESCRIPTIONS"]
+__all__ = ["SlotQuantities", "slot_quantities", "moves_quantities", "episode_metrics", "METRIC_DESCRIPTIONS"]
 
 
 @dataclass
@@ -68,13 +69,18 @@ def _nearest_teammate(xy: np.ndarray) -> np.ndarray:
     return dist.min(axis=-1)
 
 
-def _terrain_clearance(xy: np.ndarray, altitude: float, terrain: Terrain) -> np.ndarray:
-    """(..., 2) -> (...) distance from (x, y, h) to the nearest polytope highest point (eq. 3)."""
-    if len(terrain) == 0:
+def _terrain_clearance(xy: np.ndarray, altitude: float, terrain) -> np.ndarray:
+    """(..., 2) -> (...) distance from (x, y, h) to the nearest polytope highest point (eq. 3).
+
+    ``terrain``: a :class:`Terrain`, or a :class:`~covert_env.visibility.TerrainStack` (one terrain per
+    row of the leading axis)."""
+    top = terrain.highest_points                                # (M, 3), or (N, M, 3) for a stack
+    if top.shape[-2] == 0:
         return np.full(xy.shape[:-1], np.inf)
-    top = terrain.highest_points
-    dxy = xy[..., None, :] - top[:, :2]
-    dz = altitude - top[:, 2]
+    if top.ndim == 3:                                            # row j of xy against terrain j only
+        top = top.reshape((len(top),) + (1,) * (xy.ndim - 2) + top.shape[1:])
+    dxy = xy[..., None, :] - top[..., :2]
+    dz = altitude - top[..., 2]
     return np.sqrt((dxy ** 2).sum(-1) + dz ** 2).min(axis=-1)
 
 
@@ -84,32 +90,57 @@ def slot_quantities(traj: Trajectory, terrain: Terrain, config: Config, *, path_
     ``path_los=False`` skips LoS along the path (``los_path`` is then NaN): environments use it for
     their per-step rewards, which do not need it; episode metrics always compute it.
     """
-    c = config
-    end_xy = traj.uav_xy[1:]                                    # (T, U, 2)
-    alpha_all = uav_target_angle(traj.uav_xy, traj.target_xyz[:, None, :2], traj.target_phi[:, None])
-    d_all = uav_target_distance(traj.uav_xy, traj.target_xyz[:, None, :2])
-    kappa = disguise(alpha_all[:-1], alpha_all[1:], d_all[:-1], d_all[1:], c.eta)
-    g = stage_cost(traj.path_length, alpha_all[:-1], alpha_all[1:], d_all[:-1], d_all[1:], c.eta, c.lam, kappa=kappa)
+    return moves_quantities(traj.uav_xy[:-1], traj.uav_xy[1:], traj.target_xyz[:-1], traj.target_phi[:-1],
+                            traj.target_xyz[1:], traj.target_phi[1:], traj.path_xy, traj.path_length,
+                            traj.target_path_xyz if path_los else None, terrain, config)
 
-    zd = zone_distance(end_xy, traj.target_xyz[1:, None, :2], traj.target_phi[1:, None], c.r1, c.r2, c.mu)
-    if path_los:
+
+def moves_quantities(start_xy, end_xy, target_start, phi_start, target_end, phi_end, path_xy, path_length,
+                     target_path_xyz, terrain, config: Config) -> SlotQuantities:
+    """:class:`SlotQuantities` of a batch of one-slot moves: the one function behind
+    :func:`slot_quantities` (B = the T slots of an episode) and the engine's per-step quantities
+    (B = the N env copies stepped in lock-step, see :func:`covert_env.engine.step_engines`).
+
+    Args:
+        start_xy, end_xy: (*B, U, 2) the team before and after each move.
+        target_start, target_end: (*B, 3) the target before and after; phi_start, phi_end: (*B,) its heading.
+        path_xy: (*B, U, P, 2) samples along each move; path_length: (*B, U).
+        target_path_xyz: (*B, P, 3) the target at the same instants, or None to skip LoS along the path
+            (``los_path`` is then NaN).
+        terrain: a :class:`Terrain` for every move, or a :class:`~covert_env.visibility.TerrainStack`
+            with one terrain per move (B = (N,)).
+    """
+    c = config
+    alpha_prev = uav_target_angle(start_xy, target_start[..., None, :2], phi_start[..., None])
+    alpha = uav_target_angle(end_xy, target_end[..., None, :2], phi_end[..., None])
+    d_prev = uav_target_distance(start_xy, target_start[..., None, :2])
+    d = uav_target_distance(end_xy, target_end[..., None, :2])
+    kappa = disguise(alpha_prev, alpha, d_prev, d, c.eta)
+    g = stage_cost(path_length, alpha_prev, alpha, d_prev, d, c.eta, c.lam, kappa=kappa)
+
+    zd = zone_distance(end_xy, target_end[..., None, :2], phi_end[..., None], c.r1, c.r2, c.mu)
+    if isinstance(terrain, TerrainStack):
+        los_fn = terrain.line_of_sight
+    else:
+        los_fn = functools.partial(line_of_sight, terrain)
+    if target_path_xyz is not None:
         # Sample j of every UAV against the target at the same instant, in one vectorised call (every
         # slot has its own target). Sample 0 is the previous slot's end, checked there; the last
         # sample is this slot's end, so the slot-time LoS comes with it.
-        clear = line_of_sight(terrain, traj.path_xy[:, :, 1:], c.altitude, traj.target_path_xyz[:, None, 1:])
+        clear = los_fn(path_xy[..., 1:, :], c.altitude, target_path_xyz[..., None, 1:, :])
         los, los_path = clear[..., -1], clear.all(axis=-1)
     else:
-        los = line_of_sight(terrain, end_xy, c.altitude, traj.target_xyz[1:, None, :])
+        los = los_fn(end_xy, c.altitude, target_end[..., None, :])
         los_path = np.full(los.shape, np.nan)
 
     # Like LoS: sample 0 is the previous slot's end (counted there), so each instant counts once. The last
     # sample is the slot's end, so the slot-time separation comes with it.
-    sep_all = _nearest_teammate(np.swapaxes(traj.path_xy[:, :, 1:], 1, 2))            # (T, P-1, U)
-    sep, sep_path = sep_all[:, -1], sep_all.min(axis=1)
+    sep_all = _nearest_teammate(np.swapaxes(path_xy[..., 1:, :], -3, -2))              # (*B, P-1, U)
+    sep, sep_path = sep_all[..., -1, :], sep_all.min(axis=-2)
     clearance = _terrain_clearance(end_xy, c.altitude, terrain)
     return SlotQuantities(los=los, los_path=los_path, in_zone=zd <= 0.0, zone_distance=zd,
-                          alpha=alpha_all[1:], d=d_all[1:],
-                          kappa=kappa, g=g, path_length=np.asarray(traj.path_length, float),
+                          alpha=alpha, d=d,
+                          kappa=kappa, g=g, path_length=np.asarray(path_length, float),
                           separation=sep, separation_path=sep_path, terrain_clearance=clearance)
 
 

@@ -47,6 +47,7 @@ from covert_env.terrain import Terrain
 
 __all__ = [
     "LOS_TOLERANCE",
+    "TerrainStack",
     "line_of_sight",
     "line_of_sight_cfg",
     "shadow_h_min",
@@ -307,6 +308,68 @@ def _clip(num: np.ndarray, den: np.ndarray) -> np.ndarray:
     s_in = np.maximum(np.max(np.where(entering, s, 0.0), axis=1), 0.0)
     s_out = np.minimum(np.fmin.reduce(np.where(entering, 1.0, s), axis=1), 1.0)
     return s_in <= s_out
+
+
+class TerrainStack:
+    """One terrain per row of a batch, for one vectorised LoS call over env copies stepped in lock-step.
+
+    Row ``j`` of the leading axis of every array passed to :meth:`line_of_sight` is checked against
+    ``terrains[j]`` only, with exactly :func:`line_of_sight`'s clip. The polytopes are stacked into
+    padded (N, M_max, F_max) arrays: extra faces are the always-true row ``0.x - 1 <= 0`` and extra
+    polytopes are empty (a row ``0.x + 1 <= 0``), so padding never blocks.
+
+    Attributes:
+        terrains: the terrains, one per row.
+        highest_points: (N, M_max, 3) each terrain's polytope top points, padded with inf (eq. 3).
+    """
+
+    def __init__(self, terrains):
+        self.terrains = tuple(terrains)
+        arrs = [_arrays(t) for t in self.terrains]
+        n = len(arrs)
+        m = max((a.hs.shape[0] for a in arrs), default=0)
+        f = max((a.hs.shape[1] for a in arrs), default=1)
+        hs = np.zeros((n, m, f, 4))
+        hs[..., 3] = -1.0
+        hs[:, :, 0, 3] = 1.0                                   # empty until a real polytope is written
+        top = np.full((n, m, 3), np.inf)
+        for j, (a, t) in enumerate(zip(arrs, self.terrains, strict=True)):
+            hs[j, :a.hs.shape[0], :a.hs.shape[1]] = a.hs
+            top[j, :len(t)] = t.highest_points
+        self._m, self._f = m, f
+        self._normals_t = np.ascontiguousarray(hs[..., :3].reshape(n, m * f, 3).transpose(0, 2, 1))
+        self._offsets = hs[..., 3].reshape(n, 1, m * f)
+        self.highest_points = top
+
+    def __len__(self) -> int:
+        return len(self.terrains)
+
+    def line_of_sight(self, uav_xy, altitude, target_xyz, *, tol: float = LOS_TOLERANCE) -> np.ndarray:
+        """:func:`line_of_sight` per row: ``uav_xy`` (N, ..., 2) and ``target_xyz`` (N, ..., 3) broadcastable,
+        ``altitude`` a scalar; row j against ``terrains[j]``. Returns bool (N, ...)."""
+        uav_xy = np.asarray(uav_xy, dtype=float)
+        target = np.asarray(target_xyz, dtype=float)
+        n = len(self.terrains)
+        if len(uav_xy) != n or len(target) != n:
+            raise ValueError(f"TerrainStack.line_of_sight: {n} terrains but leading axes "
+                             f"{len(uav_xy)} (uav_xy) and {len(target)} (target_xyz)")
+        shape = np.broadcast_shapes(uav_xy.shape[:-1], target.shape[:-1])
+        k = math.prod(shape[1:])
+        if k * self._m > 4 * _BRUTE_PAIRS:                       # many points: each row's broad phase pays
+            return np.stack([line_of_sight(t, uav_xy[j], altitude, target[j], tol=tol)
+                             for j, t in enumerate(self.terrains)]).reshape(shape)
+        if self._m == 0:
+            return np.ones(shape, dtype=bool)
+        u = np.empty(shape + (3,))
+        u[..., :2] = uav_xy
+        u[..., 2] = altitude
+        t = np.empty(shape + (3,))
+        t[...] = target
+        d = self._offsets + tol
+        num = u.reshape(n, k, 3) @ self._normals_t + d                  # (N, K, M F) face values at the UAV
+        den = ((t.reshape(n, k, 3) @ self._normals_t + d) - num).reshape(-1, self._f)
+        blocked = _clip(num.reshape(-1, self._f), den).reshape(n, k, self._m)
+        return ~blocked.any(axis=2).reshape(shape)
 
 
 def line_of_sight_cfg(terrain: Terrain, uav_xy, target_xyz, config) -> np.ndarray:

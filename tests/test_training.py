@@ -15,6 +15,7 @@ import torch  # noqa: E402
 from stable_baselines3 import PPO  # noqa: E402
 from stable_baselines3.common.vec_env import VecMonitor, VecNormalize  # noqa: E402
 
+from covert_env.envs.covert_sensing import _observations  # noqa: E402
 from training.vec_env import ParallelEnvVecAdapter, make_vec_env  # noqa: E402
 
 torch.set_num_threads(1)
@@ -40,9 +41,8 @@ def test_adapter_shapes_and_rows():
     obs = venv.reset()
     assert obs.shape == (6, *venv.observation_space.shape) and obs.dtype == np.float32
     # row j*U + i is agent i of copy j
-    par = venv.envs[1]
-    own = par._observations()
-    np.testing.assert_array_equal(obs[4], own["uav_1"])
+    rows = _observations([venv.envs[1]])[0]
+    np.testing.assert_array_equal(obs[4], rows[1])
     venv.close()
 
 
@@ -136,6 +136,46 @@ def test_termination_is_not_truncation():
         assert info["TimeLimit.truncated"] is False
         assert info["terminal_observation"] == pytest.approx(np.full(3, 0.3))
         assert obs[r] == pytest.approx(np.zeros(3))           # auto-reset
+
+
+@pytest.mark.parametrize("mode", ["unicycle", "waypoint"])
+def test_lockstep_equals_stepping_copy_by_copy(mode):
+    """The adapter steps our env's copies together (step_copies); over episode ends and resets that gives
+    exactly what stepping each copy through env.step gives: observations, rewards, dones and infos."""
+    kw = dict(n_uavs=3, max_cycles=6, action_mode=mode)
+    fast, slow = make_vec_env(3, kw), make_vec_env(3, kw)
+    assert fast._lockstep
+    slow._lockstep = False
+    for v in (fast, slow):
+        v.seed(5)
+    np.testing.assert_array_equal(fast.reset(), slow.reset())
+    rng = np.random.default_rng(0)
+    for _ in range(12):                                   # two episode ends
+        if mode == "unicycle":
+            acts = rng.uniform(-1.5, 1.5, (fast.num_envs, 2)).astype(np.float32)   # out of range: clipped
+        else:
+            acts = np.array([rng.choice(np.flatnonzero(m)) for m in fast.env_method("action_masks")])
+        a, b = fast.step(acts), slow.step(acts)
+        for x, y in zip(a[:3], b[:3], strict=True):
+            np.testing.assert_array_equal(x, y)
+        for ia, ib in zip(a[3], b[3], strict=True):
+            assert ia.keys() == ib.keys()
+            for key in ia:
+                np.testing.assert_array_equal(ia[key], ib[key], err_msg=key)
+    assert a[2].all()                                     # the last step ended every copy
+
+
+def test_lockstep_bad_actions_raise_naming_the_agent():
+    venv = make_vec_env(2, dict(n_uavs=3, max_cycles=4))
+    venv.reset()
+    acts = np.zeros((6, 2), np.float32)
+    acts[4, 1] = np.nan
+    with pytest.raises(ValueError, match="uav_1 must be finite"):
+        venv.step(acts)
+    wp = make_vec_env(1, dict(n_uavs=2, max_cycles=4, action_mode="waypoint"))
+    wp.reset()
+    with pytest.raises(ValueError, match=r"uav_1 must be an integer in \[0, "):
+        wp.step(np.array([0, wp.action_space.n]))
 
 
 def test_vecmonitor_and_vecnormalize():

@@ -7,11 +7,14 @@ import math
 import numpy as np
 import pytest
 import shapely
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from shapely.geometry import Point, Polygon
 
 from covert_env.config import Config
 from covert_env.terrain import Polytope, Terrain
 from covert_env.visibility import (
+    TerrainStack,
     line_of_sight,
     line_of_sight_cfg,
     shadow_h_min,
@@ -332,3 +335,34 @@ def test_small_input_path_equals_broad_phase_paths():
         small = np.concatenate([line_of_sight(terrain, pts[i:i + 5], 80.0, q) for i in range(0, 600, 5)])
         assert np.array_equal(small, big) and np.array_equal(per_point, big)
         assert (~big).any() or len(terrain) < 6
+
+
+# ----------------------------------------------------------------------------- lock-step copies
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), n_points=st.sampled_from([1, 3, 30, 200]))
+def test_terrain_stack_equals_line_of_sight_per_terrain(seed, n_points):
+    """Row j of a TerrainStack sees exactly what line_of_sight sees on terrain j: terrains of different
+    sizes (padding must never block), an empty one, per-point targets, and enough points for the per-row
+    fallback."""
+    rng = np.random.default_rng(seed)
+    terrains = [random_terrain(rng, n) for n in (int(rng.integers(1, 17)), 0, int(rng.integers(4, 9)))]
+    stack = TerrainStack(terrains)
+    targets = np.stack([random_target(rng) for _ in terrains])
+    xy = np.stack([disk_points(rng, q, n_points) for q in targets])
+    got = stack.line_of_sight(xy, H, targets[:, None, :])
+    want = np.stack([line_of_sight(t, xy[j], H, targets[j]) for j, t in enumerate(terrains)])
+    np.testing.assert_array_equal(got, want)
+    assert got[1].all()                                                   # the empty terrain
+    # Per-point targets (the path check of the engine) and the highest points (eq. 3), padded with inf.
+    per_point = targets[:, None, :] + rng.uniform(-1, 1, (len(terrains), n_points, 3)) * [1, 1, 0]
+    np.testing.assert_array_equal(stack.line_of_sight(xy, H, per_point),
+                                  np.stack([line_of_sight(t, xy[j], H, per_point[j]) for j, t in enumerate(terrains)]))
+    for j, t in enumerate(terrains):
+        np.testing.assert_array_equal(stack.highest_points[j, :len(t)], t.highest_points)
+        assert np.isinf(stack.highest_points[j, len(t):]).all()
+
+
+def test_terrain_stack_rejects_a_wrong_leading_axis():
+    stack = TerrainStack([Terrain([box(10, 20, -5, 5, 40)])] * 2)
+    with pytest.raises(ValueError, match="2 terrains"):
+        stack.line_of_sight(np.zeros((3, 4, 2)), H, np.zeros((3, 1, 3)))

@@ -29,6 +29,8 @@ import numpy as np
 from gymnasium import spaces
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvObs, VecEnvStepReturn
 
+from covert_env.envs.covert_sensing import CovertSensingParallelEnv, step_copies
+
 __all__ = ["ParallelEnvVecAdapter", "make_vec_env"]
 
 
@@ -66,6 +68,9 @@ class ParallelEnvVecAdapter(VecEnv):
         self._dones = np.zeros(self.num_envs, dtype=bool)
         self._infos: list[dict] = [{} for _ in range(self.num_envs)]
         self._actions: np.ndarray | None = None
+        # Our own env steps all copies at once (step_copies); any other ParallelEnv is stepped copy by copy.
+        self._lockstep = all(type(e).step is CovertSensingParallelEnv.step for e in self.envs) and not any(
+            e.dict_obs for e in self.envs)
 
     # ------------------------------------------------------------------ helpers
     def _rows(self, j: int) -> range:
@@ -93,6 +98,8 @@ class ParallelEnvVecAdapter(VecEnv):
         self._actions = np.asarray(actions)
 
     def step_wait(self) -> VecEnvStepReturn:
+        if self._lockstep:
+            return self._step_lockstep()
         discrete = isinstance(self.action_space, spaces.Discrete)
         for j, env in enumerate(self.envs):
             rows = self._rows(j)
@@ -101,26 +108,43 @@ class ParallelEnvVecAdapter(VecEnv):
             obs, rew, term, trunc, infos = env.step(acts)
             ended = not env.agents
             for a, r in zip(self.agents, rows, strict=True):
-                info = dict(infos.get(a, {}))
-                reward = float(rew[a])
-                if self.reward_fn is not None:
-                    info["env_reward"] = reward
-                    reward = float(self.reward_fn(reward, info))
                 done_a = bool(term[a] or trunc[a])
                 if done_a != ended:
                     raise NotImplementedError(f"agent {a} ended alone: agents that finish at different times "
                                               "are not supported by ParallelEnvVecAdapter")
-                self._rews[r] = reward
-                self._dones[r] = ended
                 self._obs[r] = obs[a]
-                if ended:
-                    info["terminal_observation"] = np.asarray(obs[a]).copy()
-                    info["TimeLimit.truncated"] = bool(trunc[a] and not term[a])
-                self._infos[r] = info
-            if ended:
-                self._reset_copy(j)
-        # The info dicts are new every step (copied from the env's above), so the list can hand them out.
+                self._rews[r] = rew[a]
+                self._infos[r] = dict(infos.get(a, {}))
+            self._end_copy(j, ended, [bool(term[a]) for a in self.agents], [bool(trunc[a]) for a in self.agents])
         return self._obs.copy(), self._rews.copy(), self._dones.copy(), list(self._infos)
+
+    def _step_lockstep(self) -> VecEnvStepReturn:
+        """All copies in one :func:`~covert_env.envs.covert_sensing.step_copies` call (same results)."""
+        acts = self._actions.reshape((self.n_copies, self.n_agents) + self.action_space.shape)
+        obs, rew, term, trunc, infos = step_copies(self.envs, acts)
+        self._obs[:] = obs.reshape(self._obs.shape)
+        self._rews[:] = rew.reshape(-1)
+        # Fresh dicts from the env: no copy needed.
+        self._infos[:] = [info for copy_infos in infos for info in copy_infos]
+        for j in range(self.n_copies):
+            self._end_copy(j, bool(term[j] or trunc[j]), [bool(term[j])] * self.n_agents,
+                           [bool(trunc[j])] * self.n_agents)
+        return self._obs.copy(), self._rews.copy(), self._dones.copy(), list(self._infos)
+
+    def _end_copy(self, j: int, ended: bool, terminated: list[bool], truncated: list[bool]) -> None:
+        """Reward shaping, done flags and SB3's end-of-episode infos for copy j (per-agent flags); reset
+        the copy if it ended."""
+        for i, r in enumerate(self._rows(j)):
+            info = self._infos[r]
+            if self.reward_fn is not None:
+                info["env_reward"] = float(self._rews[r])
+                self._rews[r] = self.reward_fn(float(self._rews[r]), info)
+            self._dones[r] = ended
+            if ended:
+                info["terminal_observation"] = self._obs[r].copy()
+                info["TimeLimit.truncated"] = truncated[i] and not terminated[i]
+        if ended:
+            self._reset_copy(j)
 
     def seed(self, seed: int | None = None) -> Sequence[int | None]:
         seeds = super().seed(seed)
@@ -163,7 +187,5 @@ class ParallelEnvVecAdapter(VecEnv):
 def make_vec_env(n_copies: int, env_kwargs: dict | None = None,
                  reward_fn: Callable[[float, dict], float] | None = None) -> ParallelEnvVecAdapter:
     """``n_copies`` covert_env ParallelEnvs built with ``env_kwargs``, flattened for a shared SB3 policy."""
-    from covert_env.envs.covert_sensing import CovertSensingParallelEnv
-
     kw = dict(env_kwargs or {})
     return ParallelEnvVecAdapter([lambda: CovertSensingParallelEnv(**kw) for _ in range(n_copies)], reward_fn=reward_fn)

@@ -21,12 +21,12 @@ from pettingzoo.utils import parallel_to_aec, wrappers
 
 from covert_env.config import Config
 from covert_env.dynamics import solve_manoeuvre
-from covert_env.engine import Engine
+from covert_env.engine import Engine, step_engines
 from covert_env.scenario import Scenario, _sample_starts
 from covert_env.visibility import line_of_sight
 from covert_env.zone import in_feasible_zone, lattice_offsets, to_world, zone_distance, zone_lattice
 
-__all__ = ["CovertSensingParallelEnv", "env", "parallel_env", "raw_env", "ACTION_MODES"]
+__all__ = ["CovertSensingParallelEnv", "env", "parallel_env", "raw_env", "step_copies", "ACTION_MODES"]
 
 ACTION_MODES = ("unicycle", "waypoint")
 #: Smallest commanded speed as a fraction of V_max: the unicycle needs v > 0 (eq. 1).
@@ -296,6 +296,9 @@ class CovertSensingParallelEnv(ParallelEnv):
         self.scene_pool = int(scene_pool)
         self.path_samples = int(path_samples)
         self.random_starts = bool(random_starts)
+        # Copies with equal keys can be stepped together (step_copies): everything a step reads but the scene.
+        self._lockstep_key = repr((cfg, action_mode, self.max_cycles, self.map_size, self.dict_obs, self.reward_scale,
+                                   self.penalties, self.terminate_on_collision, self.path_samples))
 
         self.possible_agents = [f"uav_{i}" for i in range(cfg.n_uavs)]
         self.agents: list[str] = []
@@ -391,7 +394,7 @@ class CovertSensingParallelEnv(ParallelEnv):
         self._zone_dist = zone_distance(self.engine.uav_xy, self.engine.target_xyz[:2], self.engine.target_phi,
                                         c.r1, c.r2, c.mu)
         self._update_masks()
-        obs = self._observations()
+        obs = self._obs_dict(_observations([self])[0])
         infos = {a: self._base_info(i) for i, a in enumerate(self.agents)}
         if self.render_mode == "human":
             self.render()
@@ -400,49 +403,23 @@ class CovertSensingParallelEnv(ParallelEnv):
     def step(self, actions: dict[str, Any]):
         if self.engine is None or not self.agents:
             raise RuntimeError("step() called before reset() or after the episode ended; call reset()")
-        eng, c = self.engine, self.config
         missing = [a for a in self.agents if a not in actions]
         if missing:
             raise ValueError(f"step(): missing actions for {missing}")
         if self.action_mode == "unicycle":
-            quant = eng.step(unicycle=self._unicycle_controls(actions))
+            act = self._unicycle_actions(actions)
         else:
-            idx = self._waypoint_indices(actions)
-            decision = self._masks[np.arange(len(idx)), idx] == 0
-            q1, phi1 = eng.predict(1)
-            goals = to_world(self.lattice[idx], q1[0, :2], float(phi1[0]))
-            quant = eng.step(waypoints=goals, infeasible=decision)
-        self._last_speed = quant.path_length[0] / c.delta
-        self._los = quant.los[0]
-        self._zone_dist = quant.zone_distance[0]
-        rewards, terms = self._rewards(quant)
-        collided = bool((quant.separation_path[0] < c.d_safe1).any())
-        terminate = self.terminate_on_collision and collided
-        truncate = eng.k >= self.max_cycles and not terminate
-        self._update_masks()
-        obs = self._observations()
-        per_agent = zip(terms, quant.los[0].tolist(), quant.in_zone[0].tolist(), quant.kappa[0].tolist(),
-                        quant.g[0].tolist(), self._last_speed.tolist(), quant.separation_path[0].tolist(),
-                        quant.terrain_clearance[0].tolist(), eng._infeasible[-1].tolist(), strict=True)
-        infos = {}
-        for i, (a, row) in enumerate(zip(self.agents, per_agent, strict=True)):
-            info = self._base_info(i)
-            info.update(zip(("reward_terms", "los", "in_zone", "kappa", "g", "v", "separation",
-                             "terrain_clearance", "infeasible"), row, strict=True))
-            infos[a] = info
-        agents = list(self.agents)
-        terminations = {a: terminate for a in agents}
-        truncations = {a: truncate for a in agents}
-        if terminate or truncate:
-            self.agents = []
-        if self.render_mode == "human":
-            self.render()
-        return obs, {a: rewards[i] for i, a in enumerate(agents)}, terminations, truncations, infos
+            act = self._waypoint_indices(actions)
+        obs, rew, term, trunc, infos = step_copies([self], act[None])
+        agents = self.possible_agents
+        terminations = dict.fromkeys(agents, bool(term[0]))
+        truncations = dict.fromkeys(agents, bool(trunc[0]))
+        return (self._obs_dict(obs[0]), dict(zip(agents, rew[0].tolist(), strict=True)), terminations, truncations,
+                dict(zip(agents, infos[0], strict=True)))
 
     # ------------------------------------------------------------------ internals
-    def _unicycle_controls(self, actions: dict[str, Any]) -> np.ndarray:
-        """(U, 2) controls (v, omega) from Box(-1, 1) actions: clipped, then scaled (class docstring)."""
-        c = self.config
+    def _unicycle_actions(self, actions: dict[str, Any]) -> np.ndarray:
+        """(U, 2) raw Box actions in agent order, checked for shape and finiteness."""
         try:
             act = np.array([actions[a] for a in self.agents], dtype=float)
         except (TypeError, ValueError):
@@ -454,11 +431,7 @@ class CovertSensingParallelEnv(ParallelEnv):
                     raise ValueError(f"action for {a} must have shape (2,), got {np.shape(actions[a])}")
                 if not np.all(np.isfinite(one)):
                     raise ValueError(f"action for {a} must be finite, got {one.tolist()}")
-        act = np.minimum(np.maximum(act, -1.0), 1.0)
-        ctl = np.empty_like(act)
-        ctl[:, 0] = c.v_max * (MIN_SPEED_FRACTION + (1 - MIN_SPEED_FRACTION) * (act[:, 0] + 1) / 2)
-        ctl[:, 1] = c.w_max * act[:, 1]
-        return ctl
+        return act
 
     def _waypoint_indices(self, actions: dict[str, Any]) -> np.ndarray:
         """(U,) lattice indices from Discrete(L) actions, validated."""
@@ -471,25 +444,6 @@ class CovertSensingParallelEnv(ParallelEnv):
                 raise ValueError(f"action for {a} must be an integer in [0, {n - 1}], got {actions[a]!r}")
             idx[i] = int(val)
         return idx
-
-    def _rewards(self, quant) -> tuple[np.ndarray, list[dict[str, float]]]:
-        c, p = self.config, self.penalties
-        outside = np.maximum(self._zone_dist, 0.0) / (c.r2 - c.r1)
-        cols = np.empty((len(_REWARD_TERMS), len(outside)))       # rows in the order of _REWARD_TERMS
-        np.divide(quant.path_length[0], -self.reward_scale, out=cols[0])
-        np.multiply(quant.kappa[0], c.lam, out=cols[1])
-        cols[1] /= self.reward_scale
-        cols[2] = ~quant.los[0]
-        cols[2] *= -p["los"]
-        cols[3] = np.minimum(outside, 2.0) + 1.0
-        cols[3] *= ~quant.in_zone[0]
-        cols[3] *= -p["zone"]
-        cols[4] = quant.separation_path[0] < c.d_safe1
-        cols[4] *= -p["separation"]
-        cols[5] = quant.terrain_clearance[0] < c.d_safe2
-        cols[5] *= -p["terrain"]
-        terms = [dict(zip(_REWARD_TERMS, row, strict=True)) for row in cols.T.tolist()]
-        return cols.sum(axis=0), terms
 
     def _update_masks(self) -> None:
         if self.action_mode != "waypoint":
@@ -522,30 +476,9 @@ class CovertSensingParallelEnv(ParallelEnv):
             info["action_mask"] = self._masks[i].copy()
         return info
 
-    # The feature functions fill columns of one array and change frames with scalar trigonometry: on the
-    # few-element arrays of one step, numpy's per-call overhead (not the maths) is the cost.
     def _own_features(self) -> np.ndarray:
         """(U, 8) per-UAV features 0-7 of the observation table."""
-        eng, c = self.engine, self.config
-        tr = self.scenario.track
-        k = min(eng.k, tr.n_slots)
-        qx, qy = tr.positions[k, 0], tr.positions[k, 1]
-        phi = float(tr.headings[k])
-        cs, sn = math.cos(phi), math.sin(phi)
-        dx, dy = eng.uav_xy[:, 0] - qx, eng.uav_xy[:, 1] - qy
-        f = np.empty((len(dx), 8))
-        f[:, 0] = (cs * dx + sn * dy) / c.r2
-        f[:, 1] = (cs * dy - sn * dx) / c.r2
-        np.minimum(np.maximum(f[:, :2], -OFFSET_CLIP), OFFSET_CLIP, out=f[:, :2])
-        dth = eng.uav_theta - phi
-        f[:, 2] = np.cos(dth)
-        f[:, 3] = np.sin(dth)
-        f[:, 4] = np.minimum(self._last_speed / c.v_max, 1.0)
-        f[:, 5] = self._los
-        zd = self._zone_dist
-        f[:, 6] = zd <= 0
-        f[:, 7] = np.minimum(np.maximum(zd / (c.r2 - c.r1), -OFFSET_CLIP), OFFSET_CLIP)
-        return f
+        return _own_features([self])[0]
 
     def _shared_features(self) -> np.ndarray:
         """Target displacement, time remaining and both maps (shared by all agents; a new float32 array)."""
@@ -577,17 +510,8 @@ class CovertSensingParallelEnv(ParallelEnv):
             self._cache.shared[k] = block
         return block
 
-    def _observations(self) -> dict[str, Any]:
-        shared = self._shared_block()
-        u, n_own = len(self.possible_agents), 8
-        rows = np.empty((u, self._obs_box.shape[0]), np.float32)
-        own = self._own_features()
-        rows[:, :n_own] = own
-        rows[:, n_own:n_own + 3] = shared[:3]
-        rows[:, n_own + 2] = self._remaining()
-        n_mate = 2 * (u - 1)
-        rows[:, n_own + 3:n_own + 3 + n_mate] = own[self._mates, :2].reshape(u, -1)
-        rows[:, n_own + 3 + n_mate:] = shared[3:]
+    def _obs_dict(self, rows: np.ndarray) -> dict[str, Any]:
+        """Per-agent observations from the (U, D) rows of :func:`_observations`."""
         if self.dict_obs:
             return {a: {"observation": rows[i], "action_mask": self._masks[i].copy()}
                     for i, a in enumerate(self.possible_agents)}
@@ -617,6 +541,187 @@ class CovertSensingParallelEnv(ParallelEnv):
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None
+
+
+# ----------------------------------------------------------------------------- lock-step copies
+# Everything below works on N env copies at once: arrays (N, U, ...) with one vectorised numpy call per
+# quantity, because on the few-element arrays of one step numpy's per-call overhead, not the maths, is
+# the cost. ``env.step`` is the case N = 1; the SB3 adapter (training.vec_env) steps all its copies
+# through :func:`step_copies`, so both paths run the same code.
+
+_INFO_KEYS = ("los", "in_zone", "kappa", "g", "v", "separation", "terrain_clearance", "infeasible")
+
+
+def step_copies(envs, actions) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[list[dict]]]:
+    """Step N copies of :class:`CovertSensingParallelEnv` in lock-step: one slot each, the same results
+    as calling ``env.step`` on every copy, with the numpy work done once for all copies.
+
+    Args:
+        envs: N envs built with the same arguments (scenes and slots may differ), all mid-episode.
+        actions: (N, U, 2) Box actions (unicycle mode) or (N, U) lattice indices (waypoint mode), agents
+            in ``possible_agents`` order.
+
+    Returns:
+        ``(observations, rewards, terminated, truncated, infos)``: a new (N, U, D) float32 array of the
+        observation rows (the array form, also with ``dict_obs=True``), (N, U) rewards, (N,) bools (every
+        agent of a copy ends together) and N lists of U info dicts. A copy that ended has no agents left
+        and must be reset before its next step.
+    """
+    e0 = envs[0]
+    c = e0.config
+    n, u = len(envs), len(e0.possible_agents)
+    for env in envs:
+        if env.engine is None or not env.agents:
+            raise RuntimeError("step() called before reset() or after the episode ended; call reset()")
+        if env is not e0 and env._lockstep_key != e0._lockstep_key:
+            raise ValueError("step_copies: every env must be built with the same arguments")
+    engines = [env.engine for env in envs]
+    if e0.action_mode == "unicycle":
+        act = np.asarray(actions, dtype=float)
+        if act.shape != (n, u, 2):
+            raise ValueError(f"step_copies: unicycle actions must have shape ({n}, {u}, 2), got {act.shape}")
+        quant = step_engines(engines, unicycle=_unicycle_controls(act, c, e0.possible_agents))
+    else:
+        idx = _lattice_indices(actions, n, u, len(e0.lattice), e0.possible_agents)
+        rows = np.arange(u)
+        decision = np.stack([env._masks[rows, idx[j]] == 0 for j, env in enumerate(envs)])
+        goals = np.empty((n, u, 2))
+        for j, env in enumerate(envs):
+            q1, phi1 = env.engine.predict(1)
+            goals[j] = to_world(env.lattice[idx[j]], q1[0, :2], float(phi1[0]))
+        quant = step_engines(engines, waypoints=goals, infeasible=decision)
+    speed = quant.path_length / c.delta
+    terms = _reward_terms(e0, quant)
+    rewards = terms.sum(axis=0)
+    terminate = (quant.separation_path < c.d_safe1).any(axis=1) & e0.terminate_on_collision
+    ks = [eng.k for eng in engines]
+    truncate = (np.array(ks) >= e0.max_cycles) & ~terminate
+    for j, env in enumerate(envs):
+        env._last_speed, env._los, env._zone_dist = speed[j], quant.los[j], quant.zone_distance[j]
+        env._update_masks()
+    obs = _observations(envs)
+
+    per_agent = (quant.los.tolist(), quant.in_zone.tolist(), quant.kappa.tolist(), quant.g.tolist(), speed.tolist(),
+                 quant.separation_path.tolist(), quant.terrain_clearance.tolist(),
+                 [eng._infeasible[-1].tolist() for eng in engines])
+    term_rows = terms.transpose(1, 2, 0).tolist()
+    waypoint = e0.action_mode == "waypoint"
+    infos = []
+    for j, env in enumerate(envs):
+        slot = ks[j]
+        copy_infos = []
+        for i, row in enumerate(zip(*(col[j] for col in per_agent), strict=True)):
+            info = {"slot": slot, "reward_terms": dict(zip(_REWARD_TERMS, term_rows[j][i], strict=True))}
+            info.update(zip(_INFO_KEYS, row, strict=True))
+            if waypoint:
+                info["action_mask"] = env._masks[i].copy()
+            copy_infos.append(info)
+        infos.append(copy_infos)
+        if terminate[j] or truncate[j]:
+            env.agents = []
+        if env.render_mode == "human":
+            env.render()
+    return obs, rewards, terminate, truncate, infos
+
+
+def _unicycle_controls(act: np.ndarray, c: Config, agents) -> np.ndarray:
+    """(..., U, 2) controls (v, omega) from Box(-1, 1) actions: clipped, then scaled (class docstring)."""
+    if not np.isfinite(act).all():
+        bad = np.argwhere(~np.isfinite(act).all(axis=-1))[0]
+        raise ValueError(f"action for {agents[bad[-1]]} must be finite, got {act[tuple(bad)].tolist()}")
+    act = np.minimum(np.maximum(act, -1.0), 1.0)
+    ctl = np.empty_like(act)
+    ctl[..., 0] = c.v_max * (MIN_SPEED_FRACTION + (1 - MIN_SPEED_FRACTION) * (act[..., 0] + 1) / 2)
+    ctl[..., 1] = c.w_max * act[..., 1]
+    return ctl
+
+
+def _lattice_indices(actions, n: int, u: int, n_nodes: int, agents) -> np.ndarray:
+    """(N, U) validated lattice indices from Discrete(L) actions."""
+    a = np.asarray(actions)
+    if a.shape != (n, u):
+        raise ValueError(f"step_copies: waypoint actions must have shape ({n}, {u}), got {a.shape}")
+    ok = np.zeros(a.shape, bool)
+    if a.dtype.kind in "biuf":
+        with np.errstate(invalid="ignore"):
+            ok = np.isfinite(a) & (a == np.round(a)) & (a >= 0) & (a < n_nodes)
+    if not ok.all():
+        bad = tuple(np.argwhere(~ok)[0])
+        raise ValueError(f"action for {agents[bad[-1]]} must be an integer in [0, {n_nodes - 1}], got {a[bad]!r}")
+    return a.astype(int)
+
+
+def _reward_terms(env: CovertSensingParallelEnv, quant) -> np.ndarray:
+    """(6, N, U) reward terms in the order of ``_REWARD_TERMS`` (class docstring, Rewards)."""
+    c, p = env.config, env.penalties
+    outside = np.maximum(quant.zone_distance, 0.0) / (c.r2 - c.r1)
+    cols = np.empty((len(_REWARD_TERMS),) + outside.shape)
+    np.divide(quant.path_length, -env.reward_scale, out=cols[0])
+    np.multiply(quant.kappa, c.lam, out=cols[1])
+    cols[1] /= env.reward_scale
+    cols[2] = ~quant.los
+    cols[2] *= -p["los"]
+    cols[3] = np.minimum(outside, 2.0) + 1.0
+    cols[3] *= ~quant.in_zone
+    cols[3] *= -p["zone"]
+    cols[4] = quant.separation_path < c.d_safe1
+    cols[4] *= -p["separation"]
+    cols[5] = quant.terrain_clearance < c.d_safe2
+    cols[5] *= -p["terrain"]
+    return cols
+
+
+def _own_features(envs) -> np.ndarray:
+    """(N, U, 8) per-UAV features 0-7 of the observation table."""
+    e0 = envs[0]
+    c = e0.config
+    if len(envs) == 1:
+        eng, tr = e0.engine, e0.scenario.track
+        k = min(eng.k, tr.n_slots)
+        q, phi = tr.positions[k:k + 1], tr.headings[k:k + 1]
+        xy, th = eng.uav_xy[None], eng.uav_theta[None]
+        speed, los, zd = e0._last_speed[None], e0._los[None], e0._zone_dist[None]
+    else:
+        ks = [min(env.engine.k, env.scenario.track.n_slots) for env in envs]
+        q = np.array([env.scenario.track.positions[k] for env, k in zip(envs, ks, strict=True)])
+        phi = np.array([env.scenario.track.headings[k] for env, k in zip(envs, ks, strict=True)])
+        xy, th = np.stack([env.engine.uav_xy for env in envs]), np.stack([env.engine.uav_theta for env in envs])
+        speed, los = np.stack([env._last_speed for env in envs]), np.stack([env._los for env in envs])
+        zd = np.stack([env._zone_dist for env in envs])
+    cs, sn = np.cos(phi)[:, None], np.sin(phi)[:, None]
+    dx, dy = xy[..., 0] - q[:, 0, None], xy[..., 1] - q[:, 1, None]
+    f = np.empty(th.shape + (8,))
+    f[..., 0] = (cs * dx + sn * dy) / c.r2
+    f[..., 1] = (cs * dy - sn * dx) / c.r2
+    np.minimum(np.maximum(f[..., :2], -OFFSET_CLIP), OFFSET_CLIP, out=f[..., :2])
+    dth = th - phi[:, None]
+    f[..., 2] = np.cos(dth)
+    f[..., 3] = np.sin(dth)
+    f[..., 4] = np.minimum(speed / c.v_max, 1.0)
+    f[..., 5] = los
+    f[..., 6] = zd <= 0
+    f[..., 7] = np.minimum(np.maximum(zd / (c.r2 - c.r1), -OFFSET_CLIP), OFFSET_CLIP)
+    return f
+
+
+def _observations(envs) -> np.ndarray:
+    """(N, U, D) float32 observation rows (the class docstring's table), a new array."""
+    e0 = envs[0]
+    own = _own_features(envs)
+    n, u = own.shape[:2]
+    n_own, n_mate = 8, 2 * (u - 1)
+    if n == 1:
+        shared, remaining = e0._shared_block()[None], np.array([e0._remaining()])
+    else:
+        shared = np.stack([env._shared_block() for env in envs])
+        remaining = np.array([env._remaining() for env in envs])
+    rows = np.empty((n, u, e0._obs_box.shape[0]), np.float32)
+    rows[..., :n_own] = own
+    rows[..., n_own:n_own + 3] = shared[:, None, :3]
+    rows[..., n_own + 2] = remaining[:, None]
+    rows[..., n_own + 3:n_own + 3 + n_mate] = own[:, e0._mates, :2].reshape(n, u, -1)
+    rows[..., n_own + 3 + n_mate:] = shared[:, None, 3:]
+    return rows
 
 
 def raw_env(**kwargs) -> CovertSensingParallelEnv:
