@@ -50,6 +50,7 @@ __all__ = [
     "TerrainStack",
     "line_of_sight",
     "line_of_sight_cfg",
+    "line_of_sight_rows",
     "shadow_h_min",
     "shadow_polygons",
     "shadow_polygons_cfg",
@@ -207,6 +208,68 @@ def line_of_sight(terrain: Terrain, uav_xy, altitude, target_xyz, *,
     for s in range(0, len(u), _CHUNK):
         out[s:s + _CHUNK] = _los_general(arr, u[s:s + _CHUNK], t[s:s + _CHUNK], tol)
     return out.reshape(shape)
+
+
+def line_of_sight_rows(terrain: Terrain, uav_xy, altitude: float, target_xyz, *,
+                       tol: float = LOS_TOLERANCE) -> np.ndarray:
+    """:func:`line_of_sight` for S rows of C points, row s against its own target ``target_xyz[s]``.
+
+    The environments' observation maps (C cells at each of S slots) use it: a per-row broad phase keeps
+    only the polytopes whose plan-view circle comes within reach of the row's points (a segment from a
+    point to the target stays within ``max |p - q|`` of the target), then every kept (point, polytope)
+    pair is clipped exactly, as in :func:`line_of_sight`. Along a road a slot's points are near a few of
+    the scene's polytopes, which makes this several times cheaper than the general per-pair broad phase.
+
+    Args:
+        uav_xy: (S, C, 2) points; altitude: the UAV height (scalar); target_xyz: (S, 3).
+
+    Returns:
+        (S, C) bool, True = clear.
+    """
+    xy = np.asarray(uav_xy, dtype=float)
+    q = np.asarray(target_xyz, dtype=float)
+    altitude = float(altitude)
+    if xy.ndim != 3 or xy.shape[-1] != 2 or q.shape != (len(xy), 3):
+        raise ValueError(f"line_of_sight_rows: uav_xy must be (S, C, 2) and target_xyz (S, 3); "
+                         f"got {xy.shape}, {q.shape}")
+    n_rows, n_pts = xy.shape[:2]
+    out = np.ones((n_rows, n_pts), dtype=bool)
+    if len(terrain) == 0 or out.size == 0:
+        return out
+    arr = _arrays(terrain)
+    rel = xy - q[:, None, :2]
+    reach = np.sqrt((rel ** 2).sum(axis=-1).max(axis=1))                         # (S,)
+    gap = np.hypot(arr.centre[:, 0] - q[:, 0, None], arr.centre[:, 1] - q[:, 1, None])   # (S, M)
+    rows, m_idx = np.nonzero(gap <= reach[:, None] + arr.radius + 1e-9)
+    if len(rows) == 0:
+        return out
+    k = (rows[:, None] * n_pts + np.arange(n_pts)).reshape(-1)                  # every point of the row
+    m = np.repeat(m_idx, n_pts)
+    # Then _los_general's test on the kept pairs: the part of the segment lower than the polytope's top
+    # must pass within its plan-view circle (here the target is below the UAV: the low part ends at q).
+    p = xy.reshape(-1, 2)[k]
+    qk = q[rows].repeat(n_pts, axis=0)
+    if altitude > q[:, 2].max():
+        s0 = np.clip((arr.z_max[m] - altitude) / (qk[:, 2] - altitude), 0.0, 1.0)   # UAV -> target, going down
+        ex, ey = qk[:, 0] - p[:, 0], qk[:, 1] - p[:, 1]
+        acx = arr.centre[m, 0] - (p[:, 0] + s0 * ex)
+        acy = arr.centre[m, 1] - (p[:, 1] + s0 * ey)
+        abx, aby = (1.0 - s0) * ex, (1.0 - s0) * ey
+        ab2 = abx * abx + aby * aby
+        w = np.clip((acx * abx + acy * aby) / np.where(ab2 > 0, ab2, 1.0), 0.0, 1.0)
+        dx, dy = acx - w * abx, acy - w * aby
+        near = dx * dx + dy * dy <= (arr.radius[m] + 1e-9) ** 2
+        k, m, p, qk = k[near], m[near], p[near], qk[near]
+    hm = arr.hs[m]
+    u = np.empty((len(k), 3))
+    u[:, :2] = p
+    u[:, 2] = altitude
+    num = np.einsum("pfi,pi->pf", hm[..., :3], u) + hm[..., 3] + tol
+    vq = np.einsum("pfi,pi->pf", hm[..., :3], qk) + hm[..., 3] + tol
+    blocked = _clip(num, vq - num)
+    flat = out.reshape(-1)
+    flat[k[blocked]] = False
+    return out
 
 
 def _los_brute(arr: _TerrainArrays, u: np.ndarray, t: np.ndarray, tol: float) -> np.ndarray:

@@ -17,6 +17,7 @@ from covert_env.visibility import (
     TerrainStack,
     line_of_sight,
     line_of_sight_cfg,
+    line_of_sight_rows,
     shadow_h_min,
     shadow_polygons,
     shadow_polygons_cfg,
@@ -366,3 +367,21 @@ def test_terrain_stack_rejects_a_wrong_leading_axis():
     stack = TerrainStack([Terrain([box(10, 20, -5, 5, 40)])] * 2)
     with pytest.raises(ValueError, match="2 terrains"):
         stack.line_of_sight(np.zeros((3, 4, 2)), H, np.zeros((3, 1, 3)))
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), altitude=st.sampled_from([H, 40.0, 2.0]))
+def test_line_of_sight_rows_equals_line_of_sight_per_row(seed, altitude):
+    """Rows of points, each row against its own target (the observation maps): the per-row broad phase
+    drops only pairs that cannot block. Targets move between rows, so each row keeps other polytopes; a
+    low altitude (below some tops, or below a target) exercises the segment test's other cases."""
+    rng = np.random.default_rng(seed)
+    terrain = random_terrain(rng)
+    targets = np.stack([random_target(rng) + [rng.uniform(-60, 60), rng.uniform(-60, 60), 0] for _ in range(7)])
+    xy = np.stack([disk_points(rng, q, 25, radius=rng.uniform(5, 150)) for q in targets])
+    got = line_of_sight_rows(terrain, xy, altitude, targets)
+    want = np.stack([line_of_sight(terrain, xy[s], altitude, targets[s]) for s in range(len(targets))])
+    np.testing.assert_array_equal(got, want)
+    assert line_of_sight_rows(Terrain(), xy, altitude, targets).all()
+    with pytest.raises(ValueError, match=r"\(S, C, 2\)"):
+        line_of_sight_rows(terrain, xy[0], altitude, targets)

@@ -23,7 +23,7 @@ from covert_env.config import Config
 from covert_env.dynamics import solve_manoeuvre
 from covert_env.engine import Engine, step_engines
 from covert_env.scenario import Scenario, _sample_starts
-from covert_env.visibility import line_of_sight
+from covert_env.visibility import line_of_sight, line_of_sight_rows
 from covert_env.zone import in_feasible_zone, lattice_offsets, to_world, zone_distance, zone_lattice
 
 __all__ = ["CovertSensingParallelEnv", "env", "parallel_env", "raw_env", "step_copies", "ACTION_MODES"]
@@ -91,7 +91,7 @@ class _SceneCache:
                 cs, sn = np.cos(phi)[:, None], np.sin(phi)[:, None]
                 ox, oy = self._map_offsets[:, 0], self._map_offsets[:, 1]
                 xy = np.stack([q[:, :1] + cs * ox - sn * oy, q[:, 1:2] + sn * ox + cs * oy], axis=-1)
-                clear = line_of_sight(self.parts.terrain, xy, c.altitude, q[:, None, :])
+                clear = line_of_sight_rows(self.parts.terrain, xy, c.altitude, q)
                 rows = self._maps[ks]
                 rows[:, self._map_in_zone] = clear
                 self._maps[ks] = rows
