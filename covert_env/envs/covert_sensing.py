@@ -65,8 +65,9 @@ class _SceneCache:
         self._maps = np.zeros((self.parts.track.n_slots + 1, len(map_offsets)), np.float32)
         self._chunks: set[int] = set()
         self._lattice_ok: dict[int, np.ndarray] = {}
-        #: The observation's shared block per slot (see CovertSensingParallelEnv._shared_features).
-        self.shared: dict[int, np.ndarray] = {}
+        # The observation's shared block per slot (see CovertSensingParallelEnv._shared_features).
+        self._blocks = np.zeros((len(self._maps), 3 + 2 * len(map_offsets)), np.float32)
+        self._blocks.setflags(write=False)
 
     def _visible(self, offsets: np.ndarray, k: int) -> np.ndarray:
         c = self.parts.config
@@ -81,21 +82,51 @@ class _SceneCache:
     def visibility_map(self, k: int) -> np.ndarray:
         """Cells of the observation map that are in the eroded zone with clear LoS at slot k (float32)."""
         k = min(k, len(self._maps) - 1)
-        chunk = k // self._MAP_CHUNK
-        if chunk not in self._chunks:
-            self._chunks.add(chunk)
-            track, c = self.parts.track, self.parts.config
-            ks = np.arange(chunk * self._MAP_CHUNK, min((chunk + 1) * self._MAP_CHUNK, len(self._maps)))
-            if len(ks) and len(self._map_offsets):
-                q, phi = track.positions[ks], track.headings[ks]
-                cs, sn = np.cos(phi)[:, None], np.sin(phi)[:, None]
-                ox, oy = self._map_offsets[:, 0], self._map_offsets[:, 1]
-                xy = np.stack([q[:, :1] + cs * ox - sn * oy, q[:, 1:2] + sn * ox + cs * oy], axis=-1)
-                clear = line_of_sight_rows(self.parts.terrain, xy, c.altitude, q)
-                rows = self._maps[ks]
-                rows[:, self._map_in_zone] = clear
-                self._maps[ks] = rows
+        self._chunk(k // self._MAP_CHUNK)
         return self._maps[k]
+
+    def shared_block(self, k: int) -> np.ndarray:
+        """The observation's shared block at slot k, read-only: the target's displacement to k+1 in its
+        frame, 0 for the time remaining (per env), and the maps at k and k+1."""
+        k = min(k, len(self._maps) - 1)
+        self._chunk(k // self._MAP_CHUNK)
+        return self._blocks[k]
+
+    def _chunk(self, chunk: int) -> None:
+        """Maps of slots lo..hi and shared blocks of slots lo..hi-1 (hi = lo + _MAP_CHUNK, clamped at the
+        track's end), each in one vectorised call."""
+        if chunk in self._chunks:
+            return
+        self._chunks.add(chunk)
+        track, c = self.parts.track, self.parts.config
+        n = len(self._maps) - 1
+        lo, hi = chunk * self._MAP_CHUNK, min((chunk + 1) * self._MAP_CHUNK, n)
+        ks = np.arange(lo, hi + 1)
+        q, phi = track.positions[ks], track.headings[ks]
+        cs, sn = np.cos(phi), np.sin(phi)
+        if len(self._map_offsets):
+            ox, oy = self._map_offsets[:, 0], self._map_offsets[:, 1]
+            xy = np.stack([q[:, :1] + cs[:, None] * ox - sn[:, None] * oy,
+                           q[:, 1:2] + sn[:, None] * ox + cs[:, None] * oy], axis=-1)
+            clear = line_of_sight_rows(self.parts.terrain, xy, c.altitude, q)
+            rows = self._maps[ks]
+            rows[:, self._map_in_zone] = clear
+            self._maps[ks] = rows
+        # Blocks of slots lo..hi-1 (the last slot n has its own block: the target no longer moves).
+        own = ks if (chunk + 1) * self._MAP_CHUNK > n else ks[:-1]
+        nxt = np.minimum(own + 1, n)
+        dx, dy = track.positions[nxt, 0] - q[:len(own), 0], track.positions[nxt, 1] - q[:len(own), 1]
+        scale = c.v_max * c.delta
+        cs, sn = cs[:len(own)], sn[:len(own)]
+        blocks = self._blocks
+        blocks.setflags(write=True)
+        blocks[own, 0] = np.clip((cs * dx + sn * dy) / scale, -2.0, 2.0)
+        blocks[own, 1] = np.clip((cs * dy - sn * dx) / scale, -2.0, 2.0)
+        blocks[own, 2] = 0.0
+        s2 = self._maps.shape[1]
+        blocks[own, 3:3 + s2] = self._maps[own]
+        blocks[own, 3 + s2:] = self._maps[nxt]
+        blocks.setflags(write=False)
 
     def lattice_visible(self, k: int) -> np.ndarray:
         """Waypoint lattice nodes in the eroded zone with clear LoS at slot k (bool)."""
@@ -490,25 +521,9 @@ class CovertSensingParallelEnv(ParallelEnv):
         return max(self.max_cycles - self.engine.k, 0) / self.max_cycles
 
     def _shared_block(self) -> np.ndarray:
-        """:meth:`_shared_features` with 0 for the time remaining, cached per scene and slot (read-only).
-
-        Everything but the time remaining depends only on the scene and the slot, and a scene is flown
-        many times (every agent, every reset on it)."""
-        k = self.engine.k
-        block = self._cache.shared.get(k)
-        if block is None:
-            c, tr = self.config, self.scenario.track
-            q, q1 = tr.positions[min(k, tr.n_slots)], tr.positions[min(k + 1, tr.n_slots)]
-            phi = float(tr.headings[min(k, tr.n_slots)])
-            cs, sn = math.cos(phi), math.sin(phi)
-            dx, dy = q1[0] - q[0], q1[1] - q[1]
-            scale = c.v_max * c.delta
-            disp = [min(max((cs * dx + sn * dy) / scale, -2.0), 2.0), min(max((cs * dy - sn * dx) / scale, -2.0), 2.0)]
-            block = np.concatenate([disp, [0.0], self._cache.visibility_map(k),
-                                    self._cache.visibility_map(k + 1)]).astype(np.float32)
-            block.setflags(write=False)
-            self._cache.shared[k] = block
-        return block
+        """:meth:`_shared_features` with 0 for the time remaining (read-only): it depends only on the scene
+        and the slot, and a scene is flown many times (every agent, every reset on it)."""
+        return self._cache.shared_block(self.engine.k)
 
     def _obs_dict(self, rows: np.ndarray) -> dict[str, Any]:
         """Per-agent observations from the (U, D) rows of :func:`_observations`."""
@@ -713,7 +728,7 @@ def _observations(envs) -> np.ndarray:
     if n == 1:
         shared, remaining = e0._shared_block()[None], np.array([e0._remaining()])
     else:
-        shared = np.stack([env._shared_block() for env in envs])
+        shared = np.stack([env._cache.shared_block(env.engine.k) for env in envs])
         remaining = np.array([env._remaining() for env in envs])
     rows = np.empty((n, u, e0._obs_box.shape[0]), np.float32)
     rows[..., :n_own] = own
