@@ -264,7 +264,7 @@ def step_engines(engines, *, unicycle=None, waypoints=None, decision_time=None, 
         v, w, t_turn = v.reshape(n, u), w.reshape(n, u), t_turn.reshape(n, u)
         flagged |= fallback.reshape(n, u)
     path, end_theta = _fly(xy, theta, v, w, t_turn, e0._fractions * c.delta)
-    dtime = None if decision_time is None else np.asarray(decision_time, float).reshape(n, u)
+    dtime = None if decision_time is None else np.array(decision_time, float).reshape(n, u)   # a copy: kept
     for j, e in enumerate(engines):
         e._record(path[j], end_theta[j], v[j], w[j], flagged[j], None if dtime is None else dtime[j])
     return _last_quantities(engines)

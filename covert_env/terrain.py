@@ -544,6 +544,8 @@ class Terrain:
         # Footprints are >= _MIN_GAP apart and tops in [zmin, zmax] with zmax < altitude (Config checks it) by
         # construction, so Terrain's overlap check and validate() are skipped (the tests run every generated
         # terrain through both).
+        if cls is not Terrain:                   # a subclass may check more in its __post_init__
+            return cls(tuple(polys)).validate(cfg.altitude)
         obj = object.__new__(cls)
         object.__setattr__(obj, "polytopes", tuple(polys))
         return obj

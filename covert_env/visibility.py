@@ -377,9 +377,10 @@ class TerrainStack:
     """One terrain per row of a batch, for one vectorised LoS call over env copies stepped in lock-step.
 
     Row ``j`` of the leading axis of every array passed to :meth:`line_of_sight` is checked against
-    ``terrains[j]`` only, with exactly :func:`line_of_sight`'s clip. The polytopes are stacked into
-    padded (N, M_max, F_max) arrays: extra faces are the always-true row ``0.x - 1 <= 0`` and extra
-    polytopes are empty (a row ``0.x + 1 <= 0``), so padding never blocks.
+    ``terrains[j]`` only, with the same result as :func:`line_of_sight` on that row (bit for bit: rows of
+    few points are clipped together with its brute-force formula, larger rows go through it row by row).
+    The polytopes are stacked into padded (N, M_max, F_max) arrays: extra faces are the always-true row
+    ``0.x - 1 <= 0`` and extra polytopes are empty (a row ``0.x + 1 <= 0``), so padding never blocks.
 
     Attributes:
         terrains: the terrains, one per row.
@@ -418,7 +419,9 @@ class TerrainStack:
                              f"{len(uav_xy)} (uav_xy) and {len(target)} (target_xyz)")
         shape = np.broadcast_shapes(uav_xy.shape[:-1], target.shape[:-1])
         k = math.prod(shape[1:])
-        if k * self._m > 4 * _BRUTE_PAIRS:                       # many points: each row's broad phase pays
+        # Few pairs: every pair clipped, as line_of_sight clips them (same formula); more, row by row through
+        # line_of_sight's broad phases (which also keeps the results identical).
+        if k * self._m > _BRUTE_PAIRS:
             return np.stack([line_of_sight(t, uav_xy[j], altitude, target[j], tol=tol)
                              for j, t in enumerate(self.terrains)]).reshape(shape)
         if self._m == 0:

@@ -165,17 +165,60 @@ def test_lockstep_equals_stepping_copy_by_copy(mode):
     assert a[2].all()                                     # the last step ended every copy
 
 
+def test_lockstep_copies_with_their_own_rewards_and_lengths():
+    """Copies may differ in reward scale, penalties, max_cycles and terminate_on_collision, also when set after
+    construction (set_attr): lock-step reads them per copy, like stepping each copy does. reward_fn gets the
+    env's float64 reward."""
+    from covert_env.envs.covert_sensing import CovertSensingParallelEnv
+
+    kws = [dict(max_cycles=5), dict(max_cycles=7, reward_scale=3.0, los_penalty=0.5, terminate_on_collision=True)]
+    seen = []
+
+    def shaping(reward, info):
+        seen.append((reward, info["env_reward"]))
+        return 2.0 * reward
+
+    def build():
+        return ParallelEnvVecAdapter([lambda kw=kw: CovertSensingParallelEnv(n_uavs=3, **kw) for kw in kws],
+                                     reward_fn=shaping)
+
+    fast, slow = build(), build()
+    assert fast._lockstep
+    slow._lockstep = False
+    for v in (fast, slow):
+        v.seed(1)
+        v.reset()
+        v.set_attr("zone_penalty", 4.0, indices=[3])       # copy 1 only, after construction
+    rng = np.random.default_rng(2)
+    for _ in range(9):
+        acts = rng.uniform(-1, 1, (6, 2)).astype(np.float32)
+        a, b = fast.step(acts), slow.step(acts)
+        for x, y in zip(a[:3], b[:3], strict=True):
+            np.testing.assert_array_equal(x, y)
+        assert [i.get("TimeLimit.truncated") for i in a[3]] == [i.get("TimeLimit.truncated") for i in b[3]]
+    assert all(type(r) is float and r == e for r, e in seen)
+    # Copies that cannot share one engine step (here path_samples) are stepped one by one.
+    mixed = ParallelEnvVecAdapter([lambda: CovertSensingParallelEnv(n_uavs=3),
+                                   lambda: CovertSensingParallelEnv(n_uavs=3, path_samples=5)])
+    assert not mixed._lockstep
+    mixed.reset()
+    assert mixed.step(np.zeros((6, 2), np.float32))[0].shape == (6, mixed.observation_space.shape[0])
+
+
 def test_lockstep_bad_actions_raise_naming_the_agent():
     venv = make_vec_env(2, dict(n_uavs=3, max_cycles=4))
     venv.reset()
     acts = np.zeros((6, 2), np.float32)
-    acts[4, 1] = np.nan
-    with pytest.raises(ValueError, match="uav_1 must be finite"):
+    acts[4, 1] = np.inf
+    with pytest.raises(ValueError, match=r"uav_1 \(copy 1\) must be finite"):
         venv.step(acts)
+    with pytest.raises(ValueError, match=r"actions must have shape \(6, 2\)"):
+        venv.step(np.zeros((6, 3), np.float32))
     wp = make_vec_env(1, dict(n_uavs=2, max_cycles=4, action_mode="waypoint"))
     wp.reset()
-    with pytest.raises(ValueError, match=r"uav_1 must be an integer in \[0, "):
-        wp.step(np.array([0, wp.action_space.n]))
+    n = wp.action_space.n
+    with pytest.raises(ValueError, match=rf"uav_1 must be an integer in \[0, {n - 1}\], got {n}$"):
+        wp.step(np.array([0, n]))
 
 
 def test_vecmonitor_and_vecnormalize():

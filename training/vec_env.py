@@ -16,6 +16,10 @@ bootstraps nothing at the end of our 70-slot route. This adapter is ~150 lines a
   observation is the first one of the next episode (SB3's auto-reset convention).
 * ``reward_fn(reward, info) -> float`` (optional) reshapes the per-agent reward for training only.
 * ``env_method("action_masks")`` returns each row's waypoint action mask (for MaskablePPO).
+* Lock-step: copies of our own env are stepped together through
+  :func:`covert_env.envs.covert_sensing.step_copies` (one set of vectorised numpy calls per vector step instead
+  of one per copy; the results are exactly those of ``env.step`` on each copy, tested). Any other ParallelEnv is
+  stepped copy by copy.
 
 Works under ``VecMonitor`` (episode statistics per agent row) and ``VecNormalize``.
 """
@@ -69,8 +73,8 @@ class ParallelEnvVecAdapter(VecEnv):
         self._infos: list[dict] = [{} for _ in range(self.num_envs)]
         self._actions: np.ndarray | None = None
         # Our own env steps all copies at once (step_copies); any other ParallelEnv is stepped copy by copy.
-        self._lockstep = all(type(e).step is CovertSensingParallelEnv.step for e in self.envs) and not any(
-            e.dict_obs for e in self.envs)
+        self._lockstep = (all(type(e).step is CovertSensingParallelEnv.step and not e.dict_obs for e in self.envs)
+                          and all(e._lockstep_key() == first._lockstep_key() for e in self.envs))
 
     # ------------------------------------------------------------------ helpers
     def _rows(self, j: int) -> range:
@@ -113,32 +117,37 @@ class ParallelEnvVecAdapter(VecEnv):
                     raise NotImplementedError(f"agent {a} ended alone: agents that finish at different times "
                                               "are not supported by ParallelEnvVecAdapter")
                 self._obs[r] = obs[a]
-                self._rews[r] = rew[a]
                 self._infos[r] = dict(infos.get(a, {}))
-            self._end_copy(j, ended, [bool(term[a]) for a in self.agents], [bool(trunc[a]) for a in self.agents])
+            self._end_copy(j, ended, [bool(term[a]) for a in self.agents], [bool(trunc[a]) for a in self.agents],
+                           [float(rew[a]) for a in self.agents])
         return self._obs.copy(), self._rews.copy(), self._dones.copy(), list(self._infos)
 
     def _step_lockstep(self) -> VecEnvStepReturn:
         """All copies in one :func:`~covert_env.envs.covert_sensing.step_copies` call (same results)."""
+        expected = (self.num_envs,) + self.action_space.shape
+        if self._actions.shape != expected:
+            raise ValueError(f"actions must have shape {expected} (one row per copy and agent), "
+                             f"got {self._actions.shape}")
         acts = self._actions.reshape((self.n_copies, self.n_agents) + self.action_space.shape)
         obs, rew, term, trunc, infos = step_copies(self.envs, acts)
         self._obs[:] = obs.reshape(self._obs.shape)
-        self._rews[:] = rew.reshape(-1)
         # Fresh dicts from the env: no copy needed.
         self._infos[:] = [info for copy_infos in infos for info in copy_infos]
         for j in range(self.n_copies):
             self._end_copy(j, bool(term[j] or trunc[j]), [bool(term[j])] * self.n_agents,
-                           [bool(trunc[j])] * self.n_agents)
+                           [bool(trunc[j])] * self.n_agents, rew[j])
         return self._obs.copy(), self._rews.copy(), self._dones.copy(), list(self._infos)
 
-    def _end_copy(self, j: int, ended: bool, terminated: list[bool], truncated: list[bool]) -> None:
-        """Reward shaping, done flags and SB3's end-of-episode infos for copy j (per-agent flags); reset
-        the copy if it ended."""
+    def _end_copy(self, j: int, ended: bool, terminated: list[bool], truncated: list[bool], rewards) -> None:
+        """Rewards (float64 from the env, shaped by ``reward_fn``), done flags and SB3's end-of-episode infos
+        for copy j (per-agent flags); reset the copy if it ended."""
         for i, r in enumerate(self._rows(j)):
             info = self._infos[r]
+            reward = float(rewards[i])
             if self.reward_fn is not None:
-                info["env_reward"] = float(self._rews[r])
-                self._rews[r] = self.reward_fn(float(self._rews[r]), info)
+                info["env_reward"] = reward
+                reward = float(self.reward_fn(reward, info))
+            self._rews[r] = reward
             self._dones[r] = ended
             if ended:
                 info["terminal_observation"] = self._obs[r].copy()

@@ -93,8 +93,8 @@ class _SceneCache:
         return self._blocks[k]
 
     def _chunk(self, chunk: int) -> None:
-        """Maps of slots lo..hi and shared blocks of slots lo..hi-1 (hi = lo + _MAP_CHUNK, clamped at the
-        track's end), each in one vectorised call."""
+        """Maps of slots lo..hi and shared blocks of slots lo..hi-1 (hi = lo + _MAP_CHUNK), each in one
+        vectorised call; the last chunk stops at the track's last slot n, blocks included."""
         if chunk in self._chunks:
             return
         self._chunks.add(chunk)
@@ -327,9 +327,6 @@ class CovertSensingParallelEnv(ParallelEnv):
         self.scene_pool = int(scene_pool)
         self.path_samples = int(path_samples)
         self.random_starts = bool(random_starts)
-        # Copies with equal keys can be stepped together (step_copies): everything a step reads but the scene.
-        self._lockstep_key = repr((cfg, action_mode, self.max_cycles, self.map_size, self.dict_obs, self.reward_scale,
-                                   self.penalties, self.terminate_on_collision, self.path_samples))
 
         self.possible_agents = [f"uav_{i}" for i in range(cfg.n_uavs)]
         self.agents: list[str] = []
@@ -462,6 +459,7 @@ class CovertSensingParallelEnv(ParallelEnv):
                     raise ValueError(f"action for {a} must have shape (2,), got {np.shape(actions[a])}")
                 if not np.all(np.isfinite(one)):
                     raise ValueError(f"action for {a} must be finite, got {one.tolist()}")
+            raise ValueError(f"actions must be arrays of shape (2,), got {[np.shape(actions[a]) for a in self.agents]}")
         return act
 
     def _waypoint_indices(self, actions: dict[str, Any]) -> np.ndarray:
@@ -500,6 +498,11 @@ class CovertSensingParallelEnv(ParallelEnv):
         if self.action_mode != "waypoint":
             return np.ones(2, np.int8)
         return self._masks[self._index[agent]].copy()
+
+    def _lockstep_key(self) -> tuple:
+        """What copies stepped together by :func:`step_copies` must share (read live: attributes may be set after
+        construction). Rewards, penalties, ``max_cycles`` and ``terminate_on_collision`` may differ per copy."""
+        return self.config, self.action_mode, self.map_size, self.dict_obs, self.path_samples, len(self.possible_agents)
 
     def _base_info(self, i: int) -> dict:
         info: dict[str, Any] = {"slot": int(self.engine.k)}
@@ -588,8 +591,11 @@ def step_copies(envs, actions) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.n
     for env in envs:
         if env.engine is None or not env.agents:
             raise RuntimeError("step() called before reset() or after the episode ended; call reset()")
-        if env is not e0 and env._lockstep_key != e0._lockstep_key:
-            raise ValueError("step_copies: every env must be built with the same arguments")
+    key = e0._lockstep_key()
+    for env in envs[1:]:
+        if env._lockstep_key() != key:
+            raise ValueError("step_copies: every env must have the same config, action_mode, map_size, dict_obs, "
+                             "path_samples and team size")
     engines = [env.engine for env in envs]
     if e0.action_mode == "unicycle":
         act = np.asarray(actions, dtype=float)
@@ -606,11 +612,16 @@ def step_copies(envs, actions) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.n
             goals[j] = to_world(env.lattice[idx[j]], q1[0, :2], float(phi1[0]))
         quant = step_engines(engines, waypoints=goals, infeasible=decision)
     speed = quant.path_length / c.delta
-    terms = _reward_terms(e0, quant)
+    terms = _reward_terms(envs, quant)
     rewards = terms.sum(axis=0)
-    terminate = (quant.separation_path < c.d_safe1).any(axis=1) & e0.terminate_on_collision
     ks = [eng.k for eng in engines]
-    truncate = (np.array(ks) >= e0.max_cycles) & ~terminate
+    if n == 1:
+        stop_on_collision, max_cycles = e0.terminate_on_collision, e0.max_cycles
+    else:
+        stop_on_collision = np.array([env.terminate_on_collision for env in envs])
+        max_cycles = np.array([env.max_cycles for env in envs])
+    terminate = (quant.separation_path < c.d_safe1).any(axis=1) & stop_on_collision
+    truncate = (np.array(ks) >= max_cycles) & ~terminate
     for j, env in enumerate(envs):
         env._last_speed, env._los, env._zone_dist = speed[j], quant.los[j], quant.zone_distance[j]
         env._update_masks()
@@ -642,8 +653,9 @@ def step_copies(envs, actions) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.n
 def _unicycle_controls(act: np.ndarray, c: Config, agents) -> np.ndarray:
     """(..., U, 2) controls (v, omega) from Box(-1, 1) actions: clipped, then scaled (class docstring)."""
     if not np.isfinite(act).all():
-        bad = np.argwhere(~np.isfinite(act).all(axis=-1))[0]
-        raise ValueError(f"action for {agents[bad[-1]]} must be finite, got {act[tuple(bad)].tolist()}")
+        bad = tuple(np.argwhere(~np.isfinite(act).all(axis=-1))[0])
+        where = f" (copy {bad[0]})" if len(act) > 1 else ""
+        raise ValueError(f"action for {agents[bad[-1]]}{where} must be finite, got {act[bad].tolist()}")
     act = np.minimum(np.maximum(act, -1.0), 1.0)
     ctl = np.empty_like(act)
     ctl[..., 0] = c.v_max * (MIN_SPEED_FRACTION + (1 - MIN_SPEED_FRACTION) * (act[..., 0] + 1) / 2)
@@ -662,18 +674,27 @@ def _lattice_indices(actions, n: int, u: int, n_nodes: int, agents) -> np.ndarra
             ok = np.isfinite(a) & (a == np.round(a)) & (a >= 0) & (a < n_nodes)
     if not ok.all():
         bad = tuple(np.argwhere(~ok)[0])
-        raise ValueError(f"action for {agents[bad[-1]]} must be an integer in [0, {n_nodes - 1}], got {a[bad]!r}")
+        where = f" (copy {bad[0]})" if n > 1 else ""
+        raise ValueError(f"action for {agents[bad[-1]]}{where} must be an integer in [0, {n_nodes - 1}], "
+                         f"got {a[bad].item()!r}")
     return a.astype(int)
 
 
-def _reward_terms(env: CovertSensingParallelEnv, quant) -> np.ndarray:
-    """(6, N, U) reward terms in the order of ``_REWARD_TERMS`` (class docstring, Rewards)."""
-    c, p = env.config, env.penalties
+def _reward_terms(envs, quant) -> np.ndarray:
+    """(6, N, U) reward terms in the order of ``_REWARD_TERMS`` (class docstring, Rewards), with each copy's
+    own reward scale and penalties."""
+    e0 = envs[0]
+    c = e0.config
+    if len(envs) == 1:
+        scale, p = e0.reward_scale, e0.penalties
+    else:
+        scale = np.array([env.reward_scale for env in envs])[:, None]
+        p = {key: np.array([env.penalties[key] for env in envs])[:, None] for key in e0.penalties}
     outside = np.maximum(quant.zone_distance, 0.0) / (c.r2 - c.r1)
     cols = np.empty((len(_REWARD_TERMS),) + outside.shape)
-    np.divide(quant.path_length, -env.reward_scale, out=cols[0])
+    np.divide(quant.path_length, -scale, out=cols[0])
     np.multiply(quant.kappa, c.lam, out=cols[1])
-    cols[1] /= env.reward_scale
+    cols[1] /= scale
     cols[2] = ~quant.los
     cols[2] *= -p["los"]
     cols[3] = np.minimum(outside, 2.0) + 1.0
