@@ -79,12 +79,6 @@ class _SceneCache:
             ok[ok] = line_of_sight(self.parts.terrain, xy[ok], c.altitude, q)
         return ok
 
-    def visibility_map(self, k: int) -> np.ndarray:
-        """Cells of the observation map that are in the eroded zone with clear LoS at slot k (float32)."""
-        k = min(k, len(self._maps) - 1)
-        self._chunk(k // self._MAP_CHUNK)
-        return self._maps[k]
-
     def shared_block(self, k: int) -> np.ndarray:
         """The observation's shared block at slot k, read-only: the target's displacement to k+1 in its
         frame, 0 for the time remaining (per env), and the maps at k and k+1."""
@@ -112,7 +106,8 @@ class _SceneCache:
             rows = self._maps[ks]
             rows[:, self._map_in_zone] = clear
             self._maps[ks] = rows
-        # Blocks of slots lo..hi-1 (the last slot n has its own block: the target no longer moves).
+        # Blocks of slots lo..hi-1 (slot hi's belongs to the next chunk); the last chunk also writes slot n's,
+        # whose next slot is n itself (the track's end: no displacement).
         own = ks if (chunk + 1) * self._MAP_CHUNK > n else ks[:-1]
         nxt = np.minimum(own + 1, n)
         dx, dy = track.positions[nxt, 0] - q[:len(own), 0], track.positions[nxt, 1] - q[:len(own), 1]
