@@ -179,7 +179,10 @@ def _lateral_len(d2, b, r):
 def _tau(a, b, r, L):
     """Turn angle in [0, 2 pi) for the left-turn frame (b >= 0), from the cancellation-free heading vector."""
     # a - L loses all its digits when the goal is nearly dead ahead (L ~ a); a^2 - L^2 = b (2r - b) is exact.
-    a_minus_l = np.where(a > 0, b * (2.0 * r - b) / np.where(a > 0, a + L, 1.0), a - L)
+    # The quotient is itself rounding noise over a tiny divisor when a + L ~ 0 (goal abeam, on the turning
+    # circle: a = 0+, L = 0), where a - L is exact enough; a > 0 with a + L below 1e-6 (b + r) uses a - L.
+    quotient = (a > 0) & (a + L > 1e-6 * (b + r))
+    a_minus_l = np.where(quotient, b * (2.0 * r - b) / np.where(quotient, a + L, 1.0), a - L)
     ex = L * a - r * (b - r)
     ey = r * a_minus_l + L * b
     t = np.arctan2(ey, ex)

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from covert_env.dynamics import Manoeuvre, fly_manoeuvre, solve_manoeuvre, unicycle_path, unicycle_step
@@ -375,6 +375,8 @@ def test_mirror_symmetry(x, y, th, w):
 @settings(max_examples=200, deadline=None)
 @given(px=st.floats(-100, 100), py=st.floats(-100, 100), th=st.floats(-10, 10),
        gx=st.floats(-60, 60), gy=st.floats(-60, 60))
+@example(px=0.0, py=0.0, th=0.0, gx=1e-300, gy=11.418439679169381)   # abeam, on the turning circle (was feasible
+@example(px=0.0, py=0.0, th=0.0, gx=1e-16, gy=11.418439679169381)    # with tau = pi/2 for pi, missing by 0.8 m)
 def test_any_feasible_result_lands(px, py, th, gx, gy):
     p = np.array([px, py])
     g = p + np.array([gx, gy])
