@@ -251,14 +251,8 @@ def line_of_sight_rows(terrain: Terrain, uav_xy, altitude: float, target_xyz, *,
     qk = q[rows].repeat(n_pts, axis=0)
     if altitude > q[:, 2].max():
         s0 = np.clip((arr.z_max[m] - altitude) / (qk[:, 2] - altitude), 0.0, 1.0)   # UAV -> target, going down
-        ex, ey = qk[:, 0] - p[:, 0], qk[:, 1] - p[:, 1]
-        acx = arr.centre[m, 0] - (p[:, 0] + s0 * ex)
-        acy = arr.centre[m, 1] - (p[:, 1] + s0 * ey)
-        abx, aby = (1.0 - s0) * ex, (1.0 - s0) * ey
-        ab2 = abx * abx + aby * aby
-        w = np.clip((acx * abx + acy * aby) / np.where(ab2 > 0, ab2, 1.0), 0.0, 1.0)
-        dx, dy = acx - w * abx, acy - w * aby
-        near = dx * dx + dy * dy <= (arr.radius[m] + 1e-9) ** 2
+        near = _passes_near(p[:, 0], p[:, 1], qk[:, 0] - p[:, 0], qk[:, 1] - p[:, 1], s0, 1.0,
+                            arr.centre[m, 0], arr.centre[m, 1], arr.radius[m])
         k, m, p, qk = k[near], m[near], p[near], qk[near]
     hm = arr.hs[m]
     u = np.empty((len(k), 3))
@@ -342,13 +336,8 @@ def _los_general(arr: _TerrainArrays, u: np.ndarray, t: np.ndarray, tol: float) 
     # Distance from each footprint circle's centre to the 2-D sub-segment [a, b] (components written
     # out: einsum over a length-2 axis is several times slower on (K, M) arrays).
     ex, ey = t[:, 0, None] - u[:, 0, None], t[:, 1, None] - u[:, 1, None]
-    acx = arr.centre[:, 0] - (u[:, 0, None] + s0 * ex)
-    acy = arr.centre[:, 1] - (u[:, 1, None] + s0 * ey)
-    abx, aby = (s1 - s0) * ex, (s1 - s0) * ey
-    ab2 = abx * abx + aby * aby
-    w = np.clip((acx * abx + acy * aby) / np.where(ab2 > 0, ab2, 1.0), 0.0, 1.0)
-    dx, dy = acx - w * abx, acy - w * aby
-    cand = (s1 > s0 - 1e-12) & (dx * dx + dy * dy <= (arr.radius + 1e-9) ** 2)
+    cand = (s1 > s0 - 1e-12) & _passes_near(u[:, 0, None], u[:, 1, None], ex, ey, s0, s1,
+                                            arr.centre[:, 0], arr.centre[:, 1], arr.radius)
     k, m = np.nonzero(cand)
     if len(k) == 0:
         return np.ones(len(u), dtype=bool)
@@ -359,6 +348,18 @@ def _los_general(arr: _TerrainArrays, u: np.ndarray, t: np.ndarray, tol: float) 
     out = np.ones(len(u), dtype=bool)
     out[k[blocked]] = False
     return out
+
+
+def _passes_near(ux, uy, ex, ey, s0, s1, cx, cy, radius) -> np.ndarray:
+    """Whether the 2-D part ``s in [s0, s1]`` of the segment ``u + s e`` comes within ``radius`` (+1 nm) of the
+    centre (the broad phase's footprint-circle test; components written out, all arguments broadcast)."""
+    acx = cx - (ux + s0 * ex)
+    acy = cy - (uy + s0 * ey)
+    abx, aby = (s1 - s0) * ex, (s1 - s0) * ey
+    ab2 = abx * abx + aby * aby
+    w = np.clip((acx * abx + acy * aby) / np.where(ab2 > 0, ab2, 1.0), 0.0, 1.0)
+    dx, dy = acx - w * abx, acy - w * aby
+    return dx * dx + dy * dy <= (radius + 1e-9) ** 2
 
 
 def _clip(num: np.ndarray, den: np.ndarray) -> np.ndarray:
