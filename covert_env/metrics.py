@@ -1,4 +1,4 @@
-"""One set of metrics for every policy (DESIGN.md §4), computed from a recorded :class:`Trajectory`.
+"""One set of metrics for every policy (docs/model.md#metrics), computed from a recorded :class:`Trajectory`.
 
 :func:`slot_quantities` turns positions into the per-slot quantities (LoS at slot times and along
 the path, zone membership, alpha, d, kappa, g, separation, terrain clearance); the environments'
@@ -163,7 +163,7 @@ METRIC_DESCRIPTIONS = {
 
 def episode_metrics(traj: Trajectory, terrain: Terrain, config: Config,
                     quantities: SlotQuantities | None = None) -> list[dict[str, float]]:
-    """Per-UAV episode metrics (DESIGN.md §4): one dict per UAV with the keys of METRIC_DESCRIPTIONS."""
+    """Per-UAV episode metrics (docs/model.md#metrics): one dict per UAV with the keys of METRIC_DESCRIPTIONS."""
     q = quantities if quantities is not None else slot_quantities(traj, terrain, config)
     if np.isnan(np.asarray(q.los_path, float)).any():
         q = slot_quantities(traj, terrain, config)
