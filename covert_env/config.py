@@ -80,7 +80,11 @@ class Config:
 
     # --- terrain ----------------------------------------------------------------------------
     n_polytopes: int = 16
-    """Number M of terrain polytopes (buildings, hills) the random generator places; 0 <= M <= 10_000."""
+    """Number M of terrain polytopes (buildings, hills) the random generator places; 0 <= M <= 10_000.
+
+    They are placed by rejection sampling beside the route, so the route must have room for them: at
+    the default sizes the 960 m default road took 80 on every seed tried, while about 100 and more fail
+    (ValueError naming this field) on some or all seeds."""
     min_vertices: int = 4
     """(decided) Fewest base vertices of a random polytope; 3 <= min_vertices <= max_vertices."""
     max_vertices: int = 8

@@ -36,8 +36,11 @@ class Scenario:
 
     Attributes:
         config: model parameters.
-        terrain: the polytopes.
-        track: the target's motion (road + speed profile), at least ``n_slots + horizon`` slots long.
+        terrain: the polytopes, every top strictly below ``config.altitude`` (ValueError naming the
+            polytope otherwise). A top within ``d_safe2`` of the altitude is legal: eq. 3 then only
+            rules out the operational plane near it.
+        track: the target's motion (road + speed profile), at least ``n_slots + horizon`` slots long,
+            with ``delta`` and ``z`` equal to the config's ``delta`` and ``target_height``.
         uav_xy: (U, 2) start positions; uav_theta: (U,) start headings (rad).
         name: a label for logs and figures.
     """

@@ -569,8 +569,8 @@ class Terrain:
             else:
                 raise ValueError(
                     f"Terrain.random: could not place polytope {i} of {n} after {_MAX_TRIES} tries "
-                    f"(road length {length:.0f} m); use fewer polytopes, a smaller max_radius or "
-                    f"road_clearance, or a longer road")
+                    f"(road length {length:.0f} m); use fewer polytopes (n / Config.n_polytopes), a smaller "
+                    f"max_radius ({cfg.max_radius:g}) or road_clearance ({cfg.road_clearance:g}), or a longer road")
         # Footprints are >= _MIN_GAP apart and tops in [zmin, zmax] with zmax < altitude (Config checks it) by
         # construction, so Terrain's overlap check and validate() are skipped (the tests run every generated
         # terrain through both).

@@ -277,8 +277,14 @@ def lattice_offsets(r1: float, r2: float, mu: float, step: float) -> np.ndarray:
     ascending. Independent of q and phi, so the same index is the same move at every slot; use
     :func:`zone_mask` for membership. The returned array is shared and read-only.
     """
+    from covert_env.config import MAX_LATTICE
+
     if not step > 0:
         raise ValueError(f"step must be > 0, got {step}")
+    size = lattice_size(r1, r2, mu, step)
+    if not size <= MAX_LATTICE:     # also catches NaN radii
+        raise ValueError(f"the lattice for r1={r1:g}, r2={r2:g}, mu={mu:g}, step={step:g} would have {size:.4g} "
+                         f"nodes, more than {MAX_LATTICE}; use a larger step or a smaller r2")
     return _lattice(float(r1), float(r2), float(mu), float(step))
 
 

@@ -103,6 +103,12 @@ def test_lattice_size_is_the_lattice_length(r1, r2, mu, step):
     assert lattice_size(r1, r2, mu, step) == len(lattice_offsets(r1, r2, mu, step))
 
 
+@pytest.mark.parametrize("r2, step", [(1e12, 2.0), (100.0, 1e-4), (math.nan, 2.0)])
+def test_lattice_offsets_refuses_a_huge_lattice(r2, step):
+    with pytest.raises(ValueError, match=r"the lattice for r1=55, r2=.* nodes, more than 200000; use a larger step"):
+        lattice_offsets(55.0, r2, math.pi / 4, step)
+
+
 def test_config_check_does_not_fill_the_shared_lattice_cache():
     from covert_env.zone import _lattice
 
@@ -388,6 +394,9 @@ TERRAIN_CASES = {
                            TypeError, r"Terrain\.random: config must be a Config, got dict"),
     "random n huge": (lambda: Terrain.random(0, n=10**7),
                       ValueError, r"Terrain\.random: n must be an integer >= 0 and <= 10000"),
+    "random no room": (lambda: Terrain.random(0, road=Road([[0.0, 0.0], [60.0, 0.0]]), n=40), ValueError,
+                       r"could not place polytope \d+ of 40 .* use fewer polytopes \(n / Config\.n_polytopes\), "
+                       r"a smaller max_radius \(22\) or road_clearance \(6\)"),
     "random override bad": (lambda: Terrain.random(0, max_vertices=10**9),
                             ValueError, r"Config\.max_vertices must be an integer >= 3 and <= 64"),
     "validate altitude nan": (lambda: Terrain((Polytope.prism(SQUARE, 30.0),)).validate(math.nan), ValueError,
