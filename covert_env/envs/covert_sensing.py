@@ -571,13 +571,11 @@ class CovertSensingParallelEnv(ParallelEnv):
         """Infos at reset: the keys and types of every step's (:func:`_agent_infos`). No slot has been flown,
         so rewards, costs and the slot's motion are 0; LoS, zone, separation and clearance are the starts'."""
         eng, c = self.engine, self.config
-        u = len(self.possible_agents)
-        zeros = [[0.0] * u]
-        values = dict.fromkeys(_STEP_INFO_FLOATS, zeros)
-        values.update(los=[self._los.tolist()], in_zone=[(self._zone_dist <= 0).tolist()], infeasible=[[False] * u],
-                      separation=[nearest_teammate(eng.uav_xy).tolist()],
-                      terrain_clearance=[terrain_clearance(eng.uav_xy, c.altitude, eng.terrain).tolist()])
-        return _agent_infos([self], [int(eng.k)], values)[0]
+        flags = np.stack([self._los, self._zone_dist <= 0, np.zeros(len(self._los), bool)])[:, None]
+        floats = np.zeros((len(_STEP_INFO_FLOATS), 1, len(self._los)))
+        floats[3, 0] = nearest_teammate(eng.uav_xy)
+        floats[4, 0] = terrain_clearance(eng.uav_xy, c.altitude, eng.terrain)
+        return _agent_infos([self], [int(eng.k)], flags, floats)[0]
 
     def _own_features(self) -> np.ndarray:
         """(U, 8) per-UAV features 0-7 of the observation table."""
@@ -700,14 +698,13 @@ def step_copies(envs, actions) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.n
         env._update_masks()
     obs = _observations(envs)
 
-    values = {"los": quant.los.tolist(), "in_zone": quant.in_zone.tolist(), "kappa": quant.kappa.tolist(),
-              "g": quant.g.tolist(), "v": speed.tolist(), "separation": quant.separation_path.tolist(),
-              "terrain_clearance": quant.terrain_clearance.tolist(),
-              "infeasible": [eng._infeasible[-1].tolist() for eng in engines]}
-    values.update(zip((f"reward_{t}" for t in _REWARD_TERMS), terms.tolist(), strict=True))
-    values["cost"] = costs.sum(axis=0).tolist()
-    values.update(zip((f"cost_{name}" for name in _COSTS), costs.tolist(), strict=True))
-    infos = _agent_infos(envs, ks, values)
+    flags = np.stack([quant.los, quant.in_zone, np.stack([eng._infeasible[-1] for eng in engines])])
+    floats = np.empty((len(_STEP_INFO_FLOATS), n, u))
+    floats[:5] = quant.kappa, quant.g, speed, quant.separation_path, quant.terrain_clearance
+    floats[5:5 + len(_REWARD_TERMS)] = terms
+    floats[5 + len(_REWARD_TERMS)] = costs.sum(axis=0)
+    floats[6 + len(_REWARD_TERMS):] = costs
+    infos = _agent_infos(envs, ks, flags, floats)
     for j, env in enumerate(envs):
         if terminate[j] or truncate[j]:
             env.agents = []
@@ -746,17 +743,18 @@ def _lattice_indices(actions, n: int, u: int, n_nodes: int, agents) -> np.ndarra
     return a.astype(int)
 
 
-def _agent_infos(envs, slots, values: dict[str, list]) -> list[list[dict]]:
-    """N lists of U flat info dicts from ``values[key][copy][agent]``: every key in a fixed order, the action mask
-    last where it lives in the infos (waypoint mode without ``dict_obs``). Reset and step both build them here, so
-    their keys and types agree (TorchRL builds its info spec from reset's)."""
-    keys = ("los", "in_zone", "infeasible") + _STEP_INFO_FLOATS
-    cols = [values[key] for key in keys]
+def _agent_infos(envs, slots, flags: np.ndarray, floats: np.ndarray) -> list[list[dict]]:
+    """N lists of U flat info dicts from (3, N, U) ``flags`` (los, in_zone, infeasible) and (F, N, U) ``floats``
+    (``_STEP_INFO_FLOATS``): every key in a fixed order, the action mask last where it lives in the infos (waypoint
+    mode without ``dict_obs``). Reset and step both build them here, so their keys and types agree (TorchRL builds
+    its info spec from reset's). One ``tolist`` per array: per-key conversions dominated the step's dict work."""
+    keys = ("slot", "los", "in_zone", "infeasible") + _STEP_INFO_FLOATS
+    flag_rows, float_rows = flags.transpose(1, 2, 0).tolist(), floats.transpose(1, 2, 0).tolist()
     mask_in_info = envs[0].action_mode == "waypoint" and not envs[0].dict_obs
     out = []
     for j, env in enumerate(envs):
-        rows = zip(*(col[j] for col in cols), strict=True)
-        infos = [{"slot": slots[j], **dict(zip(keys, row, strict=True))} for row in rows]
+        infos = [dict(zip(keys, [slots[j], *f, *x], strict=True))
+                 for f, x in zip(flag_rows[j], float_rows[j], strict=True)]
         if mask_in_info:
             for i, info in enumerate(infos):
                 info["action_mask"] = env._masks[i].copy()
