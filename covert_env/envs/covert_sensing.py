@@ -507,11 +507,19 @@ class CovertSensingParallelEnv(ParallelEnv):
     def _unicycle_actions(self, actions: dict[str, Any]) -> np.ndarray:
         """(U, 2) raw Box actions in agent order, checked for type, shape and finiteness."""
         # Each agent's own dtype: stacked together, a bool action beside float ones would be upcast to 0.0/1.0.
-        vals = [np.asarray(actions[a]) for a in self.agents]
-        try:
-            act = np.stack(vals) if all(v.dtype.kind in "iuf" for v in vals) else None
-        except ValueError:                   # ragged: the loop below names the culprit
-            act = None
+        # Arrays (what samplers and frameworks pass) are checked by attribute; anything else by the loop below.
+        vals = [actions[a] for a in self.agents]
+        act = None
+        if all(type(v) is np.ndarray and v.dtype.kind in "iuf" for v in vals):
+            try:
+                act = np.asarray(vals)
+            except ValueError:               # ragged: the loop below names the culprit
+                pass
+        elif all(np.asarray(v).dtype.kind in "iuf" for v in vals):
+            try:
+                act = np.asarray(vals, dtype=float)
+            except ValueError:
+                pass
         if act is None or act.shape != (len(self.agents), 2) or not np.isfinite(act).all():
             for a in self.agents:   # find the culprit for the message
                 one = np.asarray(actions[a])
