@@ -330,6 +330,10 @@ def test_harness_rejects_team_size_mismatch(tmp_path):
         load_policy(f"sb3:{run}", 3)
     with pytest.raises(ValueError, match="action mode"):
         load_policy("random@hover", 3)
+    with pytest.raises(ValueError, match="unknown policy 'nonsense'"):
+        load_policy("nonsense", 3)
+    with pytest.raises(ValueError, match="no SB3 model"):
+        load_policy(f"sb3:{run / 'missing'}", 1)
 
 
 def test_rllib_one_iteration_and_harness(tmp_path):

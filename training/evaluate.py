@@ -31,6 +31,7 @@ Writes ``leaderboard.md``, ``leaderboard.csv`` (mean and std over episodes of th
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
 import json
 import math
@@ -131,8 +132,10 @@ def load_sb3(path: str | Path) -> SB3Policy:
         if name.endswith("_steps.zip"):                              # CheckpointCallback naming
             head, steps = name[: -len("_steps.zip")].rsplit("_", 1)
             vn_path = path.parent / f"{head}_vecnormalize_{steps}_steps.pkl"
-    if not model_path.exists():
-        raise FileNotFoundError(f"no SB3 model at {model_path}")
+    if not model_path.is_file():
+        from covert_env.cli import UsageError
+
+        raise UsageError(f"no SB3 model at {model_path} (expected a run folder holding model.zip, or a .zip)")
     args_json = _find_args_json(path)
     meta = json.loads(args_json.read_text()) if args_json else {}
     cls_name = meta.get("sb3_class", "PPO")
@@ -163,33 +166,60 @@ def load_sb3(path: str | Path) -> SB3Policy:
     return SB3Policy(model, obs_rms, clip_obs, eps, name=name, env_settings=settings)
 
 
+@contextlib.contextmanager
+def _extra(module: str, extra: str):
+    """A missing optional dependency ``module`` as a :class:`~covert_env.cli.UsageError` naming the extra."""
+    try:
+        yield
+    except ModuleNotFoundError as exc:
+        if exc.name is None or exc.name.split(".")[0] != module:
+            raise
+        from covert_env.cli import UsageError
+
+        raise UsageError(f"this policy needs {module}, which is not installed: pip install -e \".[{extra}]\"") \
+            from None
+
+
 def load_policy(spec: str, n_uavs: int) -> tuple[Any, dict]:
-    """A policy object and its env settings (``n_uavs``, ``action_mode``) from a spec (see the module docstring)."""
+    """A policy object and its env settings (``n_uavs``, ``action_mode``) from a spec (see the module docstring).
+
+    A bad spec (unknown name or mode, missing path, team size or action mode that do not fit) raises
+    :class:`covert_env.cli.UsageError` (a ``ValueError``) naming it.
+    """
+    from covert_env.cli import UsageError
+
     mode = None
     if "@" in spec:
         spec, mode = spec.rsplit("@", 1)
         if mode not in ("unicycle", "waypoint"):
-            raise ValueError(f"unknown action mode {mode!r} in policy spec (use @unicycle or @waypoint)")
+            raise UsageError(f"unknown action mode {mode!r} in policy spec {spec}@{mode} (use @unicycle or @waypoint)")
     if spec.startswith("sb3:"):
-        pol = load_sb3(spec[4:])
+        with _extra("stable_baselines3", "train"), _extra("sb3_contrib", "train"), _extra("torch", "train"):
+            pol = load_sb3(spec[4:])
         settings = dict(pol.env_settings)
     elif spec.startswith("rllib:"):
-        from training.rllib_ppo import load_policy as load_rllib
+        if not (Path(spec[6:]) / "learner_group").is_dir():
+            raise UsageError(f"no RLlib checkpoint at {spec[6:]} (expected a training.rllib_ppo checkpoint folder)")
+        with _extra("ray", "rllib"):
+            from training.rllib_ppo import load_policy as load_rllib
 
-        pol = load_rllib(spec[6:])
+            pol = load_rllib(spec[6:])
         settings = dict(pol.env_settings)
     else:
-        from baselines.policies import make_policy
+        from baselines.policies import POLICIES, make_policy
 
         name = BUILTIN_ALIASES.get(spec, spec)
+        if name not in POLICIES:
+            raise UsageError(f"unknown policy {spec!r}; use one of {', '.join(sorted([*POLICIES, *BUILTIN_ALIASES]))}"
+                             ", sb3:PATH or rllib:PATH")
         pol = make_policy(name)
         settings = {"n_uavs": n_uavs, "action_mode": "waypoint" if name.startswith("dp") else "unicycle"}
     if mode is not None:
         if (spec.startswith(("sb3:", "rllib:"))) and mode != settings["action_mode"]:
-            raise ValueError(f"{spec} was trained in {settings['action_mode']} mode; it cannot act in {mode} mode")
+            raise UsageError(f"{spec} was trained in {settings['action_mode']} mode; it cannot act in {mode} mode")
         settings["action_mode"] = mode
     if settings["n_uavs"] != n_uavs:
-        raise ValueError(f"{spec} acts for teams of {settings['n_uavs']} UAV(s) but --n-uavs is {n_uavs}; "
+        raise UsageError(f"{spec} acts for teams of {settings['n_uavs']} UAV(s) but --n-uavs is {n_uavs}; "
                          f"pass --n-uavs {settings['n_uavs']}")
     return pol, settings
 
@@ -300,15 +330,19 @@ def _figure(results: dict[str, dict], path: Path) -> None:
     plt.close(fig)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m training.evaluate", description=__doc__.split("\n")[0],
+def build_parser(prog: str = "python -m training.evaluate") -> argparse.ArgumentParser:
+    from covert_env.cli import MAX_SCENES, int_range, non_negative_int, positive_int
+
+    p = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n")[0],
                                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     p.add_argument("--policies", nargs="+", default=["random", "hold-centre", "dp", "dp-blind"],
                    help="policy specs: dp, dp-blind, dp-binned, random, hold-centre/heuristic, sb3:PATH, rllib:PATH, "
                         "each optionally @unicycle or @waypoint")
-    p.add_argument("--episodes", type=int, default=20, help="held-out scenes per policy")
-    p.add_argument("--n-uavs", type=int, default=3, help="team size")
-    p.add_argument("--seed-offset", type=int, default=HELD_OUT_OFFSET, help="first held-out scene seed")
+    p.add_argument("--episodes", type=int_range(1, MAX_SCENES), default=20,
+                   help=f"held-out scenes per policy, in [1, {MAX_SCENES}]")
+    p.add_argument("--n-uavs", type=positive_int, default=3, help="team size, >= 1")
+    p.add_argument("--seed-offset", type=non_negative_int, default=HELD_OUT_OFFSET,
+                   help="first held-out scene seed, >= 0")
     p.add_argument("--out", default="outputs/leaderboard", help="output folder (git-ignored outputs/)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.add_argument("--reuse", action="store_true",
@@ -317,16 +351,50 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def main(argv: list[str] | None = None) -> int:
-    import torch
+def main(argv: list[str] | None = None, prog: str = "python -m training.evaluate") -> int:
+    """The harness's command line (``prog``: the name in usage and error lines, ``covert-env evaluate`` from
+    :mod:`covert_env.cli`). Mistakes in the arguments exit with status 2 and one error line."""
+    from covert_env.cli import run_main
 
-    torch.set_num_threads(1)
-    args = build_parser().parse_args(argv)
-    if args.episodes < 1:
-        raise SystemExit("--episodes must be >= 1")
-    results: dict[str, dict] = {}
+    parser = build_parser(prog)
+    args = parser.parse_args(argv)
+    argv = list(argv if argv is not None else sys.argv[1:])
+    return run_main(parser, lambda: _main(args, f"{prog} " + " ".join(argv)))
+
+
+def _check_team(n_uavs: int, seed: int) -> None:
+    """Build the env with ``--n-uavs`` and reset it on the first held-out scene, so that a team size the env
+    rejects (or cannot place) fails with one error line before any evaluation runs."""
+    from covert_env.cli import UsageError
+    from covert_env.envs.covert_sensing import CovertSensingParallelEnv
+
+    try:
+        env = CovertSensingParallelEnv(n_uavs=n_uavs)
+    except ValueError as exc:
+        raise UsageError(f"--n-uavs {n_uavs}: {exc}") from None
+    try:
+        env.reset(seed=seed, options={"scene_seed": seed})
+    except ValueError as exc:
+        raise UsageError(f"--n-uavs {n_uavs}: {exc}") from None
+    finally:
+        env.close()
+
+
+def _main(args: argparse.Namespace, command: str) -> int:
+    from covert_env.cli import UsageError, output_dir
+
+    _check_team(args.n_uavs, args.seed_offset)
+    output_dir(args.out, create=False)
+    # Every spec is loaded before any evaluation: a bad one fails at once, not after the others have run.
+    loaded = []
     for spec in args.policies:
-        pol, settings = load_policy(spec, args.n_uavs)
+        try:
+            loaded.append((spec, *load_policy(spec, args.n_uavs)))
+        except UsageError as exc:
+            raise UsageError(f"--policies: {exc}") from None
+    out = output_dir(args.out)
+    results: dict[str, dict] = {}
+    for spec, pol, settings in loaded:
         name = getattr(pol, "name", spec)
         if "@" in spec and not name.endswith(spec.rsplit("@", 1)[1]):
             name = f"{name}@{spec.rsplit('@', 1)[1]}"
@@ -335,7 +403,7 @@ def main(argv: list[str] | None = None) -> int:
         t0 = time.perf_counter()
         builtin = not spec.startswith(("sb3:", "rllib:"))
         key = f"{spec}__{args.episodes}__{args.seed_offset}__{args.n_uavs}".replace("/", "_").replace("@", "-")
-        cache = Path(args.out) / "cache" / f"{key}.json"
+        cache = out / "cache" / f"{key}.json"
         if builtin and args.reuse and cache.exists():
             rows = json.loads(cache.read_text())
         else:
@@ -349,10 +417,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{name:40s} reward {s['reward'][0]:8.1f} ± {s['reward'][1]:6.1f}  blocked LoS "
               f"{s['occlusion_rate'][0]:.3f}  zone viol. {s['zone_violation_rate'][0]:.3f}  "
               f"({time.perf_counter() - t0:.0f} s)", flush=True)
-    out = Path(args.out)
-    cmd = "python -m training.evaluate " + " ".join(argv if argv is not None else sys.argv[1:])
     write_outputs(results, out, {"episodes": args.episodes, "seed_offset": args.seed_offset, "n_uavs": args.n_uavs,
-                                 "command": cmd})
+                                 "command": command})
     (out / "results.json").write_text(json.dumps({n: {"summary": r["summary"], "settings": r["settings"],
                                                       "spec": r["spec"]} for n, r in results.items()}, indent=2))
     print(f"wrote {out / 'leaderboard.md'}, {out / 'leaderboard.csv'}, {out / 'comparison.png'}")
