@@ -287,3 +287,52 @@ def test_cli_help_prints_each_default_once(name):
             m = re.search(r"default: ([^;)]*)", blocks[opt])
             if m and not isinstance(action.default, list):
                 assert m.group(1).strip() == shown, (opt, blocks[opt])
+
+
+TRAINING_SCRIPTS = ["ppo_multi", "ppo_single", "sac_single", "maskable_ppo_single", "rllib_ppo"]
+
+
+@pytest.mark.parametrize("script", TRAINING_SCRIPTS)
+def test_training_help_prints_each_true_default_once(script):
+    """The training scripts used to print `(default: 0) (default: None)`; now one default, the dataclass's."""
+    import dataclasses
+    import importlib
+
+    from training.common import _show_default
+    from training.common import build_parser as dataclass_parser
+
+    module = importlib.import_module(f"training.{script}")
+    parser = dataclass_parser(module.Args, "x", getattr(module, "RECIPES", None) if script == "ppo_multi" else None)
+    blocks = _option_blocks(parser.format_help())
+    for f in dataclasses.fields(module.Args):
+        text = blocks["--" + f.name.replace("_", "-")]
+        assert text.count("default:") == 1, text
+        default = f.default if f.default is not dataclasses.MISSING else f.default_factory()
+        assert f"default: {_show_default(default)})" in text, text
+    assert parser.prog == f"python -m training.{script}"
+
+
+@pytest.mark.parametrize("script", TRAINING_SCRIPTS)
+def test_every_numeric_training_flag_is_range_checked(script, capsys):
+    import dataclasses
+    import importlib
+    import typing
+
+    from training.common import _ranges, parse_args
+
+    module = importlib.import_module(f"training.{script}")
+    ranges = _ranges()
+    hints = typing.get_type_hints(module.Args)
+    for f in dataclasses.fields(module.Args):
+        if hints[f.name] in (int, float) or typing.get_origin(hints[f.name]) is tuple:
+            assert f.name in ranges, f"{script}.Args.{f.name} has no range in training.common._ranges"
+            flag = "--" + f.name.replace("_", "-")
+            with pytest.raises(SystemExit) as exc:
+                parse_args(module.Args, [flag, "-1000000" if f.name != "log_std_init" else "100"])
+            assert exc.value.code == 2
+            err = capsys.readouterr().err
+            assert f"argument {flag}" in err and "must be" in err and "Traceback" not in err
+            with pytest.raises(SystemExit):
+                parse_args(module.Args, [flag, "nan"])
+            capsys.readouterr()
+    assert parse_args(module.Args, []) == module.Args()     # the defaults are in range

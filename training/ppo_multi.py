@@ -41,9 +41,9 @@ class Args:
     scene_pool: int = 10_000
     """training scene seeds are drawn from range(scene_pool); evaluation uses seeds >= 1_000_000"""
     los_penalty: float = 2.0
-    """training reward: penalty per slot with blocked LoS (env default 1)"""
+    """training reward: penalty per slot with blocked LoS (the env's own is 1)"""
     zone_penalty: float = 2.0
-    """training reward: base penalty per slot outside the feasible zone (env default 1)"""
+    """training reward: base penalty per slot outside the feasible zone (the env's own is 1)"""
     separation_penalty: float = 1.0
     """training reward: penalty per slot closer than d_safe1 to a teammate"""
     disguise_in_zone_only: bool = True
@@ -85,7 +85,7 @@ class Args:
     runs_dir: str = "runs"
     """folder of the runs (git-ignored)"""
     run_name: str = ""
-    """run folder name (default {env}__ppo_multi__{seed}__{time})"""
+    """run folder name; empty: {env}__ppo_multi__{seed}__{time}"""
     resume: str = ""
     """a run folder to continue from its newest checkpoint (same settings)"""
     torch_threads: int = 1

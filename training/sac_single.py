@@ -64,7 +64,7 @@ class Args:
     runs_dir: str = "runs"
     """folder of the runs (git-ignored)"""
     run_name: str = ""
-    """run folder name (default {env}__sac_single__{seed}__{time})"""
+    """run folder name; empty: {env}__sac_single__{seed}__{time}"""
     resume: str = ""
     """a run folder to continue from its newest checkpoint"""
     torch_threads: int = 1
