@@ -5,15 +5,17 @@ Every script keeps its own readable ``Args`` dataclass (CleanRL style); this mod
 
 * a tqdm progress bar (``mininterval`` 30 s when stdout is not a terminal, so logs stay small);
 * :class:`TimeBudgetCallback`: stops ``learn()`` gracefully after a wall-clock budget (the model is then saved);
-* SB3's ``CheckpointCallback`` every ``checkpoint_freq`` steps, with the VecNormalize statistics beside the model.
+* SB3's ``CheckpointCallback`` every ``checkpoint_freq`` steps, with the VecNormalize statistics beside the model
+  as JSON (:func:`training.vec_env.save_vecnormalize`; nothing we write is a pickle, but SB3's ``model.zip``
+  itself holds pickled parts: load models only from trusted sources).
 
 Run layout (git-ignored ``runs/``)::
 
     runs/{env}__{algo}__{seed}__{time}/
         args.json            # the exact arguments (the harness reads env settings from here)
         model.zip            # final model
-        vecnormalize.pkl     # VecNormalize statistics of the final model (if used)
-        checkpoints/         # {algo}_{steps}_steps.zip + {algo}_vecnormalize_{steps}_steps.pkl
+        vecnormalize.json    # VecNormalize statistics of the final model (if used)
+        checkpoints/         # {algo}_{steps}_steps.zip + {algo}_vecnormalize_{steps}_steps.json
         tb/                  # TensorBoard logs
 """
 
@@ -33,7 +35,7 @@ from pathlib import Path
 from typing import Any
 
 __all__ = ["parse_args", "run_name", "setup_torch", "TimeBudgetCallback", "TqdmCallback", "make_callbacks",
-           "latest_checkpoint", "save_run", "field_docs", "build_parser"]
+           "latest_checkpoint", "save_run", "field_docs", "build_parser", "save_final_vecnormalize"]
 
 
 def setup_torch(threads: int = 1) -> None:
@@ -205,8 +207,19 @@ def resumed_args(args: Any, run_dir: Path) -> Any:
 
 
 def latest_checkpoint(run_dir: Path) -> tuple[Path, Path | None] | None:
-    """The newest ``(model.zip, vecnormalize.pkl or None)`` in ``run_dir/checkpoints`` or the final model."""
+    """The newest ``(model.zip, vecnormalize.json or None)`` in ``run_dir/checkpoints`` or the final model.
+
+    A run of an older version with only pickled statistics (``.pkl``) gives the ``.pkl`` path, which
+    :func:`training.vec_env.load_vecnormalize` refuses with the command that converts it.
+    """
     run_dir = Path(run_dir)
+
+    def stats(path: Path) -> Path | None:
+        for p in (path, path.with_suffix(".pkl")):
+            if p.exists():
+                return p
+        return None
+
     best: tuple[int, Path] | None = None
     for p in (run_dir / "checkpoints").glob("*_steps.zip"):
         m = re.search(r"_(\d+)_steps\.zip$", p.name)
@@ -215,16 +228,11 @@ def latest_checkpoint(run_dir: Path) -> tuple[Path, Path | None] | None:
     final = run_dir / "model.zip"
     if best is None and not final.exists():
         return None
-    if best is None:
-        vn = run_dir / "vecnormalize.pkl"
-        return final, vn if vn.exists() else None
+    if best is None or (final.exists() and final.stat().st_mtime > best[1].stat().st_mtime):
+        return final, stats(run_dir / "vecnormalize.json")
     steps, path = best
     prefix = path.name[: -len(f"_{steps}_steps.zip")]
-    vn = path.parent / f"{prefix}_vecnormalize_{steps}_steps.pkl"
-    if final.exists() and final.stat().st_mtime > path.stat().st_mtime:
-        vnf = run_dir / "vecnormalize.pkl"
-        return final, vnf if vnf.exists() else None
-    return path, vn if vn.exists() else None
+    return path, stats(path.parent / f"{prefix}_vecnormalize_{steps}_steps.json")
 
 
 def _callback_base():
@@ -282,20 +290,43 @@ class TqdmCallback(_callback_base()):
             self.bar.close()
 
 
+def _checkpoint_callback(**kw):
+    """SB3's ``CheckpointCallback``, with the VecNormalize statistics saved as JSON beside each checkpoint
+    (``{prefix}_vecnormalize_{steps}_steps.json``) instead of SB3's pickle."""
+    from stable_baselines3.common.callbacks import CheckpointCallback
+
+    from training.vec_env import save_vecnormalize
+
+    class JsonCheckpointCallback(CheckpointCallback):
+        def _on_step(self) -> bool:
+            super()._on_step()
+            vn = self.model.get_vec_normalize_env()
+            if self.n_calls % self.save_freq == 0 and vn is not None:
+                save_vecnormalize(vn, self._checkpoint_path("vecnormalize_", extension="json"))
+            return True
+
+    return JsonCheckpointCallback(save_vecnormalize=False, **kw)
+
+
 def make_callbacks(run_dir: Path, algo: str, total_timesteps: int, num_envs: int, checkpoint_freq: int,
                    time_budget_minutes: float, progress_bar: bool = True) -> tuple[list, TimeBudgetCallback]:
     """Checkpoints every ``checkpoint_freq`` steps (with VecNormalize stats), a time budget and a progress bar."""
-    from stable_baselines3.common.callbacks import CheckpointCallback
-
     budget = TimeBudgetCallback(time_budget_minutes)
     cbs: list = [budget]
     if checkpoint_freq > 0:
-        cbs.append(CheckpointCallback(save_freq=max(checkpoint_freq // num_envs, 1),
-                                      save_path=str(Path(run_dir) / "checkpoints"), name_prefix=algo,
-                                      save_vecnormalize=True))
+        cbs.append(_checkpoint_callback(save_freq=max(checkpoint_freq // num_envs, 1),
+                                        save_path=str(Path(run_dir) / "checkpoints"), name_prefix=algo))
     if progress_bar:
         cbs.append(TqdmCallback(total_timesteps))
     return cbs, budget
+
+
+def save_final_vecnormalize(model, run_dir: Path) -> Path | None:
+    """``run_dir/vecnormalize.json`` with the statistics of the model's VecNormalize (if it has one)."""
+    from training.vec_env import save_vecnormalize
+
+    vn = model.get_vec_normalize_env()
+    return save_vecnormalize(vn, Path(run_dir) / "vecnormalize.json") if vn is not None else None
 
 
 def env_flag(name: str, default: str) -> str:

@@ -12,9 +12,11 @@ Policy specs (``SPEC[@MODE]``, MODE = ``unicycle`` or ``waypoint`` picks the env
   exactly as planned (the env's lattice is its node set); ``random`` and ``hold-centre`` default to unicycle
   mode, the action space of the learned continuous policies (``random@waypoint`` is masked-random waypoints).
 * ``sb3:PATH``: an SB3 model (PPO, SAC, MaskablePPO) -- a run folder (its ``model.zip``) or a ``.zip``
-  checkpoint; its ``args.json`` gives the env settings and the VecNormalize statistics beside the model are
-  applied. Single-UAV models act for every UAV independently (each sees its own observation), so they need
-  ``--n-uavs 1`` unless they were trained with the same team size.
+  checkpoint; its ``args.json`` gives the env settings and the VecNormalize statistics beside the model
+  (``vecnormalize.json``, read without pickle; older ``.pkl`` statistics are refused, see
+  :mod:`training.convert_vecnormalize`) are applied. SB3 ``.zip`` files and RLlib checkpoints contain pickles:
+  load them only from trusted sources. Single-UAV models act for every UAV independently (each sees its own
+  observation), so they need ``--n-uavs 1`` unless they were trained with the same team size.
 * ``rllib:PATH``: an RLlib checkpoint of :mod:`training.rllib_ppo`; inference runs in plain torch, no Ray
   cluster is started.
 
@@ -35,7 +37,6 @@ import contextlib
 import csv
 import json
 import math
-import pickle
 import sys
 import time
 from pathlib import Path
@@ -73,12 +74,10 @@ class SB3Policy:
     env's action masks.
     """
 
-    def __init__(self, model, obs_rms=None, clip_obs: float = 10.0, epsilon: float = 1e-8, *, name: str = "sb3",
-                 env_settings: dict | None = None, deterministic: bool = True):
+    def __init__(self, model, norm=None, *, name: str = "sb3", env_settings: dict | None = None,
+                 deterministic: bool = True):
         self.model = model
-        self.obs_rms = obs_rms
-        self.clip_obs = clip_obs
-        self.epsilon = epsilon
+        self.norm = norm                        # training.vec_env.NormStats or None
         self.name = name
         self.env_settings = env_settings or {}
         self.deterministic = deterministic
@@ -97,9 +96,8 @@ class SB3Policy:
         agents = [a for a in par.possible_agents if a in par.agents]
         obs_d = observations if single is None else {single: observations}
         obs = np.stack([np.asarray(obs_d[a], np.float32) for a in agents])
-        if self.obs_rms is not None:
-            obs = np.clip((obs - self.obs_rms.mean) / np.sqrt(self.obs_rms.var + self.epsilon),
-                          -self.clip_obs, self.clip_obs).astype(np.float32)
+        if self.norm is not None:
+            obs = self.norm.normalize_obs(obs)
         kw = {}
         if self.masked:
             kw["action_masks"] = np.stack([par.action_mask(a).astype(bool) for a in agents])
@@ -116,29 +114,53 @@ def _find_args_json(path: Path) -> Path | None:
     return None
 
 
+def vecnormalize_path(model_path: Path) -> Path:
+    """The VecNormalize statistics beside an SB3 model: ``vecnormalize.json`` of a run folder's ``model.zip``, or
+    ``{algo}_vecnormalize_{steps}_steps.json`` of a ``CheckpointCallback`` checkpoint ``{algo}_{steps}_steps.zip``."""
+    name = model_path.name
+    if name.endswith("_steps.zip"):                              # CheckpointCallback naming
+        head, steps = name[: -len("_steps.zip")].rsplit("_", 1)
+        return model_path.parent / f"{head}_vecnormalize_{steps}_steps.json"
+    return model_path.parent / "vecnormalize.json"
+
+
 def load_sb3(path: str | Path) -> SB3Policy:
-    """Load an SB3 run folder or checkpoint (.zip) with its VecNormalize statistics and env settings."""
+    """Load an SB3 run folder or checkpoint (.zip) with its VecNormalize statistics (JSON) and env settings.
+
+    Statistics pickled by older versions (``.pkl``) are refused with the command that converts them. The model
+    ``.zip`` itself is loaded by SB3, which unpickles parts of it: load only models from trusted sources.
+    """
+    from covert_env.cli import UsageError
+
+    path = Path(path)
+    model_path = path / "model.zip" if path.is_dir() else path
+    if not model_path.is_file():
+        raise UsageError(f"no SB3 model at {model_path} (expected a run folder holding model.zip, or a .zip)")
+    vn_path = vecnormalize_path(model_path)
+    if not vn_path.exists() and vn_path.with_suffix(".pkl").exists():
+        vn_path = vn_path.with_suffix(".pkl")                    # refused below, with the conversion command
+    args_json = _find_args_json(path)
+    try:
+        meta = json.loads(args_json.read_text()) if args_json else {}
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise UsageError(f"{args_json}: invalid JSON ({exc})") from None
+    cls_name = meta.get("sb3_class", "PPO")
+    if cls_name not in ("PPO", "SAC", "MaskablePPO"):
+        raise UsageError(f"{args_json}: unknown sb3_class {cls_name!r} (PPO, SAC or MaskablePPO)")
+
+    from training.vec_env import read_vecnormalize
+
+    norm = None
+    if vn_path.exists():
+        try:
+            norm = read_vecnormalize(vn_path)
+        except (OSError, ValueError) as exc:
+            raise UsageError(str(exc)) from None
+        norm = norm if norm.norm_obs else None
+
     import torch
 
     torch.set_num_threads(1)
-    path = Path(path)
-    if path.is_dir():
-        model_path = path / "model.zip"
-        vn_path = path / "vecnormalize.pkl"
-    else:
-        model_path = path
-        name = path.name
-        vn_path = path.parent / "vecnormalize.pkl"
-        if name.endswith("_steps.zip"):                              # CheckpointCallback naming
-            head, steps = name[: -len("_steps.zip")].rsplit("_", 1)
-            vn_path = path.parent / f"{head}_vecnormalize_{steps}_steps.pkl"
-    if not model_path.is_file():
-        from covert_env.cli import UsageError
-
-        raise UsageError(f"no SB3 model at {model_path} (expected a run folder holding model.zip, or a .zip)")
-    args_json = _find_args_json(path)
-    meta = json.loads(args_json.read_text()) if args_json else {}
-    cls_name = meta.get("sb3_class", "PPO")
     if cls_name == "MaskablePPO":
         from sb3_contrib import MaskablePPO as cls
     else:
@@ -146,12 +168,9 @@ def load_sb3(path: str | Path) -> SB3Policy:
 
         cls = getattr(stable_baselines3, cls_name)
     model = cls.load(str(model_path), device="cpu")
-    obs_rms, clip_obs, eps = None, 10.0, 1e-8
-    if vn_path.exists():
-        with open(vn_path, "rb") as f:
-            vn = pickle.load(f)
-        if getattr(vn, "norm_obs", False):
-            obs_rms, clip_obs, eps = vn.obs_rms, vn.clip_obs, vn.epsilon
+    if norm is not None and norm.obs_mean.shape != model.observation_space.shape:
+        raise UsageError(f"{vn_path}: statistics of observations of shape {norm.obs_mean.shape}, but {model_path} "
+                         f"takes observations of shape {model.observation_space.shape}")
     ekw = meta.get("env_kwargs", {})
     settings = {"n_uavs": int(ekw.get("n_uavs", 1)), "action_mode": ekw.get("action_mode", "unicycle"),
                 "map_size": int(ekw.get("map_size", 8))}
@@ -163,7 +182,7 @@ def load_sb3(path: str | Path) -> SB3Policy:
         name = f"{label} ({path.parent.parent.name} @ {steps} steps)"
     else:
         name = f"{label} ({path.parent.name}/{path.name})"
-    return SB3Policy(model, obs_rms, clip_obs, eps, name=name, env_settings=settings)
+    return SB3Policy(model, norm, name=name, env_settings=settings)
 
 
 @contextlib.contextmanager
