@@ -401,18 +401,24 @@ def _markdown(rows: list[dict], config: Config, elapsed: float, quick: bool, fig
 
 
 # ===================================================================================== main
-def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="covert-env reproduce", description=__doc__.split("\n")[0])
-    p.add_argument("--out", required=True, help="output directory (created)")
+def build_parser(prog: str = "covert-env reproduce") -> argparse.ArgumentParser:
+    from covert_env.cli import MAX_JOBS, MAX_SCENES, int_range, positive_int
+
+    p = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n")[0])
+    p.add_argument("--out", required=True, help="output folder (created)")
     p.add_argument("--quick", action="store_true", help="tiny CI version: 2 held-out scenes, 12 slots")
-    p.add_argument("--scenes", type=int, default=None, help="number of held-out scenes (default 20; quick 2)")
-    p.add_argument("--slots", type=int, default=None, help="slots per episode (default config.n_slots; quick 12)")
-    p.add_argument("--jobs", type=int, default=None, help="worker processes (default: number of CPUs, max 2)")
+    p.add_argument("--scenes", type=int_range(0, MAX_SCENES), default=None,
+                   help=f"number of held-out scenes, in [0, {MAX_SCENES}] (default: 20; with --quick 2)")
+    p.add_argument("--slots", type=positive_int, default=None,
+                   help="slots per episode, in [1, n_slots] (default: n_slots of the config, 70 with the paper's "
+                        "parameters; with --quick 12)")
+    p.add_argument("--jobs", type=int_range(1, MAX_JOBS), default=None,
+                   help=f"worker processes, in [1, {MAX_JOBS}] (default: the number of CPUs, at most 2)")
     p.add_argument("--path-uavs", type=int, nargs="*", default=[1], choices=[1, 3],
                    help="team sizes of the check_path runs on the held-out scenes (default: 1; '1 3' adds the "
                         "3-UAV runs, about 40%% more time; none to skip)")
     p.add_argument("--heading", choices=("inherited", "binned"), default="inherited",
-                   help="DP heading variant (default: the paper's inherited heading)")
+                   help="DP heading variant: inherited is the paper's (default: inherited)")
     p.add_argument("--config", default=None, help="a Config JSON file (default: the paper's parameters)")
     return p
 
@@ -427,16 +433,24 @@ def specs_for(n_scenes: int, n_slots: int, heading: str = "inherited", path_uavs
     return specs
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    config = Config.from_json(args.config) if args.config else Config()
+def main(argv: list[str] | None = None, prog: str = "covert-env reproduce") -> int:
+    from covert_env.cli import run_main
+
+    parser = build_parser(prog)
+    args = parser.parse_args(argv)
+    return run_main(parser, lambda: _main(args))
+
+
+def _main(args: argparse.Namespace) -> int:
+    from covert_env.cli import UsageError, load_config, output_dir
+
+    config = load_config(args.config) if args.config else Config()
     n_scenes = args.scenes if args.scenes is not None else (2 if args.quick else 20)
-    n_slots = args.slots if args.slots is not None else (12 if args.quick else config.n_slots)
+    n_slots = args.slots if args.slots is not None else (min(12, config.n_slots) if args.quick else config.n_slots)
     if not 1 <= n_slots <= config.n_slots:
-        raise SystemExit(f"reproduce: --slots must be in [1, {config.n_slots}], got {n_slots}")
+        raise UsageError(f"--slots must be in [1, {config.n_slots}] (n_slots of the config), got {n_slots}")
     jobs = args.jobs if args.jobs is not None else min(os.cpu_count() or 1, 2)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = output_dir(args.out)
     specs = specs_for(n_scenes, n_slots, args.heading, path_uavs=tuple(args.path_uavs))
     # Longest runs first keeps both workers busy to the end.
     order = sorted(range(len(specs)), key=lambda i: (-specs[i].n_uavs, specs[i].method != "aware-path"))

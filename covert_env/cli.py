@@ -6,33 +6,179 @@
     covert-env scene --paper --slot 0 --out paper.png        # the paper scenario
 
 ``reproduce`` and ``evaluate`` live in ``baselines`` and ``training`` (imported only when called).
+
+Mistakes in the command line or in the files it names (a missing or invalid ``--config``, an unknown policy, an
+``--out`` that is a file where a folder is expected, a number out of range) print one ``error:`` line after the
+usage and exit with status 2, without a traceback. Only those are caught: any other exception is a bug and keeps
+its traceback. Code that validates user input raises :class:`UsageError`; the helpers below (argparse ``type=``
+functions, :func:`load_config`, :func:`output_dir`, :func:`output_file`) raise it or argparse's own error.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
-__all__ = ["main"]
+__all__ = ["main", "build_parser", "UsageError", "int_range", "float_range", "positive_int", "non_negative_int",
+           "load_config", "output_dir", "output_file", "run_main"]
+
+
+class UsageError(ValueError):
+    """A mistake in the command line or in a file it names: printed as one ``error:`` line, exit status 2.
+
+    A ``ValueError``, so library callers (``training.evaluate.load_policy`` ...) can catch it as one."""
+
+
+# ---------------------------------------------------------------------- argparse type= functions
+def _bounds_text(lo, hi, lo_open: bool = False, hi_open: bool = False) -> str:
+    if hi is None:
+        return f"{'>' if lo_open else '>='} {lo:g}" if isinstance(lo, float) else f">= {lo}"
+    if lo is None:
+        return f"{'<' if hi_open else '<='} {hi:g}" if isinstance(hi, float) else f"<= {hi}"
+    left, right = "(" if lo_open else "[", ")" if hi_open else "]"
+    return f"in {left}{lo:g}, {hi:g}{right}" if isinstance(lo, float) else f"in [{lo}, {hi}]"
+
+
+def int_range(lo: int | None = None, hi: int | None = None) -> Callable[[str], int]:
+    """An argparse ``type=``: an integer in ``[lo, hi]`` (``None``: unbounded); the error names the range."""
+    text = _bounds_text(lo, hi)
+
+    def parse(s: str) -> int:
+        try:
+            v = int(s)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer {text}, got {s!r}") from None
+        if (lo is not None and v < lo) or (hi is not None and v > hi):
+            raise argparse.ArgumentTypeError(f"must be an integer {text}, got {v}")
+        return v
+
+    parse.__name__ = f"integer {text}"
+    return parse
+
+
+def float_range(lo: float | None = None, hi: float | None = None, *, lo_open: bool = False,
+                hi_open: bool = False) -> Callable[[str], float]:
+    """An argparse ``type=``: a finite number in the interval (``lo_open``/``hi_open``: bound excluded)."""
+    lo = None if lo is None else float(lo)
+    hi = None if hi is None else float(hi)
+    text = _bounds_text(lo, hi, lo_open, hi_open)
+
+    def parse(s: str) -> float:
+        try:
+            v = float(s)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number {text}, got {s!r}") from None
+        bad = not math.isfinite(v)
+        if lo is not None:
+            bad |= v <= lo if lo_open else v < lo
+        if hi is not None:
+            bad |= v >= hi if hi_open else v > hi
+        if bad:
+            raise argparse.ArgumentTypeError(f"must be a number {text}, got {s}")
+        return v
+
+    parse.__name__ = f"number {text}"
+    return parse
+
+
+positive_int = int_range(1)
+non_negative_int = int_range(0)
+
+#: Upper bounds of the CLI's counts: far above any sensible run, low enough that a typo cannot exhaust memory.
+MAX_SCENES = 100_000
+MAX_JOBS = 256
+MAX_DPI = 1000
+
+
+# ---------------------------------------------------------------------- files named on the command line
+def load_config(path: str | Path, flag: str = "--config"):
+    """``Config.from_json(path)`` with a missing, unreadable or invalid file as a :class:`UsageError`."""
+    from covert_env.config import Config
+
+    p = Path(path)
+    if not p.is_file():
+        raise UsageError(f"{flag} {path}: " + ("is a directory, expected a Config JSON file" if p.is_dir()
+                                               else "no such file"))
+    try:
+        return Config.from_json(p)
+    except (OSError, ValueError, RecursionError) as exc:   # Config's own validation raises ValueError
+        raise UsageError(f"{flag} {path}: {exc}") from None
+
+
+def _file_in_the_way(p: Path) -> Path | None:
+    """The first existing non-folder among ``p``'s parents (then ``p`` cannot be created), or None."""
+    for q in reversed(p.absolute().parents):
+        if q.exists() and not q.is_dir():
+            return q
+    return None
+
+
+def output_dir(path: str | Path, flag: str = "--out", create: bool = True) -> Path:
+    """Create the output folder ``path`` (and its parents); a file in the way is a :class:`UsageError`.
+    ``create=False`` only checks (so that later checks can fail before anything is written)."""
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise UsageError(f"{flag} {path}: is a file, expected a folder (it is created if missing)")
+    blocker = _file_in_the_way(p)
+    if blocker is not None:
+        raise UsageError(f"{flag} {path}: {blocker} is a file, not a folder")
+    if not create:
+        return p
+    try:
+        p.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UsageError(f"{flag} {path}: cannot create the folder ({exc.strerror or exc})") from None
+    return p
+
+
+def output_file(path: str | Path, flag: str = "--out", suffixes: tuple[str, ...] | None = None) -> Path:
+    """Check that ``path`` can be written as a file (its folder is created); ``suffixes`` lists allowed ones."""
+    p = Path(path)
+    if p.is_dir():
+        raise UsageError(f"{flag} {path}: is a folder, expected a file name")
+    if suffixes is not None and p.suffix.lower().lstrip(".") not in suffixes:
+        raise UsageError(f"{flag} {path}: unknown file type {p.suffix or '(none)'!r}; use one of "
+                         + ", ".join("." + s for s in suffixes))
+    blocker = _file_in_the_way(p)
+    if blocker is not None:
+        raise UsageError(f"{flag} {path}: {blocker} is a file, not a folder")
+    output_dir(p.parent, flag=flag)
+    return p
+
+
+def run_main(parser: argparse.ArgumentParser, fn: Callable[[], int | None]) -> int:
+    """``fn()``, with a :class:`UsageError` turned into ``parser.error`` (usage, one error line, exit 2)."""
+    try:
+        return fn() or 0
+    except UsageError as exc:
+        parser.error(str(exc))
+
+
+# ---------------------------------------------------------------------- covert-env scene
+IMAGE_SUFFIXES = ("png", "pdf", "svg", "jpg", "jpeg", "webp", "tif", "tiff", "eps")
 
 
 def _scene(args: argparse.Namespace) -> int:
+    from covert_env.config import Config
+
+    config = load_config(args.config) if args.config else Config()
+    if args.slot > config.n_slots:
+        raise UsageError(f"--slot must be in [0, {config.n_slots}]"
+                         f"{' (n_slots of --config)' if args.config else ''}, got {args.slot}")
+    out = output_file(args.out, suffixes=IMAGE_SUFFIXES)
+
     import matplotlib
 
     matplotlib.use("Agg")
-    from covert_env.config import Config
     from covert_env.render import scene_figure
     from covert_env.scenario import Scenario
 
-    config = Config.from_json(args.config) if args.config else Config()
     scenario = Scenario.paper(config) if args.paper else Scenario.random(args.seed, config)
-    if not 0 <= args.slot <= config.n_slots:
-        raise SystemExit(f"covert-env scene: --slot must be in [0, {config.n_slots}], got {args.slot}")
     uav_xy = scenario.uav_xy if args.slot == 0 else None
     fig = scene_figure(scenario, args.slot, uav_xy=uav_xy)
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=args.dpi)
     import matplotlib.pyplot as plt
 
@@ -49,14 +195,20 @@ def build_parser() -> argparse.ArgumentParser:
                                      "write figures and metrics (see: covert-env reproduce --help)")
     sub.add_parser("evaluate", help="score policies on held-out scenes and write a leaderboard "
                                     "(see: covert-env evaluate --help)")
-    p = sub.add_parser("scene", help="draw terrain, road, target, zone, shadows and visible zone at one slot")
-    p.add_argument("--seed", type=int, default=0, help="scene seed (terrain + road); ignored with --paper")
+    p = sub.add_parser("scene", help="draw terrain, road, target, zone, shadows and visible zone at one slot",
+                       description="Draw terrain, road, target, zone, shadows and visible zone at one slot.")
+    p.add_argument("--seed", type=non_negative_int, default=0,
+                   help="scene seed (terrain + road), an integer >= 0; ignored with --paper (default: 0)")
     p.add_argument("--paper", action="store_true", help="draw the paper scenario instead of a random one")
-    p.add_argument("--slot", type=int, default=0, help="slot k to draw")
-    p.add_argument("--out", default="outputs/scene.png", help="PNG file to write")
+    p.add_argument("--slot", type=non_negative_int, default=0,
+                   help="slot k to draw, in [0, n_slots] (70 with the paper's parameters) (default: 0)")
+    p.add_argument("--out", default="outputs/scene.png",
+                   help="image file to write (.png, .pdf, .svg, ...; its folder is created) "
+                        "(default: outputs/scene.png)")
     p.add_argument("--config", default=None, help="a Config JSON file (default: the paper's parameters)")
-    p.add_argument("--dpi", type=int, default=110)
-    p.set_defaults(func=_scene)
+    p.add_argument("--dpi", type=int_range(10, MAX_DPI), default=110,
+                   help=f"resolution, in [10, {MAX_DPI}] (default: 110)")
+    p.set_defaults(func=_scene, subparser=p)
     return parser
 
 
@@ -66,12 +218,13 @@ _FORWARDED = {"reproduce": "baselines.reproduce", "evaluate": "training.evaluate
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     if argv and argv[0] in _FORWARDED:
-        # Forward everything (including --help) to the subcommand's own parser.
+        # Forward everything (including --help) to the subcommand's own parser, under our name.
         import importlib
 
-        return importlib.import_module(_FORWARDED[argv[0]]).main(argv[1:]) or 0
+        module = importlib.import_module(_FORWARDED[argv[0]])
+        return module.main(argv[1:], prog=f"covert-env {argv[0]}") or 0
     args = build_parser().parse_args(argv)
-    return args.func(args)
+    return run_main(args.subparser, lambda: args.func(args))
 
 
 if __name__ == "__main__":  # pragma: no cover

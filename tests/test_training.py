@@ -280,10 +280,11 @@ def test_ppo_multi_train_resume_evaluate(tmp_path):
     from training import ppo_multi
 
     run = ppo_multi.main(["--recipe", "smoke", *_common(tmp_path)])
-    assert (run / "model.zip").exists() and (run / "vecnormalize.pkl").exists()
+    assert (run / "model.zip").exists() and (run / "vecnormalize.json").exists()
     assert json.loads((run / "train_summary.json").read_text())["timesteps"] >= 3000
     assert list((run / "checkpoints").glob("ppo_multi_*_steps.zip"))
-    assert list((run / "checkpoints").glob("ppo_multi_vecnormalize_*_steps.pkl"))
+    assert list((run / "checkpoints").glob("ppo_multi_vecnormalize_*_steps.json"))
+    assert not list(run.rglob("*.pkl"))                          # nothing we write is a pickle
     assert list((run / "tb").iterdir())
     run2 = ppo_multi.main(["--recipe", "smoke", "--resume", str(run), "--total-timesteps", "4500",
                            "--progress-bar", "false"])
@@ -298,7 +299,7 @@ def test_ppo_single_train_evaluate(tmp_path):
 
     run = ppo_single.main(["--total-timesteps", "2048", "--n-envs", "2", "--n-steps", "512", "--checkpoint-freq",
                            "1024", *_common(tmp_path)])
-    assert (run / "model.zip").exists() and (run / "vecnormalize.pkl").exists()
+    assert (run / "model.zip").exists() and (run / "vecnormalize.json").exists()
     assert "ppo_single" in _evaluate(tmp_path, f"sb3:{run}", 1)
 
 
@@ -307,7 +308,7 @@ def test_sac_single_train_evaluate(tmp_path):
 
     run = sac_single.main(["--total-timesteps", "1000", "--learning-starts", "500", "--batch-size", "64",
                            "--net-arch", "64", "64", "--checkpoint-freq", "500", *_common(tmp_path)])
-    assert (run / "model.zip").exists() and (run / "vecnormalize.pkl").exists()
+    assert (run / "model.zip").exists() and (run / "vecnormalize.json").exists()
     assert "sac_single" in _evaluate(tmp_path, f"sb3:{run}", 1)
 
 
@@ -331,6 +332,10 @@ def test_harness_rejects_team_size_mismatch(tmp_path):
         load_policy(f"sb3:{run}", 3)
     with pytest.raises(ValueError, match="action mode"):
         load_policy("random@hover", 3)
+    with pytest.raises(ValueError, match="unknown policy 'nonsense'"):
+        load_policy("nonsense", 3)
+    with pytest.raises(ValueError, match="no SB3 model"):
+        load_policy(f"sb3:{run / 'missing'}", 1)
 
 
 def test_rllib_one_iteration_and_harness(tmp_path):
@@ -351,4 +356,157 @@ def test_time_budget_stops_and_saves(tmp_path):
                           "--time-budget-minutes", "0.001", "--checkpoint-freq", "0"])
     summary = json.loads((run / "train_summary.json").read_text())
     assert summary["stopped_by_time_budget"] is True and summary["timesteps"] < 1_000_000
-    assert (run / "model.zip").exists() and (run / "vecnormalize.pkl").exists()
+    assert (run / "model.zip").exists() and (run / "vecnormalize.json").exists()
+
+
+# ---------------------------------------------------------------------- VecNormalize statistics as JSON, no pickle
+def _trained_vecnormalize(norm_reward: bool = True) -> VecNormalize:
+    """A VecNormalize whose statistics moved away from their initial values."""
+    vn = VecNormalize(VecMonitor(make_vec_env(2, SMALL)), gamma=0.97, clip_obs=5.0, norm_reward=norm_reward)
+    vn.seed(0)
+    vn.reset()
+    rng = np.random.default_rng(0)
+    for _ in range(12):
+        vn.step(rng.uniform(-1, 1, (vn.num_envs, 2)).astype(np.float32))
+    return vn
+
+
+def _raw_observations(n: int = 6) -> np.ndarray:
+    venv = make_vec_env(2, SMALL)
+    venv.seed(7)
+    obs = [venv.reset()]
+    for _ in range(n):
+        obs.append(venv.step(np.ones((venv.num_envs, 2), np.float32))[0])
+    return np.concatenate(obs)
+
+
+def test_vecnormalize_json_round_trip_is_exact(tmp_path):
+    from training.vec_env import load_vecnormalize, read_vecnormalize, save_vecnormalize
+
+    vn = _trained_vecnormalize()
+    path = save_vecnormalize(vn, tmp_path / "vecnormalize.json")
+    data = json.loads(path.read_text())                      # plain JSON
+    assert data["format"] == "covert_env.vecnormalize" and data["clip_obs"] == 5.0 and data["gamma"] == 0.97
+    obs = _raw_observations()
+    expected = vn.normalize_obs(obs)
+    assert not np.allclose(expected, np.clip(obs, -5, 5))   # the statistics matter
+    stats = read_vecnormalize(path)
+    got = stats.normalize_obs(obs)
+    assert got.dtype == expected.dtype and np.array_equal(got, expected)
+    vn2 = load_vecnormalize(path, VecMonitor(make_vec_env(2, SMALL)))
+    assert np.array_equal(vn2.obs_rms.mean, vn.obs_rms.mean) and np.array_equal(vn2.obs_rms.var, vn.obs_rms.var)
+    assert vn2.obs_rms.count == vn.obs_rms.count
+    assert (vn2.ret_rms.mean, vn2.ret_rms.var, vn2.ret_rms.count) == (vn.ret_rms.mean, vn.ret_rms.var,
+                                                                       vn.ret_rms.count)
+    assert (vn2.clip_obs, vn2.clip_reward, vn2.gamma, vn2.epsilon, vn2.norm_obs, vn2.norm_reward) == (
+        vn.clip_obs, vn.clip_reward, vn.gamma, vn.epsilon, vn.norm_obs, vn.norm_reward)
+    assert np.array_equal(vn2.normalize_obs(obs), expected)
+    rew = np.linspace(-3, 3, vn.num_envs)
+    assert np.array_equal(vn2.normalize_reward(rew), vn.normalize_reward(rew))
+
+
+def test_vecnormalize_json_rejects_bad_files(tmp_path):
+    from training.vec_env import load_vecnormalize, read_vecnormalize, save_vecnormalize
+
+    vn = _trained_vecnormalize()
+    good = json.loads(save_vecnormalize(vn, tmp_path / "ok.json").read_text())
+    cases = {"not json": "{", "other format": json.dumps({"format": "x"}),
+             "wrong version": json.dumps({**good, "version": 99}),
+             "negative var": json.dumps({**good, "obs_rms": {**good["obs_rms"], "var": [-1.0] * len(
+                 good["obs_rms"]["var"])}}),
+             "short mean": json.dumps({**good, "obs_rms": {**good["obs_rms"], "mean": [0.0]}}),
+             "clip": json.dumps({**good, "clip_obs": "big"})}
+    for name, text in cases.items():
+        p = tmp_path / f"{name}.json"
+        p.write_text(text)
+        with pytest.raises(ValueError, match=str(p).replace("\\", "\\\\")):
+            read_vecnormalize(p)
+    # statistics of another observation size are refused when wrapping an env
+    with pytest.raises(ValueError, match="shape"):
+        load_vecnormalize(tmp_path / "ok.json", VecMonitor(make_vec_env(1, dict(n_uavs=1, max_cycles=4,
+                                                                             map_size=4))))
+
+
+def _sb3_run(tmp_path, name="run"):
+    """A tiny trained PPO run folder as the scripts write it: model.zip, vecnormalize.json, args.json."""
+    from training.common import save_final_vecnormalize, save_run
+
+    run = tmp_path / name
+    vn = _trained_vecnormalize()
+    model = PPO("MlpPolicy", vn, n_steps=16, batch_size=48, n_epochs=1, seed=0, device="cpu")
+    model.learn(32)
+    save_run(run, {"seed": 0}, {"algo": "tiny", "sb3_class": "PPO", "env_kwargs": {"n_uavs": 3}})
+    model.save(run / "model.zip")
+    save_final_vecnormalize(model, run)
+    return run, model
+
+
+def test_evaluation_normalises_like_the_training_vecnormalize(tmp_path, monkeypatch):
+    import pickle
+
+    from training.evaluate import load_sb3
+
+    run, model = _sb3_run(tmp_path)
+    in_memory = model.get_vec_normalize_env()
+    assert (run / "vecnormalize.json").exists() and not list(run.glob("*.pkl"))
+
+    def no_pickle(*a, **k):
+        raise AssertionError("pickle used for VecNormalize statistics")
+
+    monkeypatch.setattr(pickle, "load", no_pickle)               # SB3's model.zip is not read with pickle.load
+    pol = load_sb3(run)
+    obs = _raw_observations()
+    assert np.array_equal(pol.norm.normalize_obs(obs), in_memory.normalize_obs(obs))
+    # and the policy acts on exactly those observations
+    from covert_env.envs.covert_sensing import CovertSensingParallelEnv
+
+    env = CovertSensingParallelEnv(**SMALL)
+    o, _ = env.reset(seed=3)
+    acts = pol.act(o, env)
+    expect, _ = model.predict(in_memory.normalize_obs(np.stack([o[a] for a in env.agents])), deterministic=True)
+    assert np.array_equal(np.stack([acts[a] for a in env.agents]), expect)
+
+
+def test_pickled_statistics_are_refused_with_the_conversion_command(tmp_path, monkeypatch):
+    import pickle
+
+    from covert_env.cli import UsageError
+    from training.convert_vecnormalize import main as convert_main
+    from training.evaluate import load_sb3
+    from training.vec_env import load_vecnormalize, read_vecnormalize
+
+    run, model = _sb3_run(tmp_path)
+    in_memory = model.get_vec_normalize_env()
+    (run / "vecnormalize.json").unlink()
+    in_memory.save(str(run / "vecnormalize.pkl"))                # as older versions wrote it (SB3's pickle)
+    calls = []
+    real_load = pickle.load
+    monkeypatch.setattr(pickle, "load", lambda *a, **k: calls.append(a) or real_load(*a, **k))
+    with pytest.raises(UsageError, match="convert_vecnormalize") as exc:
+        load_sb3(run)
+    assert "older covert_env" in str(exc.value) and str(run / "vecnormalize.pkl") in str(exc.value)
+    with pytest.raises(ValueError, match="convert_vecnormalize"):
+        load_vecnormalize(run / "vecnormalize.pkl", VecMonitor(make_vec_env(2, SMALL)))   # resume path
+    assert calls == []                                           # refused without unpickling
+    # the explicit one-off conversion of a trusted file, then evaluation works and normalises the same
+    assert convert_main([str(run)]) == 0
+    assert calls                                                 # (that one does unpickle, on request)
+    obs = _raw_observations()
+    assert np.array_equal(read_vecnormalize(run / "vecnormalize.json").normalize_obs(obs),
+                          in_memory.normalize_obs(obs))
+    assert np.array_equal(load_sb3(run).norm.normalize_obs(obs), in_memory.normalize_obs(obs))
+
+
+def test_no_pickle_on_the_statistics_path():
+    """Nothing in training/ but the explicit converter imports pickle or calls SB3's pickle-based load/save."""
+    import pathlib
+
+    import training
+
+    root = pathlib.Path(training.__file__).parent
+    for f in root.glob("*.py"):
+        src = f.read_text()
+        if f.name == "convert_vecnormalize.py":
+            continue
+        assert "import pickle" not in src and "VecNormalize.load" not in src, f.name
+        assert "save_vecnormalize=True" not in src and "get_env().save(" not in src, f.name

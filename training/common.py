@@ -5,15 +5,17 @@ Every script keeps its own readable ``Args`` dataclass (CleanRL style); this mod
 
 * a tqdm progress bar (``mininterval`` 30 s when stdout is not a terminal, so logs stay small);
 * :class:`TimeBudgetCallback`: stops ``learn()`` gracefully after a wall-clock budget (the model is then saved);
-* SB3's ``CheckpointCallback`` every ``checkpoint_freq`` steps, with the VecNormalize statistics beside the model.
+* SB3's ``CheckpointCallback`` every ``checkpoint_freq`` steps, with the VecNormalize statistics beside the model
+  as JSON (:func:`training.vec_env.save_vecnormalize`; nothing we write is a pickle, but SB3's ``model.zip``
+  itself holds pickled parts: load models only from trusted sources).
 
 Run layout (git-ignored ``runs/``)::
 
     runs/{env}__{algo}__{seed}__{time}/
         args.json            # the exact arguments (the harness reads env settings from here)
         model.zip            # final model
-        vecnormalize.pkl     # VecNormalize statistics of the final model (if used)
-        checkpoints/         # {algo}_{steps}_steps.zip + {algo}_vecnormalize_{steps}_steps.pkl
+        vecnormalize.json    # VecNormalize statistics of the final model (if used)
+        checkpoints/         # {algo}_{steps}_steps.zip + {algo}_vecnormalize_{steps}_steps.json
         tb/                  # TensorBoard logs
 """
 
@@ -33,7 +35,7 @@ from pathlib import Path
 from typing import Any
 
 __all__ = ["parse_args", "run_name", "setup_torch", "TimeBudgetCallback", "TqdmCallback", "make_callbacks",
-           "latest_checkpoint", "save_run", "field_docs"]
+           "latest_checkpoint", "save_run", "field_docs", "build_parser", "save_final_vecnormalize"]
 
 
 def setup_torch(threads: int = 1) -> None:
@@ -69,32 +71,95 @@ def _str2bool(s: str) -> bool:
     raise argparse.ArgumentTypeError(f"expected a boolean, got {s!r}")
 
 
-def parse_args(cls: type, argv: list[str] | None = None, description: str | None = None,
-               presets: dict[str, dict] | None = None):
-    """Build an argparse CLI from dataclass ``cls`` (``--field-name value``; booleans take true/false).
+def _ranges() -> dict[str, tuple]:
+    """Allowed values of the numeric (and choice) fields of the scripts' ``Args``, by field name: an argparse
+    ``type=`` function naming its range, or ``("choices", (...))``. Every int/float field of every script must be
+    listed (a test checks it)."""
+    from covert_env.cli import float_range, int_range, non_negative_int, positive_int
 
-    ``presets`` (name -> overrides) adds ``--recipe NAME``: the preset is applied first, explicit flags win.
-    """
+    positive = float_range(0.0, lo_open=True)
+    non_negative = float_range(0.0)
+    unit = float_range(0.0, 1.0)
+    return {
+        "seed": non_negative_int, "n_uavs": positive_int, "n_copies": positive_int, "n_envs": positive_int,
+        "max_cycles": positive_int, "scene_pool": positive_int, "total_timesteps": positive_int,
+        "time_budget_minutes": non_negative, "learning_rate": positive, "lr": positive, "n_steps": int_range(2),
+        "batch_size": int_range(2), "minibatch_size": int_range(2), "train_batch_size": int_range(2),
+        "n_epochs": positive_int, "num_epochs": positive_int, "gamma": unit, "gae_lambda": unit, "lambda_": unit,
+        "clip_range": positive, "ent_coef": non_negative, "vf_coef": non_negative, "max_grad_norm": positive,
+        "log_std_init": float_range(-20.0, 2.0), "los_penalty": non_negative, "zone_penalty": non_negative,
+        "separation_penalty": non_negative, "checkpoint_freq": non_negative_int, "checkpoint_every": non_negative_int,
+        "torch_threads": int_range(1, 256), "verbose": int_range(0, 2), "buffer_size": positive_int,
+        "learning_starts": non_negative_int, "gradient_steps": int_range(-1), "train_freq": positive_int,
+        "tau": float_range(0.0, 1.0, lo_open=True), "iterations": positive_int, "num_env_runners": non_negative_int,
+        "num_envs_per_env_runner": positive_int, "sample_timeout_s": positive,
+        "net_arch": int_range(1, 65_536), "action_mode": ("choices", ("unicycle", "waypoint")),
+    }
+
+
+def _show_default(v: Any) -> str:
+    """A default as it would be typed on the command line."""
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (tuple, list)):
+        return " ".join(str(x) for x in v)
+    if isinstance(v, str):
+        return v if v else "''"
+    return f"{v:_}" if isinstance(v, int) and abs(v) >= 10_000 else str(v)
+
+
+def _prog(cls: type) -> str | None:
+    spec = getattr(sys.modules.get(cls.__module__), "__spec__", None)
+    return f"python -m {spec.name}" if spec is not None and spec.name else None
+
+
+def build_parser(cls: type, description: str | None = None, presets: dict[str, dict] | None = None,
+                 prog: str | None = None) -> argparse.ArgumentParser:
+    """The argparse CLI of dataclass ``cls``: ``--field-name value`` per field, its docstring as help, its allowed
+    range (:func:`_ranges`) checked, and its default printed once (flags left out are ``None`` in the namespace,
+    so that ``--recipe`` can tell them from explicit ones)."""
     docs = field_docs(cls)
-    p = argparse.ArgumentParser(description=description, formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    ranges = _ranges()
+    p = argparse.ArgumentParser(prog=prog or _prog(cls), description=description)
     if presets:
-        p.add_argument("--recipe", choices=sorted(presets), default=None, help="named settings, see training.recipes")
+        p.add_argument("--recipe", choices=sorted(presets), default=None,
+                       help="named settings (training.recipes); they replace the defaults below, explicit flags "
+                            "win (default: none)")
     for f in dataclasses.fields(cls):
         default = f.default if f.default is not dataclasses.MISSING else f.default_factory()  # type: ignore[misc]
         typ = f.type if not isinstance(f.type, str) else eval(f.type, vars(sys.modules[cls.__module__]))  # noqa: S307
-        kw: dict[str, Any] = {"help": docs.get(f.name, ""), "default": None}
+        kw: dict[str, Any] = {"default": None}
         origin = getattr(typ, "__origin__", None)
+        check = ranges.get(f.name)
         if typ is bool:
             kw.update(type=_str2bool, nargs="?", const=True, metavar="BOOL")
         elif origin in (list, tuple):
-            kw.update(type=typ.__args__[0], nargs="+")
-        elif typ in (int, float, str):
-            kw["type"] = typ
+            kw.update(type=check or typ.__args__[0], nargs="+")
+        elif isinstance(check, tuple):
+            kw.update(type=typ, choices=check[1])
+        elif typ in (int, float):
+            kw["type"] = check or typ
+        elif typ is str:
+            kw["type"] = str
         else:                                   # Optional[...] and friends: take the non-None member
             args = [t for t in getattr(typ, "__args__", ()) if t is not type(None)]
             kw["type"] = args[0] if args else str
-        kw["help"] += f" (default: {default!r})"
+        allowed = getattr(kw["type"], "__name__", "") if kw["type"] is check else ""
+        help_ = docs.get(f.name, "").replace("%", "%%")
+        extra = f"{allowed}; " if allowed else ""
+        kw["help"] = f"{help_} ({extra}default: {_show_default(default).replace('%', '%%')})".lstrip()
         p.add_argument("--" + f.name.replace("_", "-"), dest=f.name, **kw)
+    return p
+
+
+def parse_args(cls: type, argv: list[str] | None = None, description: str | None = None,
+               presets: dict[str, dict] | None = None, prog: str | None = None):
+    """Build an argparse CLI from dataclass ``cls`` (``--field-name value``; booleans take true/false).
+
+    ``presets`` (name -> overrides) adds ``--recipe NAME``: the preset is applied first, explicit flags win.
+    Out-of-range values and a ``--resume`` folder that is not a run exit with status 2 and one error line.
+    """
+    p = build_parser(cls, description, presets, prog)
     ns = p.parse_args(argv)
     values = {}
     if presets and ns.recipe:
@@ -103,6 +168,13 @@ def parse_args(cls: type, argv: list[str] | None = None, description: str | None
         v = getattr(ns, f.name)
         if v is not None:
             values[f.name] = type(getattr(cls(), f.name))(v) if isinstance(getattr(cls(), f.name), tuple) else v
+    resume = values.get("resume")
+    if resume:
+        run = Path(resume)
+        if not run.is_dir():
+            p.error(f"--resume {resume}: no such folder")
+        if not (run / "args.json").is_file() and not (run.parent / "args.json").is_file():
+            p.error(f"--resume {resume}: not a run folder (no args.json in it or beside it)")
     return cls(**values)
 
 
@@ -135,8 +207,19 @@ def resumed_args(args: Any, run_dir: Path) -> Any:
 
 
 def latest_checkpoint(run_dir: Path) -> tuple[Path, Path | None] | None:
-    """The newest ``(model.zip, vecnormalize.pkl or None)`` in ``run_dir/checkpoints`` or the final model."""
+    """The newest ``(model.zip, vecnormalize.json or None)`` in ``run_dir/checkpoints`` or the final model.
+
+    A run of an older version with only pickled statistics (``.pkl``) gives the ``.pkl`` path, which
+    :func:`training.vec_env.load_vecnormalize` refuses with the command that converts it.
+    """
     run_dir = Path(run_dir)
+
+    def stats(path: Path) -> Path | None:
+        for p in (path, path.with_suffix(".pkl")):
+            if p.exists():
+                return p
+        return None
+
     best: tuple[int, Path] | None = None
     for p in (run_dir / "checkpoints").glob("*_steps.zip"):
         m = re.search(r"_(\d+)_steps\.zip$", p.name)
@@ -145,16 +228,11 @@ def latest_checkpoint(run_dir: Path) -> tuple[Path, Path | None] | None:
     final = run_dir / "model.zip"
     if best is None and not final.exists():
         return None
-    if best is None:
-        vn = run_dir / "vecnormalize.pkl"
-        return final, vn if vn.exists() else None
+    if best is None or (final.exists() and final.stat().st_mtime > best[1].stat().st_mtime):
+        return final, stats(run_dir / "vecnormalize.json")
     steps, path = best
     prefix = path.name[: -len(f"_{steps}_steps.zip")]
-    vn = path.parent / f"{prefix}_vecnormalize_{steps}_steps.pkl"
-    if final.exists() and final.stat().st_mtime > path.stat().st_mtime:
-        vnf = run_dir / "vecnormalize.pkl"
-        return final, vnf if vnf.exists() else None
-    return path, vn if vn.exists() else None
+    return path, stats(path.parent / f"{prefix}_vecnormalize_{steps}_steps.json")
 
 
 def _callback_base():
@@ -212,20 +290,43 @@ class TqdmCallback(_callback_base()):
             self.bar.close()
 
 
+def _checkpoint_callback(**kw):
+    """SB3's ``CheckpointCallback``, with the VecNormalize statistics saved as JSON beside each checkpoint
+    (``{prefix}_vecnormalize_{steps}_steps.json``) instead of SB3's pickle."""
+    from stable_baselines3.common.callbacks import CheckpointCallback
+
+    from training.vec_env import save_vecnormalize
+
+    class JsonCheckpointCallback(CheckpointCallback):
+        def _on_step(self) -> bool:
+            super()._on_step()
+            vn = self.model.get_vec_normalize_env()
+            if self.n_calls % self.save_freq == 0 and vn is not None:
+                save_vecnormalize(vn, self._checkpoint_path("vecnormalize_", extension="json"))
+            return True
+
+    return JsonCheckpointCallback(save_vecnormalize=False, **kw)
+
+
 def make_callbacks(run_dir: Path, algo: str, total_timesteps: int, num_envs: int, checkpoint_freq: int,
                    time_budget_minutes: float, progress_bar: bool = True) -> tuple[list, TimeBudgetCallback]:
     """Checkpoints every ``checkpoint_freq`` steps (with VecNormalize stats), a time budget and a progress bar."""
-    from stable_baselines3.common.callbacks import CheckpointCallback
-
     budget = TimeBudgetCallback(time_budget_minutes)
     cbs: list = [budget]
     if checkpoint_freq > 0:
-        cbs.append(CheckpointCallback(save_freq=max(checkpoint_freq // num_envs, 1),
-                                      save_path=str(Path(run_dir) / "checkpoints"), name_prefix=algo,
-                                      save_vecnormalize=True))
+        cbs.append(_checkpoint_callback(save_freq=max(checkpoint_freq // num_envs, 1),
+                                        save_path=str(Path(run_dir) / "checkpoints"), name_prefix=algo))
     if progress_bar:
         cbs.append(TqdmCallback(total_timesteps))
     return cbs, budget
+
+
+def save_final_vecnormalize(model, run_dir: Path) -> Path | None:
+    """``run_dir/vecnormalize.json`` with the statistics of the model's VecNormalize (if it has one)."""
+    from training.vec_env import save_vecnormalize
+
+    vn = model.get_vec_normalize_env()
+    return save_vecnormalize(vn, Path(run_dir) / "vecnormalize.json") if vn is not None else None
 
 
 def env_flag(name: str, default: str) -> str:

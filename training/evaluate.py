@@ -12,9 +12,11 @@ Policy specs (``SPEC[@MODE]``, MODE = ``unicycle`` or ``waypoint`` picks the env
   exactly as planned (the env's lattice is its node set); ``random`` and ``hold-centre`` default to unicycle
   mode, the action space of the learned continuous policies (``random@waypoint`` is masked-random waypoints).
 * ``sb3:PATH``: an SB3 model (PPO, SAC, MaskablePPO) -- a run folder (its ``model.zip``) or a ``.zip``
-  checkpoint; its ``args.json`` gives the env settings and the VecNormalize statistics beside the model are
-  applied. Single-UAV models act for every UAV independently (each sees its own observation), so they need
-  ``--n-uavs 1`` unless they were trained with the same team size.
+  checkpoint; its ``args.json`` gives the env settings and the VecNormalize statistics beside the model
+  (``vecnormalize.json``, read without pickle; older ``.pkl`` statistics are refused, see
+  :mod:`training.convert_vecnormalize`) are applied. SB3 ``.zip`` files and RLlib checkpoints contain pickles:
+  load them only from trusted sources. Single-UAV models act for every UAV independently (each sees its own
+  observation), so they need ``--n-uavs 1`` unless they were trained with the same team size.
 * ``rllib:PATH``: an RLlib checkpoint of :mod:`training.rllib_ppo`; inference runs in plain torch, no Ray
   cluster is started.
 
@@ -31,10 +33,10 @@ Writes ``leaderboard.md``, ``leaderboard.csv`` (mean and std over episodes of th
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
 import json
 import math
-import pickle
 import sys
 import time
 from pathlib import Path
@@ -72,12 +74,10 @@ class SB3Policy:
     env's action masks.
     """
 
-    def __init__(self, model, obs_rms=None, clip_obs: float = 10.0, epsilon: float = 1e-8, *, name: str = "sb3",
-                 env_settings: dict | None = None, deterministic: bool = True):
+    def __init__(self, model, norm=None, *, name: str = "sb3", env_settings: dict | None = None,
+                 deterministic: bool = True):
         self.model = model
-        self.obs_rms = obs_rms
-        self.clip_obs = clip_obs
-        self.epsilon = epsilon
+        self.norm = norm                        # training.vec_env.NormStats or None
         self.name = name
         self.env_settings = env_settings or {}
         self.deterministic = deterministic
@@ -96,9 +96,8 @@ class SB3Policy:
         agents = [a for a in par.possible_agents if a in par.agents]
         obs_d = observations if single is None else {single: observations}
         obs = np.stack([np.asarray(obs_d[a], np.float32) for a in agents])
-        if self.obs_rms is not None:
-            obs = np.clip((obs - self.obs_rms.mean) / np.sqrt(self.obs_rms.var + self.epsilon),
-                          -self.clip_obs, self.clip_obs).astype(np.float32)
+        if self.norm is not None:
+            obs = self.norm.normalize_obs(obs)
         kw = {}
         if self.masked:
             kw["action_masks"] = np.stack([par.action_mask(a).astype(bool) for a in agents])
@@ -115,27 +114,53 @@ def _find_args_json(path: Path) -> Path | None:
     return None
 
 
+def vecnormalize_path(model_path: Path) -> Path:
+    """The VecNormalize statistics beside an SB3 model: ``vecnormalize.json`` of a run folder's ``model.zip``, or
+    ``{algo}_vecnormalize_{steps}_steps.json`` of a ``CheckpointCallback`` checkpoint ``{algo}_{steps}_steps.zip``."""
+    name = model_path.name
+    if name.endswith("_steps.zip"):                              # CheckpointCallback naming
+        head, steps = name[: -len("_steps.zip")].rsplit("_", 1)
+        return model_path.parent / f"{head}_vecnormalize_{steps}_steps.json"
+    return model_path.parent / "vecnormalize.json"
+
+
 def load_sb3(path: str | Path) -> SB3Policy:
-    """Load an SB3 run folder or checkpoint (.zip) with its VecNormalize statistics and env settings."""
+    """Load an SB3 run folder or checkpoint (.zip) with its VecNormalize statistics (JSON) and env settings.
+
+    Statistics pickled by older versions (``.pkl``) are refused with the command that converts them. The model
+    ``.zip`` itself is loaded by SB3, which unpickles parts of it: load only models from trusted sources.
+    """
+    from covert_env.cli import UsageError
+
+    path = Path(path)
+    model_path = path / "model.zip" if path.is_dir() else path
+    if not model_path.is_file():
+        raise UsageError(f"no SB3 model at {model_path} (expected a run folder holding model.zip, or a .zip)")
+    vn_path = vecnormalize_path(model_path)
+    if not vn_path.exists() and vn_path.with_suffix(".pkl").exists():
+        vn_path = vn_path.with_suffix(".pkl")                    # refused below, with the conversion command
+    args_json = _find_args_json(path)
+    try:
+        meta = json.loads(args_json.read_text()) if args_json else {}
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise UsageError(f"{args_json}: invalid JSON ({exc})") from None
+    cls_name = meta.get("sb3_class", "PPO")
+    if cls_name not in ("PPO", "SAC", "MaskablePPO"):
+        raise UsageError(f"{args_json}: unknown sb3_class {cls_name!r} (PPO, SAC or MaskablePPO)")
+
+    from training.vec_env import read_vecnormalize
+
+    norm = None
+    if vn_path.exists():
+        try:
+            norm = read_vecnormalize(vn_path)
+        except (OSError, ValueError) as exc:
+            raise UsageError(str(exc)) from None
+        norm = norm if norm.norm_obs else None
+
     import torch
 
     torch.set_num_threads(1)
-    path = Path(path)
-    if path.is_dir():
-        model_path = path / "model.zip"
-        vn_path = path / "vecnormalize.pkl"
-    else:
-        model_path = path
-        name = path.name
-        vn_path = path.parent / "vecnormalize.pkl"
-        if name.endswith("_steps.zip"):                              # CheckpointCallback naming
-            head, steps = name[: -len("_steps.zip")].rsplit("_", 1)
-            vn_path = path.parent / f"{head}_vecnormalize_{steps}_steps.pkl"
-    if not model_path.exists():
-        raise FileNotFoundError(f"no SB3 model at {model_path}")
-    args_json = _find_args_json(path)
-    meta = json.loads(args_json.read_text()) if args_json else {}
-    cls_name = meta.get("sb3_class", "PPO")
     if cls_name == "MaskablePPO":
         from sb3_contrib import MaskablePPO as cls
     else:
@@ -143,12 +168,9 @@ def load_sb3(path: str | Path) -> SB3Policy:
 
         cls = getattr(stable_baselines3, cls_name)
     model = cls.load(str(model_path), device="cpu")
-    obs_rms, clip_obs, eps = None, 10.0, 1e-8
-    if vn_path.exists():
-        with open(vn_path, "rb") as f:
-            vn = pickle.load(f)
-        if getattr(vn, "norm_obs", False):
-            obs_rms, clip_obs, eps = vn.obs_rms, vn.clip_obs, vn.epsilon
+    if norm is not None and norm.obs_mean.shape != model.observation_space.shape:
+        raise UsageError(f"{vn_path}: statistics of observations of shape {norm.obs_mean.shape}, but {model_path} "
+                         f"takes observations of shape {model.observation_space.shape}")
     ekw = meta.get("env_kwargs", {})
     settings = {"n_uavs": int(ekw.get("n_uavs", 1)), "action_mode": ekw.get("action_mode", "unicycle"),
                 "map_size": int(ekw.get("map_size", 8))}
@@ -160,36 +182,63 @@ def load_sb3(path: str | Path) -> SB3Policy:
         name = f"{label} ({path.parent.parent.name} @ {steps} steps)"
     else:
         name = f"{label} ({path.parent.name}/{path.name})"
-    return SB3Policy(model, obs_rms, clip_obs, eps, name=name, env_settings=settings)
+    return SB3Policy(model, norm, name=name, env_settings=settings)
+
+
+@contextlib.contextmanager
+def _extra(module: str, extra: str):
+    """A missing optional dependency ``module`` as a :class:`~covert_env.cli.UsageError` naming the extra."""
+    try:
+        yield
+    except ModuleNotFoundError as exc:
+        if exc.name is None or exc.name.split(".")[0] != module:
+            raise
+        from covert_env.cli import UsageError
+
+        raise UsageError(f"this policy needs {module}, which is not installed: pip install -e \".[{extra}]\"") \
+            from None
 
 
 def load_policy(spec: str, n_uavs: int) -> tuple[Any, dict]:
-    """A policy object and its env settings (``n_uavs``, ``action_mode``) from a spec (see the module docstring)."""
+    """A policy object and its env settings (``n_uavs``, ``action_mode``) from a spec (see the module docstring).
+
+    A bad spec (unknown name or mode, missing path, team size or action mode that do not fit) raises
+    :class:`covert_env.cli.UsageError` (a ``ValueError``) naming it.
+    """
+    from covert_env.cli import UsageError
+
     mode = None
     if "@" in spec:
         spec, mode = spec.rsplit("@", 1)
         if mode not in ("unicycle", "waypoint"):
-            raise ValueError(f"unknown action mode {mode!r} in policy spec (use @unicycle or @waypoint)")
+            raise UsageError(f"unknown action mode {mode!r} in policy spec {spec}@{mode} (use @unicycle or @waypoint)")
     if spec.startswith("sb3:"):
-        pol = load_sb3(spec[4:])
+        with _extra("stable_baselines3", "train"), _extra("sb3_contrib", "train"), _extra("torch", "train"):
+            pol = load_sb3(spec[4:])
         settings = dict(pol.env_settings)
     elif spec.startswith("rllib:"):
-        from training.rllib_ppo import load_policy as load_rllib
+        if not (Path(spec[6:]) / "learner_group").is_dir():
+            raise UsageError(f"no RLlib checkpoint at {spec[6:]} (expected a training.rllib_ppo checkpoint folder)")
+        with _extra("ray", "rllib"):
+            from training.rllib_ppo import load_policy as load_rllib
 
-        pol = load_rllib(spec[6:])
+            pol = load_rllib(spec[6:])
         settings = dict(pol.env_settings)
     else:
-        from baselines.policies import make_policy
+        from baselines.policies import POLICIES, make_policy
 
         name = BUILTIN_ALIASES.get(spec, spec)
+        if name not in POLICIES:
+            raise UsageError(f"unknown policy {spec!r}; use one of {', '.join(sorted([*POLICIES, *BUILTIN_ALIASES]))}"
+                             ", sb3:PATH or rllib:PATH")
         pol = make_policy(name)
         settings = {"n_uavs": n_uavs, "action_mode": "waypoint" if name.startswith("dp") else "unicycle"}
     if mode is not None:
         if (spec.startswith(("sb3:", "rllib:"))) and mode != settings["action_mode"]:
-            raise ValueError(f"{spec} was trained in {settings['action_mode']} mode; it cannot act in {mode} mode")
+            raise UsageError(f"{spec} was trained in {settings['action_mode']} mode; it cannot act in {mode} mode")
         settings["action_mode"] = mode
     if settings["n_uavs"] != n_uavs:
-        raise ValueError(f"{spec} acts for teams of {settings['n_uavs']} UAV(s) but --n-uavs is {n_uavs}; "
+        raise UsageError(f"{spec} acts for teams of {settings['n_uavs']} UAV(s) but --n-uavs is {n_uavs}; "
                          f"pass --n-uavs {settings['n_uavs']}")
     return pol, settings
 
@@ -300,15 +349,19 @@ def _figure(results: dict[str, dict], path: Path) -> None:
     plt.close(fig)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m training.evaluate", description=__doc__.split("\n")[0],
+def build_parser(prog: str = "python -m training.evaluate") -> argparse.ArgumentParser:
+    from covert_env.cli import MAX_SCENES, int_range, non_negative_int, positive_int
+
+    p = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n")[0],
                                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     p.add_argument("--policies", nargs="+", default=["random", "hold-centre", "dp", "dp-blind"],
                    help="policy specs: dp, dp-blind, dp-binned, random, hold-centre/heuristic, sb3:PATH, rllib:PATH, "
                         "each optionally @unicycle or @waypoint")
-    p.add_argument("--episodes", type=int, default=20, help="held-out scenes per policy")
-    p.add_argument("--n-uavs", type=int, default=3, help="team size")
-    p.add_argument("--seed-offset", type=int, default=HELD_OUT_OFFSET, help="first held-out scene seed")
+    p.add_argument("--episodes", type=int_range(1, MAX_SCENES), default=20,
+                   help=f"held-out scenes per policy, in [1, {MAX_SCENES}]")
+    p.add_argument("--n-uavs", type=positive_int, default=3, help="team size, >= 1")
+    p.add_argument("--seed-offset", type=non_negative_int, default=HELD_OUT_OFFSET,
+                   help="first held-out scene seed, >= 0")
     p.add_argument("--out", default="outputs/leaderboard", help="output folder (git-ignored outputs/)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.add_argument("--reuse", action="store_true",
@@ -317,16 +370,50 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def main(argv: list[str] | None = None) -> int:
-    import torch
+def main(argv: list[str] | None = None, prog: str = "python -m training.evaluate") -> int:
+    """The harness's command line (``prog``: the name in usage and error lines, ``covert-env evaluate`` from
+    :mod:`covert_env.cli`). Mistakes in the arguments exit with status 2 and one error line."""
+    from covert_env.cli import run_main
 
-    torch.set_num_threads(1)
-    args = build_parser().parse_args(argv)
-    if args.episodes < 1:
-        raise SystemExit("--episodes must be >= 1")
-    results: dict[str, dict] = {}
+    parser = build_parser(prog)
+    args = parser.parse_args(argv)
+    argv = list(argv if argv is not None else sys.argv[1:])
+    return run_main(parser, lambda: _main(args, f"{prog} " + " ".join(argv)))
+
+
+def _check_team(n_uavs: int, seed: int) -> None:
+    """Build the env with ``--n-uavs`` and reset it on the first held-out scene, so that a team size the env
+    rejects (or cannot place) fails with one error line before any evaluation runs."""
+    from covert_env.cli import UsageError
+    from covert_env.envs.covert_sensing import CovertSensingParallelEnv
+
+    try:
+        env = CovertSensingParallelEnv(n_uavs=n_uavs)
+    except ValueError as exc:
+        raise UsageError(f"--n-uavs {n_uavs}: {exc}") from None
+    try:
+        env.reset(seed=seed, options={"scene_seed": seed})
+    except ValueError as exc:
+        raise UsageError(f"--n-uavs {n_uavs}: {exc}") from None
+    finally:
+        env.close()
+
+
+def _main(args: argparse.Namespace, command: str) -> int:
+    from covert_env.cli import UsageError, output_dir
+
+    _check_team(args.n_uavs, args.seed_offset)
+    output_dir(args.out, create=False)
+    # Every spec is loaded before any evaluation: a bad one fails at once, not after the others have run.
+    loaded = []
     for spec in args.policies:
-        pol, settings = load_policy(spec, args.n_uavs)
+        try:
+            loaded.append((spec, *load_policy(spec, args.n_uavs)))
+        except UsageError as exc:
+            raise UsageError(f"--policies: {exc}") from None
+    out = output_dir(args.out)
+    results: dict[str, dict] = {}
+    for spec, pol, settings in loaded:
         name = getattr(pol, "name", spec)
         if "@" in spec and not name.endswith(spec.rsplit("@", 1)[1]):
             name = f"{name}@{spec.rsplit('@', 1)[1]}"
@@ -335,7 +422,7 @@ def main(argv: list[str] | None = None) -> int:
         t0 = time.perf_counter()
         builtin = not spec.startswith(("sb3:", "rllib:"))
         key = f"{spec}__{args.episodes}__{args.seed_offset}__{args.n_uavs}".replace("/", "_").replace("@", "-")
-        cache = Path(args.out) / "cache" / f"{key}.json"
+        cache = out / "cache" / f"{key}.json"
         if builtin and args.reuse and cache.exists():
             rows = json.loads(cache.read_text())
         else:
@@ -349,10 +436,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{name:40s} reward {s['reward'][0]:8.1f} ± {s['reward'][1]:6.1f}  blocked LoS "
               f"{s['occlusion_rate'][0]:.3f}  zone viol. {s['zone_violation_rate'][0]:.3f}  "
               f"({time.perf_counter() - t0:.0f} s)", flush=True)
-    out = Path(args.out)
-    cmd = "python -m training.evaluate " + " ".join(argv if argv is not None else sys.argv[1:])
     write_outputs(results, out, {"episodes": args.episodes, "seed_offset": args.seed_offset, "n_uavs": args.n_uavs,
-                                 "command": cmd})
+                                 "command": command})
     (out / "results.json").write_text(json.dumps({n: {"summary": r["summary"], "settings": r["settings"],
                                                       "spec": r["spec"]} for n, r in results.items()}, indent=2))
     print(f"wrote {out / 'leaderboard.md'}, {out / 'leaderboard.csv'}, {out / 'comparison.png'}")

@@ -7,7 +7,7 @@ slot and in the visible zone (eq. 10), and MaskablePPO never samples a masked no
     python -m training.maskable_ppo_single --resume runs/<run>
     python -m training.evaluate --n-uavs 1 --policies random@waypoint dp sb3:runs/<run>
 
-Outputs in ``runs/{env}__maskable_ppo_single__{seed}__{time}/`` (model.zip, vecnormalize.pkl, checkpoints/, tb/).
+Outputs in ``runs/{env}__maskable_ppo_single__{seed}__{time}/`` (model.zip, vecnormalize.json, checkpoints/, tb/).
 """
 
 from __future__ import annotations
@@ -17,7 +17,16 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from training.common import latest_checkpoint, make_callbacks, parse_args, resumed_args, run_name, save_run, setup_torch
+from training.common import (
+    latest_checkpoint,
+    make_callbacks,
+    parse_args,
+    resumed_args,
+    run_name,
+    save_final_vecnormalize,
+    save_run,
+    setup_torch,
+)
 
 ALGO = "maskable_ppo_single"
 
@@ -65,7 +74,7 @@ class Args:
     runs_dir: str = "runs"
     """folder of the runs (git-ignored)"""
     run_name: str = ""
-    """run folder name (default {env}__maskable_ppo_single__{seed}__{time})"""
+    """run folder name; empty: {env}__maskable_ppo_single__{seed}__{time}"""
     resume: str = ""
     """a run folder to continue from its newest checkpoint"""
     torch_threads: int = 1
@@ -85,6 +94,7 @@ def train(args: Args) -> Path:
     from stable_baselines3.common.vec_env import VecNormalize
 
     import covert_env  # noqa: F401  (registers the Gymnasium ids)
+    from training.vec_env import load_vecnormalize
 
     if args.resume:
         run_dir = Path(args.resume)
@@ -97,7 +107,7 @@ def train(args: Args) -> Path:
     venv = make_vec_env(args.env_id, n_envs=args.n_envs, seed=args.seed, env_kwargs=ekw)
     ckpt = latest_checkpoint(run_dir) if args.resume else None
     if ckpt is not None:
-        venv = VecNormalize.load(str(ckpt[1]), venv) if ckpt[1] else venv
+        venv = load_vecnormalize(ckpt[1], venv) if ckpt[1] else venv
         model = MaskablePPO.load(str(ckpt[0]), env=venv, device="cpu")
         print(f"resumed from {ckpt[0]} at {model.num_timesteps} steps", flush=True)
     else:
@@ -115,8 +125,7 @@ def train(args: Args) -> Path:
     model.learn(max(args.total_timesteps - model.num_timesteps, 0), callback=cbs, tb_log_name=ALGO,
                 reset_num_timesteps=ckpt is None)
     model.save(run_dir / "model.zip")
-    if isinstance(model.get_env(), VecNormalize):
-        model.get_env().save(str(run_dir / "vecnormalize.pkl"))
+    save_final_vecnormalize(model, run_dir)
     info = {"timesteps": int(model.num_timesteps), "train_minutes": round((time.monotonic() - t0) / 60, 2),
             "stopped_by_time_budget": budget.stopped}
     (run_dir / "train_summary.json").write_text(json.dumps(info, indent=2))

@@ -18,7 +18,16 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from training.common import latest_checkpoint, make_callbacks, parse_args, resumed_args, run_name, save_run, setup_torch
+from training.common import (
+    latest_checkpoint,
+    make_callbacks,
+    parse_args,
+    resumed_args,
+    run_name,
+    save_final_vecnormalize,
+    save_run,
+    setup_torch,
+)
 from training.recipes import RECIPES
 
 ALGO = "ppo_multi"
@@ -41,9 +50,9 @@ class Args:
     scene_pool: int = 10_000
     """training scene seeds are drawn from range(scene_pool); evaluation uses seeds >= 1_000_000"""
     los_penalty: float = 2.0
-    """training reward: penalty per slot with blocked LoS (env default 1)"""
+    """training reward: penalty per slot with blocked LoS (the env's own is 1)"""
     zone_penalty: float = 2.0
-    """training reward: base penalty per slot outside the feasible zone (env default 1)"""
+    """training reward: base penalty per slot outside the feasible zone (the env's own is 1)"""
     separation_penalty: float = 1.0
     """training reward: penalty per slot closer than d_safe1 to a teammate"""
     disguise_in_zone_only: bool = True
@@ -85,7 +94,7 @@ class Args:
     runs_dir: str = "runs"
     """folder of the runs (git-ignored)"""
     run_name: str = ""
-    """run folder name (default {env}__ppo_multi__{seed}__{time})"""
+    """run folder name; empty: {env}__ppo_multi__{seed}__{time}"""
     resume: str = ""
     """a run folder to continue from its newest checkpoint (same settings)"""
     torch_threads: int = 1
@@ -155,12 +164,12 @@ def _info_stats_callback(verbose: int):
 
 
 def train(args: Args) -> Path:
-    """Train (or resume) and return the run folder (holding model.zip, vecnormalize.pkl, args.json)."""
+    """Train (or resume) and return the run folder (holding model.zip, vecnormalize.json, args.json)."""
     setup_torch(args.torch_threads)
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import VecMonitor, VecNormalize
 
-    from training.vec_env import make_vec_env
+    from training.vec_env import load_vecnormalize, make_vec_env
 
     if args.resume:
         run_dir = Path(args.resume)
@@ -174,7 +183,7 @@ def train(args: Args) -> Path:
     ckpt = latest_checkpoint(run_dir) if args.resume else None
     if ckpt is not None:
         model_path, vn_path = ckpt
-        venv = VecNormalize.load(str(vn_path), venv) if vn_path else venv
+        venv = load_vecnormalize(vn_path, venv) if vn_path else venv
         model = PPO.load(str(model_path), env=venv, device="cpu")
         print(f"resumed from {model_path} at {model.num_timesteps} steps", flush=True)
     else:
@@ -197,8 +206,7 @@ def train(args: Args) -> Path:
     model.learn(remaining, callback=cbs, tb_log_name=ALGO, reset_num_timesteps=ckpt is None)
     minutes = (time.monotonic() - t0) / 60
     model.save(run_dir / "model.zip")
-    if isinstance(model.get_env(), VecNormalize):
-        model.get_env().save(str(run_dir / "vecnormalize.pkl"))
+    save_final_vecnormalize(model, run_dir)
     info = {"timesteps": int(model.num_timesteps), "train_minutes": round(minutes, 2),
             "stopped_by_time_budget": budget.stopped}
     (run_dir / "train_summary.json").write_text(json.dumps(info, indent=2))

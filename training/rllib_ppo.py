@@ -106,7 +106,7 @@ class Args:
     runs_dir: str = "runs"
     """folder of the runs (git-ignored)"""
     run_name: str = ""
-    """run folder name (default {env}__rllib_ppo__{seed}__{time})"""
+    """run folder name; empty: {env}__rllib_ppo__{seed}__{time}"""
     resume: str = ""
     """a checkpoint folder to continue from"""
     progress_bar: bool = True

@@ -4,7 +4,7 @@
     python -m training.sac_single --resume runs/<run>                 # continue from the newest checkpoint
     python -m training.evaluate --n-uavs 1 --policies random dp sb3:runs/<run>
 
-Outputs in ``runs/{env}__sac_single__{seed}__{time}/`` (model.zip, vecnormalize.pkl, checkpoints/, tb/, args.json).
+Outputs in ``runs/{env}__sac_single__{seed}__{time}/`` (model.zip, vecnormalize.json, checkpoints/, tb/, args.json).
 The replay buffer is not checkpointed (it is large); ``--resume`` restarts with an empty buffer and refills it
 for ``learning_starts`` steps.
 """
@@ -16,7 +16,16 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from training.common import latest_checkpoint, make_callbacks, parse_args, resumed_args, run_name, save_run, setup_torch
+from training.common import (
+    latest_checkpoint,
+    make_callbacks,
+    parse_args,
+    resumed_args,
+    run_name,
+    save_final_vecnormalize,
+    save_run,
+    setup_torch,
+)
 
 ALGO = "sac_single"
 
@@ -64,7 +73,7 @@ class Args:
     runs_dir: str = "runs"
     """folder of the runs (git-ignored)"""
     run_name: str = ""
-    """run folder name (default {env}__sac_single__{seed}__{time})"""
+    """run folder name; empty: {env}__sac_single__{seed}__{time}"""
     resume: str = ""
     """a run folder to continue from its newest checkpoint"""
     torch_threads: int = 1
@@ -84,6 +93,7 @@ def train(args: Args) -> Path:
     from stable_baselines3.common.vec_env import VecNormalize
 
     import covert_env  # noqa: F401  (registers the Gymnasium ids)
+    from training.vec_env import load_vecnormalize
 
     if args.resume:
         run_dir = Path(args.resume)
@@ -96,7 +106,7 @@ def train(args: Args) -> Path:
     venv = make_vec_env(args.env_id, n_envs=args.n_envs, seed=args.seed, env_kwargs=ekw)
     ckpt = latest_checkpoint(run_dir) if args.resume else None
     if ckpt is not None:
-        venv = VecNormalize.load(str(ckpt[1]), venv) if ckpt[1] else venv
+        venv = load_vecnormalize(ckpt[1], venv) if ckpt[1] else venv
         model = SAC.load(str(ckpt[0]), env=venv, device="cpu")
         print(f"resumed from {ckpt[0]} at {model.num_timesteps} steps", flush=True)
     else:
@@ -112,8 +122,7 @@ def train(args: Args) -> Path:
     model.learn(max(args.total_timesteps - model.num_timesteps, 0), callback=cbs, tb_log_name=ALGO,
                 reset_num_timesteps=ckpt is None)
     model.save(run_dir / "model.zip")
-    if isinstance(model.get_env(), VecNormalize):
-        model.get_env().save(str(run_dir / "vecnormalize.pkl"))
+    save_final_vecnormalize(model, run_dir)
     info = {"timesteps": int(model.num_timesteps), "train_minutes": round((time.monotonic() - t0) / 60, 2),
             "stopped_by_time_budget": budget.stopped}
     (run_dir / "train_summary.json").write_text(json.dumps(info, indent=2))

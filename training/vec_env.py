@@ -22,11 +22,20 @@ bootstraps nothing at the end of our 70-slot route. This adapter is ~150 lines a
   stepped copy by copy.
 
 Works under ``VecMonitor`` (episode statistics per agent row) and ``VecNormalize``.
+
+VecNormalize statistics are saved as JSON, not pickled (:func:`save_vecnormalize`, :func:`load_vecnormalize`,
+:func:`read_vecnormalize`): a run folder holds ``vecnormalize.json`` beside ``model.zip``. Loading a file never
+runs code from it; ``.pkl`` statistics of older runs are refused (convert a trusted one explicitly with
+``python -m training.convert_vecnormalize PATH``).
 """
 
 from __future__ import annotations
 
+import json
+import math
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -35,7 +44,8 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices,
 
 from covert_env.envs.covert_sensing import CovertSensingParallelEnv, step_copies
 
-__all__ = ["ParallelEnvVecAdapter", "make_vec_env"]
+__all__ = ["ParallelEnvVecAdapter", "make_vec_env", "save_vecnormalize", "load_vecnormalize", "read_vecnormalize",
+           "vecnormalize_state", "NormStats", "VECNORMALIZE_FORMAT"]
 
 
 class ParallelEnvVecAdapter(VecEnv):
@@ -198,3 +208,142 @@ def make_vec_env(n_copies: int, env_kwargs: dict | None = None,
     """``n_copies`` covert_env ParallelEnvs built with ``env_kwargs``, flattened for a shared SB3 policy."""
     kw = dict(env_kwargs or {})
     return ParallelEnvVecAdapter([lambda: CovertSensingParallelEnv(**kw) for _ in range(n_copies)], reward_fn=reward_fn)
+
+
+# ---------------------------------------------------------------------- VecNormalize statistics as JSON
+#: The ``format`` field of a VecNormalize statistics file.
+VECNORMALIZE_FORMAT = "covert_env.vecnormalize"
+_VN_VERSION = 1
+
+
+@dataclass(frozen=True)
+class NormStats:
+    """VecNormalize statistics read from JSON (what evaluation needs, and what :func:`load_vecnormalize` sets).
+
+    ``obs_mean`` / ``obs_var`` are float64 arrays of the observation shape (``None`` if ``norm_obs`` is false);
+    ``normalize_obs`` applies them exactly as ``VecNormalize.normalize_obs`` does.
+    """
+
+    norm_obs: bool
+    norm_reward: bool
+    clip_obs: float
+    clip_reward: float
+    gamma: float
+    epsilon: float
+    obs_mean: np.ndarray | None
+    obs_var: np.ndarray | None
+    obs_count: float | None
+    ret_mean: float
+    ret_var: float
+    ret_count: float
+
+    def normalize_obs(self, obs: np.ndarray) -> np.ndarray:
+        if not self.norm_obs:
+            return np.asarray(obs)
+        return np.clip((np.asarray(obs) - self.obs_mean) / np.sqrt(self.obs_var + self.epsilon),
+                       -self.clip_obs, self.clip_obs).astype(np.float32)
+
+
+def vecnormalize_state(vn) -> dict:
+    """The JSON-able state of a ``VecNormalize`` (Box observations; Dict observations are not supported)."""
+    from stable_baselines3.common.running_mean_std import RunningMeanStd
+
+    obs_rms = getattr(vn, "obs_rms", None) if vn.norm_obs else None
+    if obs_rms is not None and not isinstance(obs_rms, RunningMeanStd):
+        raise NotImplementedError("VecNormalize statistics of Dict observations are not supported")
+
+    def rms(r) -> dict:
+        return {"mean": np.asarray(r.mean, np.float64).tolist(), "var": np.asarray(r.var, np.float64).tolist(),
+                "count": float(r.count), "shape": list(np.shape(r.mean))}
+
+    return {"format": VECNORMALIZE_FORMAT, "version": _VN_VERSION,
+            "norm_obs": bool(vn.norm_obs), "norm_reward": bool(vn.norm_reward),
+            "clip_obs": float(vn.clip_obs), "clip_reward": float(vn.clip_reward),
+            "gamma": float(vn.gamma), "epsilon": float(vn.epsilon),
+            "obs_rms": rms(obs_rms) if obs_rms is not None else None, "ret_rms": rms(vn.ret_rms)}
+
+
+def save_vecnormalize(vn, path: str | Path) -> Path:
+    """Write the statistics of ``vn`` (a ``VecNormalize``) to ``path`` as JSON (floats round-trip exactly)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(vecnormalize_state(vn)))
+    tmp.replace(path)
+    return path
+
+
+def _refuse_pickle(path: Path) -> None:
+    if path.suffix == ".pkl":
+        raise ValueError(
+            f"{path}: VecNormalize statistics pickled by an older covert_env; they are not loaded, since unpickling "
+            f"a file can run any code. If you trust the file, convert it once with "
+            f"`python -m training.convert_vecnormalize {path}` (writes {path.with_suffix('.json').name} beside it)")
+
+
+def read_vecnormalize(path: str | Path) -> NormStats:
+    """Read VecNormalize statistics written by :func:`save_vecnormalize` (``ValueError`` naming the file if not)."""
+    path = Path(path)
+    _refuse_pickle(path)
+    try:
+        d = json.loads(path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
+        raise ValueError(f"{path}: not a VecNormalize statistics JSON file ({exc})") from None
+    if not isinstance(d, dict) or d.get("format") != VECNORMALIZE_FORMAT:
+        raise ValueError(f"{path}: not a VecNormalize statistics file (no \"format\": \"{VECNORMALIZE_FORMAT}\")")
+    if d.get("version") != _VN_VERSION:
+        raise ValueError(f"{path}: VecNormalize statistics version {d.get('version')!r}, "
+                         f"this covert_env reads version {_VN_VERSION}")
+
+    def num(key, v, positive=False) -> float:
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or (positive and v <= 0):
+            raise ValueError(f"{path}: {key} must be a finite{' positive' if positive else ''} number, got {v!r}")
+        return float(v)
+
+    def rms(key) -> tuple[np.ndarray, np.ndarray, float]:
+        r = d.get(key)
+        if not isinstance(r, dict):
+            raise ValueError(f"{path}: {key} is missing")
+        try:
+            shape = tuple(int(n) for n in r["shape"])
+            mean = np.asarray(r["mean"], np.float64).reshape(shape)
+            var = np.asarray(r["var"], np.float64).reshape(shape)
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ValueError(f"{path}: {key} must hold mean and var arrays of its shape ({exc})") from None
+        if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(var)) and np.all(var >= 0)):
+            raise ValueError(f"{path}: {key} holds non-finite means or negative/non-finite variances")
+        return mean, var, num(f"{key}.count", r.get("count"), positive=True)
+
+    flags = {}
+    for k in ("norm_obs", "norm_reward"):
+        if not isinstance(d.get(k), bool):
+            raise ValueError(f"{path}: {k} must be true or false, got {d.get(k)!r}")
+        flags[k] = d[k]
+    obs = rms("obs_rms") if flags["norm_obs"] else (None, None, None)
+    ret = rms("ret_rms")
+    return NormStats(norm_obs=flags["norm_obs"], norm_reward=flags["norm_reward"],
+                     clip_obs=num("clip_obs", d.get("clip_obs"), True),
+                     clip_reward=num("clip_reward", d.get("clip_reward"), True),
+                     gamma=num("gamma", d.get("gamma")), epsilon=num("epsilon", d.get("epsilon"), True),
+                     obs_mean=obs[0], obs_var=obs[1], obs_count=obs[2],
+                     ret_mean=float(ret[0]), ret_var=float(ret[1]), ret_count=ret[2])
+
+
+def load_vecnormalize(path: str | Path, venv: VecEnv, training: bool = True):
+    """A ``VecNormalize`` around ``venv`` with the statistics of ``path`` (the JSON of :func:`save_vecnormalize`).
+
+    Replaces SB3's pickle-based loader; the result normalises observations and rewards exactly as
+    the saved wrapper did.
+    """
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    s = read_vecnormalize(path)
+    vn = VecNormalize(venv, training=training, norm_obs=s.norm_obs, norm_reward=s.norm_reward, clip_obs=s.clip_obs,
+                      clip_reward=s.clip_reward, gamma=s.gamma, epsilon=s.epsilon)
+    if s.norm_obs:
+        if s.obs_mean.shape != vn.obs_rms.mean.shape:
+            raise ValueError(f"{path}: statistics of observations of shape {s.obs_mean.shape}, but the env's "
+                             f"observations have shape {vn.obs_rms.mean.shape}")
+        vn.obs_rms.mean, vn.obs_rms.var, vn.obs_rms.count = s.obs_mean.copy(), s.obs_var.copy(), s.obs_count
+    vn.ret_rms.mean, vn.ret_rms.var, vn.ret_rms.count = np.array(s.ret_mean), np.array(s.ret_var), s.ret_count
+    return vn
