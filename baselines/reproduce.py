@@ -19,7 +19,7 @@ Outputs in ``--out``:
   trajectories (top view and 3D), the LoS occlusion index I_LoS per slot, the zones with shadows at one
   slot (feasible zone, visible zone, shadows, lattice nodes whose LoS is blocked), disguise kappa per slot;
 * ``fig_heldout.png``: occlusion and disguise per held-out scene;
-* ``metrics.json``: one record per run and UAV (episode metrics of DESIGN.md §4, blocked-LoS counts,
+* ``metrics.json``: one record per run and UAV (episode metrics of docs/model.md#metrics, blocked-LoS counts,
   infeasible-slot counts, planning time, negotiation rounds);
 * ``metrics.md``: aggregate tables and the paper's claims checked.
 
@@ -391,7 +391,7 @@ def _markdown(rows: list[dict], config: Config, elapsed: float, quick: bool, fig
                              f"{ap['infeasible']} slots flagged), disguise {ap['mean_disguise']:.1f}.")
     lines += ["", "Columns: *blocked LoS* counts UAV-slots whose end position has no line of sight (the paper's "
               "I_LoS = 1); *unflagged* excludes slots the planner flagged infeasible (its fallback, see "
-              "`baselines.dp`); *along path* uses the samples between slot times (DESIGN.md §4); *future "
+              "`baselines.dp`); *along path* uses the samples between slot times (docs/model.md#metrics); *future "
               "conflicts left*: conflicts in later, not yet flown slots still present when the negotiation hit its "
               "round limit, summed over replans (the flown slot is always separated). Metric definitions: "
               "`covert_env.metrics.METRIC_DESCRIPTIONS`.", ""]

@@ -96,8 +96,8 @@ class Config:
     """(decided) Spacing (m) of the grid nodes / waypoint lattice in the target's frame."""
     h_min: float | None = None
     """Shadow truncation height (m, eq. 9). None (default) picks it per polytope so that the
-    truncated shadow is exact within ``r2 + shadow_margin`` of the target (DESIGN.md §1); a number
-    uses that fixed height for every polytope, as the paper does (then shadows may be incomplete)."""
+    truncated shadow is exact within ``r2 + shadow_margin`` of the target (docs/decisions.md#shadow-truncation-h_min);
+    a number uses that fixed height for every polytope, as the paper does (then shadows may be incomplete)."""
     shadow_margin: float = 10.0
     """(decided) Extra radius (m) beyond R2 inside which the automatic h_min keeps shadows exact."""
 

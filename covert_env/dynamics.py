@@ -29,7 +29,8 @@ Writing ``g - c = r e2 + L e1`` with ``e1 = (cos tau, sin tau)`` and the outward
 * ``tau = (atan2(b - r, a) - arccos(r / D) + pi / 2) mod 2 pi`` (``arccos(r / D)`` is the paper's rho,
   eq. 24: the angle between ``c -> z`` and ``c -> g``).
 
-So DESIGN.md's tau **is correct**. Two remarks: the paper's eq. 28, ``tau = arccos(...)``, only returns
+So this tau **is correct** (docs/model.md#turn-then-straight-manoeuvre-eqs-22-29).
+Two remarks: the paper's eq. 28, ``tau = arccos(...)``, only returns
 angles in ``[0, pi]``, which is wrong for turns beyond a half circle (possible when ``W_max delta > pi``),
 hence the ``mod 2 pi`` form. We do not evaluate that form literally: at ``r = R_c`` (waypoint on the
 circle, an end of the root bracket below) ``r / D`` rounds above 1 in about one case in six and
@@ -46,7 +47,7 @@ A root counts only if ``D >= r``, i.e. ``r <= R_c = |g - p|^2 / (2 b)`` (the way
 the turning circle), and ``r <= V_max / W_max``. Since the path is at least ``|g - p|`` long, every root has
 ``r >= |g - p| / (delta W_max)``.
 
-**Root structure (verified; DESIGN.md's "one root" holds only for waypoints ahead).** With
+**Root structure (verified; one root only for waypoints ahead: docs/decisions.md#manoeuvre-speed-root).** With
 ``h(r) = F(r) / r + delta W_max = tau + L / r`` one finds ``h'(r) = -phi(r) / D^2`` where
 ``phi(r) = L (L^2 + r b) / r^2 + a``. ``phi`` is strictly decreasing in r, so h is strictly decreasing when
 ``a >= 0`` (exactly one root, found by bracketing) but, for a waypoint *behind* the UAV (``a < 0``), h

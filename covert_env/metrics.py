@@ -1,4 +1,4 @@
-"""One set of metrics for every policy (DESIGN.md §4), computed from a recorded :class:`Trajectory`.
+"""One set of metrics for every policy (docs/model.md#metrics), computed from a recorded :class:`Trajectory`.
 
 :func:`slot_quantities` turns positions into the per-slot quantities (LoS at slot times and along
 the path, zone membership, alpha, d, kappa, g, separation, terrain clearance); the environments'
@@ -24,7 +24,8 @@ from covert_env.trajectory import Trajectory
 from covert_env.visibility import TerrainStack, line_of_sight
 from covert_env.zone import zone_distance
 
-__all__ = ["SlotQuantities", "slot_quantities", "moves_quantities", "episode_metrics", "METRIC_DESCRIPTIONS"]
+__all__ = ["SlotQuantities", "slot_quantities", "moves_quantities", "episode_metrics", "nearest_teammate",
+           "terrain_clearance", "METRIC_DESCRIPTIONS"]
 
 
 @dataclass
@@ -60,7 +61,7 @@ class SlotQuantities:
     terrain_clearance: np.ndarray
 
 
-def _nearest_teammate(xy: np.ndarray) -> np.ndarray:
+def nearest_teammate(xy: np.ndarray) -> np.ndarray:
     """(..., U, 2) -> (..., U) distance to the nearest other UAV (inf with one UAV)."""
     diff = xy[..., :, None, :] - xy[..., None, :, :]
     dist = np.hypot(diff[..., 0], diff[..., 1])
@@ -69,7 +70,7 @@ def _nearest_teammate(xy: np.ndarray) -> np.ndarray:
     return dist.min(axis=-1)
 
 
-def _terrain_clearance(xy: np.ndarray, altitude: float, terrain) -> np.ndarray:
+def terrain_clearance(xy: np.ndarray, altitude: float, terrain) -> np.ndarray:
     """(..., 2) -> (...) distance from (x, y, h) to the nearest polytope highest point (eq. 3).
 
     ``terrain``: a :class:`Terrain`, or a :class:`~covert_env.visibility.TerrainStack` (one terrain per
@@ -135,9 +136,9 @@ def moves_quantities(start_xy, end_xy, target_start, phi_start, target_end, phi_
 
     # Like LoS: sample 0 is the previous slot's end (counted there), so each instant counts once. The last
     # sample is the slot's end, so the slot-time separation comes with it.
-    sep_all = _nearest_teammate(np.swapaxes(path_xy[..., 1:, :], -3, -2))              # (*B, P-1, U)
+    sep_all = nearest_teammate(np.swapaxes(path_xy[..., 1:, :], -3, -2))              # (*B, P-1, U)
     sep, sep_path = sep_all[..., -1, :], sep_all.min(axis=-2)
-    clearance = _terrain_clearance(end_xy, c.altitude, terrain)
+    clearance = terrain_clearance(end_xy, c.altitude, terrain)
     return SlotQuantities(los=los, los_path=los_path, in_zone=zd <= 0.0, zone_distance=zd,
                           alpha=alpha, d=d,
                           kappa=kappa, g=g, path_length=np.asarray(path_length, float),
@@ -162,7 +163,7 @@ METRIC_DESCRIPTIONS = {
 
 def episode_metrics(traj: Trajectory, terrain: Terrain, config: Config,
                     quantities: SlotQuantities | None = None) -> list[dict[str, float]]:
-    """Per-UAV episode metrics (DESIGN.md §4): one dict per UAV with the keys of METRIC_DESCRIPTIONS."""
+    """Per-UAV episode metrics (docs/model.md#metrics): one dict per UAV with the keys of METRIC_DESCRIPTIONS."""
     q = quantities if quantities is not None else slot_quantities(traj, terrain, config)
     if np.isnan(np.asarray(q.los_path, float)).any():
         q = slot_quantities(traj, terrain, config)

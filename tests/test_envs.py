@@ -176,8 +176,7 @@ def test_bad_actions_raise():
 @pytest.mark.parametrize("kw, pattern", [
     (dict(action_mode="teleport"), "action_mode must be one of"),
     (dict(scenario="moon"), "scenario must be"),
-    (dict(max_cycles=0), r"max_cycles must be an integer in \[1"),
-    (dict(max_cycles=71), r"max_cycles must be an integer in \[1"),
+    (dict(max_cycles=0), r"max_cycles must be an integer >= 1"),
     (dict(map_size=1), r"map_size must be an integer in \[2, 64\]"),
     (dict(reward_scale=0.0), "reward_scale must be"),
     (dict(zone_penalty=-1.0), "zone_penalty must be"),
@@ -204,10 +203,10 @@ def test_reward_terms_and_infos():
     env = covert_env.parallel_env(n_uavs=3, scenario="paper")
     env.reset(seed=0)
     _, rew, _, _, infos = env.step({a: np.array([-0.6, 0.0]) for a in env.agents})
+    names = ("path", "disguise", "los", "zone", "separation", "terrain")
     for a in env.possible_agents:
         info = infos[a]
-        terms = info["reward_terms"]
-        assert set(terms) == {"path", "disguise", "los", "zone", "separation", "terrain"}
+        terms = {t: info[f"reward_{t}"] for t in names}
         assert rew[a] == pytest.approx(sum(terms.values()))
         assert terms["path"] == pytest.approx(-info["v"] / 100.0)
         assert terms["disguise"] == pytest.approx(10 * info["kappa"] / 100.0)

@@ -1,4 +1,4 @@
-"""Training and evaluation for covert_env (DESIGN.md §5, issue #5).
+"""Training and evaluation for covert_env (layout: docs/README.md#layout; issue #5).
 
 * :mod:`training.vec_env` -- :class:`~training.vec_env.ParallelEnvVecAdapter`, our small SB3 ``VecEnv``
   over PettingZoo ParallelEnvs: copies x agents flattened, one shared policy (no SuperSuit).

@@ -109,10 +109,7 @@ def shaped_reward(disguise_in_zone_only: bool):
         return None
 
     def fn(reward: float, info: dict) -> float:
-        terms = info.get("reward_terms")
-        if terms is None or info.get("in_zone", True):
-            return reward
-        return reward - terms["disguise"]
+        return reward if info["in_zone"] else reward - info["reward_disguise"]
 
     return fn
 
@@ -137,7 +134,7 @@ def _info_stats_callback(verbose: int):
                     self.n += 1
                     self.los += info["los"]
                     self.zone += info["in_zone"]
-                    self.env_r += info.get("env_reward", sum(info["reward_terms"].values()))
+                    self.env_r += info.get("env_reward", sum(v for k, v in info.items() if k.startswith("reward_")))
             return True
 
         def _on_rollout_end(self) -> None:

@@ -34,8 +34,8 @@ Pitfalls (each cost us time):
   At inference take the Gaussian mean and clip it to [-1, 1] too.
 * ``sample_timeout_s``: with remote env runners on a busy machine RLlib's default 60 s sample timeout can expire
   and the iteration then reports no episodes (``episode_return_mean`` missing) instead of failing; we wait 600 s.
-* ``ParallelPettingZooEnv`` resets the env once in its constructor (harmless here), and our env's infos carry
-  nested dicts (``reward_terms``); RLlib passes them through untouched.
+* ``ParallelPettingZooEnv`` resets the env once in its constructor (harmless here); our env's flat infos
+  (rewards' terms, constraint costs) pass through untouched.
 """
 
 from __future__ import annotations

@@ -8,9 +8,10 @@ the paper's stage cost into rewards. No geometry or physics is written here.
 from __future__ import annotations
 
 import copy
-import functools
 import math
+import operator
 from collections import OrderedDict
+from collections.abc import Mapping
 from typing import Any
 
 import gymnasium
@@ -22,6 +23,7 @@ from pettingzoo.utils import parallel_to_aec, wrappers
 from covert_env.config import Config
 from covert_env.dynamics import solve_manoeuvre
 from covert_env.engine import Engine, step_engines
+from covert_env.metrics import nearest_teammate, terrain_clearance
 from covert_env.scenario import Scenario, _sample_starts
 from covert_env.visibility import line_of_sight, line_of_sight_rows
 from covert_env.zone import in_feasible_zone, lattice_offsets, to_world, zone_distance, zone_lattice
@@ -33,8 +35,12 @@ ACTION_MODES = ("unicycle", "waypoint")
 MIN_SPEED_FRACTION = 0.01
 #: Offsets in observations are divided by R2 and clipped to this magnitude (500 m at R2 = 100 m).
 OFFSET_CLIP = 5.0
-#: The reward's terms, as reported in ``infos[agent]["reward_terms"]`` (class docstring, Rewards).
+#: The reward's terms; ``infos[agent]["reward_<term>"]`` holds each (class docstring, Rewards).
 _REWARD_TERMS = ("path", "disguise", "los", "zone", "separation", "terrain")
+#: The constraints of the paper's problem (§2.4); ``infos[agent]["cost_<name>"]`` is 1.0 where the slot violated one.
+_COSTS = ("los", "zone", "separation", "terrain")
+#: Largest ``path_samples`` accepted: memory per step grows with it, and 1000 samples per 1 s slot is far past useful.
+MAX_PATH_SAMPLES = 1000
 
 
 class _SceneCache:
@@ -183,12 +189,14 @@ class CovertSensingParallelEnv(ParallelEnv):
     frame (spacing ``grid_step``, the nodes of the eroded zone), placed at the target's next pose
     q[k+1], phi[k+1]. The env flies the turn-then-straight manoeuvre (eqs. 22-29) to it. The planner
     of ``baselines.dp`` uses the same lattice, so it acts exactly through this env.
-    ``infos[agent]["action_mask"]`` (int8, length L) marks nodes that are reachable in one slot and in
-    the visible zone (eq. 10) at k+1; with ``dict_obs=True`` the observation is
-    ``{"observation": ..., "action_mask": ...}``. If no node qualifies, reachable nodes are unmasked,
-    and if none is reachable every node is, so a masked sampler always has a choice. A masked-out or
-    unreachable node is flown as a best effort (turn toward it, speed capped at V_max) and flagged
-    ``infos[agent]["infeasible"]``.
+    The action mask (int8, length L, 1 = allowed) marks nodes that are reachable in one slot and in
+    the visible zone (eq. 10) at k+1. It lives in one place per setting: ``infos[agent]["action_mask"]``
+    by default, or, with ``dict_obs=True``, the observation ``{"observation": ..., "action_mask": ...}``
+    (and then not in the infos); ``env.action_mask(agent)`` returns it in both. If no node qualifies,
+    reachable nodes are unmasked, and if none is reachable every node is, so a masked sampler always has a
+    choice. A masked-out but reachable node is flown exactly and flagged ``infos[agent]["infeasible"]``;
+    an unreachable one is flown as a best effort (the admissible constant (v, omega) ending closest to it,
+    see :mod:`covert_env.engine`) and flagged too.
 
     ## Observation Space
 
@@ -218,8 +226,7 @@ class CovertSensingParallelEnv(ParallelEnv):
     ## Rewards
 
     Per agent and slot, from the paper's stage cost g = v delta - lambda (eta |d alpha| + |d d|)
-    (eq. 18), divided by ``reward_scale``, plus penalties (each term is in
-    ``infos[agent]["reward_terms"]``):
+    (eq. 18), divided by ``reward_scale``, plus penalties (each term is ``infos[agent]["reward_<term>"]``):
 
     * ``path``: ``-v delta / reward_scale`` (energy, eq. 15);
     * ``disguise``: ``+lambda kappa / reward_scale`` (eq. 11);
@@ -227,6 +234,36 @@ class CovertSensingParallelEnv(ParallelEnv):
     * ``zone``: ``-zone_penalty * (1 + min(outside distance / (R2 - R1), 2))`` if outside the zone;
     * ``separation``: ``-separation_penalty`` if closer than d_safe1 to a teammate at any sample of the slot;
     * ``terrain``: ``-terrain_penalty`` if closer than d_safe2 to a polytope's highest point.
+
+    ## Constraint Costs
+
+    For constrained (safe) RL, e.g. Lagrangian methods, ``infos[agent]`` carries the violations of the
+    paper's constraints (§2.4) in the slot just flown, each 0.0 or 1.0, and their sum ``cost``; they do not
+    depend on the penalty weights (set the penalties to 0 to train on the stage cost alone):
+
+    | key | constraint violated |
+    |---|---|
+    | ``cost_los`` | LoS to the target blocked at the end of the slot (eqs. 6, 10) |
+    | ``cost_zone`` | outside the feasible flight zone at the end of the slot (eqs. 4-5) |
+    | ``cost_separation`` | closer than d_safe1 to a teammate at any sample of the slot (eq. 2) |
+    | ``cost_terrain`` | closer than d_safe2 to a polytope's highest point at the end of the slot (eq. 3) |
+
+    ## Infos
+
+    Flat and scalar, with the same keys and types at ``reset()`` and every ``step()`` (as TorchRL and
+    BenchMARL need). At reset no slot has been flown: rewards, costs, ``kappa``, ``g`` and ``v`` are 0.
+
+    | key | type | meaning |
+    |---|---|---|
+    | ``slot`` | int | slot k reached |
+    | ``los``, ``in_zone`` | bool | LoS clear / inside the zone at slot k |
+    | ``infeasible`` | bool | the waypoint was masked out or unreachable (see Action Space) |
+    | ``kappa``, ``g``, ``v`` | float | disguise (eq. 11), stage cost (eq. 18), speed of the slot |
+    | ``separation`` | float | nearest teammate along the slot (m; inf with one UAV) |
+    | ``terrain_clearance`` | float | distance to the nearest polytope top (m, eq. 3) |
+    | ``reward_path`` .. ``reward_terrain`` | float | the reward's terms (they sum to the reward) |
+    | ``cost``, ``cost_los`` .. ``cost_terrain`` | float | the constraint costs above |
+    | ``action_mask`` | int8 array | waypoint mode without ``dict_obs`` only |
 
     ## Starting State
 
@@ -242,8 +279,9 @@ class CovertSensingParallelEnv(ParallelEnv):
 
     ## Episode End
 
-    Truncation after ``max_cycles`` slots (default ``config.n_slots`` = 70, the end of the route).
-    Termination only if ``terminate_on_collision=True`` and two UAVs come closer than d_safe1.
+    Truncation after ``min(max_cycles, config.n_slots)`` slots (``env.episode_length``; default 70, the
+    end of the target's route: a larger ``max_cycles`` cannot extend the route). Termination only if
+    ``terminate_on_collision=True`` and two UAVs come closer than d_safe1.
 
     ## Arguments
 
@@ -251,14 +289,15 @@ class CovertSensingParallelEnv(ParallelEnv):
     * ``n_uavs``: team size U (default ``config.n_uavs``).
     * ``scenario``: ``"random"``, ``"paper"`` or a ``Scenario``.
     * ``action_mode``: ``"unicycle"`` or ``"waypoint"``.
-    * ``max_cycles``: episode length in slots (<= ``config.n_slots``).
+    * ``max_cycles``: bound on the episode length in slots (an integer >= 1; validated also when set as an
+      attribute); episodes end at ``config.n_slots`` in any case.
     * ``render_mode``: ``None``, ``"human"`` or ``"rgb_array"``.
     * ``map_size``: side S of the observation maps (default 8).
-    * ``dict_obs``: in waypoint mode, Dict observations with the action mask.
+    * ``dict_obs``: Dict observations carrying the action mask (waypoint mode only; Tianshou needs it).
     * ``reward_scale``, ``los_penalty``, ``zone_penalty``, ``separation_penalty``, ``terrain_penalty``.
     * ``terminate_on_collision``: end the episode when separation < d_safe1.
     * ``scene_pool``: number of training scene seeds for ``scenario="random"`` (default 10000).
-    * ``path_samples``: samples per slot for LoS/separation checks along the path (default 11).
+    * ``path_samples``: samples per slot for LoS/separation checks along the path (default 11, in [2, 1000]).
     * ``random_starts``: sample start poses from the env's RNG even for a fixed scenario.
 
     ## Version History
@@ -277,51 +316,54 @@ class CovertSensingParallelEnv(ParallelEnv):
                  terminate_on_collision: bool = False, scene_pool: int = 10_000, path_samples: int = 11,
                  random_starts: bool = False):
         super().__init__()
-        cfg = Config.from_dict(config) if isinstance(config, dict) else (config or Config())
+        if isinstance(config, Mapping):
+            cfg = Config.from_dict(dict(config))
+        elif config is None or isinstance(config, Config):
+            cfg = config or Config()
+        else:
+            raise TypeError(f"config must be a covert_env.Config, a dict of its fields or None, "
+                            f"got {type(config).__name__} {config!r}")
         if n_uavs is not None:
-            cfg = cfg.replace(n_uavs=int(n_uavs))
+            cfg = cfg.replace(n_uavs=_int_arg("n_uavs", n_uavs, 1))
         if isinstance(scenario, Scenario):
             cfg = scenario.config if n_uavs is None else cfg
             if scenario.n_uavs != cfg.n_uavs:
                 raise ValueError(f"n_uavs={cfg.n_uavs} but the scenario has {scenario.n_uavs} UAVs")
-        elif scenario not in ("random", "paper"):
+        elif not isinstance(scenario, str) or scenario not in ("random", "paper"):
             raise ValueError(f"scenario must be 'random', 'paper' or a Scenario, got {scenario!r}")
-        if action_mode not in ACTION_MODES:
+        if not isinstance(action_mode, str) or action_mode not in ACTION_MODES:
             raise ValueError(f"action_mode must be one of {ACTION_MODES}, got {action_mode!r}")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, "
                              f"got {render_mode!r}")
-        if max_cycles is None:
-            max_cycles = cfg.n_slots
-        if not (isinstance(max_cycles, (int, np.integer)) and 1 <= max_cycles <= cfg.n_slots):
-            raise ValueError(f"max_cycles must be an integer in [1, config.n_slots={cfg.n_slots}], "
-                             f"got {max_cycles!r}")
-        if not (isinstance(map_size, (int, np.integer)) and 2 <= map_size <= 64):
-            raise ValueError(f"map_size must be an integer in [2, 64], got {map_size!r}")
-        if not (isinstance(scene_pool, (int, np.integer)) and scene_pool >= 1):
-            raise ValueError(f"scene_pool must be an integer >= 1, got {scene_pool!r}")
-        for name, val in (("reward_scale", reward_scale),):
-            if not (math.isfinite(val) and val > 0):
-                raise ValueError(f"{name} must be a finite number > 0, got {val!r}")
-        for name, val in (("los_penalty", los_penalty), ("zone_penalty", zone_penalty),
-                          ("separation_penalty", separation_penalty), ("terrain_penalty", terrain_penalty)):
-            if not (math.isfinite(val) and val >= 0):
-                raise ValueError(f"{name} must be a finite number >= 0, got {val!r}")
+        if _bool_arg("dict_obs", dict_obs) and action_mode != "waypoint":
+            raise ValueError("dict_obs=True needs action_mode='waypoint': the unicycle mode has no action mask")
+        map_size = _int_arg("map_size", map_size, 2, 64)
+        scene_pool = _int_arg("scene_pool", scene_pool, 1)
+        path_samples = _int_arg("path_samples", path_samples, 2, MAX_PATH_SAMPLES)
+        reward_scale = _number_arg("reward_scale", reward_scale)
+        if reward_scale <= 0:
+            raise ValueError(f"reward_scale must be a finite number > 0, got {reward_scale!r}")
+        penalties = {"los": los_penalty, "zone": zone_penalty, "separation": separation_penalty,
+                     "terrain": terrain_penalty}
+        for key, val in penalties.items():
+            penalties[key] = _number_arg(f"{key}_penalty", val)
+            if penalties[key] < 0:
+                raise ValueError(f"{key}_penalty must be a finite number >= 0, got {val!r}")
 
         self.config = cfg
         self.scenario_spec = scenario
         self.action_mode = action_mode
-        self.max_cycles = int(max_cycles)
+        self.max_cycles = cfg.n_slots if max_cycles is None else max_cycles     # validated by the setter
         self.render_mode = render_mode
-        self.map_size = int(map_size)
-        self.dict_obs = bool(dict_obs) and action_mode == "waypoint"
-        self.reward_scale = float(reward_scale)
-        self.penalties = {"los": float(los_penalty), "zone": float(zone_penalty),
-                          "separation": float(separation_penalty), "terrain": float(terrain_penalty)}
-        self.terminate_on_collision = bool(terminate_on_collision)
-        self.scene_pool = int(scene_pool)
-        self.path_samples = int(path_samples)
-        self.random_starts = bool(random_starts)
+        self.map_size = map_size
+        self.dict_obs = bool(dict_obs)
+        self.reward_scale = reward_scale
+        self.penalties = penalties
+        self.terminate_on_collision = _bool_arg("terminate_on_collision", terminate_on_collision)
+        self.scene_pool = scene_pool
+        self.path_samples = path_samples
+        self.random_starts = _bool_arg("random_starts", random_starts)
 
         self.possible_agents = [f"uav_{i}" for i in range(cfg.n_uavs)]
         self.agents: list[str] = []
@@ -370,13 +412,28 @@ class CovertSensingParallelEnv(ParallelEnv):
         self._renderer = None
 
     # ------------------------------------------------------------------ spaces
-    @functools.cache  # noqa: B019 - spaces are per-env constants
+    # Plain lookups, not functools.cache: a cache on a method is a module-level dict that would keep every env
+    # ever built alive. The dicts return the same object every call, as PettingZoo's API test requires.
     def observation_space(self, agent: str) -> gymnasium.Space:
         return self.observation_spaces[agent]
 
-    @functools.cache  # noqa: B019
     def action_space(self, agent: str) -> gymnasium.Space:
         return self.action_spaces[agent]
+
+    @property
+    def max_cycles(self) -> int:
+        """Episode length bound in slots; the episode also ends at the end of the route (``config.n_slots``)."""
+        return self._max_cycles
+
+    @max_cycles.setter
+    def max_cycles(self, value) -> None:
+        # Validated on every assignment: PettingZoo's test battery and users set it as an attribute.
+        self._max_cycles = _int_arg("max_cycles", value, 1)
+
+    @property
+    def episode_length(self) -> int:
+        """Slots in an episode: ``min(max_cycles, config.n_slots)`` (the target's route has n_slots slots)."""
+        return min(self._max_cycles, self.config.n_slots)
 
     # ------------------------------------------------------------------ scenes
     def _scene(self, scene_seed: int | None) -> _SceneCache:
@@ -418,7 +475,7 @@ class CovertSensingParallelEnv(ParallelEnv):
                                         c.r1, c.r2, c.mu)
         self._update_masks()
         obs = self._obs_dict(_observations([self])[0])
-        infos = {a: self._base_info(i) for i, a in enumerate(self.agents)}
+        infos = dict(zip(self.agents, self._reset_infos(), strict=True))
         if self.render_mode == "human":
             self.render()
         return obs, infos
@@ -426,6 +483,12 @@ class CovertSensingParallelEnv(ParallelEnv):
     def step(self, actions: dict[str, Any]):
         if self.engine is None or not self.agents:
             raise RuntimeError("step() called before reset() or after the episode ended; call reset()")
+        if not isinstance(actions, Mapping):
+            raise TypeError(f"step() expects a dict {{agent: action}} for the agents {self.agents}, "
+                            f"got {type(actions).__name__}")
+        unknown = [a for a in actions if a not in self._index]
+        if unknown:
+            raise ValueError(f"step(): unknown agent(s) {unknown}; the agents are {self.agents}")
         missing = [a for a in self.agents if a not in actions]
         if missing:
             raise ValueError(f"step(): missing actions for {missing}")
@@ -442,28 +505,33 @@ class CovertSensingParallelEnv(ParallelEnv):
 
     # ------------------------------------------------------------------ internals
     def _unicycle_actions(self, actions: dict[str, Any]) -> np.ndarray:
-        """(U, 2) raw Box actions in agent order, checked for shape and finiteness."""
+        """(U, 2) raw Box actions in agent order, checked for type, shape and finiteness."""
+        # Each agent's own dtype: stacked together, a bool action beside float ones would be upcast to 0.0/1.0.
+        vals = [np.asarray(actions[a]) for a in self.agents]
         try:
-            act = np.array([actions[a] for a in self.agents], dtype=float)
-        except (TypeError, ValueError):
+            act = np.stack(vals) if all(v.dtype.kind in "iuf" for v in vals) else None
+        except ValueError:                   # ragged: the loop below names the culprit
             act = None
         if act is None or act.shape != (len(self.agents), 2) or not np.isfinite(act).all():
             for a in self.agents:   # find the culprit for the message
-                one = np.asarray(actions[a], dtype=float).reshape(-1)
+                one = np.asarray(actions[a])
+                if one.dtype.kind not in "iuf":
+                    raise TypeError(f"action for {a} must be 2 numbers (speed, turn rate) in [-1, 1], "
+                                    f"got {actions[a]!r}")
                 if one.shape != (2,):
                     raise ValueError(f"action for {a} must have shape (2,), got {np.shape(actions[a])}")
                 if not np.all(np.isfinite(one)):
                     raise ValueError(f"action for {a} must be finite, got {one.tolist()}")
             raise ValueError(f"actions must be arrays of shape (2,), got {[np.shape(actions[a]) for a in self.agents]}")
-        return act
+        return act.astype(float, copy=False)
 
     def _waypoint_indices(self, actions: dict[str, Any]) -> np.ndarray:
-        """(U,) lattice indices from Discrete(L) actions, validated."""
+        """(U,) lattice indices from Discrete(L) actions, validated (integers; floats only with an integral value)."""
         n = len(self.lattice)
         idx = np.empty(len(self.agents), dtype=int)
         for i, a in enumerate(self.agents):
             act = np.asarray(actions[a])
-            val = float(act.reshape(-1)[0]) if act.size == 1 and act.dtype.kind in "biuf" else math.nan
+            val = float(act.reshape(-1)[0]) if act.size == 1 and act.dtype.kind in "iuf" else math.nan
             if not (math.isfinite(val) and val == int(val) and 0 <= val < n):
                 raise ValueError(f"action for {a} must be an integer in [0, {n - 1}], got {actions[a]!r}")
             idx[i] = int(val)
@@ -499,11 +567,17 @@ class CovertSensingParallelEnv(ParallelEnv):
         construction). Rewards, penalties, ``max_cycles`` and ``terminate_on_collision`` may differ per copy."""
         return self.config, self.action_mode, self.map_size, self.dict_obs, self.path_samples, len(self.possible_agents)
 
-    def _base_info(self, i: int) -> dict:
-        info: dict[str, Any] = {"slot": int(self.engine.k)}
-        if self.action_mode == "waypoint":
-            info["action_mask"] = self._masks[i].copy()
-        return info
+    def _reset_infos(self) -> list[dict]:
+        """Infos at reset: the keys and types of every step's (:func:`_agent_infos`). No slot has been flown,
+        so rewards, costs and the slot's motion are 0; LoS, zone, separation and clearance are the starts'."""
+        eng, c = self.engine, self.config
+        u = len(self.possible_agents)
+        zeros = [[0.0] * u]
+        values = dict.fromkeys(_STEP_INFO_FLOATS, zeros)
+        values.update(los=[self._los.tolist()], in_zone=[(self._zone_dist <= 0).tolist()], infeasible=[[False] * u],
+                      separation=[nearest_teammate(eng.uav_xy).tolist()],
+                      terrain_clearance=[terrain_clearance(eng.uav_xy, c.altitude, eng.terrain).tolist()])
+        return _agent_infos([self], [int(eng.k)], values)[0]
 
     def _own_features(self) -> np.ndarray:
         """(U, 8) per-UAV features 0-7 of the observation table."""
@@ -516,7 +590,8 @@ class CovertSensingParallelEnv(ParallelEnv):
         return out
 
     def _remaining(self) -> float:
-        return max(self.max_cycles - self.engine.k, 0) / self.max_cycles
+        length = self.episode_length
+        return max(length - self.engine.k, 0) / length
 
     def _shared_block(self) -> np.ndarray:
         """:meth:`_shared_features` with 0 for the time remaining (read-only): it depends only on the scene
@@ -562,7 +637,9 @@ class CovertSensingParallelEnv(ParallelEnv):
 # the cost. ``env.step`` is the case N = 1; the SB3 adapter (training.vec_env) steps all its copies
 # through :func:`step_copies`, so both paths run the same code.
 
-_INFO_KEYS = ("los", "in_zone", "kappa", "g", "v", "separation", "terrain_clearance", "infeasible")
+#: Float infos of a step (the class docstring's Infos table), besides the bools los, in_zone, infeasible.
+_STEP_INFO_FLOATS = (("kappa", "g", "v", "separation", "terrain_clearance")
+                     + tuple(f"reward_{t}" for t in _REWARD_TERMS) + ("cost",) + tuple(f"cost_{n}" for n in _COSTS))
 
 
 def step_copies(envs, actions) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[list[dict]]]:
@@ -607,14 +684,15 @@ def step_copies(envs, actions) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.n
             goals[j] = to_world(env.lattice[idx[j]], q1[0, :2], float(phi1[0]))
         quant = step_engines(engines, waypoints=goals, infeasible=decision)
     speed = quant.path_length / c.delta
-    terms = _reward_terms(envs, quant)
+    costs = _constraint_costs(quant, c)
+    terms = _reward_terms(envs, quant, costs)
     rewards = terms.sum(axis=0)
     ks = [eng.k for eng in engines]
     if n == 1:
-        stop_on_collision, max_cycles = e0.terminate_on_collision, e0.max_cycles
+        stop_on_collision, max_cycles = e0.terminate_on_collision, e0.episode_length
     else:
         stop_on_collision = np.array([env.terminate_on_collision for env in envs])
-        max_cycles = np.array([env.max_cycles for env in envs])
+        max_cycles = np.array([env.episode_length for env in envs])
     terminate = (quant.separation_path < c.d_safe1).any(axis=1) & stop_on_collision
     truncate = (np.array(ks) >= max_cycles) & ~terminate
     for j, env in enumerate(envs):
@@ -622,22 +700,15 @@ def step_copies(envs, actions) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.n
         env._update_masks()
     obs = _observations(envs)
 
-    per_agent = (quant.los.tolist(), quant.in_zone.tolist(), quant.kappa.tolist(), quant.g.tolist(), speed.tolist(),
-                 quant.separation_path.tolist(), quant.terrain_clearance.tolist(),
-                 [eng._infeasible[-1].tolist() for eng in engines])
-    term_rows = terms.transpose(1, 2, 0).tolist()
-    waypoint = e0.action_mode == "waypoint"
-    infos = []
+    values = {"los": quant.los.tolist(), "in_zone": quant.in_zone.tolist(), "kappa": quant.kappa.tolist(),
+              "g": quant.g.tolist(), "v": speed.tolist(), "separation": quant.separation_path.tolist(),
+              "terrain_clearance": quant.terrain_clearance.tolist(),
+              "infeasible": [eng._infeasible[-1].tolist() for eng in engines]}
+    values.update(zip((f"reward_{t}" for t in _REWARD_TERMS), terms.tolist(), strict=True))
+    values["cost"] = costs.sum(axis=0).tolist()
+    values.update(zip((f"cost_{name}" for name in _COSTS), costs.tolist(), strict=True))
+    infos = _agent_infos(envs, ks, values)
     for j, env in enumerate(envs):
-        slot = ks[j]
-        copy_infos = []
-        for i, row in enumerate(zip(*(col[j] for col in per_agent), strict=True)):
-            info = {"slot": slot, "reward_terms": dict(zip(_REWARD_TERMS, term_rows[j][i], strict=True))}
-            info.update(zip(_INFO_KEYS, row, strict=True))
-            if waypoint:
-                info["action_mask"] = env._masks[i].copy()
-            copy_infos.append(info)
-        infos.append(copy_infos)
         if terminate[j] or truncate[j]:
             env.agents = []
         if env.render_mode == "human":
@@ -675,9 +746,39 @@ def _lattice_indices(actions, n: int, u: int, n_nodes: int, agents) -> np.ndarra
     return a.astype(int)
 
 
-def _reward_terms(envs, quant) -> np.ndarray:
+def _agent_infos(envs, slots, values: dict[str, list]) -> list[list[dict]]:
+    """N lists of U flat info dicts from ``values[key][copy][agent]``: every key in a fixed order, the action mask
+    last where it lives in the infos (waypoint mode without ``dict_obs``). Reset and step both build them here, so
+    their keys and types agree (TorchRL builds its info spec from reset's)."""
+    keys = ("los", "in_zone", "infeasible") + _STEP_INFO_FLOATS
+    cols = [values[key] for key in keys]
+    mask_in_info = envs[0].action_mode == "waypoint" and not envs[0].dict_obs
+    out = []
+    for j, env in enumerate(envs):
+        rows = zip(*(col[j] for col in cols), strict=True)
+        infos = [{"slot": slots[j], **dict(zip(keys, row, strict=True))} for row in rows]
+        if mask_in_info:
+            for i, info in enumerate(infos):
+                info["action_mask"] = env._masks[i].copy()
+        out.append(infos)
+    return out
+
+
+def _constraint_costs(quant, c: Config) -> np.ndarray:
+    """(4, N, U) float 0/1 violations of the slot in the order of ``_COSTS``: LoS blocked at the slot's end
+    (eqs. 6, 10), outside the zone (eqs. 4-5), closer than d_safe1 to a teammate along the path (eq. 2), closer
+    than d_safe2 to a polytope's highest point (eq. 3)."""
+    costs = np.empty((len(_COSTS),) + quant.los.shape)
+    np.logical_not(quant.los, out=costs[0])
+    np.logical_not(quant.in_zone, out=costs[1])
+    np.less(quant.separation_path, c.d_safe1, out=costs[2])
+    np.less(quant.terrain_clearance, c.d_safe2, out=costs[3])
+    return costs
+
+
+def _reward_terms(envs, quant, costs: np.ndarray) -> np.ndarray:
     """(6, N, U) reward terms in the order of ``_REWARD_TERMS`` (class docstring, Rewards), with each copy's
-    own reward scale and penalties."""
+    own reward scale and penalties; the penalties weigh the constraint ``costs`` of :func:`_constraint_costs`."""
     e0 = envs[0]
     c = e0.config
     if len(envs) == 1:
@@ -690,15 +791,12 @@ def _reward_terms(envs, quant) -> np.ndarray:
     np.divide(quant.path_length, -scale, out=cols[0])
     np.multiply(quant.kappa, c.lam, out=cols[1])
     cols[1] /= scale
-    cols[2] = ~quant.los
-    cols[2] *= -p["los"]
+    np.multiply(costs[0], -p["los"], out=cols[2])
     cols[3] = np.minimum(outside, 2.0) + 1.0
-    cols[3] *= ~quant.in_zone
+    cols[3] *= costs[1]
     cols[3] *= -p["zone"]
-    cols[4] = quant.separation_path < c.d_safe1
-    cols[4] *= -p["separation"]
-    cols[5] = quant.terrain_clearance < c.d_safe2
-    cols[5] *= -p["terrain"]
+    np.multiply(costs[2], -p["separation"], out=cols[4])
+    np.multiply(costs[3], -p["terrain"], out=cols[5])
     return cols
 
 
@@ -753,6 +851,37 @@ def _observations(envs) -> np.ndarray:
     rows[..., n_own + 3:n_own + 3 + n_mate] = own[:, e0._mates, :2].reshape(n, u, -1)
     rows[..., n_own + 3 + n_mate:] = shared[:, None, 3:]
     return rows
+
+
+# ----------------------------------------------------------------------------- argument checks
+def _int_arg(name: str, value, low: int, high: int | None = None) -> int:
+    """``value`` as an int in [low, high]: ints and numpy integers pass; bools, floats and strings are rejected
+    (a fractional team size or map side has no meaning, and silent truncation hides the mistake)."""
+    if isinstance(value, (bool, np.bool_)):
+        raise TypeError(f"{name} must be an integer, got {value!r}")
+    try:
+        v = operator.index(value)
+    except TypeError:
+        raise TypeError(f"{name} must be an integer, got {type(value).__name__} {value!r}") from None
+    if v < low or (high is not None and v > high):
+        allowed = f"in [{low}, {high}]" if high is not None else f">= {low}"
+        raise ValueError(f"{name} must be an integer {allowed}, got {v!r}")
+    return v
+
+
+def _number_arg(name: str, value) -> float:
+    """``value`` as a finite float; bools and strings are rejected."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise TypeError(f"{name} must be a number, got {type(value).__name__} {value!r}")
+    if not math.isfinite(value):
+        raise ValueError(f"{name} must be finite, got {value!r}")
+    return float(value)
+
+
+def _bool_arg(name: str, value) -> bool:
+    if not isinstance(value, (bool, np.bool_)):
+        raise TypeError(f"{name} must be True or False, got {value!r}")
+    return bool(value)
 
 
 def raw_env(**kwargs) -> CovertSensingParallelEnv:

@@ -53,7 +53,10 @@ class CovertSensingEnv(gym.Env):
     ## Rewards
 
     ``-g / reward_scale`` (eq. 18: path length minus lambda times disguise) minus penalties for lost LoS,
-    leaving the zone and terrain clearance; ``info["reward_terms"]`` itemises them.
+    leaving the zone and terrain clearance; ``info["reward_path"]`` .. ``info["reward_terrain"]`` itemise them.
+    ``info["cost"]`` and ``info["cost_los"]`` .. ``info["cost_terrain"]`` are the constraint violations of the
+    slot, for constrained RL. The infos are flat, with the same keys at reset and every step (the parallel
+    env's Infos and Constraint Costs tables).
 
     ## Starting State
 
@@ -67,8 +70,10 @@ class CovertSensingEnv(gym.Env):
 
     ## Arguments
 
-    Every keyword of the parallel env except ``n_uavs`` (always 1): ``config``, ``scenario``,
-    ``max_cycles``, ``render_mode``, ``map_size``, reward weights, ``scene_pool``, ``path_samples``.
+    Every keyword of the parallel env: ``config``, ``scenario``, ``max_cycles``, ``render_mode``,
+    ``map_size``, reward weights, ``scene_pool``, ``path_samples``; ``n_uavs`` may only be 1 and
+    ``action_mode`` only this env's (an error otherwise); ``dict_obs=True`` (waypoint env only) puts the
+    action mask in the observation.
 
     ## Version History
 
@@ -79,11 +84,16 @@ class CovertSensingEnv(gym.Env):
     _action_mode = "unicycle"
 
     def __init__(self, render_mode: str | None = None, **kwargs: Any):
-        kwargs.pop("n_uavs", None)
-        kwargs.pop("action_mode", None)
-        kwargs.pop("dict_obs", None)
-        self.par = CovertSensingParallelEnv(n_uavs=1, action_mode=self._action_mode, render_mode=render_mode,
-                                            **kwargs)
+        # Arguments that contradict this env are errors, not silently dropped: a user passing n_uavs=3 wants a team.
+        if kwargs.get("n_uavs", 1) != 1:
+            raise ValueError(f"{type(self).__name__} flies one UAV, got n_uavs={kwargs['n_uavs']!r}; for a team "
+                             "use covert_env.parallel_env(n_uavs=U) (PettingZoo)")
+        if kwargs.get("action_mode", self._action_mode) != self._action_mode:
+            other = "CovertSensingWaypoint" if self._action_mode == "unicycle" else "CovertSensing"
+            raise ValueError(f"{type(self).__name__} has action_mode={self._action_mode!r}, got "
+                             f"action_mode={kwargs['action_mode']!r}; use the id covert_env/{other}-v0")
+        kwargs.update(n_uavs=1, action_mode=self._action_mode)
+        self.par = CovertSensingParallelEnv(render_mode=render_mode, **kwargs)
         self.render_mode = render_mode
         self._agent = self.par.possible_agents[0]
         self.observation_space = self.par.observation_space(self._agent)

@@ -1,0 +1,271 @@
+"""What frameworks and users rely on: flat infos with the same keys at reset and step, constraint costs, one place
+for the action mask, PettingZoo's whole battery at its default arguments, max_cycles, no leaks, clear errors."""
+
+from __future__ import annotations
+
+import gc
+import weakref
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from pettingzoo.test import (
+    api_test,
+    max_cycles_test,
+    parallel_api_test,
+    parallel_seed_test,
+    performance_benchmark,
+    render_test,
+    seed_test,
+)
+
+import covert_env
+from covert_env import covert_sensing_v0
+
+MODES = ("unicycle", "waypoint")
+TERMS = ("path", "disguise", "los", "zone", "separation", "terrain")
+COSTS = ("los", "zone", "separation", "terrain")
+
+
+def _actions(env, obs, infos):
+    acts = {}
+    for a in env.agents:
+        mask = env.action_mask(a) if env.action_mode == "waypoint" else None
+        acts[a] = env.action_space(a).sample(mask)
+    return acts
+
+
+def _signature(info: dict) -> dict:
+    """Key -> type, with arrays as (dtype, shape): what TorchRL infers an info spec from."""
+    return {k: (v.dtype, v.shape) if isinstance(v, np.ndarray) else type(v) for k, v in info.items()}
+
+
+# ---------------------------------------------------------------------- infos
+@pytest.mark.parametrize("mode, dict_obs", [("unicycle", False), ("waypoint", False), ("waypoint", True)])
+def test_infos_flat_and_same_at_reset_and_every_step(mode, dict_obs):
+    env = covert_env.parallel_env(n_uavs=3, action_mode=mode, dict_obs=dict_obs, max_cycles=8)
+    obs, infos = env.reset(seed=3)
+    ref = _signature(infos["uav_0"])
+    scalars = {k for k, t in ref.items() if not isinstance(t, tuple)}
+    assert scalars >= {"slot", "los", "in_zone", "infeasible", "kappa", "g", "v", "separation", "terrain_clearance",
+                       "cost", *(f"reward_{t}" for t in TERMS), *(f"cost_{c}" for c in COSTS)}
+    assert all(t in (int, float, bool) for k, t in ref.items() if k in scalars)
+    assert ("action_mask" in ref) == (mode == "waypoint" and not dict_obs)
+    assert all(infos[a][f"reward_{t}"] == 0.0 and infos[a]["cost"] == 0.0 for a in env.agents for t in TERMS)
+    steps = 0
+    while env.agents:
+        obs, rew, _, _, infos = env.step(_actions(env, obs, infos))
+        steps += 1
+        for a in env.possible_agents:
+            assert _signature(infos[a]) == ref
+            assert rew[a] == pytest.approx(sum(infos[a][f"reward_{t}"] for t in TERMS))
+            if dict_obs:
+                assert np.array_equal(obs[a]["action_mask"], env.action_mask(a))
+            elif mode == "waypoint":
+                assert np.array_equal(infos[a]["action_mask"], env.action_mask(a))
+    assert steps == 8
+
+
+def test_reset_infos_describe_the_starts():
+    env = covert_env.parallel_env(n_uavs=3, scenario="paper")
+    obs, infos = env.reset(seed=0)
+    xy = env.engine.uav_xy
+    d = np.hypot(*(xy[:, None] - xy[None]).transpose(2, 0, 1)) + np.diag([np.inf] * 3)
+    for i, a in enumerate(env.agents):
+        assert infos[a]["separation"] == pytest.approx(d[i].min())
+        assert infos[a]["los"] == bool(obs[a][5]) and infos[a]["in_zone"] == bool(obs[a][6])
+        tops = env.scenario.terrain.highest_points
+        clearance = np.sqrt(((tops[:, :2] - xy[i]) ** 2).sum(1) + (80.0 - tops[:, 2]) ** 2).min()
+        assert infos[a]["terrain_clearance"] == pytest.approx(clearance)
+
+
+# ---------------------------------------------------------------------- costs
+def test_costs_are_the_constraint_violations():
+    env = covert_env.parallel_env(n_uavs=3, scenario="paper", los_penalty=0.0, zone_penalty=0.0,
+                                  separation_penalty=0.0, terrain_penalty=0.0)
+    env.reset(seed=0)
+    # Two UAVs on top of each other, one far outside the zone: separation and zone violated.
+    env.engine.reset(uav_xy=[[50.0, 0.0], [50.5, 0.0], [300.0, 300.0]], uav_theta=[0.0, 0.0, 0.0])
+    seen = {c: 0.0 for c in COSTS}
+    for _ in range(6):
+        _, rew, _, _, infos = env.step({a: np.array([-0.9, 0.0]) for a in env.agents})
+        for a in env.agents:
+            info = infos[a]
+            c = env.config
+            assert info["cost_los"] == float(not info["los"])
+            assert info["cost_zone"] == float(not info["in_zone"])
+            assert info["cost_separation"] == float(info["separation"] < c.d_safe1)
+            assert info["cost_terrain"] == float(info["terrain_clearance"] < c.d_safe2)
+            assert info["cost"] == sum(info[f"cost_{k}"] for k in COSTS)
+            # Penalties are 0: the reward is the stage cost alone, whatever the costs.
+            assert rew[a] == pytest.approx(-info["g"] / 100.0)
+            for k in COSTS:
+                seen[k] += info[f"cost_{k}"]
+    assert seen["separation"] >= 2 and seen["zone"] >= 1
+
+
+def test_gymnasium_env_exposes_the_same_infos():
+    genv = gym.make("covert_env/CovertSensing-v0", max_cycles=3)
+    _, info0 = genv.reset(seed=1)
+    _, _, _, _, info1 = genv.step(genv.action_space.sample())
+    assert _signature(info0) == _signature(info1)
+    assert "cost" in info1 and "reward_disguise" in info1
+
+
+# ---------------------------------------------------------------------- PettingZoo's battery, default arguments
+@pytest.mark.parametrize("mode", MODES)
+@pytest.mark.parametrize("u", [1, 3])
+def test_pettingzoo_battery_default_arguments(mode, u):
+    parallel_api_test(covert_env.parallel_env(n_uavs=u, action_mode=mode))
+    api_test(covert_env.env(n_uavs=u, action_mode=mode))
+    seed_test(lambda: covert_env.env(n_uavs=u, action_mode=mode))
+    parallel_seed_test(lambda: covert_env.parallel_env(n_uavs=u, action_mode=mode))
+
+
+def test_pettingzoo_battery_dict_obs_default_arguments():
+    parallel_api_test(covert_env.parallel_env(n_uavs=3, action_mode="waypoint", dict_obs=True))
+    api_test(covert_env.env(n_uavs=3, action_mode="waypoint", dict_obs=True))
+
+
+def test_max_cycles_render_and_performance_default_arguments():
+    max_cycles_test(covert_sensing_v0)
+    for mode in MODES:
+        render_test(lambda render_mode=None, mode=mode: covert_env.env(action_mode=mode, render_mode=render_mode))
+    performance_benchmark(covert_env.env(n_uavs=3))
+
+
+def test_max_cycles_validated_on_assignment_and_bounded_by_the_route():
+    env = covert_env.parallel_env(n_uavs=2, scenario="paper")
+    for bad, exc in ((0, ValueError), (-5, ValueError), (2.5, TypeError), ("100", TypeError), (True, TypeError)):
+        with pytest.raises(exc, match="max_cycles must be an integer"):
+            env.max_cycles = bad
+    env.max_cycles = 1000                     # what parallel_api_test sets: the route still ends at n_slots
+    assert env.max_cycles == 1000 and env.episode_length == env.config.n_slots
+    obs, _ = env.reset(seed=0)
+    assert obs["uav_0"][10] == pytest.approx(1.0)
+    n = 0
+    while env.agents:
+        _, _, term, trunc, _ = env.step({a: np.zeros(2) for a in env.agents})
+        n += 1
+    assert n == env.config.n_slots and all(trunc.values())
+    env.max_cycles = np.int64(5)
+    env.reset(seed=0)
+    for _ in range(5):
+        env.step({a: np.zeros(2) for a in env.agents})
+    assert env.agents == []
+
+
+# ---------------------------------------------------------------------- no leaks
+def test_closed_env_is_collected():
+    env = covert_env.parallel_env(n_uavs=2, action_mode="waypoint", render_mode="rgb_array")
+    env.observation_space("uav_0"), env.action_space("uav_0")
+    env.reset(seed=0)
+    env.step({a: int(np.flatnonzero(env.action_mask(a))[0]) for a in env.agents})
+    env.render()
+    env.close()
+    ref = weakref.ref(env)
+    del env
+    gc.collect()
+    assert ref() is None
+
+    genv = gym.make("covert_env/CovertSensing-v0", max_cycles=2)
+    genv.reset(seed=0)
+    genv.step(genv.action_space.sample())
+    genv.close()
+    ref = weakref.ref(genv.unwrapped)
+    del genv
+    gc.collect()
+    assert ref() is None
+
+
+def _rss_mb() -> float:
+    with open("/proc/self/statm") as f:
+        return int(f.read().split()[1]) * 4096 / 2 ** 20
+
+
+@pytest.mark.skipif(not __import__("os").path.exists("/proc/self/statm"), reason="needs /proc (Linux)")
+def test_rss_flat_over_1000_envs():
+    for i in range(1000):
+        env = covert_env.parallel_env(n_uavs=3, scenario="paper")
+        env.observation_space("uav_0"), env.action_space("uav_0")
+        env.reset(seed=i)
+        env.step({a: env.action_space(a).sample() for a in env.agents})
+        env.close()
+        if i == 199:                           # after warm-up: imports, numpy/shapely caches
+            gc.collect()
+            before = _rss_mb()
+    gc.collect()
+    assert _rss_mb() < 1.05 * before
+
+
+# ---------------------------------------------------------------------- bad input at the env's boundary
+@pytest.mark.parametrize("kw, exc, pattern", [
+    (dict(n_uavs=2.7), TypeError, "n_uavs must be an integer"),
+    (dict(n_uavs="3"), TypeError, "n_uavs must be an integer"),
+    (dict(n_uavs=True), TypeError, "n_uavs must be an integer"),
+    (dict(config="abc"), TypeError, "config must be a covert_env.Config"),
+    (dict(config=3), TypeError, "config must be a covert_env.Config"),
+    (dict(scenario=5), ValueError, "scenario must be"),
+    (dict(action_mode=None), ValueError, "action_mode must be one of"),
+    (dict(map_size=8.0), TypeError, "map_size must be an integer"),
+    (dict(map_size=65), ValueError, r"map_size must be an integer in \[2, 64\]"),
+    (dict(path_samples=10 ** 9), ValueError, r"path_samples must be an integer in \[2, 1000\]"),
+    (dict(path_samples=1), ValueError, r"path_samples must be an integer in \[2, 1000\]"),
+    (dict(scene_pool=0), ValueError, "scene_pool must be an integer >= 1"),
+    (dict(scene_pool=1.5), TypeError, "scene_pool must be an integer"),
+    (dict(max_cycles="70"), TypeError, "max_cycles must be an integer"),
+    (dict(reward_scale="100"), TypeError, "reward_scale must be a number"),
+    (dict(reward_scale=float("nan")), ValueError, "reward_scale must be finite"),
+    (dict(los_penalty=True), TypeError, "los_penalty must be a number"),
+    (dict(terrain_penalty=float("inf")), ValueError, "terrain_penalty must be finite"),
+    (dict(terminate_on_collision="yes"), TypeError, "terminate_on_collision must be True or False"),
+    (dict(random_starts=1), TypeError, "random_starts must be True or False"),
+    (dict(dict_obs="no"), TypeError, "dict_obs must be True or False"),
+    (dict(dict_obs=True), ValueError, "dict_obs=True needs action_mode='waypoint'"),
+])
+def test_bad_env_arguments(kw, exc, pattern):
+    with pytest.raises(exc, match=pattern):
+        covert_env.parallel_env(**kw)
+
+
+def test_integer_like_arguments_accepted():
+    env = covert_env.parallel_env(n_uavs=np.int64(2), map_size=np.int32(6), max_cycles=np.int64(3))
+    assert env.max_num_agents == 2 and type(env.max_cycles) is int and env.map_size == 6
+
+
+@pytest.mark.parametrize("actions, exc, pattern", [
+    (None, TypeError, r"step\(\) expects a dict"),
+    ([np.zeros(2)] * 2, TypeError, r"step\(\) expects a dict"),
+    ({"uav_0": np.zeros(2), "uav_1": np.zeros(2), "uav_7": np.zeros(2)}, ValueError, r"unknown agent\(s\) \['uav_7'\]"),
+    ({"uav_0": np.zeros(2)}, ValueError, r"missing actions for \['uav_1'\]"),
+    ({"uav_0": ["0.1", "0.2"], "uav_1": np.zeros(2)}, TypeError, "action for uav_0 must be 2 numbers"),
+    ({"uav_0": True, "uav_1": np.zeros(2)}, TypeError, "action for uav_0 must be 2 numbers"),
+    ({"uav_0": np.array([True, False]), "uav_1": np.zeros(2)}, TypeError, "action for uav_0 must be 2 numbers"),
+    ({"uav_0": np.zeros(3), "uav_1": np.zeros(2)}, ValueError, r"action for uav_0 must have shape \(2,\)"),
+    ({"uav_0": np.zeros(2), "uav_1": [0.0, np.nan]}, ValueError, "action for uav_1 must be finite"),
+])
+def test_bad_unicycle_actions(actions, exc, pattern):
+    env = covert_env.parallel_env(n_uavs=2, scenario="paper")
+    env.reset(seed=0)
+    with pytest.raises(exc, match=pattern):
+        env.step(actions)
+
+
+@pytest.mark.parametrize("bad", [True, "3", 2.5, -1, np.array([1, 2])])
+def test_bad_waypoint_actions(bad):
+    env = covert_env.parallel_env(n_uavs=1, action_mode="waypoint", scenario="paper")
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=r"action for uav_0 must be an integer in \[0, "):
+        env.step({"uav_0": bad})
+
+
+@pytest.mark.parametrize("env_id, kw, pattern", [
+    ("covert_env/CovertSensing-v0", dict(n_uavs=3), r"flies one UAV, got n_uavs=3.*parallel_env"),
+    ("covert_env/CovertSensing-v0", dict(action_mode="waypoint"), "CovertSensingWaypoint-v0"),
+    ("covert_env/CovertSensingWaypoint-v0", dict(action_mode="unicycle"), "covert_env/CovertSensing-v0"),
+    ("covert_env/CovertSensing-v0", dict(dict_obs=True), "dict_obs=True needs action_mode='waypoint'"),
+])
+def test_gymnasium_make_rejects_contradicting_arguments(env_id, kw, pattern):
+    with pytest.raises(ValueError, match=pattern):
+        gym.make(env_id, **kw)
+    gym.make(env_id, n_uavs=1)                 # what the id already is: accepted
