@@ -268,6 +268,7 @@ def test_benchmarl_task_config():
     env = task.get_env_fun(num_envs=1, continuous_actions=True, seed=0, device="cpu")()
     assert task.group_map(env) == {"uav": ["uav_0"]} and task.max_steps(env) == 20
     assert env._env.penalties["los"] == 2.0
+    assert CovertSensingTask.WAYPOINT.get_task(config={"max_cycles": 1000}).max_steps(env) == 70   # the route
     with pytest.raises(ValueError, match="unknown fields.*'n_uav'"):
         CovertSensingTask.UNICYCLE.get_task(config={"n_uav": 3}).get_env_fun(1, True, 0, "cpu")
     with pytest.raises(ValueError, match="env_kwargs may not set.*action_mode"):

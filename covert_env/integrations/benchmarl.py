@@ -68,7 +68,7 @@ class TaskConfig:
     n_uavs: int = 3
     #: ``"random"`` (a training scene per reset) or ``"paper"``
     scenario: str = "random"
-    #: episode length in slots; ``None``: the route's length ``config.n_slots`` (70)
+    #: bound on the episode length in slots; ``None``: the route's length ``config.n_slots`` (70)
     max_cycles: int | None = None
     #: side of the observation maps
     map_size: int = 8
@@ -122,7 +122,7 @@ class CovertSensingClass(TaskClass):
         kwargs = self._env_kwargs()
         pz = covert_env.parallel_env(**kwargs)
         try:
-            return int(pz.max_cycles)
+            return int(pz.episode_length)          # min(max_cycles, config.n_slots)
         finally:
             pz.close()
 
