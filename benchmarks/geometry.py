@@ -6,7 +6,9 @@ Run ``python benchmarks/geometry.py`` (``--help`` for options). Prints a small t
   the eq. 8-9 shadows and the eq. 10 visible zone, on the paper-like terrain (``Terrain.random``);
 * ``line_of_sight`` microseconds per point for 10^3 and 10^5 UAV points within R2 of the target, on
   the paper-like terrain (16 polytopes along the road) and on a dense scene (16 polytopes all within
-  120 m of the target: the worst case for the broad phase), single-threaded numpy.
+  120 m of the target: the worst case for the broad phase), single-threaded numpy;
+* ``Terrain.load`` of a GeoJSON city of ``--city`` flat-topped buildings on a grid (the overlap check is
+  an R-tree query; 0 skips it).
 """
 
 from __future__ import annotations
@@ -74,6 +76,27 @@ def dense_terrain(seed: int) -> Terrain:
     return Terrain([_fallback_polytope(rng, c, r) for c, r in polys])
 
 
+def city_load_seconds(n: int) -> tuple[int, float]:
+    """(buildings, seconds) for ``Terrain.load`` of a file of about ``n`` 8 m squares on a 12 m grid."""
+    import json
+    import tempfile
+
+    side = max(1, round(math.sqrt(n)))
+    feats = []
+    for k in range(side * side):
+        x, y = 12.0 * (k // side), 12.0 * (k % side)
+        ring = [[x, y], [x + 8, y], [x + 8, y + 8], [x, y + 8], [x, y]]
+        feats.append({"type": "Feature", "id": k, "properties": {"height": 10.0 + k % 7},
+                      "geometry": {"type": "Polygon", "coordinates": [ring]}})
+    with tempfile.TemporaryDirectory() as tmp:
+        path = os.path.join(tmp, "city.geojson")
+        with open(path, "w") as f:
+            json.dump({"type": "FeatureCollection", "features": feats}, f)
+        t0 = time.perf_counter()
+        terrain = Terrain.load(path, altitude=80.0)
+        return len(terrain), time.perf_counter() - t0
+
+
 def _median_time(fn, repeat: int) -> float:
     ts = []
     for _ in range(repeat):
@@ -89,6 +112,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="a random scene's seed (default: the paper scenario, Scenario.paper)")
     ap.add_argument("--slots", type=int, default=50, help="slots for the per-slot timing (default 50)")
     ap.add_argument("--repeat", type=int, default=5, help="repetitions of each LoS timing (median)")
+    ap.add_argument("--city", type=int, default=20_000, help="buildings in the Terrain.load timing (0: skip)")
     args = ap.parse_args(argv)
 
     cfg = Config()
@@ -152,6 +176,10 @@ def main(argv: list[str] | None = None) -> int:
           f"{'blocked':>8s}")
     for name, m, n, us, usg, b in los_rows:
         print(f"  {name:12s} {m:3d} {n:8d} {us:8.3f} {usg:20.3f} {b:8.3f}")
+    if args.city > 0:
+        m, sec = city_load_seconds(args.city)
+        print()
+        print(f"Terrain.load of a GeoJSON city of {m} buildings: {sec:.2f} s")
     return 0
 
 

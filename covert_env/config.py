@@ -10,19 +10,27 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import numbers
+import operator
+import reprlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-__all__ = ["Config"]
+__all__ = ["Config", "MAX_HORIZON", "MAX_LATTICE", "MAX_N_POLYTOPES", "MAX_N_SLOTS", "MAX_N_UAVS", "MAX_ROUTE",
+           "MAX_VERTICES"]
 
 
 @dataclass(frozen=True)
 class Config:
     """Parameters of the covert-sensing model. Units: metres, seconds, radians.
 
-    Construct with keywords; invalid values raise :class:`ValueError` naming the field and the
-    allowed range. ``Config.from_json(cfg.to_json()) == cfg``.
+    Construct with keywords; invalid values raise :class:`ValueError` naming the field, the value and
+    the allowed range. Integer fields take ints or numpy integers (stored as int; floats such as 3.0
+    and bools are rejected), the others any real number (stored as float). Sizes have upper bounds
+    (stated per field) so that a typo fails here rather than as a hang or a MemoryError later, and a
+    config whose eroded zone holds no lattice node, or no room for the team's starts, is rejected.
+    ``Config.from_json(cfg.to_json()) == cfg``.
     """
 
     # --- UAV kinematics (eq. 1) ------------------------------------------------------------
@@ -35,11 +43,13 @@ class Config:
 
     # --- planning horizon ------------------------------------------------------------------
     horizon: int = 5
-    """Number of predicted slots N the planner looks ahead (T = N * delta)."""
+    """Number of predicted slots N the planner looks ahead (T = N * delta); 1 <= N <= 1000."""
     delta: float = 1.0
     """Slot length delta (s)."""
     n_slots: int = 70
-    """Length of an episode in slots (the paper's target drives for 70 slots)."""
+    """Length of an episode in slots (the paper's target drives for 70 slots); 1 <= n_slots <= 10_000.
+
+    The target's route, ``target_speed * delta * (n_slots + horizon + 1)``, must be <= 200 km."""
 
     # --- objective (eqs. 11-18) ------------------------------------------------------------
     eta: float = 55.0
@@ -49,9 +59,14 @@ class Config:
 
     # --- safety (eqs. 2-3) -----------------------------------------------------------------
     d_safe1: float = 5.0
-    """Minimum UAV-UAV horizontal separation d_safe1 (m), eq. 2."""
+    """Minimum UAV-UAV horizontal separation d_safe1 (m), eq. 2. The eroded zone's lattice must hold
+    ``n_uavs`` nodes this far apart (picked greedily in lattice order), or there is no legal start."""
     d_safe2: float = 10.0
-    """Minimum distance d_safe2 (m) from a UAV to the highest point of every polytope, eq. 3."""
+    """Minimum distance d_safe2 (m) from a UAV to the highest point of every polytope, eq. 3.
+
+    Polytope tops must lie below ``altitude``; a top within d_safe2 of it is legal (eq. 3 then only
+    forbids the points of the operational plane near it), but the random generator keeps its tops
+    at or below ``altitude - d_safe2`` unless ``max_height`` says otherwise."""
 
     # --- feasible flight zone (eqs. 4-5) ---------------------------------------------------
     mu: float = math.pi / 4
@@ -65,11 +80,15 @@ class Config:
 
     # --- terrain ----------------------------------------------------------------------------
     n_polytopes: int = 16
-    """Number M of terrain polytopes (buildings, hills) the random generator places."""
+    """Number M of terrain polytopes (buildings, hills) the random generator places; 0 <= M <= 10_000.
+
+    They are placed by rejection sampling beside the route, so the route must have room for them: at
+    the default sizes the 960 m default road took 80 on every seed tried, while about 100 and more fail
+    (ValueError naming this field) on some or all seeds."""
     min_vertices: int = 4
-    """(decided) Fewest base vertices of a random polytope."""
+    """(decided) Fewest base vertices of a random polytope; 3 <= min_vertices <= max_vertices."""
     max_vertices: int = 8
-    """(decided) Most base vertices of a random polytope."""
+    """(decided) Most base vertices of a random polytope; at most 64."""
     min_height: float = 20.0
     """(decided) Lowest top vertex height (m) of a random polytope."""
     max_height: float | None = None
@@ -93,7 +112,9 @@ class Config:
 
     # --- discretisation and shadows -----------------------------------------------------------
     grid_step: float = 2.0
-    """(decided) Spacing (m) of the grid nodes / waypoint lattice in the target's frame."""
+    """(decided) Spacing (m) of the grid nodes / waypoint lattice in the target's frame. The lattice's
+    bounding box (:func:`covert_env.zone.lattice_size`) must have <= 200_000 nodes (975 by default)
+    and the eroded zone at least one node (more: see ``d_safe1``)."""
     h_min: float | None = None
     """Shadow truncation height (m, eq. 9). None (default) picks it per polytope so that the
     truncated shadow is exact within ``r2 + shadow_margin`` of the target (docs/decisions.md#shadow-truncation-h_min);
@@ -102,7 +123,7 @@ class Config:
     """(decided) Extra radius (m) beyond R2 inside which the automatic h_min keeps shadows exact."""
 
     n_uavs: int = 3
-    """Number of UAVs U in the team."""
+    """Number of UAVs U in the team; 1 <= U <= 64."""
 
     def __post_init__(self) -> None:
         _validate(self)
@@ -132,7 +153,7 @@ class Config:
         if not isinstance(data, dict):
             raise ValueError(f"Config must be a JSON object, got {type(data).__name__}")
         known = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(data) - known)
+        unknown = sorted(set(data) - known, key=str)
         if unknown:
             raise ValueError(f"Config: unknown field(s) {unknown}; known fields are {sorted(known)}")
         return cls(**data)
@@ -146,31 +167,116 @@ class Config:
 
     @classmethod
     def from_json(cls, text_or_path: str | Path) -> Config:
-        """Parse a JSON string, or read a ``.json`` file if given a path that exists."""
-        p = Path(text_or_path) if not str(text_or_path).lstrip().startswith("{") else None
-        text = p.read_text() if p is not None else str(text_or_path)
-        try:
-            data = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"Config: invalid JSON ({exc})") from exc
-        return cls.from_dict(data)
+        """Parse a JSON string (one starting with ``{`` or ``[``), or read the JSON file at a path.
 
+        Every problem is a ValueError naming the file (or "JSON text") and the problem: invalid or
+        too deeply nested JSON, bytes that are not UTF-8, a top level that is not an object, unknown
+        or invalid fields. A missing file is a FileNotFoundError naming the path.
+        """
+        if not isinstance(text_or_path, (str, Path)):
+            raise TypeError(f"Config.from_json takes a JSON string or a path, got {type(text_or_path).__name__}")
+        if isinstance(text_or_path, str) and text_or_path.lstrip()[:1] in ("{", "["):
+            where, data = "Config JSON text", parse_json(text_or_path, "Config JSON text")
+        else:
+            where, data = f"Config file {text_or_path}", read_json(text_or_path, "Config file")
+        try:
+            return cls.from_dict(data)
+        except ValueError as exc:
+            raise ValueError(f"{where}: {exc}") from None
+
+
+def parse_json(text: str, where: str) -> Any:
+    """``json.loads(text)``; a ValueError starting with ``where`` for invalid or too deeply nested JSON."""
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{where}: invalid JSON ({exc})") from None
+    except RecursionError:
+        # The stdlib parser recurses once per nesting level; no file of ours nests more than a few.
+        raise ValueError(f"{where}: JSON nested too deeply to parse") from None
+
+
+def read_json(path: str | Path, what: str) -> Any:
+    """Parse the JSON file at ``path`` (UTF-8, a byte-order mark allowed). Errors name ``what`` and the
+    path: FileNotFoundError for a missing file, ValueError for anything else."""
+    p = Path(path)
+    where = f"{what} {p}"
+    try:
+        raw = p.read_bytes()
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{where}: no such file") from None
+    except OSError as exc:
+        raise ValueError(f"{where}: cannot be read ({exc.strerror or exc})") from None
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{where}: not UTF-8 text (byte {exc.start}: {exc.reason}); save it as UTF-8") from None
+    return parse_json(text, where)
+
+
+_REPR = reprlib.Repr()
+_REPR.maxstring = _REPR.maxother = 60
+
+
+def _show(v: Any) -> str:
+    """A short repr for an error message: a bad value may be a huge string or a deeply nested list."""
+    return _REPR.repr(v)
+
+
+#: Upper bounds on sizes: generous for any study, low enough that a typo fails here, not as a hang
+#: or a MemoryError in the first reset. Each is stated in its field's docstring.
+MAX_N_UAVS = 64
+MAX_HORIZON = 1_000
+MAX_N_SLOTS = 10_000
+MAX_N_POLYTOPES = 10_000
+MAX_VERTICES = 64
+MAX_ROUTE = 200_000.0
+"""Longest target route (m), ``target_speed * delta * (n_slots + horizon + 1)``: the road is sampled
+every 2 m, so this bounds its arrays (and the terrain generator's search along it)."""
+MAX_LATTICE = 200_000
+"""Most nodes of the waypoint lattice's bounding box (:func:`covert_env.zone.lattice_size`), about
+``(2 r2 sin(mu / 2) / grid_step) * ((r2 - r1 cos(mu / 2)) / grid_step)`` for mu <= pi; 975 by default."""
 
 _POSITIVE = ("v_max", "w_max", "altitude", "delta", "eta", "lam", "d_safe1", "d_safe2", "r1", "r2",
              "min_height", "min_radius", "max_radius", "target_speed", "grid_step")
 _NON_NEGATIVE = ("r_u", "road_clearance", "road_max_offset", "target_height", "shadow_margin")
-_INTS = {"horizon": 1, "n_slots": 1, "n_polytopes": 0, "min_vertices": 3, "max_vertices": 3, "n_uavs": 1}
+_OPTIONAL = ("max_height", "h_min")
+#: Integer fields: (lowest, highest) allowed value.
+_INTS = {"horizon": (1, MAX_HORIZON), "n_slots": (1, MAX_N_SLOTS), "n_polytopes": (0, MAX_N_POLYTOPES),
+         "min_vertices": (3, MAX_VERTICES), "max_vertices": (3, MAX_VERTICES), "n_uavs": (1, MAX_N_UAVS)}
+
+
+def _as_int(name: str, v: Any, low: int, high: int) -> int:
+    # numpy integers are counts too (operator.index accepts them); floats are not, even 3.0: a float
+    # count is a computed value the caller should round deliberately, not one to truncate silently.
+    if isinstance(v, bool) or not isinstance(v, numbers.Integral):
+        raise ValueError(f"Config.{name} must be an integer >= {low} and <= {high}, got {_show(v)} "
+                         f"({type(v).__name__}); counts must be whole numbers (int or a numpy integer)")
+    v = operator.index(v)
+    if not low <= v <= high:
+        raise ValueError(f"Config.{name} must be an integer >= {low} and <= {high}, got {v!r}")
+    return v
+
+
+def _as_float(name: str, v: Any) -> float:
+    if isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(v):
+        raise ValueError(f"Config.{name} must be a finite number, got {_show(v)} ({type(v).__name__})")
+    return float(v)
+
+
+def _normalise(c: Config) -> None:
+    """Check every field's type and store it as a plain int / float (numpy scalars included)."""
+    for name, (low, high) in _INTS.items():
+        object.__setattr__(c, name, _as_int(name, getattr(c, name), low, high))
+    for name in _POSITIVE + _NON_NEGATIVE + ("mu",):
+        object.__setattr__(c, name, _as_float(name, getattr(c, name)))
+    for name in _OPTIONAL:
+        if getattr(c, name) is not None:
+            object.__setattr__(c, name, _as_float(name, getattr(c, name)))
 
 
 def _validate(c: Config) -> None:
-    for name, low in _INTS.items():
-        v = getattr(c, name)
-        if isinstance(v, bool) or not isinstance(v, int) or v < low:
-            raise ValueError(f"Config.{name} must be an integer >= {low}, got {v!r}")
-    for name in _POSITIVE + _NON_NEGATIVE + ("mu",):
-        v = getattr(c, name)
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-            raise ValueError(f"Config.{name} must be a finite number, got {v!r}")
+    _normalise(c)
     for name in _POSITIVE:
         if getattr(c, name) <= 0:
             raise ValueError(f"Config.{name} must be > 0, got {getattr(c, name)!r}")
@@ -191,16 +297,45 @@ def _validate(c: Config) -> None:
     if c.target_height >= c.altitude:
         raise ValueError(f"Config.target_height must be in [0, altitude={c.altitude:g}), got {c.target_height!r}")
     if c.max_height is not None:
-        if isinstance(c.max_height, bool) or not isinstance(c.max_height, (int, float)) \
-                or not math.isfinite(c.max_height) or not c.min_height <= c.max_height < c.altitude:
+        if not c.min_height <= c.max_height < c.altitude:
             raise ValueError(f"Config.max_height must be None or in [min_height={c.min_height:g}, "
                              f"altitude={c.altitude:g}), got {c.max_height!r}")
     elif c.min_height > c.max_polytope_height:
         raise ValueError(f"Config.min_height must be <= altitude - d_safe2 = {c.max_polytope_height:g}, "
                          f"got {c.min_height!r}")
-    if c.h_min is not None:
-        if isinstance(c.h_min, bool) or not isinstance(c.h_min, (int, float)) or not math.isfinite(c.h_min) \
-                or not c.target_height < c.h_min < c.altitude:
-            raise ValueError(f"Config.h_min must be None or in (target_height={c.target_height:g}, "
-                             f"altitude={c.altitude:g}), got {c.h_min!r}")
+    if c.h_min is not None and not c.target_height < c.h_min < c.altitude:
+        raise ValueError(f"Config.h_min must be None or in (target_height={c.target_height:g}, "
+                         f"altitude={c.altitude:g}), got {c.h_min!r}")
+    _check_sizes(c)
+    _check_zone(c)
 
+
+def _check_sizes(c: Config) -> None:
+    route = c.target_speed * c.delta * (c.n_slots + c.horizon + 1)
+    if route > MAX_ROUTE:
+        raise ValueError(f"Config: the target's route target_speed * delta * (n_slots + horizon + 1) = "
+                         f"{c.target_speed:g} * {c.delta:g} * {c.n_slots + c.horizon + 1} = {route:.4g} m exceeds "
+                         f"{MAX_ROUTE:g} m; reduce target_speed, delta or n_slots")
+    from covert_env.zone import lattice_size
+
+    size = lattice_size(c.r1, c.r2, c.mu, c.grid_step)
+    if size > MAX_LATTICE:
+        raise ValueError(f"Config: the waypoint lattice would have {size:.4g} nodes (r1={c.r1:g}, r2={c.r2:g}, "
+                         f"mu={c.mu:g}, grid_step={c.grid_step:g}), more than {MAX_LATTICE}; increase grid_step "
+                         f"or reduce r2 or mu")
+
+
+def _check_zone(c: Config) -> None:
+    """The eroded zone must hold a lattice node (the waypoint actions, the DP's states), and room for the
+    team's starts: ``n_uavs`` nodes at least ``d_safe1`` apart (see :meth:`Scenario.sample_starts`)."""
+    from covert_env.zone import zone_capacity
+
+    nodes, spread = zone_capacity(c.r1, c.r2, c.mu, c.grid_step, c.r_u, c.d_safe1, c.n_uavs)
+    zone = f"r1={c.r1:g}, r2={c.r2:g}, mu={c.mu:g}, r_u={c.r_u:g}, grid_step={c.grid_step:g}"
+    if nodes == 0:
+        raise ValueError(f"Config: the eroded feasible zone ({zone}) holds no waypoint lattice node; "
+                         f"increase mu or r2 - r1, or reduce grid_step or r_u")
+    if spread < c.n_uavs:
+        raise ValueError(f"Config: the eroded feasible zone ({zone}) has room for only {spread} start(s) "
+                         f"d_safe1={c.d_safe1:g} m apart (of {nodes} lattice nodes), but n_uavs={c.n_uavs}; "
+                         f"reduce n_uavs or d_safe1, or enlarge the zone")

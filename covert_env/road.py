@@ -7,6 +7,9 @@ predicted positions q[k+1..k+N]; the prediction error is bounded by a disk gamma
 
 from __future__ import annotations
 
+import math
+import numbers
+import reprlib
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -14,6 +17,27 @@ import numpy as np
 from shapely.geometry import LineString
 
 __all__ = ["Road", "TargetTrack"]
+
+
+_MAX_POINTS = 1_000_000
+"""Most points Road.random samples (a 2,000 km road at the default 2 m step)."""
+
+
+def _bad_real(v) -> bool:
+    """Not a finite real number (bools are not numbers here: True as a length is a mistake)."""
+    return isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(v)
+
+
+def _short(v) -> str:
+    return reprlib.repr(v)
+
+
+def _generator(seed, where: str) -> np.random.Generator:
+    try:
+        return np.random.default_rng(seed)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{where}: seed must be None, an integer >= 0 or a numpy Generator, got {_short(seed)} "
+                         f"({exc})") from None
 
 
 @dataclass(frozen=True, eq=False)
@@ -27,7 +51,10 @@ class Road:
     points: np.ndarray
 
     def __post_init__(self) -> None:
-        pts = np.array(self.points, dtype=float)   # a copy: freezing it must not freeze the caller's
+        try:
+            pts = np.array(self.points, dtype=float)   # a copy: freezing it must not freeze the caller's
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"Road.points must be a (K, 2) array of numbers ({exc})") from None
         if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 2:
             raise ValueError(f"Road.points must be a (K, 2) array with K >= 2, got shape {pts.shape}")
         if not np.all(np.isfinite(pts)):
@@ -52,7 +79,24 @@ class Road:
         The first ``straight_start`` metres are straight along ``heading``, so a scenario's UAV
         starts (placed relative to the start pose) sit in the zone regardless of the seed.
         """
-        rng = np.random.default_rng(seed)
+        for name, v, low in (("length", length, 0.0), ("step", step, 0.0)):
+            if _bad_real(v) or not v > low:
+                raise ValueError(f"Road.random: {name} must be a finite number > {low:g}, got {v!r}")
+        for name, v in (("max_curvature", max_curvature), ("straight_start", straight_start)):
+            if _bad_real(v) or v < 0:
+                raise ValueError(f"Road.random: {name} must be a finite number >= 0, got {v!r}")
+        if _bad_real(heading):
+            raise ValueError(f"Road.random: heading must be a finite number (rad), got {heading!r}")
+        if length / step > _MAX_POINTS:
+            raise ValueError(f"Road.random: length / step = {length:g} / {step:g} would give more than "
+                             f"{_MAX_POINTS} points; use a shorter road or a larger step")
+        try:
+            start = np.array(start, dtype=float).reshape(2)
+        except (TypeError, ValueError):
+            raise ValueError(f"Road.random: start must be a point (x, y), got {start!r}") from None
+        if not np.all(np.isfinite(start)):
+            raise ValueError(f"Road.random: start must be finite, got {start.tolist()}")
+        rng = _generator(seed, "Road.random")
         n = max(2, int(np.ceil(length / step)) + 1)
         s = np.arange(n) * step
         # Smooth curvature: a few random sinusoids over arc length, scaled into the bound.
@@ -63,7 +107,7 @@ class Road:
         kappa *= max_curvature / max(np.abs(kappa).max(), 1e-12) * rng.uniform(0.4, 1.0)
         kappa *= np.clip((s - straight_start) / 40.0, 0.0, 1.0)   # ease in after the straight start
         th = heading + np.concatenate([[0.0], np.cumsum(kappa[:-1] * step)])
-        xy = np.asarray(start, float) + np.concatenate(
+        xy = start + np.concatenate(
             [[[0.0, 0.0]], np.cumsum(step * np.column_stack([np.cos(th[:-1]), np.sin(th[:-1])]), axis=0)])
         return cls(xy)
 
@@ -140,9 +184,20 @@ class TargetTrack:
     s0: float = 0.0
 
     def __post_init__(self) -> None:
-        sp = np.atleast_1d(np.array(self.speeds, dtype=float))
-        if sp.ndim != 1 or not np.all(np.isfinite(sp)) or np.any(sp < 0):
-            raise ValueError("TargetTrack.speeds must be a 1-D array of finite speeds >= 0")
+        if not isinstance(self.road, Road):
+            raise TypeError(f"TargetTrack.road must be a Road, got {type(self.road).__name__}")
+        try:
+            sp = np.atleast_1d(np.array(self.speeds, dtype=float))
+        except (TypeError, ValueError):
+            sp = np.array([np.nan])                 # reported below, with the other malformed speeds
+        if sp.ndim != 1 or len(sp) == 0 or not np.all(np.isfinite(sp)) or np.any(sp < 0):
+            raise ValueError(f"TargetTrack.speeds must be a non-empty 1-D array of finite speeds >= 0, "
+                             f"got {_short(self.speeds)}")
+        if _bad_real(self.delta) or not self.delta > 0:
+            raise ValueError(f"TargetTrack.delta must be a finite number > 0 (s), got {self.delta!r}")
+        for name in ("z", "s0"):
+            if _bad_real(getattr(self, name)):
+                raise ValueError(f"TargetTrack.{name} must be a finite number (m), got {getattr(self, name)!r}")
         sp.setflags(write=False)
         object.__setattr__(self, "speeds", sp)
 
@@ -150,7 +205,11 @@ class TargetTrack:
     def constant(cls, road: Road, speed: float, n_slots: int, *, delta: float = 1.0, z: float = 1.5,
                  s0: float = 0.0) -> TargetTrack:
         """A target at constant ``speed`` for ``n_slots`` slots."""
-        return cls(road, np.full(n_slots, float(speed)), delta=delta, z=z, s0=s0)
+        if isinstance(n_slots, bool) or not isinstance(n_slots, (int, np.integer)) or n_slots < 1:
+            raise ValueError(f"TargetTrack.constant: n_slots must be an integer >= 1, got {n_slots!r}")
+        if _bad_real(speed):
+            raise ValueError(f"TargetTrack.constant: speed must be a finite number >= 0 (m/s), got {speed!r}")
+        return cls(road, np.full(int(n_slots), float(speed)), delta=delta, z=z, s0=s0)
 
     @cached_property
     def arc(self) -> np.ndarray:

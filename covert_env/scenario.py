@@ -16,6 +16,7 @@ import numpy as np
 from covert_env.config import Config
 from covert_env.road import Road, TargetTrack
 from covert_env.terrain import Terrain
+from covert_env.zone import to_world
 
 __all__ = ["Scenario", "PAPER_UAV_STARTS", "PAPER_SEED"]
 
@@ -35,8 +36,11 @@ class Scenario:
 
     Attributes:
         config: model parameters.
-        terrain: the polytopes.
-        track: the target's motion (road + speed profile), at least ``n_slots + horizon`` slots long.
+        terrain: the polytopes, every top strictly below ``config.altitude`` (ValueError naming the
+            polytope otherwise). A top within ``d_safe2`` of the altitude is legal: eq. 3 then only
+            rules out the operational plane near it.
+        track: the target's motion (road + speed profile), at least ``n_slots + horizon`` slots long,
+            with ``delta`` and ``z`` equal to the config's ``delta`` and ``target_height``.
         uav_xy: (U, 2) start positions; uav_theta: (U,) start headings (rad).
         name: a label for logs and figures.
     """
@@ -49,8 +53,14 @@ class Scenario:
     name: str = "scenario"
 
     def __post_init__(self) -> None:
-        xy = np.asarray(self.uav_xy, dtype=float).reshape(-1, 2)
-        th = np.asarray(self.uav_theta, dtype=float).reshape(-1)
+        for attr, kind in (("config", Config), ("terrain", Terrain), ("track", TargetTrack)):
+            if not isinstance(getattr(self, attr), kind):
+                raise TypeError(f"Scenario.{attr} must be a {kind.__name__}, got {type(getattr(self, attr)).__name__}")
+        try:
+            xy = np.asarray(self.uav_xy, dtype=float).reshape(-1, 2)
+            th = np.asarray(self.uav_theta, dtype=float).reshape(-1)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"Scenario: uav_xy must be (U, 2) and uav_theta (U,) numbers ({exc})") from None
         if len(xy) != len(th):
             raise ValueError(f"Scenario: {len(xy)} start positions but {len(th)} start headings")
         if not (np.all(np.isfinite(xy)) and np.all(np.isfinite(th))):
@@ -58,6 +68,8 @@ class Scenario:
         need = self.config.n_slots + self.config.horizon
         if self.track.n_slots < need:
             raise ValueError(f"Scenario.track must cover n_slots + horizon = {need} slots, has {self.track.n_slots}")
+        _check_consistent(self.config, self.terrain, self.track)
+        _check_team(len(xy), "Scenario")
         object.__setattr__(self, "uav_xy", xy)
         object.__setattr__(self, "uav_theta", th)
 
@@ -102,7 +114,8 @@ class Scenario:
         """A random scene: road, terrain and UAV starts drawn from ``seed``.
 
         Starts are distinct grid nodes of the eroded zone at slot 0 with clear LoS, at least
-        ``2 d_safe1`` apart, with headings drawn uniformly.
+        ``2 d_safe1`` apart, with headings drawn uniformly (with the fallbacks of :meth:`sample_starts`
+        when shadows leave too little room).
         """
         c = config or Config()
         u = c.n_uavs if n_uavs is None else n_uavs
@@ -122,8 +135,22 @@ class Scenario:
         return terrain, track, rng
 
     def sample_starts(self, rng: np.random.Generator, n_uavs: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """Random start poses: distinct lattice nodes of the eroded zone at slot 0 with clear LoS, at
-        least ``2 d_safe1`` apart, headings uniform in [0, 2 pi). Returns (xy (U, 2), theta (U,)).
+        """Random start poses on the waypoint lattice at slot 0. Returns (xy (U, 2), theta (U,)).
+
+        Always: distinct lattice nodes of the eroded zone (eq. 5) at slot 0, pairwise at least
+        ``d_safe1`` apart (eq. 2), headings uniform in [0, 2 pi). Placement tries, in order:
+
+        1. nodes with clear LoS (eq. 6), at least ``2 d_safe1`` apart, in a random order (the
+           usual case; these starts are bit-identical to earlier releases, same generator draws);
+        2. if shadows leave too few such nodes on this scene: every zone node, the visible ones
+           first (in step 1's order) then the shadowed ones (in a random order), ``2 d_safe1`` apart;
+        3. the same order with the eq. 2 minimum ``d_safe1`` instead of ``2 d_safe1``;
+        4. the nodes in lattice order, ``d_safe1`` apart: :class:`~covert_env.Config` rejects a
+           config for which this leaves fewer than ``config.n_uavs`` starts, so a reset with the
+           config's team never fails on some seeds. A larger ``n_uavs`` than the config's can fail
+           (ValueError naming n_uavs and d_safe1, on every seed alike).
+
+        So starts may be in shadow (fallbacks 2-4) only when the scene leaves no other choice.
         """
         u = self.n_uavs if n_uavs is None else n_uavs
         _check_team(u, "Scenario.sample_starts")
@@ -134,23 +161,51 @@ def _sample_starts(c: Config, terrain: Terrain, track: TargetTrack, rng: np.rand
                    name: str) -> tuple[np.ndarray, np.ndarray]:
     """:meth:`Scenario.sample_starts` on the parts of a scenario."""
     from covert_env.visibility import line_of_sight
-    from covert_env.zone import grid_nodes
+    from covert_env.zone import SPREAD_MARGIN, spread_nodes, zone_lattice
 
     q0, phi0 = track.position(0), float(track.heading(0))
-    nodes = grid_nodes(q0[:2], phi0, c.grid_step, c.r1, c.r2, c.mu, c.r_u)
-    nodes = nodes[line_of_sight(terrain, nodes, c.altitude, q0)]
-    picked: list[np.ndarray] = []
-    for idx in rng.permutation(len(nodes)):
-        p = nodes[idx]
-        if all(np.hypot(*(p - o)) >= 2 * c.d_safe1 for o in picked):
-            picked.append(p)
-            if len(picked) == u:
-                break
+    # The same nodes as grid_nodes(...) (one lattice, one rotation), so step 1 is the historical sampler.
+    offsets = zone_lattice(c)
+    nodes = to_world(offsets, q0[:2], phi0)
+    clear = np.flatnonzero(line_of_sight(terrain, nodes, c.altitude, q0))
+    order = clear[rng.permutation(len(clear))]
+    picked = spread_nodes(nodes, order, 2 * c.d_safe1, u)
     if len(picked) < u:
-        raise ValueError(f"Scenario {name}: could not place {u} UAVs in the visible zone")
-    return np.array(picked), rng.uniform(0, 2 * math.pi, u)
+        shadowed = np.setdiff1d(np.arange(len(nodes)), clear)
+        order = np.concatenate([order, shadowed[rng.permutation(len(shadowed))]])
+        picked = spread_nodes(nodes, order, 2 * c.d_safe1, u)
+        if len(picked) < u:
+            picked = spread_nodes(nodes, order, c.d_safe1, u)
+        if len(picked) < u:
+            # Decided on the target-frame offsets, exactly as Config's check, with its margin.
+            picked = spread_nodes(offsets, np.arange(len(offsets)), c.d_safe1 * (1.0 + SPREAD_MARGIN), u)
+        if len(picked) < u:
+            raise ValueError(f"Scenario {name}: the eroded zone has room for only {len(picked)} starts "
+                             f"d_safe1={c.d_safe1:g} m apart, asked for n_uavs={u} (the config's n_uavs="
+                             f"{c.n_uavs} fit); use fewer UAVs or a smaller d_safe1")
+    return nodes[picked], rng.uniform(0, 2 * math.pi, u)
 
 
 def _check_team(u, where: str) -> None:
-    if isinstance(u, bool) or not isinstance(u, (int, np.integer)) or u < 1:
-        raise ValueError(f"{where}: n_uavs must be an integer >= 1, got {u!r}")
+    from covert_env.config import MAX_N_UAVS
+
+    if isinstance(u, bool) or not isinstance(u, (int, np.integer)) or not 1 <= u <= MAX_N_UAVS:
+        raise ValueError(f"{where}: n_uavs must be an integer >= 1 and <= {MAX_N_UAVS}, got {u!r}")
+
+
+def _check_consistent(c: Config, terrain: Terrain, track: TargetTrack) -> None:
+    """The parts must describe one model: the engine flies config.delta per slot of the track and films
+    the track's z, and nothing can fly through a polytope that reaches the operational plane."""
+    if not math.isclose(track.delta, c.delta, rel_tol=1e-9):
+        raise ValueError(f"Scenario: track.delta = {track.delta:g} s but config.delta = {c.delta:g} s; build the "
+                         f"track with delta=config.delta")
+    if not math.isclose(track.z, c.target_height, rel_tol=1e-9, abs_tol=1e-12):
+        raise ValueError(f"Scenario: track.z = {track.z:g} m but config.target_height = {c.target_height:g} m; "
+                         f"build the track with z=config.target_height")
+    if len(terrain):
+        high = np.flatnonzero(terrain.z_max >= c.altitude)
+        if high.size:
+            i = int(high[0])
+            raise ValueError(f"Scenario: polytope {i} is {terrain.z_max[i]:g} m high, not below the flight "
+                             f"altitude config.altitude = {c.altitude:g} m ({high.size} such polytope(s)); "
+                             f"lower it or raise the altitude")

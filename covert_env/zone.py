@@ -58,7 +58,7 @@ __all__ = [
     "visible_zone_cfg",
     "zone_distance",
     "zone_distance_cfg",
-    "zone_mask", "zone_lattice"]
+    "zone_mask", "zone_lattice", "lattice_size", "spread_nodes", "zone_capacity"]
 
 ARC_RESOLUTION = math.radians(0.25)
 """Default largest angle (rad) spanned by one chord of a polygon arc."""
@@ -236,8 +236,8 @@ def visible_zone_cfg(terrain, target_xyz, phi: float, config, *, uncertain: bool
 
 
 # ----------------------------------------------------------------------------- lattice / grid nodes
-@lru_cache(maxsize=64)
-def _lattice(r1: float, r2: float, mu: float, step: float) -> np.ndarray:
+def _lattice_range(r1: float, r2: float, mu: float, step: float) -> tuple[np.ndarray, np.ndarray]:
+    """Float index bounds (i0, i1) per axis of the lattice: the multiples of step in the sector's box."""
     # Extreme points of the sector around the backward axis (angle pi in the target frame): the four
     # corners plus the arcs' crossings of the coordinate axes that fall inside the angular range.
     ang = [math.pi - mu / 2.0, math.pi + mu / 2.0]
@@ -246,13 +246,27 @@ def _lattice(r1: float, r2: float, mu: float, step: float) -> np.ndarray:
     pts = np.concatenate([r * np.column_stack([np.cos(ang), np.sin(ang)]) for r in (r1, r2)])
     lo, hi = pts.min(axis=0), pts.max(axis=0)
     # Multiples of step, anchored at the target so the lattice is symmetric about the backward axis.
-    i0, i1 = np.ceil(lo / step - 1e-9).astype(int), np.floor(hi / step + 1e-9).astype(int)
+    return np.ceil(lo / step - 1e-9), np.floor(hi / step + 1e-9)
+
+
+def lattice_size(r1: float, r2: float, mu: float, step: float) -> float:
+    """Number of nodes :func:`lattice_offsets` would hold, computed without building it (a float, so
+    absurd inputs give a large number instead of an integer overflow)."""
+    i0, i1 = _lattice_range(float(r1), float(r2), float(mu), float(step))
+    return float(np.prod(np.maximum(i1 - i0 + 1.0, 0.0)))
+
+
+def _lattice_uncached(r1: float, r2: float, mu: float, step: float) -> np.ndarray:
+    i0, i1 = (a.astype(int) for a in _lattice_range(r1, r2, mu, step))
     xs = step * np.arange(i0[0], i1[0] + 1)
     ys = step * np.arange(i0[1], i1[1] + 1)
     gx, gy = np.meshgrid(xs, ys, indexing="ij")
     out = np.column_stack([gx.ravel(), gy.ravel()])
     out.setflags(write=False)
     return out
+
+
+_lattice = lru_cache(maxsize=64)(_lattice_uncached)
 
 
 def lattice_offsets(r1: float, r2: float, mu: float, step: float) -> np.ndarray:
@@ -263,8 +277,14 @@ def lattice_offsets(r1: float, r2: float, mu: float, step: float) -> np.ndarray:
     ascending. Independent of q and phi, so the same index is the same move at every slot; use
     :func:`zone_mask` for membership. The returned array is shared and read-only.
     """
+    from covert_env.config import MAX_LATTICE
+
     if not step > 0:
         raise ValueError(f"step must be > 0, got {step}")
+    size = lattice_size(r1, r2, mu, step)
+    if not size <= MAX_LATTICE:     # also catches NaN radii
+        raise ValueError(f"the lattice for r1={r1:g}, r2={r2:g}, mu={mu:g}, step={step:g} would have {size:.4g} "
+                         f"nodes, more than {MAX_LATTICE}; use a larger step or a smaller r2")
     return _lattice(float(r1), float(r2), float(mu), float(step))
 
 
@@ -325,3 +345,50 @@ def grid_nodes_cfg(q_xy, phi: float, config, *, uncertain: bool = True) -> np.nd
     """:func:`grid_nodes` with ``config``'s grid_step, r1, r2, mu and (if ``uncertain``) r_u."""
     return grid_nodes(q_xy, phi, config.grid_step, config.r1, config.r2, config.mu,
                       config.r_u if uncertain else 0.0)
+
+
+# ----------------------------------------------------------------------------- start placement
+def spread_nodes(points, order, min_dist: float, k: int) -> np.ndarray:
+    """Greedy pick of up to ``k`` points pairwise at least ``min_dist`` apart, scanning ``order``.
+
+    The first point of ``order`` not closer than ``min_dist`` to an earlier pick is taken, k times: the
+    same picks as testing each point in turn against all earlier picks, but vectorised over points.
+
+    Args:
+        points: (n, 2) positions; order: (m,) indices into them, scanned in this order.
+
+    Returns:
+        (<= k,) indices into ``points``, in pick order.
+    """
+    pts = np.asarray(points, dtype=float)
+    order = np.asarray(order, dtype=int)
+    alive = np.ones(len(order), bool)
+    picked: list[int] = []
+    cand = pts[order]
+    while len(picked) < k:
+        free = np.flatnonzero(alive)
+        if free.size == 0:
+            break
+        first = free[0]
+        picked.append(int(order[first]))
+        p = cand[first]
+        # The same expression as np.hypot(*(p - o)) per pair, so picks match a per-point loop bit for bit.
+        alive &= np.hypot(cand[:, 0] - p[0], cand[:, 1] - p[1]) >= min_dist
+    return np.array(picked, dtype=int)
+
+
+#: Relative margin on the separation in target-frame placement: rotating the offsets into the world
+#: moves distances by ~1e-13, which must not bring two starts below d_safe1.
+SPREAD_MARGIN = 1e-9
+
+
+@lru_cache(maxsize=256)
+def zone_capacity(r1: float, r2: float, mu: float, step: float, r_u: float, min_dist: float,
+                  k: int) -> tuple[int, int]:
+    """(L, n): the number L of lattice nodes in the eroded zone (:func:`zone_lattice`) and how many of up
+    to ``k`` of them :func:`spread_nodes` places in lattice order at least ``min_dist (1 + SPREAD_MARGIN)``
+    apart. A function of numbers only (cached), so checking a config holds nothing alive."""
+    off = _lattice_uncached(float(r1), float(r2), float(mu), float(step))
+    off = off[zone_mask(off, r1, r2, mu, r_u)]
+    n = len(spread_nodes(off, np.arange(len(off)), min_dist * (1.0 + SPREAD_MARGIN), k))
+    return len(off), n

@@ -1,0 +1,472 @@
+"""Bad input to the model fails at the boundary, with a message naming the field, the value and the
+allowed range or the fix (issue 10, item 6): never a hang, a MemoryError, a silent coercion or a failure
+in some later reset. One parametrised case per input."""
+
+from __future__ import annotations
+
+import copy
+import json
+import math
+import time
+
+import numpy as np
+import pytest
+
+from covert_env.config import MAX_LATTICE, Config
+from covert_env.road import Road, TargetTrack
+from covert_env.scenario import Scenario, _sample_starts
+from covert_env.terrain import Polytope, Terrain, _first_overlap
+from covert_env.visibility import line_of_sight
+from covert_env.zone import grid_nodes, in_feasible_zone, lattice_offsets, lattice_size
+
+SQUARE = [[0.0, 0.0], [10.0, 0.0], [10.0, 10.0], [0.0, 10.0]]
+
+
+def _road():
+    return Road([[0.0, 0.0], [2000.0, 0.0]])
+
+
+def _track(c: Config, **kw):
+    args = dict(delta=c.delta, z=c.target_height, s0=100.0) | kw
+    return TargetTrack.constant(_road(), c.target_speed, c.n_slots + c.horizon + 1, **args)
+
+
+def _scenario(terrain=None, c=None, track=None):
+    c = c or Config(n_slots=10)
+    return Scenario(c, terrain or Terrain(), track or _track(c), [[0.0, 0.0]], [0.0])
+
+
+# ----------------------------------------------------------------------------- Config
+CONFIG_CASES = {
+    "empty lattice (mu)": (dict(mu=0.01), r"eroded feasible zone \(r1=55, r2=100, mu=0\.01, r_u=2, grid_step=2\) "
+                                          r"holds no waypoint lattice node; increase mu"),
+    "empty lattice (grid_step)": (dict(grid_step=110.0), r"grid_step=110\) holds no waypoint lattice node"),
+    "starts do not fit": (dict(d_safe1=50.0), r"room for only 1 start\(s\) d_safe1=50 m apart .* n_uavs=3; "
+                                              r"reduce n_uavs or d_safe1"),
+    "team too large for zone": (dict(n_uavs=64, d_safe1=10.0), r"room for only \d+ start.* n_uavs=64"),
+    "n_slots huge": (dict(n_slots=10**9), r"Config\.n_slots must be an integer >= 1 and <= 10000, got 1000000000"),
+    "horizon huge": (dict(horizon=10**6), r"Config\.horizon must be an integer >= 1 and <= 1000, got 1000000"),
+    "max_vertices huge": (dict(max_vertices=10**9), r"Config\.max_vertices must be an integer >= 3 and <= 64"),
+    "n_polytopes huge": (dict(n_polytopes=10**6), r"Config\.n_polytopes must be an integer >= 0 and <= 10000"),
+    "n_uavs huge": (dict(n_uavs=65), r"Config\.n_uavs must be an integer >= 1 and <= 64, got 65"),
+    "delta huge": (dict(delta=1e12), r"route target_speed \* delta \* \(n_slots \+ horizon \+ 1\) = 10 \* 1e\+12 "
+                                     r"\* 76 = 7\.6e\+14 m exceeds 200000 m"),
+    "target_speed huge": (dict(target_speed=1e12), r"route .* = 7\.6e\+13 m exceeds 200000 m; reduce target_speed"),
+    "route too long": (dict(n_slots=10_000, target_speed=30.0), r"route .* exceeds 200000 m"),
+    "r2 huge": (dict(r2=1e12), r"waypoint lattice would have 1\.9\d*e\+23 nodes .* more than 200000; "
+                               r"increase grid_step"),
+    "grid_step tiny": (dict(grid_step=0.01), r"waypoint lattice would have .* grid_step=0\.01\), more than"),
+    "n_uavs fractional": (dict(n_uavs=2.7), r"Config\.n_uavs must be an integer .* got 2\.7 \(float\)"),
+    "n_uavs float": (dict(n_uavs=3.0), r"Config\.n_uavs must be an integer .* got 3\.0 \(float\)"),
+    "n_uavs numpy float": (dict(n_uavs=np.float64(3.0)), r"Config\.n_uavs must be an integer .*float64"),
+    "n_uavs string": (dict(n_uavs="3"), r"Config\.n_uavs must be an integer .* got '3' \(str\)"),
+    "n_uavs bool": (dict(n_uavs=True), r"Config\.n_uavs must be an integer .* got True \(bool\)"),
+    "v_max string": (dict(v_max="50"), r"Config\.v_max must be a finite number, got '50' \(str\)"),
+    "v_max bool": (dict(v_max=True), r"Config\.v_max must be a finite number, got True \(bool\)"),
+    "v_max list": (dict(v_max=[50.0]), r"Config\.v_max must be a finite number, got \[50\.0\] \(list\)"),
+    "v_max numpy nan": (dict(v_max=np.float64("nan")), r"Config\.v_max must be a finite number"),
+    "h_min string": (dict(h_min="20"), r"Config\.h_min must be a finite number, got '20'"),
+    "huge string shortened": (dict(eta="x" * 10**6),
+                              r"Config\.eta must be a finite number, got 'x{10,}\.\.\.x+' \(str\)"),
+}
+
+
+@pytest.mark.parametrize("kwargs, pattern", CONFIG_CASES.values(), ids=CONFIG_CASES.keys())
+def test_config_rejects(kwargs, pattern):
+    with pytest.raises(ValueError, match=pattern):
+        Config(**kwargs)
+
+
+@pytest.mark.parametrize("field, value, kind", [
+    ("n_uavs", np.int64(3), int), ("n_slots", np.int32(12), int), ("horizon", np.uint8(4), int),
+    ("v_max", np.float64(40.0), float), ("v_max", np.float32(40.0), float), ("v_max", np.int64(40), float),
+    ("r_u", 0, float), ("h_min", np.float64(20.0), float), ("max_height", 60, float),
+])
+def test_config_accepts_numpy_scalars_as_plain_numbers(field, value, kind):
+    c = Config(**{field: value})
+    got = getattr(c, field)
+    assert type(got) is kind and got == value
+    assert Config.from_json(c.to_json()) == c           # plain types: JSON works
+
+
+def test_config_bounds_admit_the_paper_and_large_studies():
+    Config()
+    Config(n_slots=10_000, horizon=5)
+    Config(n_uavs=3, d_safe1=40.0)
+    Config(r2=400.0, grid_step=1.0)                     # about 100k lattice nodes
+    assert lattice_size(55.0, 400.0, math.pi / 4, 1.0) < MAX_LATTICE
+
+
+@pytest.mark.parametrize("r1, r2, mu, step", [(55, 100, math.pi / 4, 2), (40, 120, 1.2, 5), (0, 30, 6.0, 1.5),
+                                              (10, 50, math.pi, 3), (55, 100, 0.01, 2), (1, 2, 0.3, 7)])
+def test_lattice_size_is_the_lattice_length(r1, r2, mu, step):
+    assert lattice_size(r1, r2, mu, step) == len(lattice_offsets(r1, r2, mu, step))
+
+
+@pytest.mark.parametrize("r2, step", [(1e12, 2.0), (100.0, 1e-4), (math.nan, 2.0)])
+def test_lattice_offsets_refuses_a_huge_lattice(r2, step):
+    with pytest.raises(ValueError, match=r"the lattice for r1=55, r2=.* nodes, more than 200000; use a larger step"):
+        lattice_offsets(55.0, r2, math.pi / 4, step)
+
+
+def test_config_check_does_not_fill_the_shared_lattice_cache():
+    from covert_env.zone import _lattice
+
+    before = _lattice.cache_info().currsize
+    Config(grid_step=1.7, r2=101.0)
+    assert _lattice.cache_info().currsize == before
+
+
+# ----------------------------------------------------------------------------- JSON files
+def _bad_files(tmp_path):
+    files = {
+        "missing": tmp_path / "missing.json",
+        "not utf-8": tmp_path / "latin1.json",
+        "deep nesting": tmp_path / "deep.json",
+        "invalid": tmp_path / "invalid.json",
+        "top-level list": tmp_path / "list.json",
+        "directory": tmp_path / "adir.json",
+    }
+    files["not utf-8"].write_bytes(b'{"name": "caf\xe9"}')
+    files["deep nesting"].write_text("[" * 100_000 + "]" * 100_000)
+    files["invalid"].write_text("{not json")
+    files["top-level list"].write_text("[1, 2]")
+    files["directory"].mkdir()
+    return files
+
+
+JSON_CASES = {
+    "missing": (FileNotFoundError, r"missing\.json: no such file"),
+    "not utf-8": (ValueError, r"latin1\.json: not UTF-8 text \(byte 13: invalid continuation byte\)"),
+    "deep nesting": (ValueError, r"deep\.json: JSON nested too deeply"),
+    "invalid": (ValueError, r"invalid\.json: invalid JSON"),
+    "directory": (ValueError, r"adir\.json: cannot be read"),
+}
+
+
+@pytest.mark.parametrize("case", JSON_CASES, ids=JSON_CASES.keys())
+@pytest.mark.parametrize("load, what", [(Config.from_json, "Config file"), (Terrain.load, "Terrain file")],
+                         ids=["config", "terrain"])
+def test_json_file_errors_name_the_file(tmp_path, case, load, what):
+    path = _bad_files(tmp_path)[case]
+    exc, pattern = JSON_CASES[case]
+    with pytest.raises(exc, match=f"^{what} .*{pattern}"):
+        load(path)
+    with pytest.raises(exc, match=pattern):
+        load(str(path))
+
+
+@pytest.mark.parametrize("load, pattern", [
+    (Config.from_json, r"list\.json: Config must be a JSON object, got list"),
+    (Terrain.load, r"list\.json: GeoJSON terrain must be an object with type 'FeatureCollection', got 'list'"),
+], ids=["config", "terrain"])
+def test_json_wrong_top_level_type_names_the_file(tmp_path, load, pattern):
+    with pytest.raises(ValueError, match=pattern):
+        load(_bad_files(tmp_path)["top-level list"])
+
+
+@pytest.mark.parametrize("data, pattern", [
+    ({"n_uavs": "3"}, r"cfg\.json: Config\.n_uavs must be an integer .* got '3' \(str\)"),
+    ({"n_uavs": 2.5}, r"cfg\.json: Config\.n_uavs must be an integer .* got 2\.5"),
+    ({"v_max": None}, r"cfg\.json: Config\.v_max must be a finite number, got None"),
+    ({"speed": 3, "mu": 1}, r"cfg\.json: Config: unknown field\(s\) \['speed'\]"),
+], ids=["string count", "fractional count", "null number", "unknown field"])
+def test_config_file_field_errors_name_file_and_field(tmp_path, data, pattern):
+    path = tmp_path / "cfg.json"
+    path.write_text(json.dumps(data))
+    with pytest.raises(ValueError, match=pattern):
+        Config.from_json(path)
+
+
+@pytest.mark.parametrize("arg, exc, pattern", [
+    ("[1, 2]", ValueError, r"Config JSON text: Config must be a JSON object, got list"),
+    ("{" * 100_000, ValueError, r"Config JSON text: JSON nested too deeply|Config JSON text: invalid JSON"),
+    ('{"n_uavs": 1e999}', ValueError, r"Config JSON text: Config\.n_uavs must be an integer .* got inf"),
+    (123, TypeError, r"Config\.from_json takes a JSON string or a path, got int"),
+], ids=["list", "deep", "overflow", "not text"])
+def test_config_json_text_errors(arg, exc, pattern):
+    with pytest.raises(exc, match=pattern):
+        Config.from_json(arg)
+
+
+def test_config_dict_with_non_string_keys_names_them():
+    with pytest.raises(ValueError, match=r"unknown field\(s\) \[1, 'x'\]"):
+        Config.from_dict({1: 2, "x": 3})
+
+
+# ----------------------------------------------------------------------------- Scenario
+def test_scenario_rejects_a_polytope_above_the_altitude():
+    tower = Polytope.prism(SQUARE, 200.0)
+    low = Polytope.prism([[20.0, 0.0], [30.0, 0.0], [30.0, 10.0]], 10.0)
+    with pytest.raises(ValueError, match=r"Scenario: polytope 1 is 200 m high, not below the flight altitude "
+                                         r"config\.altitude = 80 m \(1 such polytope\(s\)\); lower it"):
+        _scenario(Terrain((low, tower)))
+    with pytest.raises(ValueError, match=r"polytope 0 is 80 m high"):
+        _scenario(Terrain((Polytope.prism(SQUARE, 80.0),)))
+
+
+def test_scenario_accepts_a_top_within_d_safe2_of_the_altitude():
+    c = Config(n_slots=10)
+    assert c.altitude - c.d_safe2 < 75.0 < c.altitude
+    _scenario(Terrain((Polytope.prism(SQUARE, 75.0),)), c)
+
+
+SCENARIO_CASES = {
+    "track delta": (lambda c: _scenario(c=c, track=_track(c, delta=0.5)), ValueError,
+                    r"track\.delta = 0\.5 s but config\.delta = 1 s; build the track with delta=config\.delta"),
+    "track z": (lambda c: _scenario(c=c, track=_track(c, z=3.0)), ValueError,
+                r"track\.z = 3 m but config\.target_height = 1\.5 m"),
+    "config type": (lambda c: Scenario(c.to_dict(), Terrain(), _track(c), [[0.0, 0.0]], [0.0]), TypeError,
+                    r"Scenario\.config must be a Config, got dict"),
+    "terrain type": (lambda c: Scenario(c, [], _track(c), [[0.0, 0.0]], [0.0]), TypeError,
+                     r"Scenario\.terrain must be a Terrain, got list"),
+    "track type": (lambda c: Scenario(c, Terrain(), _road(), [[0.0, 0.0]], [0.0]), TypeError,
+                   r"Scenario\.track must be a TargetTrack, got Road"),
+    "starts not numbers": (lambda c: Scenario(c, Terrain(), _track(c), [["a", "b"]], [0.0]), ValueError,
+                           r"Scenario: uav_xy must be \(U, 2\)"),
+    "team too large": (lambda c: Scenario(c, Terrain(), _track(c), np.zeros((65, 2)), np.zeros(65)), ValueError,
+                       r"Scenario: n_uavs must be an integer >= 1 and <= 64, got 65"),
+    "random team too large": (lambda c: Scenario.random(0, c, n_uavs=65), ValueError,
+                              r"Scenario\.random: n_uavs must be an integer >= 1 and <= 64"),
+    "random team fractional": (lambda c: Scenario.random(0, c, n_uavs=2.5), ValueError,
+                               r"Scenario\.random: n_uavs must be an integer"),
+    "sample more than fit": (lambda c: Scenario.random(0, c.replace(d_safe1=42.0)).sample_starts(
+        np.random.default_rng(0), 4), ValueError,
+        r"room for only 3 starts d_safe1=42 m apart, asked for n_uavs=4 \(the config's n_uavs=3 fit\)"),
+}
+
+
+@pytest.mark.parametrize("make, exc, pattern", SCENARIO_CASES.values(), ids=SCENARIO_CASES.keys())
+def test_scenario_rejects(make, exc, pattern):
+    with pytest.raises(exc, match=pattern):
+        make(Config(n_slots=10))
+
+
+# ----------------------------------------------------------------------------- start placement
+def _historical_starts(c, terrain, track, rng, u):
+    """The sampler of earlier releases, verbatim (it raised where the fallbacks now take over)."""
+    q0, phi0 = track.position(0), float(track.heading(0))
+    nodes = grid_nodes(q0[:2], phi0, c.grid_step, c.r1, c.r2, c.mu, c.r_u)
+    nodes = nodes[line_of_sight(terrain, nodes, c.altitude, q0)]
+    picked = []
+    for idx in rng.permutation(len(nodes)):
+        p = nodes[idx]
+        if all(np.hypot(*(p - o)) >= 2 * c.d_safe1 for o in picked):
+            picked.append(p)
+            if len(picked) == u:
+                break
+    if len(picked) < u:
+        return None
+    return np.array(picked), rng.uniform(0, 2 * math.pi, u)
+
+
+@pytest.mark.parametrize("overrides, seeds", [
+    (dict(), range(40)),
+    (dict(d_safe1=20.0), range(150)),                       # the issue's case: 239 of 300 resets failed
+    (dict(d_safe1=20.0, n_polytopes=30, max_radius=30.0), range(60)),
+    (dict(d_safe1=42.0), range(60)),                        # only the lattice-order fallback fits 3 UAVs
+])
+def test_starts_always_placed_and_unchanged_where_they_were(overrides, seeds):
+    c = Config(**overrides)
+    old_ok = 0
+    for seed in seeds:
+        terrain, track, rng = Scenario._random_world(seed, c)
+        xy, th = _sample_starts(c, terrain, track, copy.deepcopy(rng), c.n_uavs, "t")
+        old = _historical_starts(c, terrain, track, copy.deepcopy(rng), c.n_uavs)
+        if old is not None:                                  # results are compared across releases
+            old_ok += 1
+            np.testing.assert_array_equal(xy, old[0])
+            np.testing.assert_array_equal(th, old[1])
+        # The documented invariants: distinct lattice nodes of the eroded zone, d_safe1 apart (eq. 2).
+        q0, phi0 = track.position(0), float(track.heading(0))
+        nodes = grid_nodes(q0[:2], phi0, c.grid_step, c.r1, c.r2, c.mu, c.r_u)
+        assert all(np.any(np.all(nodes == p, axis=1)) for p in xy)
+        assert in_feasible_zone(xy, q0[:2], phi0, c.r1, c.r2, c.mu, c.r_u).all()
+        d = np.hypot(*(xy[:, None] - xy[None]).transpose(2, 0, 1))
+        np.fill_diagonal(d, np.inf)
+        assert d.min() >= c.d_safe1
+        assert xy.shape == (c.n_uavs, 2) and th.shape == (c.n_uavs,) and np.all((th >= 0) & (th < 2 * math.pi))
+    if not overrides:
+        assert old_ok == len(seeds)
+
+
+def test_starts_prefer_visible_nodes_in_the_fallback():
+    """Where the historical sampler failed, the fallback's first UAV still starts in clear LoS if any node has it."""
+    c = Config(d_safe1=20.0)
+    checked = 0
+    for seed in range(40):
+        terrain, track, rng = Scenario._random_world(seed, c)
+        if _historical_starts(c, terrain, track, copy.deepcopy(rng), c.n_uavs) is not None:
+            continue
+        xy, _ = _sample_starts(c, terrain, track, copy.deepcopy(rng), c.n_uavs, "t")
+        q0, phi0 = track.position(0), float(track.heading(0))
+        nodes = grid_nodes(q0[:2], phi0, c.grid_step, c.r1, c.r2, c.mu, c.r_u)
+        if line_of_sight(terrain, nodes, c.altitude, q0).any():
+            assert line_of_sight(terrain, xy[:1], c.altitude, q0)[0]
+            checked += 1
+    assert checked > 0
+
+
+def test_env_resets_never_fail_with_a_tight_config():
+    import covert_env
+
+    env = covert_env.parallel_env(config=Config(d_safe1=20.0), max_cycles=5)
+    for seed in range(30):
+        env.reset(seed=seed)
+    env.close()
+
+
+# ----------------------------------------------------------------------------- Road, TargetTrack
+ROAD_CASES = {
+    "points strings": (lambda: Road([["a", "b"], ["c", "d"]]),
+                       ValueError, r"Road\.points must be a \(K, 2\) array of numbers"),
+    "length negative": (lambda: Road.random(0, length=-5.0),
+                        ValueError, r"Road\.random: length must be a finite number > 0, got -5\.0"),
+    "length nan": (lambda: Road.random(0, length=math.nan),
+                   ValueError, r"Road\.random: length must be a finite number > 0, got nan"),
+    "length huge": (lambda: Road.random(0, length=1e12),
+                    ValueError, r"length / step = 1e\+12 / 2 would give more than 1000000 points"),
+    "step zero": (lambda: Road.random(0, step=0.0),
+                  ValueError, r"Road\.random: step must be a finite number > 0, got 0\.0"),
+    "curvature negative": (lambda: Road.random(0, max_curvature=-1.0),
+                           ValueError, r"max_curvature must be a finite number >= 0"),
+    "straight_start string": (lambda: Road.random(0, straight_start="60"),
+                              ValueError, r"straight_start must be a finite number >= 0, got '60'"),
+    "heading inf": (lambda: Road.random(0, heading=math.inf),
+                    ValueError, r"heading must be a finite number \(rad\), got inf"),
+    "start wrong shape": (lambda: Road.random(0, start=(1.0, 2.0, 3.0)), ValueError, r"start must be a point \(x, y\)"),
+    "start nan": (lambda: Road.random(0, start=(math.nan, 0.0)), ValueError, r"start must be finite"),
+    "seed negative": (lambda: Road.random(-1),
+                      ValueError, r"Road\.random: seed must be None, an integer >= 0 or a numpy Generator, got -1"),
+    "seed float": (lambda: Road.random(1.5), ValueError, r"Road\.random: seed must be .* got 1\.5"),
+    "track road type": (lambda: TargetTrack("road", [1.0]), TypeError, r"TargetTrack\.road must be a Road, got str"),
+    "track speeds empty": (lambda: TargetTrack(_road(), []),
+                           ValueError, r"TargetTrack\.speeds must be a non-empty 1-D array"),
+    "track speeds strings": (lambda: TargetTrack(_road(), ["fast"]),
+                             ValueError, r"TargetTrack\.speeds .* got \['fast'\]"),
+    "track delta zero": (lambda: TargetTrack(_road(), [1.0], delta=0.0),
+                         ValueError, r"TargetTrack\.delta must be a finite number > 0 \(s\), got 0\.0"),
+    "track delta nan": (lambda: TargetTrack(_road(), [1.0], delta=math.nan),
+                        ValueError, r"TargetTrack\.delta must be .* got nan"),
+    "track z nan": (lambda: TargetTrack(_road(), [1.0], z=math.nan),
+                    ValueError, r"TargetTrack\.z must be a finite number \(m\), got nan"),
+    "track s0 string": (lambda: TargetTrack(_road(), [1.0], s0="0"),
+                        ValueError, r"TargetTrack\.s0 must be a finite number \(m\), got '0'"),
+    "constant n_slots fractional": (lambda: TargetTrack.constant(_road(), 10.0, 2.5), ValueError,
+                                    r"TargetTrack\.constant: n_slots must be an integer >= 1, got 2\.5"),
+    "constant speed string": (lambda: TargetTrack.constant(_road(), "10", 5), ValueError,
+                              r"TargetTrack\.constant: speed must be a finite number >= 0 \(m/s\), got '10'"),
+}
+
+
+@pytest.mark.parametrize("make, exc, pattern", ROAD_CASES.values(), ids=ROAD_CASES.keys())
+def test_road_and_track_reject(make, exc, pattern):
+    with pytest.raises(exc, match=pattern):
+        make()
+
+
+def test_constant_track_accepts_numpy_count():
+    assert TargetTrack.constant(_road(), 10.0, np.int64(4)).n_slots == 4
+
+
+# ----------------------------------------------------------------------------- Polytope, Terrain
+TERRAIN_CASES = {
+    "prism height string": (lambda: Polytope.prism(SQUARE, "30"),
+                            ValueError, r"Polytope\.prism: height must be a number > 0 \(m\), got '30'"),
+    "prism height nan": (lambda: Polytope.prism(SQUARE, math.nan), ValueError, r"Polytope: top vertex 0 is not finite"),
+    "prism base strings": (lambda: Polytope.prism([["a", "b"]] * 3, 30.0),
+                           ValueError, r"Polytope: base must be an \(n, 2\) array of numbers"),
+    "base inf": (lambda: Polytope.prism([[0.0, 0.0], [math.inf, 0.0], [0.0, 1.0]], 5.0),
+                 ValueError, r"base vertex 1 is not finite"),
+    "two vertices": (lambda: Polytope.prism([[0.0, 0.0], [1.0, 0.0]], 5.0),
+                     ValueError, r"base must have at least 3 vertices, got 2"),
+    "terrain not iterable": (lambda: Terrain(5),
+                             TypeError, r"Terrain\.polytopes must be an iterable of Polytope, got int"),
+    "terrain of arrays": (lambda: Terrain([np.zeros((3, 2))]),
+                          TypeError, r"Terrain: polytope 0 must be a Polytope, got ndarray"),
+    "random seed negative": (lambda: Terrain.random(seed=-1, road=_road()),
+                             ValueError, r"Terrain\.random: seed must be None, an integer >= 0"),
+    "random seed string": (lambda: Terrain.random(seed="1", road=_road()),
+                           ValueError, r"Terrain\.random: seed must be .* got '1'"),
+    "random road type": (lambda: Terrain.random(0, road=[[0, 0], [1, 0]]),
+                         TypeError, r"Terrain\.random: road must be a Road or None, got list"),
+    "random config type": (lambda: Terrain.random(0, config={"n_polytopes": 3}),
+                           TypeError, r"Terrain\.random: config must be a Config, got dict"),
+    "random n huge": (lambda: Terrain.random(0, n=10**7),
+                      ValueError, r"Terrain\.random: n must be an integer >= 0 and <= 10000"),
+    "random no room": (lambda: Terrain.random(0, road=Road([[0.0, 0.0], [60.0, 0.0]]), n=40), ValueError,
+                       r"could not place polytope \d+ of 40 .* use fewer polytopes \(n / Config\.n_polytopes\), "
+                       r"a smaller max_radius \(22\) or road_clearance \(6\)"),
+    "random override bad": (lambda: Terrain.random(0, max_vertices=10**9),
+                            ValueError, r"Config\.max_vertices must be an integer >= 3 and <= 64"),
+    "validate altitude nan": (lambda: Terrain((Polytope.prism(SQUARE, 30.0),)).validate(math.nan), ValueError,
+                              r"altitude must be a positive finite number or None, got nan"),
+    "polytope validate altitude string": (lambda: Polytope.prism(SQUARE, 30.0).validate("80"), ValueError,
+                                          r"altitude must be a positive finite number or None, got '80'"),
+}
+
+
+@pytest.mark.parametrize("make, exc, pattern", TERRAIN_CASES.values(), ids=TERRAIN_CASES.keys())
+def test_terrain_rejects(make, exc, pattern):
+    with pytest.raises(exc, match=pattern):
+        make()
+
+
+# ----------------------------------------------------------------------------- large terrains
+def _city(n_side: int, pitch: float = 12.0, size: float = 8.0) -> dict:
+    feats = []
+    for k in range(n_side * n_side):
+        x, y = pitch * (k // n_side), pitch * (k % n_side)
+        ring = [[x, y], [x + size, y], [x + size, y + size], [x, y + size], [x, y]]
+        feats.append({"type": "Feature", "id": k, "properties": {"height": 10.0 + k % 7},
+                      "geometry": {"type": "Polygon", "coordinates": [ring]}})
+    return {"type": "FeatureCollection", "features": feats}
+
+
+def test_twenty_thousand_buildings_load_and_overlaps_are_found(tmp_path):
+    """The overlap check is an R-tree query, not an M x M array (which needed 25 GB for 23k buildings)."""
+    obj = _city(142)                                        # 20,164 disjoint buildings
+    path = tmp_path / "city.geojson"
+    path.write_text(json.dumps(obj))
+    t0 = time.perf_counter()
+    terrain = Terrain.load(path, altitude=80.0)
+    print(f"\nTerrain.load of {len(terrain)} buildings: {time.perf_counter() - t0:.2f} s")
+    assert len(terrain) == 142 * 142
+    np.testing.assert_array_equal(terrain[143].base, [[12.0, 12.0], [20.0, 12.0], [20.0, 20.0], [12.0, 20.0]])
+    assert terrain.z_max[143] == 10.0 + 143 % 7
+    # A planted overlap is found and named by both features, wherever it sits in the file.
+    i, j = 19_000, 7_001
+    x, y = obj["features"][j]["geometry"]["coordinates"][0][0]
+    obj["features"][i]["geometry"]["coordinates"] = [[[x + 4, y + 4], [x + 9, y + 4], [x + 9, y + 9], [x + 4, y + 9],
+                                                      [x + 4, y + 4]]]
+    path.write_text(json.dumps(obj))
+    with pytest.raises(ValueError, match=r"city\.geojson: feature 7001 \(id 7001\) and feature 19000 \(id 19000\): "
+                                         r"footprints overlap \(intersection area 16 m\^2\)"):
+        Terrain.load(path)
+    polys = list(terrain.polytopes)
+    polys[i] = Polytope.prism([[x + 4, y + 4], [x + 9, y + 4], [x + 9, y + 9], [x + 4, y + 9]], 20.0)
+    with pytest.raises(ValueError, match=r"Terrain: polytopes 7001 and 19000: footprints overlap"):
+        Terrain(polys)
+
+
+def _brute_first_overlap(polys):
+    for i in range(len(polys)):
+        for j in range(i + 1, len(polys)):
+            area = polys[i].footprint.intersection(polys[j].footprint).area
+            if area > 1e-6:
+                return i, j, area
+    return None
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_rtree_overlap_check_matches_the_pairwise_definition(seed):
+    """Same first pair and area as testing every pair; touching (an edge, a corner, 1e-7 m^2) is allowed."""
+    rng = np.random.default_rng(seed)
+    polys = [Polytope.prism(np.array(SQUARE) + (10.0 * (k % 5), 10.0 * (k // 5)), 5.0) for k in range(25)]
+    polys.append(Polytope.prism([[49.9999, 5.0], [60.0, 5.0], [60.0, 5.001]], 5.0))   # overlaps one by ~1e-9 m^2
+    for _ in range(int(rng.integers(0, 4))):
+        c = rng.uniform(0, 50, 2)
+        polys.append(Polytope.prism(np.array(SQUARE) * rng.uniform(0.1, 0.5) + c, 5.0))
+    order = rng.permutation(len(polys))
+    polys = [polys[k] for k in order]
+    assert _first_overlap(polys) == _brute_first_overlap(polys)
