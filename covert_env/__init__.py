@@ -8,7 +8,7 @@ Uneven Terrain", Remote Sensing 16(22):4273, 2024. The environments are thin ada
     penv = covert_env.parallel_env(n_uavs=3)                     # PettingZoo ParallelEnv
     aec = covert_env.env(n_uavs=3)                               # PettingZoo AEC
     import gymnasium as gym
-    genv = gym.make("covert_env/CovertSensing-v0")               # Gymnasium, one UAV
+    genv = gym.make("covert_env/CovertSensing-v1")               # Gymnasium, one UAV
 """
 
 from covert_env.config import Config
@@ -18,32 +18,35 @@ from covert_env.scenario import Scenario
 from covert_env.terrain import Polytope, Terrain
 from covert_env.trajectory import Trajectory
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 # Environments are imported after the model: the model modules never import them.
-from covert_env import covert_sensing_v0  # noqa: E402
+from covert_env import covert_sensing_v0, covert_sensing_v1  # noqa: E402
 from covert_env.envs import env, parallel_env, raw_env  # noqa: E402
 
 __all__ = ["Config", "Engine", "Polytope", "Road", "Scenario", "TargetTrack", "Terrain", "Trajectory",
-           "covert_sensing_v0", "env", "parallel_env", "raw_env"]
+           "covert_sensing_v0", "covert_sensing_v1", "env", "parallel_env", "raw_env"]
 
 
 def _register() -> None:
-    """Register the Gymnasium ids (Gymnasium 1.x has no plugin entry point) and PettingZoo ids."""
+    """Register the Gymnasium ids (Gymnasium 1.x has no plugin entry point) and PettingZoo ids.
+
+    Only v1 is registered: ``gym.make("covert_env/CovertSensing-v0")`` then raises Gymnasium's own
+    ``DeprecatedEnv`` ("... is deprecated. Please use `covert_env/CovertSensing-v1` instead.")."""
     import gymnasium
 
-    for env_id, entry in (("covert_env/CovertSensing-v0", "covert_env.envs.single:CovertSensingEnv"),
-                          ("covert_env/CovertSensingWaypoint-v0", "covert_env.envs.single:CovertSensingWaypointEnv")):
+    for env_id, entry in (("covert_env/CovertSensing-v1", "covert_env.envs.single:CovertSensingEnv"),
+                          ("covert_env/CovertSensingWaypoint-v1", "covert_env.envs.single:CovertSensingWaypointEnv")):
         if env_id not in gymnasium.registry:
             gymnasium.register(id=env_id, entry_point=entry)
     try:
         from pettingzoo import aec_registry, parallel_registry, register
     except ImportError:  # older PettingZoo without a registry
         return
-    if "covert_env/CovertSensing-v0" not in parallel_registry:
-        register("parallel", "covert_env/CovertSensing-v0", "covert_env.envs.covert_sensing:parallel_env")
-    if "covert_env/CovertSensing-v0" not in aec_registry:
-        register("aec", "covert_env/CovertSensing-v0", "covert_env.envs.covert_sensing:env")
+    if "covert_env/CovertSensing-v1" not in parallel_registry:
+        register("parallel", "covert_env/CovertSensing-v1", "covert_env.envs.covert_sensing:parallel_env")
+    if "covert_env/CovertSensing-v1" not in aec_registry:
+        register("aec", "covert_env/CovertSensing-v1", "covert_env.envs.covert_sensing:env")
 
 
 _register()

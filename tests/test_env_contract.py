@@ -20,7 +20,7 @@ from pettingzoo.test import (
 )
 
 import covert_env
-from covert_env import covert_sensing_v0
+from covert_env import covert_sensing_v1
 
 MODES = ("unicycle", "waypoint")
 TERMS = ("path", "disguise", "los", "zone", "separation", "terrain")
@@ -105,7 +105,7 @@ def test_costs_are_the_constraint_violations():
 
 
 def test_gymnasium_env_exposes_the_same_infos():
-    genv = gym.make("covert_env/CovertSensing-v0", max_cycles=3)
+    genv = gym.make("covert_env/CovertSensing-v1", max_cycles=3)
     _, info0 = genv.reset(seed=1)
     _, _, _, _, info1 = genv.step(genv.action_space.sample())
     assert _signature(info0) == _signature(info1)
@@ -128,7 +128,7 @@ def test_pettingzoo_battery_dict_obs_default_arguments():
 
 
 def test_max_cycles_render_and_performance_default_arguments():
-    max_cycles_test(covert_sensing_v0)
+    max_cycles_test(covert_sensing_v1)
     for mode in MODES:
         render_test(lambda render_mode=None, mode=mode: covert_env.env(action_mode=mode, render_mode=render_mode))
     performance_benchmark(covert_env.env(n_uavs=3))
@@ -168,7 +168,7 @@ def test_closed_env_is_collected():
     gc.collect()
     assert ref() is None
 
-    genv = gym.make("covert_env/CovertSensing-v0", max_cycles=2)
+    genv = gym.make("covert_env/CovertSensing-v1", max_cycles=2)
     genv.reset(seed=0)
     genv.step(genv.action_space.sample())
     genv.close()
@@ -260,12 +260,26 @@ def test_bad_waypoint_actions(bad):
 
 
 @pytest.mark.parametrize("env_id, kw, pattern", [
-    ("covert_env/CovertSensing-v0", dict(n_uavs=3), r"flies one UAV, got n_uavs=3.*parallel_env"),
-    ("covert_env/CovertSensing-v0", dict(action_mode="waypoint"), "CovertSensingWaypoint-v0"),
-    ("covert_env/CovertSensingWaypoint-v0", dict(action_mode="unicycle"), "covert_env/CovertSensing-v0"),
-    ("covert_env/CovertSensing-v0", dict(dict_obs=True), "dict_obs=True needs action_mode='waypoint'"),
+    ("covert_env/CovertSensing-v1", dict(n_uavs=3), r"flies one UAV, got n_uavs=3.*parallel_env"),
+    ("covert_env/CovertSensing-v1", dict(action_mode="waypoint"), "CovertSensingWaypoint-v1"),
+    ("covert_env/CovertSensingWaypoint-v1", dict(action_mode="unicycle"), "covert_env/CovertSensing-v1"),
+    ("covert_env/CovertSensing-v1", dict(dict_obs=True), "dict_obs=True needs action_mode='waypoint'"),
 ])
 def test_gymnasium_make_rejects_contradicting_arguments(env_id, kw, pattern):
     with pytest.raises(ValueError, match=pattern):
         gym.make(env_id, **kw)
     gym.make(env_id, n_uavs=1)                 # what the id already is: accepted
+
+
+# ---------------------------------------------------------------------- versions
+def test_v0_ids_fail_with_a_clear_message():
+    from covert_env import covert_sensing_v0
+
+    with pytest.raises(gym.error.DeprecatedEnv, match="CovertSensing-v1"):
+        gym.make("covert_env/CovertSensing-v0")
+    with pytest.raises(gym.error.DeprecatedEnv, match="CovertSensingWaypoint-v1"):
+        gym.make("covert_env/CovertSensingWaypoint-v0")
+    for make in (covert_sensing_v0.parallel_env, covert_sensing_v0.env, covert_sensing_v0.raw_env):
+        with pytest.raises(RuntimeError, match=r"replaced by covert_sensing_v1.*reward_"):
+            make(n_uavs=3)
+    assert covert_env.covert_sensing_v1.parallel_env(n_uavs=2).metadata["name"] == "covert_sensing_v1"

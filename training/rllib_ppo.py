@@ -52,7 +52,7 @@ import numpy as np
 from training.common import parse_args, resumed_args, run_name, save_run, setup_torch
 
 ALGO = "rllib_ppo"
-ENV_NAME = "covert_sensing_v0"
+ENV_NAME = "covert_sensing_v1"
 MODULE_ID = "shared_policy"
 
 

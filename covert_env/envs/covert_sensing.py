@@ -302,10 +302,17 @@ class CovertSensingParallelEnv(ParallelEnv):
 
     ## Version History
 
+    * v1 (covert_env 0.2.0): infos are flat scalars with the same keys and types at reset and every step
+      (``reward_terms[t]`` became ``reward_<t>``); constraint costs ``cost``, ``cost_los``, ``cost_zone``,
+      ``cost_separation``, ``cost_terrain``; with ``dict_obs=True`` the action mask is only in the
+      observation; ``max_cycles`` above ``config.n_slots`` is accepted (the episode ends with the route) and is
+      validated on assignment; ``dict_obs=True`` in unicycle mode is an error; starts on scenes whose visible
+      zone cannot hold the team use a documented fallback (:meth:`Scenario.sample_starts`; other scenes' starts
+      are unchanged). Observations and rewards are otherwise unchanged.
     * v0: initial release.
     """
 
-    metadata = {"name": "covert_sensing_v0", "render_modes": ["human", "rgb_array"], "render_fps": 4,
+    metadata = {"name": "covert_sensing_v1", "render_modes": ["human", "rgb_array"], "render_fps": 4,
                 "is_parallelizable": True}
 
     def __init__(self, config: Config | dict | None = None, *, n_uavs: int | None = None,

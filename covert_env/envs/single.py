@@ -1,7 +1,7 @@
 """Gymnasium single-UAV environments, thin wrappers over the PettingZoo env with one agent.
 
-Registered at ``import covert_env`` as ``covert_env/CovertSensing-v0`` (continuous unicycle actions)
-and ``covert_env/CovertSensingWaypoint-v0`` (discrete waypoint actions with ``action_masks()`` for
+Registered at ``import covert_env`` as ``covert_env/CovertSensing-v1`` (continuous unicycle actions)
+and ``covert_env/CovertSensingWaypoint-v1`` (discrete waypoint actions with ``action_masks()`` for
 sb3-contrib's MaskablePPO).
 """
 
@@ -31,7 +31,7 @@ class CovertSensingEnv(gym.Env):
 
     ``Box(-1, 1, (2,), float32)``: (speed, turn rate) scaled to 0 < v <= V_max = 50 m/s and
     |omega| <= W_max = 3 rad/s, integrated exactly over the slot. Out-of-range values are clipped;
-    NaN/inf raise ``ValueError``. (``CovertSensingWaypoint-v0``: ``Discrete(L)`` lattice waypoints.)
+    NaN/inf raise ``ValueError``. (``CovertSensingWaypoint-v1``: ``Discrete(L)`` lattice waypoints.)
 
     ## Observation Space
 
@@ -77,6 +77,13 @@ class CovertSensingEnv(gym.Env):
 
     ## Version History
 
+    * v1 (covert_env 0.2.0): infos are flat scalars with the same keys and types at reset and every step
+      (``reward_terms[t]`` became ``reward_<t>``); constraint costs ``cost``, ``cost_los``, ``cost_zone``,
+      ``cost_separation``, ``cost_terrain``; with ``dict_obs=True`` the action mask is only in the
+      observation; ``max_cycles`` above ``config.n_slots`` is accepted (the episode ends with the route) and is
+      validated on assignment; ``dict_obs=True`` in unicycle mode is an error; starts on scenes whose visible
+      zone cannot hold the team use a documented fallback (:meth:`Scenario.sample_starts`; other scenes' starts
+      are unchanged). Observations and rewards are otherwise unchanged.
     * v0: initial release.
     """
 
@@ -91,7 +98,7 @@ class CovertSensingEnv(gym.Env):
         if kwargs.get("action_mode", self._action_mode) != self._action_mode:
             other = "CovertSensingWaypoint" if self._action_mode == "unicycle" else "CovertSensing"
             raise ValueError(f"{type(self).__name__} has action_mode={self._action_mode!r}, got "
-                             f"action_mode={kwargs['action_mode']!r}; use the id covert_env/{other}-v0")
+                             f"action_mode={kwargs['action_mode']!r}; use the id covert_env/{other}-v1")
         kwargs.update(n_uavs=1, action_mode=self._action_mode)
         self.par = CovertSensingParallelEnv(render_mode=render_mode, **kwargs)
         self.render_mode = render_mode
