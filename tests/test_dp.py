@@ -305,10 +305,10 @@ def test_safety_layer_separates_the_flown_slot_when_negotiation_gives_up():
     xy = np.array([[60.0, 0.0], [60.0, 6.0], [60.0, -6.0]])
     th = np.array([0.1, 0.1, 0.1])
     team = DPTeamPlanner(DPPlanner(c, sc.terrain), max_rounds=0)
-    before = team._conflicts(team.planner.plan_batch(xy, th, tq, tp))
+    before = team.conflicts(team.planner.plan_batch(xy, th, tq, tp))
     assert any(t == 0 for _, _, t, _ in before)
     plan = team.plan(xy, th, tq, tp)
-    assert not any(t == 0 for _, _, t, _ in team._conflicts(plan.plans))
+    assert not any(t == 0 for _, _, t, _ in team.conflicts(plan.plans))
     assert "safety" in [p.status for p in plan.plans] and plan.plans[0].status == "ok"
     pts = [p.path_points(21)[0] for p in plan.plans]
     for i in range(3):
