@@ -261,6 +261,77 @@ def test_rollout_through_a_fully_shadowed_zone_never_crashes():
     assert all(r["separation_violations"] == 0 and r["speed_violations"] == 0 for r in m)
 
 
+# ------------------------------------------------------------------------------- eq. 3: tall tops
+def _pole_scenario(n_uavs: int, height: float = 76.0) -> Scenario:
+    """The paper scene plus a 2 m x 2 m pole of ``height`` on the road at x = 200, where the zone passes in the
+    first 20 slots. The generator caps heights at h - d_safe2 = 70 m; a loaded terrain need not."""
+    c = Config(n_uavs=n_uavs)
+    sc = Scenario.paper(c)
+    pole = Polytope.prism([[199.0, -1.0], [201.0, -1.0], [201.0, 1.0], [199.0, 1.0]], height)
+    terrain = Terrain(tuple(sc.terrain.polytopes) + (pole,))
+    terrain.validate(c.altitude)
+    return Scenario(c, terrain, sc.track, sc.uav_xy, sc.uav_theta, name="pole")
+
+
+def _fly(sc: Scenario, planner: DPPlanner, n_slots: int):
+    eng = Engine(sc, path_samples=21)
+    team = DPTeamPlanner(planner)
+    for _ in range(n_slots):
+        plan = team.plan_engine(eng)
+        eng.step(waypoints=plan.waypoints, infeasible=plan.infeasible)
+    return eng.trajectory()
+
+
+def _clearance_3d(xy, terrain, altitude):
+    top = terrain.highest_points
+    d = xy[..., None, :] - top[:, :2]
+    return np.sqrt((d ** 2).sum(-1) + (altitude - top[:, 2]) ** 2).min(-1)
+
+
+def test_allowed_nodes_exclude_the_disk_around_a_tall_top():
+    """Eq. 3 at the nodes: exactly the nodes closer than d_safe2 (in 3D) to a top are removed, aware or blind;
+    for a 76 m top at h = 80 that is a horizontal disk of radius sqrt(10^2 - 4^2) = 9.17 m."""
+    sc = _pole_scenario(1)
+    c = sc.config
+    ks = np.arange(14, 14 + c.horizon + 1)                         # the zone is around the pole at slot 15
+    tq, tp = sc.track.position(ks), np.asarray(sc.track.heading(ks))
+    xy = to_world(zone_lattice(c), tq[1, :2], tp[1])
+    near = _clearance_3d(xy, sc.terrain, c.altitude) < c.d_safe2
+    assert 20 < near.sum() < 200
+    assert np.all(np.hypot(*(xy[near] - [200.0, 0.0]).T) < math.sqrt(c.d_safe2 ** 2 - 4.0 ** 2) + 1.5)
+    for aware in (True, False):
+        pl = DPPlanner(c, sc.terrain, shadow_aware=aware)
+        allowed = pl.allowed_nodes(tq[1], tp[1])
+        assert not allowed[near].any()
+        if not aware:
+            np.testing.assert_array_equal(allowed, ~near)
+        # From the zone's centre at slot 14, a dozen metres short of the pole, heading along the road.
+        start = tq[0, :2] - 0.5 * (c.r1 + c.r2) * np.array([np.cos(tp[0]), np.sin(tp[0])])
+        plan = pl.plan(start, tp[0], tq, tp)
+        assert plan.status == "ok"
+        assert np.all(_clearance_3d(plan.path_points(21), sc.terrain, c.altitude) >= c.d_safe2 - 1e-9)
+
+
+@pytest.mark.parametrize("aware", [True, False])
+def test_team_keeps_d_safe2_from_a_tall_pole_where_a_planner_without_eq_3_does_not(aware):
+    """A 76 m pole where the zone passes: the team ends no slot within d_safe2 of its top (the metrics'
+    terrain_violations) and keeps d_safe2 along every unflagged flown path; the same planner with eq. 3
+    switched off comes closer than d_safe2 (so the scene does test it)."""
+    from baselines.dp.clearance import TerrainClearance
+
+    sc = _pole_scenario(3)
+    c = sc.config
+    traj = _fly(sc, DPPlanner(c, sc.terrain, shadow_aware=aware), 20)
+    m = episode_metrics(traj, sc.terrain, c)
+    assert all(r["terrain_violations"] == 0 for r in m)
+    along = _clearance_3d(traj.path_xy, sc.terrain, c.altitude).min(axis=-1)        # (T, U)
+    assert np.all(along[~traj.infeasible] >= c.d_safe2 - 1e-9)
+    without = DPPlanner(c, sc.terrain, shadow_aware=aware)
+    without.paths.clearance = TerrainClearance(Terrain(()), c.altitude, c.d_safe2, without.path_samples)
+    old = _fly(sc, without, 20)
+    assert _clearance_3d(old.path_xy, sc.terrain, c.altitude).min() < c.d_safe2
+
+
 # ------------------------------------------------------------------------------------------ team
 def test_team_plans_are_conflict_free_at_slots_and_along_manoeuvres():
     c = Config()

@@ -8,7 +8,9 @@ manoeuvres at once:
   the target at that instant and outside its shadows (eqs. 8-9): a line-of-sight guarantee the paper
   does not give;
 * team negotiation (:func:`separated`): at every instant the UAV keeps a distance from the manoeuvres
-  other UAVs recorded at the same instants (eq. 2 along the path).
+  other UAVs recorded at the same instants (eq. 2 along the path);
+* always (``PathChecker.clearance``, :mod:`baselines.dp.clearance`): at every instant the UAV keeps
+  ``d_safe2`` from the polytopes' highest points (eq. 3).
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 import shapely
 
+from baselines.dp.clearance import TerrainClearance
 from baselines.dp.lattice import VISIBILITY_TOL
 from covert_env.angles import wrap_angle
 from covert_env.config import Config
@@ -46,10 +49,12 @@ class PathContext:
 
 
 class PathChecker:
-    """``check_path``: line of sight and zone at the instants between slots, with a cache of shadow unions."""
+    """``check_path``: line of sight and zone at the instants between slots, with a cache of shadow unions;
+    and eq. 3 (``clearance``) at the nodes and along every manoeuvre."""
 
     def __init__(self, config: Config, terrain: Terrain, path_samples: int, cache_size: int):
         self.config, self.terrain, self.path_samples = config, terrain, int(path_samples)
+        self.clearance = TerrainClearance(terrain, config.altitude, config.d_safe2, self.path_samples)
         self._max_shadows = 8 * int(cache_size) * self.path_samples
         self._shadows: OrderedDict = OrderedDict()
 

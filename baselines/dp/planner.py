@@ -100,11 +100,17 @@ class DPPlanner:
         """(L,) bool: lattice nodes at target pose (q, phi) with a clear line of sight (cached)."""
         return self.cache.stage(q, phi).visible(self.terrain, self.config.altitude).copy()
 
+    def clear_nodes(self, q, phi) -> np.ndarray:
+        """(L,) bool: lattice nodes at target pose (q, phi) at least d_safe2 from every polytope top (eq. 3)."""
+        return self.paths.clearance.clear(self.cache.stage(q, phi).xy)
+
     def allowed_nodes(self, q, phi) -> np.ndarray:
-        """(L,) bool: the nodes this planner may use at target pose (q, phi) (visible, or all if blind)."""
-        if self.shadow_aware:
-            return self.visible_nodes(q, phi)
-        return np.ones(len(self.lattice), bool)
+        """(L,) bool: the nodes this planner may use at target pose (q, phi): clear of the tops (eq. 3) and
+        visible (eq. 10), or only clear if shadow-blind."""
+        ok = self.visible_nodes(q, phi) if self.shadow_aware else np.ones(len(self.lattice), bool)
+        if self.paths.clearance.active:
+            ok &= self.clear_nodes(q, phi)
+        return ok
 
     def plan(self, start_xy, start_theta: float, target_xyz, target_phi, *, blocked=None,
              target_path=None) -> DPPlan:
@@ -168,6 +174,9 @@ class DPPlanner:
 
         outcomes, strict = self._strict_outcomes(prob, base, u, n, counts, self._resumed_layers(resume, u))
         todo = [i for i in range(u) if outcomes[i] is None]
+        if self.paths.clearance.active:
+            # Eq. 3 is a constraint at every fallback level too: nodes too near a top are never offered.
+            blk = blk | ~np.stack([self.paths.clearance.clear(st.xy) for st in stages])[None]
         if todo and self.shadow_aware:
             # Level 2: every zone node, a penalty per node without LoS, earlier stages weigh more.
             idx = np.array(todo)

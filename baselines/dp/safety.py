@@ -43,7 +43,10 @@ def secure_first_moves(team, plans, xy, th, target_xyz, target_phi, target_path=
     def candidates(i):
         if i not in cands:
             m = solve_manoeuvre(xy[i], th[i], st.xy, v_max=c.v_max, w_max=c.w_max, delta=c.delta)
-            ok = np.asarray(m.feasible, bool)
+            ok = np.asarray(m.feasible, bool).copy()
+            if pl.paths.clearance.active:
+                ok &= pl.paths.clearance.clear(st.xy)                  # eq. 3 at the node and along the path
+                ok[ok] = pl.paths.clearance.manoeuvres_clear(m, ok)
             a0 = uav_target_angle(xy[i], tq[0, :2], tp[0])
             d0 = uav_target_distance(xy[i], tq[0, :2])
             g = np.where(ok, np.nan_to_num(m.length) + disguise_term(c, a0, d0, st.alpha, st.d), np.inf)

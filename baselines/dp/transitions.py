@@ -2,7 +2,8 @@
 
 A transition a -> b is flown by the turn-then-straight manoeuvre (eqs. 22-29); its cost is the stage
 cost of eq. 18, ``g = v delta - lambda kappa`` with ``kappa = eta |wrap(alpha_b - alpha_a)| + |d_b - d_a|``
-(eq. 11), or inf when no manoeuvre exists or a check along it fails (:mod:`baselines.dp.path_checks`).
+(eq. 11), or inf when no manoeuvre exists or a check along it fails (:mod:`baselines.dp.path_checks`,
+eq. 3 by :mod:`baselines.dp.clearance`).
 """
 
 from __future__ import annotations
@@ -37,6 +38,8 @@ def solve_transitions(config: Config, paths: PathChecker, prob: Problem, j: int,
     m = solve_manoeuvre(start_xy, theta, st.xy[nodes], v_max=c.v_max, w_max=c.w_max, delta=c.delta)
     counts.exact += nodes.size
     ok = np.asarray(m.feasible, bool).reshape(-1).copy()
+    if paths.clearance.active and ok.any():
+        ok[ok] = paths.clearance.manoeuvres_clear(m, ok)           # eq. 3 along the path
     extra = paths.penalties(m, ok, prob.path, j, len(prob.stages), prob.path_soft)
     if prob.avoid is not None and ok.any():
         ok[ok] = separated(m, ok, prob.avoid, prob.avoid_dist, uav, j)
