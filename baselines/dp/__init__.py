@@ -10,7 +10,13 @@ a node index is an action. The allowed nodes are
 
 * ``shadow_aware=True`` (the paper's method): nodes of the visible zone F[k+j] (eq. 10), i.e. eroded zone
   and a clear line of sight (eq. 6) to q[k+j];
-* ``shadow_aware=False`` (the earlier method [1], the paper's comparison): every node of the eroded zone.
+* ``shadow_aware=False`` (the earlier method [1], the paper's comparison): every node of the eroded zone;
+
+and, for both, only nodes at least ``d_safe2`` from every polytope's highest point (eq. 3,
+:mod:`baselines.dp.clearance`). Eq. 3 also removes every manoeuvre that comes closer than ``d_safe2`` to a
+top at one of its ``path_samples`` instants, at every fallback level and in the team's safety layer. Only
+tops higher than h - d_safe2 can matter; the random generator caps heights there, so on generated scenes
+the check removes nothing.
 
 The cost of moving from node a at stage j to node b at stage j+1 is the stage cost of eq. 18,
 

@@ -159,7 +159,7 @@ class DPPlanner:
         if len(theta0) != u or not (np.all(np.isfinite(start)) and np.all(np.isfinite(theta0))):
             raise ValueError("DPPlanner.plan: need finite start poses, one heading per position")
         L = len(self.lattice)
-        blk = np.zeros((u, n, L), bool) if blocked is None else np.asarray(blocked, bool).reshape(u, n, L)
+        removed = np.zeros((u, n, L), bool) if blocked is None else np.asarray(blocked, bool).reshape(u, n, L)
         stages = [self.cache.stage(tq[j], tphi[j]) for j in range(1, n + 1)]
         path = self.paths.context(tq, tphi, target_path) if self.check_path else None
         counts = SolveCounts()
@@ -167,26 +167,27 @@ class DPPlanner:
         d0 = np.atleast_1d(uav_target_distance(start, tq[0, :2]))
         allowed = np.stack([self.allowed_nodes(tq[j], tphi[j]) for j in range(1, n + 1)])     # (N, L)
         base = [np.where(allowed[j], 0.0, np.inf)[None] for j in range(n)]
-        any_blk = blk.any()
-        pens = [np.where(blk[:, j], np.inf, base[j]) if any_blk else base[j] for j in range(n)]
+        any_removed = removed.any()
+        penalties = [np.where(removed[:, j], np.inf, base[j]) if any_removed else base[j] for j in range(n)]
         avoid = None if avoid is None else np.asarray(avoid, float).reshape(u, -1, n, np.shape(avoid)[-2], 2)
-        prob = Problem(start, theta0, alpha0, d0, stages, pens, path, avoid, float(avoid_dist))
+        prob = Problem(start, theta0, alpha0, d0, stages, penalties, path, avoid, float(avoid_dist))
 
         outcomes, strict = self._strict_outcomes(prob, base, u, n, counts, self._resumed_layers(resume, u))
         todo = [i for i in range(u) if outcomes[i] is None]
         if self.paths.clearance.active:
             # Eq. 3 is a constraint at every fallback level too: nodes too near a top are never offered.
-            blk = blk | ~np.stack([self.paths.clearance.clear(st.xy) for st in stages])[None]
+            removed = removed | ~np.stack([self.paths.clearance.clear(st.xy) for st in stages])[None]
         if todo and self.shadow_aware:
             # Level 2: every zone node, a penalty per node without LoS, earlier stages weigh more.
             idx = np.array(todo)
-            sub = Problem(start[idx], theta0[idx], alpha0[idx], d0[idx], stages, fallback_penalties(allowed, blk[idx]),
-                          path, None if avoid is None else avoid[idx], float(avoid_dist), path_soft=True)
-            fl = self.recursion.run(sub, 1, None, None, counts)
-            fdepth = depths(fl, len(idx))
+            sub = Problem(start[idx], theta0[idx], alpha0[idx], d0[idx], stages,
+                          fallback_penalties(allowed, removed[idx]), path, None if avoid is None else avoid[idx],
+                          float(avoid_dist), path_soft=True)
+            fallback_layers = self.recursion.run(sub, 1, None, None, counts)
+            fallback_depth = depths(fallback_layers, len(idx))
             for s, i in enumerate(todo):
-                if fdepth[s]:
-                    outcomes[i] = _Outcome(fl, s, int(fdepth[s]), "fallback")
+                if fallback_depth[s]:
+                    outcomes[i] = _Outcome(fallback_layers, s, int(fallback_depth[s]), "fallback")
         plans = []
         c = self.config
         common = dict(time=(time.perf_counter() - t0) / u, n_exact=counts.exact, n_bounded=counts.bounded,
@@ -196,7 +197,7 @@ class DPPlanner:
             o = outcomes[i]
             if o is None:
                 # Level 3: no zone node reachable in one slot; head for the nearest one.
-                node = nearest_zone_node(self.config, stages[0], start[i], allowed[0], blk[i, 0])
+                node = nearest_zone_node(self.config, stages[0], start[i], allowed[0], removed[i, 0])
                 plans.append(DPPlan(**_single_move(node, stages[0], n), status="fallback", infeasible=True,
                                     **pose, **common))
             else:
@@ -214,10 +215,11 @@ class DPPlanner:
         layers = self.recursion.run(prob, 1, None, None, counts, prefix)
         depth = depths(layers, u)
         if self.heading_bins > 1 and depth.any():
-            ub = np.array([best_cost(layers, i, depth[i]) if (depth[i] == n and self.prune) else np.inf
-                           for i in range(u)])
-            H = self.recursion.cost_to_go_bounds(prob.stages, base) if np.isfinite(ub).any() else None
-            binned = self.recursion.run(prob, self.heading_bins, ub, H, counts)
+            upper_bound = np.array([best_cost(layers, i, depth[i]) if (depth[i] == n and self.prune) else np.inf
+                                    for i in range(u)])
+            cost_to_go = (self.recursion.cost_to_go_bounds(prob.stages, base) if np.isfinite(upper_bound).any()
+                          else None)
+            binned = self.recursion.run(prob, self.heading_bins, upper_bound, cost_to_go, counts)
             bdepth = depths(binned, u)
         out: list = [None] * u
         for i in range(u):
