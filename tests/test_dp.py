@@ -353,6 +353,13 @@ def test_allowed_nodes_exclude_the_disk_around_a_tall_top():
         plan = pl.plan(start, tp[0], tq, tp)
         assert plan.status == "ok"
         assert np.all(_clearance_3d(plan.path_points(21), sc.terrain, c.altitude) >= c.d_safe2 - 1e-9)
+        # A UAV that is already too near (4 m short of the top, 5.7 m in 3D, heading at it) may leave: it gets
+        # a plan, clear of the top from the first waypoint on.
+        inside = np.array([195.0, -1.0])
+        assert _clearance_3d(inside, sc.terrain, c.altitude) < c.d_safe2
+        plan = pl.plan(inside, 0.0, tq, tp)
+        assert plan.status == "ok"
+        assert np.all(_clearance_3d(plan.path_points(21)[1:], sc.terrain, c.altitude) >= c.d_safe2 - 1e-9)
 
 
 @pytest.mark.parametrize("aware", [True, False])

@@ -38,17 +38,29 @@ class TerrainClearance:
         """Whether some top is higher than ``h - d_safe2`` (otherwise every position is clear)."""
         return len(self.tops) > 0
 
-    def clear(self, xy) -> np.ndarray:
-        """(...) bool: positions (..., 2) at altitude h at least ``d_safe2`` from every top (eq. 3)."""
+    def distance(self, xy) -> np.ndarray:
+        """(...) 3D distance from positions (..., 2) at altitude h to the nearest top that matters (inf if none).
+
+        Computed as the metrics do (:func:`covert_env.metrics.slot_quantities`), so they agree at the boundary.
+        """
         xy = np.asarray(xy, float)
         if not self.active:
-            return np.ones(xy.shape[:-1], bool)
+            return np.full(xy.shape[:-1], np.inf)
         d = xy[..., None, :] - self.tops
-        # The 3D distance as the metrics measure it, so planner and metrics agree at the boundary.
-        return (np.sqrt(d[..., 0] ** 2 + d[..., 1] ** 2 + self.dz2) >= self.d_safe2).all(axis=-1)
+        return np.sqrt(d[..., 0] ** 2 + d[..., 1] ** 2 + self.dz2).min(axis=-1)
+
+    def clear(self, xy) -> np.ndarray:
+        """(...) bool: positions (..., 2) at altitude h at least ``d_safe2`` from every top (eq. 3)."""
+        return self.distance(xy) >= self.d_safe2
 
     def manoeuvres_clear(self, m: Manoeuvre, ok: np.ndarray) -> np.ndarray:
-        """For the feasible manoeuvres (``ok``): clear of every top at each of the ``path_samples`` instants."""
+        """For the feasible manoeuvres (``ok``): clear of every top at each of the ``path_samples`` instants.
+
+        The start is where the UAV already is, so it is not checked; and a UAV that starts closer than d_safe2
+        (after a best-effort move, or placed there) is not held to its samples either, only to the clear node
+        it flies to: it leaves by a planned manoeuvre instead of being left with no plan. (Requiring it never
+        to come closer than it is would trap a UAV heading at the top: every manoeuvre starts by approaching.)
+        """
         out = np.ones(int(ok.sum()), bool)
         if not self.active or not out.size:
             return out
@@ -61,9 +73,9 @@ class TerrainClearance:
             np.hypot(*(self.tops[None] - b[:, None]).transpose(2, 0, 1))
         near = (foci <= ell[:, None] + 2.0 * self.radius[None]).any(axis=1)
         if near.any():
-            p = self.path_samples
-            pts = _take(m, np.flatnonzero(ok)[near]).points(p)
-            out[near] = self.clear(pts).all(axis=1)
+            need = np.where(self.distance(a[near]) >= self.d_safe2, self.d_safe2, -np.inf)
+            pts = _take(m, np.flatnonzero(ok)[near]).points(self.path_samples)[:, 1:]
+            out[near] = self.distance(pts).min(axis=1) >= need
         return out
 
 
