@@ -366,7 +366,7 @@ def test_allowed_nodes_exclude_the_disk_around_a_tall_top():
 def test_team_keeps_d_safe2_from_a_tall_pole_where_a_planner_without_eq_3_does_not(aware):
     """A 76 m pole where the zone passes: the team ends no slot within d_safe2 of its top (the metrics'
     terrain_violations) and keeps d_safe2 along every unflagged flown path; the same planner with eq. 3
-    switched off comes closer than d_safe2 (so the scene does test it)."""
+    switched off (the planner before eq. 3 was enforced) ends slots closer than d_safe2: the scene tests it."""
     from baselines.dp.clearance import TerrainClearance
 
     sc = _pole_scenario(3)
@@ -379,7 +379,7 @@ def test_team_keeps_d_safe2_from_a_tall_pole_where_a_planner_without_eq_3_does_n
     without = DPPlanner(c, sc.terrain, shadow_aware=aware)
     without.paths.clearance = TerrainClearance(Terrain(()), c.altitude, c.d_safe2, without.path_samples)
     old = _fly(sc, without, 20)
-    assert _clearance_3d(old.path_xy, sc.terrain, c.altitude).min() < c.d_safe2
+    assert sum(r["terrain_violations"] for r in episode_metrics(old, sc.terrain, c)) > 0
 
 
 # ------------------------------------------------------------------------------------------ team

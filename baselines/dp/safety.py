@@ -4,15 +4,31 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import replace
+from typing import NamedTuple
 
 import numpy as np
 
 from baselines.dp.path_checks import FALLBACK_PENALTY
 from baselines.dp.transitions import disguise_term
 from covert_env.cost import uav_target_angle, uav_target_distance
-from covert_env.dynamics import solve_manoeuvre
+from covert_env.dynamics import Manoeuvre, solve_manoeuvre
 
 __all__ = ["secure_first_moves"]
+
+
+class _Candidates(NamedTuple):
+    """One UAV's one-slot moves to every lattice node of the next slot."""
+
+    manoeuvres: Manoeuvre
+    flyable: np.ndarray       # (L,) feasible and clear of the tops (eq. 3)
+    samples: np.ndarray       # (L, P - 1, 2) path samples after the start
+    cost: np.ndarray          # (L,) stage cost g (eq. 18), inf where not flyable
+    allowed: np.ndarray       # (L,) an allowed node (and, with check_path, LoS kept along the way)
+
+
+class _Move(NamedTuple):
+    node: int
+    infeasible: bool          # the move leaves the allowed nodes (flagged to the engine)
 
 
 def secure_first_moves(team, plans, xy, th, target_xyz, target_phi, target_path=None) -> list:
@@ -40,7 +56,7 @@ def secure_first_moves(team, plans, xy, th, target_xyz, target_phi, target_path=
     own = [q.path_points(p)[0][1:] for q in plans]           # sample 0 (the current position) is fixed
     cands: dict = {}
 
-    def candidates(i):
+    def candidates(i) -> _Candidates:
         if i not in cands:
             m = solve_manoeuvre(xy[i], th[i], st.xy, v_max=c.v_max, w_max=c.w_max, delta=c.delta)
             ok = np.asarray(m.feasible, bool).copy()
@@ -55,7 +71,7 @@ def secure_first_moves(team, plans, xy, th, target_xyz, target_phi, target_path=
                 clear = np.zeros(len(ok), bool)
                 clear[ok] = pl.paths.keeps_sight(m, ok, ctx, 0, zone=False)
                 good &= clear
-            cands[i] = (m, ok, m.points(p)[:, 1:], g, good)
+            cands[i] = _Candidates(m, ok, m.points(p)[:, 1:], g, good)
         return cands[i]
 
     def clear_of(pts, others):
@@ -70,9 +86,9 @@ def secure_first_moves(team, plans, xy, th, target_xyz, target_phi, target_path=
         d = np.where(ok, clear_of(pts, fixed.values()), -np.inf)
         safe = d >= lim
         if (safe & allowed).any():
-            return int(np.argmin(np.where(safe & allowed, g, np.inf))), False
+            return _Move(int(np.argmin(np.where(safe & allowed, g, np.inf))), False)
         if safe.any():
-            return int(np.argmin(np.where(safe, g, np.inf))), True
+            return _Move(int(np.argmin(np.where(safe, g, np.inf))), True)
         return None
 
     def repair(i, h, fixed):
@@ -91,7 +107,7 @@ def secure_first_moves(team, plans, xy, th, target_xyz, target_phi, target_path=
         if not np.isfinite(score).any():
             return None
         a_, b_ = np.unravel_index(int(np.argmin(score)), score.shape)
-        return (int(ch[a_]), not al_h[ch[a_]]), (int(ci[b_]), not al_i[ci[b_]])
+        return _Move(int(ch[a_]), bool(not al_h[ch[a_]])), _Move(int(ci[b_]), bool(not al_i[ci[b_]]))
 
     def settle(order):
         fixed, moves, clean = {}, {}, True
@@ -106,7 +122,7 @@ def secure_first_moves(team, plans, xy, th, target_xyz, target_phi, target_path=
                     both = repair(i, h, fixed)
                     if both is not None:
                         moves[h], mv = both
-                        fixed[h] = candidates(h)[2][moves[h][0]]
+                        fixed[h] = candidates(h).samples[moves[h].node]
                         break
             if mv is None:
                 m, ok, pts, g, _ = candidates(i)
@@ -116,9 +132,9 @@ def secure_first_moves(team, plans, xy, th, target_xyz, target_phi, target_path=
                     clean = False
                     continue
                 d = np.where(ok, clear_of(pts, fixed.values()), -np.inf)
-                mv, clean = (int(np.argmax(d)), True), False
+                mv, clean = _Move(int(np.argmax(d)), True), False
             moves[i] = mv
-            fixed[i] = candidates(i)[2][mv[0]]
+            fixed[i] = candidates(i).samples[mv.node]
         return moves, clean
 
     first = None
