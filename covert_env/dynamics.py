@@ -62,9 +62,11 @@ the UAV (``a < 0``) is reachable in one slot by *any* admissible control, since
 ``|theta(t)| <= W_max t <= pi`` gives ``x(delta) >= (v / W_max) sin(W_max delta) >= 0``. Two roots do
 occur for e.g. ``W_max = 5`` (waypoint ``(-6.88, -4.66)`` in the UAV frame).
 
-Conventions (decided): the turn side is the sign of ``cross(heading, g - p)`` (eq. 22's sigma - theta
-test); a waypoint dead ahead needs no turn (``v = |g - p| / delta``); a waypoint dead behind is taken
-with a left turn; a waypoint equal to the start is infeasible (v must be > 0). Infeasible entries have
+Turn side (eq. 22): with sigma the bearing of ``g - p`` and theta the heading, the paper turns left for
+sigma - theta in (-2 pi, -pi) u (0, pi), right for [-pi, 0) u [pi, 2 pi), and not at all for 0. That is
+the sign of ``cross(heading, g - p)``, and a waypoint dead behind (sigma - theta = +-pi, cross = 0) is
+taken with a right turn, as the paper states. Conventions (decided): a waypoint dead ahead needs no turn
+(``v = |g - p| / delta``); a waypoint equal to the start is infeasible (v must be > 0). Infeasible entries have
 NaN in every float field and are never reported feasible.
 """
 
@@ -102,6 +104,16 @@ def _wrap_2pi(a):
     """Wrap into [0, 2 pi). ``np.mod`` can return exactly 2 pi for tiny negative input; fold that to 0."""
     w = np.mod(a, _TWO_PI)
     return np.where(w >= _TWO_PI, 0.0, w)
+
+
+def _turn_side(cross):
+    """Eq. 22: +1 (left) for a waypoint left of the heading, -1 (right) otherwise.
+
+    ``cross = cross(heading, g - p)`` is > 0 exactly when sigma - theta lies in (0, pi) mod 2 pi, the paper's
+    left set; it is 0 at sigma - theta = +-pi (dead behind), which the paper puts in the right set. (Dead
+    ahead, also cross = 0, is the no-turn case, set by the caller.)
+    """
+    return np.where(cross > 0, 1, -1).astype(np.int8)
 
 
 def _scalar_or_array(a):
@@ -377,7 +389,8 @@ def solve_manoeuvre(p, theta, goals, *, v_max: float = 50.0, w_max: float = 3.0,
                     delta: float = 1.0) -> Manoeuvre:
     """Turn-then-straight manoeuvres from poses ``(p, theta)`` to waypoints ``goals`` (eqs. 22-29).
 
-    Turn at ``+-w_max`` (left if the waypoint is left of the heading) at constant speed v until the
+    Turn at ``+-w_max`` (left if the waypoint is left of the heading, right if right of it or dead behind,
+    eq. 22) at constant speed v until the
     heading points at the waypoint (tangent point z, eq. 26), then fly straight at the same v, arriving
     exactly after ``delta`` seconds (eq. 27/29). See the module docstring for the geometry, the verified
     formula for tau and the root structure of eq. 29 (the slowest root is returned).
@@ -425,7 +438,7 @@ def solve_manoeuvre(p, theta, goals, *, v_max: float = 50.0, w_max: float = 3.0,
         # d <= v_max delta is necessary (the path is at least the chord); it prunes most far-away pairs.
         usable = np.isfinite(d) & (d > MIN_GOAL_DISTANCE) & (d <= v_max * delta)
         straight = usable & (a > 0) & (b <= _STRAIGHT_REL * d)
-        turn = np.where(cross < 0, -1, 1).astype(np.int8)  # dead behind (cross == 0, a <= 0): left
+        turn = _turn_side(cross)
         turn[straight] = 0
 
         feasible = straight.copy()

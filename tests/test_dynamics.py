@@ -295,13 +295,46 @@ def test_goal_inside_turning_circle_for_every_speed_is_infeasible(d, frac, side,
     assert not solve_manoeuvre([0.0, 0.0], th, g, w_max=w_max).feasible
 
 
-def test_straight_behind_turns_left():
-    m = solve_manoeuvre([0.0, 0.0], 0.0, [-5.0, 0.0], w_max=8.0)
-    assert m.feasible and m.turn == 1
-    end, _ = fly_manoeuvre([0.0, 0.0], 0.0, m)
-    np.testing.assert_allclose(end, [-5.0, 0.0], atol=1e-10)
+def eq22_turn(sigma, theta):
+    """Eq. 22 as printed, on angles: sigma in [0, 2 pi) the bearing of p[k] -> p[k+1], theta in [0, 2 pi)."""
+    x = sigma - theta                                  # in (-2 pi, 2 pi)
+    if x == 0:
+        return 0
+    if -np.pi <= x < 0 or np.pi <= x < TWO_PI:
+        return -1                                      # right
+    return 1                                           # left: (-2 pi, -pi) u (0, pi)
+
+
+def test_straight_behind_turns_right_as_eq_22_states():
+    """sigma - theta = pi (waypoint dead behind) is in eq. 22's right set [pi, 2 pi), as is -pi in [-pi, 0)."""
+    # theta = 0 is exact; for the others cos / sin of the heading round, leaving the goal a few ulps off pi.
+    for theta, goal in ((0.0, [-5.0, 0.0]), (np.pi, [5.0, 0.0]), (np.pi / 2, [0.0, -5.0])):
+        m = solve_manoeuvre([0.0, 0.0], theta, goal, w_max=8.0)
+        assert m.feasible and m.turn == -1
+        end, th_end = fly_manoeuvre([0.0, 0.0], theta, m)
+        np.testing.assert_allclose(end, goal, atol=1e-10)
+        # A right turn by tau ends with heading theta - tau.
+        np.testing.assert_allclose(wrapped_diff(th_end, theta - m.turn_time * 8.0), 0.0, atol=1e-9)
+    assert eq22_turn(np.pi, 0.0) == -1 and eq22_turn(0.0, np.pi) == -1
     # W_max delta <= pi: nothing behind the UAV is reachable in one slot
     assert not solve_manoeuvre([0.0, 0.0], 0.0, [-5.0, 0.0]).feasible
+
+
+@pytest.mark.parametrize("theta", [0.0, 0.7, np.pi, 4.0])
+def test_turn_side_follows_eq_22_around_dead_behind(theta):
+    """Bearings pi - eps (left of the heading) turn left, pi + eps turn right, for eps from 1e-9 to 0.5, as eq.
+    22 evaluated literally on sigma and theta says. (Exactly pi is only representable on the axes: see
+    test_straight_behind_turns_right_as_eq_22_states.)"""
+    eps = np.array([1e-9, 1e-6, 1e-3, 0.1, 0.5])
+    rel = np.concatenate([np.pi - eps, np.pi + eps])
+    goals = 5.0 * np.column_stack([np.cos(theta + rel), np.sin(theta + rel)])
+    m = solve_manoeuvre(np.zeros(2), theta, goals, w_max=8.0)
+    assert np.all(m.feasible)
+    np.testing.assert_array_equal(m.turn, [1] * len(eps) + [-1] * len(eps))
+    sigma = np.mod(np.arctan2(goals[:, 1], goals[:, 0]), TWO_PI)
+    np.testing.assert_array_equal(m.turn, [eq22_turn(s_, theta) for s_ in sigma])
+    end, _ = fly_manoeuvre(np.zeros(2), theta, m)
+    np.testing.assert_allclose(end, goals, atol=1e-8)
 
 
 def test_degenerate_and_nan_inputs_are_infeasible():

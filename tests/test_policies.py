@@ -18,7 +18,8 @@ from baselines.policies import (
 )
 from baselines.reproduce import HELDOUT_SEED_BASE, make_scenario, rollout
 from covert_env import Config
-from covert_env.dynamics import unicycle_step
+from covert_env.dynamics import solve_manoeuvre, unicycle_step
+from covert_env.zone import to_world
 
 CFG = Config(n_slots=8)
 
@@ -41,13 +42,17 @@ def test_dp_policy_through_the_gymnasium_waypoint_env_on_a_heldout_scene():
     np.testing.assert_array_equal(res["trajectory"].uav_xy, ref.uav_xy)
 
 
-def test_dp_policy_in_unicycle_mode_stays_within_limits_and_keeps_the_target():
-    env = covert_env.parallel_env(config=CFG, n_uavs=3, scenario="paper", action_mode="unicycle")
+def test_dp_policy_in_unicycle_mode_keeps_the_target_in_sight():
+    """Flying arcs toward the planned waypoints still keeps line of sight at every slot of the paper scene,
+    separated. arc_action flies another path than the planned manoeuvre (its documented losses), so a UAV
+    may end a slot just outside the zone: at most one slot in ten."""
+    cfg = Config(n_slots=20)
+    env = covert_env.parallel_env(config=cfg, n_uavs=3, scenario="paper", action_mode="unicycle")
     res = run_episode(DPPolicy(), env, seed=0)
     traj = res["trajectory"]
-    assert np.all(traj.max_speed <= CFG.v_max + 1e-9) and np.all(traj.max_turn_rate <= CFG.w_max + 1e-9)
+    assert not traj.infeasible.any()
     for m in res["metrics"]:
-        assert m["zone_violation_rate"] <= 0.25 and m["occlusion_rate"] <= 0.25 and m["separation_violations"] == 0
+        assert m["occlusion_rate"] == 0.0 and m["separation_violations"] == 0 and m["zone_violation_rate"] <= 0.1
 
 
 def test_gymnasium_actions_are_single_actions_in_the_action_space():
@@ -71,10 +76,33 @@ def test_random_and_heuristic_policies_run_and_are_seeded(mode):
             env = covert_env.parallel_env(config=CFG, n_uavs=2, scenario="paper", action_mode=mode)
             runs.append(run_episode(cls(), env, seed=5)["trajectory"].uav_xy)
         np.testing.assert_array_equal(runs[0], runs[1])
-    # Random waypoints respect the action mask: every flown move is reachable (no fallback flight).
+
+
+def test_random_waypoints_follow_the_mask_and_are_flown_without_fallback():
+    """Random waypoints are drawn from the action mask: whenever some node is reachable the drawn one is, and
+    the engine flies it exactly (no fallback flag). A UAV the random flight left with no reachable node (the
+    mask is then all ones) is the only flagged case."""
     env = covert_env.parallel_env(config=CFG, n_uavs=2, scenario="paper", action_mode="waypoint")
-    traj = run_episode(RandomPolicy(), env, seed=5)["trajectory"]
-    assert np.all(traj.max_speed <= CFG.v_max + 1e-9)
+    obs, _ = env.reset(seed=5)
+    pol = RandomPolicy()
+    pol.reset(env, seed=5)
+    c = env.config
+    flown = 0
+    while env.agents:
+        eng = env.engine
+        q1, phi1 = eng.predict(1)
+        goals = to_world(env.lattice, q1[0, :2], float(phi1[0]))
+        reach = solve_manoeuvre(eng.uav_xy[:, None], eng.uav_theta[:, None], goals[None], v_max=c.v_max,
+                                w_max=c.w_max, delta=c.delta).feasible
+        act = pol.act(obs, env)
+        obs, _, _, _, info = env.step(act)
+        for i, a in enumerate(env.possible_agents):
+            if reach[i].any():
+                assert reach[i, act[a]] and not info[a]["infeasible"]
+                flown += 1
+            else:
+                assert info[a]["infeasible"]
+    assert flown >= 2 * CFG.n_slots - 2
 
 
 def test_hold_centre_stays_in_the_zone_with_little_disguise():

@@ -1,0 +1,131 @@
+"""The planner's states: the zone lattice placed at each predicted target pose, and node-pair quantities.
+
+A :class:`Stage` is the lattice of :func:`covert_env.zone.zone_lattice` (the waypoint actions) placed at
+one predicted target pose q[k+j], phi[k+j]: world positions, alpha and d (eqs. 12-13) and line of sight
+(eq. 6). A :class:`StagePair` holds what the transitions between two consecutive stages share whatever
+the UAV: the disguise part of the stage cost (eq. 18) and the manoeuvre-table index of every node pair.
+Neither depends on the UAV, so a team and its successive replans share them through a :class:`StageCache`.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+
+import numpy as np
+
+from baselines.dp.table import TWO_PI, ManoeuvreTable
+from covert_env.cost import uav_target_angle, uav_target_distance
+from covert_env.terrain import Terrain
+from covert_env.visibility import line_of_sight
+from covert_env.zone import to_world
+
+__all__ = ["Stage", "StageCache", "StagePair", "VISIBILITY_TOL"]
+
+#: Line-of-sight tolerance (m) used for nodes and path samples: polytopes grown by 1 micrometre, so a node
+#: the planner calls visible stays visible under the engine's rounding when it is flown to.
+VISIBILITY_TOL = -1e-6
+
+
+class Stage:
+    """Lattice nodes at one predicted target pose: world xy, alpha, d (eqs. 12-13) and visibility."""
+
+    __slots__ = ("key", "q", "phi", "xy", "alpha", "d", "_visible")
+
+    def __init__(self, key, q: np.ndarray, phi: float, lattice: np.ndarray):
+        self.key = key
+        self.q = q
+        self.phi = phi
+        self.xy = to_world(lattice, q[:2], phi)
+        self.alpha = uav_target_angle(self.xy, q[:2], phi)
+        self.d = uav_target_distance(self.xy, q[:2])
+        self._visible = None
+
+    def visible(self, terrain: Terrain, altitude: float) -> np.ndarray:
+        """(L,) LoS clear at this slot (eq. 6); every lattice node is in the eroded zone by construction."""
+        if self._visible is None:
+            self._visible = line_of_sight(terrain, self.xy, altitude, self.q, tol=VISIBILITY_TOL)
+            self._visible.setflags(write=False)
+        return self._visible
+
+
+class StagePair:
+    """Quantities of every node pair between two consecutive stages that do not depend on the UAV.
+
+    disguise: float32 (L, L), ``-lambda (eta |d alpha| + |d d|)``, the disguise part of eq. 18.
+    table_base: float32 (L, L), :meth:`ManoeuvreTable.base_index` of b - a.
+    heading_free_bound: float32 (L, L), ``disguise + chord`` (inf beyond V_max delta), a lower bound on c_ab
+        whatever the heading (built on demand).
+    """
+
+    __slots__ = ("disguise", "table_base", "_with_penalty", "_heading_free_bound", "_chord", "_reach")
+
+    def __init__(self, a: Stage, b: Stage, lam: float, eta: float, table: ManoeuvreTable):
+        # Everything here feeds bounds only (exact costs are recomputed in float64 from the nodes' alpha
+        # and d), so float32 throughout: half the memory traffic of the S x S arrays.
+        f = np.float32
+        dx = b.xy[None, :, 0].astype(f) - a.xy[:, None, 0].astype(f)
+        dy = b.xy[None, :, 1].astype(f) - a.xy[:, None, 1].astype(f)
+        chord = np.hypot(dx, dy)
+        # alpha lies in (-pi, pi], so the difference is in (-2 pi, 2 pi) and |wrap| = min(|x|, 2 pi - |x|).
+        dal = np.abs(b.alpha.astype(f)[None, :] - a.alpha.astype(f)[:, None])
+        np.minimum(dal, f(TWO_PI) - dal, out=dal)
+        dal *= f(eta)
+        dal += np.abs(b.d.astype(f)[None, :] - a.d.astype(f)[:, None])
+        dal *= f(-lam)
+        self.disguise = dal
+        self.table_base = table.base_index(None, chord, np.arctan2(dy, dx))
+        self._chord, self._reach = chord, table.reach
+        self._heading_free_bound = None
+        self._with_penalty: dict = {}
+
+    @property
+    def heading_free_bound(self) -> np.ndarray:
+        if self._heading_free_bound is None:
+            self._heading_free_bound = np.where(self._chord <= self._reach, self.disguise + self._chord,
+                                                np.inf).astype(np.float32)
+        return self._heading_free_bound
+
+    def disguise_plus(self, penalty: np.ndarray) -> np.ndarray:
+        """``disguise + penalty[None, :]`` (float32), cached per penalty vector (few distinct ones per pair)."""
+        key = penalty.tobytes()
+        out = self._with_penalty.get(key)
+        if out is None:
+            out = self.disguise + penalty.astype(np.float32)[None, :]
+            if len(self._with_penalty) >= 4:
+                self._with_penalty.pop(next(iter(self._with_penalty)))
+            self._with_penalty[key] = out
+        return out
+
+
+class StageCache:
+    """Least-recently-used stages (keyed by the target pose) and stage pairs of one scene."""
+
+    def __init__(self, lattice: np.ndarray, table: ManoeuvreTable, lam: float, eta: float, size: int):
+        self.lattice, self.table, self.lam, self.eta, self.size = lattice, table, lam, eta, int(size)
+        self._stages: OrderedDict = OrderedDict()
+        self._pairs: OrderedDict = OrderedDict()
+
+    def stage(self, q, phi) -> Stage:
+        q = np.asarray(q, dtype=float).reshape(3)
+        key = (q.tobytes(), float(phi))
+        st = self._stages.get(key)
+        if st is None:
+            st = Stage(key, q.copy(), float(phi), self.lattice)
+            self._stages[key] = st
+            while len(self._stages) > self.size:
+                self._stages.popitem(last=False)
+        else:
+            self._stages.move_to_end(key)
+        return st
+
+    def pair(self, a: Stage, b: Stage) -> StagePair:
+        key = (a.key, b.key)
+        p = self._pairs.get(key)
+        if p is None:
+            p = StagePair(a, b, self.lam, self.eta, self.table)
+            self._pairs[key] = p
+            while len(self._pairs) > self.size:
+                self._pairs.popitem(last=False)
+        else:
+            self._pairs.move_to_end(key)
+        return p

@@ -1,0 +1,193 @@
+"""The forward recursion (eqs. 19-21) over the stages, for a batch of UAVs at once.
+
+``J_0(b) = c_sb`` from each UAV's start s (eq. 19), ``J_j(b) = min_a (c_ab + J_{j-1}(a))`` (eq. 20), and a
+virtual final state f with ``c_af = 0`` (eq. 21), so the optimum is ``min_a J_{N-1}(a)`` and
+:func:`backtrack` follows the parents from there. A state is a node (``bins = 1``, the paper's
+position-only states with the heading inherited from the best arrival) or a (node, heading bin) pair.
+Transitions are bounded through the manoeuvre table and solved exactly only where they can matter
+(:mod:`baselines.dp.selection`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from baselines.dp.lattice import StageCache
+from baselines.dp.path_checks import PathChecker
+from baselines.dp.selection import BOUND_TOL, select_per_bin, select_per_node
+from baselines.dp.states import Layer, Problem, SolveCounts
+from baselines.dp.table import ManoeuvreTable
+from baselines.dp.transitions import SolvedTransitions, solve_transitions
+from covert_env.config import Config
+
+__all__ = ["ForwardRecursion", "backtrack"]
+
+#: Under negotiation constraints, best-first rounds (1 + 2 transitions) before an unsolved node is given up.
+OPEN_ROUNDS_CONSTRAINED = 2
+#: Entries per chunk of the binned variant's dense bound (~16 MB of float32).
+CHUNK = 1 << 22
+
+
+class ForwardRecursion:
+    """Eqs. 19-20 over a :class:`Problem`; bounds from the manoeuvre table, exact costs where they matter."""
+
+    def __init__(self, config: Config, lattice: np.ndarray, table: ManoeuvreTable, cache: StageCache,
+                 paths: PathChecker):
+        self.config, self.lattice, self.table, self.cache, self.paths = config, lattice, table, cache, paths
+
+    def run(self, prob: Problem, bins: int, upper_bound, cost_to_go, counts: SolveCounts,
+            prefix=None) -> list[Layer]:
+        """The non-empty layers of the whole batch.
+
+        ``upper_bound`` (U,) and ``cost_to_go`` (per stage, from :meth:`cost_to_go_bounds`): prune states and
+        transitions that cannot complete into anything cheaper (None: no pruning). ``prefix``: already
+        computed first layers (incremental replanning); the recursion continues after them.
+        """
+        n = len(prob.stages)
+        if prefix:
+            layers, j0 = list(prefix[:-1]), len(prefix) - 1
+            layer = prefix[-1]
+        else:
+            layers, j0 = [], 0
+            layer = self.first_layer(prob, counts)
+            if cost_to_go is not None and layer.n:
+                layer = layer.take(layer.J + cost_to_go[0][layer.node] <= upper_bound[layer.uav] + BOUND_TOL)
+        for j in range(j0, n):
+            if layer.n == 0:
+                break
+            layers.append(layer)
+            if j + 1 < n:
+                layer = self.advance(prob, layer, j + 1, bins, upper_bound,
+                                     None if cost_to_go is None else cost_to_go[j + 1], counts)
+        return layers
+
+    def cost_to_go_bounds(self, stages, penalties) -> list[np.ndarray]:
+        """H[j](a) <= cost of any completion from node a at stage j (heading-free: c >= chord + disguise)."""
+        n = len(stages)
+        H = [np.zeros(len(self.lattice), np.float32)]
+        for j in range(n - 2, -1, -1):
+            pair = self.cache.pair(stages[j], stages[j + 1])
+            nxt = (penalties[j + 1].min(axis=0) + H[0]).astype(np.float32)
+            H.insert(0, (pair.heading_free_bound + nxt[None, :]).min(axis=1))
+        return H
+
+    def first_layer(self, prob: Problem, counts: SolveCounts) -> Layer:
+        """Eq. 19: each UAV's single start state s to every allowed node of stage 1, all solved exactly."""
+        pen = np.broadcast_to(prob.penalties[0], (len(prob.start), len(self.lattice)))
+        uu, cols = np.nonzero(np.isfinite(pen))
+        if cols.size == 0:
+            return Layer.empty()
+        m, g, extra = solve_transitions(self.config, self.paths, prob, 0, prob.start[uu], prob.theta[uu], uu,
+                                        prob.alpha0[uu], prob.d0[uu], cols, counts)
+        J = g + pen[uu, cols] + extra
+        k = np.isfinite(J)
+        return Layer(uu[k], cols[k], np.asarray(m.heading_after)[k], J[k], np.full(int(k.sum()), -1),
+                     np.asarray(m.v)[k], g[k])
+
+    def advance(self, prob: Problem, layer: Layer, j: int, bins: int, upper_bound, cost_to_go_j,
+                counts: SolveCounts) -> Layer:
+        """Eq. 20 from ``layer`` (stage j-1, 0-based) to stage j, exact on the transitions that matter."""
+        pair = self.cache.pair(prob.stages[j - 1], prob.stages[j])
+        solved = SolvedTransitions(self.config, self.paths, len(self.lattice), prob, layer, j, counts)
+        pen = prob.penalties[j].astype(np.float32)
+        if bins == 1:
+            lb, rowmap = self._node_bounds(pair, pen, layer, upper_bound, cost_to_go_j, counts)
+            select_per_node(lb, rowmap, solved, OPEN_ROUNDS_CONSTRAINED if prob.avoid is not None else None)
+        else:
+            rows, nodes, bounds, cells = self._state_bounds(pair, pen, layer, upper_bound, cost_to_go_j, counts)
+            select_per_bin(self.table, len(self.lattice), rows, nodes, bounds, cells, layer, bins, solved,
+                           prob.avoid is not None)
+        return solved.winners(bins)
+
+    def _node_bounds(self, pair, pen, layer: Layer, upper_bound, cost_to_go_j, counts: SolveCounts):
+        """One state per node: the dense bound LB(a, b) = J(a) + disguise(a, b) + table bound + pen(b), float32.
+
+        Returns ``(lb, rowmap)``: (blocks, L, L) bounds per UAV present and the layer row of each (block, a).
+        """
+        tab = self.table
+        # Lay every UAV's states out on the full node grid (absent rows have J = inf), so the cached (L, L)
+        # pair arrays broadcast instead of being gathered row by row.
+        blocks = layer.blocks()
+        L = len(self.lattice)
+        cost_grid = np.full((len(blocks), L), np.inf, np.float32)
+        heading_cells = np.zeros((len(blocks), L), np.float32)
+        rowmap = np.full((len(blocks), L), -1, np.int64)
+        for b, (_, s, e) in enumerate(blocks):
+            nd = layer.node[s:e]
+            cost_grid[b, nd] = layer.J[s:e]
+            heading_cells[b, nd] = layer.theta[s:e] * tab.psi_scale
+            rowmap[b, nd] = np.arange(s, e)
+        cell = (pair.table_base[None] - heading_cells[:, :, None]).astype(np.int32)
+        lb = tab.lb[cell]
+        del cell
+        uav = np.array([u for u, _, _ in blocks])
+        if len(pen) > 1:
+            lb += pair.disguise[None]
+            lb += pen[uav][:, None, :]
+        else:
+            lb += pair.disguise_plus(pen[0])[None]
+        lb += cost_grid[:, :, None]
+        counts.bounded += int(np.isfinite(cost_grid).sum()) * L
+        if cost_to_go_j is not None:
+            thr = (upper_bound[uav] + BOUND_TOL).astype(np.float32)
+            lb[lb + cost_to_go_j[None, None, :] > thr[:, None, None]] = np.inf
+        return lb, rowmap
+
+    def _state_bounds(self, pair, pen, layer: Layer, upper_bound, cost_to_go_j, counts: SolveCounts):
+        """(node, bin) states: many rows, so the dense bound is built in row chunks and kept sparse.
+
+        Returns ``(rows, nodes, bounds, cells)`` of the finite bounds: layer row, target node, bound, table cell.
+        """
+        tab = self.table
+        L = len(self.lattice)
+        th = (layer.theta * tab.psi_scale).astype(np.float32)
+        J32 = layer.J.astype(np.float32)
+        disguise_pen = None if len(pen) > 1 else pair.disguise_plus(pen[0])
+        thr = None if cost_to_go_j is None else (upper_bound[layer.uav] + BOUND_TOL).astype(np.float32)
+        step = max(1, CHUNK // L)
+        parts = []
+        for s0 in range(0, layer.n, step):
+            sl = slice(s0, s0 + step)
+            rows = layer.node[sl]
+            cell = pair.table_base[rows]
+            cell -= th[sl, None]
+            cell = cell.astype(np.int32)
+            lb = tab.lb[cell]
+            if disguise_pen is None:
+                lb += pair.disguise[rows]
+                lb += pen[layer.uav[sl]]
+            else:
+                lb += disguise_pen[rows]
+            lb += J32[sl, None]
+            if thr is not None:
+                # Transitions whose every completion costs more than the known plan cannot matter.
+                lb[lb + cost_to_go_j[None, :] > thr[sl, None]] = np.inf
+            r, c = np.nonzero(np.isfinite(lb))
+            parts.append((r + s0, c, lb[r, c], cell[r, c]))
+        counts.bounded += layer.n * L
+        return tuple(np.concatenate(x) for x in zip(*parts, strict=True))
+
+
+def backtrack(layers: list[Layer], i: int, depth: int, stages) -> dict:
+    """Follow the parents from UAV i's best state at stage ``depth`` (eq. 21's virtual final state).
+
+    Returns the :class:`~baselines.dp.plan.DPPlan` fields ``nodes``, ``waypoints``, ``headings``, ``speeds``,
+    ``stage_costs``, ``cost`` and ``depth``.
+    """
+    n = len(stages)
+    nodes = np.full(n, -1, np.int64)
+    head = np.full(n, np.nan)
+    v = np.full(n, np.nan)
+    g = np.full(n, np.nan)
+    last = layers[depth - 1]
+    mine = np.flatnonzero(last.uav == i)
+    s = int(mine[np.argmin(last.J[mine])])
+    for j in range(depth - 1, -1, -1):
+        lay = layers[j]
+        nodes[j], head[j], v[j], g[j] = lay.node[s], lay.theta[s], lay.v[s], lay.g[s]
+        s = int(lay.parent[s])
+    wp = np.full((n, 2), np.nan)
+    for j in range(depth):
+        wp[j] = stages[j].xy[nodes[j]]
+    return dict(nodes=nodes, waypoints=wp, headings=head, speeds=v, stage_costs=g, cost=float(np.sum(g[:depth])),
+                depth=int(depth))

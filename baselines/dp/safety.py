@@ -1,0 +1,163 @@
+"""The team's safety layer: separate the slot that is actually flown when the negotiation left a conflict in it."""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import replace
+from typing import NamedTuple
+
+import numpy as np
+
+from baselines.dp.path_checks import FALLBACK_PENALTY
+from baselines.dp.transitions import disguise_term
+from covert_env.cost import uav_target_angle, uav_target_distance
+from covert_env.dynamics import Manoeuvre, solve_manoeuvre
+
+__all__ = ["secure_first_moves"]
+
+
+class _Candidates(NamedTuple):
+    """One UAV's one-slot moves to every lattice node of the next slot."""
+
+    manoeuvres: Manoeuvre
+    flyable: np.ndarray       # (L,) feasible and clear of the tops (eq. 3)
+    samples: np.ndarray       # (L, P - 1, 2) path samples after the start
+    cost: np.ndarray          # (L,) stage cost g (eq. 18), inf where not flyable
+    allowed: np.ndarray       # (L,) an allowed node (and, with check_path, LoS kept along the way)
+
+
+class _Move(NamedTuple):
+    node: int
+    infeasible: bool          # the move leaves the allowed nodes (flagged to the engine)
+
+
+def secure_first_moves(team, plans, xy, th, target_xyz, target_phi, target_path=None) -> list:
+    """Safety layer for the slot that is flown, after the negotiation left a conflict in it.
+
+    In priority order, a UAV keeps its plan if its first manoeuvre keeps ``d_safe1 + separation_margin``
+    from those of the UAVs already settled, at every sample; otherwise it takes, among all lattice nodes
+    of the next slot (solved exactly from its pose), the separated move to an allowed (visible) node with
+    the lowest stage cost (eq. 18), else to any node (flagged infeasible). If it has no separated move
+    at all, its move and that of one settled UAV are re-chosen together (every pair of their candidates;
+    a fast teammate sweeping past can leave no single move). With ``check_path``, "allowed" also means
+    LoS kept along the manoeuvre. Failing that, the other priority orders are
+    tried (lexicographic), and if none works the priority order's result is kept with the most
+    separated move (flagged). ``status="safety"``.
+    """
+    pl, c = team.planner, team.config
+    tq = np.asarray(target_xyz, float).reshape(-1, 3)
+    tp = np.asarray(target_phi, float).reshape(-1)
+    st = pl.cache.stage(tq[1], tp[1])
+    allowed_nodes = pl.allowed_nodes(tq[1], tp[1])
+    ctx = pl.paths.context(tq, tp, target_path) if pl.check_path else None
+    lim = team.separation
+    p = team.path_samples
+    u = len(plans)
+    own = [q.path_points(p)[0][1:] for q in plans]           # sample 0 (the current position) is fixed
+    cands: dict = {}
+
+    def candidates(i) -> _Candidates:
+        if i not in cands:
+            m = solve_manoeuvre(xy[i], th[i], st.xy, v_max=c.v_max, w_max=c.w_max, delta=c.delta)
+            ok = np.asarray(m.feasible, bool).copy()
+            if pl.paths.clearance.active:
+                ok &= pl.paths.clearance.clear(st.xy)                  # eq. 3 at the node and along the path
+                ok[ok] = pl.paths.clearance.manoeuvres_clear(m, ok)
+            a0 = uav_target_angle(xy[i], tq[0, :2], tp[0])
+            d0 = uav_target_distance(xy[i], tq[0, :2])
+            g = np.where(ok, np.nan_to_num(m.length) + disguise_term(c, a0, d0, st.alpha, st.d), np.inf)
+            good = allowed_nodes.copy()
+            if ctx is not None and ok.any():
+                clear = np.zeros(len(ok), bool)
+                clear[ok] = pl.paths.keeps_sight(m, ok, ctx, 0, zone=False)
+                good &= clear
+            cands[i] = _Candidates(m, ok, m.points(p)[:, 1:], g, good)
+        return cands[i]
+
+    def clear_of(pts, others):
+        """(n,) smallest distance from candidate paths (n, P-1, 2) to the given settled paths."""
+        d = np.full(len(pts), np.inf)
+        for f in others:
+            d = np.minimum(d, np.hypot(*(pts - f[None]).transpose(2, 0, 1)).min(axis=1))
+        return d
+
+    def pick(i, fixed):
+        m, ok, pts, g, allowed = candidates(i)
+        d = np.where(ok, clear_of(pts, fixed.values()), -np.inf)
+        safe = d >= lim
+        if (safe & allowed).any():
+            return _Move(int(np.argmin(np.where(safe & allowed, g, np.inf))), False)
+        if safe.any():
+            return _Move(int(np.argmin(np.where(safe, g, np.inf))), True)
+        return None
+
+    def repair(i, h, fixed):
+        """Re-choose the moves of i and of the settled h together (all pairs of their candidates)."""
+        rest = [f for k, f in fixed.items() if k != h]
+        (_, ok_i, p_i, g_i, al_i), (_, ok_h, p_h, g_h, al_h) = candidates(i), candidates(h)
+        ci = np.flatnonzero(ok_i & (clear_of(p_i, rest) >= lim))
+        ch = np.flatnonzero(ok_h & (clear_of(p_h, rest) >= lim))
+        if ci.size == 0 or ch.size == 0:
+            return None
+        d = np.hypot(*(p_h[ch][:, None] - p_i[ci][None]).transpose(3, 0, 1, 2)).min(axis=2)
+        # Prefer both visible, then the lowest total stage cost.
+        score = g_h[ch][:, None] + g_i[ci][None] + FALLBACK_PENALTY * (
+            (~al_h[ch])[:, None].astype(float) + (~al_i[ci])[None].astype(float))
+        score = np.where(d >= lim, score, np.inf)
+        if not np.isfinite(score).any():
+            return None
+        a_, b_ = np.unravel_index(int(np.argmin(score)), score.shape)
+        return _Move(int(ch[a_]), bool(not al_h[ch[a_]])), _Move(int(ci[b_]), bool(not al_i[ci[b_]]))
+
+    def settle(order):
+        fixed, moves, clean = {}, {}, True
+        for i in order:
+            if all(np.hypot(*(own[i] - f).T).min() >= lim for f in fixed.values()):
+                moves[i] = None                               # keeps its plan
+                fixed[i] = own[i]
+                continue
+            mv = pick(i, fixed)
+            if mv is None:
+                for h in reversed(list(fixed)):
+                    both = repair(i, h, fixed)
+                    if both is not None:
+                        moves[h], mv = both
+                        fixed[h] = candidates(h).samples[moves[h].node]
+                        break
+            if mv is None:
+                m, ok, pts, g, _ = candidates(i)
+                if not ok.any():
+                    moves[i] = None                           # nothing flyable: keep the (fallback) plan
+                    fixed[i] = own[i]
+                    clean = False
+                    continue
+                d = np.where(ok, clear_of(pts, fixed.values()), -np.inf)
+                mv, clean = _Move(int(np.argmax(d)), True), False
+            moves[i] = mv
+            fixed[i] = candidates(i).samples[mv.node]
+        return moves, clean
+
+    first = None
+    for order in itertools.permutations(range(u)):
+        moves, clean = settle(order)
+        first = first if first is not None else moves
+        if clean:
+            break
+    else:
+        moves = first
+    out = list(plans)
+    for i, mv in moves.items():
+        if mv is None:
+            continue
+        node, flag = mv
+        m, _, _, g, _ = candidates(i)
+        n = len(out[i].nodes)
+        nodes = np.full(n, -1, np.int64)
+        nodes[0] = node
+        wp = np.full((n, 2), np.nan)
+        wp[0] = st.xy[node]
+        head, v, cost = np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan)
+        head[0], v[0], cost[0] = m.heading_after[node], m.v[node], g[node]
+        out[i] = replace(out[i], nodes=nodes, waypoints=wp, headings=head, speeds=v, stage_costs=cost,
+                         cost=float(g[node]), depth=1, status="safety", infeasible=flag, layers=None)
+    return out

@@ -1,0 +1,153 @@
+"""Decentralised team planning with negotiation (paper §2.5): :class:`DPTeamPlanner`."""
+
+from __future__ import annotations
+
+import time
+from typing import NamedTuple
+
+import numpy as np
+
+from baselines.dp.plan import TeamPlan
+from baselines.dp.planner import DPPlanner
+from baselines.dp.safety import secure_first_moves
+
+__all__ = ["Conflict", "DPTeamPlanner"]
+
+
+class Conflict(NamedTuple):
+    """Two UAVs closer than ``d_safe1 + separation_margin`` at a stage: at the nodes, or along the paths."""
+
+    winner: int
+    loser: int
+    stage: int
+    kind: str            # "node" | "path"
+
+
+class DPTeamPlanner:
+    """Decentralised team planning with negotiation (paper §2.5); see :mod:`baselines.dp`.
+
+    Args:
+        planner: the per-UAV :class:`DPPlanner` (shared, so are its caches).
+        max_rounds: negotiation rounds before giving up on future-slot conflicts (reported in the result);
+            a conflict left in the slot that is flown is always removed by the safety layer
+            (:func:`baselines.dp.safety.secure_first_moves`).
+        separation_margin: metres added to d_safe1 in the conflict test.
+        path_samples: instants per slot at which manoeuvres are compared (21 contains the engine's 11).
+    """
+
+    def __init__(self, planner: DPPlanner, *, max_rounds: int = 5, separation_margin: float = 0.5,
+                 path_samples: int = 21):
+        self.planner = planner
+        self.config = planner.config
+        self.max_rounds = int(max_rounds)
+        self.margin = float(separation_margin)
+        self.path_samples = int(path_samples)
+
+    @property
+    def separation(self) -> float:
+        """The distance the team keeps between UAVs: ``d_safe1`` (eq. 2) plus the margin."""
+        return self.config.d_safe1 + self.margin
+
+    def plan(self, uav_xy, uav_theta, target_xyz, target_phi, *, target_path=None) -> TeamPlan:
+        """Plan every UAV, then negotiate conflicts (lower index keeps its plan) until none remain.
+
+        For every conflict (winner, loser, stage t) the loser records, for stage t, the winner's node and its
+        sampled manoeuvre into it; it then replans with, at each recorded stage, the nodes within
+        ``d_safe1 + separation_margin`` of a recorded node removed and the transitions whose samples come
+        that close to a recorded manoeuvre (at the same instants) removed. Records only accumulate, so a
+        replan may reuse its previous DP layers up to the first newly constrained stage.
+
+        Args:
+            uav_xy: (U, 2) positions; uav_theta: (U,) headings.
+            target_xyz, target_phi, target_path: as in :meth:`DPPlanner.plan` (shared by the team).
+        """
+        t0 = time.perf_counter()
+        xy = np.asarray(uav_xy, float).reshape(-1, 2)
+        th = np.asarray(uav_theta, float).reshape(-1)
+        u = len(xy)
+        n = len(np.asarray(target_xyz).reshape(-1, 3)) - 1
+        L = len(self.planner.lattice)
+        lim = self.separation
+        kw = dict(target_path=target_path)
+        plans = self.planner.plan_batch(xy, th, target_xyz, target_phi, **kw)
+        n_exact, n_bounded = plans[0].n_exact, plans[0].n_bounded
+        blocked = np.zeros((u, n, L), bool)
+        records: list[list[list[np.ndarray]]] = [[[] for _ in range(n)] for _ in range(u)]
+        rounds = replans = 0
+        conflicts = self.conflicts(plans)
+        stages = None
+        while conflicts and rounds < self.max_rounds:
+            rounds += 1
+            if stages is None:
+                tq = np.asarray(target_xyz, float).reshape(-1, 3)
+                tp = np.asarray(target_phi, float).reshape(-1)
+                stages = [self.planner.cache.stage(tq[j], tp[j]) for j in range(1, n + 1)]
+            first: dict[int, int] = {}
+            for win, lose, t, _ in conflicts:
+                pw = plans[win]
+                blocked[lose, t] |= np.hypot(*(stages[t].xy - pw.waypoints[t]).T) < lim
+                records[lose][t].append(pw.path_points(self.path_samples)[t])
+                first[lose] = min(first.get(lose, n), t)
+            losers = sorted(first)
+            avoid = self._avoid_array(records, losers, n)
+            idx = np.array(losers)
+            new = self.planner.plan_batch(xy[idx], th[idx], target_xyz, target_phi, blocked=blocked[idx], avoid=avoid,
+                                          avoid_dist=lim, resume=([plans[i] for i in losers], min(first.values())),
+                                          **kw)
+            for i, p in zip(losers, new, strict=True):
+                plans[i] = p
+            replans += len(losers)
+            n_exact += new[0].n_exact
+            n_bounded += new[0].n_bounded
+            conflicts = self.conflicts(plans)
+        if any(c.stage == 0 for c in conflicts):
+            plans = secure_first_moves(self, plans, xy, th, target_xyz, target_phi, target_path)
+            conflicts = self.conflicts(plans)
+        return TeamPlan(plans=plans, nodes=np.array([p.nodes[0] for p in plans]),
+                        waypoints=np.array([p.waypoints[0] for p in plans]),
+                        infeasible=np.array([p.infeasible for p in plans]), rounds=rounds, conflicts=len(conflicts),
+                        replans=replans, time=time.perf_counter() - t0, n_exact=n_exact, n_bounded=n_bounded)
+
+    def _avoid_array(self, records, losers: list[int], n: int) -> np.ndarray:
+        """(losers, M, N, P, 2) the recorded winners' path samples per loser and stage (NaN-padded)."""
+        m = max(len(records[i][t]) for i in losers for t in range(n))
+        avoid = np.full((len(losers), m, n, self.path_samples, 2), np.nan)
+        for s_, i in enumerate(losers):
+            for t in range(n):
+                for o, pts in enumerate(records[i][t]):
+                    avoid[s_, o, t] = pts
+        return avoid
+
+    def plan_engine(self, engine) -> TeamPlan:
+        """:meth:`plan` for the current state of a :class:`covert_env.engine.Engine` (its track's predictions)."""
+        q_pred, phi_pred = engine.predict()
+        tq = np.vstack([engine.target_xyz[None], q_pred])
+        tp = np.concatenate([[engine.target_phi], phi_pred])
+        path = None
+        if self.planner.check_path:
+            f = np.linspace(0.0, 1.0, self.planner.path_samples)
+            path = np.stack([engine.track.position_between(engine.k + j, f) for j in range(len(phi_pred))])
+        return self.plan(engine.uav_xy, engine.uav_theta, tq, tp, target_path=path)
+
+    def conflicts(self, plans) -> list[Conflict]:
+        """Every pair of UAVs too close at some stage, at the nodes or along the manoeuvres (lower index wins)."""
+        u = len(plans)
+        if u < 2:
+            return []
+        lim = self.separation
+        pts = [p.path_points(self.path_samples) for p in plans]
+        out = []
+        for i in range(u):
+            for k in range(i + 1, u):
+                d = min(plans[i].depth, plans[k].depth)
+                if d == 0:
+                    continue
+                node = np.hypot(*(plans[i].waypoints[:d] - plans[k].waypoints[:d]).T)
+                # Sample 0 of a slot is the previous slot's last one, or the current positions: nothing to plan.
+                path = np.hypot(*(pts[i][:d, 1:] - pts[k][:d, 1:]).transpose(2, 0, 1)).min(axis=1)
+                for t in range(d):
+                    if node[t] < lim:
+                        out.append(Conflict(i, k, t, "node"))
+                    elif path[t] < lim:
+                        out.append(Conflict(i, k, t, "path"))
+        return out
