@@ -83,7 +83,9 @@ class CovertSensingEnv(gym.Env):
       observation; ``max_cycles`` above ``config.n_slots`` is accepted (the episode ends with the route) and is
       validated on assignment; ``dict_obs=True`` in unicycle mode is an error; starts on scenes whose visible
       zone cannot hold the team use a documented fallback (:meth:`Scenario.sample_starts`; other scenes' starts
-      are unchanged). Observations and rewards are otherwise unchanged.
+      are unchanged); a waypoint dead behind the UAV turns right, as eq. 22 states (v0 turned left; reachable
+      only when W_max delta > pi, so no seeded result of the defaults changed). Observations and rewards
+      are otherwise unchanged.
     * v0: initial release.
     """
 
