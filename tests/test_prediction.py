@@ -1,0 +1,111 @@
+"""Prediction error (``Config.prediction_error``, docs/decisions.md#prediction-error).
+
+Default off: the truth is the prediction, bit for bit. On: the true target deviates from every
+prediction (made from its true current position) by at most the bound; the planner and the
+observations read the prediction, the metrics the truth; the zone eroded by r_u >= the bound
+(eq. 5) keeps the UAV in the true target's zone where r_u = 0 does not.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from covert_env import Config, Road, Scenario, TargetTrack
+from covert_env.road import speed_noise_offsets
+
+BOUND = 4.0
+
+
+def straight_track(n=40, speed=10.0):
+    return TargetTrack.constant(Road.from_points([[0.0, 0.0], [2000.0, 0.0]]), speed, n, s0=100.0)
+
+
+# ----------------------------------------------------------------------------- default: the truth is the prediction
+def test_default_config_leaves_the_track_exact():
+    assert Config().prediction_error == 0.0
+    sc = Scenario.paper(Config())
+    assert sc.track.exact and sc.track.nominal_speeds is None
+    assert sc.track.with_speed_noise(0.0) is sc.track
+    rnd = Scenario.random(1_000_002, Config())
+    assert rnd.track.exact
+
+
+def test_exact_predictions_are_the_track_bit_for_bit():
+    tr = Scenario.paper(Config()).track
+    f = np.linspace(0.0, 1.0, 11)
+    for k in (0, 7, tr.n_slots - 3, tr.n_slots):
+        q, phi = tr.predict(k, 5)
+        ks = np.arange(k + 1, k + 6)
+        assert np.array_equal(q, tr.position(ks)) and np.array_equal(phi, tr.heading(ks))
+        if k < tr.n_slots:
+            old = np.stack([tr.position_between(k + j, f) for j in range(5)])   # what the planner read before
+            assert np.array_equal(tr.predict_between(k, 5, f), old)
+    nxt = np.minimum(np.arange(tr.n_slots + 1) + 1, tr.n_slots)
+    assert np.array_equal(tr.next_predicted[0], tr.positions[nxt])
+    assert np.array_equal(tr.next_predicted[1], tr.headings[nxt])
+
+
+def test_option_leaves_road_terrain_and_starts_unchanged():
+    for make in (lambda c: Scenario.paper(c), lambda c: Scenario.random(1_000_001, c)):
+        a, b = make(Config()), make(Config(prediction_error=BOUND))
+        assert np.array_equal(a.road.points, b.road.points)
+        assert np.array_equal(a.terrain.z_max, b.terrain.z_max)
+        assert np.array_equal(a.uav_xy, b.uav_xy) and np.array_equal(a.uav_theta, b.uav_theta)
+        assert not b.track.exact
+        assert np.array_equal(b.track.nominal_speeds, a.track.speeds)
+        assert np.array_equal(b.track.position(0), a.track.position(0))
+
+
+# ----------------------------------------------------------------------------- the noise model
+def test_speed_noise_offsets_stay_within_half_the_bound_and_never_reverse():
+    rng = np.random.default_rng(0)
+    step = np.full(5000, 3.0)
+    e = speed_noise_offsets(step, 5.0, rng)
+    assert e[0] == 0.0 and np.all(np.abs(e) <= 2.5 + 1e-12)
+    assert np.all(step + np.diff(e) >= -1e-12)
+    assert np.abs(np.diff(e)).max() > 4.0            # one-slot errors reach the bound: the noise is not negligible
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_prediction_error_is_bounded_over_the_horizon(seed):
+    c = Config(prediction_error=BOUND)
+    sc = Scenario.random(1_000_000 + seed, c)
+    tr = sc.track
+    assert np.all(tr.speeds >= 0) and np.all(np.diff(tr.arc) >= 0)
+    worst = 0.0
+    for k in range(tr.n_slots):
+        q, _ = tr.predict(k, c.horizon)
+        ks = np.arange(k + 1, k + c.horizon + 1)
+        worst = max(worst, float(np.linalg.norm(q - tr.position(ks), axis=1).max()))
+    assert worst <= BOUND + 1e-9
+    assert worst > 0.5 * BOUND                       # and the option does something
+
+
+def test_noise_is_seeded_by_the_scene():
+    c = Config(prediction_error=BOUND)
+    assert np.array_equal(Scenario.random(5, c).track.speeds, Scenario.random(5, c).track.speeds)
+    assert not np.array_equal(Scenario.random(5, c).track.speeds, Scenario.random(6, c).track.speeds)
+    assert np.array_equal(Scenario.paper(c).track.speeds, Scenario.paper(c).track.speeds)
+
+
+def test_predict_between_starts_at_the_truth_and_ends_at_the_prediction():
+    tr = straight_track().with_speed_noise(BOUND, 3)
+    f = np.linspace(0.0, 1.0, 5)
+    path = tr.predict_between(4, 3, f)
+    q, _ = tr.predict(4, 3)
+    assert np.array_equal(path[0, 0], tr.position(4))
+    np.testing.assert_allclose(path[:, -1], q, atol=1e-12)
+    np.testing.assert_allclose(tr.next_predicted[0][4], q[0], atol=1e-12)
+
+
+@pytest.mark.parametrize("bad", [-1.0, float("nan"), float("inf"), 10.5, True])
+def test_config_rejects_bad_bounds(bad):
+    with pytest.raises(ValueError, match="prediction_error"):
+        Config(prediction_error=bad)
+
+
+def test_config_accepts_r_u_below_the_bound_and_the_upper_limit():
+    assert Config(prediction_error=10.0).prediction_error == 10.0          # target_speed * delta
+    assert Config(prediction_error=4.0, r_u=0.0).r_u == 0.0                # allowed, without eq. 5's guarantee
+    assert Config.from_json(Config(prediction_error=3.0).to_json()).prediction_error == 3.0
