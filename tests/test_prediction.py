@@ -11,7 +11,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from covert_env import Config, Road, Scenario, TargetTrack
+from baselines.dp import DPTeamPlanner
+from covert_env import Config, Engine, Road, Scenario, TargetTrack
 from covert_env.road import speed_noise_offsets
 
 BOUND = 4.0
@@ -109,3 +110,59 @@ def test_config_accepts_r_u_below_the_bound_and_the_upper_limit():
     assert Config(prediction_error=10.0).prediction_error == 10.0          # target_speed * delta
     assert Config(prediction_error=4.0, r_u=0.0).r_u == 0.0                # allowed, without eq. 5's guarantee
     assert Config.from_json(Config(prediction_error=3.0).to_json()).prediction_error == 3.0
+
+
+# ----------------------------------------------------------------------------- who sees what
+def test_engine_moves_the_truth_and_predicts_from_it():
+    sc = Scenario.paper(Config(prediction_error=BOUND, n_uavs=1))
+    eng = Engine(sc)
+    for _ in range(3):
+        q_pred, _ = eng.predict()
+        eng.step(waypoints=eng.uav_xy + 10.0)
+        assert np.array_equal(eng.target_xyz, sc.track.position(eng.k))      # the truth
+        assert np.linalg.norm(eng.target_xyz - q_pred[0]) <= BOUND + 1e-9
+    traj = eng.trajectory()
+    assert np.array_equal(traj.target_xyz, sc.track.positions[:4])
+
+
+def test_planner_reads_the_prediction_not_the_truth():
+    from baselines.dp import DPPlanner
+
+    sc = Scenario.paper(Config(prediction_error=BOUND, n_uavs=1))
+    eng = Engine(sc)
+    seen = {}
+    team = DPTeamPlanner(DPPlanner(sc.config, sc.terrain, check_path=True))
+
+    def spy(uav_xy, uav_theta, target_xyz, target_phi, *, target_path=None):
+        seen.update(q=np.asarray(target_xyz), path=target_path)
+        return plan(uav_xy, uav_theta, target_xyz, target_phi, target_path=target_path)
+
+    plan, team.plan = team.plan, spy
+    for _ in range(4):
+        team.plan_engine(eng)
+        q_pred, _ = sc.track.predict(eng.k, sc.config.horizon)
+        assert np.array_equal(seen["q"][0], eng.target_xyz)             # the present is observed
+        assert np.array_equal(seen["q"][1:], q_pred)
+        f = np.linspace(0.0, 1.0, team.planner.path_samples)
+        assert np.array_equal(seen["path"], sc.track.predict_between(eng.k, sc.config.horizon, f))
+        eng.step(waypoints=team.plan_engine(eng).waypoints)
+    assert not np.allclose(seen["q"][1:], sc.track.position(np.arange(eng.k + 1, eng.k + 6)))
+
+
+def test_env_observations_read_the_prediction():
+    from covert_env.envs.covert_sensing import CovertSensingParallelEnv
+
+    c = Config(prediction_error=BOUND, n_uavs=1)
+    sc = Scenario.paper(c)
+    env = CovertSensingParallelEnv(scenario=sc, action_mode="waypoint")
+    env.reset(seed=0)
+    tr = sc.track
+    for k in range(3):
+        block = env._shared_block()
+        q, phi = tr.positions[k], tr.headings[k]
+        qn = tr.next_predicted[0][k]
+        d = qn[:2] - q[:2]
+        scale = c.v_max * c.delta
+        np.testing.assert_allclose(block[0], (np.cos(phi) * d[0] + np.sin(phi) * d[1]) / scale, rtol=1e-5)
+        np.testing.assert_allclose(block[1], (np.cos(phi) * d[1] - np.sin(phi) * d[0]) / scale, atol=1e-6)
+        env.step({a: int(np.flatnonzero(env.action_mask(a))[0]) for a in env.agents})
