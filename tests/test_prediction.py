@@ -14,6 +14,7 @@ import pytest
 from baselines.dp import DPTeamPlanner
 from covert_env import Config, Engine, Road, Scenario, TargetTrack
 from covert_env.road import speed_noise_offsets
+from covert_env.zone import in_feasible_zone, to_world, zone_lattice
 
 BOUND = 4.0
 
@@ -166,3 +167,44 @@ def test_env_observations_read_the_prediction():
         np.testing.assert_allclose(block[0], (np.cos(phi) * d[0] + np.sin(phi) * d[1]) / scale, rtol=1e-5)
         np.testing.assert_allclose(block[1], (np.cos(phi) * d[1] - np.sin(phi) * d[0]) / scale, atol=1e-6)
         env.step({a: int(np.flatnonzero(env.action_mask(a))[0]) for a in env.agents})
+
+
+# ----------------------------------------------------------------------------- eq. 5: what the erosion guarantees
+def test_eroded_zone_around_the_prediction_lies_in_the_true_zone_on_a_straight_road():
+    c = Config(prediction_error=BOUND, r_u=BOUND)
+    tr = straight_track().with_speed_noise(BOUND, 11)
+    off = zone_lattice(c)                                                   # nodes of the zone eroded by r_u
+    for k in range(tr.n_slots - c.horizon):
+        q, phi = tr.predict(k, c.horizon)
+        for j in range(c.horizon):
+            nodes = to_world(off, q[j, :2], float(phi[j]))
+            qt = tr.position(k + 1 + j)
+            assert in_feasible_zone(nodes, qt[:2], float(tr.heading(k + 1 + j)), c.r1, c.r2, c.mu).all()
+    loose = Config(prediction_error=BOUND, r_u=0.0)
+    q, phi = tr.predict(0, 1)
+    nodes = to_world(zone_lattice(loose), q[0, :2], float(phi[0]))
+    true_q = tr.position(1)
+    if not np.array_equal(true_q, q[0]):
+        assert not in_feasible_zone(nodes, true_q[:2], float(tr.heading(1)), c.r1, c.r2, c.mu).all()
+
+
+def test_dp_keeps_the_true_zone_with_r_u_at_the_bound_and_leaves_it_without():
+    """The paper scene and held-out scene 1_000_003, 1 UAV, 25 slots, bound 4 m (counts of the
+    deterministic runs; see baselines/prediction_study.py for the table)."""
+    from baselines.prediction_study import prediction_study, study_markdown
+
+    rows = prediction_study(bounds=(BOUND,), r_us=(0.0, BOUND), scenes=(("paper", 0), ("random", 1_000_003)),
+                            n_slots=25)
+    loose, eroded = rows
+    assert loose["r_u"] == 0.0 and eroded["r_u"] == BOUND
+    assert loose["zone_violations"] >= 3
+    assert eroded["zone_violations"] == 0 and eroded["max_zone_distance"] < 0.0
+    table = study_markdown(rows, 2, 25, 1)
+    assert table.count("\n| 4 | ") == 2 and f"| {loose['zone_violations']} |" in table
+
+
+def test_reproduce_has_the_prediction_study_flag():
+    from baselines.reproduce import build_parser
+
+    assert build_parser().parse_args(["--out", "x", "--prediction-study"]).prediction_study
+    assert not build_parser().parse_args(["--out", "x"]).prediction_study
