@@ -420,6 +420,9 @@ def build_parser(prog: str = "covert-env reproduce") -> argparse.ArgumentParser:
     p.add_argument("--heading", choices=("inherited", "binned"), default="inherited",
                    help="DP heading variant: inherited is the paper's (default: inherited)")
     p.add_argument("--config", default=None, help="a Config JSON file (default: the paper's parameters)")
+    p.add_argument("--prediction-study", action="store_true",
+                   help="also run baselines/prediction_study.py (prediction error vs r_u, eq. 5): "
+                        "prediction_study.md and .json in --out")
     return p
 
 
@@ -486,6 +489,10 @@ def _main(args: argparse.Namespace) -> int:
     print(f"wrote {out}/metrics.json ({len(records)} records), metrics.md and {len(figures)} figures "
           f"in {elapsed:.0f} s", file=sys.stderr)
     print((out / "metrics.md").read_text().split("## The paper's claims")[1].split("Columns:")[0].strip())
+    if args.prediction_study:
+        from baselines.prediction_study import write_study
+
+        print(write_study(out, config, quick=args.quick))
     return 0
 
 

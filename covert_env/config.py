@@ -109,6 +109,14 @@ class Config:
     """(decided) Target speed (m/s) along the road; the paper does not give it."""
     target_height: float = 1.5
     """(decided) Height z_q (m) of the filmed point of the target (a car's roof)."""
+    prediction_error: float = 0.0
+    """Bound (m) on the target-prediction error along the road; 0 (default, the paper's setting) means
+    the prediction is the truth. Otherwise the scenario's target drives with bounded speed noise
+    (docs/decisions.md#prediction-error), seeded by the scene, so that a prediction made from its true
+    position is off by at most this at every predicted slot; planner and observations see the
+    prediction, the metrics the truth. 0 <= prediction_error <= target_speed * delta (the noise never
+    makes the target reverse). Eq. 5 keeps the UAVs in the zone only if r_u >= prediction_error; a
+    smaller r_u is allowed (to study what happens without that guarantee)."""
 
     # --- discretisation and shadows -----------------------------------------------------------
     grid_step: float = 2.0
@@ -239,7 +247,7 @@ MAX_LATTICE = 200_000
 
 _POSITIVE = ("v_max", "w_max", "altitude", "delta", "eta", "lam", "d_safe1", "d_safe2", "r1", "r2",
              "min_height", "min_radius", "max_radius", "target_speed", "grid_step")
-_NON_NEGATIVE = ("r_u", "road_clearance", "road_max_offset", "target_height", "shadow_margin")
+_NON_NEGATIVE = ("r_u", "road_clearance", "road_max_offset", "target_height", "shadow_margin", "prediction_error")
 _OPTIONAL = ("max_height", "h_min")
 #: Integer fields: (lowest, highest) allowed value.
 _INTS = {"horizon": (1, MAX_HORIZON), "n_slots": (1, MAX_N_SLOTS), "n_polytopes": (0, MAX_N_POLYTOPES),
@@ -290,6 +298,9 @@ def _validate(c: Config) -> None:
     if 2 * c.r_u >= c.r2 - c.r1:
         raise ValueError(
             f"Config.r_u must be < (r2 - r1) / 2 = {(c.r2 - c.r1) / 2:g} or the eroded zone is empty, got {c.r_u!r}")
+    if c.prediction_error > c.target_speed * c.delta:
+        raise ValueError(f"Config.prediction_error must be in [0, target_speed * delta = {c.target_speed * c.delta:g}] "
+                         f"(m; larger speed noise would make the target reverse), got {c.prediction_error!r}")
     if c.min_vertices > c.max_vertices:
         raise ValueError(f"Config.min_vertices must be <= max_vertices ({c.max_vertices}), got {c.min_vertices}")
     if c.min_radius > c.max_radius:

@@ -3,6 +3,10 @@
 The target follows a known route (a polyline) at a speed profile. The planner at slot k sees the
 predicted positions q[k+1..k+N]; the prediction error is bounded by a disk gamma(q) of radius r_u
 (eq. 5), which the feasible zone absorbs by erosion (see :mod:`covert_env.zone`).
+
+By default the prediction is the truth (the paper's setting). :meth:`TargetTrack.with_speed_noise`
+makes a track whose true speed deviates from the nominal profile the tracker assumes, within a bound
+on the prediction error (docs/decisions.md#prediction-error).
 """
 
 from __future__ import annotations
@@ -16,7 +20,7 @@ from functools import cached_property
 import numpy as np
 from shapely.geometry import LineString
 
-__all__ = ["Road", "TargetTrack"]
+__all__ = ["Road", "TargetTrack", "speed_noise_offsets"]
 
 
 _MAX_POINTS = 1_000_000
@@ -175,6 +179,9 @@ class TargetTrack:
         delta: slot length (s).
         z: height z_q of the filmed point (m).
         s0: arc length where the target is at slot 0.
+        nominal_speeds: (n,) the speed profile a tracker assumes when it predicts (:meth:`predict`);
+            None (default) means ``speeds``: the prediction is the truth. Built by
+            :meth:`with_speed_noise`.
     """
 
     road: Road
@@ -182,6 +189,7 @@ class TargetTrack:
     delta: float = 1.0
     z: float = 1.5
     s0: float = 0.0
+    nominal_speeds: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.road, Road):
@@ -200,6 +208,16 @@ class TargetTrack:
                 raise ValueError(f"TargetTrack.{name} must be a finite number (m), got {getattr(self, name)!r}")
         sp.setflags(write=False)
         object.__setattr__(self, "speeds", sp)
+        if self.nominal_speeds is not None:
+            try:
+                nom = np.array(self.nominal_speeds, dtype=float)
+            except (TypeError, ValueError):
+                nom = np.array([np.nan])
+            if nom.shape != sp.shape or not np.all(np.isfinite(nom)) or np.any(nom < 0):
+                raise ValueError(f"TargetTrack.nominal_speeds must be None or {len(sp)} finite speeds >= 0 "
+                                 f"(one per slot, like speeds), got {_short(self.nominal_speeds)}")
+            nom.setflags(write=False)
+            object.__setattr__(self, "nominal_speeds", nom)
 
     @classmethod
     def constant(cls, road: Road, speed: float, n_slots: int, *, delta: float = 1.0, z: float = 1.5,
@@ -210,6 +228,29 @@ class TargetTrack:
         if _bad_real(speed):
             raise ValueError(f"TargetTrack.constant: speed must be a finite number >= 0 (m/s), got {speed!r}")
         return cls(road, np.full(int(n_slots), float(speed)), delta=delta, z=z, s0=s0)
+
+    def with_speed_noise(self, bound: float, seed=None) -> TargetTrack:
+        """The same nominal track driven with bounded speed noise: the true target of a prediction error.
+
+        ``bound`` (m) bounds ``|true - predicted|`` along the road for every slot a prediction covers,
+        when predictions start from the true current position (:meth:`predict`). See
+        :func:`speed_noise_offsets` for the model. ``bound == 0`` returns ``self`` (the truth is the
+        prediction, bit for bit).
+        """
+        if _bad_real(bound) or bound < 0:
+            raise ValueError(f"TargetTrack.with_speed_noise: bound must be a finite number >= 0 (m), got {bound!r}")
+        if bound == 0:
+            return self
+        rng = _generator(seed, "TargetTrack.with_speed_noise")
+        e = speed_noise_offsets(self.speeds * self.delta, float(bound), rng)
+        true = self.speeds + np.diff(e) / self.delta
+        return TargetTrack(self.road, np.maximum(true, 0.0), delta=self.delta, z=self.z, s0=self.s0,
+                           nominal_speeds=self.speeds)
+
+    @property
+    def exact(self) -> bool:
+        """True when the prediction is the truth (no :attr:`nominal_speeds`)."""
+        return self.nominal_speeds is None
 
     @cached_property
     def arc(self) -> np.ndarray:
@@ -271,11 +312,78 @@ class TargetTrack:
             return float(self.headings[min(max(int(k), 0), self.n_slots)])
         return self.headings[np.clip(np.asarray(k), 0, self.n_slots)]
 
+    def _predicted_arc(self, k: int, horizon: int) -> np.ndarray:
+        """(horizon + 1,) arc lengths a tracker at slot k expects at slots k..k+horizon: the true current
+        position, then the nominal speeds (clamped to the track's end, like :meth:`position`)."""
+        k = min(max(int(k), 0), self.n_slots)
+        nom = self.nominal_speeds[k:k + horizon]
+        ahead = np.concatenate([[0.0], np.cumsum(nom * self.delta)])
+        ahead = np.concatenate([ahead, np.full(horizon + 1 - len(ahead), ahead[-1])])
+        return self.arc[k] + ahead
+
     def predict(self, k: int, horizon: int) -> tuple[np.ndarray, np.ndarray]:
         """Predicted (q, phi) for slots k+1..k+horizon: arrays (horizon, 3) and (horizon,).
 
-        The route and speed profile are known (paper §2.1), so the prediction is the nominal track;
-        its error is bounded by the uncertainty radius r_u, absorbed by the eroded zone (eq. 5).
+        The route and speed profile are known (paper §2.1). Without prediction error (:attr:`exact`)
+        the prediction is the track itself. Otherwise it is what a tracker that sees the target now
+        predicts: the true position at slot k, driven ahead at the nominal speeds; it then differs from
+        the truth by at most the bound of :meth:`with_speed_noise`, which an eroded zone with r_u >= that
+        bound absorbs (eq. 5).
         """
-        ks = np.arange(k + 1, k + horizon + 1)
-        return self.position(ks), np.asarray(self.heading(ks))
+        if self.exact:
+            ks = np.arange(k + 1, k + horizon + 1)
+            return self.position(ks), np.asarray(self.heading(ks))
+        s = self._predicted_arc(k, horizon)[1:]
+        xy = self.road.point_at(s)
+        return np.column_stack([xy, np.full(len(s), self.z)]), self.road.heading_at(s)
+
+    def predict_between(self, k: int, horizon: int, fractions) -> np.ndarray:
+        """Predicted target positions (horizon, len(fractions), 3) within slots k..k+horizon-1, made at
+        slot k: the :meth:`position_between` of the prediction (the track itself when :attr:`exact`)."""
+        if self.exact:
+            return self.position_between(np.arange(k, k + horizon), fractions)
+        s = self._predicted_arc(k, horizon)
+        f = np.asarray(fractions, dtype=float)
+        xy = self.road.point_at(s[:-1, None] + f * np.diff(s)[:, None])
+        return np.concatenate([xy, np.full(xy.shape[:-1] + (1,), self.z)], axis=-1)
+
+    @cached_property
+    def next_predicted(self) -> tuple[np.ndarray, np.ndarray]:
+        """((n + 1, 3), (n + 1,)): the target's position and heading at slot k + 1 as predicted at slot k,
+        for every k (row n: the track's end). Without prediction error, ``positions[min(k + 1, n)]``."""
+        nxt = np.minimum(np.arange(self.n_slots + 1) + 1, self.n_slots)
+        if self.exact:
+            return self.positions[nxt], self.headings[nxt]
+        nom = np.append(self.nominal_speeds, 0.0) * self.delta
+        s = self.arc + nom
+        xy = self.road.point_at(s)
+        q = np.column_stack([xy, np.full(len(s), self.z)])
+        phi = self.road.heading_at(s)
+        q.setflags(write=False)
+        phi.setflags(write=False)
+        return q, phi
+
+
+def speed_noise_offsets(step: np.ndarray, bound: float, rng: np.random.Generator) -> np.ndarray:
+    """Offsets e[0..n] (m) of the true arc length from the nominal one: s_true(k) = s_nominal(k) + e(k).
+
+    A bounded random walk (docs/decisions.md#prediction-error): e(0) = 0 and
+
+        e(k+1) = clip(e(k) + bound * u(k), -bound / 2, bound / 2),   u(k) ~ U(-1, 1),
+
+    so the true speed is the nominal one plus a noise of at most bound / delta, and because the offset
+    stays within +-bound / 2, a prediction made from the true position at any slot k is off by
+    |e(k+j) - e(k)| <= bound at every later slot k + j (Euclidean distance <= arc length difference).
+    Each step is also kept >= -step(k) (the nominal distance of slot k): the target never reverses.
+
+    Args:
+        step: (n,) nominal distance driven in each slot (m).
+        bound: the prediction-error bound (m), > 0.
+        rng: the noise's generator.
+    """
+    u = rng.uniform(-1.0, 1.0, len(step))
+    e = np.zeros(len(step) + 1)
+    half = bound / 2.0
+    for k in range(len(step)):   # sequential: each clip depends on the previous offset
+        e[k + 1] = min(max(e[k] + bound * u[k], -half, e[k] - step[k]), half)
+    return e

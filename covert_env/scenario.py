@@ -39,8 +39,11 @@ class Scenario:
         terrain: the polytopes, every top strictly below ``config.altitude`` (ValueError naming the
             polytope otherwise). A top within ``d_safe2`` of the altitude is legal: eq. 3 then only
             rules out the operational plane near it.
-        track: the target's motion (road + speed profile), at least ``n_slots + horizon`` slots long,
-            with ``delta`` and ``z`` equal to the config's ``delta`` and ``target_height``.
+        track: the target's true motion (road + speed profile), at least ``n_slots + horizon`` slots
+            long, with ``delta`` and ``z`` equal to the config's ``delta`` and ``target_height``. Its
+            :meth:`~covert_env.road.TargetTrack.predict` is what planners and observations see; with
+            ``config.prediction_error`` > 0 the constructors :meth:`paper` and :meth:`random` give it
+            bounded speed noise (a hand-built track is taken as given).
         uav_xy: (U, 2) start positions; uav_theta: (U,) start headings (rad).
         name: a label for logs and figures.
     """
@@ -83,7 +86,10 @@ class Scenario:
 
     # ------------------------------------------------------------------ constructors
     @staticmethod
-    def _road_and_track(config: Config, seed, start=PAPER_TARGET_START, heading: float = 0.0):
+    def _road_and_track(config: Config, seed, start=PAPER_TARGET_START, heading: float = 0.0, noise_seed=None):
+        """The road and the target's true track; with ``config.prediction_error`` > 0 the track drives
+        with bounded speed noise drawn from ``noise_seed`` (default ``seed``), a stream of its own so
+        the road, terrain and starts of a scene do not depend on the option."""
         c = config
         travel = c.target_speed * c.delta * (c.n_slots + c.horizon + 1)
         road_start = np.asarray(start, float) - _ROAD_LEAD_IN * np.array([math.cos(heading), math.sin(heading)])
@@ -91,6 +97,9 @@ class Scenario:
                            straight_start=_ROAD_LEAD_IN + 30.0)
         track = TargetTrack.constant(road, c.target_speed, c.n_slots + c.horizon + 1, delta=c.delta,
                                      z=c.target_height, s0=_ROAD_LEAD_IN)
+        if c.prediction_error > 0:
+            track = track.with_speed_noise(c.prediction_error, _noise_generator(seed if noise_seed is None
+                                                                                else noise_seed))
         return road, track
 
     @classmethod
@@ -130,7 +139,7 @@ class Scenario:
 
         Environments that draw their own starts use this and skip the seeded ones."""
         rng = np.random.default_rng(seed)
-        road, track = cls._road_and_track(config, rng)
+        road, track = cls._road_and_track(config, rng, noise_seed=seed)
         terrain = Terrain.random(seed=rng, road=road, config=config)
         return terrain, track, rng
 
@@ -184,6 +193,12 @@ def _sample_starts(c: Config, terrain: Terrain, track: TargetTrack, rng: np.rand
                              f"d_safe1={c.d_safe1:g} m apart, asked for n_uavs={u} (the config's n_uavs="
                              f"{c.n_uavs} fit); use fewer UAVs or a smaller d_safe1")
     return nodes[picked], rng.uniform(0, 2 * math.pi, u)
+
+
+def _noise_generator(seed) -> np.random.Generator:
+    """The target's speed-noise generator of a scene: a child of the scene seed's SeedSequence, so it
+    is reproducible and independent of the draws of road, terrain and starts."""
+    return np.random.default_rng(np.random.SeedSequence(seed).spawn(1)[0])
 
 
 def _check_team(u, where: str) -> None:

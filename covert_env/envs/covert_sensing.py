@@ -76,9 +76,10 @@ class _SceneCache:
         self._blocks.setflags(write=False)
 
     def _visible(self, offsets: np.ndarray, k: int) -> np.ndarray:
+        """Which offsets are in the eroded zone with clear LoS at slot k >= 1, as predicted at slot k - 1."""
         c = self.parts.config
-        q = self.parts.track.position(k)
-        phi = float(self.parts.track.heading(k))
+        q, phi = self.parts.track.predict(k - 1, 1)
+        q, phi = q[0], float(phi[0])
         xy = to_world(offsets, q[:2], phi)
         ok = in_feasible_zone(xy, q[:2], phi, c.r1, c.r2, c.mu, c.r_u)
         if ok.any():
@@ -116,7 +117,9 @@ class _SceneCache:
         # whose next slot is n itself (the track's end: no displacement).
         own = ks if (chunk + 1) * self._MAP_CHUNK > n else ks[:-1]
         nxt = np.minimum(own + 1, n)
-        dx, dy = track.positions[nxt, 0] - q[:len(own), 0], track.positions[nxt, 1] - q[:len(own), 1]
+        # Slot k+1 as predicted at slot k (the truth when the config has no prediction error).
+        q_next, phi_next = track.next_predicted[0][own], track.next_predicted[1][own]
+        dx, dy = q_next[:, 0] - q[:len(own), 0], q_next[:, 1] - q[:len(own), 1]
         scale = c.v_max * c.delta
         cs, sn = cs[:len(own)], sn[:len(own)]
         blocks = self._blocks
@@ -126,11 +129,22 @@ class _SceneCache:
         blocks[own, 2] = 0.0
         s2 = self._maps.shape[1]
         blocks[own, 3:3 + s2] = self._maps[own]
-        blocks[own, 3 + s2:] = self._maps[nxt]
+        blocks[own, 3 + s2:] = self._maps[nxt] if track.exact else self._predicted_maps(q_next, phi_next)
         blocks.setflags(write=False)
 
+    def _predicted_maps(self, q: np.ndarray, phi: np.ndarray) -> np.ndarray:
+        """Map rows (like ``_maps``) around predicted target poses q (K, 3), phi (K,)."""
+        rows = np.zeros((len(q), self._maps.shape[1]), np.float32)
+        if len(self._map_offsets):
+            cs, sn = np.cos(phi)[:, None], np.sin(phi)[:, None]
+            ox, oy = self._map_offsets[:, 0], self._map_offsets[:, 1]
+            xy = np.stack([q[:, :1] + cs * ox - sn * oy, q[:, 1:2] + sn * ox + cs * oy], axis=-1)
+            rows[:, self._map_in_zone] = line_of_sight_rows(self.parts.terrain, xy, self.parts.config.altitude, q)
+        return rows
+
     def lattice_visible(self, k: int) -> np.ndarray:
-        """Waypoint lattice nodes in the eroded zone with clear LoS at slot k (bool)."""
+        """Waypoint lattice nodes in the eroded zone with clear LoS at slot k >= 1 as predicted at slot
+        k - 1 (the action mask of slot k - 1's move; bool)."""
         if k not in self._lattice_ok:
             self._lattice_ok[k] = self._visible(self._lattice, k)
         return self._lattice_ok[k]

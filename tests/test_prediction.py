@@ -1,0 +1,210 @@
+"""Prediction error (``Config.prediction_error``, docs/decisions.md#prediction-error).
+
+Default off: the truth is the prediction, bit for bit. On: the true target deviates from every
+prediction (made from its true current position) by at most the bound; the planner and the
+observations read the prediction, the metrics the truth; the zone eroded by r_u >= the bound
+(eq. 5) keeps the UAV in the true target's zone where r_u = 0 does not.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from baselines.dp import DPTeamPlanner
+from covert_env import Config, Engine, Road, Scenario, TargetTrack
+from covert_env.road import speed_noise_offsets
+from covert_env.zone import in_feasible_zone, to_world, zone_lattice
+
+BOUND = 4.0
+
+
+def straight_track(n=40, speed=10.0):
+    return TargetTrack.constant(Road.from_points([[0.0, 0.0], [2000.0, 0.0]]), speed, n, s0=100.0)
+
+
+# ----------------------------------------------------------------------------- default: the truth is the prediction
+def test_default_config_leaves_the_track_exact():
+    assert Config().prediction_error == 0.0
+    sc = Scenario.paper(Config())
+    assert sc.track.exact and sc.track.nominal_speeds is None
+    assert sc.track.with_speed_noise(0.0) is sc.track
+    rnd = Scenario.random(1_000_002, Config())
+    assert rnd.track.exact
+
+
+def test_exact_predictions_are_the_track_bit_for_bit():
+    tr = Scenario.paper(Config()).track
+    f = np.linspace(0.0, 1.0, 11)
+    for k in (0, 7, tr.n_slots - 3, tr.n_slots):
+        q, phi = tr.predict(k, 5)
+        ks = np.arange(k + 1, k + 6)
+        assert np.array_equal(q, tr.position(ks)) and np.array_equal(phi, tr.heading(ks))
+        if k < tr.n_slots:
+            old = np.stack([tr.position_between(k + j, f) for j in range(5)])   # what the planner read before
+            assert np.array_equal(tr.predict_between(k, 5, f), old)
+    nxt = np.minimum(np.arange(tr.n_slots + 1) + 1, tr.n_slots)
+    assert np.array_equal(tr.next_predicted[0], tr.positions[nxt])
+    assert np.array_equal(tr.next_predicted[1], tr.headings[nxt])
+
+
+def test_option_leaves_road_terrain_and_starts_unchanged():
+    for make in (lambda c: Scenario.paper(c), lambda c: Scenario.random(1_000_001, c)):
+        a, b = make(Config()), make(Config(prediction_error=BOUND))
+        assert np.array_equal(a.road.points, b.road.points)
+        assert np.array_equal(a.terrain.z_max, b.terrain.z_max)
+        assert np.array_equal(a.uav_xy, b.uav_xy) and np.array_equal(a.uav_theta, b.uav_theta)
+        assert not b.track.exact
+        assert np.array_equal(b.track.nominal_speeds, a.track.speeds)
+        assert np.array_equal(b.track.position(0), a.track.position(0))
+
+
+# ----------------------------------------------------------------------------- the noise model
+def test_speed_noise_offsets_stay_within_half_the_bound_and_never_reverse():
+    rng = np.random.default_rng(0)
+    step = np.full(5000, 3.0)
+    e = speed_noise_offsets(step, 5.0, rng)
+    assert e[0] == 0.0 and np.all(np.abs(e) <= 2.5 + 1e-12)
+    assert np.all(step + np.diff(e) >= -1e-12)
+    assert np.abs(np.diff(e)).max() > 4.0            # one-slot errors reach the bound: the noise is not negligible
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_prediction_error_is_bounded_over_the_horizon(seed):
+    c = Config(prediction_error=BOUND)
+    sc = Scenario.random(1_000_000 + seed, c)
+    tr = sc.track
+    assert np.all(tr.speeds >= 0) and np.all(np.diff(tr.arc) >= 0)
+    worst = 0.0
+    for k in range(tr.n_slots):
+        q, _ = tr.predict(k, c.horizon)
+        ks = np.arange(k + 1, k + c.horizon + 1)
+        worst = max(worst, float(np.linalg.norm(q - tr.position(ks), axis=1).max()))
+    assert worst <= BOUND + 1e-9
+    assert worst > 0.5 * BOUND                       # and the option does something
+
+
+def test_noise_is_seeded_by_the_scene():
+    c = Config(prediction_error=BOUND)
+    assert np.array_equal(Scenario.random(5, c).track.speeds, Scenario.random(5, c).track.speeds)
+    assert not np.array_equal(Scenario.random(5, c).track.speeds, Scenario.random(6, c).track.speeds)
+    assert np.array_equal(Scenario.paper(c).track.speeds, Scenario.paper(c).track.speeds)
+
+
+def test_predict_between_starts_at_the_truth_and_ends_at_the_prediction():
+    tr = straight_track().with_speed_noise(BOUND, 3)
+    f = np.linspace(0.0, 1.0, 5)
+    path = tr.predict_between(4, 3, f)
+    q, _ = tr.predict(4, 3)
+    assert np.array_equal(path[0, 0], tr.position(4))
+    np.testing.assert_allclose(path[:, -1], q, atol=1e-12)
+    np.testing.assert_allclose(tr.next_predicted[0][4], q[0], atol=1e-12)
+
+
+@pytest.mark.parametrize("bad", [-1.0, float("nan"), float("inf"), 10.5, True])
+def test_config_rejects_bad_bounds(bad):
+    with pytest.raises(ValueError, match="prediction_error"):
+        Config(prediction_error=bad)
+
+
+def test_config_accepts_r_u_below_the_bound_and_the_upper_limit():
+    assert Config(prediction_error=10.0).prediction_error == 10.0          # target_speed * delta
+    assert Config(prediction_error=4.0, r_u=0.0).r_u == 0.0                # allowed, without eq. 5's guarantee
+    assert Config.from_json(Config(prediction_error=3.0).to_json()).prediction_error == 3.0
+
+
+# ----------------------------------------------------------------------------- who sees what
+def test_engine_moves_the_truth_and_predicts_from_it():
+    sc = Scenario.paper(Config(prediction_error=BOUND, n_uavs=1))
+    eng = Engine(sc)
+    for _ in range(3):
+        q_pred, _ = eng.predict()
+        eng.step(waypoints=eng.uav_xy + 10.0)
+        assert np.array_equal(eng.target_xyz, sc.track.position(eng.k))      # the truth
+        assert np.linalg.norm(eng.target_xyz - q_pred[0]) <= BOUND + 1e-9
+    traj = eng.trajectory()
+    assert np.array_equal(traj.target_xyz, sc.track.positions[:4])
+
+
+def test_planner_reads_the_prediction_not_the_truth():
+    from baselines.dp import DPPlanner
+
+    sc = Scenario.paper(Config(prediction_error=BOUND, n_uavs=1))
+    eng = Engine(sc)
+    seen = {}
+    team = DPTeamPlanner(DPPlanner(sc.config, sc.terrain, check_path=True))
+
+    def spy(uav_xy, uav_theta, target_xyz, target_phi, *, target_path=None):
+        seen.update(q=np.asarray(target_xyz), path=target_path)
+        return plan(uav_xy, uav_theta, target_xyz, target_phi, target_path=target_path)
+
+    plan, team.plan = team.plan, spy
+    for _ in range(4):
+        team.plan_engine(eng)
+        q_pred, _ = sc.track.predict(eng.k, sc.config.horizon)
+        assert np.array_equal(seen["q"][0], eng.target_xyz)             # the present is observed
+        assert np.array_equal(seen["q"][1:], q_pred)
+        f = np.linspace(0.0, 1.0, team.planner.path_samples)
+        assert np.array_equal(seen["path"], sc.track.predict_between(eng.k, sc.config.horizon, f))
+        eng.step(waypoints=team.plan_engine(eng).waypoints)
+    assert not np.allclose(seen["q"][1:], sc.track.position(np.arange(eng.k + 1, eng.k + 6)))
+
+
+def test_env_observations_read_the_prediction():
+    from covert_env.envs.covert_sensing import CovertSensingParallelEnv
+
+    c = Config(prediction_error=BOUND, n_uavs=1)
+    sc = Scenario.paper(c)
+    env = CovertSensingParallelEnv(scenario=sc, action_mode="waypoint")
+    env.reset(seed=0)
+    tr = sc.track
+    for k in range(3):
+        block = env._shared_block()
+        q, phi = tr.positions[k], tr.headings[k]
+        qn = tr.next_predicted[0][k]
+        d = qn[:2] - q[:2]
+        scale = c.v_max * c.delta
+        np.testing.assert_allclose(block[0], (np.cos(phi) * d[0] + np.sin(phi) * d[1]) / scale, rtol=1e-5)
+        np.testing.assert_allclose(block[1], (np.cos(phi) * d[1] - np.sin(phi) * d[0]) / scale, atol=1e-6)
+        env.step({a: int(np.flatnonzero(env.action_mask(a))[0]) for a in env.agents})
+
+
+# ----------------------------------------------------------------------------- eq. 5: what the erosion guarantees
+def test_eroded_zone_around_the_prediction_lies_in_the_true_zone_on_a_straight_road():
+    c = Config(prediction_error=BOUND, r_u=BOUND)
+    tr = straight_track().with_speed_noise(BOUND, 11)
+    off = zone_lattice(c)                                                   # nodes of the zone eroded by r_u
+    for k in range(tr.n_slots - c.horizon):
+        q, phi = tr.predict(k, c.horizon)
+        for j in range(c.horizon):
+            nodes = to_world(off, q[j, :2], float(phi[j]))
+            qt = tr.position(k + 1 + j)
+            assert in_feasible_zone(nodes, qt[:2], float(tr.heading(k + 1 + j)), c.r1, c.r2, c.mu).all()
+    loose = Config(prediction_error=BOUND, r_u=0.0)
+    q, phi = tr.predict(0, 1)
+    nodes = to_world(zone_lattice(loose), q[0, :2], float(phi[0]))
+    true_q = tr.position(1)
+    if not np.array_equal(true_q, q[0]):
+        assert not in_feasible_zone(nodes, true_q[:2], float(tr.heading(1)), c.r1, c.r2, c.mu).all()
+
+
+def test_dp_keeps_the_true_zone_with_r_u_at_the_bound_and_leaves_it_without():
+    """The paper scene and held-out scene 1_000_003, 1 UAV, 25 slots, bound 4 m (counts of the
+    deterministic runs; see baselines/prediction_study.py for the table)."""
+    from baselines.prediction_study import prediction_study, study_markdown
+
+    rows = prediction_study(bounds=(BOUND,), r_us=(0.0, BOUND), scenes=(("paper", 0), ("random", 1_000_003)),
+                            n_slots=25)
+    loose, eroded = rows
+    assert loose["r_u"] == 0.0 and eroded["r_u"] == BOUND
+    assert loose["zone_violations"] >= 3
+    assert eroded["zone_violations"] == 0 and eroded["max_zone_distance"] < 0.0
+    table = study_markdown(rows, 2, 25, 1)
+    assert table.count("\n| 4 | ") == 2 and f"| {loose['zone_violations']} |" in table
+
+
+def test_reproduce_has_the_prediction_study_flag():
+    from baselines.reproduce import build_parser
+
+    assert build_parser().parse_args(["--out", "x", "--prediction-study"]).prediction_study
+    assert not build_parser().parse_args(["--out", "x"]).prediction_study
