@@ -21,7 +21,7 @@ from covert_env.config import Config
 from covert_env.cost import disguise, stage_cost, uav_target_angle, uav_target_distance
 from covert_env.terrain import Terrain
 from covert_env.trajectory import Trajectory
-from covert_env.visibility import TerrainStack, line_of_sight
+from covert_env.visibility import line_of_sight
 from covert_env.zone import zone_distance
 
 __all__ = ["SlotQuantities", "slot_quantities", "moves_quantities", "episode_metrics", "nearest_teammate",
@@ -108,8 +108,9 @@ def moves_quantities(start_xy, end_xy, target_start, phi_start, target_end, phi_
         path_xy: (*B, U, P, 2) samples along each move; path_length: (*B, U).
         target_path_xyz: (*B, P, 3) the target at the same instants, or None to skip LoS along the path
             (``los_path`` is then NaN).
-        terrain: a :class:`Terrain` for every move, or a :class:`~covert_env.visibility.TerrainStack`
-            with one terrain per move (B = (N,)).
+        terrain: a :class:`Terrain` for every move, or a batch terrain with one terrain per move (B = (N,)):
+            a :class:`~covert_env.visibility.TerrainStack` or any object with its ``line_of_sight`` method and
+            ``highest_points`` array (the vector env's scene pool).
     """
     c = config
     alpha_prev = uav_target_angle(start_xy, target_start[..., None, :2], phi_start[..., None])
@@ -120,10 +121,10 @@ def moves_quantities(start_xy, end_xy, target_start, phi_start, target_end, phi_
     g = stage_cost(path_length, alpha_prev, alpha, d_prev, d, c.eta, c.lam, kappa=kappa)
 
     zd = zone_distance(end_xy, target_end[..., None, :2], phi_end[..., None], c.r1, c.r2, c.mu)
-    if isinstance(terrain, TerrainStack):
-        los_fn = terrain.line_of_sight
-    else:
+    if isinstance(terrain, Terrain):
         los_fn = functools.partial(line_of_sight, terrain)
+    else:
+        los_fn = terrain.line_of_sight
     if target_path_xyz is not None:
         # Sample j of every UAV against the target at the same instant, in one vectorised call (every
         # slot has its own target). Sample 0 is the previous slot's end, checked there; the last
