@@ -63,11 +63,21 @@ class SlotQuantities:
 
 def nearest_teammate(xy: np.ndarray) -> np.ndarray:
     """(..., U, 2) -> (..., U) distance to the nearest other UAV (inf with one UAV)."""
-    diff = xy[..., :, None, :] - xy[..., None, :, :]
-    dist = np.hypot(diff[..., 0], diff[..., 1])
     u = xy.shape[-2]
-    dist[..., np.arange(u), np.arange(u)] = np.inf
-    return dist.min(axis=-1)
+    if u == 1:
+        return np.full(xy.shape[:-1], np.inf)
+    # Each unordered pair once (hypot is the cost, and |p_i - p_j| = |p_j - p_i| exactly in floating point).
+    i, j, of = _pairs(u)
+    d = np.hypot(xy[..., i, 0] - xy[..., j, 0], xy[..., i, 1] - xy[..., j, 1])
+    return d[..., of].min(axis=-1)
+
+
+@functools.cache
+def _pairs(u: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pairs i < j of U UAVs, and for each UAV the indices of its U - 1 pairs."""
+    i, j = np.triu_indices(u, 1)
+    of = np.array([[k for k in range(len(i)) if a in (i[k], j[k])] for a in range(u)])
+    return i, j, of
 
 
 def terrain_clearance(xy: np.ndarray, altitude: float, terrain) -> np.ndarray:
@@ -80,9 +90,11 @@ def terrain_clearance(xy: np.ndarray, altitude: float, terrain) -> np.ndarray:
         return np.full(xy.shape[:-1], np.inf)
     if top.ndim == 3:                                            # row j of xy against terrain j only
         top = top.reshape((len(top),) + (1,) * (xy.ndim - 2) + top.shape[1:])
-    dxy = xy[..., None, :] - top[..., :2]
+    dx = xy[..., 0, None] - top[..., 0]
+    dy = xy[..., 1, None] - top[..., 1]
     dz = altitude - top[..., 2]
-    return np.sqrt((dxy ** 2).sum(-1) + dz ** 2).min(axis=-1)
+    # dx^2 + dy^2 written out: the same sum as (dxy ** 2).sum(-1), without a reduction over a length-2 axis.
+    return np.sqrt(dx * dx + dy * dy + dz * dz).min(axis=-1)
 
 
 def slot_quantities(traj: Trajectory, terrain: Terrain, config: Config, *, path_los: bool = True) -> SlotQuantities:

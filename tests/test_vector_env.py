@@ -216,3 +216,27 @@ def test_bad_arguments_and_calls():
         venv.reset(seed=[1, 2, 3])
     with pytest.raises(ValueError, match="max_cycles"):
         venv.max_cycles = 0
+
+
+# ---------------------------------------------------------------------- the scene pool's batched geometry
+def test_pool_line_of_sight_equals_line_of_sight_per_copy():
+    from covert_env.visibility import line_of_sight
+
+    venv = covert_env.vector_env(num_envs=6, n_uavs=2)
+    venv.reset(options={"scene_seed": [1, 2, 3, 4, 5, 1]})
+    pool, rows, rng = venv._pool, venv._rows, np.random.default_rng(3)
+    blocked = 0
+    near_polytope = pool.centre[rows, 0] + rng.uniform(-1, 1, (6, 2)) * pool.radius[rows, 0, None]
+    for k in (0, 20, 45, "near a polytope"):      # the last: targets inside a footprint's enclosing circle
+        q = pool.q[rows, 0].copy() if k == "near a polytope" else pool.q[rows, k]
+        if k == "near a polytope":
+            q[:, :2] = near_polytope
+        for alt in (80.0, 30.0, 0.5):             # below the target: the segment goes up
+            xy = q[:, None, :2] + rng.uniform(-250, 250, (6, 400, 2))
+            xy[:, 0] = q[:, :2]                    # straight above the target
+            got = pool.line_of_sight(rows, xy, alt, q)
+            want = np.stack([line_of_sight(pool.cache(r).parts.terrain, xy[j], alt, q[j])
+                             for j, r in enumerate(rows)])
+            assert np.array_equal(got, want), (k, alt, np.argwhere(got != want)[:5])
+            blocked += (~want).sum()
+    assert blocked > 500                           # the test sees blocked and clear segments

@@ -9,11 +9,15 @@ and actions. Written with numpy calls that have direct torch counterparts, so a 
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from covert_env.dynamics import solve_manoeuvre
 from covert_env.engine import _fly, _waypoint_controls
 from covert_env.envs.covert_sensing import _COSTS, _REWARD_TERMS, MIN_SPEED_FRACTION, OFFSET_CLIP
+
+_TWO_PI = 2.0 * math.pi
 
 __all__ = ["action_masks", "constraint_costs", "observations", "own_features", "reward_terms", "to_world_batch",
            "unicycle_controls", "fly_unicycle", "fly_waypoints"]
@@ -27,8 +31,24 @@ def unicycle_controls(act: np.ndarray, c) -> tuple[np.ndarray, np.ndarray]:
 
 
 def fly_unicycle(xy, theta, v, w, times):
-    """Path samples (B, U, P, 2) at ``times`` (P,) and end headings (B, U) for controls held for the slot."""
-    return _fly(xy, theta, v, w, None, times)
+    """Path samples (B, U, P, 2) at ``times`` (P,) and end headings (B, U) for controls held for the slot.
+
+    The arithmetic of :func:`~covert_env.dynamics.unicycle_step` (so the samples are the engine's, bit for bit),
+    with the heading wrapped only at the slot's end and the exact start as sample 0."""
+    dt = times[1:]
+    half = 0.5 * w[..., None] * dt                                    # (B, U, P-1)
+    straight = half == 0.0
+    safe = np.where(straight, 1.0, half)
+    chord = v[..., None] * dt * np.where(straight, 1.0, np.sin(safe) / safe)
+    mid = theta[..., None] + half
+    path = np.empty(theta.shape + (len(times), 2))
+    path[..., 0, :] = xy
+    np.multiply(chord, np.cos(mid), out=path[..., 1:, 0])
+    path[..., 1:, 0] += xy[..., 0, None]
+    np.multiply(chord, np.sin(mid), out=path[..., 1:, 1])
+    path[..., 1:, 1] += xy[..., 1, None]
+    end = np.mod(theta + w * times[-1], _TWO_PI)
+    return path, np.where(end >= _TWO_PI, 0.0, end)
 
 
 def fly_waypoints(xy, theta, goals, c, times):

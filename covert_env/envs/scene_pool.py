@@ -18,6 +18,7 @@ from collections import OrderedDict
 import numpy as np
 
 from covert_env.envs.covert_sensing import _SceneCache
+from covert_env.metrics import terrain_clearance
 from covert_env.scenario import Scenario
 from covert_env.visibility import LOS_TOLERANCE, _arrays, _clip, _passes_near, line_of_sight
 from covert_env.zone import grid_nodes
@@ -164,40 +165,66 @@ class ScenePool:
         """Clear LoS (eq. 6) from UAVs ``uav_xy`` (B, U, 2) at ``altitude`` to targets ``target_xyz`` (B, 3), copy
         b against the terrain of scene row ``rows[b]``; (B, U) bool.
 
-        A broad phase over every (copy, UAV, polytope) triple (the part of the segment lower than the polytope's
-        top must pass within its plan-view circle), then the exact clip of the kept triples
-        (``visibility``'s Cyrus-Beck routine), each one array operation over the batch."""
-        ux, uy = uav_xy[..., 0, None], uav_xy[..., 1, None]                      # (B, U, 1)
-        q = target_xyz[:, None, None, :]                                         # (B, 1, 1, 3)
-        dz = q[..., 2] - altitude
-        down = dz <= 0
-        with np.errstate(over="ignore", divide="ignore"):
-            sc = (self.z_max[rows][:, None, :] - altitude) / np.where(dz == 0, -1e-300, dz)
-        s0 = np.clip(np.where(down, sc, 0.0), 0.0, 1.0)
-        s1 = np.clip(np.where(down, 1.0, sc), 0.0, 1.0)
-        centre = self.centre[rows][:, None]                                      # (B, 1, M, 2)
-        cand = (self.valid[rows][:, None, :] & (s1 > s0 - 1e-12)
-                & _passes_near(ux, uy, q[..., 0] - ux, q[..., 1] - uy, s0, s1, centre[..., 0], centre[..., 1],
-                               self.radius[rows][:, None, :]))
-        out = np.ones(uav_xy.shape[:2], dtype=bool)
+        Two broad phases, then the exact clip (``visibility``'s Cyrus-Beck routine), each one array operation over
+        the batch: (copy, UAV, polytope) triples whose footprint circle lies in the UAV's direction from the target
+        and within reach of the part of the segment lower than the polytope's top (that part lies within
+        ``|p - q| (z_max - z_q) / (h - z_q)`` of the target); then that part must pass within the circle
+        (``line_of_sight``'s test); the triples left are clipped exactly."""
+        q = target_xyz
+        rel_x, rel_y = uav_xy[..., 0] - q[:, 0, None], uav_xy[..., 1] - q[:, 1, None]
+        dist = np.sqrt(rel_x * rel_x + rel_y * rel_y)                                  # (B, U)
+        z_max, centre, radius = self.z_max[rows], self.centre[rows], self.radius[rows]   # (B, M, ...)
+        if altitude > q[:, 2].max():
+            low = np.clip((z_max - q[:, 2, None]) / (altitude - q[:, 2, None]), 0.0, 1.0)
+        else:
+            low = np.ones(z_max.shape)
+        cx, cy = centre[..., 0] - q[:, 0, None], centre[..., 1] - q[:, 1, None]          # (B, M)
+        gap = np.hypot(cx, cy)
+        r = radius + 1e-9
+        reach = gap - r
+        reach[~self.valid[rows]] = np.inf
+        # The UAV's bearing from the target must lie in the cone the footprint circle subtends there:
+        # rel . c >= |rel| sqrt(gap^2 - r^2) (every direction when the target is inside the circle). 1e-9 slack.
+        cone = np.where(gap > r, np.sqrt(np.maximum(gap * gap - r * r, 0.0)) - 1e-9 * gap, -1e300)
+        cand = reach[:, None, :] <= dist[..., None] * low[:, None, :]
+        dot = rel_x[..., None] * cx[:, None, :] + rel_y[..., None] * cy[:, None, :]
+        cand &= dot >= dist[..., None] * cone[:, None, :]
         b, u, m = np.nonzero(cand)
+        out = np.ones(uav_xy.shape[:2], dtype=bool)
         if len(b) == 0:
             return out
-        hm = self.hs[rows[b], m]                                                 # (P, F, 4)
+        # The part of the segment UAV -> target lower than the top, s in [s0, s1], must pass within the circle.
+        ux, uy, qb = uav_xy[b, u, 0], uav_xy[b, u, 1], q[b]
+        dz = qb[:, 2] - altitude
+        with np.errstate(over="ignore", divide="ignore"):
+            sc = (z_max[b, m] - altitude) / np.where(dz == 0, -1e-300, dz)
+        down = dz <= 0
+        s0 = np.clip(np.where(down, sc, 0.0), 0.0, 1.0)
+        s1 = np.clip(np.where(down, 1.0, sc), 0.0, 1.0)
+        near = (s1 > s0 - 1e-12) & _passes_near(ux, uy, qb[:, 0] - ux, qb[:, 1] - uy, s0, s1,
+                                                centre[b, m, 0], centre[b, m, 1], radius[b, m])
+        b, u, m = b[near], u[near], m[near]
+        if len(b) == 0:
+            return out
+        hm = self.hs[rows[b], m]                                                 # (K, F, 4)
         p = np.empty((len(b), 3))
         p[:, :2] = uav_xy[b, u]
         p[:, 2] = altitude
         num = np.einsum("pfi,pi->pf", hm[..., :3], p) + hm[..., 3] + tol
-        vq = np.einsum("pfi,pi->pf", hm[..., :3], target_xyz[b]) + hm[..., 3] + tol
+        vq = np.einsum("pfi,pi->pf", hm[..., :3], q[b]) + hm[..., 3] + tol
         blocked = _clip(num, vq - num)
         out[b[blocked], u[blocked]] = False
         return out
 
     def terrain_clearance(self, rows: np.ndarray, xy: np.ndarray, altitude: float) -> np.ndarray:
         """(B, U) distance from (x, y, h) to the nearest polytope top of each copy's scene (eq. 3; inf if none)."""
-        top = self.top[rows][:, None]                                            # (B, 1, M, 3)
-        if top.shape[-2] == 0:
-            return np.full(xy.shape[:-1], np.inf)
-        dxy = xy[..., None, :] - top[..., :2]
-        dz = altitude - top[..., 2]
-        return np.sqrt((dxy ** 2).sum(-1) + dz ** 2).min(axis=-1)
+        return terrain_clearance(xy, altitude, _Tops(self.top[rows]))
+
+
+class _Tops:
+    """Polytope tops of a batch of copies, as :func:`~covert_env.metrics.terrain_clearance` reads a terrain stack."""
+
+    __slots__ = ("highest_points",)
+
+    def __init__(self, top: np.ndarray):
+        self.highest_points = top
