@@ -13,7 +13,6 @@ import math
 
 import numpy as np
 
-from covert_env.dynamics import solve_manoeuvre
 from covert_env.engine import _fly, _waypoint_controls
 from covert_env.envs.covert_sensing import _COSTS, _REWARD_TERMS, MIN_SPEED_FRACTION, OFFSET_CLIP
 
@@ -72,15 +71,18 @@ def to_world_batch(offsets, q_xy, phi) -> np.ndarray:
     return np.stack([x, y], axis=-1)
 
 
-def action_masks(xy, theta, goals, visible, c) -> np.ndarray:
-    """Waypoint masks (B, U, L) int8: lattice ``goals`` (B, L, 2) reachable in one slot from the poses (B, U) and
-    ``visible`` (B, L) at k+1; where no node qualifies the reachable ones, and where none is reachable all."""
-    m = solve_manoeuvre(xy[:, :, None, :], theta[:, :, None], goals[:, None], v_max=c.v_max, w_max=c.w_max,
-                        delta=c.delta)
-    reach = np.asarray(m.feasible, bool)
+def action_masks(xy, theta, q_xy, phi, lattice, visible, table) -> np.ndarray:
+    """Waypoint masks (B, U, L) int8: the ``lattice`` nodes (L, 2) placed at the targets q_xy (B, 2), phi (B,) of
+    slot k+1, reachable in one slot from the poses (B, U) (``table``: the config's
+    :class:`~covert_env.reach.ReachTable`, exactly ``solve_manoeuvre``'s answer) and ``visible`` (B, L) there;
+    where no node qualifies the reachable ones, and where none is reachable all."""
+    reach = table.reachable(xy, theta, q_xy, phi, lattice)
     mask = reach & visible[:, None, :]
-    fallback = np.where(reach.any(axis=-1, keepdims=True), reach, True)
-    return np.where(mask.any(axis=-1, keepdims=True), mask, fallback).astype(np.int8)
+    empty = ~mask.any(axis=-1)
+    if empty.any():                                   # rare: fix those rows only
+        rows = reach[empty]
+        mask[empty] = np.where(rows.any(axis=-1, keepdims=True), rows, True)
+    return mask.view(np.int8)
 
 
 def constraint_costs(quant, c) -> np.ndarray:

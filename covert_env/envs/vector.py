@@ -20,6 +20,7 @@ from covert_env.envs.covert_sensing import (
 )
 from covert_env.envs.scene_pool import ScenePool
 from covert_env.metrics import moves_quantities, nearest_teammate
+from covert_env.reach import reach_table
 from covert_env.zone import in_feasible_zone, zone_distance
 
 __all__ = ["CovertSensingVectorEnv", "vector_env", "INFO_KEYS", "MAX_NUM_ENVS"]
@@ -147,6 +148,8 @@ class CovertSensingVectorEnv:
         self._los = np.zeros((b, u), bool)
         self._masks = np.ones((b, u, len(self.lattice) if self.action_mode == "waypoint" else 2), np.int8)
         self._started = False
+        c = self.config
+        self._reach = reach_table(c.v_max, c.w_max, c.delta) if self.action_mode == "waypoint" else None
 
     # ------------------------------------------------------------------ properties
     @property
@@ -320,9 +323,8 @@ class CovertSensingVectorEnv:
         if self.action_mode != "waypoint":
             return
         pool, rows, k1 = self._pool, self._rows, self._k + 1
-        goals = batch.to_world_batch(np.broadcast_to(self.lattice, (self.num_envs,) + self.lattice.shape),
-                                     pool.q[rows, k1, :2], pool.phi[rows, k1])
-        self._masks = batch.action_masks(self._xy, self._theta, goals, pool.lattice_ok[rows, k1], self.config)
+        self._masks = batch.action_masks(self._xy, self._theta, pool.q[rows, k1, :2], pool.phi[rows, k1],
+                                         self.lattice, pool.lattice_ok[rows, k1], self._reach)
 
     def _unicycle_actions(self, actions) -> np.ndarray:
         a = np.asarray(actions)
