@@ -115,30 +115,35 @@ class ReachTable:
         computed exactly as :func:`~covert_env.zone.to_world` does, the only goals ever built in float64).
 
         The lookup works in float32 table units (cells), relative to each copy's first goal so that the numbers
-        stay small: its rounding (~1e-5 m) is far below the margin of a cell that certain cells keep."""
+        stay small: its rounding (well below a cell) is covered by the margin of a cell that certain cells keep."""
         na, nb = self.shape
         ct, st = np.cos(phi), np.sin(phi)
         origin = _goals(q_xy, ct, st, offsets[0])                                             # (B, 2)
         rel = (offsets - offsets[0]).astype(np.float32)
         ct32, st32 = ct.astype(np.float32)[:, None], st.astype(np.float32)[:, None]
-        g = np.stack([ct32 * rel[:, 0] - st32 * rel[:, 1], st32 * rel[:, 0] + ct32 * rel[:, 1]], axis=1)  # (B, 2, L)
+        g = np.empty((len(phi), 3, len(offsets)), np.float32)                  # homogeneous goal coordinates
+        np.subtract(ct32 * rel[:, 0], st32 * rel[:, 1], out=g[:, 0])
+        np.add(st32 * rel[:, 0], ct32 * rel[:, 1], out=g[:, 1])
+        g[:, 2] = 1.0
         p = (xy - origin[:, None]).astype(np.float32)                                         # (B, U, 2)
         c, s = np.cos(theta).astype(np.float32) / self.h, np.sin(theta).astype(np.float32) / self.h
-        # Cell coordinates (a - a0) / h and lateral / h of every goal in every UAV's frame: one batched matmul.
-        rot = np.stack([np.stack([c, s], axis=-1), np.stack([-s, c], axis=-1)], axis=-2)       # (B, U, 2, 2)
+        # Cell coordinates (a - a0) / h and lateral / h of every goal in every UAV's frame: one batched matmul
+        # with the translation in the third column.
+        rot = np.empty(theta.shape + (2, 3), np.float32)                                      # (B, U, 2, 3)
+        rot[..., 0, 0], rot[..., 0, 1], rot[..., 0, 2] = c, s, np.float32(-self.a0 / self.h) - (c * p[..., 0]
+                                                                                               + s * p[..., 1])
+        rot[..., 1, 0], rot[..., 1, 1], rot[..., 1, 2] = -s, c, s * p[..., 0] - c * p[..., 1]
         cell = rot @ g[:, None]                                                                # (B, U, 2, L)
         ia, ib = cell[:, :, 0], cell[:, :, 1]
-        ia += (np.float32(-self.a0 / self.h) - (c * p[..., 0] + s * p[..., 1]))[..., None]
-        ib += (s * p[..., 0] - c * p[..., 1])[..., None]
         np.abs(ib, out=ib)
         np.clip(ia, 0, na - 1, out=ia)
         np.minimum(ib, nb - 1, out=ib)
-        # The flat cell index floor(ia) nb + floor(ib), exact in float32 (below 2^24), converted once.
+        # The flat cell index floor(ia) nb + ib, truncated once. Float32 rounding may move a point near a cell's
+        # edge into the neighbouring cell: harmless, as a certain cell's 3 x 3 neighbourhood shares its label.
         np.floor(ia, out=ia)
-        np.floor(ib, out=ib)
         ia *= nb
         ia += ib
-        lab = self._flat[ia.astype(np.int32)]
+        lab = self._flat[ia.astype(np.intp)]
         out = lab == FEASIBLE
         flat = np.flatnonzero(lab == BOUNDARY)
         if len(flat):
