@@ -18,8 +18,40 @@ from covert_env.envs.covert_sensing import _COSTS, _REWARD_TERMS, MIN_SPEED_FRAC
 
 _TWO_PI = 2.0 * math.pi
 
-__all__ = ["action_masks", "constraint_costs", "observations", "own_features", "reward_terms", "to_world_batch",
-           "unicycle_controls", "fly_unicycle", "fly_waypoints"]
+__all__ = ["action_masks", "constraint_costs", "fly_unicycle", "fly_waypoints", "observations", "own_features",
+           "reward_terms", "to_world_batch", "unicycle_actions", "unicycle_controls", "waypoint_actions"]
+
+
+def unicycle_actions(actions, shape: tuple[int, int], agents) -> np.ndarray:
+    """Box actions (B, U, 2) as floats, checked: numbers, the shape, finite (errors name the copy and agent)."""
+    a = np.asarray(actions)
+    shape = shape + (2,)
+    if a.dtype.kind not in "iuf":
+        raise TypeError(f"unicycle actions must be numbers (speed, turn rate) in [-1, 1], got dtype {a.dtype}")
+    if a.shape != shape:
+        raise ValueError(f"unicycle actions must have shape {shape} (copies, agents, 2), got {a.shape}")
+    a = a.astype(float, copy=False)
+    bad = ~np.isfinite(a).all(axis=-1)
+    if bad.any():
+        j, i = np.argwhere(bad)[0]
+        raise ValueError(f"action of copy {j}, agent {agents[i]} must be finite, got {a[j, i].tolist()}")
+    return a
+
+
+def waypoint_actions(actions, shape: tuple[int, int], n: int, agents) -> np.ndarray:
+    """Lattice indices (B, U) as int64, checked: numbers, the shape, integers in [0, n) (errors name copy, agent)."""
+    a = np.asarray(actions)
+    if a.dtype.kind not in "iuf":
+        raise TypeError(f"waypoint actions must be integers (lattice node indices), got dtype {a.dtype}")
+    if a.shape != shape:
+        raise ValueError(f"waypoint actions must have shape {shape} (copies, agents), got {a.shape}")
+    with np.errstate(invalid="ignore"):
+        ok = np.isfinite(a) & (a == np.round(a)) & (a >= 0) & (a < n)
+    if not ok.all():
+        j, i = np.argwhere(~ok)[0]
+        raise ValueError(f"action of copy {j}, agent {agents[i]} must be an integer in "
+                         f"[0, {n - 1}], got {a[j, i].item()!r}")
+    return a.astype(np.int64)
 
 
 def unicycle_controls(act: np.ndarray, c) -> tuple[np.ndarray, np.ndarray]:

@@ -170,26 +170,11 @@ class CovertSensingVectorEnv:
         """Reset every copy; returns observations and infos (class docstring, Seeding)."""
         b = self.num_envs
         if seed is not None:
-            if np.ndim(seed) == 0:
-                seeds = np.random.SeedSequence(_int_arg("seed", seed, 0)).generate_state(b)
-            else:
-                seeds = np.asarray([_int_arg("seed", s, 0) for s in seed])
-                if seeds.shape != (b,):
-                    raise ValueError(f"reset(seed=...) needs an int or {b} ints (one per copy), got {len(seeds)}")
-            self.copy_seeds = seeds.astype(np.int64)
+            self.copy_seeds = _copy_seeds(seed, b)
             self._rngs = [gymnasium.utils.seeding.np_random(int(s))[0] for s in self.copy_seeds]
         elif self._rngs is None:
             self._rngs = [gymnasium.utils.seeding.np_random(None)[0] for _ in range(b)]
-        options = dict(options or {})
-        unknown = sorted(set(options) - {"scene_seed"})
-        if unknown:
-            raise ValueError(f"reset(): unknown option(s) {unknown}; the vector env knows 'scene_seed'")
-        scene_seeds = options.get("scene_seed")
-        if scene_seeds is not None:
-            scene_seeds = np.broadcast_to(np.asarray(scene_seeds), (b,)) if np.ndim(scene_seeds) == 0 \
-                else np.asarray(scene_seeds)
-            if scene_seeds.shape != (b,) or scene_seeds.dtype.kind not in "iu":
-                raise ValueError(f"options['scene_seed'] must be an int or {b} ints, got {options['scene_seed']!r}")
+        scene_seeds = _scene_seeds(options, b)
         everyone = np.arange(b)
         self._reset_copies(everyone, scene_seeds)
         self._started = True
@@ -204,11 +189,13 @@ class CovertSensingVectorEnv:
         xy0, th0 = self._xy, self._theta
         q1, phi1 = pool.q[rows, k + 1], pool.phi[rows, k + 1]
         if self.action_mode == "unicycle":
-            v, w = batch.unicycle_controls(self._unicycle_actions(actions), c)
+            act = batch.unicycle_actions(actions, (self.num_envs, len(self.possible_agents)), self.possible_agents)
+            v, w = batch.unicycle_controls(act, c)
             path, end_theta = batch.fly_unicycle(xy0, th0, v, w, self._times)
             flagged = np.zeros(th0.shape, bool)
         else:
-            idx = self._waypoint_actions(actions)
+            idx = batch.waypoint_actions(actions, (self.num_envs, len(self.possible_agents)), len(self.lattice),
+                                         self.possible_agents)
             flagged = np.take_along_axis(self._masks, idx[..., None], axis=-1)[..., 0] == 0
             goals = batch.to_world_batch(self.lattice[idx], q1[:, :2], phi1)
             path, end_theta, v, fallback = batch.fly_waypoints(xy0, th0, goals, c, self._times)
@@ -326,36 +313,6 @@ class CovertSensingVectorEnv:
         self._masks = batch.action_masks(self._xy, self._theta, pool.q[rows, k1, :2], pool.phi[rows, k1],
                                          self.lattice, pool.lattice_ok[rows, k1], self._reach)
 
-    def _unicycle_actions(self, actions) -> np.ndarray:
-        a = np.asarray(actions)
-        shape = (self.num_envs, len(self.possible_agents), 2)
-        if a.dtype.kind not in "iuf":
-            raise TypeError(f"unicycle actions must be numbers (speed, turn rate) in [-1, 1], got dtype {a.dtype}")
-        if a.shape != shape:
-            raise ValueError(f"unicycle actions must have shape {shape} (copies, agents, 2), got {a.shape}")
-        a = a.astype(float, copy=False)
-        bad = ~np.isfinite(a).all(axis=-1)
-        if bad.any():
-            j, i = np.argwhere(bad)[0]
-            raise ValueError(f"action of copy {j}, agent {self.possible_agents[i]} must be finite, got "
-                             f"{a[j, i].tolist()}")
-        return a
-
-    def _waypoint_actions(self, actions) -> np.ndarray:
-        a = np.asarray(actions)
-        shape, n = (self.num_envs, len(self.possible_agents)), len(self.lattice)
-        if a.dtype.kind not in "iuf":
-            raise TypeError(f"waypoint actions must be integers (lattice node indices), got dtype {a.dtype}")
-        if a.shape != shape:
-            raise ValueError(f"waypoint actions must have shape {shape} (copies, agents), got {a.shape}")
-        with np.errstate(invalid="ignore"):
-            ok = np.isfinite(a) & (a == np.round(a)) & (a >= 0) & (a < n)
-        if not ok.all():
-            j, i = np.argwhere(~ok)[0]
-            raise ValueError(f"action of copy {j}, agent {self.possible_agents[i]} must be an integer in "
-                             f"[0, {n - 1}], got {a[j, i].item()!r}")
-        return a.astype(np.int64)
-
 
 class _CopyTerrains:
     """Each copy's terrain for one step, as :func:`~covert_env.metrics.moves_quantities` asks a batch terrain."""
@@ -381,6 +338,31 @@ def _draw_starts(nodes: np.ndarray, rng: np.random.Generator, u: int, gap: float
     if len(picked) < u:
         raise ValueError(f"scene pool row {row}: could not place {u} UAVs in the visible zone")
     return np.array(picked), rng.uniform(0, 2 * math.pi, u)
+
+
+def _copy_seeds(seed, b: int) -> np.ndarray:
+    """Per-copy seeds: from ``np.random.SeedSequence(seed)`` for an int, as given for a sequence of b ints."""
+    if np.ndim(seed) == 0:
+        return np.random.SeedSequence(_int_arg("seed", seed, 0)).generate_state(b).astype(np.int64)
+    seeds = np.asarray([_int_arg("seed", s, 0) for s in seed], dtype=np.int64)
+    if seeds.shape != (b,):
+        raise ValueError(f"reset(seed=...) needs an int or {b} ints (one per copy), got {len(seeds)}")
+    return seeds
+
+
+def _scene_seeds(options: dict | None, b: int) -> np.ndarray | None:
+    """``options["scene_seed"]`` as b ints (None without it); any other option is an error."""
+    options = dict(options or {})
+    unknown = sorted(set(options) - {"scene_seed"})
+    if unknown:
+        raise ValueError(f"reset(): unknown option(s) {unknown}; the vector env knows 'scene_seed'")
+    seeds = options.get("scene_seed")
+    if seeds is None:
+        return None
+    arr = np.broadcast_to(np.asarray(seeds), (b,)) if np.ndim(seeds) == 0 else np.asarray(seeds)
+    if arr.shape != (b,) or arr.dtype.kind not in "iu":
+        raise ValueError(f"options['scene_seed'] must be an int or {b} ints, got {seeds!r}")
+    return arr
 
 
 def vector_env(num_envs: int = 1, **kwargs: Any) -> CovertSensingVectorEnv:
