@@ -90,11 +90,16 @@ def terrain_clearance(xy: np.ndarray, altitude: float, terrain) -> np.ndarray:
         return np.full(xy.shape[:-1], np.inf)
     if top.ndim == 3:                                            # row j of xy against terrain j only
         top = top.reshape((len(top),) + (1,) * (xy.ndim - 2) + top.shape[1:])
-    dx = xy[..., 0, None] - top[..., 0]
-    dy = xy[..., 1, None] - top[..., 1]
     dz = altitude - top[..., 2]
-    # dx^2 + dy^2 written out: the same sum as (dxy ** 2).sum(-1), without a reduction over a length-2 axis.
-    return np.sqrt(dx * dx + dy * dy + dz * dz).min(axis=-1)
+    d2 = xy[..., 0, None] - top[..., 0]
+    d2 *= d2
+    dy = xy[..., 1, None] - top[..., 1]
+    dy *= dy
+    # (dx^2 + dy^2) + dz^2 written out, in place: the sum of (dxy ** 2).sum(-1) + dz ** 2 without a reduction over
+    # a length-2 axis; the square root after the minimum (it is monotone: the same value).
+    d2 += dy
+    d2 += dz * dz
+    return np.sqrt(d2.min(axis=-1))
 
 
 def slot_quantities(traj: Trajectory, terrain: Terrain, config: Config, *, path_los: bool = True) -> SlotQuantities:

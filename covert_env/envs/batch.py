@@ -67,17 +67,26 @@ def fly_unicycle(xy, theta, v, w, times):
     The arithmetic of :func:`~covert_env.dynamics.unicycle_step` (so the samples are the engine's, bit for bit),
     with the heading wrapped only at the slot's end and the exact start as sample 0."""
     dt = times[1:]
-    half = 0.5 * w[..., None] * dt                                    # (B, U, P-1)
+    # In place where possible (the arrays are B U P: at B = 1024 every temporary spills the cache); each value is
+    # computed with the operations, operands and order of unicycle_step, so the results are the same bits.
+    half = (0.5 * w)[..., None] * dt                                   # (B, U, P-1)
     straight = half == 0.0
     safe = np.where(straight, 1.0, half)
-    chord = v[..., None] * dt * np.where(straight, 1.0, np.sin(safe) / safe)
-    mid = theta[..., None] + half
+    ratio = np.sin(safe)
+    ratio /= safe
+    ratio[straight] = 1.0
+    chord = v[..., None] * dt
+    chord *= ratio
+    mid = np.add(theta[..., None], half, out=half)
     path = np.empty(theta.shape + (len(times), 2))
     path[..., 0, :] = xy
-    np.multiply(chord, np.cos(mid), out=path[..., 1:, 0])
-    path[..., 1:, 0] += xy[..., 0, None]
-    np.multiply(chord, np.sin(mid), out=path[..., 1:, 1])
-    path[..., 1:, 1] += xy[..., 1, None]
+    out_x, out_y = path[..., 1:, 0], path[..., 1:, 1]
+    np.cos(mid, out=out_x)
+    out_x *= chord
+    out_x += xy[..., 0, None]
+    np.sin(mid, out=out_y)
+    out_y *= chord
+    out_y += xy[..., 1, None]
     end = np.mod(theta + w * times[-1], _TWO_PI)
     return path, np.where(end >= _TWO_PI, 0.0, end)
 

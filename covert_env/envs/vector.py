@@ -64,7 +64,9 @@ class CovertSensingVectorEnv:
     ## Action Masks
 
     Waypoint mode: ``action_masks()`` returns ``(B, U, L)`` int8 (1 = allowed), the parallel env's mask per copy
-    and agent. It lives there (and in the observation with ``dict_obs=True``), not in the infos.
+    and agent. It lives there (and in the observation with ``dict_obs=True``), not in the infos. Reachability
+    comes from :class:`~covert_env.reach.ReachTable` (a table in the UAV's frame; only nodes near its boundary
+    are solved), which gives exactly ``solve_manoeuvre``'s answer.
 
     ## Rewards, Terminations, Truncations
 
