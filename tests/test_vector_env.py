@@ -240,3 +240,15 @@ def test_pool_line_of_sight_equals_line_of_sight_per_copy():
             assert np.array_equal(got, want), (k, alt, np.argwhere(got != want)[:5])
             blocked += (~want).sum()
     assert blocked > 500                           # the test sees blocked and clear segments
+
+
+def test_starts_fallback_equals_the_parallel_env():
+    """With d_safe1 = 25 m the visible zone cannot hold 3 starts 50 m apart: the documented fallback of
+    Scenario.sample_starts places them (closer, down to d_safe1), the same in both envs."""
+    kw = dict(n_uavs=3, config={"d_safe1": 25.0}, max_cycles=2)
+    _run_side_by_side(kw, b=6, steps=5)
+    venv = covert_env.vector_env(num_envs=6, **kw)
+    venv.reset(seed=11)
+    xy = venv._xy
+    gaps = np.hypot(*(xy[:, :, None] - xy[:, None]).transpose(3, 0, 1, 2)) + np.eye(3) * 1e9
+    assert (gaps.min(axis=(1, 2)) < 50.0).any() and (gaps >= 25.0 - 1e-9).all()

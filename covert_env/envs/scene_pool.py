@@ -19,9 +19,8 @@ import numpy as np
 
 from covert_env.envs.covert_sensing import _SceneCache
 from covert_env.metrics import terrain_clearance
-from covert_env.scenario import Scenario
-from covert_env.visibility import LOS_TOLERANCE, _arrays, _clip, _passes_near, line_of_sight
-from covert_env.zone import grid_nodes
+from covert_env.scenario import Scenario, _start_candidates
+from covert_env.visibility import LOS_TOLERANCE, _arrays, _clip, _passes_near
 
 __all__ = ["ScenePool"]
 
@@ -58,7 +57,7 @@ class ScenePool:
         self.waypoint, self.capacity = waypoint, capacity
         self._rows: OrderedDict = OrderedDict()          # key -> row, least recently used first
         self._caches: list[_SceneCache | None] = []
-        self._start_nodes: list[np.ndarray | None] = []
+        self._start_nodes: list[tuple | None] = []
         d = 3 + 2 * len(map_offsets)
         self.q, self.phi = np.zeros((0, 1, 3)), np.zeros((0, 1))
         self.blocks = np.zeros((0, 1, d), np.float32)
@@ -96,9 +95,9 @@ class ScenePool:
     def cache(self, row: int) -> _SceneCache:
         return self._caches[row]
 
-    def start_nodes(self, row: int) -> np.ndarray:
-        """Candidate start nodes of the scene: the lattice in the eroded zone at slot 0 with clear LoS, computed
-        exactly as ``Scenario.sample_starts`` computes them (so the starts drawn from them are the same)."""
+    def start_candidates(self, row: int) -> tuple[np.ndarray, np.ndarray]:
+        """What ``Scenario.sample_starts`` draws the scene's starts from (``scenario._start_candidates``): the
+        zone lattice at slot 0 and its nodes with clear LoS, computed once per scene."""
         return self._start_nodes[row]
 
     def _build(self, key) -> _SceneCache:
@@ -154,9 +153,7 @@ class ScenePool:
         self.radius[r], self.z_max[r], self.valid[r], self.top[r] = 0.0, 0.0, False, np.inf
         self.radius[r, :m], self.z_max[r, :m], self.valid[r, :m] = arr.radius, arr.z_max, True
         self.top[r, :m] = w.terrain.highest_points
-        q0, phi0 = w.track.position(0), float(w.track.heading(0))
-        nodes = grid_nodes(q0[:2], phi0, c.grid_step, c.r1, c.r2, c.mu, c.r_u)
-        self._start_nodes[r] = nodes[line_of_sight(w.terrain, nodes, c.altitude, q0)]
+        self._start_nodes[r] = _start_candidates(c, w.terrain, w.track)
         self._caches[r] = cache
 
     # ------------------------------------------------------------------ geometry

@@ -21,6 +21,7 @@ from covert_env.envs.covert_sensing import (
 from covert_env.envs.scene_pool import ScenePool
 from covert_env.metrics import moves_quantities, nearest_teammate
 from covert_env.reach import reach_table
+from covert_env.scenario import _pick_starts
 from covert_env.zone import in_feasible_zone, zone_distance
 
 __all__ = ["CovertSensingVectorEnv", "vector_env", "INFO_KEYS", "MAX_NUM_ENVS"]
@@ -266,7 +267,7 @@ class CovertSensingVectorEnv:
                 s = int(rng.integers(self.scene_pool))
             self._rows[j] = row = pool.row(pool.key(s), self._rows)
             if draw:
-                xy[n], theta[n] = _draw_starts(pool.start_nodes(row), rng, u, 2 * c.d_safe1, row)
+                xy[n], theta[n] = _pick_starts(c, *pool.start_candidates(row), rng, u, pool.cache(row).parts.name)
             else:
                 sc = pool.cache(row).seeded_scenario()
                 xy[n], theta[n] = sc.uav_xy, sc.uav_theta
@@ -325,21 +326,6 @@ class _CopyTerrains:
 
     def line_of_sight(self, uav_xy, altitude, target_xyz) -> np.ndarray:
         return self._pool.line_of_sight(self._rows, uav_xy, altitude, target_xyz.reshape(len(self._rows), 3))
-
-
-def _draw_starts(nodes: np.ndarray, rng: np.random.Generator, u: int, gap: float, row: int):
-    """``Scenario.sample_starts`` on precomputed candidate nodes, with the same draws from ``rng``: distinct
-    nodes at least ``gap`` apart in a random order, then uniform headings."""
-    picked: list[np.ndarray] = []
-    for i in rng.permutation(len(nodes)):
-        p = nodes[i]
-        if all(np.hypot(*(p - o)) >= gap for o in picked):
-            picked.append(p)
-            if len(picked) == u:
-                break
-    if len(picked) < u:
-        raise ValueError(f"scene pool row {row}: could not place {u} UAVs in the visible zone")
-    return np.array(picked), rng.uniform(0, 2 * math.pi, u)
 
 
 def _copy_seeds(seed, b: int) -> np.ndarray:
