@@ -114,10 +114,10 @@ class CovertSensingVectorEnv:
 
     ## Version History
 
-    * v0: initial release (same task as ``covert_sensing_v0``).
+    * v1: initial release (the task and numbers of ``covert_sensing_v1``).
     """
 
-    metadata = {"name": "covert_sensing_vector_v0", "autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
+    metadata = {"name": "covert_sensing_vector_v1", "autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
 
     def __init__(self, num_envs: int = 1, **kwargs):
         self.num_envs = _int_arg("num_envs", num_envs, 1, MAX_NUM_ENVS)
