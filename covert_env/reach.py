@@ -143,7 +143,7 @@ class ReachTable:
         np.floor(ia, out=ia)
         ia *= nb
         ia += ib
-        lab = self._flat[ia.astype(np.intp)]
+        lab = self._flat.take(ia.astype(np.intp))
         out = lab == FEASIBLE
         flat = np.flatnonzero(lab == BOUNDARY)
         if len(flat):
