@@ -118,6 +118,7 @@ class CovertSensingVectorEnv:
     """
 
     metadata = {"name": "covert_sensing_vector_v1", "autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
+    render_mode = None
 
     def __init__(self, num_envs: int = 1, **kwargs):
         self.num_envs = _int_arg("num_envs", num_envs, 1, MAX_NUM_ENVS)
