@@ -47,7 +47,9 @@ class CovertSensingVectorEnv:
     once per scene.
 
     Copy ``i`` flies exactly what the parallel env flies for the same scene, starts and actions (tested, see
-    Seeding): observations, rewards, costs and infos are bit-identical.
+    Seeding): observations, rewards, costs and infos are bit-identical. (Line of sight is decided by the same exact
+    clip with another summation order, so a segment grazing a polytope within rounding of the 10 nm tolerance of
+    :data:`~covert_env.visibility.LOS_TOLERANCE` could in principle be decided differently; never seen.)
 
     ## Action Space
 
