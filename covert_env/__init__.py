@@ -6,6 +6,7 @@ Uneven Terrain", Remote Sensing 16(22):4273, 2024. The environments are thin ada
 
     import covert_env
     penv = covert_env.parallel_env(n_uavs=3)                     # PettingZoo ParallelEnv
+    venv = covert_env.vector_env(num_envs=256, n_uavs=3)         # 256 copies, batch-first arrays
     aec = covert_env.env(n_uavs=3)                               # PettingZoo AEC
     import gymnasium as gym
     genv = gym.make("covert_env/CovertSensing-v1")               # Gymnasium, one UAV
@@ -22,10 +23,10 @@ __version__ = "0.2.0"
 
 # Environments are imported after the model: the model modules never import them.
 from covert_env import covert_sensing_v0, covert_sensing_v1  # noqa: E402
-from covert_env.envs import env, parallel_env, raw_env  # noqa: E402
+from covert_env.envs import env, parallel_env, raw_env, vector_env  # noqa: E402
 
 __all__ = ["Config", "Engine", "Polytope", "Road", "Scenario", "TargetTrack", "Terrain", "Trajectory",
-           "covert_sensing_v0", "covert_sensing_v1", "env", "parallel_env", "raw_env"]
+           "covert_sensing_v0", "covert_sensing_v1", "env", "parallel_env", "raw_env", "vector_env"]
 
 
 def _register() -> None:

@@ -21,7 +21,7 @@ from covert_env.config import Config
 from covert_env.cost import disguise, stage_cost, uav_target_angle, uav_target_distance
 from covert_env.terrain import Terrain
 from covert_env.trajectory import Trajectory
-from covert_env.visibility import TerrainStack, line_of_sight
+from covert_env.visibility import line_of_sight
 from covert_env.zone import zone_distance
 
 __all__ = ["SlotQuantities", "slot_quantities", "moves_quantities", "episode_metrics", "nearest_teammate",
@@ -63,11 +63,21 @@ class SlotQuantities:
 
 def nearest_teammate(xy: np.ndarray) -> np.ndarray:
     """(..., U, 2) -> (..., U) distance to the nearest other UAV (inf with one UAV)."""
-    diff = xy[..., :, None, :] - xy[..., None, :, :]
-    dist = np.hypot(diff[..., 0], diff[..., 1])
     u = xy.shape[-2]
-    dist[..., np.arange(u), np.arange(u)] = np.inf
-    return dist.min(axis=-1)
+    if u == 1:
+        return np.full(xy.shape[:-1], np.inf)
+    # Each unordered pair once (hypot is the cost, and |p_i - p_j| = |p_j - p_i| exactly in floating point).
+    i, j, of = _pairs(u)
+    d = np.hypot(xy[..., i, 0] - xy[..., j, 0], xy[..., i, 1] - xy[..., j, 1])
+    return d[..., of].min(axis=-1)
+
+
+@functools.cache
+def _pairs(u: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pairs i < j of U UAVs, and for each UAV the indices of its U - 1 pairs."""
+    i, j = np.triu_indices(u, 1)
+    of = np.array([[k for k in range(len(i)) if a in (i[k], j[k])] for a in range(u)])
+    return i, j, of
 
 
 def terrain_clearance(xy: np.ndarray, altitude: float, terrain) -> np.ndarray:
@@ -80,9 +90,16 @@ def terrain_clearance(xy: np.ndarray, altitude: float, terrain) -> np.ndarray:
         return np.full(xy.shape[:-1], np.inf)
     if top.ndim == 3:                                            # row j of xy against terrain j only
         top = top.reshape((len(top),) + (1,) * (xy.ndim - 2) + top.shape[1:])
-    dxy = xy[..., None, :] - top[..., :2]
     dz = altitude - top[..., 2]
-    return np.sqrt((dxy ** 2).sum(-1) + dz ** 2).min(axis=-1)
+    d2 = xy[..., 0, None] - top[..., 0]
+    d2 *= d2
+    dy = xy[..., 1, None] - top[..., 1]
+    dy *= dy
+    # (dx^2 + dy^2) + dz^2 written out, in place: the sum of (dxy ** 2).sum(-1) + dz ** 2 without a reduction over
+    # a length-2 axis; the square root after the minimum (it is monotone: the same value).
+    d2 += dy
+    d2 += dz * dz
+    return np.sqrt(d2.min(axis=-1))
 
 
 def slot_quantities(traj: Trajectory, terrain: Terrain, config: Config, *, path_los: bool = True) -> SlotQuantities:
@@ -108,8 +125,9 @@ def moves_quantities(start_xy, end_xy, target_start, phi_start, target_end, phi_
         path_xy: (*B, U, P, 2) samples along each move; path_length: (*B, U).
         target_path_xyz: (*B, P, 3) the target at the same instants, or None to skip LoS along the path
             (``los_path`` is then NaN).
-        terrain: a :class:`Terrain` for every move, or a :class:`~covert_env.visibility.TerrainStack`
-            with one terrain per move (B = (N,)).
+        terrain: a :class:`Terrain` for every move, or a batch terrain with one terrain per move (B = (N,)):
+            a :class:`~covert_env.visibility.TerrainStack` or any object with its ``line_of_sight`` method and
+            ``highest_points`` array (the vector env's scene pool).
     """
     c = config
     alpha_prev = uav_target_angle(start_xy, target_start[..., None, :2], phi_start[..., None])
@@ -120,10 +138,10 @@ def moves_quantities(start_xy, end_xy, target_start, phi_start, target_end, phi_
     g = stage_cost(path_length, alpha_prev, alpha, d_prev, d, c.eta, c.lam, kappa=kappa)
 
     zd = zone_distance(end_xy, target_end[..., None, :2], phi_end[..., None], c.r1, c.r2, c.mu)
-    if isinstance(terrain, TerrainStack):
-        los_fn = terrain.line_of_sight
-    else:
+    if isinstance(terrain, Terrain):
         los_fn = functools.partial(line_of_sight, terrain)
+    else:
+        los_fn = terrain.line_of_sight
     if target_path_xyz is not None:
         # Sample j of every UAV against the target at the same instant, in one vectorised call (every
         # slot has its own target). Sample 0 is the previous slot's end, checked there; the last

@@ -169,14 +169,26 @@ class Scenario:
 def _sample_starts(c: Config, terrain: Terrain, track: TargetTrack, rng: np.random.Generator, u: int,
                    name: str) -> tuple[np.ndarray, np.ndarray]:
     """:meth:`Scenario.sample_starts` on the parts of a scenario."""
+    return _pick_starts(c, *_start_candidates(c, terrain, track), rng, u, name)
+
+
+def _start_candidates(c: Config, terrain: Terrain, track: TargetTrack) -> tuple[np.ndarray, np.ndarray]:
+    """The zone lattice at slot 0 (world positions) and the indices of its nodes with clear LoS: what the start
+    sampler draws from, the same for every draw on a scene (the vector env computes it once per scene)."""
     from covert_env.visibility import line_of_sight
-    from covert_env.zone import SPREAD_MARGIN, spread_nodes, zone_lattice
+    from covert_env.zone import zone_lattice
 
     q0, phi0 = track.position(0), float(track.heading(0))
     # The same nodes as grid_nodes(...) (one lattice, one rotation), so step 1 is the historical sampler.
-    offsets = zone_lattice(c)
-    nodes = to_world(offsets, q0[:2], phi0)
-    clear = np.flatnonzero(line_of_sight(terrain, nodes, c.altitude, q0))
+    nodes = to_world(zone_lattice(c), q0[:2], phi0)
+    return nodes, np.flatnonzero(line_of_sight(terrain, nodes, c.altitude, q0))
+
+
+def _pick_starts(c: Config, nodes: np.ndarray, clear: np.ndarray, rng: np.random.Generator, u: int,
+                 name: str) -> tuple[np.ndarray, np.ndarray]:
+    """Steps 1-4 of :meth:`Scenario.sample_starts` on the candidates of :func:`_start_candidates`."""
+    from covert_env.zone import SPREAD_MARGIN, spread_nodes, zone_lattice
+
     order = clear[rng.permutation(len(clear))]
     picked = spread_nodes(nodes, order, 2 * c.d_safe1, u)
     if len(picked) < u:
@@ -187,6 +199,7 @@ def _sample_starts(c: Config, terrain: Terrain, track: TargetTrack, rng: np.rand
             picked = spread_nodes(nodes, order, c.d_safe1, u)
         if len(picked) < u:
             # Decided on the target-frame offsets, exactly as Config's check, with its margin.
+            offsets = zone_lattice(c)
             picked = spread_nodes(offsets, np.arange(len(offsets)), c.d_safe1 * (1.0 + SPREAD_MARGIN), u)
         if len(picked) < u:
             raise ValueError(f"Scenario {name}: the eroded zone has room for only {len(picked)} starts "

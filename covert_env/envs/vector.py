@@ -1,0 +1,362 @@
+"""B copies of the covert-sensing env stepped as one batch of array operations (``covert_env.vector_env``)."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import gymnasium
+import numpy as np
+from gymnasium.vector import AutoresetMode
+from gymnasium.vector.utils import batch_space
+
+from covert_env.envs import batch
+from covert_env.envs.covert_sensing import (
+    _COSTS,
+    _REWARD_TERMS,
+    _STEP_INFO_FLOATS,
+    CovertSensingParallelEnv,
+    _int_arg,
+)
+from covert_env.envs.scene_pool import ScenePool
+from covert_env.metrics import moves_quantities, nearest_teammate
+from covert_env.reach import reach_table
+from covert_env.scenario import _pick_starts
+from covert_env.zone import in_feasible_zone, zone_distance
+
+__all__ = ["CovertSensingVectorEnv", "vector_env", "INFO_KEYS", "MAX_NUM_ENVS"]
+
+#: Largest ``num_envs`` accepted: memory grows linearly with it (see benchmarks/vector_throughput.py).
+MAX_NUM_ENVS = 1 << 16
+#: Infos keys in their order (the parallel env's per-agent keys, without the action mask: see ``action_masks``).
+INFO_KEYS = ("slot", "los", "in_zone", "infeasible") + _STEP_INFO_FLOATS
+
+
+class CovertSensingVectorEnv:
+    """B copies of :class:`~covert_env.envs.covert_sensing.CovertSensingParallelEnv`, as batch-first arrays.
+
+    ## Description
+
+    The same task, model and numbers as the parallel env (its docstring is the reference for the task, the
+    rewards, the constraint costs and the observation table), for ``num_envs`` copies (B) of a team of U UAVs
+    at once. The state is a set of arrays ``(B, U, ...)`` and every step is a fixed sequence of array operations
+    over all copies and UAVs (flight, manoeuvres, line of sight against each copy's own terrain, zone,
+    separation along the path, cost, rewards, constraint costs, observations, masks): no Python loop runs over
+    copies, UAVs, lattice nodes or polytopes. Scenes come from a pool shared by all copies
+    (:class:`~covert_env.envs.scene_pool.ScenePool`): what depends only on the scene and the slot is computed
+    once per scene.
+
+    Copy ``i`` flies exactly what the parallel env flies for the same scene, starts and actions (tested, see
+    Seeding): observations, rewards, costs and infos are bit-identical. (Line of sight is decided by the same exact
+    clip with another summation order, so a segment grazing a polytope within rounding of the 10 nm tolerance of
+    :data:`~covert_env.visibility.LOS_TOLERANCE` could in principle be decided differently; never seen.)
+
+    ## Action Space
+
+    ``action_space``: the single agent's space batched to ``(B, U)``. Unicycle mode (default): floats
+    ``(B, U, 2)`` in [-1, 1] (speed, turn rate; clipped, as in the parallel env). Waypoint mode: integers
+    ``(B, U)``, lattice node indices in ``[0, L)``. Any other shape or dtype, or NaN/inf, raises an error naming
+    the copy and the agent.
+
+    ## Observation Space
+
+    ``(B, U, D)`` float32, row ``[b, i]`` the parallel env's observation of agent ``uav_i`` in copy ``b``. With
+    ``dict_obs=True`` (waypoint mode): ``{"observation": (B, U, D), "action_mask": (B, U, L) int8}``.
+    ``state()``: ``(B, S)`` float32, row b the parallel env's ``state()`` of copy b.
+
+    ## Action Masks
+
+    Waypoint mode: ``action_masks()`` returns ``(B, U, L)`` int8 (1 = allowed), the parallel env's mask per copy
+    and agent. It lives there (and in the observation with ``dict_obs=True``), not in the infos. Reachability
+    comes from :class:`~covert_env.reach.ReachTable` (a table in the UAV's frame; only nodes near its boundary
+    are solved), which gives exactly ``solve_manoeuvre``'s answer.
+
+    ## Rewards, Terminations, Truncations
+
+    ``(B, U)`` arrays: float64 rewards; bool terminations and truncations (all agents of a copy end together:
+    truncation after ``episode_length`` slots, termination on a collision with ``terminate_on_collision``).
+
+    ## Infos
+
+    A dict of ``(B, U)`` arrays, the same keys as the parallel env's per-agent infos (without ``action_mask``)
+    at ``reset()`` and every ``step()``: ``slot`` (int64), ``los``, ``in_zone``, ``infeasible`` (bool),
+    ``kappa``, ``g``, ``v``, ``separation``, ``terrain_clearance``, ``reward_<term>``, ``cost``,
+    ``cost_<constraint>`` (float64).
+
+    ## Autoreset
+
+    ``metadata["autoreset_mode"] = AutoresetMode.SAME_STEP`` (Gymnasium 1.x, https://farama.org/Vector-Autoreset-Mode):
+    a copy whose episode ended in ``step()`` is reset within the same call. That step returns the copy's reward,
+    termination and truncation of its last slot, but its observation and infos are the first ones of its next
+    episode; the last ones are in the infos as Gymnasium's same-step mode gives them, batched:
+
+    * ``infos["final_obs"]``: the observation rows ``(B, U, D)`` at the end of the episode (the array part with
+      ``dict_obs``: no action follows, so no mask), valid where ``infos["_final_obs"]`` (B,) is True;
+    * ``infos["final_info"]``: the infos dict of the last slot (``(B, U)`` arrays), valid where
+      ``infos["_final_info"]`` (B,) is True.
+
+    Both keys are present only on steps where some copy ended (as in Gymnasium). No ``step()`` ever needs a
+    manual ``reset()``.
+
+    ## Seeding
+
+    ``reset(seed=s)`` with an int gives copy i the seed ``copy_seeds[i]`` (from ``np.random.SeedSequence(s)``);
+    a sequence of B ints gives them directly. Copy i then draws its scenes and starts exactly as a parallel env
+    ``reset(seed=copy_seeds[i])`` followed by plain ``reset()`` calls does, one generator per copy: the same seed
+    gives the same batch, and copy i equals that parallel env across automatic resets.
+    ``options={"scene_seed": s}`` (an int for every copy, or B ints) picks the scenes and their own seeded starts
+    (``Scenario.random(s)``), as the parallel env's option does. Drawing a reset copy's starts from its own
+    generator is the one per-copy step (a few µs each, once per episode).
+
+    ## Arguments
+
+    ``num_envs`` (B, in ``[1, MAX_NUM_ENVS]``) and the parallel env's keyword arguments (``render_mode`` must
+    be None). ``scenario="random"`` builds a scene the first time a copy draws its seed (about 10 ms, 50 ms in
+    waypoint mode); the pool keeps ``B + 32`` scenes.
+
+    ## Version History
+
+    * v1: initial release (the task and numbers of ``covert_sensing_v1``).
+    """
+
+    metadata = {"name": "covert_sensing_vector_v1", "autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
+    render_mode = None
+
+    def __init__(self, num_envs: int = 1, **kwargs):
+        self.num_envs = _int_arg("num_envs", num_envs, 1, MAX_NUM_ENVS)
+        if kwargs.get("render_mode") is not None:
+            raise ValueError("the vector env does not render; use the parallel env (render_mode=...) to watch a copy")
+        one = CovertSensingParallelEnv(**kwargs)          # validates the arguments; its spaces are one agent's
+        self.config, self.action_mode, self.dict_obs = one.config, one.action_mode, one.dict_obs
+        self.scenario_spec, self.random_starts = one.scenario_spec, one.random_starts
+        self.scene_pool, self.path_samples = one.scene_pool, one.path_samples
+        self.reward_scale, self.penalties = one.reward_scale, dict(one.penalties)
+        self.terminate_on_collision, self.max_cycles = one.terminate_on_collision, one.max_cycles
+        self.lattice, self.possible_agents = one.lattice, list(one.possible_agents)
+        a0 = self.possible_agents[0]
+        self.single_observation_space, self.single_action_space = one.observation_space(a0), one.action_space(a0)
+        self.single_state_space = one.state_space
+        b, u, c = self.num_envs, len(self.possible_agents), self.config
+        self.observation_space = batch_space(batch_space(self.single_observation_space, u), b)
+        self.action_space = batch_space(batch_space(self.single_action_space, u), b)
+        self.state_space = batch_space(self.single_state_space, b)
+        self._mates = np.array([[j for j in range(u) if j != i] for i in range(u)], dtype=int).reshape(u, u - 1)
+        map_in_zone = in_feasible_zone(one.map_offsets, np.zeros(2), 0.0, c.r1, c.r2, c.mu, c.r_u)
+        self._pool = ScenePool(one.scenario_spec, c, self.lattice, one.map_offsets, map_in_zone,
+                               waypoint=self.action_mode == "waypoint", capacity=b + 32)
+        self._times = np.linspace(0.0, 1.0, self.path_samples) * c.delta      # the engine's sample times
+        self._rngs: list[np.random.Generator] | None = None
+        self.copy_seeds: np.ndarray | None = None
+        self._rows = np.full(b, -1)
+        self._k = np.zeros(b, dtype=np.int64)
+        self._xy, self._theta = np.zeros((b, u, 2)), np.zeros((b, u))
+        self._speed, self._zone = np.zeros((b, u)), np.zeros((b, u))
+        self._los = np.zeros((b, u), bool)
+        self._masks = np.ones((b, u, len(self.lattice) if self.action_mode == "waypoint" else 2), np.int8)
+        self._started = False
+        c = self.config
+        self._reach = reach_table(c.v_max, c.w_max, c.delta) if self.action_mode == "waypoint" else None
+
+    # ------------------------------------------------------------------ properties
+    @property
+    def max_cycles(self) -> int:
+        """Episode length bound in slots (validated on assignment); episodes also end at ``config.n_slots``."""
+        return self._max_cycles
+
+    @max_cycles.setter
+    def max_cycles(self, value) -> None:
+        self._max_cycles = _int_arg("max_cycles", value, 1)
+
+    @property
+    def episode_length(self) -> int:
+        return min(self._max_cycles, self.config.n_slots)
+
+    # ------------------------------------------------------------------ API
+    def reset(self, *, seed=None, options: dict | None = None):
+        """Reset every copy; returns observations and infos (class docstring, Seeding)."""
+        b = self.num_envs
+        if seed is not None:
+            self.copy_seeds = _copy_seeds(seed, b)
+            self._rngs = [gymnasium.utils.seeding.np_random(int(s))[0] for s in self.copy_seeds]
+        elif self._rngs is None:
+            self._rngs = [gymnasium.utils.seeding.np_random(None)[0] for _ in range(b)]
+        scene_seeds = _scene_seeds(options, b)
+        everyone = np.arange(b)
+        self._reset_copies(everyone, scene_seeds)
+        self._started = True
+        self._update_masks()
+        return self._observation(self._obs_rows()), self._reset_infos(everyone)
+
+    def step(self, actions):
+        """One slot in every copy; returns ``(obs, rewards, terminations, truncations, infos)`` (class docstring)."""
+        if not self._started:
+            raise RuntimeError("step() called before reset()")
+        c, pool, rows, k = self.config, self._pool, self._rows, self._k
+        xy0, th0 = self._xy, self._theta
+        q1, phi1 = pool.q[rows, k + 1], pool.phi[rows, k + 1]
+        if self.action_mode == "unicycle":
+            act = batch.unicycle_actions(actions, (self.num_envs, len(self.possible_agents)), self.possible_agents)
+            v, w = batch.unicycle_controls(act, c)
+            path, end_theta = batch.fly_unicycle(xy0, th0, v, w, self._times)
+            flagged = np.zeros(th0.shape, bool)
+        else:
+            idx = batch.waypoint_actions(actions, (self.num_envs, len(self.possible_agents)), len(self.lattice),
+                                         self.possible_agents)
+            flagged = np.take_along_axis(self._masks, idx[..., None], axis=-1)[..., 0] == 0
+            goals = batch.to_world_batch(self.lattice[idx], q1[:, :2], phi1)
+            path, end_theta, v, fallback = batch.fly_waypoints(xy0, th0, goals, c, self._times)
+            flagged |= fallback
+        end = path[..., -1, :].copy()
+        quant = moves_quantities(xy0, end, pool.q[rows, k], pool.phi[rows, k], q1, phi1, path, v * c.delta,
+                                 None, _CopyTerrains(pool, rows), c)
+        costs = batch.constraint_costs(quant, c)
+        terms = batch.reward_terms(quant, costs, c, self.reward_scale, self.penalties)
+        rewards = terms.sum(axis=0)
+        self._k = k + 1
+        self._xy, self._theta = end, np.mod(end_theta, 2 * math.pi)
+        self._speed, self._los, self._zone = quant.path_length / c.delta, quant.los, quant.zone_distance
+        term = (quant.separation_path < c.d_safe1).any(axis=1) & self.terminate_on_collision
+        trunc = (self._k >= self.episode_length) & ~term
+
+        infos = {"slot": np.repeat(self._k[:, None], len(self.possible_agents), axis=1), "los": quant.los,
+                 "in_zone": quant.in_zone, "infeasible": flagged, "kappa": quant.kappa, "g": quant.g,
+                 "v": self._speed, "separation": quant.separation_path,
+                 "terrain_clearance": quant.terrain_clearance}
+        infos.update(zip((f"reward_{t}" for t in _REWARD_TERMS), terms, strict=True))
+        infos["cost"] = costs.sum(axis=0)
+        infos.update(zip((f"cost_{n}" for n in _COSTS), costs, strict=True))
+        obs = self._obs_rows()
+        done = term | trunc
+        if done.any():
+            ended = np.flatnonzero(done)
+            infos = {key: infos[key].copy() for key in INFO_KEYS}
+            final_info = {key: val.copy() for key, val in infos.items()}
+            final_obs = obs.copy()
+            self._reset_copies(ended, None)
+            obs[ended] = self._obs_rows(ended)
+            for key, val in self._reset_infos(ended).items():
+                infos[key][ended] = val
+            infos.update(final_obs=final_obs, _final_obs=done.copy(), final_info=final_info, _final_info=done.copy())
+        self._update_masks()
+        u = len(self.possible_agents)
+        return (self._observation(obs), rewards, np.repeat(term[:, None], u, axis=1),
+                np.repeat(trunc[:, None], u, axis=1), infos)
+
+    def action_masks(self) -> np.ndarray:
+        """(B, U, L) int8 waypoint masks (1 = allowed); all ones (B, U, 2) in unicycle mode."""
+        return self._masks.copy()
+
+    def state(self) -> np.ndarray:
+        """(B, S) float32 global state, row b the parallel env's ``state()`` of copy b."""
+        if not self._started:
+            raise RuntimeError("state() called before reset()")
+        own = self._own_features()
+        shared = self._pool.blocks[self._rows, self._slots()]
+        shared[:, 2] = self._remaining()
+        return np.concatenate([own.reshape(self.num_envs, -1).astype(np.float32), shared], axis=1)
+
+    def close(self) -> None:
+        self._pool = None
+
+    # ------------------------------------------------------------------ internals
+    def _reset_copies(self, idx: np.ndarray, scene_seeds) -> None:
+        """Put copies ``idx`` at slot 0 of a new episode: scenes and starts drawn per copy (class docstring)."""
+        c, pool, u = self.config, self._pool, len(self.possible_agents)
+        xy, theta = np.empty((len(idx), u, 2)), np.empty((len(idx), u))
+        draw = self.random_starts or (self.scenario_spec == "random" and scene_seeds is None)
+        for n, j in enumerate(idx):               # each copy's own generator: the one per-copy step (Seeding)
+            rng, s = self._rngs[j], None if scene_seeds is None else int(scene_seeds[n])
+            if s is None and self.scenario_spec == "random":
+                s = int(rng.integers(self.scene_pool))
+            self._rows[j] = row = pool.row(pool.key(s), self._rows)
+            if draw:
+                xy[n], theta[n] = _pick_starts(c, *pool.start_candidates(row), rng, u, pool.cache(row).parts.name)
+            else:
+                sc = pool.cache(row).seeded_scenario()
+                xy[n], theta[n] = sc.uav_xy, sc.uav_theta
+        rows = self._rows[idx]
+        q, phi = pool.q[rows, 0], pool.phi[rows, 0]
+        self._xy[idx], self._theta[idx] = xy, np.mod(theta, 2 * math.pi)
+        self._k[idx], self._speed[idx] = 0, 0.0
+        self._los[idx] = pool.line_of_sight(rows, xy, c.altitude, q)
+        self._zone[idx] = zone_distance(xy, q[:, None, :2], phi[:, None], c.r1, c.r2, c.mu)
+
+    def _reset_infos(self, idx: np.ndarray) -> dict[str, np.ndarray]:
+        """Infos of copies ``idx`` at slot 0: no slot flown (0 for rewards, costs, motion), the starts' LoS, zone,
+        separation and clearance (the parallel env's reset infos)."""
+        u, xy = len(self.possible_agents), self._xy[idx]
+        out = {key: np.zeros((len(idx), u)) for key in INFO_KEYS}
+        out.update(slot=np.zeros((len(idx), u), np.int64), los=self._los[idx].copy(), in_zone=self._zone[idx] <= 0,
+                   infeasible=np.zeros((len(idx), u), bool), separation=nearest_teammate(xy),
+                   terrain_clearance=self._pool.terrain_clearance(self._rows[idx], xy, self.config.altitude))
+        return {key: out[key] for key in INFO_KEYS}
+
+    def _slots(self, idx=slice(None)) -> np.ndarray:
+        return np.minimum(self._k[idx], self._pool.q.shape[1] - 1)
+
+    def _remaining(self, idx=slice(None)) -> np.ndarray:
+        length = self.episode_length
+        return np.maximum(length - self._k[idx], 0) / length
+
+    def _own_features(self, idx=slice(None)) -> np.ndarray:
+        rows, ks = self._rows[idx], self._slots(idx)
+        return batch.own_features(self._xy[idx], self._theta[idx], self._pool.q[rows, ks], self._pool.phi[rows, ks],
+                                  self._speed[idx], self._los[idx], self._zone[idx], self.config)
+
+    def _obs_rows(self, idx=slice(None)) -> np.ndarray:
+        shared = self._pool.blocks[self._rows[idx], self._slots(idx)]
+        return batch.observations(self._own_features(idx), shared, self._remaining(idx), self._mates)
+
+    def _observation(self, rows: np.ndarray):
+        if self.dict_obs:
+            return {"observation": rows, "action_mask": self._masks.copy()}
+        return rows
+
+    def _update_masks(self) -> None:
+        if self.action_mode != "waypoint":
+            return
+        pool, rows, k1 = self._pool, self._rows, self._k + 1
+        self._masks = batch.action_masks(self._xy, self._theta, pool.q[rows, k1, :2], pool.phi[rows, k1],
+                                         self.lattice, pool.lattice_ok[rows, k1], self._reach)
+
+
+class _CopyTerrains:
+    """Each copy's terrain for one step, as :func:`~covert_env.metrics.moves_quantities` asks a batch terrain."""
+
+    def __init__(self, pool: ScenePool, rows: np.ndarray):
+        self._pool, self._rows = pool, rows
+        self.highest_points = pool.top[rows]
+
+    def line_of_sight(self, uav_xy, altitude, target_xyz) -> np.ndarray:
+        return self._pool.line_of_sight(self._rows, uav_xy, altitude, target_xyz.reshape(len(self._rows), 3))
+
+
+def _copy_seeds(seed, b: int) -> np.ndarray:
+    """Per-copy seeds: from ``np.random.SeedSequence(seed)`` for an int, as given for a sequence of b ints."""
+    if np.ndim(seed) == 0:
+        return np.random.SeedSequence(_int_arg("seed", seed, 0)).generate_state(b).astype(np.int64)
+    seeds = np.asarray([_int_arg("seed", s, 0) for s in seed], dtype=np.int64)
+    if seeds.shape != (b,):
+        raise ValueError(f"reset(seed=...) needs an int or {b} ints (one per copy), got {len(seeds)}")
+    return seeds
+
+
+def _scene_seeds(options: dict | None, b: int) -> np.ndarray | None:
+    """``options["scene_seed"]`` as b ints (None without it); any other option is an error."""
+    options = dict(options or {})
+    unknown = sorted(set(options) - {"scene_seed"})
+    if unknown:
+        raise ValueError(f"reset(): unknown option(s) {unknown}; the vector env knows 'scene_seed'")
+    seeds = options.get("scene_seed")
+    if seeds is None:
+        return None
+    arr = np.broadcast_to(np.asarray(seeds), (b,)) if np.ndim(seeds) == 0 else np.asarray(seeds)
+    if arr.shape != (b,) or arr.dtype.kind not in "iu":
+        raise ValueError(f"options['scene_seed'] must be an int or {b} ints, got {seeds!r}")
+    return arr
+
+
+def vector_env(num_envs: int = 1, **kwargs: Any) -> CovertSensingVectorEnv:
+    """``num_envs`` copies as one :class:`CovertSensingVectorEnv` (the parallel env's keyword arguments)."""
+    return CovertSensingVectorEnv(num_envs, **kwargs)
+

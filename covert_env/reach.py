@@ -1,0 +1,170 @@
+"""Which waypoints the turn-then-straight manoeuvre reaches in one slot, from a table in the UAV's frame.
+
+Whether :func:`~covert_env.dynamics.solve_manoeuvre` finds a manoeuvre depends only on the waypoint's position in
+the UAV's frame: ``a`` ahead and ``b = |lateral|`` to the side (the manoeuvre is mirror-symmetric). So the
+feasible set is one region of the (a, b) half-plane per (V_max, W_max, delta), tabulated here once on a grid of
+cells labelled *feasible*, *infeasible* or *near the boundary*. A query looks its cell up; only points in
+boundary cells are solved exactly (by ``solve_manoeuvre`` itself, on the same inputs), so the answer is exactly
+``solve_manoeuvre(...).feasible``, at a fraction of the root finding.
+
+A cell is labelled feasible or infeasible only when every grid node of the 3 x 3 cells around it agrees (and, on
+the coarse level, a finer check of the cell's centre and edge midpoints agrees too): the region's boundary is a few
+smooth curves (the largest admissible radius, the turning circle, the slot length), so no feature of it fits
+between the nodes of three cells. The table has two levels: coarse cells of V_max delta / 128 (0.39 m at the
+paper's 50 m) everywhere, then cells 8 times finer whose nodes are solved only near the coarse boundary cells, so
+about 1 % of the cells are boundary cells. Cells near the origin (where every boundary ray meets) and near the
+circle ``|g - p| = V_max delta`` (where ``solve_manoeuvre`` cuts exactly) are always boundary cells; points
+beyond the table are infeasible (farther than V_max delta). Tested against ``solve_manoeuvre`` on many random
+poses; building a table takes about a second, once per process and set of limits.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+
+from covert_env.dynamics import solve_manoeuvre
+
+__all__ = ["ReachTable", "reach_table"]
+
+INFEASIBLE, FEASIBLE, BOUNDARY = 0, 1, 2
+_CELLS = 128            # coarse cells per V_max delta: 0.39 m at the paper's 50 m
+_REFINE = 8             # fine cells per coarse cell, solved only in the coarse boundary band: 0.05 m
+
+
+class ReachTable:
+    """Labels of (a, b) cells in the UAV frame: ``INFEASIBLE``, ``FEASIBLE`` or ``BOUNDARY`` (solve exactly).
+
+    Built in two levels: coarse cells over the whole table, then cells ``refine`` times finer whose nodes are
+    solved only near the coarse boundary cells (elsewhere they take the coarse cell's label). Lookups use the
+    fine table.
+
+    Args:
+        v_max, w_max, delta: the manoeuvre's limits (as ``solve_manoeuvre``).
+        cells: coarse cells per ``v_max * delta``; refine: fine cells per coarse cell.
+    """
+
+    def __init__(self, v_max: float, w_max: float, delta: float, cells: int = _CELLS, refine: int = _REFINE):
+        self.v_max, self.w_max, self.delta = float(v_max), float(w_max), float(delta)
+        reach = self.v_max * self.delta
+        pad = 2
+        self.a0 = -(reach + pad * reach / cells)
+        na, nb = 2 * (cells + pad), cells + pad                       # coarse cells along a and b
+        h = reach / cells
+        coarse = self._labels(self._feasible_nodes(h, na, nb), h, check=True)
+        # Fine nodes: solved within one coarse cell of a coarse boundary cell, else the coarse label.
+        hf = h / refine
+        unsure = np.pad(coarse == BOUNDARY, 1)
+        unsure = (unsure[:-2, 1:-1] | unsure[2:, 1:-1] | unsure[1:-1, :-2] | unsure[1:-1, 2:] | unsure[:-2, :-2]
+                  | unsure[:-2, 2:] | unsure[2:, :-2] | unsure[2:, 2:] | unsure[1:-1, 1:-1])
+        ci = np.minimum(np.arange(na * refine + 1) // refine, na - 1)[:, None]
+        cj = np.minimum(np.arange(nb * refine + 1) // refine, nb - 1)[None, :]
+        node = coarse[ci, cj] == FEASIBLE
+        ii, jj = np.nonzero(unsure[ci, cj])
+        node[ii, jj] = self._feasible(self.a0 + ii * hf, jj * hf)
+        self.h = hf
+        self.shape = (na * refine, nb * refine)
+        self.labels = self._labels(node, hf, check=False)
+        self._flat = self.labels.reshape(-1)
+
+    def _feasible(self, a, b) -> np.ndarray:
+        m = solve_manoeuvre(np.zeros(2), 0.0, np.stack([a, b], axis=-1), v_max=self.v_max, w_max=self.w_max,
+                            delta=self.delta)
+        return np.asarray(m.feasible, bool)
+
+    def _feasible_nodes(self, h: float, na: int, nb: int) -> np.ndarray:
+        return self._feasible(*np.meshgrid(self.a0 + np.arange(na + 1) * h, np.arange(nb + 1) * h, indexing="ij"))
+
+    def _labels(self, node: np.ndarray, h: float, *, check: bool) -> np.ndarray:
+        """Cell labels from the feasibility of the (na+1, nb+1) nodes at spacing h (module docstring)."""
+        na, nb = node.shape[0] - 1, node.shape[1] - 1
+        # A cell is certain when the 4 x 4 nodes of the 3 x 3 cells around it agree.
+        lo = np.pad(node, 1, mode="edge").astype(np.int8)
+        win = np.lib.stride_tricks.sliding_window_view(lo, (4, 4))                     # (na, nb, 4, 4)
+        agree = (win.min(axis=(-1, -2)) == win.max(axis=(-1, -2)))[:na, :nb]
+        labels = np.where(agree, node[:na, :nb].astype(np.int8), BOUNDARY)
+        # The finer check: centres and edge midpoints of the certain cells.
+        for da, db in ((0.5, 0.5), (0.5, 0.0), (0.0, 0.5)) if check else ():
+            a, b = np.meshgrid(self.a0 + (np.arange(na) + da) * h, (np.arange(nb) + db) * h, indexing="ij")
+            bad = agree & (self._feasible(a, b) != (labels == FEASIBLE))
+            if bad.any():                                                              # never seen: be safe
+                grow = np.pad(bad, 1)
+                labels[(grow[:-2, 1:-1] | grow[2:, 1:-1] | grow[1:-1, :-2] | grow[1:-1, 2:] | bad)] = BOUNDARY
+        # Exact cuts of solve_manoeuvre: |g - p| in (MIN_GOAL_DISTANCE, V_max delta].
+        ca, cb = np.meshgrid(self.a0 + (np.arange(na) + 0.5) * h, (np.arange(nb) + 0.5) * h, indexing="ij")
+        dist = np.hypot(ca, cb)
+        reach = self.v_max * self.delta
+        labels[(np.abs(dist - reach) <= 2 * h) | (dist <= 2 * h)] = BOUNDARY
+        # The outer ring is infeasible (beyond V_max delta): clipped queries land there.
+        labels[0], labels[-1], labels[:, -1] = INFEASIBLE, INFEASIBLE, INFEASIBLE
+        return labels
+
+    def classify(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """Labels (int8) of points ``a`` ahead, ``b >= 0`` to the side (any shape); beyond the table INFEASIBLE."""
+        na, nb = self.shape
+        ia = np.clip(((a - self.a0) * (1.0 / self.h)).astype(np.int64), 0, na - 1)
+        ib = np.minimum((b * (1.0 / self.h)).astype(np.int64), nb - 1)
+        return self._flat[ia * nb + ib]
+
+    def reachable(self, xy: np.ndarray, theta: np.ndarray, q_xy: np.ndarray, phi: np.ndarray,
+                  offsets: np.ndarray) -> np.ndarray:
+        """(B, U, L) bool: ``solve_manoeuvre(xy[b, u], theta[b, u], goal[b, l], ...).feasible`` for poses ``xy``
+        (B, U, 2), ``theta`` (B, U) and the goals ``to_world(offsets, q_xy[b], phi[b])`` (offsets (L, 2), targets
+        q_xy (B, 2), phi (B,)): table lookups, then the exact solver on the points in boundary cells (their goals
+        computed exactly as :func:`~covert_env.zone.to_world` does, the only goals ever built in float64).
+
+        The lookup works in float32 table units (cells), relative to each copy's first goal so that the numbers
+        stay small: its rounding (well below a cell) is covered by the margin of a cell that certain cells keep."""
+        na, nb = self.shape
+        ct, st = np.cos(phi), np.sin(phi)
+        origin = _goals(q_xy, ct, st, offsets[0])                                             # (B, 2)
+        rel = (offsets - offsets[0]).astype(np.float32)
+        ct32, st32 = ct.astype(np.float32)[:, None], st.astype(np.float32)[:, None]
+        g = np.empty((len(phi), 3, len(offsets)), np.float32)                  # homogeneous goal coordinates
+        np.subtract(ct32 * rel[:, 0], st32 * rel[:, 1], out=g[:, 0])
+        np.add(st32 * rel[:, 0], ct32 * rel[:, 1], out=g[:, 1])
+        g[:, 2] = 1.0
+        p = (xy - origin[:, None]).astype(np.float32)                                         # (B, U, 2)
+        c, s = np.cos(theta).astype(np.float32) / self.h, np.sin(theta).astype(np.float32) / self.h
+        # Cell coordinates (a - a0) / h and lateral / h of every goal in every UAV's frame: one batched matmul
+        # with the translation in the third column.
+        rot = np.empty(theta.shape + (2, 3), np.float32)                                      # (B, U, 2, 3)
+        rot[..., 0, 0], rot[..., 0, 1], rot[..., 0, 2] = c, s, np.float32(-self.a0 / self.h) - (c * p[..., 0]
+                                                                                               + s * p[..., 1])
+        rot[..., 1, 0], rot[..., 1, 1], rot[..., 1, 2] = -s, c, s * p[..., 0] - c * p[..., 1]
+        cell = rot @ g[:, None]                                                                # (B, U, 2, L)
+        ia, ib = cell[:, :, 0], cell[:, :, 1]
+        np.abs(ib, out=ib)
+        np.clip(ia, 0, na - 1, out=ia)
+        np.minimum(ib, nb - 1, out=ib)
+        # The flat cell index floor(ia) nb + ib, truncated once. Float32 rounding may move a point near a cell's
+        # edge into the neighbouring cell: harmless, as a certain cell's 3 x 3 neighbourhood shares its label.
+        np.floor(ia, out=ia)
+        ia *= nb
+        ia += ib
+        lab = self._flat.take(ia.astype(np.intp))
+        out = lab == FEASIBLE
+        flat = np.flatnonzero(lab == BOUNDARY)
+        if len(flat):
+            bi, rest = np.divmod(flat, lab.shape[1] * lab.shape[2])
+            ui, li = np.divmod(rest, lab.shape[2])
+            goals = _goals(q_xy[bi], ct[bi], st[bi], offsets[li])
+            m = solve_manoeuvre(xy[bi, ui], theta[bi, ui], goals, v_max=self.v_max, w_max=self.w_max,
+                                delta=self.delta)
+            out[bi, ui, li] = m.feasible
+        return out
+
+
+def _goals(q_xy, c, s, offsets):
+    """``to_world(offsets, q_xy, phi)`` elementwise, with c, s = cos, sin(phi) given (the same arithmetic):
+    q_xy (..., 2), c, s (...), offsets (..., 2) broadcast together."""
+    x = q_xy[..., 0] + c * offsets[..., 0] - s * offsets[..., 1]
+    y = q_xy[..., 1] + s * offsets[..., 0] + c * offsets[..., 1]
+    return np.stack([x, y], axis=-1)
+
+
+@functools.lru_cache(maxsize=8)
+def reach_table(v_max: float, w_max: float, delta: float) -> ReachTable:
+    """The table for these limits, built once per process (about a second)."""
+    return ReachTable(v_max, w_max, delta)

@@ -1,0 +1,72 @@
+"""The reachability table gives exactly solve_manoeuvre's feasibility, on many random poses and waypoints."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from covert_env.config import Config
+from covert_env.dynamics import solve_manoeuvre
+from covert_env.reach import BOUNDARY, FEASIBLE, INFEASIBLE, ReachTable, reach_table
+from covert_env.zone import to_world, zone_lattice
+
+LIMITS = [(50.0, 3.0, 1.0), (30.0, 5.0, 1.0), (50.0, 1.0, 0.5)]   # W_max delta > pi: two roots behind the UAV
+
+
+def _exact(xy, theta, q, phi, offsets, limits):
+    goals = np.stack([to_world(offsets, q[b], phi[b]) for b in range(len(q))])            # (B, L, 2)
+    v, w, d = limits
+    return solve_manoeuvre(xy[:, :, None], theta[:, :, None], goals[:, None], v_max=v, w_max=w, delta=d).feasible
+
+
+@pytest.mark.parametrize("limits", LIMITS)
+def test_table_equals_solve_manoeuvre_on_random_poses(limits):
+    v, w, d = limits
+    table = reach_table(*limits)
+    rng = np.random.default_rng(7)
+    b, u, n = 400, 3, 150
+    q = rng.uniform(-3000, 3000, (b, 2))
+    phi = rng.uniform(-10, 10, b)
+    offsets = rng.uniform(-1.3 * v * d, 1.3 * v * d, (n, 2))
+    xy = q[:, None] + rng.uniform(-0.4 * v * d, 0.4 * v * d, (b, u, 2))
+    xy[:, 0] = to_world(offsets[:1], q, phi)[:, 0] + rng.normal(0, 1e-7, (b, 2))       # on top of a goal
+    theta = rng.uniform(-7, 7, (b, u))
+    got = table.reachable(xy, theta, q, phi, offsets)
+    want = _exact(xy, theta, q, phi, offsets, limits)
+    assert got.shape == want.shape and got.dtype == bool
+    assert np.array_equal(got, want), np.argwhere(got != want)[:5]
+    assert 0.01 < want.mean() < 0.95                       # both outcomes are exercised
+
+
+def test_table_equals_solve_manoeuvre_on_the_lattice():
+    c = Config()
+    lattice, table = zone_lattice(c), reach_table(c.v_max, c.w_max, c.delta)
+    rng = np.random.default_rng(2)
+    b = 300
+    q, phi = rng.uniform(-500, 500, (b, 2)), rng.uniform(0, 2 * np.pi, b)
+    nodes = np.stack([to_world(lattice, q[j], phi[j]) for j in range(b)])
+    xy = nodes[np.arange(b)[:, None], rng.integers(0, len(lattice), (b, 3))] + rng.normal(0, 15, (b, 3, 2))
+    theta = rng.uniform(0, 2 * np.pi, (b, 3))
+    assert np.array_equal(table.reachable(xy, theta, q, phi, lattice),
+                          _exact(xy, theta, q, phi, lattice, (c.v_max, c.w_max, c.delta)))
+
+
+def test_labels_are_mostly_certain_and_far_points_infeasible():
+    table = reach_table(50.0, 3.0, 1.0)
+    labels = table.labels
+    assert set(np.unique(labels).tolist()) == {INFEASIBLE, FEASIBLE, BOUNDARY}
+    assert (labels == BOUNDARY).mean() < 0.03              # few points need the exact solver
+    far = np.array([1e6, -1e6, 51.0, -51.0, 0.0])
+    assert (table.classify(far, np.abs(far[::-1]) + 60.0) == INFEASIBLE).all()
+    assert table.classify(np.array([25.0]), np.array([0.0]))[0] == FEASIBLE       # straight ahead, half speed
+    assert reach_table(50.0, 3.0, 1.0) is table            # built once per process
+
+
+def test_a_coarser_table_is_still_exact():
+    table = ReachTable(50.0, 3.0, 1.0, cells=32, refine=2)
+    rng = np.random.default_rng(4)
+    q, phi = rng.uniform(-100, 100, (200, 2)), rng.uniform(0, 7, 200)
+    offsets = rng.uniform(-60, 60, (100, 2))
+    xy, theta = q[:, None] + rng.uniform(-20, 20, (200, 2, 2)), rng.uniform(0, 7, (200, 2))
+    assert np.array_equal(table.reachable(xy, theta, q, phi, offsets),
+                          _exact(xy, theta, q, phi, offsets, (50.0, 3.0, 1.0)))
