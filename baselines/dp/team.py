@@ -126,7 +126,7 @@ class DPTeamPlanner:
         path = None
         if self.planner.check_path:
             f = np.linspace(0.0, 1.0, self.planner.path_samples)
-            path = np.stack([engine.track.position_between(engine.k + j, f) for j in range(len(phi_pred))])
+            path = engine.track.predict_between(engine.k, len(phi_pred), f)   # the prediction, not the truth
         return self.plan(engine.uav_xy, engine.uav_theta, tq, tp, target_path=path)
 
     def conflicts(self, plans) -> list[Conflict]:
