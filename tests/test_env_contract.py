@@ -3,8 +3,10 @@ for the action mask, PettingZoo's whole battery at its default arguments, max_cy
 
 from __future__ import annotations
 
+import functools
 import gc
 import weakref
+from types import SimpleNamespace
 
 import gymnasium as gym
 import numpy as np
@@ -127,11 +129,15 @@ def test_pettingzoo_battery_dict_obs_default_arguments():
     api_test(covert_env.env(n_uavs=3, action_mode="waypoint", dict_obs=True))
 
 
-def test_max_cycles_render_and_performance_default_arguments():
-    max_cycles_test(covert_sensing_v1)
-    for mode in MODES:
-        render_test(lambda render_mode=None, mode=mode: covert_env.env(action_mode=mode, render_mode=render_mode))
-    performance_benchmark(covert_env.env(n_uavs=3))
+@pytest.mark.parametrize("mode", MODES)
+@pytest.mark.parametrize("u", [1, 3])
+def test_max_cycles_render_and_performance_default_arguments(mode, u):
+    # max_cycles_test takes a module exposing env() and parallel_env(); this one fixes the mode and team size.
+    module = SimpleNamespace(env=functools.partial(covert_sensing_v1.env, action_mode=mode, n_uavs=u),
+                             parallel_env=functools.partial(covert_sensing_v1.parallel_env, action_mode=mode, n_uavs=u))
+    max_cycles_test(module)
+    render_test(lambda render_mode=None: covert_env.env(action_mode=mode, n_uavs=u, render_mode=render_mode))
+    performance_benchmark(covert_env.env(n_uavs=u, action_mode=mode))
 
 
 def test_max_cycles_validated_on_assignment_and_bounded_by_the_route():
@@ -211,8 +217,11 @@ def test_rss_flat_over_1000_envs():
     (dict(map_size=65), ValueError, r"map_size must be an integer in \[2, 64\]"),
     (dict(path_samples=10 ** 9), ValueError, r"path_samples must be an integer in \[2, 1000\]"),
     (dict(path_samples=1), ValueError, r"path_samples must be an integer in \[2, 1000\]"),
-    (dict(scene_pool=0), ValueError, "scene_pool must be an integer >= 1"),
+    (dict(scene_pool=0), ValueError, r"scene_pool must be an integer in \[1, 1000000\]"),
     (dict(scene_pool=1.5), TypeError, "scene_pool must be an integer"),
+    (dict(scene_pool=10 ** 30), ValueError, r"scene_pool must be an integer in \[1, 1000000\]"),
+    (dict(scene_pool=1_000_001), ValueError, r"scene_pool must be an integer in \[1, 1000000\]"),
+    (dict(scenario="paper", n_uavs=4), ValueError, r"scenario='paper' has starts for 3 UAVs, got n_uavs=4"),
     (dict(max_cycles="70"), TypeError, "max_cycles must be an integer"),
     (dict(reward_scale="100"), TypeError, "reward_scale must be a number"),
     (dict(reward_scale=float("nan")), ValueError, "reward_scale must be finite"),
@@ -242,11 +251,18 @@ def test_integer_like_arguments_accepted():
     ({"uav_0": True, "uav_1": np.zeros(2)}, TypeError, "action for uav_0 must be 2 numbers"),
     ({"uav_0": np.array([True, False]), "uav_1": np.zeros(2)}, TypeError, "action for uav_0 must be 2 numbers"),
     ({"uav_0": np.zeros(3), "uav_1": np.zeros(2)}, ValueError, r"action for uav_0 must have shape \(2,\)"),
+    ({"uav_0": [0.1, [0.2]], "uav_1": np.zeros(2)}, ValueError, r"action for uav_0 must have shape \(2,\)"),
+    ({"uav_0": np.zeros(2), "uav_1": [[0.1, 0.2]]}, ValueError, r"action for uav_1 must have shape \(2,\)"),
+    ({"uav_0": [0.5, -0.5], "uav_1": (0, 1)}, None, None),
     ({"uav_0": np.zeros(2), "uav_1": [0.0, np.nan]}, ValueError, "action for uav_1 must be finite"),
 ])
 def test_bad_unicycle_actions(actions, exc, pattern):
     env = covert_env.parallel_env(n_uavs=2, scenario="paper")
     env.reset(seed=0)
+    if exc is None:                             # plain lists and tuples of numbers are valid actions
+        env.step(actions)
+        assert np.allclose(env.engine.trajectory().max_speed[-1], [50 * (0.01 + 0.99 * 0.75), 50 * 0.505])
+        return
     with pytest.raises(exc, match=pattern):
         env.step(actions)
 
@@ -283,3 +299,122 @@ def test_v0_ids_fail_with_a_clear_message():
         with pytest.raises(RuntimeError, match=r"replaced by covert_sensing_v1.*reward_"):
             make(n_uavs=3)
     assert covert_env.covert_sensing_v1.parallel_env(n_uavs=2).metadata["name"] == "covert_sensing_v1"
+
+
+# ---------------------------------------------------------------------- costs against independent geometry
+def _one_uav_scene(building, start_xy):
+    from covert_env import Config, Scenario, Terrain
+
+    c = Config(n_uavs=1)
+    paper = Scenario.paper(c)
+    return Scenario(c, Terrain((building,)), paper.track, np.array([start_xy]), np.array([0.0]))
+
+
+def test_cost_terrain_fires_near_a_tall_pole():
+    from covert_env import Polytope
+
+    pole = Polytope.prism([[49, 59], [51, 59], [51, 61], [49, 61]], 75.0)       # 5 m below the UAVs
+    env = covert_env.parallel_env(scenario=_one_uav_scene(pole, (25.0, 60.0)))
+    _, infos = env.reset(seed=0)
+    assert infos["uav_0"]["cost_terrain"] == 0.0 and infos["uav_0"]["terrain_clearance"] > 10
+    # v = 25 m/s straight ahead ends the slot at (50, 60), beside the pole's top: eq. 3 violated.
+    a0 = 2 * (25 / 50 - 0.01) / 0.99 - 1
+    _, _, _, _, infos = env.step({"uav_0": np.array([a0, 0.0])})
+    top = pole.highest_point
+    expect = float(np.sqrt(((env.engine.uav_xy[0] - top[:2]) ** 2).sum() + (80 - top[2]) ** 2))
+    assert infos["uav_0"]["terrain_clearance"] == pytest.approx(expect) and expect < 10
+    assert infos["uav_0"]["cost_terrain"] == 1.0 and infos["uav_0"]["reward_terrain"] == -1.0
+
+
+def test_cost_los_fires_behind_a_wall():
+    from covert_env import Polytope
+
+    # A 75 m wall across the line from the UAV (50, 0, 80) to the target (x >= 120, 0, 1.5): at x = 105 the line
+    # of sight is below 30 m, so it is blocked (eq. 6); without the wall it is clear.
+    wall = Polytope.prism([[100, -15], [110, -15], [110, 15], [100, 15]], 75.0)
+    env = covert_env.parallel_env(scenario=_one_uav_scene(wall, (50.0, 0.0)))
+    _, infos = env.reset(seed=0)
+    assert infos["uav_0"]["los"] is False
+    _, _, _, _, infos = env.step({"uav_0": np.array([-0.96, 0.0])})
+    assert infos["uav_0"]["cost_los"] == 1.0 and infos["uav_0"]["reward_los"] == -1.0
+    open_env = covert_env.parallel_env(scenario=_one_uav_scene(
+        Polytope.prism([[100, 40], [110, 40], [110, 50], [100, 50]], 75.0), (50.0, 0.0)))
+    open_env.reset(seed=0)
+    _, _, _, _, infos = open_env.step({"uav_0": np.array([-0.96, 0.0])})
+    assert infos["uav_0"]["cost_los"] == 0.0
+
+
+# ---------------------------------------------------------------------- more boundaries
+def test_scenario_and_a_different_config_rejected():
+    from covert_env import Config, Scenario
+
+    sc = Scenario.paper(Config())
+    with pytest.raises(ValueError, match=r"config differs from scenario.config in \['altitude'"):
+        covert_env.parallel_env(config=Config(altitude=30.0, min_height=5), scenario=sc)
+    with pytest.raises(ValueError, match=r"config differs from scenario.config in \['v_max'\]"):
+        covert_env.parallel_env(config=Config(v_max=5.0), scenario=sc, n_uavs=3)
+    assert covert_env.parallel_env(config=Config(), scenario=sc).config == sc.config
+
+
+@pytest.mark.parametrize("options, exc, pattern", [
+    ({"scene_seed": 2.7}, TypeError, r"options\['scene_seed'\] must be an integer"),
+    ({"scene_seed": "5"}, TypeError, r"options\['scene_seed'\] must be an integer"),
+    ({"scene_seed": True}, TypeError, r"options\['scene_seed'\] must be an integer"),
+    ({"scene_seed": -1}, ValueError, r"options\['scene_seed'\] must be an integer >= 0"),
+    ([1], TypeError, r"reset\(options=...\) must be a dict"),
+])
+def test_bad_reset_options(options, exc, pattern):
+    env = covert_env.parallel_env(n_uavs=2)
+    with pytest.raises(exc, match=pattern):
+        env.reset(seed=0, options=options)
+
+
+def test_scene_seed_needs_random_scenes_and_unknown_options_warn():
+    with pytest.raises(ValueError, match="needs scenario='random'"):
+        covert_env.parallel_env(n_uavs=2, scenario="paper").reset(seed=0, options={"scene_seed": 3})
+    env = covert_env.parallel_env(n_uavs=2)
+    with pytest.warns(UserWarning, match=r"ignoring unknown option\(s\) \['scen_seed'\]"):
+        env.reset(seed=0, options={"scen_seed": 3})
+    env.reset(seed=0, options={"scene_seed": np.int64(3)})
+    assert env.scenario.name == "random-3"
+
+
+def test_max_cycles_attribute_on_aec_and_gymnasium_envs():
+    aec = covert_env.env(n_uavs=1)
+    with pytest.raises(ValueError, match="max_cycles must be an integer >= 1"):
+        aec.max_cycles = 0
+    aec.max_cycles = 3
+    aec.reset(seed=0)
+    steps = 0
+    for agent in aec.agent_iter():
+        _, _, term, trunc, _ = aec.last()
+        aec.step(None if term or trunc else aec.action_space(agent).sample())
+        steps += 1
+    assert steps == 3 + 1                       # three slots, then the final None step of the one agent
+
+    genv = gym.make("covert_env/CovertSensingWaypoint-v1")
+    with pytest.raises(TypeError, match="max_cycles must be an integer"):
+        genv.unwrapped.max_cycles = 2.5
+    genv.unwrapped.max_cycles = 2
+    genv.reset(seed=0)
+    mask = genv.unwrapped.action_masks()
+    _, _, _, trunc1, info0 = genv.step(int(np.flatnonzero(mask)[0]))
+    _, _, _, trunc2, info1 = genv.step(int(np.flatnonzero(genv.unwrapped.action_masks())[0]))
+    assert (trunc1, trunc2) == (False, True) and _signature(info0) == _signature(info1)
+
+
+def test_action_mask_before_reset_and_nested_waypoint_actions():
+    env = covert_env.parallel_env(n_uavs=1, action_mode="waypoint", scenario="paper")
+    with pytest.raises(RuntimeError, match="before reset"):
+        env.action_mask("uav_0")
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="unknown agent 'uav_9'"):
+        env.action_mask("uav_9")
+    with pytest.raises(ValueError, match="must be an integer in"):
+        env.step({"uav_0": np.array([[3]])})
+
+
+@pytest.mark.parametrize("bad", [True, 1.0, 2, "1"])
+def test_gymnasium_n_uavs_must_be_one(bad):
+    with pytest.raises(ValueError, match="flies one UAV"):
+        gym.make("covert_env/CovertSensing-v1", n_uavs=bad)

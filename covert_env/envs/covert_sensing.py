@@ -24,7 +24,7 @@ from covert_env.config import Config
 from covert_env.dynamics import solve_manoeuvre
 from covert_env.engine import Engine, step_engines
 from covert_env.metrics import nearest_teammate, terrain_clearance
-from covert_env.scenario import Scenario, _sample_starts
+from covert_env.scenario import PAPER_UAV_STARTS, Scenario, _sample_starts
 from covert_env.visibility import line_of_sight, line_of_sight_rows
 from covert_env.zone import in_feasible_zone, lattice_offsets, to_world, zone_distance, zone_lattice
 
@@ -39,6 +39,8 @@ OFFSET_CLIP = 5.0
 _REWARD_TERMS = ("path", "disguise", "los", "zone", "separation", "terrain")
 #: The constraints of the paper's problem (§2.4); ``infos[agent]["cost_<name>"]`` is 1.0 where the slot violated one.
 _COSTS = ("los", "zone", "separation", "terrain")
+#: Largest ``scene_pool``: training scene seeds 0 .. scene_pool-1 stay below the held-out seeds 1_000_000 + i.
+MAX_SCENE_POOL = 1_000_000
 #: Largest ``path_samples`` accepted: memory per step grows with it, and 1000 samples per 1 s slot is far past useful.
 MAX_PATH_SAMPLES = 1000
 
@@ -257,10 +259,16 @@ class CovertSensingParallelEnv(ParallelEnv):
 
     | key | constraint violated |
     |---|---|
-    | ``cost_los`` | LoS to the target blocked at the end of the slot (eqs. 6, 10) |
-    | ``cost_zone`` | outside the feasible flight zone at the end of the slot (eqs. 4-5) |
-    | ``cost_separation`` | closer than d_safe1 to a teammate at any sample of the slot (eq. 2) |
+    | ``cost_los`` | LoS to the (true) target blocked at the end of the slot (eq. 6; outside eq. 10's zone) |
+    | ``cost_zone`` | outside the feasible flight zone of the true target at the end of the slot (eq. 4, not eroded: |
+    | | eq. 5's erosion by r_u is the planner's margin that guarantees eq. 4) |
+    | ``cost_separation`` | closer than d_safe1 to a teammate at any of the ``path_samples`` of the slot (eq. 2) |
     | ``cost_terrain`` | closer than d_safe2 to a polytope's highest point at the end of the slot (eq. 3) |
+
+    LoS, zone and terrain are checked at slot times, as the paper's constraints are stated on the slot
+    positions; separation, which the engine samples anyway, along the path. (Terrain generated with the
+    default ``max_height`` keeps every top at least d_safe2 below the UAVs, so ``cost_terrain`` fires only on
+    terrain given by the user, e.g. a tall pole.)
 
     ## Infos
 
@@ -310,7 +318,8 @@ class CovertSensingParallelEnv(ParallelEnv):
     * ``dict_obs``: Dict observations carrying the action mask (waypoint mode only; Tianshou needs it).
     * ``reward_scale``, ``los_penalty``, ``zone_penalty``, ``separation_penalty``, ``terrain_penalty``.
     * ``terminate_on_collision``: end the episode when separation < d_safe1.
-    * ``scene_pool``: number of training scene seeds for ``scenario="random"`` (default 10000).
+    * ``scene_pool``: number of training scene seeds for ``scenario="random"`` (default 10000, at most
+      1_000_000 so that training scenes never include the held-out seeds 1_000_000 + i).
     * ``path_samples``: samples per slot for LoS/separation checks along the path (default 11, in [2, 1000]).
     * ``random_starts``: sample start poses from the env's RNG even for a fixed scenario.
 
@@ -349,11 +358,21 @@ class CovertSensingParallelEnv(ParallelEnv):
         if n_uavs is not None:
             cfg = cfg.replace(n_uavs=_int_arg("n_uavs", n_uavs, 1))
         if isinstance(scenario, Scenario):
-            cfg = scenario.config if n_uavs is None else cfg
+            # A scenario's terrain and track were built and checked under its own config: flying them under
+            # another one (altitude, speeds, zone) would mix two worlds, so the two must agree.
+            if config is not None:
+                differ = [f for f in cfg.to_dict() if f != "n_uavs" and getattr(cfg, f) != getattr(scenario.config, f)]
+                if differ:
+                    raise ValueError(f"config differs from scenario.config in {differ}; build the Scenario with this "
+                                     "config, or pass only the scenario")
+            cfg = scenario.config if n_uavs is None else scenario.config.replace(n_uavs=cfg.n_uavs)
             if scenario.n_uavs != cfg.n_uavs:
                 raise ValueError(f"n_uavs={cfg.n_uavs} but the scenario has {scenario.n_uavs} UAVs")
         elif not isinstance(scenario, str) or scenario not in ("random", "paper"):
             raise ValueError(f"scenario must be 'random', 'paper' or a Scenario, got {scenario!r}")
+        elif scenario == "paper" and cfg.n_uavs > len(PAPER_UAV_STARTS):
+            raise ValueError(f"scenario='paper' has starts for {len(PAPER_UAV_STARTS)} UAVs, got n_uavs={cfg.n_uavs}; "
+                             "use scenario='random' or a Scenario with your own starts")
         if not isinstance(action_mode, str) or action_mode not in ACTION_MODES:
             raise ValueError(f"action_mode must be one of {ACTION_MODES}, got {action_mode!r}")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
@@ -362,7 +381,8 @@ class CovertSensingParallelEnv(ParallelEnv):
         if _bool_arg("dict_obs", dict_obs) and action_mode != "waypoint":
             raise ValueError("dict_obs=True needs action_mode='waypoint': the unicycle mode has no action mask")
         map_size = _int_arg("map_size", map_size, 2, 64)
-        scene_pool = _int_arg("scene_pool", scene_pool, 1)
+        # Training scene seeds stay below the held-out ones (1_000_000 + i) that evaluations fly.
+        scene_pool = _int_arg("scene_pool", scene_pool, 1, MAX_SCENE_POOL)
         path_samples = _int_arg("path_samples", path_samples, 2, MAX_PATH_SAMPLES)
         reward_scale = _number_arg("reward_scale", reward_scale)
         if reward_scale <= 0:
@@ -461,7 +481,7 @@ class CovertSensingParallelEnv(ParallelEnv):
     # ------------------------------------------------------------------ scenes
     def _scene(self, scene_seed: int | None) -> _SceneCache:
         spec = self.scenario_spec
-        key = id(spec) if isinstance(spec, Scenario) else ("paper" if spec == "paper" else int(scene_seed))
+        key = id(spec) if isinstance(spec, Scenario) else ("paper" if spec == "paper" else scene_seed)
         if key not in self._scenes:
             if isinstance(spec, Scenario):
                 sc = spec
@@ -480,12 +500,11 @@ class CovertSensingParallelEnv(ParallelEnv):
     def reset(self, seed: int | None = None, options: dict | None = None):
         if seed is not None:
             self._np_random, _ = gymnasium.utils.seeding.np_random(seed)
-        options = options or {}
-        scene_seed = options.get("scene_seed")
+        scene_seed = self._scene_seed_option(options)
         if scene_seed is None and self.scenario_spec == "random":
             scene_seed = int(self._np_random.integers(self.scene_pool))
         self._cache = self._scene(scene_seed)
-        if self.random_starts or (self.scenario_spec == "random" and options.get("scene_seed") is None):
+        if self.random_starts or (self.scenario_spec == "random" and (options or {}).get("scene_seed") is None):
             self.scenario = self._cache.with_starts(self._np_random, self.config.n_uavs)
         else:
             self.scenario = self._cache.seeded_scenario()
@@ -502,6 +521,24 @@ class CovertSensingParallelEnv(ParallelEnv):
         if self.render_mode == "human":
             self.render()
         return obs, infos
+
+    def _scene_seed_option(self, options) -> int | None:
+        """``options["scene_seed"]`` checked: an integer >= 0, and only for ``scenario="random"``. Other keys are
+        warned about, not rejected: PettingZoo's API test passes ``options={"options": 1}`` to every env."""
+        if options is None:
+            return None
+        if not isinstance(options, Mapping):
+            raise TypeError(f"reset(options=...) must be a dict or None, got {type(options).__name__}")
+        unknown = sorted(set(options) - {"scene_seed"}, key=str)
+        if unknown:
+            gymnasium.logger.warn(f"reset(options=...): ignoring unknown option(s) {unknown}; known: ['scene_seed']")
+        if options.get("scene_seed") is None:
+            return None
+        if self.scenario_spec != "random":
+            flown = "the paper scenario" if self.scenario_spec == "paper" else "a given Scenario"
+            raise ValueError("reset(options={'scene_seed': ...}) picks a random scene: it needs scenario='random', "
+                             f"but this env flies {flown}")
+        return _int_arg("options['scene_seed']", options["scene_seed"], 0)
 
     def step(self, actions: dict[str, Any]):
         if self.engine is None or not self.agents:
@@ -538,22 +575,8 @@ class CovertSensingParallelEnv(ParallelEnv):
                 act = np.asarray(vals)
             except ValueError:               # ragged: the loop below names the culprit
                 pass
-        elif all(np.asarray(v).dtype.kind in "iuf" for v in vals):
-            try:
-                act = np.asarray(vals, dtype=float)
-            except ValueError:
-                pass
         if act is None or act.shape != (len(self.agents), 2) or not np.isfinite(act).all():
-            for a in self.agents:   # find the culprit for the message
-                one = np.asarray(actions[a])
-                if one.dtype.kind not in "iuf":
-                    raise TypeError(f"action for {a} must be 2 numbers (speed, turn rate) in [-1, 1], "
-                                    f"got {actions[a]!r}")
-                if one.shape != (2,):
-                    raise ValueError(f"action for {a} must have shape (2,), got {np.shape(actions[a])}")
-                if not np.all(np.isfinite(one)):
-                    raise ValueError(f"action for {a} must be finite, got {one.tolist()}")
-            raise ValueError(f"actions must be arrays of shape (2,), got {[np.shape(actions[a]) for a in self.agents]}")
+            act = np.array([_one_unicycle_action(a, actions[a]) for a in self.agents])
         return act.astype(float, copy=False)
 
     def _waypoint_indices(self, actions: dict[str, Any]) -> np.ndarray:
@@ -562,7 +585,8 @@ class CovertSensingParallelEnv(ParallelEnv):
         idx = np.empty(len(self.agents), dtype=int)
         for i, a in enumerate(self.agents):
             act = np.asarray(actions[a])
-            val = float(act.reshape(-1)[0]) if act.size == 1 and act.dtype.kind in "iuf" else math.nan
+            val = float(act.reshape(-1)[0]) if act.size == 1 and act.ndim <= 1 and act.dtype.kind in "iuf" \
+                else math.nan
             if not (math.isfinite(val) and val == int(val) and 0 <= val < n):
                 raise ValueError(f"action for {a} must be an integer in [0, {n - 1}], got {actions[a]!r}")
             idx[i] = int(val)
@@ -591,6 +615,10 @@ class CovertSensingParallelEnv(ParallelEnv):
         """The waypoint action mask of ``agent`` (int8, 1 = allowed); all ones in unicycle mode."""
         if self.action_mode != "waypoint":
             return np.ones(2, np.int8)
+        if self._masks is None:
+            raise RuntimeError("action_mask() called before reset(): the mask depends on the UAVs' poses")
+        if agent not in self._index:
+            raise ValueError(f"action_mask(): unknown agent {agent!r}; the agents are {self.possible_agents}")
         return self._masks[self._index[agent]].copy()
 
     def _lockstep_key(self) -> tuple:
@@ -763,7 +791,7 @@ def _lattice_indices(actions, n: int, u: int, n_nodes: int, agents) -> np.ndarra
     if a.shape != (n, u):
         raise ValueError(f"step_copies: waypoint actions must have shape ({n}, {u}), got {a.shape}")
     ok = np.zeros(a.shape, bool)
-    if a.dtype.kind in "biuf":
+    if a.dtype.kind in "iuf":
         with np.errstate(invalid="ignore"):
             ok = np.isfinite(a) & (a == np.round(a)) & (a >= 0) & (a < n_nodes)
     if not ok.all():
@@ -883,6 +911,22 @@ def _observations(envs) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------- argument checks
+def _one_unicycle_action(agent: str, value) -> np.ndarray:
+    """One agent's Box action as a (2,) array, or a clear error naming the agent (the slow path of
+    :meth:`CovertSensingParallelEnv._unicycle_actions`: anything that is not already a numeric array)."""
+    try:
+        one = np.asarray(value)
+    except ValueError:                       # ragged nesting such as [0.1, [0.2]]
+        raise ValueError(f"action for {agent} must have shape (2,), got {value!r}") from None
+    if one.dtype.kind not in "iuf":
+        raise TypeError(f"action for {agent} must be 2 numbers (speed, turn rate) in [-1, 1], got {value!r}")
+    if one.shape != (2,):
+        raise ValueError(f"action for {agent} must have shape (2,), got {one.shape}")
+    if not np.all(np.isfinite(one)):
+        raise ValueError(f"action for {agent} must be finite, got {one.tolist()}")
+    return one
+
+
 def _int_arg(name: str, value, low: int, high: int | None = None) -> int:
     """``value`` as an int in [low, high]: ints and numpy integers pass; bools, floats and strings are rejected
     (a fractional team size or map side has no meaning, and silent truncation hides the mistake)."""
@@ -923,8 +967,20 @@ def parallel_env(**kwargs) -> CovertSensingParallelEnv:
     return CovertSensingParallelEnv(**kwargs)
 
 
+class _AECEnv(wrappers.OrderEnforcingWrapper):
+    """PettingZoo's order-enforcing AEC wrapper, with ``max_cycles`` forwarded to the parallel env (set on a plain
+    wrapper, the attribute would land on the wrapper and silently change nothing)."""
+
+    @property
+    def max_cycles(self) -> int:
+        return self.unwrapped.max_cycles
+
+    @max_cycles.setter
+    def max_cycles(self, value) -> None:
+        self.unwrapped.max_cycles = value
+
+
 def env(**kwargs):
     """The AEC version, through ``parallel_to_aec`` with PettingZoo's order-enforcing wrappers."""
-    aec = parallel_to_aec(parallel_env(**kwargs))
-    return wrappers.OrderEnforcingWrapper(aec)
+    return _AECEnv(parallel_to_aec(parallel_env(**kwargs)))
 

@@ -94,7 +94,8 @@ class CovertSensingEnv(gym.Env):
 
     def __init__(self, render_mode: str | None = None, **kwargs: Any):
         # Arguments that contradict this env are errors, not silently dropped: a user passing n_uavs=3 wants a team.
-        if kwargs.get("n_uavs", 1) != 1:
+        if "n_uavs" in kwargs and (isinstance(kwargs["n_uavs"], (bool, np.bool_)) or kwargs["n_uavs"] != 1
+                                   or not isinstance(kwargs["n_uavs"], (int, np.integer))):
             raise ValueError(f"{type(self).__name__} flies one UAV, got n_uavs={kwargs['n_uavs']!r}; for a team "
                              "use covert_env.parallel_env(n_uavs=U) (PettingZoo)")
         if kwargs.get("action_mode", self._action_mode) != self._action_mode:
@@ -111,6 +112,15 @@ class CovertSensingEnv(gym.Env):
     @property
     def config(self):
         return self.par.config
+
+    @property
+    def max_cycles(self) -> int:
+        """Episode length bound in slots (validated on assignment; the route ends at ``config.n_slots``)."""
+        return self.par.max_cycles
+
+    @max_cycles.setter
+    def max_cycles(self, value) -> None:
+        self.par.max_cycles = value
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
