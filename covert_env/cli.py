@@ -108,6 +108,11 @@ def load_config(path: str | Path, flag: str = "--config"):
         raise UsageError(f"{flag} {path}: {exc}") from None
 
 
+def _not_empty(path: str | Path, flag: str) -> None:
+    if isinstance(path, str) and not path.strip():
+        raise UsageError(f"{flag} {path!r}: empty; give a path")
+
+
 def _file_in_the_way(p: Path) -> Path | None:
     """The first existing non-folder among ``p``'s parents (then ``p`` cannot be created), or None."""
     for q in reversed(p.absolute().parents):
@@ -118,7 +123,9 @@ def _file_in_the_way(p: Path) -> Path | None:
 
 def output_dir(path: str | Path, flag: str = "--out", create: bool = True) -> Path:
     """Create the output folder ``path`` (and its parents); a file in the way is a :class:`UsageError`.
-    ``create=False`` only checks (so that later checks can fail before anything is written)."""
+    ``create=False`` only checks (so that later checks can fail before anything is written). An empty or blank
+    ``path`` is a :class:`UsageError` (``Path('')`` would be the current folder)."""
+    _not_empty(path, flag)
     p = Path(path)
     if p.exists() and not p.is_dir():
         raise UsageError(f"{flag} {path}: is a file, expected a folder (it is created if missing)")
@@ -136,6 +143,7 @@ def output_dir(path: str | Path, flag: str = "--out", create: bool = True) -> Pa
 
 def output_file(path: str | Path, flag: str = "--out", suffixes: tuple[str, ...] | None = None) -> Path:
     """Check that ``path`` can be written as a file (its folder is created); ``suffixes`` lists allowed ones."""
+    _not_empty(path, flag)
     p = Path(path)
     if p.is_dir():
         raise UsageError(f"{flag} {path}: is a folder, expected a file name")

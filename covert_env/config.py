@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-__all__ = ["Config", "MAX_HORIZON", "MAX_LATTICE", "MAX_N_POLYTOPES", "MAX_N_SLOTS", "MAX_N_UAVS", "MAX_ROUTE",
+__all__ = ["Config", "polytope_capacity", "scene_road_length", "MAX_HORIZON", "MAX_LATTICE", "MAX_N_POLYTOPES", "MAX_N_SLOTS", "MAX_N_UAVS", "MAX_ROUTE",
            "MAX_VERTICES"]
 
 
@@ -82,9 +82,12 @@ class Config:
     n_polytopes: int = 16
     """Number M of terrain polytopes (buildings, hills) the random generator places; 0 <= M <= 10_000.
 
-    They are placed by rejection sampling beside the route, so the route must have room for them: at
-    the default sizes the 960 m default road took 80 on every seed tried, while about 100 and more fail
-    (ValueError naming this field) on some or all seeds."""
+    They are placed by rejection sampling beside the route, so the route must have room for them. Config
+    rejects a count whose expected footprint area (with the 2 m streets between footprints) exceeds the
+    area of the band they can occupy beside the scenario road (:func:`polytope_capacity`; about 165 at
+    the defaults). Below that bound the generator may still fail: at the default sizes the 960 m default
+    road took 80 on every seed tried, while about 100 and more fail (ValueError at reset naming this
+    field) on some or all seeds."""
     min_vertices: int = 4
     """(decided) Fewest base vertices of a random polytope; 3 <= min_vertices <= max_vertices."""
     max_vertices: int = 8
@@ -96,7 +99,8 @@ class Config:
     min_radius: float = 8.0
     """(decided) Smallest footprint circumradius (m) of a random polytope."""
     max_radius: float = 22.0
-    """(decided) Largest footprint circumradius (m) of a random polytope."""
+    """(decided) Largest footprint circumradius (m) of a random polytope; at most half the scenario
+    road's length (:func:`scene_road_length`: a footprint no longer than the road it lines)."""
     road_clearance: float = 6.0
     """(decided) Minimum horizontal gap (m) between a footprint and the road centreline."""
     road_max_offset: float = 45.0
@@ -179,10 +183,13 @@ class Config:
 
         Every problem is a ValueError naming the file (or "JSON text") and the problem: invalid or
         too deeply nested JSON, bytes that are not UTF-8, a top level that is not an object, unknown
-        or invalid fields. A missing file is a FileNotFoundError naming the path.
+        or invalid fields, an empty or blank string. A missing file is a FileNotFoundError naming the path.
         """
         if not isinstance(text_or_path, (str, Path)):
             raise TypeError(f"Config.from_json takes a JSON string or a path, got {type(text_or_path).__name__}")
+        if isinstance(text_or_path, str) and not text_or_path.strip():
+            raise ValueError(f"Config.from_json: empty JSON text or path {text_or_path!r}; give a JSON object "
+                             f"('{{\"n_uavs\": 2}}') or the path of a JSON file")
         if isinstance(text_or_path, str) and text_or_path.lstrip()[:1] in ("{", "["):
             where, data = "Config JSON text", parse_json(text_or_path, "Config JSON text")
         else:
@@ -318,6 +325,7 @@ def _validate(c: Config) -> None:
         raise ValueError(f"Config.h_min must be None or in (target_height={c.target_height:g}, "
                          f"altitude={c.altitude:g}), got {c.h_min!r}")
     _check_sizes(c)
+    _check_terrain(c)
     _check_zone(c)
 
 
@@ -334,6 +342,56 @@ def _check_sizes(c: Config) -> None:
         raise ValueError(f"Config: the waypoint lattice would have {size:.4g} nodes (r1={c.r1:g}, r2={c.r2:g}, "
                          f"mu={c.mu:g}, grid_step={c.grid_step:g}), more than {MAX_LATTICE}; increase grid_step "
                          f"or reduce r2 or mu")
+
+
+#: Road the scenario constructors lay before the target's start and after its last slot (m).
+SCENE_ROAD_LEAD_IN = 140.0
+SCENE_ROAD_TAIL = 60.0
+
+
+def scene_road_length(c: Config) -> float:
+    """Length (m) of the road of :meth:`Scenario.paper` / :meth:`Scenario.random`: a lead-in, the
+    target's route ``target_speed * delta * (n_slots + horizon + 1)`` and a tail (960 m by default)."""
+    return SCENE_ROAD_LEAD_IN + c.target_speed * c.delta * (c.n_slots + c.horizon + 1) + SCENE_ROAD_TAIL
+
+
+def polytope_capacity(c: Config, road_length: float | None = None) -> float:
+    """An upper estimate of how many random polytopes fit beside a road (default: the scenario road).
+
+    Every random footprint lies within ``rho = max(road_max_offset, road_clearance + 2 max_radius)`` of
+    the centreline and at least ``road_clearance`` from it, so all of them lie in a band of area at most
+    ``2 (rho - road_clearance) L + pi rho^2``. Each takes, on average, its area (a k-gon inscribed in an
+    ellipse of semi-axes r and 0.8 r, k and r uniform in their ranges) plus a 1 m margin (half the 2 m
+    street to its neighbours). The band's area over that mean is the estimate: more cannot fit; the
+    generator's rejection sampling fills well under it (about half reliably, see ``n_polytopes``)."""
+    length = scene_road_length(c) if road_length is None else road_length
+    rho = max(c.road_max_offset, c.road_clearance + 2 * c.max_radius)
+    band = 2 * (rho - c.road_clearance) * length + math.pi * rho * rho
+    ks = range(c.min_vertices, c.max_vertices + 1)
+    area_k = sum(k / 2 * math.sin(2 * math.pi / k) for k in ks) / len(ks)       # k-gon in a unit circle
+    perim_k = sum(2 * k * math.sin(math.pi / k) for k in ks) / len(ks)
+    lo, hi = c.min_radius, c.max_radius
+    r1 = (lo + hi) / 2
+    r2 = (lo * lo + lo * hi + hi * hi) / 3                                      # E[r^2], r ~ U(lo, hi)
+    mean = 0.8 * area_k * r2 + 0.9 * perim_k * r1 * 1.0 + math.pi * 1.0
+    return band / mean
+
+
+def _check_terrain(c: Config) -> None:
+    """The random terrain must fit beside the scenario road (see ``max_radius`` and ``n_polytopes``)."""
+    length = scene_road_length(c)
+    if c.max_radius > length / 2:
+        raise ValueError(f"Config.max_radius must be <= half the scenario road's length ({length:g} m: lead-in, "
+                         f"route and tail) = {length / 2:g} m, got {c.max_radius!r}; random footprints line the "
+                         f"road, one larger than it leaves no room for the others")
+    if c.n_polytopes:
+        cap = polytope_capacity(c, length)
+        if c.n_polytopes > cap:
+            raise ValueError(f"Config.n_polytopes={c.n_polytopes} cannot fit beside the {length:g} m scenario road: "
+                             f"the band within road_max_offset / road_clearance + 2 max_radius of it holds at most "
+                             f"about {int(cap)} footprints of radius {c.min_radius:g}-{c.max_radius:g} m (and the "
+                             f"generator reliably places about half that); reduce n_polytopes or max_radius, or "
+                             f"raise road_max_offset")
 
 
 def _check_zone(c: Config) -> None:

@@ -22,29 +22,37 @@ import math
 
 import numpy as np
 
+from covert_env.config import MAX_N_UAVS
 from covert_env.dynamics import solve_manoeuvre, unicycle_step
 from covert_env.metrics import SlotQuantities, moves_quantities
 from covert_env.scenario import Scenario
 from covert_env.trajectory import Trajectory
 from covert_env.visibility import TerrainStack
 
-__all__ = ["Engine", "step_engines"]
+__all__ = ["Engine", "MAX_PATH_SAMPLES", "step_engines"]
 
 
 class Engine:
     """Advance a :class:`Scenario` slot by slot and record the episode.
 
     Args:
-        scenario: the world and the start poses.
+        scenario: the world and the start poses (a :class:`Scenario`; TypeError otherwise).
         path_samples: samples per slot along each path (endpoints included), used for LoS and
-            separation checks between slot times.
-        path_los: whether :meth:`step`'s quantities include LoS along the path (environments turn it
+            separation checks between slot times: an integer in [2, 1000] (``MAX_PATH_SAMPLES``).
+        path_los: a bool, whether :meth:`step`'s quantities include LoS along the path (environments turn it
             off for speed; the episode metrics compute it from the trajectory in any case).
     """
 
     def __init__(self, scenario: Scenario, path_samples: int = 11, path_los: bool = True):
-        if path_samples < 2:
-            raise ValueError(f"Engine.path_samples must be >= 2, got {path_samples}")
+        if not isinstance(scenario, Scenario):
+            raise TypeError(f"Engine: scenario must be a Scenario (e.g. Scenario.paper() or Scenario.random(seed)), "
+                            f"got {_short(scenario)} ({type(scenario).__name__})")
+        if (isinstance(path_samples, bool) or not isinstance(path_samples, (int, np.integer))
+                or not 2 <= path_samples <= MAX_PATH_SAMPLES):
+            raise ValueError(f"Engine.path_samples must be an integer in [2, {MAX_PATH_SAMPLES}], got "
+                             f"{_short(path_samples)} ({type(path_samples).__name__})")
+        if not isinstance(path_los, (bool, np.bool_)):
+            raise TypeError(f"Engine.path_los must be a bool, got {_short(path_los)} ({type(path_los).__name__})")
         self.scenario = scenario
         self.config = scenario.config
         self.terrain = scenario.terrain
@@ -56,11 +64,22 @@ class Engine:
 
     # ------------------------------------------------------------------ state
     def reset(self, uav_xy=None, uav_theta=None) -> None:
-        """Put the target at slot 0 and the UAVs at ``uav_xy``/``uav_theta`` (default: the scenario's)."""
-        xy = self.scenario.uav_xy if uav_xy is None else np.asarray(uav_xy, dtype=float).reshape(-1, 2)
-        th = self.scenario.uav_theta if uav_theta is None else np.asarray(uav_theta, dtype=float).reshape(-1)
+        """Put the target at slot 0 and the UAVs at ``uav_xy``/``uav_theta`` (default: the scenario's).
+
+        ``uav_xy``: (U, 2) finite positions, ``uav_theta``: (U,) finite headings (rad); ValueError otherwise."""
+        try:
+            xy = self.scenario.uav_xy if uav_xy is None else np.asarray(uav_xy, dtype=float).reshape(-1, 2)
+            th = self.scenario.uav_theta if uav_theta is None else np.asarray(uav_theta, dtype=float).reshape(-1)
+        except (TypeError, ValueError):
+            raise ValueError(f"Engine.reset: uav_xy must be a (U, 2) array of numbers and uav_theta a (U,) array, "
+                             f"got {_short(uav_xy)} and {_short(uav_theta)}") from None
         if len(xy) != len(th):
-            raise ValueError(f"Engine.reset: {len(xy)} positions but {len(th)} headings")
+            raise ValueError(f"Engine.reset: {len(xy)} positions (uav_xy) but {len(th)} headings (uav_theta)")
+        if not (np.isfinite(xy).all() and np.isfinite(th).all()):
+            raise ValueError(f"Engine.reset: uav_xy positions and uav_theta headings must be finite (no NaN or inf), "
+                             f"got {_short(xy.tolist())} and {_short(th.tolist())}")
+        if not 1 <= len(xy) <= MAX_N_UAVS:
+            raise ValueError(f"Engine.reset: the team must have 1 to {MAX_N_UAVS} UAVs, got {len(xy)}")
         self.k = 0
         self.uav_xy = xy.copy()
         self.uav_theta = np.mod(th, 2 * math.pi)
@@ -107,11 +126,27 @@ class Engine:
         """
         u = self.n_uavs
 
-        def one(a, shape, dtype=float):
-            return None if a is None else np.asarray(a, dtype=dtype).reshape((1,) + shape)
+        def one(a, shape, name, dtype=float):
+            if a is None:
+                return None
+            try:
+                arr = np.asarray(a)
+                ok = arr.dtype.kind in ("biuf" if dtype is bool else "iuf")     # no strings, no bools as numbers
+            except (TypeError, ValueError):
+                ok = False
+            if not ok:
+                raise TypeError(f"Engine.step: {name} must be a {_shape_text(shape)} array of numbers (U = {u} UAVs), "
+                                f"got {_short(a)} ({type(a).__name__})")
+            # The size and the last axis must match: a (3, 2) array reshaped from (2, 3) would scramble UAVs.
+            if arr.size != math.prod(shape) or (len(shape) == 2 and arr.shape[-1:] != (2,)):
+                raise ValueError(f"Engine.step: {name} must have shape {_shape_text(shape)} (U = {u} UAVs), "
+                                 f"got shape {arr.shape}")
+            return arr.astype(dtype, copy=False).reshape((1,) + shape)
 
-        return step_engines([self], unicycle=one(unicycle, (u, 2)), waypoints=one(waypoints, (u, 2)),
-                            decision_time=one(decision_time, (u,)), infeasible=one(infeasible, (u,), bool))
+        return step_engines([self], unicycle=one(unicycle, (u, 2), "unicycle"),
+                            waypoints=one(waypoints, (u, 2), "waypoints"),
+                            decision_time=one(decision_time, (u,), "decision_time"),
+                            infeasible=one(infeasible, (u,), "infeasible", bool))
 
     def _record(self, path, end_theta, v, w, flagged, decision_time) -> None:
         self._path.append(path)
@@ -150,6 +185,20 @@ class Engine:
     def last_quantities(self) -> SlotQuantities:
         """Quantities of the slot just flown (arrays of shape (1, U))."""
         return _last_quantities([self])
+
+
+#: Most samples per slot along a path (Engine's path_samples): every slot stores (U, path_samples, 2) points.
+MAX_PATH_SAMPLES = 1000
+
+
+def _short(v) -> str:
+    import reprlib
+
+    return reprlib.repr(v)
+
+
+def _shape_text(shape) -> str:
+    return "(U, 2)" if len(shape) == 2 else "(U,)"
 
 
 def _check_unicycle(ctl: np.ndarray, c) -> None:

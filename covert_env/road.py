@@ -223,10 +223,21 @@ class TargetTrack:
     def constant(cls, road: Road, speed: float, n_slots: int, *, delta: float = 1.0, z: float = 1.5,
                  s0: float = 0.0) -> TargetTrack:
         """A target at constant ``speed`` for ``n_slots`` slots."""
-        if isinstance(n_slots, bool) or not isinstance(n_slots, (int, np.integer)) or n_slots < 1:
-            raise ValueError(f"TargetTrack.constant: n_slots must be an integer >= 1, got {n_slots!r}")
-        if _bad_real(speed):
+        from covert_env.config import MAX_N_SLOTS, MAX_ROUTE
+
+        # The bounds of Config: n_slots + horizon + 1 slots of at most MAX_N_SLOTS + MAX_HORIZON + 1, over a
+        # route of at most MAX_ROUTE metres (the arrays are per slot; a typo must not be a MemoryError).
+        most = 2 * MAX_N_SLOTS
+        if isinstance(n_slots, bool) or not isinstance(n_slots, (int, np.integer)) or not 1 <= n_slots <= most:
+            raise ValueError(f"TargetTrack.constant: n_slots must be an integer >= 1 and <= {most}, got {_short(n_slots)}")
+        if _bad_real(speed) or speed < 0:
             raise ValueError(f"TargetTrack.constant: speed must be a finite number >= 0 (m/s), got {speed!r}")
+        if _bad_real(delta) or not delta > 0:
+            raise ValueError(f"TargetTrack.constant: delta must be a finite number > 0 (s), got {delta!r}")
+        if speed * delta * n_slots > MAX_ROUTE:
+            raise ValueError(f"TargetTrack.constant: the route speed * delta * n_slots = {speed:g} * {delta:g} * "
+                             f"{int(n_slots)} = {speed * delta * n_slots:.4g} m exceeds {MAX_ROUTE:g} m; use fewer "
+                             f"slots or a lower speed")
         return cls(road, np.full(int(n_slots), float(speed)), delta=delta, z=z, s0=s0)
 
     def with_speed_noise(self, bound: float, seed=None) -> TargetTrack:

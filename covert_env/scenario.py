@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from covert_env.config import Config
+from covert_env.config import SCENE_ROAD_LEAD_IN, SCENE_ROAD_TAIL, Config
 from covert_env.road import Road, TargetTrack
 from covert_env.terrain import Terrain
 from covert_env.zone import to_world
@@ -27,7 +27,7 @@ PAPER_SEED = 2024
 #: Where the target is at slot 0 in the paper scenario.
 PAPER_TARGET_START = (120.0, 0.0)
 #: Road driven before the target's start (m): buildings there cast shadows on the first zones.
-_ROAD_LEAD_IN = 140.0
+_ROAD_LEAD_IN = SCENE_ROAD_LEAD_IN
 
 
 @dataclass(frozen=True, eq=False)
@@ -46,6 +46,12 @@ class Scenario:
             bounded speed noise (a hand-built track is taken as given).
         uav_xy: (U, 2) start positions; uav_theta: (U,) start headings (rad).
         name: a label for logs and figures.
+
+    The team size is ``U = len(uav_xy)`` (:attr:`n_uavs`), 1 <= U <= 64; it may differ from
+    ``config.n_uavs``, which is only the default team of the constructors (``Scenario.paper(n_uavs=1)``
+    with the default config is the paper's 1-UAV experiment) and of the environments. The engine and
+    the planners fly ``U`` UAVs; an environment built from a scenario requires ``U == config.n_uavs``
+    (it sizes its agents and spaces from the config) and says so.
     """
 
     config: Config
@@ -93,7 +99,7 @@ class Scenario:
         c = config
         travel = c.target_speed * c.delta * (c.n_slots + c.horizon + 1)
         road_start = np.asarray(start, float) - _ROAD_LEAD_IN * np.array([math.cos(heading), math.sin(heading)])
-        road = Road.random(seed, length=_ROAD_LEAD_IN + travel + 60.0, start=road_start, heading=heading,
+        road = Road.random(seed, length=_ROAD_LEAD_IN + travel + SCENE_ROAD_TAIL, start=road_start, heading=heading,
                            straight_start=_ROAD_LEAD_IN + 30.0)
         track = TargetTrack.constant(road, c.target_speed, c.n_slots + c.horizon + 1, delta=c.delta,
                                      z=c.target_height, s0=_ROAD_LEAD_IN)
@@ -109,8 +115,9 @@ class Scenario:
         The paper's map is not published; ours is the seeded random generator's output with the
         paper's M = 16, along a road whose first 170 m are straight so the paper's starts are in the zone.
         """
-        c = config or Config()
+        c = _check_config(config, "Scenario.paper")
         u = c.n_uavs if n_uavs is None else n_uavs
+        _check_team(u, "Scenario.paper")
         if not 1 <= u <= len(PAPER_UAV_STARTS):
             raise ValueError(f"Scenario.paper: n_uavs must be in [1, {len(PAPER_UAV_STARTS)}], got {u}")
         road, track = cls._road_and_track(c, PAPER_SEED)
@@ -125,8 +132,12 @@ class Scenario:
         Starts are distinct grid nodes of the eroded zone at slot 0 with clear LoS, at least
         ``2 d_safe1`` apart, with headings drawn uniformly (with the fallbacks of :meth:`sample_starts`
         when shadows leave too little room).
+
+        ``seed`` is an integer >= 0 (a numpy integer too); ``config`` a :class:`Config` or None (a dict
+        is refused: build it with ``Config.from_dict``, which names unknown fields).
         """
-        c = config or Config()
+        _check_seed(seed, "Scenario.random")
+        c = _check_config(config, "Scenario.random")
         u = c.n_uavs if n_uavs is None else n_uavs
         _check_team(u, "Scenario.random")
         terrain, track, rng = cls._random_world(seed, c)
@@ -143,8 +154,11 @@ class Scenario:
         terrain = Terrain.random(seed=rng, road=road, config=config)
         return terrain, track, rng
 
-    def sample_starts(self, rng: np.random.Generator, n_uavs: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def sample_starts(self, rng: np.random.Generator | int, n_uavs: int | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Random start poses on the waypoint lattice at slot 0. Returns (xy (U, 2), theta (U,)).
+
+        ``rng`` is a numpy Generator (advanced by the draws) or an integer seed >= 0
+        (``np.random.default_rng(rng)``); anything else is a TypeError naming ``rng``.
 
         Always: distinct lattice nodes of the eroded zone (eq. 5) at slot 0, pairwise at least
         ``d_safe1`` apart (eq. 2), headings uniform in [0, 2 pi). Placement tries, in order:
@@ -161,6 +175,12 @@ class Scenario:
 
         So starts may be in shadow (fallbacks 2-4) only when the scene leaves no other choice.
         """
+        if not isinstance(rng, np.random.Generator):
+            if isinstance(rng, bool) or not isinstance(rng, (int, np.integer)):
+                raise TypeError(f"Scenario.sample_starts: rng must be a numpy Generator (np.random.default_rng(seed)) "
+                                f"or an integer seed >= 0, got {_short(rng)} ({type(rng).__name__})")
+            _check_seed(rng, "Scenario.sample_starts", "rng")
+            rng = np.random.default_rng(rng)
         u = self.n_uavs if n_uavs is None else n_uavs
         _check_team(u, "Scenario.sample_starts")
         return _sample_starts(self.config, self.terrain, self.track, rng, u, self.name)
@@ -212,6 +232,29 @@ def _noise_generator(seed) -> np.random.Generator:
     """The target's speed-noise generator of a scene: a child of the scene seed's SeedSequence, so it
     is reproducible and independent of the draws of road, terrain and starts."""
     return np.random.default_rng(np.random.SeedSequence(seed).spawn(1)[0])
+
+
+def _short(v) -> str:
+    import reprlib
+
+    return reprlib.repr(v)
+
+
+def _check_seed(seed, where: str, name: str = "seed") -> None:
+    """A scene seed: an integer >= 0 (numpy integers too; bools, floats and strings are refused)."""
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"{where}: {name} must be an integer >= 0, got {_short(seed)} ({type(seed).__name__})")
+
+
+def _check_config(config, where: str) -> Config:
+    """``config`` or the default Config; anything but a Config or None is a TypeError naming it."""
+    if config is None:
+        return Config()
+    if not isinstance(config, Config):
+        hint = "; build it with Config.from_dict(...)" if isinstance(config, dict) else ""
+        raise TypeError(f"{where}: config must be a Config or None, got {_short(config)} "
+                        f"({type(config).__name__}){hint}")
+    return config
 
 
 def _check_team(u, where: str) -> None:

@@ -37,6 +37,12 @@ from covert_env.road import Road
 
 __all__ = ["Polytope", "Terrain"]
 
+def _short(v) -> str:
+    import reprlib
+
+    return reprlib.repr(v)
+
+
 _AREA_TOL = 1e-6
 """Footprints whose intersection has more area than this (m^2) overlap; touching is allowed."""
 
@@ -49,6 +55,15 @@ def _check_polytope(base, top, base_name: str = "base",
     Raises ValueError whose message starts with ``base_name`` / ``top_name`` (the caller adds the
     polytope's or feature's label).
     """
+    for name, v in ((base_name, base), (top_name, top)):
+        # np.array(..., dtype=float) would parse strings ('10' -> 10.0) and take bools: numbers only.
+        try:
+            kind = np.asarray(v).dtype.kind
+        except (TypeError, ValueError):
+            kind = "O"
+        if kind not in "iuf":
+            raise ValueError(f"{name} must be an array of numbers (int or float), got {_short(v)}"
+                             + (" (strings: convert them with float first)" if kind in "US" else ""))
     try:
         b = np.array(base, dtype=float)
         t = np.array(top, dtype=float)
@@ -642,6 +657,11 @@ class Terrain:
         Errors name the file: FileNotFoundError if it is missing, ValueError for bytes that are not
         UTF-8, invalid or too deeply nested JSON, and everything :meth:`from_geojson` rejects.
         """
+        if not isinstance(path, (str, Path)):
+            raise TypeError(f"Terrain.load: path must be a str or pathlib.Path naming a GeoJSON file, got "
+                            f"{_short(path)} ({type(path).__name__}); for a dict use Terrain.from_geojson")
+        if not str(path).strip():
+            raise ValueError("Terrain.load: path is empty; give the GeoJSON file's path")
         obj = read_json(path, "Terrain file")
         try:
             return cls.from_geojson(obj, altitude=altitude)

@@ -353,7 +353,7 @@ ROAD_CASES = {
     "track s0 string": (lambda: TargetTrack(_road(), [1.0], s0="0"),
                         ValueError, r"TargetTrack\.s0 must be a finite number \(m\), got '0'"),
     "constant n_slots fractional": (lambda: TargetTrack.constant(_road(), 10.0, 2.5), ValueError,
-                                    r"TargetTrack\.constant: n_slots must be an integer >= 1, got 2\.5"),
+                                    r"TargetTrack\.constant: n_slots must be an integer >= 1 and <= 20000, got 2\.5"),
     "constant speed string": (lambda: TargetTrack.constant(_road(), "10", 5), ValueError,
                               r"TargetTrack\.constant: speed must be a finite number >= 0 \(m/s\), got '10'"),
 }
@@ -470,3 +470,130 @@ def test_rtree_overlap_check_matches_the_pairwise_definition(seed):
     order = rng.permutation(len(polys))
     polys = [polys[k] for k in order]
     assert _first_overlap(polys) == _brute_first_overlap(polys)
+
+
+# ----------------------------------------------------------------------------- issue 10 survey, second pass
+def _engine():
+    from covert_env.engine import Engine
+
+    return Engine(Scenario.paper(Config(n_slots=10)))
+
+
+BOUNDARY_CASES = {
+    "max_radius larger than the road": (lambda: Config(max_radius=1e12), ValueError,
+                                        r"Config\.max_radius must be <= half the scenario road's length \(960 m"),
+    "n_polytopes beyond the band's area": (lambda: Config(n_polytopes=300), ValueError,
+                                           r"Config\.n_polytopes=300 cannot fit beside the 960 m scenario road"),
+    "from_json empty": (lambda: Config.from_json(""), ValueError, r"empty JSON text or path ''"),
+    "from_json blank": (lambda: Config.from_json("   "), ValueError, r"empty JSON text or path '   '"),
+    "random seed negative": (lambda: Scenario.random(-1), ValueError,
+                             r"Scenario\.random: seed must be an integer >= 0, got -1"),
+    "random seed string": (lambda: Scenario.random("a"), ValueError, r"Scenario\.random: seed .* got 'a' \(str\)"),
+    "random seed float": (lambda: Scenario.random(2.5), ValueError, r"Scenario\.random: seed .* got 2\.5 \(float\)"),
+    "random config string": (lambda: Scenario.random(0, "abc"), TypeError,
+                             r"Scenario\.random: config must be a Config or None, got 'abc'"),
+    "random config dict": (lambda: Scenario.random(0, {"n_uavs": 2}), TypeError,
+                           r"config must be a Config or None, got .*\(dict\); build it with Config\.from_dict"),
+    "paper n_uavs fractional": (lambda: Scenario.paper(n_uavs=2.5), ValueError,
+                                r"Scenario\.paper: n_uavs must be an integer .* got 2\.5"),
+    "paper n_uavs string": (lambda: Scenario.paper(n_uavs="2"), ValueError,
+                            r"Scenario\.paper: n_uavs must be an integer .* got '2'"),
+    "paper config string": (lambda: Scenario.paper("abc"), TypeError,
+                            r"Scenario\.paper: config must be a Config or None, got 'abc'"),
+    "sample_starts rng string": (lambda: Scenario.paper(Config(n_slots=10)).sample_starts("x"), TypeError,
+                                 r"sample_starts: rng must be a numpy Generator .* or an integer seed >= 0, got 'x'"),
+    "polytope string coordinates": (lambda: Polytope([["0", "0"], ["10", "0"], ["10", "10"], ["0", "10"]],
+                                                     [[0, 0, 20], [10, 0, 20], [10, 10, 20], [0, 10, 20]]),
+                                    ValueError, r"Polytope: base must be an array of numbers .* convert them"),
+    "polytope bool top": (lambda: Polytope(SQUARE, [[True] * 3] * 4), ValueError,
+                          r"Polytope: top must be an array of numbers"),
+    "terrain load None": (lambda: Terrain.load(None), TypeError, r"Terrain\.load: path must be a str or pathlib\.Path"),
+    "terrain load int": (lambda: Terrain.load(5), TypeError, r"Terrain\.load: path .* got 5 \(int\)"),
+    "terrain load empty": (lambda: Terrain.load(""), ValueError, r"Terrain\.load: path is empty"),
+    "engine scenario string": (lambda: __import__("covert_env.engine").engine.Engine("abc"), TypeError,
+                               r"Engine: scenario must be a Scenario .* got 'abc' \(str\)"),
+    "engine scenario None": (lambda: __import__("covert_env.engine").engine.Engine(None), TypeError,
+                             r"Engine: scenario must be a Scenario"),
+    "track n_slots huge": (lambda: TargetTrack.constant(Road.random(0), 10.0, 10**9), ValueError,
+                           r"TargetTrack\.constant: n_slots must be an integer >= 1 and <= 20000, got 1000000000"),
+    "track route too long": (lambda: TargetTrack.constant(Road.random(0), 1e6, 100), ValueError,
+                             r"TargetTrack\.constant: the route .* exceeds 200000 m"),
+}
+
+
+@pytest.mark.parametrize("make, exc, pattern", BOUNDARY_CASES.values(), ids=BOUNDARY_CASES.keys())
+def test_boundaries_reject(make, exc, pattern):
+    with pytest.raises(exc, match=pattern):
+        make()
+
+
+@pytest.mark.parametrize("value", [2.5, "11", None, 10**9, 1, True])
+def test_engine_path_samples_is_an_integer_in_range(value):
+    from covert_env.engine import Engine
+
+    with pytest.raises(ValueError, match=r"Engine\.path_samples must be an integer in \[2, 1000\], got"):
+        Engine(Scenario.paper(Config(n_slots=10)), path_samples=value)
+
+
+ENGINE_STEP_CASES = {
+    "unicycle (2, 2) for 3 UAVs": (dict(unicycle=np.ones((2, 2))), ValueError,
+                                   r"unicycle must have shape \(U, 2\) \(U = 3 UAVs\), got shape \(2, 2\)"),
+    "unicycle (2, 3)": (dict(unicycle=np.full((2, 3), 10.0)), ValueError, r"unicycle must have shape \(U, 2\)"),
+    "unicycle string": (dict(unicycle="fast"), TypeError, r"unicycle must be a \(U, 2\) array of numbers .* 'fast'"),
+    "unicycle string numbers": (dict(unicycle=[["10", "0"]] * 3), TypeError, r"unicycle must be a \(U, 2\) array"),
+    "waypoints (3,)": (dict(waypoints=np.zeros(3)), ValueError, r"waypoints must have shape \(U, 2\) .* \(3,\)"),
+    "waypoints ragged": (dict(waypoints=[[0.0, 1.0], [2.0]]), TypeError, r"waypoints must be a \(U, 2\) array"),
+    "decision_time wrong size": (dict(unicycle=np.tile([[10.0, 0.0]], (3, 1)), decision_time=[1.0]), ValueError,
+                                 r"decision_time must have shape \(U,\)"),
+}
+
+
+@pytest.mark.parametrize("kwargs, exc, pattern", ENGINE_STEP_CASES.values(), ids=ENGINE_STEP_CASES.keys())
+def test_engine_step_rejects(kwargs, exc, pattern):
+    e = _engine()
+    with pytest.raises(exc, match=pattern):
+        e.step(**kwargs)
+    assert e.k == 0
+
+
+@pytest.mark.parametrize("xy, theta, pattern", [
+    (np.full((3, 2), np.nan), np.zeros(3), r"uav_xy positions and uav_theta headings must be finite"),
+    (np.zeros((3, 2)), [0.0, np.inf, 0.0], r"must be finite"),
+    (np.zeros((2, 2)), np.zeros(3), r"2 positions \(uav_xy\) but 3 headings \(uav_theta\)"),
+    ("abc", np.zeros(3), r"uav_xy must be a \(U, 2\) array of numbers"),
+], ids=["nan positions", "inf heading", "count mismatch", "string"])
+def test_engine_reset_rejects(xy, theta, pattern):
+    with pytest.raises(ValueError, match=pattern):
+        _engine().reset(xy, theta)
+
+
+def test_engine_accepts_a_flat_single_uav_and_numpy_counts():
+    from covert_env.engine import Engine
+
+    e = Engine(Scenario.paper(Config(n_slots=10), n_uavs=1), path_samples=np.int64(5))
+    e.step(unicycle=[10.0, 0.0])
+    assert e.k == 1 and e.path_samples == 5
+
+
+def test_sample_starts_takes_an_int_seed_like_its_generator():
+    p = Scenario.paper(Config(n_slots=10))
+    a = p.sample_starts(5)
+    b = p.sample_starts(np.random.default_rng(5))
+    np.testing.assert_array_equal(a[0], b[0])
+    np.testing.assert_array_equal(a[1], b[1])
+
+
+def test_scenario_team_may_differ_from_the_config_default():
+    """Documented rule: a scenario's team is len(uav_xy); config.n_uavs is only the constructors' default."""
+    from covert_env.engine import Engine
+
+    p = Scenario.paper(Config(n_slots=10))
+    sc = Scenario(p.config, p.terrain, p.track, p.uav_xy[:2], p.uav_theta[:2])
+    assert sc.n_uavs == 2 and sc.config.n_uavs == 3
+    assert Engine(sc).n_uavs == 2
+
+
+@pytest.mark.parametrize("kwargs", [dict(), dict(n_polytopes=150), dict(max_radius=480.0),
+                                    dict(d_safe1=20.0, n_polytopes=30, max_radius=30.0), dict(n_slots=1, horizon=1)])
+def test_terrain_feasibility_checks_keep_workable_configs(kwargs):
+    Config(**kwargs)

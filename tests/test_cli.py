@@ -184,6 +184,10 @@ def _user_error_cases(tmp: Path) -> dict[str, tuple[list[str], str]]:
         "evaluate zero episodes": (["evaluate", "--episodes", "0"], "--episodes"),
         "evaluate zero uavs": (["evaluate", "--n-uavs", "0"], "--n-uavs: must be an integer >= 1"),
         "evaluate negative seed offset": (["evaluate", "--seed-offset", "-1"], "--seed-offset"),
+        "scene empty out": (["scene", "--out", ""], "--out '': empty; give a path"),
+        "reproduce empty out": (["reproduce", "--quick", "--out", ""], "--out '': empty; give a path"),
+        "reproduce blank out": (["reproduce", "--quick", "--out", "  "], "--out '  ': empty"),
+        "evaluate empty out": (["evaluate", "--policies", "random", "--out", ""], "--out '': empty; give a path"),
     }
 
 
@@ -336,3 +340,16 @@ def test_every_numeric_training_flag_is_range_checked(script, capsys):
                 parse_args(module.Args, [flag, "nan"])
             capsys.readouterr()
     assert parse_args(module.Args, []) == module.Args()     # the defaults are in range
+
+
+def test_evaluate_sb3_file_that_is_not_a_model_is_one_line(error_dir, capsys, monkeypatch):
+    pytest.importorskip("stable_baselines3")
+    monkeypatch.chdir(error_dir)
+    with pytest.raises(SystemExit) as exc:
+        main(["evaluate", "--policies", "sb3:a_file", "--episodes", "1", "--n-uavs", "1", "--no-progress",
+              "--out", "o"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.splitlines() if "error:" in ln]
+    assert len(lines) == 1 and "Traceback" not in err, err
+    assert "--policies: sb3:a_file: a_file is not a loadable PPO model" in lines[0], lines[0]
