@@ -17,8 +17,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-__all__ = ["Config", "polytope_capacity", "scene_road_length", "MAX_HORIZON", "MAX_LATTICE", "MAX_N_POLYTOPES", "MAX_N_SLOTS", "MAX_N_UAVS", "MAX_ROUTE",
-           "MAX_VERTICES"]
+__all__ = ["Config", "polytope_capacity", "scene_road_length", "MAX_HORIZON", "MAX_LATTICE", "MAX_N_POLYTOPES",
+           "MAX_N_SLOTS", "MAX_N_UAVS", "MAX_ROUTE", "MAX_VERTICES", "MAX_WEIGHT"]
 
 
 @dataclass(frozen=True)
@@ -53,9 +53,9 @@ class Config:
 
     # --- objective (eqs. 11-18) ------------------------------------------------------------
     eta: float = 55.0
-    """Weight eta of the angle change in the disguise measure kappa (eq. 11)."""
+    """Weight eta of the angle change in the disguise measure kappa (eq. 11); 0 < eta <= 1e6."""
     lam: float = 10.0
-    """Weight lambda of disguise against path length in the stage cost g (eqs. 16-18)."""
+    """Weight lambda of disguise against path length in the stage cost g (eqs. 16-18); 0 < lambda <= 1e6."""
 
     # --- safety (eqs. 2-3) -----------------------------------------------------------------
     d_safe1: float = 5.0
@@ -245,6 +245,8 @@ MAX_HORIZON = 1_000
 MAX_N_SLOTS = 10_000
 MAX_N_POLYTOPES = 10_000
 MAX_VERTICES = 64
+#: Largest weights eta and lambda of the cost (eqs. 11, 18).
+MAX_WEIGHT = 1e6
 MAX_ROUTE = 200_000.0
 """Longest target route (m), ``target_speed * delta * (n_slots + horizon + 1)``: the road is sampled
 every 2 m, so this bounds its arrays (and the terrain generator's search along it)."""
@@ -298,6 +300,10 @@ def _validate(c: Config) -> None:
     for name in _NON_NEGATIVE:
         if getattr(c, name) < 0:
             raise ValueError(f"Config.{name} must be >= 0, got {getattr(c, name)!r}")
+    for name in ("eta", "lam"):
+        # The stage cost multiplies them (lambda * eta * |d alpha|): beyond this it overflows to inf.
+        if getattr(c, name) > MAX_WEIGHT:
+            raise ValueError(f"Config.{name} must be <= {MAX_WEIGHT:g}, got {getattr(c, name)!r}")
     if not 0 < c.mu < 2 * math.pi:
         raise ValueError(f"Config.mu must lie in (0, 2*pi), got {c.mu!r}")
     if c.r1 >= c.r2:

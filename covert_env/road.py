@@ -229,7 +229,8 @@ class TargetTrack:
         # route of at most MAX_ROUTE metres (the arrays are per slot; a typo must not be a MemoryError).
         most = 2 * MAX_N_SLOTS
         if isinstance(n_slots, bool) or not isinstance(n_slots, (int, np.integer)) or not 1 <= n_slots <= most:
-            raise ValueError(f"TargetTrack.constant: n_slots must be an integer >= 1 and <= {most}, got {_short(n_slots)}")
+            raise ValueError(f"TargetTrack.constant: n_slots must be an integer >= 1 and <= {most}, "
+                             f"got {_short(n_slots)}")
         if _bad_real(speed) or speed < 0:
             raise ValueError(f"TargetTrack.constant: speed must be a finite number >= 0 (m/s), got {speed!r}")
         if _bad_real(delta) or not delta > 0:

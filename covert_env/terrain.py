@@ -48,6 +48,10 @@ _AREA_TOL = 1e-6
 
 
 # ---------------------------------------------------------------------------------- validation
+#: Most vertices a polytope's base (footprint) may have; validation is quadratic in it (generator: <= 64).
+MAX_FOOTPRINT_VERTICES = 1024
+
+
 def _check_polytope(base, top, base_name: str = "base",
                     top_name: str = "top") -> tuple[np.ndarray, np.ndarray]:
     """Validate a (base, top) pair; return float copies with the base counter-clockwise.
@@ -74,6 +78,11 @@ def _check_polytope(base, top, base_name: str = "base",
     n = len(b)
     if n < 3:
         raise ValueError(f"{base_name} must have at least 3 vertices, got {n}")
+    if n > MAX_FOOTPRINT_VERTICES:
+        # The convexity and face checks are quadratic in the vertex count: bound it so that a file with a
+        # finely traced footprint fails here, not as a MemoryError.
+        raise ValueError(f"{base_name} has {n} vertices, more than {MAX_FOOTPRINT_VERTICES}; simplify the footprint "
+                         "(e.g. shapely's simplify) before loading it")
     bad = ~np.isfinite(b).all(axis=1)
     if bad.any():
         j = int(np.argmax(bad))

@@ -597,3 +597,17 @@ def test_scenario_team_may_differ_from_the_config_default():
                                     dict(d_safe1=20.0, n_polytopes=30, max_radius=30.0), dict(n_slots=1, horizon=1)])
 def test_terrain_feasibility_checks_keep_workable_configs(kwargs):
     Config(**kwargs)
+
+
+def test_footprint_vertex_bound_fails_fast_in_a_file(tmp_path):
+    from covert_env.terrain import MAX_FOOTPRINT_VERTICES
+
+    n = 200_000
+    ring = [[100 * math.cos(2 * math.pi * k / n), 100 * math.sin(2 * math.pi * k / n)] for k in range(n)]
+    ring.append(ring[0])
+    path = tmp_path / "big.geojson"
+    path.write_text(json.dumps({"type": "FeatureCollection", "features": [{
+        "type": "Feature", "properties": {"height": 20},
+        "geometry": {"type": "Polygon", "coordinates": [ring]}}]}))
+    with pytest.raises(ValueError, match=rf"{n} vertices, more than {MAX_FOOTPRINT_VERTICES}; simplify"):
+        Terrain.load(path, altitude=80.0)

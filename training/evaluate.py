@@ -171,8 +171,8 @@ def load_sb3(path: str | Path) -> SB3Policy:
         model = cls.load(str(model_path), device="cpu")
     except (ValueError, KeyError, OSError, EOFError) as exc:    # not a zip, or a zip that is not an SB3 model
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise UsageError(f"sb3:{path}: {model_path} is not a loadable {cls_name} model ({first.removeprefix('Error: ')})") \
-            from None
+        reason = first.removeprefix("Error: ")
+        raise UsageError(f"sb3:{path}: {model_path} is not a loadable {cls_name} model ({reason})") from None
     if norm is not None and norm.obs_mean.shape != model.observation_space.shape:
         raise UsageError(f"{vn_path}: statistics of observations of shape {norm.obs_mean.shape}, but {model_path} "
                          f"takes observations of shape {model.observation_space.shape}")

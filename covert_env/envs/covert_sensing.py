@@ -385,8 +385,8 @@ class CovertSensingParallelEnv(ParallelEnv):
         scene_pool = _int_arg("scene_pool", scene_pool, 1, MAX_SCENE_POOL)
         path_samples = _int_arg("path_samples", path_samples, 2, MAX_PATH_SAMPLES)
         reward_scale = _number_arg("reward_scale", reward_scale)
-        if reward_scale <= 0:
-            raise ValueError(f"reward_scale must be a finite number > 0, got {reward_scale!r}")
+        if not 1e-6 <= reward_scale <= 1e12:     # outside, rewards over- or underflow (eq. 18 / reward_scale)
+            raise ValueError(f"reward_scale must be a finite number in [1e-06, 1e+12], got {reward_scale!r}")
         penalties = {"los": los_penalty, "zone": zone_penalty, "separation": separation_penalty,
                      "terrain": terrain_penalty}
         for key, val in penalties.items():
