@@ -109,10 +109,16 @@ def _check_rllib(ns):
 
 def _check_torchrl(ns):
     td, env = ns["td"], ns["env"]
-    pz = env._env
+    if hasattr(env, "vector_env"):                       # the native env (B copies): td is [B, T]
+        pz = env.vector_env
+        assert td.batch_size == (pz.num_envs, 100)
+        td = td.reshape(-1)
+        assert td["state"].shape == (td.batch_size[0], *pz.single_state_space.shape)
+    else:
+        pz = env._env
+        assert td.batch_size[0] in (100, 20)
+        assert td["state"].shape == (td.batch_size[0], *pz.state_space.shape)
     n = td.batch_size[0]
-    assert n in (100, 20)
-    assert td["state"].shape == (n, *pz.state_space.shape)
     assert td["uav", "action_mask"].shape == (n, 3, len(pz.lattice))
     assert _mask_respected(td["uav", "action_mask"], td["uav", "action"]), "an action outside the mask"
     assert set(td["next", "uav", "info"].keys()) == INFO_KEYS
