@@ -101,6 +101,12 @@ def test_partial_reset_of_running_copies():
     assert not torch.equal(out["uav", "observation"][0], before[0])
     nxt = env.step(env.rand_action(out))["next"]
     assert nxt["uav", "info", "slot"].tolist() == [[1, 1], [2, 2], [2, 2]]
+    env.set_seed(9)                                       # kept for the next reset of every copy
+    td = step_mdp(env.step(env.rand_action(out)))
+    td.set("_reset", torch.tensor([[False], [True], [False]]))
+    assert env.reset(td)["uav", "info", "slot"].tolist() == [[2, 2], [0, 0], [3, 3]]
+    venv = covert_env.vector_env(num_envs=3, n_uavs=2, max_cycles=5)
+    assert torch.equal(env.reset()["uav", "observation"], torch.from_numpy(venv.reset(seed=9)[0]))
 
 
 @pytest.mark.parametrize("mode", ["unicycle", "waypoint"])

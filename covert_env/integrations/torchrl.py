@@ -139,7 +139,8 @@ class CovertSensingTorchRLEnv(EnvBase):
         if seed is not None:
             self._seed = seed
         mask = None if tensordict is None else self._reset_mask(tensordict)
-        if mask is None or self._seed is not None or self._next is None:
+        # A pending seed waits for a reset of every copy: TorchRL keeps the rows outside a partial mask as they were.
+        if mask is None or self._next is None or (mask.all() and self._seed is not None):
             obs, infos = self._venv.reset(seed=self._seed, options=kwargs.pop("options", None))
             self._seed, self._pending[:] = None, False
         else:
