@@ -180,13 +180,10 @@ class CovertSensingVectorEnv:
 
     # ------------------------------------------------------------------ API
     def reset(self, *, seed=None, options: dict | None = None):
-        """Reset every copy; returns observations and infos (class docstring, Seeding)."""
+        """Reset every copy (or those of ``options["reset_mask"]``); returns observations and infos (class
+        docstring, Seeding)."""
         b = self.num_envs
-        if seed is not None:
-            self.copy_seeds = _copy_seeds(seed, b)
-            self._rngs = [gymnasium.utils.seeding.np_random(int(s))[0] for s in self.copy_seeds]
-        elif self._rngs is None:
-            self._rngs = [gymnasium.utils.seeding.np_random(None)[0] for _ in range(b)]
+        # Options are checked before any generator changes: a refused call leaves the batch as it was.
         scene_seeds, mask = _reset_options(options, b)
         if mask is None:
             chosen = np.arange(b)
@@ -196,6 +193,11 @@ class CovertSensingVectorEnv:
                                  "their own generators: call a full reset(seed=...) first, and not with it")
             chosen = np.flatnonzero(mask)
             scene_seeds = None if scene_seeds is None else scene_seeds[chosen]
+        if seed is not None:
+            self.copy_seeds = _copy_seeds(seed, b)
+            self._rngs = [gymnasium.utils.seeding.np_random(int(s))[0] for s in self.copy_seeds]
+        elif self._rngs is None:
+            self._rngs = [gymnasium.utils.seeding.np_random(None)[0] for _ in range(b)]
         self._reset_copies(chosen, scene_seeds)
         self._started = True
         self._update_masks()
