@@ -109,10 +109,16 @@ def _check_rllib(ns):
 
 def _check_torchrl(ns):
     td, env = ns["td"], ns["env"]
-    pz = env._env
+    if hasattr(env, "vector_env"):                       # the native env (B copies): td is [B, T]
+        pz = env.vector_env
+        assert td.batch_size == (pz.num_envs, 100)
+        td = td.reshape(-1)
+        assert td["state"].shape == (td.batch_size[0], *pz.single_state_space.shape)
+    else:
+        pz = env._env
+        assert td.batch_size[0] in (100, 20)
+        assert td["state"].shape == (td.batch_size[0], *pz.state_space.shape)
     n = td.batch_size[0]
-    assert n in (100, 20)
-    assert td["state"].shape == (n, *pz.state_space.shape)
     assert td["uav", "action_mask"].shape == (n, 3, len(pz.lattice))
     assert _mask_respected(td["uav", "action_mask"], td["uav", "action"]), "an action outside the mask"
     assert set(td["next", "uav", "info"].keys()) == INFO_KEYS
@@ -290,8 +296,9 @@ class _KeepBatches(_Callback):
         self.batches.append(batch.clone())
 
 
-@pytest.mark.parametrize("task_name", ["UNICYCLE", "WAYPOINT"])
-def test_benchmarl_smoke_run(task_name, tmp_path):
+@pytest.mark.parametrize(("task_name", "vectorized"), [("UNICYCLE", False), ("WAYPOINT", False), ("UNICYCLE", True),
+                                                       ("WAYPOINT", True)])
+def test_benchmarl_smoke_run(task_name, vectorized, tmp_path):
     """A few hundred frames of MAPPO on the shipped task: frames collected, losses finite, masks respected."""
     pytest.importorskip("benchmarl")
     from benchmarl.algorithms import MappoConfig
@@ -303,14 +310,14 @@ def test_benchmarl_smoke_run(task_name, tmp_path):
     config = ExperimentConfig.get_from_yaml()
     config.max_n_frames = 300
     config.on_policy_collected_frames_per_batch = 100
-    config.on_policy_n_envs_per_worker = 1
+    config.on_policy_n_envs_per_worker = 2 if vectorized else 1    # vectorized: 2 copies, one batched env
     config.on_policy_minibatch_size = 50
     config.on_policy_n_minibatch_iters = 1
     config.evaluation = False
     config.loggers = ["csv"]
     config.create_json = False
     config.save_folder = str(tmp_path)
-    exp = Experiment(task=CovertSensingTask[task_name].get_task(config={"max_cycles": 40}),
+    exp = Experiment(task=CovertSensingTask[task_name].get_task(config={"max_cycles": 40, "vectorized": vectorized}),
                      algorithm_config=MappoConfig.get_from_yaml(), model_config=MlpConfig.get_from_yaml(),
                      seed=0, config=config, callbacks=[_KeepBatches()])
     _KeepBatches.batches.clear()

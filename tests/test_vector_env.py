@@ -58,6 +58,7 @@ def _run_side_by_side(kw, b, steps, *, seed=11, options=None, copy_options=None)
                 assert infos["_final_obs"][j] and infos["_final_info"][j]
                 final_info = {key: val[j:j + 1] for key, val in infos["final_info"].items()}
                 _assert_same(infos["final_obs"][j:j + 1], final_info, [(p_obs, p_inf)], [p], f"final, step {t}")
+                assert np.array_equal(infos["final_state"][j], p.state()), f"final state, step {t}"
                 p_obs, p_inf = p.reset()
             ref.append((p_obs, p_inf))
         _assert_same(obs, infos, ref, penvs, f"step {t}")
@@ -252,3 +253,32 @@ def test_starts_fallback_equals_the_parallel_env():
     xy = venv._xy
     gaps = np.hypot(*(xy[:, :, None] - xy[:, None]).transpose(3, 0, 1, 2)) + np.eye(3) * 1e9
     assert (gaps.min(axis=(1, 2)) < 50.0).any() and (gaps >= 25.0 - 1e-9).all()
+
+
+@pytest.mark.parametrize("mode", ["unicycle", "waypoint"])
+def test_reset_mask_resets_only_those_copies_as_an_automatic_reset_would(mode):
+    kw = dict(n_uavs=2, action_mode=mode, max_cycles=5)
+    venv = covert_env.vector_env(num_envs=3, **kw)
+    with pytest.raises(ValueError, match="full reset"):
+        venv.reset(options={"reset_mask": np.ones(3, bool)})
+    venv.reset(seed=4)
+    rng = np.random.default_rng(1)
+    flown = [_actions(venv, rng) for _ in range(2)]
+    for act in flown:
+        obs, _, _, _, infos = venv.step(act)
+    with pytest.raises(ValueError, match="3 bools"):
+        venv.reset(options={"reset_mask": [1, 0, 1]})
+    with pytest.raises(ValueError, match="not with it"):
+        venv.reset(seed=1, options={"reset_mask": np.ones(3, bool)})
+    kept = {key: val.copy() for key, val in infos.items() if key in INFO_KEYS}
+    new_obs, new_infos = venv.reset(options={"reset_mask": np.array([False, True, False])})
+    assert np.array_equal(new_obs[[0, 2]], obs[[0, 2]])
+    for key in INFO_KEYS:
+        assert np.array_equal(new_infos[key][[0, 2]], kept[key][[0, 2]]), key
+    p = covert_env.parallel_env(**kw)
+    p.reset(seed=int(venv.copy_seeds[1]))
+    for act in flown:
+        p.step({a: act[1, i] for i, a in enumerate(p.possible_agents)})
+    p_obs, p_inf = p.reset()                              # copy 1's second episode, from its own generator
+    _assert_same(new_obs[1:2], {key: val[1:2] for key, val in new_infos.items()}, [(p_obs, p_inf)], [p], "mask")
+    assert np.array_equal(venv.state()[1], p.state())

@@ -24,12 +24,15 @@ from covert_env.reach import reach_table
 from covert_env.scenario import _pick_starts
 from covert_env.zone import in_feasible_zone, zone_distance
 
-__all__ = ["CovertSensingVectorEnv", "vector_env", "INFO_KEYS", "MAX_NUM_ENVS"]
+__all__ = ["CovertSensingVectorEnv", "vector_env", "INFO_KEYS", "INFO_DTYPES", "MAX_NUM_ENVS"]
 
 #: Largest ``num_envs`` accepted: memory grows linearly with it (see benchmarks/vector_throughput.py).
 MAX_NUM_ENVS = 1 << 16
 #: Infos keys in their order (the parallel env's per-agent keys, without the action mask: see ``action_masks``).
 INFO_KEYS = ("slot", "los", "in_zone", "infeasible") + _STEP_INFO_FLOATS
+#: The infos' dtypes, for frameworks that declare them before the first step (the TorchRL env's specs).
+INFO_DTYPES = {key: np.dtype(np.int64) if key == "slot" else np.dtype(bool) if key in ("los", "in_zone", "infeasible")
+               else np.dtype(np.float64) for key in INFO_KEYS}
 
 
 class CovertSensingVectorEnv:
@@ -93,7 +96,9 @@ class CovertSensingVectorEnv:
     * ``infos["final_obs"]``: the observation rows ``(B, U, D)`` at the end of the episode (the array part with
       ``dict_obs``: no action follows, so no mask), valid where ``infos["_final_obs"]`` (B,) is True;
     * ``infos["final_info"]``: the infos dict of the last slot (``(B, U)`` arrays), valid where
-      ``infos["_final_info"]`` (B,) is True.
+      ``infos["_final_info"]`` (B,) is True;
+    * ``infos["final_state"]``: the ``state()`` rows ``(B, S)`` at the end of the episode, valid where
+      ``infos["_final_obs"]`` is True.
 
     Both keys are present only on steps where some copy ended (as in Gymnasium). No ``step()`` ever needs a
     manual ``reset()``.
@@ -105,7 +110,9 @@ class CovertSensingVectorEnv:
     ``reset(seed=copy_seeds[i])`` followed by plain ``reset()`` calls does, one generator per copy: the same seed
     gives the same batch, and copy i equals that parallel env across automatic resets.
     ``options={"scene_seed": s}`` (an int for every copy, or B ints) picks the scenes and their own seeded starts
-    (``Scenario.random(s)``), as the parallel env's option does. Drawing a reset copy's starts from its own
+    (``Scenario.random(s)``), as the parallel env's option does. ``options={"reset_mask": m}`` (B bools,
+    Gymnasium's name) resets only the copies where ``m`` is True, each from its own generator as an automatic reset
+    does; the others keep their observations and infos. Drawing a reset copy's starts from its own
     generator is the one per-copy step (a few µs each, once per episode).
 
     ## Arguments
@@ -173,19 +180,35 @@ class CovertSensingVectorEnv:
 
     # ------------------------------------------------------------------ API
     def reset(self, *, seed=None, options: dict | None = None):
-        """Reset every copy; returns observations and infos (class docstring, Seeding)."""
+        """Reset every copy (or those of ``options["reset_mask"]``); returns observations and infos (class
+        docstring, Seeding)."""
         b = self.num_envs
+        # Options are checked before any generator changes: a refused call leaves the batch as it was.
+        scene_seeds, mask = _reset_options(options, b)
+        if mask is None:
+            chosen = np.arange(b)
+        else:
+            if not self._started or seed is not None:
+                raise ValueError("reset(options={'reset_mask': ...}) resets some copies of a running batch, from "
+                                 "their own generators: call a full reset(seed=...) first, and not with it")
+            chosen = np.flatnonzero(mask)
+            scene_seeds = None if scene_seeds is None else scene_seeds[chosen]
         if seed is not None:
             self.copy_seeds = _copy_seeds(seed, b)
             self._rngs = [gymnasium.utils.seeding.np_random(int(s))[0] for s in self.copy_seeds]
         elif self._rngs is None:
             self._rngs = [gymnasium.utils.seeding.np_random(None)[0] for _ in range(b)]
-        scene_seeds = _scene_seeds(options, b)
-        everyone = np.arange(b)
-        self._reset_copies(everyone, scene_seeds)
+        self._reset_copies(chosen, scene_seeds)
         self._started = True
         self._update_masks()
-        return self._observation(self._obs_rows()), self._reset_infos(everyone)
+        infos = self._reset_infos(chosen)
+        if mask is not None:
+            # The copies left running keep their last infos, as they keep their observations.
+            fresh, infos = infos, {key: val.copy() for key, val in self._last_infos.items()}
+            for key, val in fresh.items():
+                infos[key][chosen] = val
+        self._last_infos = infos
+        return self._observation(self._obs_rows()), infos
 
     def step(self, actions):
         """One slot in every copy; returns ``(obs, rewards, terminations, truncations, infos)`` (class docstring)."""
@@ -232,11 +255,14 @@ class CovertSensingVectorEnv:
             infos = {key: infos[key].copy() for key in INFO_KEYS}
             final_info = {key: val.copy() for key, val in infos.items()}
             final_obs = obs.copy()
+            final_state = self.state()
             self._reset_copies(ended, None)
             obs[ended] = self._obs_rows(ended)
             for key, val in self._reset_infos(ended).items():
                 infos[key][ended] = val
-            infos.update(final_obs=final_obs, _final_obs=done.copy(), final_info=final_info, _final_info=done.copy())
+            infos.update(final_obs=final_obs, _final_obs=done.copy(), final_info=final_info, _final_info=done.copy(),
+                         final_state=final_state)
+        self._last_infos = {key: infos[key] for key in INFO_KEYS}
         self._update_masks()
         u = len(self.possible_agents)
         return (self._observation(obs), rewards, np.repeat(term[:, None], u, axis=1),
@@ -341,13 +367,23 @@ def _copy_seeds(seed, b: int) -> np.ndarray:
     return seeds
 
 
-def _scene_seeds(options: dict | None, b: int) -> np.ndarray | None:
-    """``options["scene_seed"]`` as b ints (None without it); any other option is an error."""
+def _reset_options(options: dict | None, b: int) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """``options["scene_seed"]`` as b ints and ``options["reset_mask"]`` as b bools (None without them); any other
+    option is an error."""
     options = dict(options or {})
-    unknown = sorted(set(options) - {"scene_seed"})
+    unknown = sorted(set(options) - {"scene_seed", "reset_mask"})
     if unknown:
-        raise ValueError(f"reset(): unknown option(s) {unknown}; the vector env knows 'scene_seed'")
-    seeds = options.get("scene_seed")
+        raise ValueError(f"reset(): unknown option(s) {unknown}; the vector env knows 'scene_seed' and 'reset_mask'")
+    mask = options.get("reset_mask")
+    if mask is not None:
+        mask = np.asarray(mask)
+        if mask.shape != (b,) or mask.dtype != np.bool_:
+            raise ValueError(f"options['reset_mask'] must be {b} bools (one per copy), got {options['reset_mask']!r}")
+    return _scene_seeds(options.get("scene_seed"), b), mask
+
+
+def _scene_seeds(seeds, b: int) -> np.ndarray | None:
+    """``options["scene_seed"]`` as b ints (None without it)."""
     if seeds is None:
         return None
     arr = np.broadcast_to(np.asarray(seeds), (b,)) if np.ndim(seeds) == 0 else np.asarray(seeds)

@@ -22,6 +22,9 @@ Tasks (one group ``"uav"`` with agents ``uav_0 .. uav_{U-1}``, global ``"state"`
 * ``CovertSensingTask.WAYPOINT``: discrete lattice waypoints with the env's action mask
   (``("uav", "action_mask")``, taken from ``infos[agent]["action_mask"]``); MAPPO, IPPO, QMIX, VDN, ...
 
+``get_task(config={"vectorized": True})``: the copies BenchMARL collects from are one batched env in this process
+(:class:`covert_env.integrations.torchrl.CovertSensingTorchRLEnv`), not one PettingZoo env per copy.
+
 Every flat per-agent info of the env (``reward_*``, ``cost``, ``cost_*``, ``los``, ``in_zone``, ...) is
 under ``("uav", "info")`` and BenchMARL logs its mean per iteration (``collection/uav/info/cost``, ...).
 
@@ -76,6 +79,10 @@ class TaskConfig:
     config: dict[str, Any] | None = None
     #: any other keyword of ``covert_env.parallel_env`` (reward weights, ``scene_pool``, ...)
     env_kwargs: dict[str, Any] = field(default_factory=dict)
+    #: ``True``: BenchMARL's ``n_envs_per_worker`` copies are one batched env in this process
+    #: (:class:`~covert_env.integrations.torchrl.CovertSensingTorchRLEnv` on ``covert_env.vector_env``) instead of
+    #: a ``SerialEnv`` of PettingZoo envs; it does not render
+    vectorized: bool = False
 
 
 class CovertSensingClass(TaskClass):
@@ -87,6 +94,7 @@ class CovertSensingClass(TaskClass):
         if unknown:
             raise ValueError(f"covert_sensing task config: unknown fields {unknown}; "
                              f"allowed: {[f.name for f in dataclasses.fields(TaskConfig)]}")
+        cfg.pop("vectorized")
         extra = dict(cfg.pop("env_kwargs") or {})
         clash = sorted(set(extra) & set(_TASK_SET))
         if clash:
@@ -99,8 +107,21 @@ class CovertSensingClass(TaskClass):
         # moves to ("uav", "action_mask"); the observation stays one flat tensor for BenchMARL's models.
         return {**cfg, **extra, "action_mode": "waypoint" if waypoint else "unicycle", "dict_obs": False}
 
+    @property
+    def vectorized(self) -> bool:
+        return bool((self.config or {}).get("vectorized", False))
+
     def get_env_fun(self, num_envs: int, continuous_actions: bool, seed: int | None, device) -> Any:
         kwargs = self._env_kwargs()
+        if self.vectorized:
+            from covert_env.integrations.torchrl import CovertSensingTorchRLEnv
+
+            def make_batched() -> EnvBase:
+                env = CovertSensingTorchRLEnv(num_envs, device=device, **kwargs)
+                env.set_seed(seed)                 # copy i from SeedSequence(seed), as covert_env.vector_env
+                return env
+
+            return make_batched
         # BenchMARL builds the num_envs copies of a non-vectorised env from this one function: give each copy
         # its own seed (seed, seed + 1, ...) so that they do not fly identical episodes.
         seeds = itertools.count(0 if seed is None else int(seed))
@@ -127,13 +148,14 @@ class CovertSensingClass(TaskClass):
             pz.close()
 
     def has_render(self, env: EnvBase) -> bool:
-        return True
+        return not self.vectorized
 
     def group_map(self, env: EnvBase) -> dict[str, list[str]]:
         return env.group_map
 
     def _only(self, env: EnvBase, key: str) -> Composite | None:
-        spec = env.observation_spec.clone()
+        # One copy's specs, as BenchMARL asks of batched envs (VMAS); the same for a PettingZoo env.
+        spec = env.full_observation_spec_unbatched.clone()
         for group in self.group_map(env):
             for k in list(spec[group].keys()):
                 if k != key:
@@ -154,12 +176,13 @@ class CovertSensingClass(TaskClass):
         return self._only(env, "action_mask")
 
     def state_spec(self, env: EnvBase) -> Composite | None:
-        if "state" in env.observation_spec.keys():
-            return Composite({"state": env.observation_spec["state"].clone()})
+        spec = env.full_observation_spec_unbatched
+        if "state" in spec.keys():
+            return Composite({"state": spec["state"].clone()})
         return None
 
     def action_spec(self, env: EnvBase) -> Composite:
-        return env.full_action_spec
+        return env.full_action_spec_unbatched
 
     @staticmethod
     def env_name() -> str:
