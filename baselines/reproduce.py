@@ -16,14 +16,22 @@ scenario, same lattice nodes as waypoints), and is scored by :func:`covert_env.m
 Outputs in ``--out``:
 
 * ``fig08_trajectories_1uav.png`` ... ``fig15_disguise_3uav.png``: like the paper's Figs. 8-15 --
-  trajectories (top view and 3D), the LoS occlusion index I_LoS per slot, the zones with shadows at one
-  slot (feasible zone, visible zone, shadows, lattice nodes whose LoS is blocked), disguise kappa per slot;
-* ``fig_heldout.png``: occlusion and disguise per held-out scene;
+  trajectories (a top view per method, a 3D view of the flown area, the positions in the target's frame),
+  the LoS occlusion index I_LoS per slot, the zones with shadows at one slot (:func:`figure_slot`: where the
+  shadow-blind method loses LoS for the most UAVs, else where the zone is most in shadow), disguise kappa per slot;
+* ``fig_heldout.png``: occlusion and disguise per held-out scene, with the mean and its 95 % CI;
+* ``fig_los_between_slots.png``: per held-out scene, UAV-slots whose LoS was clear at the slot time but lost
+  along the manoeuvre before it (the paper checks slot times only);
 * ``metrics.json``: one record per run and UAV (episode metrics of docs/model.md#metrics, blocked-LoS counts,
   infeasible-slot counts, planning time, negotiation rounds);
-* ``metrics.md``: aggregate tables and the paper's claims checked.
+* ``metrics.md``: every rate with a 95 % percentile bootstrap confidence interval over the held-out scenes
+  (:func:`bootstrap_ci`), counts, the paper's claims checked, and where the time went;
+* ``sensitivity.md`` (``--sensitivity``): grid step, r_u, h_min and target speed varied one at a time.
 
-``--quick`` runs a tiny version for CI (2 held-out scenes, 12 slots). ``--jobs`` sets worker processes.
+``--quick`` flies the paper scene and 2 held-out scenes for 15 slots, chosen so that the paper's effects show:
+the paper scene's zone is in shadow at slots 11-15 and the held-out scenes are the 2 of the first 20 whose zone is
+most in shadow over those slots (:func:`most_shadowed_scenes`, geometry only). ``--jobs`` sets worker processes.
+``covert-env animate`` (:func:`write_gif`) writes the README's animation.
 """
 
 from __future__ import annotations
