@@ -788,12 +788,21 @@ def _main(args: argparse.Namespace) -> int:
 
 def _run_all(specs: list[RunSpec], config: Config, jobs: int) -> dict:
     """Run every spec (``jobs`` spawned worker processes); results keyed by (kind, seed, n_uavs, method)."""
-    # Longest runs first keeps both workers busy to the end.
-    order = sorted(range(len(specs)), key=lambda i: (-specs[i].n_uavs, specs[i].method != "aware-path"))
-    jobs_args = [(specs[i], config.to_dict()) for i in order]
     results = {}
-    bar = _progress(len(specs))
-    if jobs > 1 and len(specs) > 1:
+    for res in _run_pairs([(s, config) for s in specs], jobs):
+        s = res["spec"]
+        results[(s.kind, s.seed, s.n_uavs, s.method)] = res
+    return results
+
+
+def _run_pairs(pairs: list[tuple[RunSpec, Config]], jobs: int) -> list[dict]:
+    """Run (spec, config) pairs in ``jobs`` spawned worker processes; results in the order of ``pairs``."""
+    # Longest runs first keeps both workers busy to the end.
+    order = sorted(range(len(pairs)), key=lambda i: (-pairs[i][0].n_uavs, pairs[i][0].method != "aware-path"))
+    jobs_args = [(i, pairs[i][0], pairs[i][1].to_dict()) for i in order]
+    results = [None] * len(pairs)
+    bar = _progress(len(pairs))
+    if jobs > 1 and len(pairs) > 1:
         import multiprocessing as mp
         import signal
 
@@ -802,14 +811,22 @@ def _run_all(specs: list[RunSpec], config: Config, jobs: int) -> dict:
             raise SystemExit(128 + signum)
 
         signal.signal(signal.SIGTERM, _terminate)
-        with mp.get_context("spawn").Pool(min(jobs, len(specs))) as pool:
-            for res in pool.imap_unordered(_run_job, jobs_args):
-                _collect(results, res, bar)
+        with mp.get_context("spawn").Pool(min(jobs, len(pairs))) as pool:
+            for i, res in pool.imap_unordered(_run_indexed, jobs_args):
+                results[i] = res
+                _tick(bar, res)
     else:
         for a in jobs_args:
-            _collect(results, _run_job(a), bar)
+            i, res = _run_indexed(a)
+            results[i] = res
+            _tick(bar, res)
     bar.close()
     return results
+
+
+def _run_indexed(args):
+    i, spec, cfg_dict = args
+    return i, _run_job((spec, cfg_dict))
 
 
 # ===================================================================================== sensitivity
@@ -828,15 +845,18 @@ def sensitivity(config: Config, jobs: int = 1, heading: str = "inherited", scene
     values = SENSITIVITY_VALUES if values is None else values
     n_slots = min(n_slots, config.n_slots)
     seeds = most_shadowed_scenes(scenes, n_slots, config)
-    variants = []
-    for name, vals in values.items():
-        for v in vals:
-            variants.append((name, v, config.replace(**{name: v})))
+    variants = [(name, v, config.replace(**{name: v})) for name, vals in values.items() for v in vals]
+    # One pool for every run; a variant equal to the config (each parameter's default) runs once.
+    distinct = list({json.dumps(cfg.to_dict(), sort_keys=True): cfg for _, _, cfg in variants}.values())
+    pairs = [(RunSpec("random", s, 1, m, n_slots, heading), cfg) for cfg in distinct for s in seeds
+             for m in ("aware", "blind")]
+    done = _run_pairs(pairs, jobs)
+    by_cfg: dict[str, list[dict]] = {}
+    for (_, cfg), res in zip(pairs, done, strict=True):
+        by_cfg.setdefault(json.dumps(cfg.to_dict(), sort_keys=True), []).extend(res["records"])
     rows = []
     for name, v, cfg in variants:
-        specs = [RunSpec("random", s, 1, m, n_slots, heading) for s in seeds for m in ("aware", "blind")]
-        res = _run_all(specs, cfg, jobs)
-        recs = [r for x in res.values() for r in x["records"]]
+        recs = by_cfg[json.dumps(cfg.to_dict(), sort_keys=True)]
         row = {"param": name, "value": "auto" if v is None else f"{v:g}", "default": v == getattr(config, name)}
         for m in ("aware", "blind"):
             rs = [r for r in recs if r["method"] == m]
@@ -903,10 +923,8 @@ def _progress(total: int):
     return tqdm(total=total, desc="reproduce", unit="run", file=sys.stderr)
 
 
-def _collect(results: dict, res: dict, bar) -> None:
-    s = res["spec"]
-    results[(s.kind, s.seed, s.n_uavs, s.method)] = res
-    bar.set_postfix_str(s.label)
+def _tick(bar, res: dict) -> None:
+    bar.set_postfix_str(res["spec"].label)
     bar.update(1)
 
 

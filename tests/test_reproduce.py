@@ -181,3 +181,16 @@ def test_episode_gif_from_a_tiny_episode(tmp_path):
     with Image.open(path) as im:
         assert im.n_frames == len(frames)
         assert im.info["duration"] == 200 and im.info["loop"] == 0
+
+
+# ---------------------------------------------------------------------- --sensitivity
+def test_sensitivity_table_one_row_per_value():
+    from baselines.reproduce import sensitivity
+
+    text = sensitivity(Config(), jobs=1, scenes=2, n_slots=2, values={"r_u": (0.0, 2.0), "h_min": (None, 30.0)})
+    rows = [ln for ln in text.splitlines() if ln.startswith("| r_u") or ln.startswith("| h_min")]
+    assert [r.split("|")[1:3] for r in rows] == [[" r_u ", " 0 "], [" r_u ", " 2 * "], [" h_min ", " auto * "],
+                                                 [" h_min ", " 30 "]]
+    assert all(len(r.split("|")) == 12 for r in rows)
+    # r_u = 2 and h_min = auto are both the default config: the same runs, the same numbers.
+    assert rows[1].split("|")[3:] == rows[2].split("|")[3:]
