@@ -314,24 +314,22 @@ def _gif_legend(n_uavs: int):
 def save_episode_gif(frames, path, fps: int = 4, colors: int = 64) -> None:
     """Write frames (uint8 H x W x 3) to a looping animated GIF with Pillow.
 
-    One adaptive palette of ``colors`` colours is shared by every frame, without dithering (small files for
-    flat-colour plots). It is built from a sample of the frames plus swatches of the pictures' key colours
-    (UAVs, target, zones, lines of sight), so that small markers keep their colours."""
+    One palette of ``colors`` colours is shared by every frame, without dithering (small files for flat-colour
+    plots): the pictures' key colours (UAVs, target, zones, lines of sight) exactly, so that small markers keep
+    their colours, and the rest adapted to a sample of the frames."""
     from matplotlib.colors import to_rgb
     from PIL import Image
 
     frames = [np.asarray(f, dtype=np.uint8) for f in frames]
     if not frames:
         raise ValueError("no frames to save")
-    w = frames[0].shape[1]
-    keys = [*UAV_COLORS, "gold", "green", "red", "darkred", "k", VISIBLE_COLOR, SHADOW_COLOR]
-    swatch = np.repeat(np.array([[to_rgb(c) for c in keys]]) * 255, max(1, w // len(keys)) + 1, axis=1)[:, :w]
-    swatch = np.repeat(swatch.round().astype(np.uint8), max(8, frames[0].shape[0] // 20), axis=0)
-    sample = frames[:: max(1, len(frames) // 8)][:8]
-    if swatch.shape[1] == w:
-        sample = [*sample, swatch]
-    palette = Image.fromarray(np.concatenate(sample, axis=0)).quantize(colors=int(colors),
-                                                                       method=Image.Quantize.MEDIANCUT)
+    keys = [*UAV_COLORS, "gold", "green", "red", "darkred", "k", "w", VISIBLE_COLOR, SHADOW_COLOR, TERRAIN_COLOR]
+    key_rgb = [round(255 * v) for c in keys for v in to_rgb(c)]
+    n_free = max(2, int(colors) - len(keys))
+    sample = np.concatenate(frames[:: max(1, len(frames) // 8)][:8], axis=0)
+    free = Image.fromarray(sample).quantize(colors=n_free, method=Image.Quantize.MEDIANCUT).getpalette()[:3 * n_free]
+    palette = Image.new("P", (1, 1))
+    palette.putpalette(free + key_rgb)
     images = [Image.fromarray(f).quantize(palette=palette, dither=Image.Dither.NONE) for f in frames]
     images[0].save(str(path), save_all=True, append_images=images[1:], duration=int(round(1000 / fps)), loop=0,
                    optimize=False, disposal=1)
