@@ -483,29 +483,62 @@ def _fig_los_between(plt, results: dict):
     return fig
 
 
-def _figures(out: Path, results: dict, config: Config) -> list[str]:
+def _figure_tasks(out: Path, results: dict, config: Config) -> list[tuple]:
+    """One task per figure: (kind, output path, the results it needs, config). Small enough to pickle."""
+    tasks = []
+    for u, nos in {1: (8, 9, 10, 11), 3: (12, 13, 14, 15)}.items():
+        aw = results.get(("paper", 0, u, "aware"))
+        bl = results.get(("paper", 0, u, "blind"))
+        if aw is None or bl is None:
+            continue
+        pair = {"aware": aw["series"], "blind": bl["series"], "u": u}
+        for kind, no in zip(("trajectories", "los", "zones", "disguise"), nos, strict=True):
+            tasks.append((kind, out / f"fig{no:02d}_{kind}_{u}uav.png", dict(pair, no=no), config.to_dict()))
+    held = {key: {"series": r["series"]} for key, r in results.items() if key[0] == "random"}
+    if held:
+        tasks.append(("heldout", out / "fig_heldout.png", held, config.to_dict()))
+        tasks.append(("between", out / "fig_los_between_slots.png", held, config.to_dict()))
+    return tasks
+
+
+def _draw(task) -> str:
+    """Draw and save one figure task of :func:`_figure_tasks` (in a worker process or not)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    written = []
-    fig_no = {1: (8, 9, 10, 11), 3: (12, 13, 14, 15)}
-    for u, (f_traj, f_los, f_zone, f_kap) in fig_no.items():
-        aw = results.get(("paper", 0, u, "aware"))
-        bl = results.get(("paper", 0, u, "blind"))
-        if aw is None or bl is None:
-            continue
-        sc = make_scenario("paper", 0, u, config)
-        written.append(_save(_fig_trajectories(plt, sc, aw, bl, u, f_traj, config),
-                             out / f"fig{f_traj:02d}_trajectories_{u}uav.png"))
-        written.append(_save(_fig_los(plt, aw, bl, u, f_los), out / f"fig{f_los:02d}_los_{u}uav.png"))
-        written.append(_save(_fig_zones(plt, sc, aw, bl, u, f_zone, config), out / f"fig{f_zone:02d}_zones_{u}uav.png"))
-        written.append(_save(_fig_disguise(plt, aw, bl, u, f_kap), out / f"fig{f_kap:02d}_disguise_{u}uav.png"))
-    if any(kind == "random" for (kind, *_rest) in results):
-        written.append(_save(_fig_heldout(plt, results), out / "fig_heldout.png"))
-        written.append(_save(_fig_los_between(plt, results), out / "fig_los_between_slots.png"))
-    return written
+    kind, path, data, cfg_dict = task
+    config = Config.from_dict(cfg_dict)
+    if kind in ("heldout", "between"):
+        fig = (_fig_heldout if kind == "heldout" else _fig_los_between)(plt, data)
+    else:
+        u, no = data["u"], data["no"]
+        aw, bl = {"series": data["aware"]}, {"series": data["blind"]}
+        if kind == "trajectories":
+            fig = _fig_trajectories(plt, make_scenario("paper", 0, u, config), aw, bl, u, no, config)
+        elif kind == "zones":
+            fig = _fig_zones(plt, make_scenario("paper", 0, u, config), aw, bl, u, no, config)
+        elif kind == "los":
+            fig = _fig_los(plt, aw, bl, u, no)
+        else:
+            fig = _fig_disguise(plt, aw, bl, u, no)
+    return _save(fig, path)
+
+
+def _figures(out: Path, results: dict, config: Config, jobs: int = 1) -> list[str]:
+    """Write every figure (``jobs`` worker processes); returns the file names in figure order."""
+    tasks = _figure_tasks(out, results, config)
+    if jobs > 1 and len(tasks) > 1:
+        import multiprocessing as mp
+
+        # Slowest first (the trajectory and zone figures draw terrain and shadows).
+        order = sorted(range(len(tasks)), key=lambda i: tasks[i][0] not in ("trajectories", "zones"))
+        with mp.get_context("spawn").Pool(min(jobs, len(tasks))) as pool:
+            names = pool.map(_draw, [tasks[i] for i in order], chunksize=1)
+        by_index = dict(zip(order, names, strict=True))
+        return [by_index[i] for i in range(len(tasks))]
+    return [_draw(t) for t in tasks]
 
 
 def _save(fig, path: Path) -> str:
@@ -765,7 +798,7 @@ def _main(args: argparse.Namespace) -> int:
     (out / "metrics.json").write_text(json.dumps({"config": config.to_dict(), "records": records}, indent=1,
                                                  default=_json_default) + "\n")
     t1 = time.perf_counter()
-    figures = [] if args.no_figures else _figures(out, results, config)
+    figures = [] if args.no_figures else _figures(out, results, config, jobs)
     figures_s = time.perf_counter() - t1
     rows = _aggregate(records)
     elapsed = time.perf_counter() - t0
