@@ -386,7 +386,7 @@ def _fig_zones(plt, sc: Scenario, aw: dict, bl: dict, u: int, fig_no: int, confi
     fig.suptitle(f"Slot {k}: feasible zone {zone.area:.0f} m², {100 * shares[k - 1]:.0f} % of it in shadow (solid "
                  f"red), visible zone {vis.area:.0f} m² (green); lines: LoS (green clear, red blocked) "
                  f"(cf. Fig. {fig_no})", fontsize=11)
-    fig.tight_layout(rect=(0, 0.07, 1, 0.96))
+    fig.tight_layout(rect=(0, 0.09, 1, 0.96))
     return fig
 
 
@@ -712,8 +712,9 @@ def _markdown(rows: list[dict], records: list[dict], config: Config, elapsed: fl
     if timing:
         lines += ["## Where the time went", "",
                   f"Runs (planner + metrics, {timing['jobs']} worker process{'es' if timing['jobs'] > 1 else ''}): "
-                  f"{timing['runs_s']:.0f} s wall; summed over runs: planner {timing['planner_s']:.0f} s, "
-                  f"metrics {timing['metrics_s']:.0f} s. Figures {timing['figures_s']:.0f} s. "
+                  f"{timing['runs_s']:.0f} s wall; summed over runs: planner and engine (the rollouts) "
+                  f"{timing['planner_s']:.0f} s, metrics {timing['metrics_s']:.1f} s. Figures "
+                  f"{timing['figures_s']:.0f} s wall. "
                   f"Choosing --quick's scenes {timing.get('choose_s', 0.0):.1f} s.", ""]
     if figures:
         lines += ["## Figures", ""] + [f"- `{f}`" for f in figures] + [""]
@@ -808,8 +809,8 @@ def _main(args: argparse.Namespace) -> int:
     (out / "metrics.md").write_text(_markdown(rows, records, config, elapsed, args.quick, figures,
                                               (load0, os.getloadavg()[0]), timing))
     print(f"wrote {out}/metrics.json ({len(records)} records), metrics.md and {len(figures)} figures "
-          f"in {elapsed:.0f} s (runs {runs_s:.0f} s: planner {timing['planner_s']:.0f} s and metrics "
-          f"{timing['metrics_s']:.0f} s summed over {jobs} worker(s); figures {figures_s:.0f} s)", file=sys.stderr)
+          f"in {elapsed:.0f} s (runs {runs_s:.0f} s: rollouts {timing['planner_s']:.0f} s and metrics "
+          f"{timing['metrics_s']:.1f} s summed over {jobs} worker(s); figures {figures_s:.0f} s)", file=sys.stderr)
     if args.sensitivity:
         t2 = time.perf_counter()
         text = sensitivity(config, jobs, heading=args.heading)

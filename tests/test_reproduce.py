@@ -194,3 +194,19 @@ def test_sensitivity_table_one_row_per_value():
     assert all(len(r.split("|")) == 12 for r in rows)
     # r_u = 2 and h_min = auto are both the default config: the same runs, the same numbers.
     assert rows[1].split("|")[3:] == rows[2].split("|")[3:]
+
+
+# ---------------------------------------------------------------------- figures
+def test_figures_are_written_from_tiny_runs(tmp_path):
+    """Every figure of a 1-UAV paper pair and 2 held-out scenes (3 slots) is drawn and saved as a PNG."""
+    from baselines.reproduce import RunSpec, _figures, _run_job
+
+    cfg = Config()
+    specs = [RunSpec("paper", 0, 1, m, 3) for m in ("aware", "blind")]
+    specs += [RunSpec("random", HELDOUT_SEED_BASE + i, 1, m, 3) for i in (2, 18) for m in ("aware", "blind")]
+    results = {(s.kind, s.seed, s.n_uavs, s.method): _run_job((s, cfg.to_dict())) for s in specs}
+    names = _figures(tmp_path, results, cfg, jobs=1)
+    assert names == ["fig08_trajectories_1uav.png", "fig09_los_1uav.png", "fig10_zones_1uav.png",
+                     "fig11_disguise_1uav.png", "fig_heldout.png", "fig_los_between_slots.png"]
+    for n in names:
+        assert (tmp_path / n).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
