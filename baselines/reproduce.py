@@ -638,9 +638,10 @@ def _markdown(rows: list[dict], records: list[dict], config: Config, elapsed: fl
         "(plain feasible zone); `aware-path` = aware + LoS and zone checked along every manoeuvre.",
     ]
     if quick:
-        lines.append(f"QUICK: {QUICK_SLOTS} slots (the paper scene's zone is in shadow at slots 11-15); held-out "
-                     f"scenes = the {QUICK_SCENES} of the first {QUICK_POOL} whose zone is most in shadow over the "
-                     "flown slots (`most_shadowed_scenes`): rates here are NOT representative of random scenes.")
+        lines.append(f"QUICK: held-out scenes = those of the first {QUICK_POOL} whose zone is most in shadow over "
+                     "the flown slots (`most_shadowed_scenes`), so rates here are NOT representative of random "
+                     f"scenes; {QUICK_SLOTS} slots by default (with the paper's parameters the paper scene's zone is "
+                     "in shadow at slots 11-15).")
     lines += [
         f"Total wall time {elapsed:.0f} s on {os.cpu_count()} CPUs (load average {load[0]:.1f} at start, "
         f"{load[1]:.1f} at the end: timings on a shared machine are upper bounds).",
