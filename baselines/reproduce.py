@@ -907,7 +907,10 @@ def sensitivity(config: Config, jobs: int = 1, heading: str = "inherited", scene
              f"(seed - {HELDOUT_SEED_BASE}; the {len(seeds)} of the first {QUICK_POOL} whose zone is most in shadow: "
              "the effects are larger than on random scenes). One parameter varied at a time; * = the config's value. "
              "Rates per UAV-slot, mean over the scenes. A target speed other than the config's changes the road "
-             "length and so the scenes themselves.", "",
+             "length and so the scenes themselves. Identical rows for different h_min mean that the planner's "
+             "visible set does not depend on it (the DP tests the line of sight of every lattice node exactly, "
+             "eq. 6; h_min truncates the shadow polygons, eq. 9, which then only serve drawings and fast tests).",
+             "",
              "| parameter | value | aware: occlusion | aware: lost between slots | aware: infeasible | "
              "aware: disguise | blind: occlusion | blind: lost between slots | blind: disguise | "
              "replan ms (aware / blind) |",
