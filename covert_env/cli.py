@@ -4,6 +4,7 @@
     covert-env evaluate --help                               # score policies on held-out scenes
     covert-env scene --seed 3 --slot 10 --out scene.png     # a picture of one slot (3D + top view)
     covert-env scene --paper --slot 0 --out paper.png        # the paper scenario
+    covert-env animate --out docs/dp_team.gif                # the README's animation: the DP team flying
 
 ``reproduce`` and ``evaluate`` live in ``baselines`` and ``training`` (imported only when called).
 
@@ -195,6 +196,28 @@ def _scene(args: argparse.Namespace) -> int:
     return 0
 
 
+# ---------------------------------------------------------------------- covert-env animate
+def _animate(args: argparse.Namespace) -> int:
+    from covert_env.config import Config
+
+    config = load_config(args.config) if args.config else Config()
+    n_slots = config.n_slots if args.slots is None else args.slots
+    if n_slots > config.n_slots:
+        raise UsageError(f"--slots must be in [1, {config.n_slots}]{' (n_slots of --config)' if args.config else ''}"
+                         f", got {n_slots}")
+    out = output_file(args.out, suffixes=("gif",))
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from baselines.reproduce import write_gif
+
+    info = write_gif(out, n_uavs=args.uavs, method=args.method, n_slots=n_slots,
+                     frames_per_slot=args.frames_per_slot, size=args.size, dpi=args.dpi, fps=args.fps, config=config)
+    print(f"wrote {out} ({info['bytes'] / 1024:.0f} KiB, {info['frames']} frames, {info['slots']} slots)")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="covert-env", description=__doc__.split("\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -217,6 +240,26 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--dpi", type=int_range(10, MAX_DPI), default=110,
                    help=f"resolution, in [10, {MAX_DPI}] (default: 110)")
     p.set_defaults(func=_scene, subparser=p)
+    p = sub.add_parser("animate", help="fly the DP team on the paper scene and write an animated GIF",
+                       description="Fly the DP team planner on the paper scene and write an animated GIF (top view "
+                                   "following the target: zone, shadows, visible zone, lines of sight).")
+    p.add_argument("--out", default="docs/dp_team.gif",
+                   help="GIF file to write (its folder is created) (default: docs/dp_team.gif)")
+    p.add_argument("--uavs", type=int_range(1, 3), default=3, help="team size, in [1, 3] (default: 3)")
+    p.add_argument("--method", choices=("aware", "blind"), default="aware",
+                   help="aware: the paper's shadow-aware planner; blind: the earlier one (default: aware)")
+    p.add_argument("--slots", type=positive_int, default=None,
+                   help="slots to fly, in [1, n_slots] (default: n_slots of the config, 70 with the paper's "
+                        "parameters)")
+    p.add_argument("--frames-per-slot", type=int_range(1, 10), default=2,
+                   help="frames per slot, in [1, 10] (default: 2)")
+    p.add_argument("--size", type=int_range(100, 2000), default=420,
+                   help="frame width and height in pixels, in [100, 2000] (default: 420)")
+    p.add_argument("--dpi", type=int_range(10, MAX_DPI), default=70, help=f"resolution, in [10, {MAX_DPI}] "
+                   "(default: 70)")
+    p.add_argument("--fps", type=int_range(1, 50), default=6, help="frames per second, in [1, 50] (default: 6)")
+    p.add_argument("--config", default=None, help="a Config JSON file (default: the paper's parameters)")
+    p.set_defaults(func=_animate, subparser=p)
     return parser
 
 

@@ -171,6 +171,15 @@ def _user_error_cases(tmp: Path) -> dict[str, tuple[list[str], str]]:
         "reproduce invalid config": (["reproduce", "--out", str(tmp / "r"), "--config", str(bad_json)],
                                      "invalid JSON"),
         "reproduce no out": (["reproduce"], "--out"),
+        "reproduce quick scenes beyond its pool": (["reproduce", "--out", str(tmp / "r"), "--quick", "--scenes", "21"],
+                                                   "--scenes must be in [0, 20] with --quick"),
+        "animate out not a gif": (["animate", "--out", str(tmp / "x.png")], "unknown file type '.png'"),
+        "animate out is a folder": (["animate", "--out", str(d)], "is a folder"),
+        "animate zero uavs": (["animate", "--uavs", "0"], "--uavs: must be an integer in [1, 3], got 0"),
+        "animate four uavs": (["animate", "--uavs", "4"], "--uavs"),
+        "animate too many slots": (["animate", "--slots", "71"], "--slots must be in [1, 70], got 71"),
+        "animate unknown method": (["animate", "--method", "psychic"], "--method"),
+        "animate zero frames per slot": (["animate", "--frames-per-slot", "0"], "--frames-per-slot"),
         "evaluate unknown policy": (["evaluate", "--policies", "nonsense", "--out", str(tmp / "e")],
                                     "unknown policy 'nonsense'"),
         "evaluate unknown mode": (["evaluate", "--policies", "random@hover", "--out", str(tmp / "e")],
@@ -272,11 +281,12 @@ def _parsers():
     from training.evaluate import build_parser as evaluate_parser
 
     yield "scene", build_parser()._subparsers._group_actions[0].choices["scene"]
+    yield "animate", build_parser()._subparsers._group_actions[0].choices["animate"]
     yield "reproduce", reproduce_parser()
     yield "evaluate", evaluate_parser()
 
 
-@pytest.mark.parametrize("name", ["scene", "reproduce", "evaluate"])
+@pytest.mark.parametrize("name", ["scene", "animate", "reproduce", "evaluate"])
 def test_cli_help_prints_each_default_once(name):
     parser = dict(_parsers())[name]
     blocks = _option_blocks(parser.format_help())
