@@ -437,6 +437,27 @@ def test_safety_layer_separates_the_flown_slot_when_negotiation_gives_up():
             assert np.hypot(*(pts[i][1:] - pts[j][1:]).T).min() >= c.d_safe1 + team.margin - 1e-9
 
 
+def test_negotiation_work_is_polynomial_in_the_team_size():
+    """The counters of docs/model.md#team-negotiation: O(R U^2) conflict checks, <= U + 1 safety orders."""
+    u = 8
+    c = Config(n_uavs=u)
+    sc = Scenario.random(11, c)
+    tq, tp = targets(sc, 3)
+    # Eight UAVs 7 m apart on a 2 x 4 grid, same heading: neighbours want the same nodes.
+    xy = np.array([[60.0 + 7.0 * (i % 2), 7.0 * (i // 2) - 10.5] for i in range(u)])
+    th = np.full(u, 0.1)
+    for rounds in (0, 5):
+        team = DPTeamPlanner(DPPlanner(c, sc.terrain), max_rounds=rounds)
+        plan = team.plan(xy, th, tq, tp)
+        w = plan.work
+        assert w["dp_calls"] <= 1 + rounds
+        assert w["uav_plans"] <= u + rounds * (u - 1)
+        assert w["conflict_checks"] <= (rounds + 2) * u * (u - 1) // 2
+        assert w["safety_orders"] <= u + 1 and w["safety_solves"] <= u
+        assert not any(t == 0 for _, _, t, _ in team.conflicts(plan.plans))
+    assert w["dp_calls"] >= 2, "the negotiation should have been exercised"
+
+
 # ------------------------------------------------------------------------------ the paper's claims
 @pytest.fixture(scope="module")
 def claim_runs():
