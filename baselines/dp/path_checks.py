@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 import shapely
 
-from baselines.dp.clearance import TerrainClearance
+from baselines.dp.clearance import TerrainClearance, take_manoeuvres
 from baselines.dp.lattice import VISIBILITY_TOL
 from covert_env.angles import wrap_angle
 from covert_env.config import Config
@@ -138,24 +138,47 @@ def separated(m: Manoeuvre, ok: np.ndarray, avoid: np.ndarray, avoid_dist: float
     out = np.ones(int(ok.sum()), bool)
     # Records exist only at the stages where conflicts were found: elsewhere there is nothing to check.
     has = ~np.isnan(avoid[:, :, j, -1, 0])          # (U, M)
-    rows = np.flatnonzero(has.any(axis=1)[uav[ok]])
-    if rows.size == 0:
+    if not has.any():
         return out
-    m_max = int(has.sum(axis=1).max())
-    obs = avoid[uav[ok][rows], :m_max, j, 1:]       # (n, M, P - 1, 2): sample 0 is the slot's start
-    p = obs.shape[-2] + 1
-    a = m.start.reshape(-1, 2)[ok][rows][:, None, None, :]
-    b = m.goal.reshape(-1, 2)[ok][rows][:, None, None, :]
-    ell = np.asarray(m.length).reshape(-1)[ok][rows][:, None, None]
+    sel = np.flatnonzero(ok)
+    mine = uav[sel]
+    start = m.start.reshape(-1, 2)[sel]
+    goal = m.goal.reshape(-1, 2)[sel]
+    ell = np.asarray(m.length).reshape(-1)[sel]
+    p = avoid.shape[-2]
     f = np.linspace(0.0, 1.0, p)[1:]
-    # At constant speed the sample at fraction f lies within ell f of the start and ell (1 - f) of the goal:
-    # a sample whose obstacle is farther than avoid_dist from that lens is safe without flying it.
-    gap = np.maximum(np.hypot(*(obs - a).transpose(3, 0, 1, 2)) - ell * f,
-                     np.hypot(*(obs - b).transpose(3, 0, 1, 2)) - ell * (1 - f))
-    near = (gap < avoid_dist).any(axis=(1, 2))     # NaN (no obstacle) compares False
-    if near.any():
-        sel = np.flatnonzero(ok)[rows[near]]
-        pts = m.points(p).reshape(-1, p, 2)[sel][:, 1:]
-        d = np.hypot(*(pts[:, None] - obs[near]).transpose(3, 0, 1, 2))
-        out[rows[near]] = ~(d < avoid_dist).any(axis=(1, 2))
+    near_rows, near_obs = [], []
+    # Per UAV of the batch, against its own records only (a few), broadcast rather than copied per manoeuvre.
+    for i in np.flatnonzero(has.any(axis=1)):
+        rows = np.flatnonzero(mine == i)
+        if rows.size == 0:
+            continue
+        obs = avoid[i, has[i], j, 1:]               # (M_i, P - 1, 2): sample 0 is the slot's start
+        # The whole path lies within ell of its start: a record farther than that (plus avoid_dist, plus a
+        # rounding margin) from the start, around its bounding circle, is safe without the sample test.
+        centre = obs.reshape(-1, 2).mean(axis=0)
+        radius = np.hypot(*(obs.reshape(-1, 2) - centre).T).max()
+        far = np.hypot(*(start[rows] - centre).T) - radius - ell[rows] > avoid_dist + 1e-6
+        rows = rows[~far]
+        if rows.size == 0:
+            continue
+        a = start[rows][:, None, None, :]
+        b = goal[rows][:, None, None, :]
+        el = ell[rows][:, None, None]
+        # At constant speed the sample at fraction f lies within ell f of the start and ell (1 - f) of the
+        # goal: a sample whose obstacle is farther than avoid_dist from that lens is safe without flying it.
+        gap = np.maximum(np.hypot(*(obs[None] - a).transpose(3, 0, 1, 2)) - el * f,
+                         np.hypot(*(obs[None] - b).transpose(3, 0, 1, 2)) - el * (1 - f))
+        near = (gap < avoid_dist).any(axis=(1, 2))
+        if near.any():
+            near_rows.append(rows[near])
+            near_obs.append((obs, int(near.sum())))
+    if not near_rows:
+        return out
+    pts = take_manoeuvres(m, sel[np.concatenate(near_rows)]).points(p)[:, 1:]
+    o = 0
+    for rows, (obs, k) in zip(near_rows, near_obs, strict=True):
+        d = np.hypot(*(pts[o:o + k, None] - obs[None]).transpose(3, 0, 1, 2))
+        out[rows] = ~(d < avoid_dist).any(axis=(1, 2))
+        o += k
     return out
