@@ -458,6 +458,38 @@ def test_negotiation_work_is_polynomial_in_the_team_size():
     assert w["dp_calls"] >= 2, "the negotiation should have been exercised"
 
 
+def test_separation_check_equals_the_sample_by_sample_test():
+    """baselines.dp.path_checks.separated (lens and circle prefilters) against every sample measured."""
+    from baselines.dp.path_checks import separated
+
+    rng = np.random.default_rng(3)
+    p, n_stages, lim = 21, 3, 5.5
+    verdicts = []
+    for trial in range(20):
+        u, n = 3, 400
+        start = rng.uniform(-30, 30, (n, 2))
+        m = solve_manoeuvre(start, rng.uniform(0, 2 * np.pi, n), start + rng.uniform(-45, 45, (n, 2)))
+        ok = np.asarray(m.feasible, bool)
+        uav = rng.integers(0, u, n)
+        avoid = np.full((u, 4, n_stages, p, 2), np.nan)
+        for i in range(u):
+            for o in range(int(rng.integers(0, 5))):
+                a = rng.uniform(-30, 30, 2)
+                rec = solve_manoeuvre(a, rng.uniform(0, 2 * np.pi), a + rng.uniform(-30, 30, 2))
+                if rec.feasible:
+                    avoid[i, o, 1] = rec.points(p)
+        got = separated(m, ok, avoid, lim, uav, 1)
+        pts = m.points(p)[ok][:, 1:]
+        obs = avoid[uav[ok], :, 1, 1:]                                      # (n_ok, M, P - 1, 2)
+        with np.errstate(invalid="ignore"):
+            d = np.hypot(*(pts[:, None] - obs).transpose(3, 0, 1, 2))
+        want = ~(d < lim).any(axis=(1, 2))
+        np.testing.assert_array_equal(got, want, err_msg=f"trial {trial}")
+        verdicts.append(want)
+    verdicts = np.concatenate(verdicts)
+    assert verdicts.mean() > 0.5 and (~verdicts).sum() > 100
+
+
 # ------------------------------------------------------------------------------ the paper's claims
 @pytest.fixture(scope="module")
 def claim_runs():
