@@ -95,7 +95,8 @@ class PathChecker:
         p = self.path_samples
         if p <= 2:
             return np.ones(int(ok.sum()), bool)
-        pts = m.points(p).reshape(-1, p, 2)[ok][:, 1:-1]
+        # Only the feasible manoeuvres are flown (sampling is most of the cost of this check).
+        pts = take_manoeuvres(m, np.flatnonzero(ok)).points(p)[:, 1:-1]
         tq = ctx.target[j, 1:-1]
         good = np.ones(len(pts), bool)
         if zone:
