@@ -13,14 +13,26 @@ negotiation) is timed. Printed per row:
 
 The first replan of a run (cold caches: the lookup table, all stage pairs) is reported separately; the
 others reuse N - 1 stages. The machine's load average is printed: timings on a shared machine are upper
-bounds. ``--optimality`` adds the small-lattice comparison with the brute force (tests/test_dp.py).
+bounds.
+
+Then (``--compare REV``, default b549364, the planner before the speed-ups of issue 12; ``--compare ''``
+skips it): the same rollouts (paper scene, 2 m grid, 1 and 3 UAVs) with this checkout and with REV's code
+(``git archive``), each in a fresh subprocess, alternating, ``--reps`` times; the CPU-time ratio old / new
+is the figure to quote on a shared machine (both sides suffer the same load). Then team slot times for
+U = 5 and 8 (random scene: the paper scene has 3 UAVs) with the negotiation's work counters, and
+(``--profile``) where a 3-UAV replan's time goes. ``--optimality`` adds the small-lattice comparison with
+the brute force (tests/test_dp.py).
 """
 
 from __future__ import annotations
 
 import argparse
+import collections
+import json
 import os
+import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -57,6 +69,128 @@ def bench(grid: float, n_uavs: int, heading: str, slots: int, bins: int = 16) ->
             "cpu_median_ms": float(np.median(cpu[1:]) * 1e3),
             "trans_per_s": float(np.sum(trans[1:]) / np.sum(wall[1:])),
             "exact_per_replan": float(np.median(exact[1:])), "rounds": float(np.mean(rounds[1:]))}
+
+
+#: One rollout's replan times, run in a subprocess against whichever code PYTHONPATH points to (the old
+#: planner is a module, baselines/dp.py; the new one a package: the same public API).
+ROLLOUT_WORKER = """
+import json, sys, time
+from baselines.dp import DPPlanner, DPTeamPlanner
+from covert_env import Config, Engine, Scenario
+u, slots, seed = int(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3])
+cfg = Config(grid_step=2.0, n_uavs=u)
+sc = Scenario.paper(cfg) if seed < 0 else Scenario.random(seed, cfg)
+team = DPTeamPlanner(DPPlanner(cfg, sc.terrain))
+eng = Engine(sc)
+cpu, wall, nodes = [], [], []
+for _ in range(slots):
+    c0, w0 = time.process_time(), time.perf_counter()
+    plan = team.plan_engine(eng)
+    cpu.append(time.process_time() - c0)
+    wall.append(time.perf_counter() - w0)
+    nodes.append([int(x) for x in plan.nodes])
+    eng.step(waypoints=plan.waypoints, infeasible=plan.infeasible)
+print(json.dumps(dict(cpu=cpu[1:], wall=wall[1:], nodes=nodes, work=getattr(plan, "work", {}))))
+"""
+
+
+def _worker(path: str, u: int, slots: int, seed: int = -1) -> dict:
+    env = dict(os.environ, PYTHONPATH=path, OMP_NUM_THREADS="1")
+    out = subprocess.run([sys.executable, "-c", ROLLOUT_WORKER, str(u), str(slots), str(seed)], env=env,
+                         capture_output=True, text=True, check=True, cwd=tempfile.gettempdir())
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def compare(rev: str, slots: int, reps: int) -> None:
+    """Replan CPU / wall times of this checkout and of ``rev`` in the same run, alternating subprocesses."""
+    root = Path(__file__).resolve().parents[1]
+    with tempfile.TemporaryDirectory() as old:
+        archive = subprocess.run(["git", "-C", str(root), "archive", rev], capture_output=True, check=True)
+        subprocess.run(["tar", "-x", "-C", old], input=archive.stdout, check=True)
+        print(f"\nSame-run comparison with {rev} (paper scene, 2 m grid, {slots - 1} replans x {reps} "
+              f"alternating runs each; ms per team replan, negotiation included):")
+        print(f"  {'U':>2} {'new cpu med':>11} {'p90':>6} {'wall med':>9} {'p90':>6} | {'old cpu med':>11} {'p90':>6} "
+              f"{'wall med':>9} {'p90':>6} | {'old/new cpu':>11} {'same plans':>10}")
+        for u in (1, 3):
+            runs = {"new": [], "old": []}
+            for _ in range(reps):
+                runs["new"].append(_worker(str(root), u, slots))
+                runs["old"].append(_worker(old, u, slots))
+            fig = {}
+            for k, rs in runs.items():
+                cpu = np.concatenate([r["cpu"] for r in rs]) * 1e3
+                wall = np.concatenate([r["wall"] for r in rs]) * 1e3
+                fig[k] = (np.median(cpu), np.percentile(cpu, 90), np.median(wall), np.percentile(wall, 90))
+            same = all(a["nodes"] == b["nodes"] for a, b in zip(runs["new"], runs["old"], strict=True))
+            n, o = fig["new"], fig["old"]
+            print(f"  {u:2d} {n[0]:11.1f} {n[1]:6.1f} {n[2]:9.1f} {n[3]:6.1f} | {o[0]:11.1f} {o[1]:6.1f} {o[2]:9.1f} "
+                  f"{o[3]:6.1f} | {o[0] / n[0]:11.2f} {str(same):>10}", flush=True)
+
+
+def large_teams(sizes, slots: int, seed: int = 11) -> None:
+    """Team slot times (CPU and wall) for larger U on a random scene, with the negotiation's work."""
+    root = str(Path(__file__).resolve().parents[1])
+    print(f"\nLarger teams (random scene {seed}, 2 m grid, {slots - 1} slots; ms per team slot):")
+    for u in sizes:
+        r = _worker(root, u, slots, seed)
+        cpu, wall = np.array(r["cpu"]) * 1e3, np.array(r["wall"]) * 1e3
+        print(f"  U = {u}: cpu median {np.median(cpu):7.1f}, p90 {np.percentile(cpu, 90):7.1f}, max {cpu.max():7.1f}; "
+              f"wall median {np.median(wall):7.1f}, max {wall.max():7.1f}; last slot's work {r['work']}", flush=True)
+
+
+def profile(slots: int) -> None:
+    """Where a 3-UAV team replan's CPU time goes (paper scene, 2 m grid), by planner stage."""
+    import baselines.dp.recursion as recursion
+    import baselines.dp.team as team_mod
+    import baselines.dp.transitions as transitions
+    from baselines.dp.lattice import StageCache
+
+    acc = collections.Counter()
+
+    def timed(owner, name, label):
+        f = getattr(owner, name)
+
+        def g(*a, **k):
+            t = time.process_time()
+            try:
+                return f(*a, **k)
+            finally:
+                acc[label] += time.process_time() - t
+        setattr(owner, name, g)
+        return owner, name, f
+
+    patched = [timed(recursion.ForwardRecursion, "_node_bounds", "table bounds (dense, per UAV)"),
+               timed(recursion, "select_per_node", "selection incl. exact solves"),
+               timed(transitions, "solve_manoeuvre", "exact manoeuvre solves (eq. 29)"),
+               timed(transitions, "separated", "negotiation: separation along paths"),
+               timed(transitions.SolvedTransitions, "winners", "recursion: winners per node"),
+               timed(recursion.ForwardRecursion, "first_layer", "first layer (eq. 19)"),
+               timed(StageCache, "pair", "stage pairs (cached, 1 new per slot)"),
+               timed(StageCache, "stage", "stages + LoS of lattice nodes (cached)"),
+               timed(team_mod.DPTeamPlanner, "conflicts", "negotiation: conflict checks"),
+               timed(team_mod, "secure_first_moves", "safety layer")]
+    try:
+        cfg = Config(grid_step=2.0, n_uavs=3)
+        sc = Scenario.paper(cfg)
+        team = DPTeamPlanner(DPPlanner(cfg, sc.terrain))
+        eng = Engine(sc)
+        total = 0.0
+        for s in range(slots):
+            if s == 1:
+                acc.clear()
+            c0 = time.process_time()
+            plan = team.plan_engine(eng)
+            total += (time.process_time() - c0) if s else 0.0
+            eng.step(waypoints=plan.waypoints, infeasible=plan.infeasible)
+    finally:
+        for owner, name, f in patched:
+            setattr(owner, name, f)
+    n = slots - 1
+    print(f"\nWhere a 3-UAV team replan's CPU time goes (paper scene, 2 m grid, mean of {n}; nested rows indented):")
+    print(f"  {'total':44s} {total / n * 1e3:6.1f} ms")
+    for label, v in sorted(acc.items(), key=lambda x: -x[1]):
+        indent = "    " if label.startswith(("exact", "negotiation: sep")) else "  "
+        print(f"{indent}{label:{46 - len(indent)}s} {v / n * 1e3:6.1f} ms")
 
 
 def optimality(n: int = 200) -> None:
@@ -103,6 +237,10 @@ def main(argv=None) -> int:
     ap.add_argument("--uavs", type=int, nargs="+", default=[1, 3])
     ap.add_argument("--variants", nargs="+", default=["inherited", "binned"], choices=["inherited", "binned"])
     ap.add_argument("--optimality", action="store_true", help="also run the brute-force comparison")
+    ap.add_argument("--compare", default="b549364", help="git revision to time in the same run ('' to skip)")
+    ap.add_argument("--reps", type=int, default=3, help="alternating runs per side in the comparison")
+    ap.add_argument("--large", type=int, nargs="*", default=[5, 8], help="larger team sizes to time")
+    ap.add_argument("--profile", action="store_true", help="also show where a 3-UAV replan's time goes")
     args = ap.parse_args(argv)
     print(f"load average at start: {os.getloadavg()[0]:.2f} (CPUs: {os.cpu_count()})")
     hdr = (f"{'grid':>5} {'nodes':>6} {'U':>2} {'variant':>14} {'cold ms':>8} {'median ms':>10} {'p90 ms':>8} "
@@ -117,6 +255,12 @@ def main(argv=None) -> int:
                 print(f"{r['grid']:5.0f} {r['nodes']:6d} {r['U']:2d} {r['variant']:>14} {r['cold_ms']:8.0f} "
                       f"{r['median_ms']:10.1f} {r['p90_ms']:8.1f} {r['cpu_median_ms']:8.1f} "
                       f"{r['trans_per_s']:14.3g} {r['exact_per_replan']:13.0f} {r['rounds']:7.2f}", flush=True)
+    if args.compare:
+        compare(args.compare, args.slots + 1, args.reps)
+    if args.large:
+        large_teams(args.large, max(4, args.slots // 2) + 1)
+    if args.profile:
+        profile(args.slots + 1)
     print(f"load average at end: {os.getloadavg()[0]:.2f}")
     if args.optimality:
         optimality()

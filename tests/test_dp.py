@@ -437,6 +437,59 @@ def test_safety_layer_separates_the_flown_slot_when_negotiation_gives_up():
             assert np.hypot(*(pts[i][1:] - pts[j][1:]).T).min() >= c.d_safe1 + team.margin - 1e-9
 
 
+def test_negotiation_work_is_polynomial_in_the_team_size():
+    """The counters of docs/model.md#team-negotiation: O(R U^2) conflict checks, <= U + 1 safety orders."""
+    u = 8
+    c = Config(n_uavs=u)
+    sc = Scenario.random(11, c)
+    tq, tp = targets(sc, 3)
+    # Eight UAVs 7 m apart on a 2 x 4 grid, same heading: neighbours want the same nodes.
+    xy = np.array([[60.0 + 7.0 * (i % 2), 7.0 * (i // 2) - 10.5] for i in range(u)])
+    th = np.full(u, 0.1)
+    for rounds in (0, 5):
+        team = DPTeamPlanner(DPPlanner(c, sc.terrain), max_rounds=rounds)
+        plan = team.plan(xy, th, tq, tp)
+        w = plan.work
+        assert w["dp_calls"] <= 1 + rounds
+        assert w["uav_plans"] <= u + rounds * (u - 1)
+        assert w["conflict_checks"] <= (rounds + 2) * u * (u - 1) // 2
+        assert w["safety_orders"] <= u + 1 and w["safety_solves"] <= u
+        assert not any(t == 0 for _, _, t, _ in team.conflicts(plan.plans))
+    assert w["dp_calls"] >= 2, "the negotiation should have been exercised"
+
+
+def test_separation_check_equals_the_sample_by_sample_test():
+    """baselines.dp.path_checks.separated (lens and circle prefilters) against every sample measured."""
+    from baselines.dp.path_checks import separated
+
+    rng = np.random.default_rng(3)
+    p, n_stages, lim = 21, 3, 5.5
+    verdicts = []
+    for trial in range(20):
+        u, n = 3, 400
+        start = rng.uniform(-30, 30, (n, 2))
+        m = solve_manoeuvre(start, rng.uniform(0, 2 * np.pi, n), start + rng.uniform(-45, 45, (n, 2)))
+        ok = np.asarray(m.feasible, bool)
+        uav = rng.integers(0, u, n)
+        avoid = np.full((u, 4, n_stages, p, 2), np.nan)
+        for i in range(u):
+            for o in range(int(rng.integers(0, 5))):
+                a = rng.uniform(-30, 30, 2)
+                rec = solve_manoeuvre(a, rng.uniform(0, 2 * np.pi), a + rng.uniform(-30, 30, 2))
+                if rec.feasible:
+                    avoid[i, o, 1] = rec.points(p)
+        got = separated(m, ok, avoid, lim, uav, 1)
+        pts = m.points(p)[ok][:, 1:]
+        obs = avoid[uav[ok], :, 1, 1:]                                      # (n_ok, M, P - 1, 2)
+        with np.errstate(invalid="ignore"):
+            d = np.hypot(*(pts[:, None] - obs).transpose(3, 0, 1, 2))
+        want = ~(d < lim).any(axis=(1, 2))
+        np.testing.assert_array_equal(got, want, err_msg=f"trial {trial}")
+        verdicts.append(want)
+    verdicts = np.concatenate(verdicts)
+    assert verdicts.mean() > 0.5 and (~verdicts).sum() > 100
+
+
 # ------------------------------------------------------------------------------ the paper's claims
 @pytest.fixture(scope="module")
 def claim_runs():

@@ -106,7 +106,8 @@ the negotiation terminates; usually one or two rounds suffice. If a conflict is 
 is actually flown (the records can leave a loser no separated move, so it falls back), a safety layer
 replaces, in priority order, the conflicting UAV's first move by its best one-slot move that keeps the
 distance to every higher-priority UAV's first manoeuvre (``status="safety"``); when the priority order
-leaves some UAV no such move (a fast teammate sweeping past), the other priority orders are tried.
+leaves some UAV no such move (a fast teammate sweeping past), that UAV is promoted to the front and the layer
+runs again (each UAV at most once). The work is polynomial in U (``TeamPlan.work``, docs/model.md#team-negotiation).
 
 ## Caching
 

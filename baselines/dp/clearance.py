@@ -17,7 +17,7 @@ import numpy as np
 from covert_env.dynamics import Manoeuvre
 from covert_env.terrain import Terrain
 
-__all__ = ["TerrainClearance"]
+__all__ = ["TerrainClearance", "take_manoeuvres"]
 
 
 class TerrainClearance:
@@ -74,12 +74,12 @@ class TerrainClearance:
         near = (foci <= ell[:, None] + 2.0 * self.radius[None]).any(axis=1)
         if near.any():
             need = np.where(self.distance(a[near]) >= self.d_safe2, self.d_safe2, -np.inf)
-            pts = _take(m, np.flatnonzero(ok)[near]).points(self.path_samples)[:, 1:]
+            pts = take_manoeuvres(m, np.flatnonzero(ok)[near]).points(self.path_samples)[:, 1:]
             out[near] = self.distance(pts).min(axis=1) >= need
         return out
 
 
-def _take(m: Manoeuvre, idx: np.ndarray) -> Manoeuvre:
+def take_manoeuvres(m: Manoeuvre, idx: np.ndarray) -> Manoeuvre:
     """The manoeuvres at flat indices ``idx`` of a batch, as a 1-D batch (to sample only those)."""
     def flat(a, k=()):
         return np.asarray(a).reshape((-1,) + k)[idx]

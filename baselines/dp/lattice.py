@@ -57,7 +57,8 @@ class StagePair:
         whatever the heading (built on demand).
     """
 
-    __slots__ = ("disguise", "table_base", "_with_penalty", "_heading_free_bound", "_chord", "_reach")
+    __slots__ = ("disguise", "table_base", "_with_penalty", "_heading_free_bound", "_chord", "_reach",
+                 "_by_target")
 
     def __init__(self, a: Stage, b: Stage, lam: float, eta: float, table: ManoeuvreTable):
         # Everything here feeds bounds only (exact costs are recomputed in float64 from the nodes' alpha
@@ -77,6 +78,14 @@ class StagePair:
         self._chord, self._reach = chord, table.reach
         self._heading_free_bound = None
         self._with_penalty: dict = {}
+        self._by_target = None
+
+    def by_target(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(table_base, disguise)`` transposed to (target b, source a), C-contiguous: the recursion scans
+        transitions column by column (per target node), which is then a contiguous row."""
+        if self._by_target is None:
+            self._by_target = (np.ascontiguousarray(self.table_base.T), np.ascontiguousarray(self.disguise.T))
+        return self._by_target
 
     @property
     def heading_free_bound(self) -> np.ndarray:
@@ -85,12 +94,16 @@ class StagePair:
                                                 np.inf).astype(np.float32)
         return self._heading_free_bound
 
-    def disguise_plus(self, penalty: np.ndarray) -> np.ndarray:
-        """``disguise + penalty[None, :]`` (float32), cached per penalty vector (few distinct ones per pair)."""
-        key = penalty.tobytes()
+    def disguise_plus(self, penalty: np.ndarray, by_target: bool = False) -> np.ndarray:
+        """``disguise + penalty[None, :]`` (float32), cached per penalty vector (few distinct ones per pair);
+        ``by_target``: its transpose (see :meth:`by_target`), the same numbers."""
+        key = (penalty.tobytes(), by_target)
         out = self._with_penalty.get(key)
         if out is None:
-            out = self.disguise + penalty.astype(np.float32)[None, :]
+            if by_target:
+                out = self.by_target()[1] + penalty.astype(np.float32)[:, None]
+            else:
+                out = self.disguise + penalty.astype(np.float32)[None, :]
             if len(self._with_penalty) >= 4:
                 self._with_penalty.pop(next(iter(self._with_penalty)))
             self._with_penalty[key] = out

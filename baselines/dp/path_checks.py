@@ -21,11 +21,11 @@ from dataclasses import dataclass
 import numpy as np
 import shapely
 
-from baselines.dp.clearance import TerrainClearance
+from baselines.dp.clearance import TerrainClearance, take_manoeuvres
 from baselines.dp.lattice import VISIBILITY_TOL
 from covert_env.angles import wrap_angle
 from covert_env.config import Config
-from covert_env.dynamics import Manoeuvre
+from covert_env.dynamics import Manoeuvre, unicycle_step
 from covert_env.terrain import Terrain
 from covert_env.visibility import line_of_sight, shadow_union_cfg
 from covert_env.zone import in_feasible_zone
@@ -35,6 +35,8 @@ __all__ = ["FALLBACK_PENALTY", "PathChecker", "PathContext", "SHADOW_MARGIN", "s
 #: Growth (m) of the shadows used for ``check_path``: shadows equal the blocked set up to ~1e-8 m at their
 #: boundary (tests/test_visibility.py checks 1 cm); a point within 1 cm of a shadow counts as blocked.
 SHADOW_MARGIN = 0.01
+#: Consecutive samples of a recorded path bounded by one circle in the separation test (:func:`separated`).
+SEPARATION_RUN = 5
 #: Penalty per non-visible node in fallback level 2, for the last stage; earlier stages weigh 2x more
 #: each, so keeping LoS sooner always wins. Far above any plan cost (|g| < ~1e4 per stage).
 FALLBACK_PENALTY = 1e6
@@ -93,7 +95,8 @@ class PathChecker:
         p = self.path_samples
         if p <= 2:
             return np.ones(int(ok.sum()), bool)
-        pts = m.points(p).reshape(-1, p, 2)[ok][:, 1:-1]
+        # Only the feasible manoeuvres are flown (sampling is most of the cost of this check).
+        pts = take_manoeuvres(m, np.flatnonzero(ok)).points(p)[:, 1:-1]
         tq = ctx.target[j, 1:-1]
         good = np.ones(len(pts), bool)
         if zone:
@@ -134,28 +137,77 @@ def separated(m: Manoeuvre, ok: np.ndarray, avoid: np.ndarray, avoid_dist: float
 
     ``avoid``: (U, M, N, P, 2) other UAVs' recorded path samples per UAV of the batch (NaN: none);
     ``uav``: the batch UAV of every manoeuvre.
+
+    At constant speed the sample at fraction f lies within ell f of the start and ell (1 - f) of the goal
+    (a lens), so an obstacle sample farther than avoid_dist from that lens cannot be too close. The test
+    narrows in three steps, all pairs at once: (manoeuvre, run of ``SEPARATION_RUN`` consecutive samples
+    of a record) around the run's bounding circle, then (manoeuvre, sample) against the lens, and only the
+    pairs left are flown (:func:`sample_points`) and measured. Distances compare with a 1 um margin until
+    that last step, so rounding can only keep a pair for it: the result is the sample-by-sample test's.
     """
     out = np.ones(int(ok.sum()), bool)
     # Records exist only at the stages where conflicts were found: elsewhere there is nothing to check.
-    has = ~np.isnan(avoid[:, :, j, -1, 0])          # (U, M)
-    rows = np.flatnonzero(has.any(axis=1)[uav[ok]])
-    if rows.size == 0:
+    rec = avoid[:, :, j, 1:]                        # (U, M, P - 1, 2): sample 0 is the slot's start
+    has = ~np.isnan(rec[:, :, -1, 0])               # (U, M)
+    if not has.any():
         return out
-    m_max = int(has.sum(axis=1).max())
-    obs = avoid[uav[ok][rows], :m_max, j, 1:]       # (n, M, P - 1, 2): sample 0 is the slot's start
-    p = obs.shape[-2] + 1
-    a = m.start.reshape(-1, 2)[ok][rows][:, None, None, :]
-    b = m.goal.reshape(-1, 2)[ok][rows][:, None, None, :]
-    ell = np.asarray(m.length).reshape(-1)[ok][rows][:, None, None]
+    sel = np.flatnonzero(ok)
+    t, o = np.nonzero(has[uav[sel]])                # (manoeuvre, record) pairs of the same batch UAV
+    if t.size == 0:
+        return out
+    p = rec.shape[-2] + 1
     f = np.linspace(0.0, 1.0, p)[1:]
-    # At constant speed the sample at fraction f lies within ell f of the start and ell (1 - f) of the goal:
-    # a sample whose obstacle is farther than avoid_dist from that lens is safe without flying it.
-    gap = np.maximum(np.hypot(*(obs - a).transpose(3, 0, 1, 2)) - ell * f,
-                     np.hypot(*(obs - b).transpose(3, 0, 1, 2)) - ell * (1 - f))
-    near = (gap < avoid_dist).any(axis=(1, 2))     # NaN (no obstacle) compares False
-    if near.any():
-        sel = np.flatnonzero(ok)[rows[near]]
-        pts = m.points(p).reshape(-1, p, 2)[sel][:, 1:]
-        d = np.hypot(*(pts[:, None] - obs[near]).transpose(3, 0, 1, 2))
-        out[rows[near]] = ~(d < avoid_dist).any(axis=(1, 2))
+    slack = avoid_dist + 1e-6
+    start = m.start.reshape(-1, 2)[sel]
+    goal = m.goal.reshape(-1, 2)[sel]
+    ell = np.asarray(m.length).reshape(-1)[sel]
+    runs = np.array_split(np.arange(p - 1), max(1, (p - 1) // SEPARATION_RUN))
+    cut = np.array([r[0] for r in runs])
+    last = np.array([r[-1] for r in runs])
+    owner = uav[sel][t]
+    # Bounding circle of every run of every record (few), then every (manoeuvre, record, run) at once.
+    centre = np.stack([rec[:, :, r].mean(axis=2) for r in runs], axis=2)        # (U, M, R, 2)
+    radius = np.stack([np.hypot(*(rec[:, :, r] - centre[:, :, h, None]).transpose(3, 0, 1, 2)).max(axis=2)
+                       for h, r in enumerate(runs)], axis=2) + slack             # (U, M, R)
+    c = centre[owner, o]                                                         # (K, R, 2)
+    rad = radius[owner, o]
+    el = ell[t][:, None]
+    close = ((np.hypot(*(start[t][:, None] - c).transpose(2, 0, 1)) < el * f[last] + rad)
+             & (np.hypot(*(goal[t][:, None] - c).transpose(2, 0, 1)) < el * (1 - f[cut]) + rad))
+    pair, run = np.nonzero(close)
+    if pair.size == 0:
+        return out
+    # Every sample of the close runs against the lens.
+    width = max(len(r) for r in runs)
+    k = cut[run][:, None] + np.arange(width)[None]                               # (K', C) sample index
+    valid = k <= last[run][:, None]
+    k = np.minimum(k, p - 2)
+    tt, oo = t[pair][:, None], o[pair][:, None]
+    q = rec[uav[sel][tt], oo, k]                                                 # (K', C, 2)
+    er, fk = ell[tt], f[k]
+    qa = q - start[tt]
+    qb = q - goal[tt]
+    lens = (valid & (qa[..., 0] ** 2 + qa[..., 1] ** 2 < (slack + er * fk) ** 2)
+            & (qb[..., 0] ** 2 + qb[..., 1] ** 2 < (slack + er * (1 - fk)) ** 2))
+    a_, b_ = np.nonzero(lens)
+    if a_.size == 0:
+        return out
+    rows, ks, qs = tt[a_, 0], k[a_, b_] + 1, q[a_, b_]
+    # Fly only the (manoeuvre, instant) pairs some obstacle sample may be near, each once.
+    key, inv = np.unique(rows * p + ks, return_inverse=True)
+    pts = sample_points(take_manoeuvres(m, sel[key // p]), key % p, p)
+    too_close = np.hypot(*(pts[inv] - qs).T) < avoid_dist
+    out[rows[too_close]] = False
     return out
+
+
+def sample_points(m: Manoeuvre, k: np.ndarray, n: int) -> np.ndarray:
+    """(K, 2) position of manoeuvre i of a 1-D batch at its k[i]-th of n equally spaced instants: the
+    numbers of ``m.points(n)[i, k[i]]``, computed only where needed."""
+    t = np.linspace(0.0, m.delta, n)[k]
+    v, om, tt = (np.asarray(x, dtype=float) for x in (m.v, m.omega, m.turn_time))
+    in_turn = t <= tt
+    x1, y1, _ = unicycle_step(m.start[:, 0], m.start[:, 1], np.asarray(m.theta0, float), v, om, np.minimum(t, tt))
+    x2, y2, _ = unicycle_step(m.tangent[:, 0], m.tangent[:, 1], np.asarray(m.heading_after, float), v, 0.0,
+                              np.maximum(t - tt, 0.0))
+    return np.stack([np.where(in_turn, x1, x2), np.where(in_turn, y1, y2)], axis=-1)

@@ -60,6 +60,8 @@ class DPPlan:
     delta: float = 1.0
     #: Internal: the strict inherited pass's DP layers of this UAV (incremental replanning by the team).
     layers: list | None = field(default=None, repr=False)
+    #: Internal: path samples already computed, per sample count (the team checks the same plan many times).
+    _points: dict = field(default_factory=dict, init=False, repr=False)
 
     @property
     def first_node(self) -> int:
@@ -78,8 +80,11 @@ class DPPlan:
         """(depth, n, 2) positions at n equally spaced instants of each slot along the planned path.
 
         A best-effort fallback move is drawn as the straight segment to its waypoint (the engine flies its own
-        best-effort control instead, so this is an approximation used only for conflict checks).
+        best-effort control instead, so this is an approximation used only for conflict checks). Cached: treat
+        the result as read-only.
         """
+        if n in self._points:
+            return self._points[n]
         m = self.manoeuvres()
         pts = m.points(n)
         bad = ~np.asarray(m.feasible, bool).reshape(-1)
@@ -88,6 +93,8 @@ class DPPlan:
             f = np.linspace(0.0, 1.0, n)[:, None]
             seg = start[:, None, :] * (1 - f) + self.waypoints[: self.depth, None, :] * f
             pts[bad] = seg[bad]
+        pts.setflags(write=False)
+        self._points[n] = pts
         return pts
 
 
@@ -106,6 +113,7 @@ class TeamPlan:
         time: wall-clock seconds for the whole team (all plans plus negotiation), one core.
         n_exact: manoeuvres solved exactly, all plans and replans together.
         n_bounded: transitions bounded through the lookup table, all plans and replans together.
+        work: the negotiation's work counters (:data:`baselines.dp.team.WORK_COUNTERS`).
     """
 
     plans: list
@@ -118,4 +126,5 @@ class TeamPlan:
     time: float
     n_exact: int = 0
     n_bounded: int = 0
+    work: dict = field(default_factory=dict)
 

@@ -14,7 +14,7 @@ import numpy as np
 
 from baselines.dp.lattice import StageCache
 from baselines.dp.path_checks import PathChecker
-from baselines.dp.selection import BOUND_TOL, select_per_bin, select_per_node
+from baselines.dp.selection import BOUND_TOL, nonzero_indices, select_per_bin, select_per_node
 from baselines.dp.states import Layer, Problem, SolveCounts
 from baselines.dp.table import ManoeuvreTable
 from baselines.dp.transitions import SolvedTransitions, solve_transitions
@@ -26,6 +26,8 @@ __all__ = ["ForwardRecursion", "backtrack"]
 OPEN_ROUNDS_CONSTRAINED = 2
 #: Entries per chunk of the binned variant's dense bound (~16 MB of float32).
 CHUNK = 1 << 22
+#: Entries per chunk of the inherited variant's bound passes (256 KB of int32 indices: stays in L2).
+BOUND_CHUNK = 1 << 16
 
 
 class ForwardRecursion:
@@ -102,35 +104,49 @@ class ForwardRecursion:
     def _node_bounds(self, pair, pen, layer: Layer, upper_bound, cost_to_go_j, counts: SolveCounts):
         """One state per node: the dense bound LB(a, b) = J(a) + disguise(a, b) + table bound + pen(b), float32.
 
-        Returns ``(lb, rowmap)``: (blocks, L, L) bounds per UAV present and the layer row of each (block, a).
+        Returns ``(lb, rowmap)``: (blocks, L, L) bounds per UAV present, indexed [block, target b, source a]
+        (selection scans per target node, so a target's bounds are one contiguous row), and the layer row
+        of each (block, a).
         """
         tab = self.table
         # Lay every UAV's states out on the full node grid (absent rows have J = inf), so the cached (L, L)
         # pair arrays broadcast instead of being gathered row by row.
         blocks = layer.blocks()
         L = len(self.lattice)
-        cost_grid = np.full((len(blocks), L), np.inf, np.float32)
-        heading_cells = np.zeros((len(blocks), L), np.float32)
-        rowmap = np.full((len(blocks), L), -1, np.int64)
+        nb = len(blocks)
+        cost_grid = np.full((nb, L), np.inf, np.float32)
+        heading_cells = np.zeros((nb, L), np.float32)
+        rowmap = np.full((nb, L), -1, np.int64)
         for b, (_, s, e) in enumerate(blocks):
             nd = layer.node[s:e]
             cost_grid[b, nd] = layer.J[s:e]
             heading_cells[b, nd] = layer.theta[s:e] * tab.psi_scale
             rowmap[b, nd] = np.arange(s, e)
-        cell = (pair.table_base[None] - heading_cells[:, :, None]).astype(np.int32)
-        lb = tab.lb[cell]
-        del cell
+        base, disguise = pair.by_target()
         uav = np.array([u for u, _, _ in blocks])
-        if len(pen) > 1:
-            lb += pair.disguise[None]
-            lb += pen[uav][:, None, :]
-        else:
-            lb += pair.disguise_plus(pen[0])[None]
-        lb += cost_grid[:, :, None]
+        shared = pair.disguise_plus(pen[0], by_target=True) if len(pen) == 1 else None
+        lb = np.empty((nb, L, L), np.float32)
+        # Chunks of targets small enough that the cell indices and the bounds stay in cache between the
+        # passes (the gather from the 3 MB table is the costly part; its temporaries should not add to it).
+        step = max(1, BOUND_CHUNK // L)
+        cell = np.empty((min(step, L), L), np.int32)
+        for b in range(nb):
+            for c0 in range(0, L, step):
+                c1 = min(c0 + step, L)
+                cb, out = cell[:c1 - c0], lb[b, c0:c1]
+                # float32 difference truncated to int32 on output: the cells of (base - heading).astype(int32).
+                np.subtract(base[c0:c1], heading_cells[b], out=cb, casting="unsafe")
+                np.take(tab.lb, cb, out=out)
+                if shared is None:
+                    out += disguise[c0:c1]
+                    out += pen[uav[b], c0:c1, None]
+                else:
+                    out += shared[c0:c1]
+                out += cost_grid[b]
         counts.bounded += int(np.isfinite(cost_grid).sum()) * L
         if cost_to_go_j is not None:
             thr = (upper_bound[uav] + BOUND_TOL).astype(np.float32)
-            lb[lb + cost_to_go_j[None, None, :] > thr[:, None, None]] = np.inf
+            lb[lb + cost_to_go_j[None, :, None] > thr[:, None, None]] = np.inf
         return lb, rowmap
 
     def _state_bounds(self, pair, pen, layer: Layer, upper_bound, cost_to_go_j, counts: SolveCounts):
@@ -162,7 +178,7 @@ class ForwardRecursion:
             if thr is not None:
                 # Transitions whose every completion costs more than the known plan cannot matter.
                 lb[lb + cost_to_go_j[None, :] > thr[sl, None]] = np.inf
-            r, c = np.nonzero(np.isfinite(lb))
+            r, c = nonzero_indices(np.isfinite(lb))
             parts.append((r + s0, c, lb[r, c], cell[r, c]))
         counts.bounded += layer.n * L
         return tuple(np.concatenate(x) for x in zip(*parts, strict=True))

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import itertools
 from dataclasses import replace
 from typing import NamedTuple
 
@@ -40,9 +39,13 @@ def secure_first_moves(team, plans, xy, th, target_xyz, target_phi, target_path=
     the lowest stage cost (eq. 18), else to any node (flagged infeasible). If it has no separated move
     at all, its move and that of one settled UAV are re-chosen together (every pair of their candidates;
     a fast teammate sweeping past can leave no single move). With ``check_path``, "allowed" also means
-    LoS kept along the manoeuvre. Failing that, the other priority orders are
-    tried (lexicographic), and if none works the priority order's result is kept with the most
-    separated move (flagged). ``status="safety"``.
+    LoS kept along the manoeuvre. Failing that, the UAV left without a separated move is promoted to
+    the front of the order and the layer is run again (each UAV promoted at most once: at most U orders,
+    see docs/decisions.md#team-priority-rule); if none works the priority order's result is kept with the
+    most separated move (flagged). ``status="safety"``.
+
+    Cost: at most U orders, each O(U) picks and O(U^2) pair repairs; every UAV's candidate moves are solved
+    once (L manoeuvres). ``team.stats`` counts ``safety_orders`` and ``safety_solves``.
     """
     pl, c = team.planner, team.config
     tq = np.asarray(target_xyz, float).reshape(-1, 3)
@@ -58,6 +61,7 @@ def secure_first_moves(team, plans, xy, th, target_xyz, target_phi, target_path=
 
     def candidates(i) -> _Candidates:
         if i not in cands:
+            team.stats["safety_solves"] += 1
             m = solve_manoeuvre(xy[i], th[i], st.xy, v_max=c.v_max, w_max=c.w_max, delta=c.delta)
             ok = np.asarray(m.feasible, bool).copy()
             if pl.paths.clearance.active:
@@ -110,7 +114,8 @@ def secure_first_moves(team, plans, xy, th, target_xyz, target_phi, target_path=
         return _Move(int(ch[a_]), bool(not al_h[ch[a_]])), _Move(int(ci[b_]), bool(not al_i[ci[b_]]))
 
     def settle(order):
-        fixed, moves, clean = {}, {}, True
+        """Moves per UAV settled in ``order``; and the first UAV left without a separated move (None: clean)."""
+        fixed, moves, stuck = {}, {}, None
         for i in order:
             if all(np.hypot(*(own[i] - f).T).min() >= lim for f in fixed.values()):
                 moves[i] = None                               # keeps its plan
@@ -125,26 +130,31 @@ def secure_first_moves(team, plans, xy, th, target_xyz, target_phi, target_path=
                         fixed[h] = candidates(h).samples[moves[h].node]
                         break
             if mv is None:
+                stuck = i if stuck is None else stuck
                 m, ok, pts, g, _ = candidates(i)
                 if not ok.any():
                     moves[i] = None                           # nothing flyable: keep the (fallback) plan
                     fixed[i] = own[i]
-                    clean = False
                     continue
                 d = np.where(ok, clear_of(pts, fixed.values()), -np.inf)
-                mv, clean = _Move(int(np.argmax(d)), True), False
+                mv = _Move(int(np.argmax(d)), True)
             moves[i] = mv
             fixed[i] = candidates(i).samples[mv.node]
-        return moves, clean
+        return moves, stuck
 
-    first = None
-    for order in itertools.permutations(range(u)):
-        moves, clean = settle(order)
+    # Priority order first; a UAV left stuck is promoted to the front (once each), so at most U orders.
+    order, promoted, first = list(range(u)), set(), None
+    while True:
+        team.stats["safety_orders"] += 1
+        moves, stuck = settle(order)
         first = first if first is not None else moves
-        if clean:
+        if stuck is None:
             break
-    else:
-        moves = first
+        if stuck in promoted or order[0] == stuck:
+            moves = first
+            break
+        promoted.add(stuck)
+        order = [stuck] + [i for i in order if i != stuck]
     out = list(plans)
     for i, mv in moves.items():
         if mv is None:

@@ -14,7 +14,7 @@ from baselines.dp.states import Layer
 from baselines.dp.table import TWO_PI, ManoeuvreTable
 from baselines.dp.transitions import SolvedTransitions
 
-__all__ = ["BOUND_TOL", "select_per_bin", "select_per_node"]
+__all__ = ["BOUND_TOL", "nonzero_indices", "select_per_bin", "select_per_node"]
 
 #: Absolute slack when comparing float32 bounds with float64 exact costs (a few float32 ulps at ~1e4).
 BOUND_TOL = 1e-2
@@ -24,66 +24,76 @@ BOUND_TOL = 1e-2
 FIRST_BAND = 0.5
 
 
+def nonzero_indices(mask: np.ndarray) -> tuple:
+    """``np.nonzero(mask)`` (same indices, same C order), several times faster on large N-d masks: numpy's
+    N-d nonzero unravels every index as it scans, the flat scan is a tight loop over the few hits."""
+    return np.unravel_index(np.flatnonzero(mask), mask.shape)
+
+
 def select_per_node(lb, rowmap, solved: SolvedTransitions, max_open_rounds) -> None:
     """One state per node (B = 1): best-first by bound until every node's winner is proven.
 
-    ``lb`` is (blocks, L, L): per UAV, bound of every (node a -> node b). Round 0 solves, per column b,
-    every transition within ``FIRST_BAND`` of the column's smallest bound: the table's bounds are
-    that tight, so this usually contains the winner and proves it (no unsolved bound is below it). A
-    column whose value is above the band then solves every transition still bounded below its value
-    (and is final); a column with no feasible transition yet ("open") solves the next 1, 2, 4, ...
+    ``lb`` is (blocks, L, L): per UAV, bound of every transition, indexed [block, target b, source a]. Round
+    0 solves, per target b, every transition within ``FIRST_BAND`` of b's smallest bound: the table's
+    bounds are that tight, so this usually contains the winner and proves it (no unsolved bound is below
+    it). A target whose value is above the band then solves every transition still bounded below its
+    value (and is final); a target with no feasible transition yet ("open") solves the next 1, 2, 4, ...
     smallest bounds per round. Every round is one exact solve for all UAVs. With ``max_open_rounds``
-    (used under negotiation constraints, where many transitions are removed) open columns are given
+    (used under negotiation constraints, where many transitions are removed) open targets are given
     up after that many rounds: the plan stays valid, the node is just not offered.
+
+    Transitions are solved in (block, source, target) order within a round, then band before open per
+    block: ties between equal exact costs are broken by that order (:meth:`SolvedTransitions.winners`).
     """
-    nb, _, L = lb.shape
+    nb, L, _ = lb.shape
     best = np.full((nb, L), np.inf)
-    colmin = lb.min(axis=1)
+    colmin = lb.min(axis=2)
     reach = np.isfinite(colmin)
     thr = np.where(reach, colmin + FIRST_BAND, -np.inf)
-    bb, r, c = np.nonzero(lb <= thr[:, None, :])
+    bb, c, r = nonzero_indices(lb <= thr[:, :, None])
 
     def run(bb, r, c):
         cost = solved.solve(rowmap[bb, r], c)
-        lb[bb, r, c] = np.inf
+        lb[bb, c, r] = np.inf
         np.minimum.at(best, (bb, c), cost)
 
-    run(bb, r, c)
+    o = np.lexsort((c, r, bb))
+    run(bb[o], r[o], c[o])
     has_exact = np.isfinite(best)
     band = has_exact & (best > thr + BOUND_TOL)
     open_ = reach & ~has_exact
     k, rounds = 1, 0
     while True:
-        parts = []
-        for b in range(nb):
-            cols = np.flatnonzero(band[b])
-            if cols.size:
-                lim = best[b, cols] + BOUND_TOL + 1e-6 * np.abs(best[b, cols])
-                rr, cc = np.nonzero(lb[b][:, cols] < lim[None, :])
-                parts.append((np.full(rr.size, b), rr, cols[cc]))
-            cols = np.flatnonzero(open_[b])
-            if cols.size and (max_open_rounds is None or rounds < max_open_rounds):
-                sub = lb[b][:, cols]
-                if k == 1:
-                    rr = np.argmin(sub, axis=0)[None]
-                elif sub.shape[0] <= k:
-                    rr = np.broadcast_to(np.arange(sub.shape[0])[:, None], sub.shape)
-                else:
-                    rr = np.argpartition(sub, k - 1, axis=0)[:k]
-                cc = np.broadcast_to(np.arange(cols.size), rr.shape)
-                fin = np.isfinite(sub[rr, cc])
-                parts.append((np.full(int(fin.sum()), b), rr[fin], cols[cc[fin]]))
-        if not parts or sum(p[1].size for p in parts) == 0:
+        keys = []                               # (block, kind: 0 band / 1 open, source or rank, target)
+        bb_, cc_ = np.nonzero(band)
+        if bb_.size:
+            lim = best[bb_, cc_] + BOUND_TOL + 1e-6 * np.abs(best[bb_, cc_])
+            q, rr = nonzero_indices(lb[bb_, cc_] < lim[:, None])
+            keys.append((bb_[q], np.zeros(q.size, np.int64), rr, cc_[q], rr))
+        bo, co = np.nonzero(open_) if (max_open_rounds is None or rounds < max_open_rounds) else ((), ())
+        if len(bo):
+            sub = lb[bo, co]                    # (open targets, L)
+            if k == 1:
+                rr = np.argmin(sub, axis=1)[:, None]
+            elif L <= k:
+                rr = np.broadcast_to(np.arange(L)[None, :], sub.shape)
+            else:
+                rr = np.argpartition(sub, k - 1, axis=1)[:, :k]
+            qq = np.broadcast_to(np.arange(len(bo))[:, None], rr.shape)
+            rank = np.broadcast_to(np.arange(rr.shape[1])[None, :], rr.shape)
+            fin = np.isfinite(sub[qq, rr])
+            keys.append((bo[qq[fin]], np.ones(int(fin.sum()), np.int64), rank[fin], co[qq[fin]], rr[fin]))
+        if not keys or sum(x[0].size for x in keys) == 0:
             return
-        bb, r, c = (np.concatenate(x) for x in zip(*parts, strict=True))
-        run(bb, r, c)
+        b_, kind, first, c_, r_ = (np.concatenate(x) for x in zip(*keys, strict=True))
+        o = np.lexsort((c_, first, kind, b_))
+        run(b_[o], r_[o], c_[o])
         now = np.isfinite(best)
         band = open_ & now                     # newly solved: one band pass, then final
         open_ = open_ & ~now
-        for b in range(nb):                    # columns with no finite bound left are unreachable
-            cols = np.flatnonzero(open_[b])
-            if cols.size:
-                open_[b, cols] = np.isfinite(lb[b][:, cols].min(axis=0))
+        bo, co = np.nonzero(open_)             # targets with no finite bound left are unreachable
+        if bo.size:
+            open_[bo, co] = np.isfinite(lb[bo, co].min(axis=1))
         k, rounds = min(2 * k, 64), rounds + 1
 
 

@@ -11,7 +11,13 @@ from baselines.dp.plan import TeamPlan
 from baselines.dp.planner import DPPlanner
 from baselines.dp.safety import secure_first_moves
 
-__all__ = ["Conflict", "DPTeamPlanner"]
+__all__ = ["Conflict", "DPTeamPlanner", "WORK_COUNTERS"]
+
+#: What :attr:`DPTeamPlanner.stats` counts per team replan. With U UAVs and R = ``max_rounds``:
+#: ``dp_calls`` (batched DP runs) <= 1 + R; ``uav_plans`` (UAV plans inside them) <= U + R (U - 1);
+#: ``conflict_checks`` (pairs of plans compared) <= (1 + R + 1) U (U - 1) / 2; ``safety_orders`` <= U + 1;
+#: ``safety_solves`` (one-slot candidate sets, L manoeuvres each) <= U. Polynomial in U: O(R U^2).
+WORK_COUNTERS = ("dp_calls", "uav_plans", "conflict_checks", "safety_orders", "safety_solves")
 
 
 class Conflict(NamedTuple):
@@ -42,6 +48,8 @@ class DPTeamPlanner:
         self.max_rounds = int(max_rounds)
         self.margin = float(separation_margin)
         self.path_samples = int(path_samples)
+        #: Work done by the last :meth:`plan` (the negotiation's cost in U, see :data:`WORK_COUNTERS`).
+        self.stats = dict.fromkeys(WORK_COUNTERS, 0)
 
     @property
     def separation(self) -> float:
@@ -69,6 +77,9 @@ class DPTeamPlanner:
         L = len(self.planner.lattice)
         lim = self.separation
         kw = dict(target_path=target_path)
+        self.stats = dict.fromkeys(WORK_COUNTERS, 0)
+        self.stats["dp_calls"] += 1
+        self.stats["uav_plans"] += u
         plans = self.planner.plan_batch(xy, th, target_xyz, target_phi, **kw)
         n_exact, n_bounded = plans[0].n_exact, plans[0].n_bounded
         blocked = np.zeros((u, n, L), bool)
@@ -97,6 +108,8 @@ class DPTeamPlanner:
             for i, p in zip(losers, new, strict=True):
                 plans[i] = p
             replans += len(losers)
+            self.stats["dp_calls"] += 1
+            self.stats["uav_plans"] += len(losers)
             n_exact += new[0].n_exact
             n_bounded += new[0].n_bounded
             conflicts = self.conflicts(plans)
@@ -106,7 +119,8 @@ class DPTeamPlanner:
         return TeamPlan(plans=plans, nodes=np.array([p.nodes[0] for p in plans]),
                         waypoints=np.array([p.waypoints[0] for p in plans]),
                         infeasible=np.array([p.infeasible for p in plans]), rounds=rounds, conflicts=len(conflicts),
-                        replans=replans, time=time.perf_counter() - t0, n_exact=n_exact, n_bounded=n_bounded)
+                        replans=replans, time=time.perf_counter() - t0, n_exact=n_exact, n_bounded=n_bounded,
+                        work=dict(self.stats))
 
     def _avoid_array(self, records, losers: list[int], n: int) -> np.ndarray:
         """(losers, M, N, P, 2) the recorded winners' path samples per loser and stage (NaN-padded)."""
@@ -130,24 +144,28 @@ class DPTeamPlanner:
         return self.plan(engine.uav_xy, engine.uav_theta, tq, tp, target_path=path)
 
     def conflicts(self, plans) -> list[Conflict]:
-        """Every pair of UAVs too close at some stage, at the nodes or along the manoeuvres (lower index wins)."""
+        """Every pair of UAVs too close at some stage, at the nodes or along the manoeuvres (lower index wins).
+
+        All pairs at once: the plans' path samples are stacked (NaN past a plan's depth, which compares False).
+        """
         u = len(plans)
         if u < 2:
             return []
         lim = self.separation
-        pts = [p.path_points(self.path_samples) for p in plans]
-        out = []
-        for i in range(u):
-            for k in range(i + 1, u):
-                d = min(plans[i].depth, plans[k].depth)
-                if d == 0:
-                    continue
-                node = np.hypot(*(plans[i].waypoints[:d] - plans[k].waypoints[:d]).T)
-                # Sample 0 of a slot is the previous slot's last one, or the current positions: nothing to plan.
-                path = np.hypot(*(pts[i][:d, 1:] - pts[k][:d, 1:]).transpose(2, 0, 1)).min(axis=1)
-                for t in range(d):
-                    if node[t] < lim:
-                        out.append(Conflict(i, k, t, "node"))
-                    elif path[t] < lim:
-                        out.append(Conflict(i, k, t, "path"))
-        return out
+        self.stats["conflict_checks"] += u * (u - 1) // 2
+        n = len(plans[0].nodes)
+        wp = np.full((u, n, 2), np.nan)
+        pts = np.full((u, n, self.path_samples - 1, 2), np.nan)
+        for i, p in enumerate(plans):
+            wp[i, :p.depth] = p.waypoints[:p.depth]
+            # Sample 0 of a slot is the previous slot's last one, or the current positions: nothing to plan.
+            pts[i, :p.depth] = p.path_points(self.path_samples)[:, 1:]
+        i, k = np.triu_indices(u, 1)
+        node = np.hypot(*(wp[i] - wp[k]).transpose(2, 0, 1))                        # (pairs, N)
+        with np.errstate(invalid="ignore"):
+            path = np.hypot(*(pts[i] - pts[k]).transpose(3, 0, 1, 2)).min(axis=2)   # (pairs, N)
+        node_hit = node < lim
+        hit = node_hit | (path < lim)
+        pair, t = np.nonzero(hit)
+        return [Conflict(int(i[q]), int(k[q]), int(s), "node" if node_hit[q, s] else "path")
+                for q, s in zip(pair.tolist(), t.tolist(), strict=True)]
