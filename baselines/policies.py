@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from baselines.dp import DPPlanner, DPTeamPlanner, TeamPlan
+from covert_env.envs.batch import MIN_SPEED_FRACTION  # the env's unicycle action scaling, inverted below
 from covert_env.metrics import episode_metrics
 from covert_env.zone import to_world
 
@@ -51,8 +52,6 @@ __all__ = [
     "run_episode",
 ]
 
-#: Smallest commanded speed as a fraction of V_max in the env's unicycle action scaling.
-MIN_SPEED_FRACTION = 0.01
 
 
 def parallel_env_of(env) -> tuple[Any, str | None]:

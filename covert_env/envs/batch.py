@@ -14,12 +14,20 @@ import math
 import numpy as np
 
 from covert_env.engine import _fly, _waypoint_controls
-from covert_env.envs.covert_sensing import _COSTS, _REWARD_TERMS, MIN_SPEED_FRACTION, OFFSET_CLIP
 
 _TWO_PI = 2.0 * math.pi
+#: Smallest commanded speed as a fraction of V_max: the unicycle needs v > 0 (eq. 1).
+MIN_SPEED_FRACTION = 0.01
+#: Offsets in observations are divided by R2 and clipped to this magnitude (500 m at R2 = 100 m).
+OFFSET_CLIP = 5.0
+#: The reward's terms; ``infos[agent]["reward_<term>"]`` holds each (the parallel env's Rewards section).
+REWARD_TERMS = ("path", "disguise", "los", "zone", "separation", "terrain")
+#: The constraints of the paper's problem (§2.4); ``infos[agent]["cost_<name>"]`` is 1.0 where the slot violated one.
+COSTS = ("los", "zone", "separation", "terrain")
 
-__all__ = ["action_masks", "constraint_costs", "fly_unicycle", "fly_waypoints", "observations", "own_features",
-           "reward_terms", "to_world_batch", "unicycle_actions", "unicycle_controls", "waypoint_actions"]
+__all__ = ["COSTS", "MIN_SPEED_FRACTION", "OFFSET_CLIP", "REWARD_TERMS", "action_masks", "constraint_costs",
+           "fly_unicycle", "fly_waypoints", "observations", "own_features", "reward_terms", "to_world_batch",
+           "unicycle_actions", "unicycle_controls", "waypoint_actions"]
 
 
 def unicycle_actions(actions, shape: tuple[int, int], agents) -> np.ndarray:
@@ -127,9 +135,9 @@ def action_masks(xy, theta, q_xy, phi, lattice, visible, table) -> np.ndarray:
 
 
 def constraint_costs(quant, c) -> np.ndarray:
-    """(4, B, U) float 0/1 violations in the order of the parallel env's ``_COSTS``: LoS, zone, separation,
+    """(4, B, U) float 0/1 violations in the order of ``COSTS``: LoS, zone, separation,
     terrain (its Constraint Costs table)."""
-    costs = np.empty((len(_COSTS),) + quant.los.shape)
+    costs = np.empty((len(COSTS),) + quant.los.shape)
     np.logical_not(quant.los, out=costs[0])
     np.logical_not(quant.in_zone, out=costs[1])
     np.less(quant.separation_path, c.d_safe1, out=costs[2])
@@ -137,10 +145,11 @@ def constraint_costs(quant, c) -> np.ndarray:
     return costs
 
 
-def reward_terms(quant, costs, c, scale: float, p: dict) -> np.ndarray:
-    """(6, B, U) reward terms in the order of ``_REWARD_TERMS`` (the parallel env's Rewards section)."""
+def reward_terms(quant, costs, c, scale, p: dict) -> np.ndarray:
+    """(6, B, U) reward terms in the order of ``REWARD_TERMS`` (the parallel env's Rewards section); ``scale`` and
+    the penalties ``p`` are numbers, or (B, 1) arrays when copies have their own."""
     outside = np.maximum(quant.zone_distance, 0.0) / (c.r2 - c.r1)
-    cols = np.empty((len(_REWARD_TERMS),) + outside.shape)
+    cols = np.empty((len(REWARD_TERMS),) + outside.shape)
     np.divide(quant.path_length, -scale, out=cols[0])
     np.multiply(quant.kappa, c.lam, out=cols[1])
     cols[1] /= scale

@@ -23,6 +23,15 @@ from pettingzoo.utils import parallel_to_aec, wrappers
 from covert_env.config import Config
 from covert_env.dynamics import solve_manoeuvre
 from covert_env.engine import Engine, step_engines
+from covert_env.envs.batch import COSTS as _COSTS
+from covert_env.envs.batch import (
+    OFFSET_CLIP,
+    constraint_costs,
+    own_features,
+    reward_terms,
+    unicycle_controls,
+)
+from covert_env.envs.batch import REWARD_TERMS as _REWARD_TERMS
 from covert_env.metrics import nearest_teammate, terrain_clearance
 from covert_env.scenario import PAPER_UAV_STARTS, Scenario, _sample_starts
 from covert_env.visibility import line_of_sight, line_of_sight_rows
@@ -31,14 +40,6 @@ from covert_env.zone import in_feasible_zone, lattice_offsets, to_world, zone_di
 __all__ = ["CovertSensingParallelEnv", "env", "parallel_env", "raw_env", "step_copies", "ACTION_MODES"]
 
 ACTION_MODES = ("unicycle", "waypoint")
-#: Smallest commanded speed as a fraction of V_max: the unicycle needs v > 0 (eq. 1).
-MIN_SPEED_FRACTION = 0.01
-#: Offsets in observations are divided by R2 and clipped to this magnitude (500 m at R2 = 100 m).
-OFFSET_CLIP = 5.0
-#: The reward's terms; ``infos[agent]["reward_<term>"]`` holds each (class docstring, Rewards).
-_REWARD_TERMS = ("path", "disguise", "los", "zone", "separation", "terrain")
-#: The constraints of the paper's problem (§2.4); ``infos[agent]["cost_<name>"]`` is 1.0 where the slot violated one.
-_COSTS = ("los", "zone", "separation", "terrain")
 #: Largest ``scene_pool``: training scene seeds 0 .. scene_pool-1 stay below the held-out seeds 1_000_000 + i.
 MAX_SCENE_POOL = 1_000_000
 #: Largest ``path_samples`` accepted: memory per step grows with it, and 1000 samples per 1 s slot is far past useful.
@@ -741,7 +742,7 @@ def step_copies(envs, actions) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.n
             goals[j] = to_world(env.lattice[idx[j]], q1[0, :2], float(phi1[0]))
         quant = step_engines(engines, waypoints=goals, infeasible=decision)
     speed = quant.path_length / c.delta
-    costs = _constraint_costs(quant, c)
+    costs = constraint_costs(quant, c)
     terms = _reward_terms(envs, quant, costs)
     rewards = terms.sum(axis=0)
     ks = [eng.k for eng in engines]
@@ -778,10 +779,8 @@ def _unicycle_controls(act: np.ndarray, c: Config, agents) -> np.ndarray:
         bad = tuple(np.argwhere(~np.isfinite(act).all(axis=-1))[0])
         where = f" (copy {bad[0]})" if len(act) > 1 else ""
         raise ValueError(f"action for {agents[bad[-1]]}{where} must be finite, got {act[bad].tolist()}")
-    act = np.minimum(np.maximum(act, -1.0), 1.0)
     ctl = np.empty_like(act)
-    ctl[..., 0] = c.v_max * (MIN_SPEED_FRACTION + (1 - MIN_SPEED_FRACTION) * (act[..., 0] + 1) / 2)
-    ctl[..., 1] = c.w_max * act[..., 1]
+    ctl[..., 0], ctl[..., 1] = unicycle_controls(act, c)
     return ctl
 
 
@@ -821,40 +820,15 @@ def _agent_infos(envs, slots, flags: np.ndarray, floats: np.ndarray) -> list[lis
     return out
 
 
-def _constraint_costs(quant, c: Config) -> np.ndarray:
-    """(4, N, U) float 0/1 violations of the slot in the order of ``_COSTS``: LoS blocked at the slot's end
-    (eqs. 6, 10), outside the zone (eqs. 4-5), closer than d_safe1 to a teammate along the path (eq. 2), closer
-    than d_safe2 to a polytope's highest point (eq. 3)."""
-    costs = np.empty((len(_COSTS),) + quant.los.shape)
-    np.logical_not(quant.los, out=costs[0])
-    np.logical_not(quant.in_zone, out=costs[1])
-    np.less(quant.separation_path, c.d_safe1, out=costs[2])
-    np.less(quant.terrain_clearance, c.d_safe2, out=costs[3])
-    return costs
-
-
 def _reward_terms(envs, quant, costs: np.ndarray) -> np.ndarray:
-    """(6, N, U) reward terms in the order of ``_REWARD_TERMS`` (class docstring, Rewards), with each copy's
-    own reward scale and penalties; the penalties weigh the constraint ``costs`` of :func:`_constraint_costs`."""
+    """(6, N, U) reward terms (:func:`covert_env.envs.batch.reward_terms`) with each copy's own reward scale and
+    penalties (read live: ``set_attr`` may change them per copy)."""
     e0 = envs[0]
-    c = e0.config
     if len(envs) == 1:
-        scale, p = e0.reward_scale, e0.penalties
-    else:
-        scale = np.array([env.reward_scale for env in envs])[:, None]
-        p = {key: np.array([env.penalties[key] for env in envs])[:, None] for key in e0.penalties}
-    outside = np.maximum(quant.zone_distance, 0.0) / (c.r2 - c.r1)
-    cols = np.empty((len(_REWARD_TERMS),) + outside.shape)
-    np.divide(quant.path_length, -scale, out=cols[0])
-    np.multiply(quant.kappa, c.lam, out=cols[1])
-    cols[1] /= scale
-    np.multiply(costs[0], -p["los"], out=cols[2])
-    cols[3] = np.minimum(outside, 2.0) + 1.0
-    cols[3] *= costs[1]
-    cols[3] *= -p["zone"]
-    np.multiply(costs[2], -p["separation"], out=cols[4])
-    np.multiply(costs[3], -p["terrain"], out=cols[5])
-    return cols
+        return reward_terms(quant, costs, e0.config, e0.reward_scale, e0.penalties)
+    scale = np.array([env.reward_scale for env in envs])[:, None]
+    p = {key: np.array([env.penalties[key] for env in envs])[:, None] for key in e0.penalties}
+    return reward_terms(quant, costs, e0.config, scale, p)
 
 
 def _own_features(envs) -> np.ndarray:
@@ -874,20 +848,7 @@ def _own_features(envs) -> np.ndarray:
         xy, th = np.stack([env.engine.uav_xy for env in envs]), np.stack([env.engine.uav_theta for env in envs])
         speed, los = np.stack([env._last_speed for env in envs]), np.stack([env._los for env in envs])
         zd = np.stack([env._zone_dist for env in envs])
-    cs, sn = np.cos(phi)[:, None], np.sin(phi)[:, None]
-    dx, dy = xy[..., 0] - q[:, 0, None], xy[..., 1] - q[:, 1, None]
-    f = np.empty(th.shape + (8,))
-    f[..., 0] = (cs * dx + sn * dy) / c.r2
-    f[..., 1] = (cs * dy - sn * dx) / c.r2
-    np.minimum(np.maximum(f[..., :2], -OFFSET_CLIP), OFFSET_CLIP, out=f[..., :2])
-    dth = th - phi[:, None]
-    f[..., 2] = np.cos(dth)
-    f[..., 3] = np.sin(dth)
-    f[..., 4] = np.minimum(speed / c.v_max, 1.0)
-    f[..., 5] = los
-    f[..., 6] = zd <= 0
-    f[..., 7] = np.minimum(np.maximum(zd / (c.r2 - c.r1), -OFFSET_CLIP), OFFSET_CLIP)
-    return f
+    return own_features(xy, th, q, phi, speed, los, zd, c)
 
 
 def _observations(envs) -> np.ndarray:

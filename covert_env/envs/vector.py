@@ -12,8 +12,6 @@ from gymnasium.vector.utils import batch_space
 
 from covert_env.envs import batch
 from covert_env.envs.covert_sensing import (
-    _COSTS,
-    _REWARD_TERMS,
     _STEP_INFO_FLOATS,
     CovertSensingParallelEnv,
     _int_arg,
@@ -245,9 +243,9 @@ class CovertSensingVectorEnv:
                  "in_zone": quant.in_zone, "infeasible": flagged, "kappa": quant.kappa, "g": quant.g,
                  "v": self._speed, "separation": quant.separation_path,
                  "terrain_clearance": quant.terrain_clearance}
-        infos.update(zip((f"reward_{t}" for t in _REWARD_TERMS), terms, strict=True))
+        infos.update(zip((f"reward_{t}" for t in batch.REWARD_TERMS), terms, strict=True))
         infos["cost"] = costs.sum(axis=0)
-        infos.update(zip((f"cost_{n}" for n in _COSTS), costs, strict=True))
+        infos.update(zip((f"cost_{n}" for n in batch.COSTS), costs, strict=True))
         obs = self._obs_rows()
         done = term | trunc
         if done.any():
