@@ -266,7 +266,7 @@ def _target_frame(xy: np.ndarray, q: np.ndarray, phi: np.ndarray) -> np.ndarray:
 
 def _fig_trajectories(plt, sc: Scenario, aw: dict, bl: dict, u: int, fig_no: int, config: Config):
     """Figs. 8 / 12: top views (one per method), a cropped 3D view and the positions in the target's frame."""
-    from covert_env.render import TERRAIN_COLOR, UAV_COLORS, _fill, _outline, draw_3d_view
+    from covert_env.render import TERRAIN_COLOR, UAV_COLORS, draw_3d_view, fill_geometry, outline_geometry
     from covert_env.zone import feasible_zone
 
     k_end = aw["series"]["uav_xy"].shape[0] - 1
@@ -279,7 +279,7 @@ def _fig_trajectories(plt, sc: Scenario, aw: dict, bl: dict, u: int, fig_no: int
     for row, (name, res) in enumerate((("aware", aw), ("blind", bl))):
         ax = fig.add_subplot(grid[row, :])
         for p in sc.terrain:
-            _fill(ax, p.footprint, color=TERRAIN_COLOR, alpha=0.8, lw=0)
+            fill_geometry(ax, p.footprint, color=TERRAIN_COLOR, alpha=0.8, lw=0)
         ax.plot(road[:, 0], road[:, 1], color="0.35", lw=0.8, ls="--")
         ax.plot(tq[:, 0], tq[:, 1], color="gold", lw=3, alpha=0.9, label="target track")
         xy = res["series"]["uav_xy"]
@@ -309,10 +309,10 @@ def _fig_trajectories(plt, sc: Scenario, aw: dict, bl: dict, u: int, fig_no: int
                  lw=0.8)
     ax3.set_title("3D, shadow-aware (paper)", fontsize=10)
     ax = fig.add_subplot(grid[2, 1])
-    _outline(ax, feasible_zone((0.0, 0.0), 0.0, config.r1, config.r2, config.mu, 0.0), color="k", lw=1.2,
+    outline_geometry(ax, feasible_zone((0.0, 0.0), 0.0, config.r1, config.r2, config.mu, 0.0), color="k", lw=1.2,
              label="feasible zone (eq. 4)")
     if config.r_u > 0:
-        _outline(ax, feasible_zone((0.0, 0.0), 0.0, config.r1, config.r2, config.mu, config.r_u), color="k",
+        outline_geometry(ax, feasible_zone((0.0, 0.0), 0.0, config.r1, config.r2, config.mu, config.r_u), color="k",
                  lw=0.8, ls=":", label=f"eroded by r_u = {config.r_u:g} m (eq. 5)")
     for name, res, mk in (("aware", aw, "o"), ("blind", bl, "x")):
         rel = _target_frame(res["series"]["uav_xy"][1:], tq[1:], np.asarray(aw["series"]["target_phi"][1:]))

@@ -23,13 +23,12 @@ import math
 import numpy as np
 
 from covert_env.config import MAX_N_UAVS
-from covert_env.dynamics import solve_manoeuvre, unicycle_step
+from covert_env.flight import check_unicycle, fly, waypoint_controls
 from covert_env.metrics import SlotQuantities, moves_quantities
 from covert_env.scenario import Scenario
 from covert_env.trajectory import Trajectory
-from covert_env.visibility import TerrainStack
 
-__all__ = ["Engine", "MAX_PATH_SAMPLES", "step_engines"]
+__all__ = ["Engine", "MAX_PATH_SAMPLES"]
 
 
 class Engine:
@@ -143,10 +142,28 @@ class Engine:
                                  f"got shape {arr.shape}")
             return arr.astype(dtype, copy=False).reshape((1,) + shape)
 
-        return step_engines([self], unicycle=one(unicycle, (u, 2), "unicycle"),
-                            waypoints=one(waypoints, (u, 2), "waypoints"),
-                            decision_time=one(decision_time, (u,), "decision_time"),
-                            infeasible=one(infeasible, (u,), "infeasible", bool))
+        unicycle, waypoints = one(unicycle, (u, 2), "unicycle"), one(waypoints, (u, 2), "waypoints")
+        decision_time, infeasible = one(decision_time, (u,), "decision_time"), one(infeasible, (u,), "infeasible", bool)
+        if self.done:
+            raise RuntimeError("Engine.step called after the episode ended; call reset()")
+        if (unicycle is None) == (waypoints is None):
+            raise ValueError("Engine.step: pass exactly one of unicycle= or waypoints=")
+        c = self.config
+        xy, theta = self.uav_xy[None], self.uav_theta[None]
+        flagged = np.zeros((1, u), bool) if infeasible is None else infeasible.copy()
+        if unicycle is not None:
+            ctl = unicycle.copy()                                        # the engine keeps v and omega
+            check_unicycle(ctl, c)
+            v, w, t_turn = ctl[..., 0], ctl[..., 1], None                # held for the whole slot
+        else:
+            v, w, t_turn, fallback = waypoint_controls(xy.reshape(-1, 2), theta.reshape(-1), waypoints.reshape(-1, 2),
+                                                       c)
+            v, w, t_turn = v.reshape(1, u), w.reshape(1, u), t_turn.reshape(1, u)
+            flagged |= fallback.reshape(1, u)
+        path, end_theta = fly(xy, theta, v, w, t_turn, self._fractions * c.delta)
+        self._record(path[0], end_theta[0], v[0], w[0], flagged[0], None if decision_time is None
+                     else decision_time[0].copy())
+        return self.last_quantities()
 
     def _record(self, path, end_theta, v, w, flagged, decision_time) -> None:
         self._path.append(path)
@@ -184,7 +201,18 @@ class Engine:
 
     def last_quantities(self) -> SlotQuantities:
         """Quantities of the slot just flown (arrays of shape (1, U))."""
-        return _last_quantities([self])
+        if self.k == 0:
+            raise RuntimeError("Engine.last_quantities: no slot flown yet")
+        k, tr = self.k, self.track
+        q, phi = tr.positions[k - 1:k + 1], tr.headings[k - 1:k + 1]
+        target_path = tr.position_between(k - 1, self._fractions)[None] if self.path_los else None
+        return moves_quantities(self._xy[-2][None], self._xy[-1][None], q[0], phi[0], q[1], phi[1],
+                                self._path[-1][None], self._length[-1][None], target_path, self.terrain, self.config)
+
+    @property
+    def positions(self) -> np.ndarray:
+        """(k + 1, U, 2) the UAVs' positions at slot times 0..k (the trails the renderer draws)."""
+        return np.array(self._xy)
 
 
 #: Most samples per slot along a path (Engine's path_samples): every slot stores (U, path_samples, 2) points.
@@ -199,155 +227,3 @@ def _short(v) -> str:
 
 def _shape_text(shape) -> str:
     return "(U, 2)" if len(shape) == 2 else "(U,)"
-
-
-def _check_unicycle(ctl: np.ndarray, c) -> None:
-    v, w = ctl[..., 0], ctl[..., 1]
-    # One combined test on the hot path (NaN fails every comparison); the messages below find the culprit.
-    if (np.all(v > 0) and np.all(v <= c.v_max * (1 + 1e-9)) and np.all(np.abs(w) <= c.w_max * (1 + 1e-9))):
-        return
-    if not np.all(np.isfinite(ctl)):
-        raise ValueError("Engine.step: unicycle controls must be finite (got NaN or inf)")
-    if np.any(v <= 0) or np.any(v > c.v_max * (1 + 1e-9)):
-        raise ValueError(f"Engine.step: speed v must be in (0, V_max={c.v_max:g}], got {v.tolist()}")
-    if np.any(np.abs(w) > c.w_max * (1 + 1e-9)):
-        raise ValueError(f"Engine.step: turn rate omega must be in [-W_max, W_max] = "
-                         f"[{-c.w_max:g}, {c.w_max:g}], got {w.tolist()}")
-
-
-def _waypoint_controls(xy, theta, goals, c):
-    """Manoeuvre controls (v, omega, turn time) per UAV from (K, 2) poses to (K, 2) goals, with the
-    best-effort fallback; returns them and the fallback flags, each (K,)."""
-    if not np.all(np.isfinite(goals)):
-        raise ValueError("Engine.step: waypoints must be finite (got NaN or inf)")
-    m = solve_manoeuvre(xy, theta, goals, v_max=c.v_max, w_max=c.w_max, delta=c.delta)
-    feasible = np.asarray(m.feasible, bool).reshape(-1)
-    v = np.where(feasible, np.nan_to_num(m.v), 0.0)
-    w = np.where(feasible, np.nan_to_num(m.omega), 0.0)
-    t_turn = np.where(feasible, np.nan_to_num(m.turn_time), 0.0)
-    bad = ~feasible
-    if bad.any():
-        v[bad], w[bad] = _closest_constant_control(xy[bad], theta[bad], goals[bad], c)
-        t_turn[bad] = c.delta
-    return v, w, t_turn, bad
-
-
-def _closest_constant_control(xy, theta, goals, c):
-    """Best effort for unreachable waypoints: the admissible constant (v, omega) whose exact end
-    point lies closest to the waypoint, found on a 17 x 17 grid refined twice around the best."""
-    x0, y0, th0 = xy[:, 0, None], xy[:, 1, None], theta[:, None]
-    lo_v, hi_v = np.full(len(goals), 0.01 * c.v_max), np.full(len(goals), c.v_max)
-    lo_w, hi_w = np.full(len(goals), -c.w_max), np.full(len(goals), c.w_max)
-    f = np.linspace(0.0, 1.0, 17)
-    for _ in range(3):
-        gv = (lo_v[:, None] + (hi_v - lo_v)[:, None] * f)[:, :, None] * np.ones(17)       # (B, 17, 17)
-        gw = (lo_w[:, None] + (hi_w - lo_w)[:, None] * f)[:, None, :] * np.ones((17, 1))
-        gv, gw = gv.reshape(len(goals), -1), gw.reshape(len(goals), -1)
-        x, y, _ = unicycle_step(x0, y0, th0, gv, gw, c.delta)
-        best = np.argmin((x - goals[:, :1]) ** 2 + (y - goals[:, 1:]) ** 2, axis=1)
-        bv, bw = gv[np.arange(len(goals)), best], gw[np.arange(len(goals)), best]
-        dv, dw = (hi_v - lo_v) / 16, (hi_w - lo_w) / 16
-        lo_v, hi_v = np.maximum(bv - dv, 0.01 * c.v_max), np.minimum(bv + dv, c.v_max)
-        lo_w, hi_w = np.maximum(bw - dw, -c.w_max), np.minimum(bw + dw, c.w_max)
-    return bv, bw
-
-
-def _fly(xy, theta, v, w, t_turn, t):
-    """Integrate turn (v, w) for t_turn then straight (v, 0) from poses (..., U): path samples at the
-    times ``t`` (P,) as (..., U, P, 2), and the end heading (..., U)."""
-    t = t.reshape((-1,) + (1,) * theta.ndim)                          # (P, 1, ...)
-    if t_turn is None or (t_turn >= t[-1]).all():                     # one constant control: one arc
-        x2, y2, th2 = unicycle_step(xy[..., 0], xy[..., 1], theta, v, w, t)
-    else:
-        t1 = np.minimum(t, t_turn)
-        t2 = np.maximum(t - t_turn, 0.0)
-        x1, y1, th1 = unicycle_step(xy[..., 0], xy[..., 1], theta, v, w, t1)
-        x2, y2, th2 = unicycle_step(x1, y1, th1, v, 0.0, t2)
-    path = np.empty(x2.shape[1:] + x2.shape[:1] + (2,))               # (..., U, P, 2)
-    path[..., 0] = np.moveaxis(x2, 0, -1)
-    path[..., 1] = np.moveaxis(y2, 0, -1)
-    path[..., 0, :] = xy                                              # exact start, no round-off
-    return path, th2[-1]
-
-
-def step_engines(engines, *, unicycle=None, waypoints=None, decision_time=None, infeasible=None) -> SlotQuantities:
-    """Fly one slot in each of N engines at once (lock-step), with one set of vectorised numpy calls.
-
-    :meth:`Engine.step` is this function with N = 1; environment copies stepped together (the SB3
-    adapter's fast path) call it with all their engines, so the per-call cost of numpy is paid once per
-    vector step, not once per copy. The engines must share the config, the team size and the path
-    sampling; each keeps its own terrain, track and slot.
-
-    Args:
-        engines: the N engines, none of them done.
-        unicycle: (N, U, 2) controls (v, omega), or
-        waypoints: (N, U, 2) next positions (exactly one of the two).
-        decision_time: optional (N, U) seconds; infeasible: optional (N, U) bool (see :meth:`Engine.step`).
-
-    Returns:
-        :class:`SlotQuantities` with arrays of shape (N, U).
-    """
-    e0 = engines[0]
-    c, u = e0.config, e0.n_uavs
-    for e in engines:
-        if e.done:
-            raise RuntimeError("Engine.step called after the episode ended; call reset()")
-        if e is not e0 and (e.n_uavs != u or e.path_samples != e0.path_samples or e.path_los != e0.path_los
-                            or (e.config is not c and e.config != c)):
-            raise ValueError("step_engines: engines must share config, team size, path_samples and path_los")
-    if (unicycle is None) == (waypoints is None):
-        raise ValueError("Engine.step: pass exactly one of unicycle= or waypoints=")
-    n = len(engines)
-    if n == 1:
-        xy, theta = e0.uav_xy[None], e0.uav_theta[None]
-    else:
-        xy, theta = np.stack([e.uav_xy for e in engines]), np.stack([e.uav_theta for e in engines])
-    flagged = np.zeros((n, u), bool) if infeasible is None else np.array(infeasible, bool).reshape(n, u)
-    if unicycle is not None:
-        ctl = np.array(unicycle, dtype=float).reshape(n, u, 2)          # a copy: the engine keeps v and omega
-        _check_unicycle(ctl, c)
-        v, w, t_turn = ctl[..., 0], ctl[..., 1], None                 # held for the whole slot
-    else:
-        goals = np.asarray(waypoints, dtype=float).reshape(n * u, 2)
-        v, w, t_turn, fallback = _waypoint_controls(xy.reshape(-1, 2), theta.reshape(-1), goals, c)
-        v, w, t_turn = v.reshape(n, u), w.reshape(n, u), t_turn.reshape(n, u)
-        flagged |= fallback.reshape(n, u)
-    path, end_theta = _fly(xy, theta, v, w, t_turn, e0._fractions * c.delta)
-    dtime = None if decision_time is None else np.array(decision_time, float).reshape(n, u)   # a copy: kept
-    for j, e in enumerate(engines):
-        e._record(path[j], end_theta[j], v[j], w[j], flagged[j], None if dtime is None else dtime[j])
-    return _last_quantities(engines)
-
-
-_STACK: list = [None]   # the last TerrainStack built (copies keep their terrain for a whole episode)
-
-
-def _terrain_stack(engines):
-    st = _STACK[0]
-    if st is None or len(st) != len(engines) or any(
-            a is not e.terrain for a, e in zip(st.terrains, engines, strict=True)):
-        st = _STACK[0] = TerrainStack([e.terrain for e in engines])
-    return st
-
-
-def _last_quantities(engines) -> SlotQuantities:
-    """Quantities of the slot each engine just flew (arrays of shape (N, U))."""
-    e0 = engines[0]
-    if any(e.k == 0 for e in engines):
-        raise RuntimeError("Engine.last_quantities: no slot flown yet")
-    if len(engines) == 1:
-        k, tr = e0.k, e0.track
-        start, end = e0._xy[-2][None], e0._xy[-1][None]
-        path, length = e0._path[-1][None], e0._length[-1][None]
-        q, phi = tr.positions[k - 1:k + 1], tr.headings[k - 1:k + 1]
-        terrain = e0.terrain
-    else:
-        start, end = np.stack([e._xy[-2] for e in engines]), np.stack([e._xy[-1] for e in engines])
-        path, length = np.stack([e._path[-1] for e in engines]), np.stack([e._length[-1] for e in engines])
-        q = np.stack([e.track.positions[e.k - 1:e.k + 1] for e in engines], axis=1)      # (2, N, 3)
-        phi = np.stack([e.track.headings[e.k - 1:e.k + 1] for e in engines], axis=1)
-        terrain = _terrain_stack(engines)
-    target_path = None
-    if e0.path_los:
-        target_path = np.stack([e.track.position_between(e.k - 1, e._fractions) for e in engines])
-    return moves_quantities(start, end, q[0], phi[0], q[1], phi[1], path, length, target_path, terrain, e0.config)

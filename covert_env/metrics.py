@@ -117,7 +117,7 @@ def moves_quantities(start_xy, end_xy, target_start, phi_start, target_end, phi_
                      target_path_xyz, terrain, config: Config) -> SlotQuantities:
     """:class:`SlotQuantities` of a batch of one-slot moves: the one function behind
     :func:`slot_quantities` (B = the T slots of an episode) and the engine's per-step quantities
-    (B = the N env copies stepped in lock-step, see :func:`covert_env.engine.step_engines`).
+    (B = the copies of :class:`covert_env.envs.vector.CovertSensingVectorEnv`; 1 for an engine).
 
     Args:
         start_xy, end_xy: (*B, U, 2) the team before and after each move.

@@ -15,6 +15,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from covert_env.scenario import Scenario
 
 __all__ = ["scene_figure", "draw_top_view", "draw_3d_view", "zones_at", "shadow_share", "EpisodeRenderer",
+           "fill_geometry", "outline_geometry",
            "episode_frames", "save_episode_gif", "save_episode_mp4"]
 
 ZONE_COLOR = "black"
@@ -34,14 +35,16 @@ def _geoms(geom):
     return [g for part in getattr(geom, "geoms", []) for g in _geoms(part)]
 
 
-def _fill(ax, geom, **kw):
+def fill_geometry(ax, geom, **kw):
+    """Fill every polygon of a shapely geometry on ``ax`` (one legend label, on the first)."""
     for poly in _geoms(geom):
         x, y = poly.exterior.xy
         ax.fill(x, y, **kw)
         kw.pop("label", None)
 
 
-def _outline(ax, geom, **kw):
+def outline_geometry(ax, geom, **kw):
+    """Draw every ring of a shapely geometry on ``ax`` (one legend label, on the first)."""
     for poly in _geoms(geom):
         for ring in [poly.exterior, *poly.interiors]:
             x, y = ring.xy
@@ -84,20 +87,20 @@ def draw_top_view(ax, scenario: Scenario, k: int, uav_xy=None, trails=None, lege
     q = scenario.track.position(k) if q is None else np.asarray(q, float)
     zone, shadows, visible = zones_at(scenario, k, q, phi)
     for i, p in enumerate(scenario.terrain):
-        _fill(ax, p.footprint, color=TERRAIN_COLOR, alpha=0.8, label="terrain footprint" if i == 0 else None)
+        fill_geometry(ax, p.footprint, color=TERRAIN_COLOR, alpha=0.8, label="terrain footprint" if i == 0 else None)
     road = scenario.road.points
     ax.plot(road[:, 0], road[:, 1], color=ROAD_COLOR, lw=1.0, ls="--", label="road")
     first = True
     for s in shadows:
         if not s.is_empty:
-            _fill(ax, s, color=SHADOW_COLOR, alpha=0.18, lw=0, label="shadows (eqs. 8-9)" if first else None)
+            fill_geometry(ax, s, color=SHADOW_COLOR, alpha=0.18, lw=0, label="shadows (eqs. 8-9)" if first else None)
             first = False
-    _fill(ax, visible, color=VISIBLE_COLOR, alpha=0.35, lw=0, label="visible zone (eq. 10)")
+    fill_geometry(ax, visible, color=VISIBLE_COLOR, alpha=0.35, lw=0, label="visible zone (eq. 10)")
     in_zone = zone.difference(visible)
     if in_zone.area > 1e-6 * max(zone.area, 1.0):
-        _fill(ax, in_zone, facecolor=SHADOW_COLOR, alpha=0.75, edgecolor="darkred", lw=0.5,
+        fill_geometry(ax, in_zone, facecolor=SHADOW_COLOR, alpha=0.75, edgecolor="darkred", lw=0.5,
               label="shadow inside the zone")
-    _outline(ax, zone, color=ZONE_COLOR, lw=1.5, label="feasible zone (eq. 5)")
+    outline_geometry(ax, zone, color=ZONE_COLOR, lw=1.5, label="feasible zone (eq. 5)")
     ax.plot(*q[:2], marker="*", ms=14, color="gold", mec="k", label="target", ls="none")
     if trails is not None:
         for i, tr in enumerate(np.asarray(trails)):
@@ -225,7 +228,7 @@ class EpisodeRenderer:
         """Draw the engine's current slot; returns the frame as uint8 (H, W, 3)."""
         fig = self._figure()
         fig.clf()
-        trails = np.swapaxes(np.array(engine._xy), 0, 1)
+        trails = np.swapaxes(engine.positions, 0, 1)
         if self.view in ("top", "both"):
             ax = fig.add_subplot(1, 2 if self.view == "both" else 1, 2 if self.view == "both" else 1)
             draw_top_view(ax, scenario, engine.k, engine.uav_xy, trails, legend=False)

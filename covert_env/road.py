@@ -145,7 +145,7 @@ class Road:
         d = self.points[i + 1] - self.points[i]
         return np.arctan2(d[..., 1], d[..., 0])
 
-    def _pose_at(self, s: float) -> tuple[np.ndarray, float]:
+    def pose_at(self, s: float) -> tuple[np.ndarray, float]:
         """``(point_at(s), heading_at(s))`` for one float ``s`` with one lookup (the terrain generator's
         inner loop calls it per candidate; same arithmetic as the vectorised methods)."""
         cl = self.cumulative_length

@@ -18,7 +18,7 @@ from covert_env.road import Road, TargetTrack
 from covert_env.terrain import Terrain
 from covert_env.zone import to_world
 
-__all__ = ["Scenario", "PAPER_UAV_STARTS", "PAPER_SEED"]
+__all__ = ["Scenario", "PAPER_UAV_STARTS", "PAPER_SEED", "pick_starts", "sample_starts_on", "start_candidates"]
 
 #: The paper's UAV starts (x, y, heading), §3.1-3.2.
 PAPER_UAV_STARTS = np.array([[40.0, 10.0, 2 * math.pi], [60.0, 0.0, math.pi], [50.0, -10.0, math.pi / 2]])
@@ -140,12 +140,12 @@ class Scenario:
         c = _check_config(config, "Scenario.random")
         u = c.n_uavs if n_uavs is None else n_uavs
         _check_team(u, "Scenario.random")
-        terrain, track, rng = cls._random_world(seed, c)
-        xy, th = _sample_starts(c, terrain, track, rng, u, f"random-{seed}")
+        terrain, track, rng = cls.random_world(seed, c)
+        xy, th = sample_starts_on(c, terrain, track, rng, u, f"random-{seed}")
         return cls(c, terrain, track, xy, th, name=f"random-{seed}")
 
     @classmethod
-    def _random_world(cls, seed: int, config: Config) -> tuple[Terrain, TargetTrack, np.random.Generator]:
+    def random_world(cls, seed: int, config: Config) -> tuple[Terrain, TargetTrack, np.random.Generator]:
         """The terrain and track of :meth:`random` (seed), and the generator positioned to draw its starts.
 
         Environments that draw their own starts use this and skip the seeded ones."""
@@ -183,16 +183,16 @@ class Scenario:
             rng = np.random.default_rng(rng)
         u = self.n_uavs if n_uavs is None else n_uavs
         _check_team(u, "Scenario.sample_starts")
-        return _sample_starts(self.config, self.terrain, self.track, rng, u, self.name)
+        return sample_starts_on(self.config, self.terrain, self.track, rng, u, self.name)
 
 
-def _sample_starts(c: Config, terrain: Terrain, track: TargetTrack, rng: np.random.Generator, u: int,
+def sample_starts_on(c: Config, terrain: Terrain, track: TargetTrack, rng: np.random.Generator, u: int,
                    name: str) -> tuple[np.ndarray, np.ndarray]:
     """:meth:`Scenario.sample_starts` on the parts of a scenario."""
-    return _pick_starts(c, *_start_candidates(c, terrain, track), rng, u, name)
+    return pick_starts(c, *start_candidates(c, terrain, track), rng, u, name)
 
 
-def _start_candidates(c: Config, terrain: Terrain, track: TargetTrack) -> tuple[np.ndarray, np.ndarray]:
+def start_candidates(c: Config, terrain: Terrain, track: TargetTrack) -> tuple[np.ndarray, np.ndarray]:
     """The zone lattice at slot 0 (world positions) and the indices of its nodes with clear LoS: what the start
     sampler draws from, the same for every draw on a scene (the vector env computes it once per scene)."""
     from covert_env.visibility import line_of_sight
@@ -204,9 +204,9 @@ def _start_candidates(c: Config, terrain: Terrain, track: TargetTrack) -> tuple[
     return nodes, np.flatnonzero(line_of_sight(terrain, nodes, c.altitude, q0))
 
 
-def _pick_starts(c: Config, nodes: np.ndarray, clear: np.ndarray, rng: np.random.Generator, u: int,
+def pick_starts(c: Config, nodes: np.ndarray, clear: np.ndarray, rng: np.random.Generator, u: int,
                  name: str) -> tuple[np.ndarray, np.ndarray]:
-    """Steps 1-4 of :meth:`Scenario.sample_starts` on the candidates of :func:`_start_candidates`."""
+    """Steps 1-4 of :meth:`Scenario.sample_starts` on the candidates of :func:`start_candidates`."""
     from covert_env.zone import SPREAD_MARGIN, spread_nodes, zone_lattice
 
     order = clear[rng.permutation(len(clear))]

@@ -577,7 +577,7 @@ class Terrain:
                 near = clear + r
                 # rng.choice((-1.0, 1.0)) draws this same integer, at 5x the cost of the call.
                 off = rng.uniform(near, max(near, cfg.road_max_offset - r)) * (-1.0, 1.0)[rng.integers(0, 2)]
-                point, th = road._pose_at(s)
+                point, th = road.pose_at(s)
                 centre = point + off * np.array([-math.sin(th), math.cos(th)])
                 base = _random_footprint(rng, k, r) + centre
                 close = np.flatnonzero(np.linalg.norm(centres - centre, axis=1) < radii + r + _MIN_GAP)

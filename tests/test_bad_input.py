@@ -14,7 +14,7 @@ import pytest
 
 from covert_env.config import MAX_LATTICE, Config
 from covert_env.road import Road, TargetTrack
-from covert_env.scenario import Scenario, _sample_starts
+from covert_env.scenario import Scenario, sample_starts_on
 from covert_env.terrain import Polytope, Terrain, _first_overlap
 from covert_env.visibility import line_of_sight
 from covert_env.zone import grid_nodes, in_feasible_zone, lattice_offsets, lattice_size
@@ -270,8 +270,8 @@ def test_starts_always_placed_and_unchanged_where_they_were(overrides, seeds):
     c = Config(**overrides)
     old_ok = 0
     for seed in seeds:
-        terrain, track, rng = Scenario._random_world(seed, c)
-        xy, th = _sample_starts(c, terrain, track, copy.deepcopy(rng), c.n_uavs, "t")
+        terrain, track, rng = Scenario.random_world(seed, c)
+        xy, th = sample_starts_on(c, terrain, track, copy.deepcopy(rng), c.n_uavs, "t")
         old = _historical_starts(c, terrain, track, copy.deepcopy(rng), c.n_uavs)
         if old is not None:                                  # results are compared across releases
             old_ok += 1
@@ -295,10 +295,10 @@ def test_starts_prefer_visible_nodes_in_the_fallback():
     c = Config(d_safe1=20.0)
     checked = 0
     for seed in range(40):
-        terrain, track, rng = Scenario._random_world(seed, c)
+        terrain, track, rng = Scenario.random_world(seed, c)
         if _historical_starts(c, terrain, track, copy.deepcopy(rng), c.n_uavs) is not None:
             continue
-        xy, _ = _sample_starts(c, terrain, track, copy.deepcopy(rng), c.n_uavs, "t")
+        xy, _ = sample_starts_on(c, terrain, track, copy.deepcopy(rng), c.n_uavs, "t")
         q0, phi0 = track.position(0), float(track.heading(0))
         nodes = grid_nodes(q0[:2], phi0, c.grid_step, c.r1, c.r2, c.mu, c.r_u)
         if line_of_sight(terrain, nodes, c.altitude, q0).any():
@@ -575,7 +575,7 @@ def test_engine_accepts_a_flat_single_uav_and_numpy_counts():
     assert e.k == 1 and e.path_samples == 5
 
 
-def test_sample_starts_takes_an_int_seed_like_its_generator():
+def testsample_starts_on_takes_an_int_seed_like_its_generator():
     p = Scenario.paper(Config(n_slots=10))
     a = p.sample_starts(5)
     b = p.sample_starts(np.random.default_rng(5))

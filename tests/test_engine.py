@@ -15,7 +15,7 @@ import pytest
 
 from covert_env.config import Config
 from covert_env.dynamics import solve_manoeuvre, unicycle_step
-from covert_env.engine import Engine, step_engines
+from covert_env.engine import Engine
 from covert_env.scenario import Scenario
 from covert_env.trajectory import Trajectory
 
@@ -429,41 +429,37 @@ def test_fallback_is_the_closest_constant_control(paper, offset):
         assert got == pytest.approx(np.hypot(*offset) - c.v_max * c.delta, abs=0.5)
 
 
-# ----------------------------------------------------------------------------- lock-step engines
+# ----------------------------------------------------------------------------- the envs fly the engine's flight
 @pytest.mark.parametrize("mode", ["unicycle", "waypoint"])
-@pytest.mark.parametrize("path_los", [False, True])
-def test_step_engines_equals_stepping_each_engine(mode, path_los):
-    """N engines on different scenes and at different slots, flown together, end where each flown alone
-    ends, with the same quantities and records (unreachable waypoints included: the fallback is batched)."""
-    scenes = [Scenario.random(s) for s in (3, 4, 5)]
-    together = [Engine(sc, path_samples=7, path_los=path_los) for sc in scenes]
-    alone = [Engine(sc, path_samples=7, path_los=path_los) for sc in scenes]
+def test_env_episode_is_the_engines(mode):
+    """An env episode (the vector env's recorder, read through the parallel env) is exactly the trajectory an
+    Engine records when flown with the same controls or waypoints (masked-out and unreachable ones included)."""
+    import covert_env
+    from covert_env.envs.batch import unicycle_controls
+    from covert_env.zone import to_world
+
+    env = covert_env.parallel_env(n_uavs=3, action_mode=mode, path_samples=7)
+    env.reset(seed=4)
+    eng = Engine(env.scenario, path_samples=7)
     rng = np.random.default_rng(7)
-    c = scenes[0].config
-    together[2].step(unicycle=[[5.0, 0.0]] * 3)                # the copies need not be at the same slot
-    alone[2].step(unicycle=[[5.0, 0.0]] * 3)
-    for _ in range(6):
+    c = env.config
+    for _ in range(10):
         if mode == "unicycle":
-            arg = np.stack([np.column_stack([rng.uniform(0.1, c.v_max, 3), rng.uniform(-c.w_max, c.w_max, 3)])
-                            for _ in scenes])
+            act = rng.uniform(-1, 1, (3, 2)).astype(np.float32)
+            v, w = unicycle_controls(act.astype(float), c)
+            eng.step(unicycle=np.column_stack([v, w]))
+            env.step(dict(zip(env.possible_agents, act, strict=True)))
         else:
-            arg = np.stack([e.uav_xy + rng.uniform(-60, 60, (3, 2)) for e in alone])   # some out of reach
-        dt = rng.uniform(0, 1, (len(scenes), 3))
-        got = step_engines(together, **{mode if mode == "unicycle" else "waypoints": arg}, decision_time=dt)
-        for j, e in enumerate(alone):
-            want = e.step(**{mode if mode == "unicycle" else "waypoints": arg[j]}, decision_time=dt[j])
-            for f in dataclasses.fields(want):
-                np.testing.assert_array_equal(getattr(got, f.name)[j], getattr(want, f.name)[0], err_msg=f.name)
-    for a, b in zip(together, alone, strict=True):
-        ta, tb = a.trajectory(), b.trajectory()
-        for f in dataclasses.fields(ta):
-            np.testing.assert_array_equal(getattr(ta, f.name), getattr(tb, f.name), err_msg=f.name)
+            idx = rng.integers(len(env.lattice), size=3)              # mostly masked out or unreachable
+            masks = np.stack([env.action_mask(a) for a in env.possible_agents])
+            q1, phi1 = eng.predict(1)
+            eng.step(waypoints=to_world(env.lattice[idx], q1[0, :2], float(phi1[0])),
+                     infeasible=masks[np.arange(3), idx] == 0)
+            env.step(dict(zip(env.possible_agents, idx.tolist(), strict=True)))
+        np.testing.assert_array_equal(env.engine.uav_xy, eng.uav_xy)
+    a, b = env.engine.trajectory(), eng.trajectory()
+    for f in dataclasses.fields(a):
+        np.testing.assert_array_equal(getattr(a, f.name), getattr(b, f.name), err_msg=f.name)
+    assert a.n_slots == 10
     if mode == "waypoint":
-        assert any(b.trajectory().infeasible.any() for b in alone)    # the fallback was exercised
-
-
-def test_step_engines_rejects_mixed_engines(paper):
-    a = Engine(paper)
-    b = Engine(paper, path_samples=5)
-    with pytest.raises(ValueError, match="path_samples"):
-        step_engines([a, b], unicycle=np.full((2, 3, 2), 5.0))
+        assert a.infeasible.any()                                     # the fallback was exercised

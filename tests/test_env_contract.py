@@ -83,11 +83,13 @@ def test_reset_infos_describe_the_starts():
 
 # ---------------------------------------------------------------------- costs
 def test_costs_are_the_constraint_violations():
-    env = covert_env.parallel_env(n_uavs=3, scenario="paper", los_penalty=0.0, zone_penalty=0.0,
-                                  separation_penalty=0.0, terrain_penalty=0.0)
-    env.reset(seed=0)
     # Two UAVs on top of each other, one far outside the zone: separation and zone violated.
-    env.engine.reset(uav_xy=[[50.0, 0.0], [50.5, 0.0], [300.0, 300.0]], uav_theta=[0.0, 0.0, 0.0])
+    paper = covert_env.Scenario.paper()
+    starts = covert_env.Scenario(paper.config, paper.terrain, paper.track, [[50.0, 0.0], [50.5, 0.0], [300.0, 300.0]],
+                                 [0.0, 0.0, 0.0])
+    env = covert_env.parallel_env(scenario=starts, los_penalty=0.0, zone_penalty=0.0, separation_penalty=0.0,
+                                  terrain_penalty=0.0)
+    env.reset(seed=0)
     seen = {c: 0.0 for c in COSTS}
     for _ in range(6):
         _, rew, _, _, infos = env.step({a: np.array([-0.9, 0.0]) for a in env.agents})

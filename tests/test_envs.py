@@ -228,9 +228,10 @@ def test_truncation_at_route_end():
 
 
 def test_terminate_on_collision():
-    env = covert_env.parallel_env(n_uavs=2, scenario="paper", terminate_on_collision=True)
+    paper = covert_env.Scenario.paper(covert_env.Config(n_uavs=2))
+    close = covert_env.Scenario(paper.config, paper.terrain, paper.track, [[50.0, 0.0], [50.0, 2.0]], [0.0, 0.0])
+    env = covert_env.parallel_env(scenario=close, terminate_on_collision=True)
     env.reset(seed=0)
-    env.engine.reset(uav_xy=[[50.0, 0.0], [50.0, 2.0]], uav_theta=[0.0, 0.0])
     _, _, term, trunc, _ = env.step({a: np.array([-0.6, 0.0]) for a in env.agents})
     assert all(term.values()) and not any(trunc.values()) and env.agents == []
 

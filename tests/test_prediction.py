@@ -156,17 +156,17 @@ def test_env_observations_read_the_prediction():
     c = Config(prediction_error=BOUND, n_uavs=1)
     sc = Scenario.paper(c)
     env = CovertSensingParallelEnv(scenario=sc, action_mode="waypoint")
-    env.reset(seed=0)
+    obs, _ = env.reset(seed=0)
     tr = sc.track
     for k in range(3):
-        block = env._shared_block()
+        block = obs["uav_0"][env.layout.slices["target_displacement"]]
         q, phi = tr.positions[k], tr.headings[k]
         qn = tr.next_predicted[0][k]
         d = qn[:2] - q[:2]
         scale = c.v_max * c.delta
         np.testing.assert_allclose(block[0], (np.cos(phi) * d[0] + np.sin(phi) * d[1]) / scale, rtol=1e-5)
         np.testing.assert_allclose(block[1], (np.cos(phi) * d[1] - np.sin(phi) * d[0]) / scale, atol=1e-6)
-        env.step({a: int(np.flatnonzero(env.action_mask(a))[0]) for a in env.agents})
+        obs, *_ = env.step({a: int(np.flatnonzero(env.action_mask(a))[0]) for a in env.agents})
 
 
 # ----------------------------------------------------------------------------- eq. 5: what the erosion guarantees

@@ -285,6 +285,6 @@ def test_pose_at_matches_point_and_heading():
     road = Road.random(3)
     rng = np.random.default_rng(0)
     for s in [*rng.uniform(-10.0, road.length + 10.0, 500), 0.0, road.length, float(road.cumulative_length[5])]:
-        p, h = road._pose_at(s)
+        p, h = road.pose_at(s)
         np.testing.assert_array_equal(p, road.point_at(s))
         assert h == float(road.heading_at(s))

@@ -15,7 +15,7 @@ import torch  # noqa: E402
 from stable_baselines3 import PPO  # noqa: E402
 from stable_baselines3.common.vec_env import VecMonitor, VecNormalize  # noqa: E402
 
-from covert_env.envs.covert_sensing import _observations  # noqa: E402
+from covert_env.envs.covert_sensing import CovertSensingParallelEnv  # noqa: E402
 from training.vec_env import ParallelEnvVecAdapter, make_vec_env  # noqa: E402
 
 torch.set_num_threads(1)
@@ -38,11 +38,13 @@ def _ppo(seed: int) -> PPO:
 def test_adapter_shapes_and_rows():
     venv = make_vec_env(2, SMALL)
     assert venv.num_envs == 6 and venv.n_agents == 3 and venv.n_copies == 2
+    venv.seed(3)
     obs = venv.reset()
     assert obs.shape == (6, *venv.observation_space.shape) and obs.dtype == np.float32
-    # row j*U + i is agent i of copy j
-    rows = _observations([venv.envs[1]])[0]
-    np.testing.assert_array_equal(obs[4], rows[1])
+    # row j*U + i is agent i of copy j: copy j is seeded with seed + j * U (the first of its rows)
+    one = CovertSensingParallelEnv(**SMALL)
+    rows, _ = one.reset(seed=3 + 1 * 3)
+    np.testing.assert_array_equal(obs[4], rows["uav_1"])
     venv.close()
 
 
@@ -139,13 +141,12 @@ def test_termination_is_not_truncation():
 
 
 @pytest.mark.parametrize("mode", ["unicycle", "waypoint"])
-def test_lockstep_equals_stepping_copy_by_copy(mode):
-    """The adapter steps our env's copies together (step_copies); over episode ends and resets that gives
-    exactly what stepping each copy through env.step gives: observations, rewards, dones and infos."""
+def test_batched_adapter_equals_stepping_copy_by_copy(mode):
+    """make_vec_env (one vector env, every copy in one batch) gives exactly what the generic adapter gives by stepping
+    each parallel env copy through env.step, over episode ends and resets: observations, rewards, dones, infos."""
     kw = dict(n_uavs=3, max_cycles=6, action_mode=mode)
-    fast, slow = make_vec_env(3, kw), make_vec_env(3, kw)
-    assert fast._lockstep
-    slow._lockstep = False
+    fast = make_vec_env(3, kw)
+    slow = ParallelEnvVecAdapter([lambda: CovertSensingParallelEnv(**kw) for _ in range(3)])
     for v in (fast, slow):
         v.seed(5)
     np.testing.assert_array_equal(fast.reset(), slow.reset())
@@ -155,22 +156,23 @@ def test_lockstep_equals_stepping_copy_by_copy(mode):
             acts = rng.uniform(-1.5, 1.5, (fast.num_envs, 2)).astype(np.float32)   # out of range: clipped
         else:
             acts = np.array([rng.choice(np.flatnonzero(m)) for m in fast.env_method("action_masks")])
+            np.testing.assert_array_equal(np.stack(fast.env_method("action_masks")),
+                                          np.stack(slow.env_method("action_masks")))
         a, b = fast.step(acts), slow.step(acts)
         for x, y in zip(a[:3], b[:3], strict=True):
             np.testing.assert_array_equal(x, y)
         for ia, ib in zip(a[3], b[3], strict=True):
+            ib = {k: v for k, v in ib.items() if k != "action_mask"}    # the batched adapter serves masks apart
             assert ia.keys() == ib.keys()
             for key in ia:
                 np.testing.assert_array_equal(ia[key], ib[key], err_msg=key)
     assert a[2].all()                                     # the last step ended every copy
 
 
-def test_lockstep_copies_with_their_own_rewards_and_lengths():
-    """Copies may differ in reward scale, penalties, max_cycles and terminate_on_collision, also when set after
-    construction (set_attr): lock-step reads them per copy, like stepping each copy does. reward_fn gets the
-    env's float64 reward."""
-    from covert_env.envs.covert_sensing import CovertSensingParallelEnv
-
+def test_generic_adapter_copies_with_their_own_rewards_and_lengths():
+    """The generic adapter's copies may differ in reward scale, penalties, max_cycles and terminate_on_collision,
+    also when set after construction (set_attr on one copy's rows): each copy gives what its env alone gives.
+    reward_fn gets the env's float64 reward."""
     kws = [dict(max_cycles=5), dict(max_cycles=7, reward_scale=3.0, los_penalty=0.5, terminate_on_collision=True)]
     seen = []
 
@@ -178,46 +180,42 @@ def test_lockstep_copies_with_their_own_rewards_and_lengths():
         seen.append((reward, info["env_reward"]))
         return 2.0 * reward
 
-    def build():
-        return ParallelEnvVecAdapter([lambda kw=kw: CovertSensingParallelEnv(n_uavs=3, **kw) for kw in kws],
-                                     reward_fn=shaping)
-
-    fast, slow = build(), build()
-    assert fast._lockstep
-    slow._lockstep = False
-    for v in (fast, slow):
-        v.seed(1)
-        v.reset()
-        v.set_attr("zone_penalty", 4.0, indices=[3])       # copy 1 only, after construction
+    venv = ParallelEnvVecAdapter([lambda kw=kw: CovertSensingParallelEnv(n_uavs=3, **kw) for kw in kws],
+                                 reward_fn=shaping)
+    alone = [CovertSensingParallelEnv(n_uavs=3, **kw) for kw in kws]
+    venv.seed(1)
+    venv.reset()
+    for j, env in enumerate(alone):
+        env.reset(seed=1 + 3 * j)
+    venv.set_attr("reward_scale", 6.0, indices=[3])       # copy 1 only, after construction: read live
+    alone[1].reward_scale = 6.0
+    assert venv.get_attr("reward_scale") == [100.0] * 3 + [6.0] * 3
     rng = np.random.default_rng(2)
     for _ in range(9):
         acts = rng.uniform(-1, 1, (6, 2)).astype(np.float32)
-        a, b = fast.step(acts), slow.step(acts)
-        for x, y in zip(a[:3], b[:3], strict=True):
-            np.testing.assert_array_equal(x, y)
-        assert [i.get("TimeLimit.truncated") for i in a[3]] == [i.get("TimeLimit.truncated") for i in b[3]]
+        _, rew, dones, infos = venv.step(acts)
+        for j, env in enumerate(alone):
+            _, r, te, tr, _ = env.step(dict(zip(env.possible_agents, acts[3 * j:3 * j + 3], strict=True)))
+            np.testing.assert_array_equal(rew[3 * j:3 * j + 3], 2.0 * np.array(list(r.values()), np.float32))
+            assert dones[3 * j] == (te["uav_0"] or tr["uav_0"])
+            if not env.agents:
+                env.reset()
     assert all(type(r) is float and r == e for r, e in seen)
-    # Copies that cannot share one engine step (here path_samples) are stepped one by one.
-    mixed = ParallelEnvVecAdapter([lambda: CovertSensingParallelEnv(n_uavs=3),
-                                   lambda: CovertSensingParallelEnv(n_uavs=3, path_samples=5)])
-    assert not mixed._lockstep
-    mixed.reset()
-    assert mixed.step(np.zeros((6, 2), np.float32))[0].shape == (6, mixed.observation_space.shape[0])
 
 
-def test_lockstep_bad_actions_raise_naming_the_agent():
+def test_batched_adapter_bad_actions_raise_naming_the_copy_and_agent():
     venv = make_vec_env(2, dict(n_uavs=3, max_cycles=4))
     venv.reset()
     acts = np.zeros((6, 2), np.float32)
     acts[4, 1] = np.inf
-    with pytest.raises(ValueError, match=r"uav_1 \(copy 1\) must be finite"):
+    with pytest.raises(ValueError, match=r"copy 1, agent uav_1 must be finite"):
         venv.step(acts)
     with pytest.raises(ValueError, match=r"actions must have shape \(6, 2\)"):
         venv.step(np.zeros((6, 3), np.float32))
     wp = make_vec_env(1, dict(n_uavs=2, max_cycles=4, action_mode="waypoint"))
     wp.reset()
     n = wp.action_space.n
-    with pytest.raises(ValueError, match=rf"uav_1 must be an integer in \[0, {n - 1}\], got {n}$"):
+    with pytest.raises(ValueError, match=rf"copy 0, agent uav_1 must be an integer in \[0, {n - 1}\], got {n}$"):
         wp.step(np.array([0, n]))
 
 

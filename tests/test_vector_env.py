@@ -282,3 +282,51 @@ def test_reset_mask_resets_only_those_copies_as_an_automatic_reset_would(mode):
     p_obs, p_inf = p.reset()                              # copy 1's second episode, from its own generator
     _assert_same(new_obs[1:2], {key: val[1:2] for key, val in new_infos.items()}, [(p_obs, p_inf)], [p], "mask")
     assert np.array_equal(venv.state()[1], p.state())
+
+
+# ----------------------------------------------------------------------------- no autoreset, records, copy views
+@pytest.mark.parametrize("mode", ["unicycle", "waypoint"])
+def test_disabled_autoreset_records_each_copy_as_the_parallel_env_does(mode):
+    """autoreset_mode=DISABLED: ended copies wait (step raises until a reset_mask reset); record=True keeps each
+    copy's episode, equal to the parallel env's trajectory (its engine view) for the same seed and actions; a
+    copy view reads the copy in the engine's terms."""
+    from gymnasium.vector import AutoresetMode
+
+    kw = dict(n_uavs=3, action_mode=mode, max_cycles=4)
+    venv = covert_env.vector_env(num_envs=2, autoreset_mode=AutoresetMode.DISABLED, record=True, **kw)
+    pars = [covert_env.parallel_env(**kw) for _ in range(2)]
+    venv.reset(seed=[11, 12])
+    for j, par in enumerate(pars):
+        par.reset(seed=11 + j)
+    rng = np.random.default_rng(0)
+    for _ in range(4):
+        if mode == "unicycle":
+            act = rng.uniform(-1, 1, (2, 3, 2)).astype(np.float32)
+        else:
+            act = np.array([[rng.choice(np.flatnonzero(m)) for m in copy] for copy in venv.action_masks()])
+        _, _, term, trunc, _ = venv.step(act)
+        for j, par in enumerate(pars):
+            par.step(dict(zip(par.possible_agents, act[j], strict=True)))
+    assert (trunc & ~term).all() and not any(par.agents for par in pars)
+    with pytest.raises(RuntimeError, match=r"copies \[0, 1\] ended.*reset_mask"):
+        venv.step(act)
+    for j, par in enumerate(pars):
+        a, b = venv.trajectory(j), par.engine.trajectory()
+        for f in ("uav_xy", "uav_theta", "path_xy", "path_length", "target_xyz", "target_path_xyz", "max_speed",
+                  "max_turn_rate", "infeasible"):
+            np.testing.assert_array_equal(getattr(a, f), getattr(b, f), err_msg=f)
+        view = venv.copy_view(j)
+        assert view.k == 4 and view.done is False
+        np.testing.assert_array_equal(view.uav_xy, par.engine.uav_xy)
+        np.testing.assert_array_equal(view.predict(2)[0], par.engine.predict(2)[0])
+        assert venv.scenario(j).uav_xy.tolist() == par.scenario.uav_xy.tolist()
+    obs, _ = venv.reset(options={"reset_mask": np.array([False, True])})
+    assert venv.slots.tolist() == [4, 0] and venv.trajectory(1).n_slots == 0
+    with pytest.raises(RuntimeError, match=r"copies \[0\] ended"):
+        venv.step(act)
+    with pytest.raises(ValueError, match="autoreset_mode must be one of"):
+        covert_env.vector_env(num_envs=1, autoreset_mode="never")
+    with pytest.raises(RuntimeError, match="record=True"):
+        covert_env.vector_env(num_envs=1).trajectory(0)
+    with pytest.raises(ValueError, match=r"copy index must be an integer in \[0, 1\]"):
+        venv.copy_view(2)

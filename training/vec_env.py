@@ -16,10 +16,10 @@ bootstraps nothing at the end of our 70-slot route. This adapter is ~150 lines a
   observation is the first one of the next episode (SB3's auto-reset convention).
 * ``reward_fn(reward, info) -> float`` (optional) reshapes the per-agent reward for training only.
 * ``env_method("action_masks")`` returns each row's waypoint action mask (for MaskablePPO).
-* Lock-step: copies of our own env are stepped together through
-  :func:`covert_env.envs.covert_sensing.step_copies` (one set of vectorised numpy calls per vector step instead
-  of one per copy; the results are exactly those of ``env.step`` on each copy, tested). Any other ParallelEnv is
-  stepped copy by copy.
+* Copies are stepped one by one: this adapter is for any ParallelEnv (e.g. mpe2's, in ``benchmarks/sb3_fps.py``).
+  Our own env has a batched one: :func:`make_vec_env` returns :class:`training.vector_adapter.VectorEnvVecAdapter`
+  on :class:`covert_env.envs.vector.CovertSensingVectorEnv` (every copy in one batch of array operations, the same
+  results for the same seed, tested).
 
 Works under ``VecMonitor`` (episode statistics per agent row) and ``VecNormalize``.
 
@@ -41,8 +41,6 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvObs, VecEnvStepReturn
-
-from covert_env.envs.covert_sensing import CovertSensingParallelEnv, step_copies
 
 __all__ = ["ParallelEnvVecAdapter", "make_vec_env", "save_vecnormalize", "load_vecnormalize", "read_vecnormalize",
            "vecnormalize_state", "NormStats", "VECNORMALIZE_FORMAT"]
@@ -82,9 +80,6 @@ class ParallelEnvVecAdapter(VecEnv):
         self._dones = np.zeros(self.num_envs, dtype=bool)
         self._infos: list[dict] = [{} for _ in range(self.num_envs)]
         self._actions: np.ndarray | None = None
-        # Our own env steps all copies at once (step_copies); any other ParallelEnv is stepped copy by copy.
-        self._lockstep = (all(type(e).step is CovertSensingParallelEnv.step and not e.dict_obs for e in self.envs)
-                          and all(e._lockstep_key() == first._lockstep_key() for e in self.envs))
 
     # ------------------------------------------------------------------ helpers
     def _rows(self, j: int) -> range:
@@ -112,8 +107,6 @@ class ParallelEnvVecAdapter(VecEnv):
         self._actions = np.asarray(actions)
 
     def step_wait(self) -> VecEnvStepReturn:
-        if self._lockstep:
-            return self._step_lockstep()
         discrete = isinstance(self.action_space, spaces.Discrete)
         for j, env in enumerate(self.envs):
             rows = self._rows(j)
@@ -130,22 +123,6 @@ class ParallelEnvVecAdapter(VecEnv):
                 self._infos[r] = dict(infos.get(a, {}))
             self._end_copy(j, ended, [bool(term[a]) for a in self.agents], [bool(trunc[a]) for a in self.agents],
                            [float(rew[a]) for a in self.agents])
-        return self._obs.copy(), self._rews.copy(), self._dones.copy(), list(self._infos)
-
-    def _step_lockstep(self) -> VecEnvStepReturn:
-        """All copies in one :func:`~covert_env.envs.covert_sensing.step_copies` call (same results)."""
-        expected = (self.num_envs,) + self.action_space.shape
-        if self._actions.shape != expected:
-            raise ValueError(f"actions must have shape {expected} (one row per copy and agent), "
-                             f"got {self._actions.shape}")
-        acts = self._actions.reshape((self.n_copies, self.n_agents) + self.action_space.shape)
-        obs, rew, term, trunc, infos = step_copies(self.envs, acts)
-        self._obs[:] = obs.reshape(self._obs.shape)
-        # Fresh dicts from the env: no copy needed.
-        self._infos[:] = [info for copy_infos in infos for info in copy_infos]
-        for j in range(self.n_copies):
-            self._end_copy(j, bool(term[j] or trunc[j]), [bool(term[j])] * self.n_agents,
-                           [bool(trunc[j])] * self.n_agents, rew[j])
         return self._obs.copy(), self._rews.copy(), self._dones.copy(), list(self._infos)
 
     def _end_copy(self, j: int, ended: bool, terminated: list[bool], truncated: list[bool], rewards) -> None:
@@ -204,10 +181,12 @@ class ParallelEnvVecAdapter(VecEnv):
 
 
 def make_vec_env(n_copies: int, env_kwargs: dict | None = None,
-                 reward_fn: Callable[[float, dict], float] | None = None) -> ParallelEnvVecAdapter:
-    """``n_copies`` covert_env ParallelEnvs built with ``env_kwargs``, flattened for a shared SB3 policy."""
-    kw = dict(env_kwargs or {})
-    return ParallelEnvVecAdapter([lambda: CovertSensingParallelEnv(**kw) for _ in range(n_copies)], reward_fn=reward_fn)
+                 reward_fn: Callable[[float, dict], float] | None = None):
+    """``n_copies`` copies of the covert_env env built with ``env_kwargs``, flattened for a shared SB3 policy: the
+    batched :class:`training.vector_adapter.VectorEnvVecAdapter` (one vector env of ``n_copies`` copies)."""
+    from training.vector_adapter import make_vector_vec_env
+
+    return make_vector_vec_env(n_copies, env_kwargs, reward_fn=reward_fn)
 
 
 # ---------------------------------------------------------------------- VecNormalize statistics as JSON

@@ -13,20 +13,19 @@ import math
 
 import numpy as np
 
-from covert_env.engine import _fly, _waypoint_controls
+from covert_env.envs.observation import OFFSET_CLIP, OWN_SIZE, OWN_SLICES
+from covert_env.flight import fly, waypoint_controls
 
 _TWO_PI = 2.0 * math.pi
 #: Smallest commanded speed as a fraction of V_max: the unicycle needs v > 0 (eq. 1).
 MIN_SPEED_FRACTION = 0.01
-#: Offsets in observations are divided by R2 and clipped to this magnitude (500 m at R2 = 100 m).
-OFFSET_CLIP = 5.0
 #: The reward's terms; ``infos[agent]["reward_<term>"]`` holds each (the parallel env's Rewards section).
 REWARD_TERMS = ("path", "disguise", "los", "zone", "separation", "terrain")
 #: The constraints of the paper's problem (§2.4); ``infos[agent]["cost_<name>"]`` is 1.0 where the slot violated one.
 COSTS = ("los", "zone", "separation", "terrain")
 
 __all__ = ["COSTS", "MIN_SPEED_FRACTION", "OFFSET_CLIP", "REWARD_TERMS", "action_masks", "constraint_costs",
-           "fly_unicycle", "fly_waypoints", "observations", "own_features", "reward_terms", "to_world_batch",
+           "fly_unicycle", "fly_waypoints", "own_features", "reward_terms", "to_world_batch",
            "unicycle_actions", "unicycle_controls", "waypoint_actions"]
 
 
@@ -102,12 +101,13 @@ def fly_unicycle(xy, theta, v, w, times):
 def fly_waypoints(xy, theta, goals, c, times):
     """The turn-then-straight manoeuvre to ``goals`` (B, U, 2) (best effort where unreachable, see the engine).
 
-    Returns path samples (B, U, P, 2), end headings (B, U), speeds v (B, U) and the fallback flags (B, U)."""
+    Returns path samples (B, U, P, 2), end headings (B, U), speeds v (B, U), the fallback flags (B, U) and the
+    turn rates omega (B, U)."""
     shape = theta.shape
-    v, w, t_turn, fallback = _waypoint_controls(xy.reshape(-1, 2), theta.reshape(-1), goals.reshape(-1, 2), c)
+    v, w, t_turn, fallback = waypoint_controls(xy.reshape(-1, 2), theta.reshape(-1), goals.reshape(-1, 2), c)
     v, w, t_turn = v.reshape(shape), w.reshape(shape), t_turn.reshape(shape)
-    path, end_theta = _fly(xy, theta, v, w, t_turn, times)
-    return path, end_theta, v, fallback.reshape(shape)
+    path, end_theta = fly(xy, theta, v, w, t_turn, times)
+    return path, end_theta, v, fallback.reshape(shape), w
 
 
 def to_world_batch(offsets, q_xy, phi) -> np.ndarray:
@@ -163,32 +163,21 @@ def reward_terms(quant, costs, c, scale, p: dict) -> np.ndarray:
 
 
 def own_features(xy, theta, q, phi, speed, los, zone_dist, c) -> np.ndarray:
-    """(B, U, 8) per-UAV features 0-7 of the observation table, targets q (B, 3), phi (B,)."""
+    """(B, U, OWN_SIZE) per-UAV features (the observation layout's own block: offset, heading, speed, LoS, zone,
+    zone distance), targets q (B, 3), phi (B,)."""
     cs, sn = np.cos(phi)[:, None], np.sin(phi)[:, None]
     dx, dy = xy[..., 0] - q[:, 0, None], xy[..., 1] - q[:, 1, None]
-    f = np.empty(theta.shape + (8,))
-    f[..., 0] = (cs * dx + sn * dy) / c.r2
-    f[..., 1] = (cs * dy - sn * dx) / c.r2
-    np.minimum(np.maximum(f[..., :2], -OFFSET_CLIP), OFFSET_CLIP, out=f[..., :2])
+    f = np.empty(theta.shape + (OWN_SIZE,))
+    offset, heading = f[..., OWN_SLICES["offset"]], f[..., OWN_SLICES["heading"]]
+    offset[..., 0] = (cs * dx + sn * dy) / c.r2
+    offset[..., 1] = (cs * dy - sn * dx) / c.r2
+    np.minimum(np.maximum(offset, -OFFSET_CLIP), OFFSET_CLIP, out=offset)
     dth = theta - phi[:, None]
-    f[..., 2] = np.cos(dth)
-    f[..., 3] = np.sin(dth)
-    f[..., 4] = np.minimum(speed / c.v_max, 1.0)
-    f[..., 5] = los
-    f[..., 6] = zone_dist <= 0
-    f[..., 7] = np.minimum(np.maximum(zone_dist / (c.r2 - c.r1), -OFFSET_CLIP), OFFSET_CLIP)
+    heading[..., 0] = np.cos(dth)
+    heading[..., 1] = np.sin(dth)
+    f[..., OWN_SLICES["speed"].start] = np.minimum(speed / c.v_max, 1.0)
+    f[..., OWN_SLICES["los"].start] = los
+    f[..., OWN_SLICES["in_zone"].start] = zone_dist <= 0
+    f[..., OWN_SLICES["zone_distance"].start] = np.minimum(np.maximum(zone_dist / (c.r2 - c.r1), -OFFSET_CLIP),
+                                                           OFFSET_CLIP)
     return f
-
-
-def observations(own, shared, remaining, mates) -> np.ndarray:
-    """(B, U, D) float32 rows: own features (B, U, 8), shared blocks (B, 3 + 2 S^2), time remaining (B,) and
-    ``mates`` (U, U-1), the teammates of each agent by index."""
-    n, u = own.shape[:2]
-    n_own, n_mate = 8, 2 * (u - 1)
-    rows = np.empty((n, u, n_own + shared.shape[1] + n_mate), np.float32)
-    rows[..., :n_own] = own
-    rows[..., n_own:n_own + 3] = shared[:, None, :3]
-    rows[..., n_own + 2] = remaining[:, None]
-    rows[..., n_own + 3:n_own + 3 + n_mate] = own[:, mates, :2].reshape(n, u, -1)
-    rows[..., n_own + 3 + n_mate:] = shared[:, None, 3:]
-    return rows

@@ -1,180 +1,33 @@
 """PettingZoo ParallelEnv: a team of UAVs covertly filming a target on uneven terrain.
 
-A thin adapter over :class:`covert_env.engine.Engine`: the engine flies the UAVs and records the
-episode; this module turns agent actions into engine controls, engine state into observations, and
-the paper's stage cost into rewards. No geometry or physics is written here.
+The B = 1 view of :class:`~covert_env.envs.vector.CovertSensingVectorEnv`: this module turns agent dicts into the
+vector env's arrays and back, and adds what PettingZoo asks of a single env (agents that leave at the end, AEC
+conversion, rendering). The task, the model and every number come from the vector env (and through it from the
+model's modules); no geometry, physics or reward is written here.
 """
 
 from __future__ import annotations
 
-import copy
 import math
-import operator
-from collections import OrderedDict
 from collections.abc import Mapping
 from typing import Any
 
 import gymnasium
 import numpy as np
-from gymnasium import spaces
+from gymnasium.vector import AutoresetMode
 from pettingzoo import ParallelEnv
 from pettingzoo.utils import parallel_to_aec, wrappers
 
 from covert_env.config import Config
-from covert_env.dynamics import solve_manoeuvre
-from covert_env.engine import Engine, step_engines
-from covert_env.envs.batch import COSTS as _COSTS
-from covert_env.envs.batch import (
-    OFFSET_CLIP,
-    constraint_costs,
-    own_features,
-    reward_terms,
-    unicycle_controls,
-)
-from covert_env.envs.batch import REWARD_TERMS as _REWARD_TERMS
-from covert_env.metrics import nearest_teammate, terrain_clearance
-from covert_env.scenario import PAPER_UAV_STARTS, Scenario, _sample_starts
-from covert_env.visibility import line_of_sight, line_of_sight_rows
-from covert_env.zone import in_feasible_zone, lattice_offsets, to_world, zone_distance, zone_lattice
+from covert_env.envs.arguments import int_arg
+from covert_env.envs.observation import observation_table
+from covert_env.envs.recorder import CopyView
+from covert_env.envs.settings import ACTION_MODES, MAX_PATH_SAMPLES, MAX_SCENE_POOL, RENDER_MODES, EnvSettings
+from covert_env.envs.vector import INFO_KEYS, CovertSensingVectorEnv
+from covert_env.scenario import Scenario
 
-__all__ = ["CovertSensingParallelEnv", "env", "parallel_env", "raw_env", "step_copies", "ACTION_MODES"]
-
-ACTION_MODES = ("unicycle", "waypoint")
-#: Largest ``scene_pool``: training scene seeds 0 .. scene_pool-1 stay below the held-out seeds 1_000_000 + i.
-MAX_SCENE_POOL = 1_000_000
-#: Largest ``path_samples`` accepted: memory per step grows with it, and 1000 samples per 1 s slot is far past useful.
-MAX_PATH_SAMPLES = 1000
-
-
-class _SceneCache:
-    """Per-scene, per-slot results that do not depend on the UAVs (shared by all agents and resets).
-
-    The observation maps' cells are fixed in the target's frame, so which cells lie in the eroded zone
-    is one mask for every slot; only their line of sight changes. It is computed for ``_MAP_CHUNK``
-    slots at once (one vectorised call with a target per slot): a new scene costs a few ms for the
-    whole episode instead of a broad phase per slot.
-    """
-
-    _MAP_CHUNK = 32
-
-    def __init__(self, scenario: Scenario | None, map_offsets: np.ndarray, map_in_zone: np.ndarray,
-                 lattice: np.ndarray, *, seed: int | None = None, config: Config | None = None):
-        if scenario is None:
-            # A random scene: build the world now, its seeded starts only if a reset asks for them
-            # (training resets draw their own starts).
-            terrain, track, self._rng = Scenario._random_world(seed, config)
-            self.parts = _World(config, terrain, track, f"random-{seed}")
-        else:
-            self.parts = _World(scenario.config, scenario.terrain, scenario.track, scenario.name)
-        self._seeded = scenario
-        self._map_offsets = map_offsets[map_in_zone]
-        self._map_in_zone = map_in_zone
-        self._lattice = lattice
-        # One row per slot 0..n of the track (positions are clamped at its end, like TargetTrack.position).
-        self._maps = np.zeros((self.parts.track.n_slots + 1, len(map_offsets)), np.float32)
-        self._chunks: set[int] = set()
-        self._lattice_ok: dict[int, np.ndarray] = {}
-        # The observation's shared block per slot (see CovertSensingParallelEnv._shared_features).
-        self._blocks = np.zeros((len(self._maps), 3 + 2 * len(map_offsets)), np.float32)
-        self._blocks.setflags(write=False)
-
-    def _visible(self, offsets: np.ndarray, k: int) -> np.ndarray:
-        """Which offsets are in the eroded zone with clear LoS at slot k >= 1, as predicted at slot k - 1."""
-        c = self.parts.config
-        q, phi = self.parts.track.predict(k - 1, 1)
-        q, phi = q[0], float(phi[0])
-        xy = to_world(offsets, q[:2], phi)
-        ok = in_feasible_zone(xy, q[:2], phi, c.r1, c.r2, c.mu, c.r_u)
-        if ok.any():
-            ok[ok] = line_of_sight(self.parts.terrain, xy[ok], c.altitude, q)
-        return ok
-
-    def shared_block(self, k: int) -> np.ndarray:
-        """The observation's shared block at slot k, read-only: the target's displacement to k+1 in its
-        frame, 0 for the time remaining (per env), and the maps at k and k+1."""
-        k = min(k, len(self._maps) - 1)
-        self._chunk(k // self._MAP_CHUNK)
-        return self._blocks[k]
-
-    def _chunk(self, chunk: int) -> None:
-        """Maps of slots lo..hi and shared blocks of slots lo..hi-1 (hi = lo + _MAP_CHUNK), each in one
-        vectorised call; the last chunk stops at the track's last slot n, blocks included."""
-        if chunk in self._chunks:
-            return
-        self._chunks.add(chunk)
-        track, c = self.parts.track, self.parts.config
-        n = len(self._maps) - 1
-        lo, hi = chunk * self._MAP_CHUNK, min((chunk + 1) * self._MAP_CHUNK, n)
-        ks = np.arange(lo, hi + 1)
-        q, phi = track.positions[ks], track.headings[ks]
-        cs, sn = np.cos(phi), np.sin(phi)
-        if len(self._map_offsets):
-            ox, oy = self._map_offsets[:, 0], self._map_offsets[:, 1]
-            xy = np.stack([q[:, :1] + cs[:, None] * ox - sn[:, None] * oy,
-                           q[:, 1:2] + sn[:, None] * ox + cs[:, None] * oy], axis=-1)
-            clear = line_of_sight_rows(self.parts.terrain, xy, c.altitude, q)
-            rows = self._maps[ks]
-            rows[:, self._map_in_zone] = clear
-            self._maps[ks] = rows
-        # Blocks of slots lo..hi-1 (slot hi's belongs to the next chunk); the last chunk also writes slot n's,
-        # whose next slot is n itself (the track's end: no displacement).
-        own = ks if (chunk + 1) * self._MAP_CHUNK > n else ks[:-1]
-        nxt = np.minimum(own + 1, n)
-        # Slot k+1 as predicted at slot k (the truth when the config has no prediction error).
-        q_next, phi_next = track.next_predicted[0][own], track.next_predicted[1][own]
-        dx, dy = q_next[:, 0] - q[:len(own), 0], q_next[:, 1] - q[:len(own), 1]
-        scale = c.v_max * c.delta
-        cs, sn = cs[:len(own)], sn[:len(own)]
-        blocks = self._blocks
-        blocks.setflags(write=True)
-        blocks[own, 0] = np.clip((cs * dx + sn * dy) / scale, -2.0, 2.0)
-        blocks[own, 1] = np.clip((cs * dy - sn * dx) / scale, -2.0, 2.0)
-        blocks[own, 2] = 0.0
-        s2 = self._maps.shape[1]
-        blocks[own, 3:3 + s2] = self._maps[own]
-        blocks[own, 3 + s2:] = self._maps[nxt] if track.exact else self._predicted_maps(q_next, phi_next)
-        blocks.setflags(write=False)
-
-    def _predicted_maps(self, q: np.ndarray, phi: np.ndarray) -> np.ndarray:
-        """Map rows (like ``_maps``) around predicted target poses q (K, 3), phi (K,)."""
-        rows = np.zeros((len(q), self._maps.shape[1]), np.float32)
-        if len(self._map_offsets):
-            cs, sn = np.cos(phi)[:, None], np.sin(phi)[:, None]
-            ox, oy = self._map_offsets[:, 0], self._map_offsets[:, 1]
-            xy = np.stack([q[:, :1] + cs * ox - sn * oy, q[:, 1:2] + sn * ox + cs * oy], axis=-1)
-            rows[:, self._map_in_zone] = line_of_sight_rows(self.parts.terrain, xy, self.parts.config.altitude, q)
-        return rows
-
-    def lattice_visible(self, k: int) -> np.ndarray:
-        """Waypoint lattice nodes in the eroded zone with clear LoS at slot k >= 1 as predicted at slot
-        k - 1 (the action mask of slot k - 1's move; bool)."""
-        if k not in self._lattice_ok:
-            self._lattice_ok[k] = self._visible(self._lattice, k)
-        return self._lattice_ok[k]
-
-    def seeded_scenario(self) -> Scenario:
-        """The scene with its own starts: ``Scenario.random(seed)`` exactly (or the given scenario)."""
-        if self._seeded is None:
-            w = self.parts
-            # A copy of the generator: a failed attempt must not shift the starts of the next one.
-            xy, th = _sample_starts(w.config, w.terrain, w.track, copy.deepcopy(self._rng), w.config.n_uavs, w.name)
-            self._seeded = Scenario(w.config, w.terrain, w.track, xy, th, name=w.name)
-        return self._seeded
-
-    def with_starts(self, rng: np.random.Generator, n_uavs: int) -> Scenario:
-        """The scene with ``n_uavs`` starts drawn from ``rng`` (see :meth:`Scenario.sample_starts`)."""
-        w = self.parts
-        xy, th = _sample_starts(w.config, w.terrain, w.track, rng, n_uavs, w.name)
-        return Scenario(w.config, w.terrain, w.track, xy, th, name=w.name)
-
-
-class _World:
-    """The scene without starts (what the scene cache's slot computations need)."""
-
-    __slots__ = ("config", "terrain", "track", "name")
-
-    def __init__(self, config: Config, terrain, track, name: str):
-        self.config, self.terrain, self.track, self.name = config, terrain, track, name
+__all__ = ["CovertSensingParallelEnv", "env", "parallel_env", "raw_env", "ACTION_MODES", "MAX_PATH_SAMPLES",
+           "MAX_SCENE_POOL"]
 
 
 class CovertSensingParallelEnv(ParallelEnv):
@@ -220,19 +73,7 @@ class CovertSensingParallelEnv(ParallelEnv):
     ``Box(float32)`` in the target's frame at the current slot (x forward along the target's heading,
     y to its left), roughly unit scale. For agent i:
 
-    | index | observation | scale |
-    |---|---|---|
-    | 0-1 | own offset from the target | / R2, clipped to +-5 |
-    | 2-3 | cos, sin of own heading minus target heading | |
-    | 4 | own speed in the last slot | / V_max |
-    | 5 | LoS to the target is clear (eq. 6) | 0 or 1 |
-    | 6 | inside the feasible zone (eq. 4) | 0 or 1 |
-    | 7 | signed distance to the zone boundary (negative inside) | / (R2 - R1), clipped to +-5 |
-    | 8-9 | target's displacement to its next slot, in the current target frame | / (V_max delta) |
-    | 10 | fraction of the episode remaining | 0..1 |
-    | 11 .. 11+2(U-1) | teammates' offsets from the target, by agent index | / R2, clipped to +-5 |
-    | then S*S | map of cells around the zone: 1 if in the eroded zone with clear LoS, now | 0 or 1 |
-    | then S*S | the same map at the next predicted slot k+1 | 0 or 1 |
+    {OBSERVATION_TABLE}
 
     S = ``map_size``. The maps cover the zone's bounding box in the target's frame, row-major,
     computed with the exact vectorised line of sight.
@@ -338,7 +179,7 @@ class CovertSensingParallelEnv(ParallelEnv):
     * v0: initial release.
     """
 
-    metadata = {"name": "covert_sensing_v1", "render_modes": ["human", "rgb_array"], "render_fps": 4,
+    metadata = {"name": "covert_sensing_v1", "render_modes": list(RENDER_MODES), "render_fps": 4,
                 "is_parallelizable": True}
 
     def __init__(self, config: Config | dict | None = None, *, n_uavs: int | None = None,
@@ -349,110 +190,25 @@ class CovertSensingParallelEnv(ParallelEnv):
                  terminate_on_collision: bool = False, scene_pool: int = 10_000, path_samples: int = 11,
                  random_starts: bool = False):
         super().__init__()
-        if isinstance(config, Mapping):
-            cfg = Config.from_dict(dict(config))
-        elif config is None or isinstance(config, Config):
-            cfg = config or Config()
-        else:
-            raise TypeError(f"config must be a covert_env.Config, a dict of its fields or None, "
-                            f"got {type(config).__name__} {config!r}")
-        if n_uavs is not None:
-            cfg = cfg.replace(n_uavs=_int_arg("n_uavs", n_uavs, 1))
-        if isinstance(scenario, Scenario):
-            # A scenario's terrain and track were built and checked under its own config: flying them under
-            # another one (altitude, speeds, zone) would mix two worlds, so the two must agree.
-            if config is not None:
-                differ = [f for f in cfg.to_dict() if f != "n_uavs" and getattr(cfg, f) != getattr(scenario.config, f)]
-                if differ:
-                    raise ValueError(f"config differs from scenario.config in {differ}; build the Scenario with this "
-                                     "config, or pass only the scenario")
-            cfg = scenario.config if n_uavs is None else scenario.config.replace(n_uavs=cfg.n_uavs)
-            if scenario.n_uavs != cfg.n_uavs:
-                raise ValueError(f"n_uavs={cfg.n_uavs} but the scenario has {scenario.n_uavs} UAVs")
-        elif not isinstance(scenario, str) or scenario not in ("random", "paper"):
-            raise ValueError(f"scenario must be 'random', 'paper' or a Scenario, got {scenario!r}")
-        elif scenario == "paper" and cfg.n_uavs > len(PAPER_UAV_STARTS):
-            raise ValueError(f"scenario='paper' has starts for {len(PAPER_UAV_STARTS)} UAVs, got n_uavs={cfg.n_uavs}; "
-                             "use scenario='random' or a Scenario with your own starts")
-        if not isinstance(action_mode, str) or action_mode not in ACTION_MODES:
-            raise ValueError(f"action_mode must be one of {ACTION_MODES}, got {action_mode!r}")
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, "
-                             f"got {render_mode!r}")
-        if _bool_arg("dict_obs", dict_obs) and action_mode != "waypoint":
-            raise ValueError("dict_obs=True needs action_mode='waypoint': the unicycle mode has no action mask")
-        map_size = _int_arg("map_size", map_size, 2, 64)
-        # Training scene seeds stay below the held-out ones (1_000_000 + i) that evaluations fly.
-        scene_pool = _int_arg("scene_pool", scene_pool, 1, MAX_SCENE_POOL)
-        path_samples = _int_arg("path_samples", path_samples, 2, MAX_PATH_SAMPLES)
-        reward_scale = _number_arg("reward_scale", reward_scale)
-        if not 1e-6 <= reward_scale <= 1e12:     # outside, rewards over- or underflow (eq. 18 / reward_scale)
-            raise ValueError(f"reward_scale must be a finite number in [1e-06, 1e+12], got {reward_scale!r}")
-        penalties = {"los": los_penalty, "zone": zone_penalty, "separation": separation_penalty,
-                     "terrain": terrain_penalty}
-        for key, val in penalties.items():
-            penalties[key] = _number_arg(f"{key}_penalty", val)
-            if penalties[key] < 0:
-                raise ValueError(f"{key}_penalty must be a finite number >= 0, got {val!r}")
-
-        self.config = cfg
-        self.scenario_spec = scenario
-        self.action_mode = action_mode
-        self.max_cycles = cfg.n_slots if max_cycles is None else max_cycles     # validated by the setter
-        self.render_mode = render_mode
-        self.map_size = map_size
-        self.dict_obs = bool(dict_obs)
-        self.reward_scale = reward_scale
-        self.penalties = penalties
-        self.terminate_on_collision = _bool_arg("terminate_on_collision", terminate_on_collision)
-        self.scene_pool = scene_pool
-        self.path_samples = path_samples
-        self.random_starts = _bool_arg("random_starts", random_starts)
-
-        self.possible_agents = [f"uav_{i}" for i in range(cfg.n_uavs)]
+        s = EnvSettings(config, n_uavs=n_uavs, scenario=scenario, action_mode=action_mode, max_cycles=max_cycles,
+                        render_mode=render_mode, map_size=map_size, dict_obs=dict_obs, reward_scale=reward_scale,
+                        los_penalty=los_penalty, zone_penalty=zone_penalty, separation_penalty=separation_penalty,
+                        terrain_penalty=terrain_penalty, terminate_on_collision=terminate_on_collision,
+                        scene_pool=scene_pool, path_samples=path_samples, random_starts=random_starts)
+        # One copy, no automatic reset (PettingZoo's agents leave at the end and reset() starts the next
+        # episode), episodes recorded for the metrics.
+        self._vec = CovertSensingVectorEnv.from_settings(1, s, autoreset_mode=AutoresetMode.DISABLED, record=True)
+        self.config, self.scenario_spec, self.action_mode = s.config, s.scenario, s.action_mode
+        self.render_mode, self.map_size, self.dict_obs = s.render_mode, s.map_size, s.dict_obs
+        self.scene_pool, self.path_samples, self.random_starts = s.scene_pool, s.path_samples, s.random_starts
+        self.lattice, self.map_offsets, self.layout = s.lattice, s.map_offsets, s.layout
+        self.possible_agents = list(s.possible_agents)
         self.agents: list[str] = []
         self._index = {a: i for i, a in enumerate(self.possible_agents)}
-        u = cfg.n_uavs
-        # Teammates of agent i, by index, skipping i: the observation's fixed-size teammate block.
-        self._mates = np.array([[j for j in range(u) if j != i] for i in range(u)], dtype=int).reshape(u, u - 1)
-
-        c = cfg
-        self.lattice = zone_lattice(c)                        # the DP planner's nodes, target frame
-        box = lattice_offsets(c.r1, c.r2, c.mu, c.grid_step)
-        lo, hi = box.min(0), box.max(0)
-        s = self.map_size
-        gx = lo[0] + (np.arange(s) + 0.5) * (hi[0] - lo[0]) / s
-        gy = lo[1] + (np.arange(s) + 0.5) * (hi[1] - lo[1]) / s
-        self.map_offsets = np.array([(x, y) for y in gy[::-1] for x in gx])   # row-major, +y on top
-        self._map_in_zone = in_feasible_zone(self.map_offsets, np.zeros(2), 0.0, c.r1, c.r2, c.mu, c.r_u)
-
-        n_mate = 2 * (c.n_uavs - 1)
-        low = np.concatenate([[-OFFSET_CLIP] * 2, [-1, -1, 0, 0, 0, -OFFSET_CLIP], [-2, -2, 0],
-                              [-OFFSET_CLIP] * n_mate, np.zeros(2 * s * s)]).astype(np.float32)
-        high = np.concatenate([[OFFSET_CLIP] * 2, [1, 1, 1, 1, 1, OFFSET_CLIP], [2, 2, 1],
-                               [OFFSET_CLIP] * n_mate, np.ones(2 * s * s)]).astype(np.float32)
-        self._obs_box = spaces.Box(low, high, dtype=np.float32)
-        n_own = 8
-        st_low = np.concatenate([np.tile(low[:n_own], c.n_uavs), low[8:11], np.zeros(2 * s * s)])
-        st_high = np.concatenate([np.tile(high[:n_own], c.n_uavs), high[8:11], np.ones(2 * s * s)])
-        self.state_space = spaces.Box(st_low.astype(np.float32), st_high.astype(np.float32), dtype=np.float32)
-        if action_mode == "unicycle":
-            self._act_space = spaces.Box(-1.0, 1.0, (2,), dtype=np.float32)
-        else:
-            self._act_space = spaces.Discrete(len(self.lattice))
-        if self.dict_obs:
-            self._obs_space = spaces.Dict({"observation": self._obs_box,
-                                           "action_mask": spaces.Box(0, 1, (len(self.lattice),), dtype=np.int8)})
-        else:
-            self._obs_space = self._obs_box
-        self.observation_spaces = {a: self._obs_space for a in self.possible_agents}
-        self.action_spaces = {a: self._act_space for a in self.possible_agents}
-
-        self._scenes: OrderedDict[Any, _SceneCache] = OrderedDict()
-        self._np_random, _ = gymnasium.utils.seeding.np_random(None)
-        self.engine: Engine | None = None
-        self._masks: np.ndarray | None = None
-        self._last_speed = np.zeros(c.n_uavs)
+        self.state_space = s.state_space
+        self.observation_spaces = {a: s.observation_space for a in self.possible_agents}
+        self.action_spaces = {a: s.action_space for a in self.possible_agents}
+        self._view = CopyView(self._vec, 0)
         self._renderer = None
 
     # ------------------------------------------------------------------ spaces
@@ -464,64 +220,66 @@ class CovertSensingParallelEnv(ParallelEnv):
     def action_space(self, agent: str) -> gymnasium.Space:
         return self.action_spaces[agent]
 
+    # ------------------------------------------------------------------ settings read live by the vector env
     @property
     def max_cycles(self) -> int:
         """Episode length bound in slots; the episode also ends at the end of the route (``config.n_slots``)."""
-        return self._max_cycles
+        return self._vec.max_cycles
 
     @max_cycles.setter
     def max_cycles(self, value) -> None:
         # Validated on every assignment: PettingZoo's test battery and users set it as an attribute.
-        self._max_cycles = _int_arg("max_cycles", value, 1)
+        self._vec.max_cycles = value
 
     @property
     def episode_length(self) -> int:
         """Slots in an episode: ``min(max_cycles, config.n_slots)`` (the target's route has n_slots slots)."""
-        return min(self._max_cycles, self.config.n_slots)
+        return self._vec.episode_length
 
-    # ------------------------------------------------------------------ scenes
-    def _scene(self, scene_seed: int | None) -> _SceneCache:
-        spec = self.scenario_spec
-        key = id(spec) if isinstance(spec, Scenario) else ("paper" if spec == "paper" else scene_seed)
-        if key not in self._scenes:
-            if isinstance(spec, Scenario):
-                sc = spec
-            elif spec == "paper":
-                sc = Scenario.paper(self.config)
-            else:
-                sc = None                                     # built by the cache, starts on demand
-            self._scenes[key] = _SceneCache(sc, self.map_offsets, self._map_in_zone, self.lattice,
-                                            seed=None if sc is not None else int(scene_seed), config=self.config)
-            while len(self._scenes) > 32:                     # bounded memory over long training runs
-                self._scenes.popitem(last=False)
-        self._scenes.move_to_end(key)
-        return self._scenes[key]
+    @property
+    def reward_scale(self) -> float:
+        return self._vec.reward_scale
+
+    @reward_scale.setter
+    def reward_scale(self, value) -> None:
+        self._vec.reward_scale = value
+
+    @property
+    def penalties(self) -> dict:
+        """The penalty weights by term (``los``, ``zone``, ``separation``, ``terrain``); a live dict."""
+        return self._vec.penalties
+
+    @property
+    def terminate_on_collision(self) -> bool:
+        return self._vec.terminate_on_collision
+
+    @terminate_on_collision.setter
+    def terminate_on_collision(self, value) -> None:
+        self._vec.terminate_on_collision = value
+
+    # ------------------------------------------------------------------ the episode, read as an engine
+    @property
+    def engine(self) -> CopyView | None:
+        """The UAVs and the target in the engine's terms (``k``, ``uav_xy``, ``uav_theta``, ``predict``,
+        ``trajectory()``, ...; read-only), or None before the first reset."""
+        return self._view if self._vec.started else None
+
+    @property
+    def scenario(self) -> Scenario:
+        """The scene of this episode with the starts actually flown (after a reset)."""
+        if not self._vec.started:
+            raise RuntimeError("env.scenario is known after reset()")
+        return self._vec.scenario(0)
 
     # ------------------------------------------------------------------ API
     def reset(self, seed: int | None = None, options: dict | None = None):
-        if seed is not None:
-            self._np_random, _ = gymnasium.utils.seeding.np_random(seed)
         scene_seed = self._scene_seed_option(options)
-        if scene_seed is None and self.scenario_spec == "random":
-            scene_seed = int(self._np_random.integers(self.scene_pool))
-        self._cache = self._scene(scene_seed)
-        if self.random_starts or (self.scenario_spec == "random" and (options or {}).get("scene_seed") is None):
-            self.scenario = self._cache.with_starts(self._np_random, self.config.n_uavs)
-        else:
-            self.scenario = self._cache.seeded_scenario()
-        self.engine = Engine(self.scenario, path_samples=self.path_samples, path_los=False)
+        obs, infos = self._vec.reset(seed=None if seed is None else [seed],
+                                     options=None if scene_seed is None else {"scene_seed": [scene_seed]})
         self.agents = list(self.possible_agents)
-        self._last_speed = np.zeros(len(self.agents))
-        c = self.config
-        self._los = line_of_sight(self.scenario.terrain, self.engine.uav_xy, c.altitude, self.engine.target_xyz)
-        self._zone_dist = zone_distance(self.engine.uav_xy, self.engine.target_xyz[:2], self.engine.target_phi,
-                                        c.r1, c.r2, c.mu)
-        self._update_masks()
-        obs = self._obs_dict(_observations([self])[0])
-        infos = dict(zip(self.agents, self._reset_infos(), strict=True))
         if self.render_mode == "human":
             self.render()
-        return obs, infos
+        return self._obs_dict(obs), self._agent_infos(infos)
 
     def _scene_seed_option(self, options) -> int | None:
         """``options["scene_seed"]`` checked: an integer >= 0, and only for ``scenario="random"``. Other keys are
@@ -539,10 +297,10 @@ class CovertSensingParallelEnv(ParallelEnv):
             flown = "the paper scenario" if self.scenario_spec == "paper" else "a given Scenario"
             raise ValueError("reset(options={'scene_seed': ...}) picks a random scene: it needs scenario='random', "
                              f"but this env flies {flown}")
-        return _int_arg("options['scene_seed']", options["scene_seed"], 0)
+        return int_arg("options['scene_seed']", options["scene_seed"], 0)
 
     def step(self, actions: dict[str, Any]):
-        if self.engine is None or not self.agents:
+        if not self._vec.started or not self.agents:
             raise RuntimeError("step() called before reset() or after the episode ended; call reset()")
         if not isinstance(actions, Mapping):
             raise TypeError(f"step() expects a dict {{agent: action}} for the agents {self.agents}, "
@@ -553,16 +311,16 @@ class CovertSensingParallelEnv(ParallelEnv):
         missing = [a for a in self.agents if a not in actions]
         if missing:
             raise ValueError(f"step(): missing actions for {missing}")
-        if self.action_mode == "unicycle":
-            act = self._unicycle_actions(actions)
-        else:
-            act = self._waypoint_indices(actions)
-        obs, rew, term, trunc, infos = step_copies([self], act[None])
+        act = self._unicycle_actions(actions) if self.action_mode == "unicycle" else self._waypoint_indices(actions)
+        obs, rew, term, trunc, infos = self._vec.step(act[None])
         agents = self.possible_agents
-        terminations = dict.fromkeys(agents, bool(term[0]))
-        truncations = dict.fromkeys(agents, bool(trunc[0]))
-        return (self._obs_dict(obs[0]), dict(zip(agents, rew[0].tolist(), strict=True)), terminations, truncations,
-                dict(zip(agents, infos[0], strict=True)))
+        terminated, truncated = bool(term[0, 0]), bool(trunc[0, 0])
+        if terminated or truncated:
+            self.agents = []
+        if self.render_mode == "human":
+            self.render()
+        return (self._obs_dict(obs), dict(zip(agents, rew[0].tolist(), strict=True)),
+                dict.fromkeys(agents, terminated), dict.fromkeys(agents, truncated), self._agent_infos(infos))
 
     # ------------------------------------------------------------------ internals
     def _unicycle_actions(self, actions: dict[str, Any]) -> np.ndarray:
@@ -593,94 +351,52 @@ class CovertSensingParallelEnv(ParallelEnv):
             idx[i] = int(val)
         return idx
 
-    def _update_masks(self) -> None:
-        if self.action_mode != "waypoint":
-            return
-        eng, c = self.engine, self.config
-        if eng.k >= c.n_slots + c.horizon:
-            return
-        q1, phi1 = eng.predict(1)
-        goals = to_world(self.lattice, q1[0, :2], float(phi1[0]))
-        visible = self._cache.lattice_visible(eng.k + 1)
-        u, n = len(eng.uav_xy), len(goals)
-        m = solve_manoeuvre(np.repeat(eng.uav_xy, n, axis=0), np.repeat(eng.uav_theta, n),
-                            np.tile(goals, (u, 1)), v_max=c.v_max, w_max=c.w_max, delta=c.delta)
-        reach = np.asarray(m.feasible, bool).reshape(u, n)
-        mask = reach & visible
-        for i in range(u):
-            if not mask[i].any():
-                mask[i] = reach[i] if reach[i].any() else True
-        self._masks = mask.astype(np.int8)
+    def _obs_dict(self, obs) -> dict[str, Any]:
+        """Per-agent observations from the vector env's batch of one."""
+        if self.dict_obs:
+            rows, masks = obs["observation"][0], obs["action_mask"][0]
+            return {a: {"observation": rows[i], "action_mask": masks[i]} for i, a in enumerate(self.possible_agents)}
+        return dict(zip(self.possible_agents, obs[0], strict=True))
+
+    def _agent_infos(self, infos: dict) -> dict[str, dict]:
+        """Flat per-agent info dicts (python scalars, keys in ``INFO_KEYS`` order) from the (1, U) info arrays; the
+        action mask last where it lives in the infos (waypoint mode without ``dict_obs``). One ``tolist`` per key."""
+        cols = [infos[key][0].tolist() for key in INFO_KEYS]
+        out = {a: dict(zip(INFO_KEYS, vals, strict=True))
+               for a, vals in zip(self.possible_agents, zip(*cols, strict=True), strict=True)}
+        if self.action_mode == "waypoint" and not self.dict_obs:
+            masks = self._vec.action_masks()[0]
+            for i, a in enumerate(self.possible_agents):
+                out[a]["action_mask"] = masks[i]
+        return out
 
     def action_mask(self, agent: str) -> np.ndarray:
         """The waypoint action mask of ``agent`` (int8, 1 = allowed); all ones in unicycle mode."""
         if self.action_mode != "waypoint":
             return np.ones(2, np.int8)
-        if self._masks is None:
+        if not self._vec.started:
             raise RuntimeError("action_mask() called before reset(): the mask depends on the UAVs' poses")
         if agent not in self._index:
             raise ValueError(f"action_mask(): unknown agent {agent!r}; the agents are {self.possible_agents}")
-        return self._masks[self._index[agent]].copy()
-
-    def _lockstep_key(self) -> tuple:
-        """What copies stepped together by :func:`step_copies` must share (read live: attributes may be set after
-        construction). Rewards, penalties, ``max_cycles`` and ``terminate_on_collision`` may differ per copy."""
-        return self.config, self.action_mode, self.map_size, self.dict_obs, self.path_samples, len(self.possible_agents)
-
-    def _reset_infos(self) -> list[dict]:
-        """Infos at reset: the keys and types of every step's (:func:`_agent_infos`). No slot has been flown,
-        so rewards, costs and the slot's motion are 0; LoS, zone, separation and clearance are the starts'."""
-        eng, c = self.engine, self.config
-        flags = np.stack([self._los, self._zone_dist <= 0, np.zeros(len(self._los), bool)])[:, None]
-        floats = np.zeros((len(_STEP_INFO_FLOATS), 1, len(self._los)))
-        floats[3, 0] = nearest_teammate(eng.uav_xy)
-        floats[4, 0] = terrain_clearance(eng.uav_xy, c.altitude, eng.terrain)
-        return _agent_infos([self], [int(eng.k)], flags, floats)[0]
-
-    def _own_features(self) -> np.ndarray:
-        """(U, 8) per-UAV features 0-7 of the observation table."""
-        return _own_features([self])[0]
-
-    def _shared_features(self) -> np.ndarray:
-        """Target displacement, time remaining and both maps (shared by all agents; a new float32 array)."""
-        out = self._shared_block().copy()
-        out[2] = self._remaining()
-        return out
-
-    def _remaining(self) -> float:
-        length = self.episode_length
-        return max(length - self.engine.k, 0) / length
-
-    def _shared_block(self) -> np.ndarray:
-        """:meth:`_shared_features` with 0 for the time remaining (read-only): it depends only on the scene
-        and the slot, and a scene is flown many times (every agent, every reset on it)."""
-        return self._cache.shared_block(self.engine.k)
-
-    def _obs_dict(self, rows: np.ndarray) -> dict[str, Any]:
-        """Per-agent observations from the (U, D) rows of :func:`_observations`."""
-        if self.dict_obs:
-            return {a: {"observation": rows[i], "action_mask": self._masks[i].copy()}
-                    for i, a in enumerate(self.possible_agents)}
-        return dict(zip(self.possible_agents, rows, strict=True))
+        return self._vec.action_masks()[0, self._index[agent]]
 
     def state(self) -> np.ndarray:
         """Global state for centralised critics (see the class docstring)."""
-        if self.engine is None:
+        if not self._vec.started:
             raise RuntimeError("state() called before reset()")
-        own = self._own_features()
-        return np.concatenate([own.reshape(-1).astype(np.float32), self._shared_features()])
+        return self._vec.state()[0]
 
     def render(self):
         if self.render_mode is None:
             gymnasium.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' or 'human'")
             return None
-        if self.engine is None:
+        if not self._vec.started:
             return None
         from covert_env.render import EpisodeRenderer
 
         if self._renderer is None:
             self._renderer = EpisodeRenderer(human=self.render_mode == "human")
-        frame = self._renderer.draw(self.scenario, self.engine)
+        frame = self._renderer.draw(self.scenario, self._view)
         return frame if self.render_mode == "rgb_array" else None
 
     def close(self) -> None:
@@ -689,186 +405,8 @@ class CovertSensingParallelEnv(ParallelEnv):
             self._renderer = None
 
 
-# ----------------------------------------------------------------------------- lock-step copies
-# Everything below works on N env copies at once: arrays (N, U, ...) with one vectorised numpy call per
-# quantity, because on the few-element arrays of one step numpy's per-call overhead, not the maths, is
-# the cost. ``env.step`` is the case N = 1; the SB3 adapter (training.vec_env) steps all its copies
-# through :func:`step_copies`, so both paths run the same code.
-
-#: Float infos of a step (the class docstring's Infos table), besides the bools los, in_zone, infeasible.
-_STEP_INFO_FLOATS = (("kappa", "g", "v", "separation", "terrain_clearance")
-                     + tuple(f"reward_{t}" for t in _REWARD_TERMS) + ("cost",) + tuple(f"cost_{n}" for n in _COSTS))
-
-
-def step_copies(envs, actions) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[list[dict]]]:
-    """Step N copies of :class:`CovertSensingParallelEnv` in lock-step: one slot each, the same results
-    as calling ``env.step`` on every copy, with the numpy work done once for all copies.
-
-    Args:
-        envs: N envs built with the same arguments (scenes and slots may differ), all mid-episode.
-        actions: (N, U, 2) Box actions (unicycle mode) or (N, U) lattice indices (waypoint mode), agents
-            in ``possible_agents`` order.
-
-    Returns:
-        ``(observations, rewards, terminated, truncated, infos)``: a new (N, U, D) float32 array of the
-        observation rows (the array form, also with ``dict_obs=True``), (N, U) rewards, (N,) bools (every
-        agent of a copy ends together) and N lists of U info dicts. A copy that ended has no agents left
-        and must be reset before its next step.
-    """
-    e0 = envs[0]
-    c = e0.config
-    n, u = len(envs), len(e0.possible_agents)
-    for env in envs:
-        if env.engine is None or not env.agents:
-            raise RuntimeError("step() called before reset() or after the episode ended; call reset()")
-    key = e0._lockstep_key()
-    for env in envs[1:]:
-        if env._lockstep_key() != key:
-            raise ValueError("step_copies: every env must have the same config, action_mode, map_size, dict_obs, "
-                             "path_samples and team size")
-    engines = [env.engine for env in envs]
-    if e0.action_mode == "unicycle":
-        act = np.asarray(actions, dtype=float)
-        if act.shape != (n, u, 2):
-            raise ValueError(f"step_copies: unicycle actions must have shape ({n}, {u}, 2), got {act.shape}")
-        quant = step_engines(engines, unicycle=_unicycle_controls(act, c, e0.possible_agents))
-    else:
-        idx = _lattice_indices(actions, n, u, len(e0.lattice), e0.possible_agents)
-        rows = np.arange(u)
-        decision = np.stack([env._masks[rows, idx[j]] == 0 for j, env in enumerate(envs)])
-        goals = np.empty((n, u, 2))
-        for j, env in enumerate(envs):
-            q1, phi1 = env.engine.predict(1)
-            goals[j] = to_world(env.lattice[idx[j]], q1[0, :2], float(phi1[0]))
-        quant = step_engines(engines, waypoints=goals, infeasible=decision)
-    speed = quant.path_length / c.delta
-    costs = constraint_costs(quant, c)
-    terms = _reward_terms(envs, quant, costs)
-    rewards = terms.sum(axis=0)
-    ks = [eng.k for eng in engines]
-    if n == 1:
-        stop_on_collision, max_cycles = e0.terminate_on_collision, e0.episode_length
-    else:
-        stop_on_collision = np.array([env.terminate_on_collision for env in envs])
-        max_cycles = np.array([env.episode_length for env in envs])
-    terminate = (quant.separation_path < c.d_safe1).any(axis=1) & stop_on_collision
-    truncate = (np.array(ks) >= max_cycles) & ~terminate
-    for j, env in enumerate(envs):
-        env._last_speed, env._los, env._zone_dist = speed[j], quant.los[j], quant.zone_distance[j]
-        env._update_masks()
-    obs = _observations(envs)
-
-    flags = np.stack([quant.los, quant.in_zone, np.stack([eng._infeasible[-1] for eng in engines])])
-    floats = np.empty((len(_STEP_INFO_FLOATS), n, u))
-    floats[:5] = quant.kappa, quant.g, speed, quant.separation_path, quant.terrain_clearance
-    floats[5:5 + len(_REWARD_TERMS)] = terms
-    floats[5 + len(_REWARD_TERMS)] = costs.sum(axis=0)
-    floats[6 + len(_REWARD_TERMS):] = costs
-    infos = _agent_infos(envs, ks, flags, floats)
-    for j, env in enumerate(envs):
-        if terminate[j] or truncate[j]:
-            env.agents = []
-        if env.render_mode == "human":
-            env.render()
-    return obs, rewards, terminate, truncate, infos
-
-
-def _unicycle_controls(act: np.ndarray, c: Config, agents) -> np.ndarray:
-    """(..., U, 2) controls (v, omega) from Box(-1, 1) actions: clipped, then scaled (class docstring)."""
-    if not np.isfinite(act).all():
-        bad = tuple(np.argwhere(~np.isfinite(act).all(axis=-1))[0])
-        where = f" (copy {bad[0]})" if len(act) > 1 else ""
-        raise ValueError(f"action for {agents[bad[-1]]}{where} must be finite, got {act[bad].tolist()}")
-    ctl = np.empty_like(act)
-    ctl[..., 0], ctl[..., 1] = unicycle_controls(act, c)
-    return ctl
-
-
-def _lattice_indices(actions, n: int, u: int, n_nodes: int, agents) -> np.ndarray:
-    """(N, U) validated lattice indices from Discrete(L) actions."""
-    a = np.asarray(actions)
-    if a.shape != (n, u):
-        raise ValueError(f"step_copies: waypoint actions must have shape ({n}, {u}), got {a.shape}")
-    ok = np.zeros(a.shape, bool)
-    if a.dtype.kind in "iuf":
-        with np.errstate(invalid="ignore"):
-            ok = np.isfinite(a) & (a == np.round(a)) & (a >= 0) & (a < n_nodes)
-    if not ok.all():
-        bad = tuple(np.argwhere(~ok)[0])
-        where = f" (copy {bad[0]})" if n > 1 else ""
-        raise ValueError(f"action for {agents[bad[-1]]}{where} must be an integer in [0, {n_nodes - 1}], "
-                         f"got {a[bad].item()!r}")
-    return a.astype(int)
-
-
-def _agent_infos(envs, slots, flags: np.ndarray, floats: np.ndarray) -> list[list[dict]]:
-    """N lists of U flat info dicts from (3, N, U) ``flags`` (los, in_zone, infeasible) and (F, N, U) ``floats``
-    (``_STEP_INFO_FLOATS``): every key in a fixed order, the action mask last where it lives in the infos (waypoint
-    mode without ``dict_obs``). Reset and step both build them here, so their keys and types agree (TorchRL builds
-    its info spec from reset's). One ``tolist`` per array: per-key conversions dominated the step's dict work."""
-    keys = ("slot", "los", "in_zone", "infeasible") + _STEP_INFO_FLOATS
-    flag_rows, float_rows = flags.transpose(1, 2, 0).tolist(), floats.transpose(1, 2, 0).tolist()
-    mask_in_info = envs[0].action_mode == "waypoint" and not envs[0].dict_obs
-    out = []
-    for j, env in enumerate(envs):
-        infos = [dict(zip(keys, [slots[j], *f, *x], strict=True))
-                 for f, x in zip(flag_rows[j], float_rows[j], strict=True)]
-        if mask_in_info:
-            for i, info in enumerate(infos):
-                info["action_mask"] = env._masks[i].copy()
-        out.append(infos)
-    return out
-
-
-def _reward_terms(envs, quant, costs: np.ndarray) -> np.ndarray:
-    """(6, N, U) reward terms (:func:`covert_env.envs.batch.reward_terms`) with each copy's own reward scale and
-    penalties (read live: ``set_attr`` may change them per copy)."""
-    e0 = envs[0]
-    if len(envs) == 1:
-        return reward_terms(quant, costs, e0.config, e0.reward_scale, e0.penalties)
-    scale = np.array([env.reward_scale for env in envs])[:, None]
-    p = {key: np.array([env.penalties[key] for env in envs])[:, None] for key in e0.penalties}
-    return reward_terms(quant, costs, e0.config, scale, p)
-
-
-def _own_features(envs) -> np.ndarray:
-    """(N, U, 8) per-UAV features 0-7 of the observation table."""
-    e0 = envs[0]
-    c = e0.config
-    if len(envs) == 1:
-        eng, tr = e0.engine, e0.scenario.track
-        k = min(eng.k, tr.n_slots)
-        q, phi = tr.positions[k:k + 1], tr.headings[k:k + 1]
-        xy, th = eng.uav_xy[None], eng.uav_theta[None]
-        speed, los, zd = e0._last_speed[None], e0._los[None], e0._zone_dist[None]
-    else:
-        ks = [min(env.engine.k, env.scenario.track.n_slots) for env in envs]
-        q = np.array([env.scenario.track.positions[k] for env, k in zip(envs, ks, strict=True)])
-        phi = np.array([env.scenario.track.headings[k] for env, k in zip(envs, ks, strict=True)])
-        xy, th = np.stack([env.engine.uav_xy for env in envs]), np.stack([env.engine.uav_theta for env in envs])
-        speed, los = np.stack([env._last_speed for env in envs]), np.stack([env._los for env in envs])
-        zd = np.stack([env._zone_dist for env in envs])
-    return own_features(xy, th, q, phi, speed, los, zd, c)
-
-
-def _observations(envs) -> np.ndarray:
-    """(N, U, D) float32 observation rows (the class docstring's table), a new array."""
-    e0 = envs[0]
-    own = _own_features(envs)
-    n, u = own.shape[:2]
-    n_own, n_mate = 8, 2 * (u - 1)
-    if n == 1:
-        shared, remaining = e0._shared_block()[None], np.array([e0._remaining()])
-    else:
-        shared = np.stack([env._cache.shared_block(env.engine.k) for env in envs])
-        remaining = np.array([env._remaining() for env in envs])
-    rows = np.empty((n, u, e0._obs_box.shape[0]), np.float32)
-    rows[..., :n_own] = own
-    rows[..., n_own:n_own + 3] = shared[:, None, :3]
-    rows[..., n_own + 2] = remaining[:, None]
-    rows[..., n_own + 3:n_own + 3 + n_mate] = own[:, e0._mates, :2].reshape(n, u, -1)
-    rows[..., n_own + 3 + n_mate:] = shared[:, None, 3:]
-    return rows
+CovertSensingParallelEnv.__doc__ = CovertSensingParallelEnv.__doc__.replace(
+    "{OBSERVATION_TABLE}", observation_table().replace("\n", "\n    "))
 
 
 # ----------------------------------------------------------------------------- argument checks
@@ -886,36 +424,6 @@ def _one_unicycle_action(agent: str, value) -> np.ndarray:
     if not np.all(np.isfinite(one)):
         raise ValueError(f"action for {agent} must be finite, got {one.tolist()}")
     return one
-
-
-def _int_arg(name: str, value, low: int, high: int | None = None) -> int:
-    """``value`` as an int in [low, high]: ints and numpy integers pass; bools, floats and strings are rejected
-    (a fractional team size or map side has no meaning, and silent truncation hides the mistake)."""
-    if isinstance(value, (bool, np.bool_)):
-        raise TypeError(f"{name} must be an integer, got {value!r}")
-    try:
-        v = operator.index(value)
-    except TypeError:
-        raise TypeError(f"{name} must be an integer, got {type(value).__name__} {value!r}") from None
-    if v < low or (high is not None and v > high):
-        allowed = f"in [{low}, {high}]" if high is not None else f">= {low}"
-        raise ValueError(f"{name} must be an integer {allowed}, got {v!r}")
-    return v
-
-
-def _number_arg(name: str, value) -> float:
-    """``value`` as a finite float; bools and strings are rejected."""
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise TypeError(f"{name} must be a number, got {type(value).__name__} {value!r}")
-    if not math.isfinite(value):
-        raise ValueError(f"{name} must be finite, got {value!r}")
-    return float(value)
-
-
-def _bool_arg(name: str, value) -> bool:
-    if not isinstance(value, (bool, np.bool_)):
-        raise TypeError(f"{name} must be True or False, got {value!r}")
-    return bool(value)
 
 
 def raw_env(**kwargs) -> CovertSensingParallelEnv:

@@ -2,7 +2,7 @@
 
 Everything that depends only on the scene and the slot (the target's track, the observation's shared block with
 its visibility maps, which lattice nodes are visible, the start nodes) is computed once when a scene enters the
-pool, by the same :class:`~covert_env.envs.covert_sensing._SceneCache` the parallel env uses (so both envs see
+pool, by :class:`~covert_env.envs.scene_cache.SceneCache` (so every copy and reset sees
 the same numbers), and stacked into arrays ``(R, ...)``. A copy of the vector env only holds its row index: every
 per-step quantity is a gather ``array[rows, slots]``, one array operation for the whole batch.
 
@@ -17,9 +17,10 @@ from collections import OrderedDict
 
 import numpy as np
 
-from covert_env.envs.covert_sensing import _SceneCache
+from covert_env.envs.observation import shared_block_size
+from covert_env.envs.scene_cache import SceneCache
 from covert_env.metrics import terrain_clearance
-from covert_env.scenario import Scenario, _start_candidates
+from covert_env.scenario import Scenario, start_candidates
 from covert_env.visibility import LOS_TOLERANCE, _arrays, _clip, _passes_near
 
 __all__ = ["ScenePool"]
@@ -45,7 +46,7 @@ class ScenePool:
 
     Attributes (rows R, slots T = track slots + 1, polytopes M, faces F, lattice nodes L):
         q (R, T, 3), phi (R, T): the target's track, clamped at its end like ``TargetTrack.position``.
-        blocks (R, T, D) float32: the observation's shared block per slot (``_SceneCache.shared_block``).
+        blocks (R, T, D) float32: the observation's shared block per slot (``SceneCache.shared_block``).
         lattice_ok (R, T, L) bool: lattice nodes in the eroded zone with clear LoS (waypoint mode only).
         hs (R, M, F, 4), centre (R, M, 2), radius (R, M), z_max (R, M), valid (R, M): padded terrain.
         top (R, M, 3): polytope top points (eq. 3), padded with inf.
@@ -56,9 +57,9 @@ class ScenePool:
         self._map_offsets, self._map_in_zone = map_offsets, map_in_zone
         self.waypoint, self.capacity = waypoint, capacity
         self._rows: OrderedDict = OrderedDict()          # key -> row, least recently used first
-        self._caches: list[_SceneCache | None] = []
+        self._caches: list[SceneCache | None] = []
         self._start_nodes: list[tuple | None] = []
-        d = 3 + 2 * len(map_offsets)
+        d = shared_block_size(len(map_offsets))
         self.q, self.phi = np.zeros((0, 1, 3)), np.zeros((0, 1))
         self.blocks = np.zeros((0, 1, d), np.float32)
         self.lattice_ok = np.zeros((0, 1, len(lattice)), bool)
@@ -92,15 +93,15 @@ class ScenePool:
         self._rows[key] = r
         return r
 
-    def cache(self, row: int) -> _SceneCache:
+    def cache(self, row: int) -> SceneCache:
         return self._caches[row]
 
     def start_candidates(self, row: int) -> tuple[np.ndarray, np.ndarray]:
-        """What ``Scenario.sample_starts`` draws the scene's starts from (``scenario._start_candidates``): the
+        """What ``Scenario.sample_starts`` draws the scene's starts from (``scenario.start_candidates``): the
         zone lattice at slot 0 and its nodes with clear LoS, computed once per scene."""
         return self._start_nodes[row]
 
-    def _build(self, key) -> _SceneCache:
+    def _build(self, key) -> SceneCache:
         c = self.config
         if isinstance(self.spec, Scenario):
             sc, seed = self.spec, None
@@ -108,9 +109,9 @@ class ScenePool:
             sc, seed = Scenario.paper(c), None
         else:
             sc, seed = None, key
-        return _SceneCache(sc, self._map_offsets, self._map_in_zone, self.lattice, seed=seed, config=c)
+        return SceneCache(sc, self._map_offsets, self._map_in_zone, self.lattice, seed=seed, config=c)
 
-    def _fill(self, r: int, cache: _SceneCache) -> None:
+    def _fill(self, r: int, cache: SceneCache) -> None:
         w, c = cache.parts, self.config
         n_t = w.track.n_slots + 1
         arr = _arrays(w.terrain)
@@ -153,7 +154,7 @@ class ScenePool:
         self.radius[r], self.z_max[r], self.valid[r], self.top[r] = 0.0, 0.0, False, np.inf
         self.radius[r, :m], self.z_max[r, :m], self.valid[r, :m] = arr.radius, arr.z_max, True
         self.top[r, :m] = w.terrain.highest_points
-        self._start_nodes[r] = _start_candidates(c, w.terrain, w.track)
+        self._start_nodes[r] = start_candidates(c, w.terrain, w.track)
         self._caches[r] = cache
 
     # ------------------------------------------------------------------ geometry

@@ -11,23 +11,27 @@ from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
 from covert_env.envs import batch
-from covert_env.envs.covert_sensing import (
-    _STEP_INFO_FLOATS,
-    CovertSensingParallelEnv,
-    _int_arg,
-)
+from covert_env.envs.arguments import int_arg
+from covert_env.envs.recorder import CopyView, EpisodeRecorder
 from covert_env.envs.scene_pool import ScenePool
+from covert_env.envs.settings import EnvSettings
 from covert_env.metrics import moves_quantities, nearest_teammate
 from covert_env.reach import reach_table
-from covert_env.scenario import _pick_starts
-from covert_env.zone import in_feasible_zone, zone_distance
+from covert_env.scenario import Scenario, pick_starts
+from covert_env.trajectory import Trajectory
+from covert_env.zone import zone_distance
 
-__all__ = ["CovertSensingVectorEnv", "vector_env", "INFO_KEYS", "INFO_DTYPES", "MAX_NUM_ENVS"]
+__all__ = ["AUTORESET_MODES", "CovertSensingVectorEnv", "vector_env", "INFO_KEYS", "INFO_DTYPES", "MAX_NUM_ENVS"]
 
 #: Largest ``num_envs`` accepted: memory grows linearly with it (see benchmarks/vector_throughput.py).
 MAX_NUM_ENVS = 1 << 16
+#: Float infos of a step (the parallel env's Infos table), besides the int ``slot`` and the bools.
+INFO_FLOATS = (("kappa", "g", "v", "separation", "terrain_clearance") + tuple(f"reward_{t}" for t in batch.REWARD_TERMS)
+               + ("cost",) + tuple(f"cost_{n}" for n in batch.COSTS))
 #: Infos keys in their order (the parallel env's per-agent keys, without the action mask: see ``action_masks``).
-INFO_KEYS = ("slot", "los", "in_zone", "infeasible") + _STEP_INFO_FLOATS
+INFO_KEYS = ("slot", "los", "in_zone", "infeasible") + INFO_FLOATS
+#: What ``autoreset_mode`` accepts: Gymnasium's same-step mode, or none (copies that ended wait for a reset).
+AUTORESET_MODES = (AutoresetMode.SAME_STEP, AutoresetMode.DISABLED)
 #: The infos' dtypes, for frameworks that declare them before the first step (the TorchRL env's specs).
 INFO_DTYPES = {key: np.dtype(np.int64) if key == "slot" else np.dtype(bool) if key in ("los", "in_zone", "infeasible")
                else np.dtype(np.float64) for key in INFO_KEYS}
@@ -101,6 +105,10 @@ class CovertSensingVectorEnv:
     Both keys are present only on steps where some copy ended (as in Gymnasium). No ``step()`` ever needs a
     manual ``reset()``.
 
+    ``autoreset_mode=AutoresetMode.DISABLED`` turns this off: a copy whose episode ended keeps its last
+    observation and state, and ``step()`` raises until it is reset with ``reset(options={"reset_mask": m})``.
+    The parallel env is the vector env with B = 1 in this mode (its agents leave at the end of an episode).
+
     ## Seeding
 
     ``reset(seed=s)`` with an int gives copy i the seed ``copy_seeds[i]`` (from ``np.random.SeedSequence(s)``);
@@ -117,37 +125,62 @@ class CovertSensingVectorEnv:
 
     ``num_envs`` (B, in ``[1, MAX_NUM_ENVS]``) and the parallel env's keyword arguments (``render_mode`` must
     be None). ``scenario="random"`` builds a scene the first time a copy draws its seed (about 10 ms, 50 ms in
-    waypoint mode); the pool keeps ``B + 32`` scenes.
+    waypoint mode); the pool keeps ``B + 32`` scenes. ``autoreset_mode``: ``AutoresetMode.SAME_STEP``
+    (default) or ``AutoresetMode.DISABLED`` (see Autoreset). ``record``: keep every copy's current episode for
+    the metrics (``trajectory(i)``, :class:`~covert_env.envs.recorder.EpisodeRecorder`; about
+    ``n_slots * U * (path_samples + 4) * 16`` bytes per copy, so off by default).
+
+    ## Reading a copy
+
+    ``slots`` (B,), ``uav_xy`` (B, U, 2) and ``uav_theta`` (B, U) (read-only), ``scene(i)`` (terrain and track),
+    ``scenario(i)`` (with the starts flown), ``trajectory(i)`` (with ``record=True``) and ``copy_view(i)``, which
+    reads copy i in the terms of :class:`~covert_env.engine.Engine` (``k``, ``uav_xy``, ``predict``, ...), so the
+    DP planner and the evaluation harness can drive a copy as they drive an engine.
 
     ## Version History
 
-    * v1: initial release (the task and numbers of ``covert_sensing_v1``).
+    * v1: initial release (the task and numbers of ``covert_sensing_v1``). covert_env 0.3.0 added
+      ``autoreset_mode``, ``record`` and the copy readers; the numbers are unchanged.
     """
 
     metadata = {"name": "covert_sensing_vector_v1", "autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
     render_mode = None
 
-    def __init__(self, num_envs: int = 1, **kwargs):
-        self.num_envs = _int_arg("num_envs", num_envs, 1, MAX_NUM_ENVS)
+    def __init__(self, num_envs: int = 1, *, autoreset_mode: AutoresetMode = AutoresetMode.SAME_STEP,
+                 record: bool = False, **kwargs):
         if kwargs.get("render_mode") is not None:
             raise ValueError("the vector env does not render; use the parallel env (render_mode=...) to watch a copy")
-        one = CovertSensingParallelEnv(**kwargs)          # validates the arguments; its spaces are one agent's
-        self.config, self.action_mode, self.dict_obs = one.config, one.action_mode, one.dict_obs
-        self.scenario_spec, self.random_starts = one.scenario_spec, one.random_starts
-        self.scene_pool, self.path_samples = one.scene_pool, one.path_samples
-        self.reward_scale, self.penalties = one.reward_scale, dict(one.penalties)
-        self.terminate_on_collision, self.max_cycles = one.terminate_on_collision, one.max_cycles
-        self.lattice, self.possible_agents = one.lattice, list(one.possible_agents)
-        a0 = self.possible_agents[0]
-        self.single_observation_space, self.single_action_space = one.observation_space(a0), one.action_space(a0)
-        self.single_state_space = one.state_space
+        self._setup(num_envs, EnvSettings(**kwargs), autoreset_mode, record)
+
+    @classmethod
+    def from_settings(cls, num_envs: int, settings: EnvSettings, *,
+                      autoreset_mode: AutoresetMode = AutoresetMode.SAME_STEP, record: bool = False):
+        """The vector env of already checked :class:`~covert_env.envs.settings.EnvSettings` (the parallel env's)."""
+        venv = cls.__new__(cls)
+        venv._setup(num_envs, settings, autoreset_mode, record)
+        return venv
+
+    def _setup(self, num_envs, s: EnvSettings, autoreset_mode, record) -> None:
+        self.num_envs = int_arg("num_envs", num_envs, 1, MAX_NUM_ENVS)
+        if autoreset_mode not in AUTORESET_MODES:
+            raise ValueError(f"autoreset_mode must be one of {[m.name for m in AUTORESET_MODES]}, "
+                             f"got {autoreset_mode!r}")
+        if not isinstance(record, (bool, np.bool_)):
+            raise TypeError(f"record must be True or False, got {record!r}")
+        self.metadata = dict(type(self).metadata, autoreset_mode=autoreset_mode)
+        self.config, self.action_mode, self.dict_obs = s.config, s.action_mode, s.dict_obs
+        self.scenario_spec, self.random_starts = s.scenario, s.random_starts
+        self.scene_pool, self.path_samples = s.scene_pool, s.path_samples
+        self.reward_scale, self.penalties = s.reward_scale, dict(s.penalties)
+        self.terminate_on_collision, self.max_cycles = s.terminate_on_collision, s.max_cycles
+        self.lattice, self.possible_agents, self.layout = s.lattice, list(s.possible_agents), s.layout
+        self.single_observation_space, self.single_action_space = s.observation_space, s.action_space
+        self.single_state_space = s.state_space
         b, u, c = self.num_envs, len(self.possible_agents), self.config
         self.observation_space = batch_space(batch_space(self.single_observation_space, u), b)
         self.action_space = batch_space(batch_space(self.single_action_space, u), b)
         self.state_space = batch_space(self.single_state_space, b)
-        self._mates = np.array([[j for j in range(u) if j != i] for i in range(u)], dtype=int).reshape(u, u - 1)
-        map_in_zone = in_feasible_zone(one.map_offsets, np.zeros(2), 0.0, c.r1, c.r2, c.mu, c.r_u)
-        self._pool = ScenePool(one.scenario_spec, c, self.lattice, one.map_offsets, map_in_zone,
+        self._pool = ScenePool(s.scenario, c, self.lattice, s.map_offsets, s.map_in_zone,
                                waypoint=self.action_mode == "waypoint", capacity=b + 32)
         self._times = np.linspace(0.0, 1.0, self.path_samples) * c.delta      # the engine's sample times
         self._rngs: list[np.random.Generator] | None = None
@@ -155,11 +188,13 @@ class CovertSensingVectorEnv:
         self._rows = np.full(b, -1)
         self._k = np.zeros(b, dtype=np.int64)
         self._xy, self._theta = np.zeros((b, u, 2)), np.zeros((b, u))
+        self._start_xy, self._start_theta = np.zeros((b, u, 2)), np.zeros((b, u))
+        self._drawn, self._ended = np.zeros(b, bool), np.zeros(b, bool)
         self._speed, self._zone = np.zeros((b, u)), np.zeros((b, u))
         self._los = np.zeros((b, u), bool)
         self._masks = np.ones((b, u, len(self.lattice) if self.action_mode == "waypoint" else 2), np.int8)
         self._started = False
-        c = self.config
+        self._recorder = EpisodeRecorder(b, u, c.n_slots, self.path_samples) if record else None
         self._reach = reach_table(c.v_max, c.w_max, c.delta) if self.action_mode == "waypoint" else None
 
     # ------------------------------------------------------------------ properties
@@ -170,7 +205,7 @@ class CovertSensingVectorEnv:
 
     @max_cycles.setter
     def max_cycles(self, value) -> None:
-        self._max_cycles = _int_arg("max_cycles", value, 1)
+        self._max_cycles = int_arg("max_cycles", value, 1)
 
     @property
     def episode_length(self) -> int:
@@ -212,6 +247,9 @@ class CovertSensingVectorEnv:
         """One slot in every copy; returns ``(obs, rewards, terminations, truncations, infos)`` (class docstring)."""
         if not self._started:
             raise RuntimeError("step() called before reset()")
+        if self._ended.any():
+            raise RuntimeError(f"step(): the episodes of copies {np.flatnonzero(self._ended).tolist()} ended and "
+                               "autoreset_mode is DISABLED; reset them (reset(options={'reset_mask': ...}))")
         c, pool, rows, k = self.config, self._pool, self._rows, self._k
         xy0, th0 = self._xy, self._theta
         q1, phi1 = pool.q[rows, k + 1], pool.phi[rows, k + 1]
@@ -225,7 +263,7 @@ class CovertSensingVectorEnv:
                                          self.possible_agents)
             flagged = np.take_along_axis(self._masks, idx[..., None], axis=-1)[..., 0] == 0
             goals = batch.to_world_batch(self.lattice[idx], q1[:, :2], phi1)
-            path, end_theta, v, fallback = batch.fly_waypoints(xy0, th0, goals, c, self._times)
+            path, end_theta, v, fallback, w = batch.fly_waypoints(xy0, th0, goals, c, self._times)
             flagged |= fallback
         end = path[..., -1, :].copy()
         quant = moves_quantities(xy0, end, pool.q[rows, k], pool.phi[rows, k], q1, phi1, path, v * c.delta,
@@ -235,6 +273,8 @@ class CovertSensingVectorEnv:
         rewards = terms.sum(axis=0)
         self._k = k + 1
         self._xy, self._theta = end, np.mod(end_theta, 2 * math.pi)
+        if self._recorder is not None:
+            self._recorder.record(k, path, self._theta, v, w, flagged, c.delta)
         self._speed, self._los, self._zone = quant.path_length / c.delta, quant.los, quant.zone_distance
         term = (quant.separation_path < c.d_safe1).any(axis=1) & self.terminate_on_collision
         trunc = (self._k >= self.episode_length) & ~term
@@ -248,7 +288,9 @@ class CovertSensingVectorEnv:
         infos.update(zip((f"cost_{n}" for n in batch.COSTS), costs, strict=True))
         obs = self._obs_rows()
         done = term | trunc
-        if done.any():
+        if done.any() and self.metadata["autoreset_mode"] == AutoresetMode.DISABLED:
+            self._ended |= done
+        elif done.any():
             ended = np.flatnonzero(done)
             infos = {key: infos[key].copy() for key in INFO_KEYS}
             final_info = {key: val.copy() for key, val in infos.items()}
@@ -266,6 +308,54 @@ class CovertSensingVectorEnv:
         return (self._observation(obs), rewards, np.repeat(term[:, None], u, axis=1),
                 np.repeat(trunc[:, None], u, axis=1), infos)
 
+    # ------------------------------------------------------------------ reading copies
+    @property
+    def started(self) -> bool:
+        """True once ``reset()`` has been called."""
+        return self._started
+
+    @property
+    def slots(self) -> np.ndarray:
+        """(B,) the slot k each copy has reached."""
+        return self._k.copy()
+
+    @property
+    def uav_xy(self) -> np.ndarray:
+        """(B, U, 2) the UAVs' positions (read-only view)."""
+        out = self._xy.view()
+        out.flags.writeable = False
+        return out
+
+    @property
+    def uav_theta(self) -> np.ndarray:
+        """(B, U) the UAVs' headings in [0, 2 pi) (read-only view)."""
+        out = self._theta.view()
+        out.flags.writeable = False
+        return out
+
+    def scene(self, i: int):
+        """The scene copy i flies (``config``, ``terrain``, ``track``, ``name``), without starts."""
+        return self._pool.cache(self._rows[i]).parts
+
+    def scenario(self, i: int) -> Scenario:
+        """The :class:`~covert_env.scenario.Scenario` of copy i's episode, with the starts actually flown."""
+        cache = self._pool.cache(self._rows[i])
+        if not self._drawn[i]:
+            return cache.seeded_scenario()
+        w = cache.parts
+        return Scenario(w.config, w.terrain, w.track, self._start_xy[i].copy(), self._start_theta[i].copy(),
+                        name=w.name)
+
+    def trajectory(self, i: int) -> Trajectory:
+        """Copy i's episode so far as a :class:`~covert_env.trajectory.Trajectory` (needs ``record=True``)."""
+        if self._recorder is None:
+            raise RuntimeError("trajectory() needs the vector env built with record=True")
+        return self._recorder.trajectory(i, int(self._k[i]), self.scene(i).track)
+
+    def copy_view(self, i: int) -> CopyView:
+        """Copy i read as an engine (:class:`~covert_env.envs.recorder.CopyView`)."""
+        return CopyView(self, int_arg("copy index", i, 0, self.num_envs - 1))
+
     def action_masks(self) -> np.ndarray:
         """(B, U, L) int8 waypoint masks (1 = allowed); all ones (B, U, 2) in unicycle mode."""
         return self._masks.copy()
@@ -274,10 +364,8 @@ class CovertSensingVectorEnv:
         """(B, S) float32 global state, row b the parallel env's ``state()`` of copy b."""
         if not self._started:
             raise RuntimeError("state() called before reset()")
-        own = self._own_features()
-        shared = self._pool.blocks[self._rows, self._slots()]
-        shared[:, 2] = self._remaining()
-        return np.concatenate([own.reshape(self.num_envs, -1).astype(np.float32), shared], axis=1)
+        return self.layout.state(self._own_features(), self._pool.blocks[self._rows, self._slots()],
+                                 self._remaining())
 
     def close(self) -> None:
         self._pool = None
@@ -294,13 +382,16 @@ class CovertSensingVectorEnv:
                 s = int(rng.integers(self.scene_pool))
             self._rows[j] = row = pool.row(pool.key(s), self._rows)
             if draw:
-                xy[n], theta[n] = _pick_starts(c, *pool.start_candidates(row), rng, u, pool.cache(row).parts.name)
+                xy[n], theta[n] = pick_starts(c, *pool.start_candidates(row), rng, u, pool.cache(row).parts.name)
             else:
                 sc = pool.cache(row).seeded_scenario()
                 xy[n], theta[n] = sc.uav_xy, sc.uav_theta
         rows = self._rows[idx]
         q, phi = pool.q[rows, 0], pool.phi[rows, 0]
         self._xy[idx], self._theta[idx] = xy, np.mod(theta, 2 * math.pi)
+        self._start_xy[idx], self._start_theta[idx], self._drawn[idx], self._ended[idx] = xy, theta, draw, False
+        if self._recorder is not None:
+            self._recorder.start(idx, xy, self._theta[idx])
         self._k[idx], self._speed[idx] = 0, 0.0
         self._los[idx] = pool.line_of_sight(rows, xy, c.altitude, q)
         self._zone[idx] = zone_distance(xy, q[:, None, :2], phi[:, None], c.r1, c.r2, c.mu)
@@ -329,7 +420,7 @@ class CovertSensingVectorEnv:
 
     def _obs_rows(self, idx=slice(None)) -> np.ndarray:
         shared = self._pool.blocks[self._rows[idx], self._slots(idx)]
-        return batch.observations(self._own_features(idx), shared, self._remaining(idx), self._mates)
+        return self.layout.observations(self._own_features(idx), shared, self._remaining(idx))
 
     def _observation(self, rows: np.ndarray):
         if self.dict_obs:
@@ -358,8 +449,8 @@ class _CopyTerrains:
 def _copy_seeds(seed, b: int) -> np.ndarray:
     """Per-copy seeds: from ``np.random.SeedSequence(seed)`` for an int, as given for a sequence of b ints."""
     if np.ndim(seed) == 0:
-        return np.random.SeedSequence(_int_arg("seed", seed, 0)).generate_state(b).astype(np.int64)
-    seeds = np.asarray([_int_arg("seed", s, 0) for s in seed], dtype=np.int64)
+        return np.random.SeedSequence(int_arg("seed", seed, 0)).generate_state(b).astype(np.int64)
+    seeds = np.asarray([int_arg("seed", s, 0) for s in seed], dtype=np.int64)
     if seeds.shape != (b,):
         raise ValueError(f"reset(seed=...) needs an int or {b} ints (one per copy), got {len(seeds)}")
     return seeds

@@ -1,0 +1,41 @@
+"""Checks of the envs' arguments at the boundary: a clear error naming the argument, the value and the allowed range."""
+
+from __future__ import annotations
+
+import math
+import operator
+
+import numpy as np
+
+__all__ = ["bool_arg", "int_arg", "number_arg"]
+
+
+def int_arg(name: str, value, low: int, high: int | None = None) -> int:
+    """``value`` as an int in [low, high]: ints and numpy integers pass; bools, floats and strings are rejected
+    (a fractional team size or map side has no meaning, and silent truncation hides the mistake)."""
+    if isinstance(value, (bool, np.bool_)):
+        raise TypeError(f"{name} must be an integer, got {value!r}")
+    try:
+        v = operator.index(value)
+    except TypeError:
+        raise TypeError(f"{name} must be an integer, got {type(value).__name__} {value!r}") from None
+    if v < low or (high is not None and v > high):
+        allowed = f"in [{low}, {high}]" if high is not None else f">= {low}"
+        raise ValueError(f"{name} must be an integer {allowed}, got {v!r}")
+    return v
+
+
+def number_arg(name: str, value) -> float:
+    """``value`` as a finite float; bools and strings are rejected."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise TypeError(f"{name} must be a number, got {type(value).__name__} {value!r}")
+    if not math.isfinite(value):
+        raise ValueError(f"{name} must be finite, got {value!r}")
+    return float(value)
+
+
+def bool_arg(name: str, value) -> bool:
+    """``value`` as a bool; only True/False (and numpy bools) are accepted, not 0/1 or strings."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise TypeError(f"{name} must be True or False, got {value!r}")
+    return bool(value)

@@ -1,0 +1,146 @@
+"""The observation's layout, in one place: named slices, bounds, the spaces, the rows and the docstring table.
+
+An agent's observation row is its own features (offset, heading, speed, LoS, zone), the shared features (the
+target's next displacement, the time remaining), its teammates' offsets and two visibility maps. ``state()`` is
+every UAV's own features followed by the shared features and the maps. Every consumer (the envs' spaces, the
+observation and state builders, the scene cache's shared block, the class docstrings' table) reads the layout
+from :class:`ObservationLayout`, so it cannot drift between them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from gymnasium import spaces
+
+__all__ = ["FIELDS", "OFFSET_CLIP", "OWN_SIZE", "OWN_SLICES", "ObservationLayout", "observation_table",
+           "shared_block_size"]
+
+#: Offsets in observations are divided by R2 and clipped to this magnitude (500 m at R2 = 100 m).
+OFFSET_CLIP = 5.0
+
+
+@dataclass(frozen=True)
+class Field:
+    """One named block of the observation row: its size (``"U-1"`` pairs, ``"S*S"`` cells or a number), bounds
+    and the docstring's wording."""
+
+    name: str
+    size: object
+    low: float
+    high: float
+    meaning: str
+    scale: str
+
+
+#: The row in order. Sizes: an int, ``"mates"`` (2 (U - 1)) or ``"map"`` (S * S).
+FIELDS = (
+    Field("offset", 2, -OFFSET_CLIP, OFFSET_CLIP, "own offset from the target", "/ R2, clipped to +-5"),
+    Field("heading", 2, -1.0, 1.0, "cos, sin of own heading minus target heading", ""),
+    Field("speed", 1, 0.0, 1.0, "own speed in the last slot", "/ V_max"),
+    Field("los", 1, 0.0, 1.0, "LoS to the target is clear (eq. 6)", "0 or 1"),
+    Field("in_zone", 1, 0.0, 1.0, "inside the feasible zone (eq. 4)", "0 or 1"),
+    Field("zone_distance", 1, -OFFSET_CLIP, OFFSET_CLIP, "signed distance to the zone boundary (negative inside)",
+          "/ (R2 - R1), clipped to +-5"),
+    Field("target_displacement", 2, -2.0, 2.0, "target's displacement to its next slot, in the current target frame",
+          "/ (V_max delta)"),
+    Field("remaining", 1, 0.0, 1.0, "fraction of the episode remaining", "0..1"),
+    Field("teammates", "mates", -OFFSET_CLIP, OFFSET_CLIP, "teammates' offsets from the target, by agent index",
+          "/ R2, clipped to +-5"),
+    Field("map_now", "map", 0.0, 1.0, "map of cells around the zone: 1 if in the eroded zone with clear LoS, now",
+          "0 or 1"),
+    Field("map_next", "map", 0.0, 1.0, "the same map at the next predicted slot k+1", "0 or 1"),
+)
+#: Fields of the per-UAV block (``state()`` repeats it for every UAV) and of the block shared by all agents.
+OWN = ("offset", "heading", "speed", "los", "in_zone", "zone_distance")
+SHARED = ("target_displacement", "remaining", "map_now", "map_next")
+#: The own block's slices (the same for every team size and map size: it comes first) and its length.
+OWN_SLICES: dict[str, slice] = {}
+_start = 0
+for _f in FIELDS[:len(OWN)]:
+    OWN_SLICES[_f.name] = slice(_start, _start + _f.size)
+    _start += _f.size
+OWN_SIZE = _start
+
+
+def shared_block_size(map_cells: int) -> int:
+    """Length of the block every agent shares (target displacement, time remaining, maps now and next): what a
+    scene gives per slot, whatever the UAVs."""
+    return 3 + 2 * int(map_cells)
+
+
+def observation_table() -> str:
+    """The observation table of the envs' docstrings (markdown), generated from :data:`FIELDS`."""
+    lines = ["| index | observation | scale |", "|---|---|---|"]
+    start, symbolic = 0, None
+    for f in FIELDS:
+        if isinstance(f.size, int) and symbolic is None:
+            idx = f"{start}" if f.size == 1 else f"{start}-{start + f.size - 1}"
+            start += f.size
+        else:
+            n = "2(U-1)" if f.size == "mates" else "S*S" if f.size == "map" else str(f.size)
+            idx = f"{start} .. {start}+{n}" if symbolic is None else f"then {n}"
+            symbolic = True
+        lines.append(f"| {idx} | {f.meaning} | {f.scale} |")
+    return "\n".join(lines)
+
+
+class ObservationLayout:
+    """Slices, bounds and builders of the observation row and ``state()`` for U UAVs and S x S maps.
+
+    Attributes:
+        slices: field name -> slice of the observation row.
+        size: D, the row's length; ``own_size`` (6 fields, 8 numbers) and ``shared_size`` (3 + 2 S^2, the scene
+            cache's block: target displacement, time remaining, both maps).
+        state_size: S_state = U * own_size + shared_size.
+    """
+
+    def __init__(self, n_uavs: int, map_size: int):
+        self.n_uavs, self.map_size = int(n_uavs), int(map_size)
+        sizes = {"mates": 2 * (self.n_uavs - 1), "map": self.map_size ** 2}
+        self.slices: dict[str, slice] = {}
+        low, high, start = [], [], 0
+        for f in FIELDS:
+            n = sizes.get(f.size, f.size) if isinstance(f.size, str) else f.size
+            self.slices[f.name] = slice(start, start + n)
+            low += [f.low] * n
+            high += [f.high] * n
+            start += n
+        self.size = start
+        self.low, self.high = np.array(low, np.float32), np.array(high, np.float32)
+        self.own_size = OWN_SIZE
+        self.shared_size = shared_block_size(sizes["map"])
+        self.state_size = self.n_uavs * self.own_size + self.shared_size
+        self._state_index = np.concatenate([np.tile(np.arange(self.own_size), self.n_uavs)]
+                                           + [np.arange(self.size)[self.slices[n]] for n in SHARED])
+        # Teammates of agent i, by index, skipping i: the row's fixed-size teammate block.
+        u = self.n_uavs
+        self.mates = np.array([[j for j in range(u) if j != i] for i in range(u)], dtype=int).reshape(u, u - 1)
+
+    def box(self) -> spaces.Box:
+        """One agent's observation space."""
+        return spaces.Box(self.low, self.high, dtype=np.float32)
+
+    def state_box(self) -> spaces.Box:
+        """The space of ``state()``: the own-feature bounds per UAV, then the shared ones."""
+        return spaces.Box(self.low[self._state_index], self.high[self._state_index], dtype=np.float32)
+
+    def observations(self, own: np.ndarray, shared: np.ndarray, remaining: np.ndarray) -> np.ndarray:
+        """(B, U, D) float32 rows from own features (B, U, own_size), shared blocks (B, shared_size) and the time
+        remaining (B,)."""
+        n, u = own.shape[:2]
+        s, m = self.slices, self.map_size ** 2
+        rows = np.empty((n, u, self.size), np.float32)
+        rows[..., :self.own_size] = own
+        rows[..., s["target_displacement"].start:s["remaining"].stop] = shared[:, None, :3]
+        rows[..., s["remaining"].start] = remaining[:, None]
+        rows[..., s["teammates"]] = own[:, self.mates, :2].reshape(n, u, -1)
+        rows[..., s["map_now"].start:s["map_next"].stop] = shared[:, None, 3:3 + 2 * m]
+        return rows
+
+    def state(self, own: np.ndarray, shared: np.ndarray, remaining: np.ndarray) -> np.ndarray:
+        """(B, state_size) float32: every UAV's own features, then the shared block with the time remaining."""
+        shared = shared.copy()
+        shared[:, 2] = remaining
+        return np.concatenate([own.reshape(len(own), -1).astype(np.float32), shared], axis=1)

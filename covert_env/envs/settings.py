@@ -1,0 +1,119 @@
+"""The covert-sensing env's arguments, checked once, and what follows from them (lattice, maps, layout, spaces).
+
+The parallel env and the vector env take the same keyword arguments; both build an :class:`EnvSettings` from them,
+so an argument is validated, and a space built, in one place.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+from gymnasium import spaces
+
+from covert_env.config import Config
+from covert_env.envs.arguments import bool_arg, int_arg, number_arg
+from covert_env.envs.observation import ObservationLayout
+from covert_env.scenario import PAPER_UAV_STARTS, Scenario
+from covert_env.zone import in_feasible_zone, lattice_offsets, zone_lattice
+
+__all__ = ["ACTION_MODES", "EnvSettings", "MAX_PATH_SAMPLES", "MAX_SCENE_POOL", "RENDER_MODES"]
+
+ACTION_MODES = ("unicycle", "waypoint")
+RENDER_MODES = ("human", "rgb_array")
+#: Largest ``scene_pool``: training scene seeds 0 .. scene_pool-1 stay below the held-out seeds 1_000_000 + i.
+MAX_SCENE_POOL = 1_000_000
+#: Largest ``path_samples`` accepted: memory per step grows with it, and 1000 samples per 1 s slot is far past useful.
+MAX_PATH_SAMPLES = 1000
+
+
+class EnvSettings:
+    """The env's keyword arguments (see :class:`~covert_env.envs.covert_sensing.CovertSensingParallelEnv`),
+    validated, with the waypoint lattice, the observation maps' cells, the observation layout and the spaces.
+
+    Every bad value raises at construction, naming the argument, the value and what is allowed.
+    """
+
+    def __init__(self, config: Config | dict | None = None, *, n_uavs: int | None = None,
+                 scenario: str | Scenario = "random", action_mode: str = "unicycle",
+                 max_cycles: int | None = None, render_mode: str | None = None, map_size: int = 8,
+                 dict_obs: bool = False, reward_scale: float = 100.0, los_penalty: float = 1.0,
+                 zone_penalty: float = 1.0, separation_penalty: float = 1.0, terrain_penalty: float = 1.0,
+                 terminate_on_collision: bool = False, scene_pool: int = 10_000, path_samples: int = 11,
+                 random_starts: bool = False):
+        if isinstance(config, Mapping):
+            cfg = Config.from_dict(dict(config))
+        elif config is None or isinstance(config, Config):
+            cfg = config or Config()
+        else:
+            raise TypeError(f"config must be a covert_env.Config, a dict of its fields or None, "
+                            f"got {type(config).__name__} {config!r}")
+        if n_uavs is not None:
+            cfg = cfg.replace(n_uavs=int_arg("n_uavs", n_uavs, 1))
+        if isinstance(scenario, Scenario):
+            # A scenario's terrain and track were built and checked under its own config: flying them under
+            # another one (altitude, speeds, zone) would mix two worlds, so the two must agree.
+            if config is not None:
+                differ = [f for f in cfg.to_dict() if f != "n_uavs" and getattr(cfg, f) != getattr(scenario.config, f)]
+                if differ:
+                    raise ValueError(f"config differs from scenario.config in {differ}; build the Scenario with this "
+                                     "config, or pass only the scenario")
+            cfg = scenario.config if n_uavs is None else scenario.config.replace(n_uavs=cfg.n_uavs)
+            if scenario.n_uavs != cfg.n_uavs:
+                raise ValueError(f"n_uavs={cfg.n_uavs} but the scenario has {scenario.n_uavs} UAVs")
+        elif not isinstance(scenario, str) or scenario not in ("random", "paper"):
+            raise ValueError(f"scenario must be 'random', 'paper' or a Scenario, got {scenario!r}")
+        elif scenario == "paper" and cfg.n_uavs > len(PAPER_UAV_STARTS):
+            raise ValueError(f"scenario='paper' has starts for {len(PAPER_UAV_STARTS)} UAVs, got n_uavs={cfg.n_uavs}; "
+                             "use scenario='random' or a Scenario with your own starts")
+        if not isinstance(action_mode, str) or action_mode not in ACTION_MODES:
+            raise ValueError(f"action_mode must be one of {ACTION_MODES}, got {action_mode!r}")
+        if render_mode is not None and render_mode not in RENDER_MODES:
+            raise ValueError(f"render_mode must be None or one of {list(RENDER_MODES)}, got {render_mode!r}")
+        if bool_arg("dict_obs", dict_obs) and action_mode != "waypoint":
+            raise ValueError("dict_obs=True needs action_mode='waypoint': the unicycle mode has no action mask")
+        self.map_size = int_arg("map_size", map_size, 2, 64)
+        # Training scene seeds stay below the held-out ones (1_000_000 + i) that evaluations fly.
+        self.scene_pool = int_arg("scene_pool", scene_pool, 1, MAX_SCENE_POOL)
+        self.path_samples = int_arg("path_samples", path_samples, 2, MAX_PATH_SAMPLES)
+        self.reward_scale = number_arg("reward_scale", reward_scale)
+        if not 1e-6 <= self.reward_scale <= 1e12:     # outside, rewards over- or underflow (eq. 18 / reward_scale)
+            raise ValueError(f"reward_scale must be a finite number in [1e-06, 1e+12], got {reward_scale!r}")
+        self.penalties = {}
+        for key, val in (("los", los_penalty), ("zone", zone_penalty), ("separation", separation_penalty),
+                         ("terrain", terrain_penalty)):
+            self.penalties[key] = number_arg(f"{key}_penalty", val)
+            if self.penalties[key] < 0:
+                raise ValueError(f"{key}_penalty must be a finite number >= 0, got {val!r}")
+        self.config = cfg
+        self.scenario = scenario
+        self.action_mode = action_mode
+        self.max_cycles = cfg.n_slots if max_cycles is None else int_arg("max_cycles", max_cycles, 1)
+        self.render_mode = render_mode
+        self.dict_obs = bool(dict_obs)
+        self.terminate_on_collision = bool_arg("terminate_on_collision", terminate_on_collision)
+        self.random_starts = bool_arg("random_starts", random_starts)
+
+        c = cfg
+        self.possible_agents = [f"uav_{i}" for i in range(c.n_uavs)]
+        self.lattice = zone_lattice(c)                        # the DP planner's nodes, target frame
+        box = lattice_offsets(c.r1, c.r2, c.mu, c.grid_step)
+        lo, hi = box.min(0), box.max(0)
+        s = self.map_size
+        gx = lo[0] + (np.arange(s) + 0.5) * (hi[0] - lo[0]) / s
+        gy = lo[1] + (np.arange(s) + 0.5) * (hi[1] - lo[1]) / s
+        self.map_offsets = np.array([(x, y) for y in gy[::-1] for x in gx])   # row-major, +y on top
+        self.map_in_zone = in_feasible_zone(self.map_offsets, np.zeros(2), 0.0, c.r1, c.r2, c.mu, c.r_u)
+
+        self.layout = ObservationLayout(c.n_uavs, s)
+        self.obs_box = self.layout.box()
+        self.state_space = self.layout.state_box()
+        if action_mode == "unicycle":
+            self.action_space = spaces.Box(-1.0, 1.0, (2,), dtype=np.float32)
+        else:
+            self.action_space = spaces.Discrete(len(self.lattice))
+        if self.dict_obs:
+            self.observation_space = spaces.Dict({"observation": self.obs_box,
+                                                  "action_mask": spaces.Box(0, 1, (len(self.lattice),), dtype=np.int8)})
+        else:
+            self.observation_space = self.obs_box
