@@ -4,11 +4,15 @@
 
 Both sides: 3 agents per env, ``n_copies`` env copies, one parameter-shared SB3 PPO with the 3-UAV recipe's
 hyperparameters (:mod:`training.recipes`), one torch thread, training included (collection + updates). Ours goes
-through :class:`training.vec_env.ParallelEnvVecAdapter`; simple_spread through SuperSuit's
+through :func:`training.vec_env.make_vec_env` (the batched adapter on the vector env); simple_spread through SuperSuit's
 ``pettingzoo_env_to_vec_env_v1`` + ``concat_vec_envs_v1`` -- SuperSuit appears only here, as the thing to beat
 (``pip install supersuit``; skipped with a message if absent). Runs alternate (ours, theirs, ours, ...) so machine
 load hits both alike; the best of ``repeats`` is reported. fps = agent-steps per second (SB3 timesteps).
 Prints the ratio ours / simple_spread (target >= 1).
+
+``--share`` instead times where one PPO run on our env spends its wall time (issue target: the env <= 20 %): the
+vector env's ``step``/``reset``, the rest of the SB3 adapter (per-row info dicts, SB3's bookkeeping), PPO's
+updates (``train``) and the rest of the rollout collection (policy forward passes, buffer writes, VecMonitor).
 """
 
 from __future__ import annotations
@@ -24,12 +28,12 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
-def _ours(n_copies: int):
+def _ours(n_copies: int, **kw):
     from stable_baselines3.common.vec_env import VecMonitor
 
     from training.vec_env import make_vec_env
 
-    return VecMonitor(make_vec_env(n_copies, dict(n_uavs=3)))
+    return VecMonitor(make_vec_env(n_copies, dict(n_uavs=3, **kw)))
 
 
 def _simple_spread(n_copies: int):
@@ -61,15 +65,67 @@ def fps(make, n_copies: int, timesteps: int, seed: int = 0) -> float:
     return n / dt
 
 
+class _Timer:
+    """Wraps a bound method, accumulating its wall time."""
+
+    def __init__(self, fn):
+        self.fn, self.total = fn, 0.0
+
+    def __call__(self, *a, **kw):
+        t0 = time.perf_counter()
+        try:
+            return self.fn(*a, **kw)
+        finally:
+            self.total += time.perf_counter() - t0
+
+
+def share(n_copies: int, timesteps: int, scene_pool: int) -> None:
+    """Where one PPO run on our env spends its wall time (printed); ``scene_pool`` as the env's argument."""
+    from stable_baselines3 import PPO
+
+    from training.recipes import RECIPES
+
+    r = RECIPES["3uav-ppo"]
+    venv = _ours(n_copies, scene_pool=scene_pool)
+    adapter = venv.venv
+    vec_step, vec_reset = _Timer(adapter.venv.step), _Timer(adapter.venv.reset)
+    adapter.venv.step, adapter.venv.reset = vec_step, vec_reset
+    wait = _Timer(adapter.step_wait)
+    adapter.step_wait = wait
+    model = PPO("MlpPolicy", venv, n_steps=r["n_steps"], batch_size=r["batch_size"], n_epochs=r["n_epochs"],
+                gamma=r["gamma"], learning_rate=r["learning_rate"], seed=0, device="cpu",
+                policy_kwargs=dict(net_arch=dict(pi=list(r["net_arch"]), vf=list(r["net_arch"]))))
+    train = _Timer(model.train)
+    model.train = train
+    t0 = time.perf_counter()
+    model.learn(timesteps)
+    total = time.perf_counter() - t0
+    env = vec_step.total + vec_reset.total
+    rows = [("vector env step + reset (the env)", env), ("SB3 adapter around it (info rows, flags)", wait.total - env
+            + 0.0), ("PPO updates (train: epochs of minibatch SGD)", train.total),
+            ("rest of collection (policy forward, buffer, VecMonitor)", total - wait.total - train.total)]
+    print(f"PPO, 3 agents x {n_copies} copies, scene_pool={scene_pool}, {model.num_timesteps} agent-steps, "
+          f"{total:.1f} s wall "
+          f"({model.num_timesteps / total:.0f} agent-steps/s), load average {os.getloadavg()[0]:.1f}:")
+    for name, t in rows:
+        print(f"  {name:58s} {t:7.2f} s  {100 * t / total:5.1f} %")
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--timesteps", type=int, default=30_000, help="agent-steps per measurement")
     p.add_argument("--n-copies", type=int, default=8, help="env copies (x 3 agents)")
     p.add_argument("--repeats", type=int, default=2, help="alternating measurements per env; best is reported")
+    p.add_argument("--share", action="store_true", help="only time where a PPO run on our env spends its time")
+    p.add_argument("--scene-pool", type=int, default=10_000,
+                   help="with --share: the env's scene_pool (default 10000: nearly every episode builds a new scene)")
     args = p.parse_args(argv)
     import torch
 
     torch.set_num_threads(1)
+    if args.share:
+        share(args.n_copies, args.timesteps, args.scene_pool)
+        return 0
     try:
         import mpe2  # noqa: F401
         import supersuit  # noqa: F401
