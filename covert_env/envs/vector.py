@@ -194,6 +194,7 @@ class CovertSensingVectorEnv:
         self._los = np.zeros((b, u), bool)
         self._masks = np.ones((b, u, len(self.lattice) if self.action_mode == "waypoint" else 2), np.int8)
         self._started = False
+        self._own: np.ndarray | None = None                 # own features of the whole batch, until a state change
         self._recorder = EpisodeRecorder(b, u, c.n_slots, self.path_samples) if record else None
         self._reach = reach_table(c.v_max, c.w_max, c.delta) if self.action_mode == "waypoint" else None
 
@@ -271,7 +272,7 @@ class CovertSensingVectorEnv:
         costs = batch.constraint_costs(quant, c)
         terms = batch.reward_terms(quant, costs, c, self.reward_scale, self.penalties)
         rewards = terms.sum(axis=0)
-        self._k = k + 1
+        self._k, self._own = k + 1, None
         self._xy, self._theta = end, np.mod(end_theta, 2 * math.pi)
         if self._recorder is not None:
             self._recorder.record(k, path, self._theta, v, w, flagged, c.delta)
@@ -388,6 +389,7 @@ class CovertSensingVectorEnv:
                 xy[n], theta[n] = sc.uav_xy, sc.uav_theta
         rows = self._rows[idx]
         q, phi = pool.q[rows, 0], pool.phi[rows, 0]
+        self._own = None
         self._xy[idx], self._theta[idx] = xy, np.mod(theta, 2 * math.pi)
         self._start_xy[idx], self._start_theta[idx], self._drawn[idx], self._ended[idx] = xy, theta, draw, False
         if self._recorder is not None:
@@ -414,9 +416,17 @@ class CovertSensingVectorEnv:
         return np.maximum(length - self._k[idx], 0) / length
 
     def _own_features(self, idx=slice(None)) -> np.ndarray:
+        # The whole batch's are kept until the state changes: observations and state() (every step for centralised
+        # critics) share them.
+        whole = isinstance(idx, slice) and idx == slice(None)
+        if whole and self._own is not None:
+            return self._own
         rows, ks = self._rows[idx], self._slots(idx)
-        return batch.own_features(self._xy[idx], self._theta[idx], self._pool.q[rows, ks], self._pool.phi[rows, ks],
-                                  self._speed[idx], self._los[idx], self._zone[idx], self.config)
+        own = batch.own_features(self._xy[idx], self._theta[idx], self._pool.q[rows, ks], self._pool.phi[rows, ks],
+                                 self._speed[idx], self._los[idx], self._zone[idx], self.config)
+        if whole:
+            self._own = own
+        return own
 
     def _obs_rows(self, idx=slice(None)) -> np.ndarray:
         shared = self._pool.blocks[self._rows[idx], self._slots(idx)]
