@@ -330,3 +330,32 @@ def test_disabled_autoreset_records_each_copy_as_the_parallel_env_does(mode):
         covert_env.vector_env(num_envs=1).trajectory(0)
     with pytest.raises(ValueError, match=r"copy index must be an integer in \[0, 1\]"):
         venv.copy_view(2)
+
+
+def test_scene_cache_size_keeps_every_training_scene(monkeypatch):
+    """With scene_pool <= scene_cache_size every scene is built once however often it is drawn; below it, scenes
+    are rebuilt; and the results do not depend on the cache size."""
+    import covert_env.envs.scene_pool as scene_pool
+
+    built = []
+    real = scene_pool.SceneCache
+
+    def counting(*a, **kw):
+        built.append(kw.get("seed"))
+        return real(*a, **kw)
+
+    monkeypatch.setattr(scene_pool, "SceneCache", counting)
+    runs = {}
+    for size in (12, 4):
+        built.clear()
+        venv = covert_env.vector_env(num_envs=4, n_uavs=2, scene_pool=12, max_cycles=2, scene_cache_size=size)
+        obs, _ = venv.reset(seed=1)
+        seen = [obs]
+        for _ in range(40):                                  # 20 episodes per copy: 80 draws from 12 scenes
+            seen.append(venv.step(np.zeros((4, 2, 2)))[0])
+        runs[size] = np.stack(seen)
+        if size == 12:
+            assert len(built) == len(set(built)) <= 12
+        else:
+            assert len(built) > len(set(built))               # evicted scenes were built again
+    np.testing.assert_array_equal(runs[12], runs[4])

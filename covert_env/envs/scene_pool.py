@@ -46,7 +46,7 @@ class ScenePool:
 
     Attributes (rows R, slots T = track slots + 1, polytopes M, faces F, lattice nodes L):
         q (R, T, 3), phi (R, T): the target's track, clamped at its end like ``TargetTrack.position``.
-        blocks (R, T, D) float32: the observation's shared block per slot (``SceneCache.shared_block``).
+        blocks (R, T, D) float32: the observation's shared block per slot (``SceneCache.shared_blocks``).
         lattice_ok (R, T, L) bool: lattice nodes in the eroded zone with clear LoS (waypoint mode only).
         hs (R, M, F, 4), centre (R, M, 2), radius (R, M), z_max (R, M), valid (R, M): padded terrain.
         top (R, M, 3): polytope top points (eq. 3), padded with inf.
@@ -144,9 +144,9 @@ class ScenePool:
         ks = np.minimum(np.arange(t), n_t - 1)             # clamped at the track's end
         self.q[r] = w.track.positions[ks]
         self.phi[r] = w.track.headings[ks]
-        self.blocks[r] = np.stack([cache.shared_block(k) for k in range(n_t)])[ks]
+        self.blocks[r] = cache.shared_blocks()[ks]
         if self.waypoint:
-            self.lattice_ok[r] = np.stack([cache.lattice_visible(k) for k in range(n_t)])[ks]
+            self.lattice_ok[r] = cache.lattice_visible()[ks]
         self.hs[r] = pad_face
         self.hs[r, :m, :f] = arr.hs
         self.centre[r] = 0.0

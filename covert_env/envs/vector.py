@@ -25,6 +25,8 @@ __all__ = ["AUTORESET_MODES", "CovertSensingVectorEnv", "vector_env", "INFO_KEYS
 
 #: Largest ``num_envs`` accepted: memory grows linearly with it (see benchmarks/vector_throughput.py).
 MAX_NUM_ENVS = 1 << 16
+#: Largest ``scene_cache_size``: a scene holds ~40 kB (~80 kB in waypoint mode), so this is a few GB at most.
+MAX_SCENE_CACHE = 1 << 16
 #: Float infos of a step (the parallel env's Infos table), besides the int ``slot`` and the bools.
 INFO_FLOATS = (("kappa", "g", "v", "separation", "terrain_clearance") + tuple(f"reward_{t}" for t in batch.REWARD_TERMS)
                + ("cost",) + tuple(f"cost_{n}" for n in batch.COSTS))
@@ -125,7 +127,9 @@ class CovertSensingVectorEnv:
 
     ``num_envs`` (B, in ``[1, MAX_NUM_ENVS]``) and the parallel env's keyword arguments (``render_mode`` must
     be None). ``scenario="random"`` builds a scene the first time a copy draws its seed (about 10 ms, 50 ms in
-    waypoint mode); the pool keeps ``B + 32`` scenes. ``autoreset_mode``: ``AutoresetMode.SAME_STEP``
+    waypoint mode); the pool keeps ``scene_cache_size`` scenes (default ``B + 32``, at least B): with
+    ``scene_pool <= scene_cache_size`` every training scene is built once (about 40 kB each, 80 kB in waypoint
+    mode), otherwise a scene is rebuilt whenever it is drawn again after leaving the cache. ``autoreset_mode``: ``AutoresetMode.SAME_STEP``
     (default) or ``AutoresetMode.DISABLED`` (see Autoreset). ``record``: keep every copy's current episode for
     the metrics (``trajectory(i)``, :class:`~covert_env.envs.recorder.EpisodeRecorder`; about
     ``n_slots * U * (path_samples + 4) * 16`` bytes per copy, so off by default).
@@ -147,21 +151,24 @@ class CovertSensingVectorEnv:
     render_mode = None
 
     def __init__(self, num_envs: int = 1, *, autoreset_mode: AutoresetMode = AutoresetMode.SAME_STEP,
-                 record: bool = False, **kwargs):
+                 record: bool = False, scene_cache_size: int | None = None, **kwargs):
         if kwargs.get("render_mode") is not None:
             raise ValueError("the vector env does not render; use the parallel env (render_mode=...) to watch a copy")
-        self._setup(num_envs, EnvSettings(**kwargs), autoreset_mode, record)
+        self._setup(num_envs, EnvSettings(**kwargs), autoreset_mode, record, scene_cache_size)
 
     @classmethod
     def from_settings(cls, num_envs: int, settings: EnvSettings, *,
-                      autoreset_mode: AutoresetMode = AutoresetMode.SAME_STEP, record: bool = False):
+                      autoreset_mode: AutoresetMode = AutoresetMode.SAME_STEP, record: bool = False,
+                      scene_cache_size: int | None = None):
         """The vector env of already checked :class:`~covert_env.envs.settings.EnvSettings` (the parallel env's)."""
         venv = cls.__new__(cls)
-        venv._setup(num_envs, settings, autoreset_mode, record)
+        venv._setup(num_envs, settings, autoreset_mode, record, scene_cache_size)
         return venv
 
-    def _setup(self, num_envs, s: EnvSettings, autoreset_mode, record) -> None:
+    def _setup(self, num_envs, s: EnvSettings, autoreset_mode, record, scene_cache_size) -> None:
         self.num_envs = int_arg("num_envs", num_envs, 1, MAX_NUM_ENVS)
+        cache_size = self.num_envs + 32 if scene_cache_size is None else int_arg(
+            "scene_cache_size", scene_cache_size, self.num_envs, MAX_SCENE_CACHE)
         if autoreset_mode not in AUTORESET_MODES:
             raise ValueError(f"autoreset_mode must be one of {[m.name for m in AUTORESET_MODES]}, "
                              f"got {autoreset_mode!r}")
@@ -181,7 +188,7 @@ class CovertSensingVectorEnv:
         self.action_space = batch_space(batch_space(self.single_action_space, u), b)
         self.state_space = batch_space(self.single_state_space, b)
         self._pool = ScenePool(s.scenario, c, self.lattice, s.map_offsets, s.map_in_zone,
-                               waypoint=self.action_mode == "waypoint", capacity=b + 32)
+                               waypoint=self.action_mode == "waypoint", capacity=cache_size)
         self._times = np.linspace(0.0, 1.0, self.path_samples) * c.delta      # the engine's sample times
         self._rngs: list[np.random.Generator] | None = None
         self.copy_seeds: np.ndarray | None = None
@@ -377,6 +384,7 @@ class CovertSensingVectorEnv:
         c, pool, u = self.config, self._pool, len(self.possible_agents)
         xy, theta = np.empty((len(idx), u, 2)), np.empty((len(idx), u))
         draw = self.random_starts or (self.scenario_spec == "random" and scene_seeds is None)
+        self._rows[idx] = -1                      # their scenes may leave the pool now (a cache of B scenes works)
         for n, j in enumerate(idx):               # each copy's own generator: the one per-copy step (Seeding)
             rng, s = self._rngs[j], None if scene_seeds is None else int(scene_seeds[n])
             if s is None and self.scenario_spec == "random":
