@@ -130,9 +130,10 @@ class CovertSensingVectorEnv:
     waypoint mode); the pool keeps ``scene_cache_size`` scenes (default ``B + 32``, at least B): with
     ``scene_pool <= scene_cache_size`` every training scene is built once (about 40 kB each, 80 kB in waypoint
     mode), otherwise a scene is rebuilt whenever it is drawn again after leaving the cache.
-    ``autoreset_mode``: ``AutoresetMode.SAME_STEP`` (default) or ``AutoresetMode.DISABLED`` (see Autoreset). ``record``: keep every copy's current episode for
-    the metrics (``trajectory(i)``, :class:`~covert_env.envs.recorder.EpisodeRecorder`; about
-    ``n_slots * U * (path_samples + 4) * 16`` bytes per copy, so off by default).
+    ``autoreset_mode``: ``AutoresetMode.SAME_STEP`` (default) or ``AutoresetMode.DISABLED`` (see Autoreset).
+    ``record``: keep every copy's current episode for the metrics (``trajectory(i)``,
+    :class:`~covert_env.envs.recorder.EpisodeRecorder`; about ``n_slots * U * (path_samples + 4) * 16`` bytes per
+    copy, so off by default).
 
     ## Reading a copy
 
