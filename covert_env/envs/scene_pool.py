@@ -20,7 +20,7 @@ import numpy as np
 from covert_env.envs.observation import shared_block_size
 from covert_env.envs.scene_cache import SceneCache
 from covert_env.metrics import terrain_clearance
-from covert_env.scenario import Scenario, start_candidates
+from covert_env.scenario import Scenario, pick_starts, start_candidates
 from covert_env.visibility import LOS_TOLERANCE, _arrays, _clip, _passes_near
 
 __all__ = ["ScenePool"]
@@ -95,6 +95,32 @@ class ScenePool:
 
     def cache(self, row: int) -> SceneCache:
         return self._caches[row]
+
+    def draw_episodes(self, rows: np.ndarray, idx: np.ndarray, rngs, scene_seeds, scene_pool: int, draw_starts: bool,
+                      n_uavs: int) -> tuple[np.ndarray, np.ndarray]:
+        """Scenes and starts of new episodes for the copies ``idx``, each from its own generator in ``rngs``.
+
+        ``rows`` (B,): every copy's scene row, updated in place for ``idx`` (their old scenes may leave the pool
+        first, so a pool of B scenes works). A copy's scene is ``scene_seeds[n]`` or, for ``scenario="random"``,
+        a seed drawn from its generator in ``range(scene_pool)``; its starts are drawn from the generator
+        (``draw_starts``, :func:`~covert_env.scenario.pick_starts`) or the scene's own seeded ones. Returns the
+        starts ``(len(idx), U, 2)`` and headings ``(len(idx), U)``. Drawing is the one per-copy step of a reset
+        (a few µs per copy, once per episode): every copy has its own generator.
+        """
+        c = self.config
+        xy, theta = np.empty((len(idx), n_uavs, 2)), np.empty((len(idx), n_uavs))
+        rows[idx] = -1
+        for n, (j, rng) in enumerate(zip(idx, rngs, strict=True)):
+            s = None if scene_seeds is None else int(scene_seeds[n])
+            if s is None and self.spec == "random":
+                s = int(rng.integers(scene_pool))
+            rows[j] = row = self.row(self.key(s), rows)
+            if draw_starts:
+                xy[n], theta[n] = pick_starts(c, *self.start_candidates(row), rng, n_uavs, self.cache(row).parts.name)
+            else:
+                sc = self.cache(row).seeded_scenario()
+                xy[n], theta[n] = sc.uav_xy, sc.uav_theta
+        return xy, theta
 
     def start_candidates(self, row: int) -> tuple[np.ndarray, np.ndarray]:
         """What ``Scenario.sample_starts`` draws the scene's starts from (``scenario.start_candidates``): the

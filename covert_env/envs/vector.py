@@ -17,7 +17,7 @@ from covert_env.envs.scene_pool import ScenePool
 from covert_env.envs.settings import EnvSettings
 from covert_env.metrics import moves_quantities, nearest_teammate
 from covert_env.reach import reach_table
-from covert_env.scenario import Scenario, pick_starts
+from covert_env.scenario import Scenario
 from covert_env.trajectory import Trajectory
 from covert_env.zone import zone_distance
 
@@ -288,13 +288,7 @@ class CovertSensingVectorEnv:
         term = (quant.separation_path < c.d_safe1).any(axis=1) & self.terminate_on_collision
         trunc = (self._k >= self.episode_length) & ~term
 
-        infos = {"slot": np.repeat(self._k[:, None], len(self.possible_agents), axis=1), "los": quant.los,
-                 "in_zone": quant.in_zone, "infeasible": flagged, "kappa": quant.kappa, "g": quant.g,
-                 "v": self._speed, "separation": quant.separation_path,
-                 "terrain_clearance": quant.terrain_clearance}
-        infos.update(zip((f"reward_{t}" for t in batch.REWARD_TERMS), terms, strict=True))
-        infos["cost"] = costs.sum(axis=0)
-        infos.update(zip((f"cost_{n}" for n in batch.COSTS), costs, strict=True))
+        infos = _step_infos(self._k, quant, flagged, self._speed, terms, costs)
         obs = self._obs_rows()
         done = term | trunc
         if done.any() and self.metadata["autoreset_mode"] == AutoresetMode.DISABLED:
@@ -382,20 +376,10 @@ class CovertSensingVectorEnv:
     # ------------------------------------------------------------------ internals
     def _reset_copies(self, idx: np.ndarray, scene_seeds) -> None:
         """Put copies ``idx`` at slot 0 of a new episode: scenes and starts drawn per copy (class docstring)."""
-        c, pool, u = self.config, self._pool, len(self.possible_agents)
-        xy, theta = np.empty((len(idx), u, 2)), np.empty((len(idx), u))
+        c, pool = self.config, self._pool
         draw = self.random_starts or (self.scenario_spec == "random" and scene_seeds is None)
-        self._rows[idx] = -1                      # their scenes may leave the pool now (a cache of B scenes works)
-        for n, j in enumerate(idx):               # each copy's own generator: the one per-copy step (Seeding)
-            rng, s = self._rngs[j], None if scene_seeds is None else int(scene_seeds[n])
-            if s is None and self.scenario_spec == "random":
-                s = int(rng.integers(self.scene_pool))
-            self._rows[j] = row = pool.row(pool.key(s), self._rows)
-            if draw:
-                xy[n], theta[n] = pick_starts(c, *pool.start_candidates(row), rng, u, pool.cache(row).parts.name)
-            else:
-                sc = pool.cache(row).seeded_scenario()
-                xy[n], theta[n] = sc.uav_xy, sc.uav_theta
+        xy, theta = pool.draw_episodes(self._rows, idx, [self._rngs[j] for j in idx], scene_seeds, self.scene_pool,
+                                       draw, len(self.possible_agents))
         rows = self._rows[idx]
         q, phi = pool.q[rows, 0], pool.phi[rows, 0]
         self._own = None
@@ -463,6 +447,17 @@ class _CopyTerrains:
 
     def line_of_sight(self, uav_xy, altitude, target_xyz) -> np.ndarray:
         return self._pool.line_of_sight(self._rows, uav_xy, altitude, target_xyz.reshape(len(self._rows), 3))
+
+
+def _step_infos(k, quant, flagged, speed, terms, costs) -> dict[str, np.ndarray]:
+    """The infos of a step, ``(B, U)`` arrays in ``INFO_KEYS`` order (the parallel env's Infos table)."""
+    infos = {"slot": np.repeat(k[:, None], flagged.shape[1], axis=1), "los": quant.los, "in_zone": quant.in_zone,
+             "infeasible": flagged, "kappa": quant.kappa, "g": quant.g, "v": speed,
+             "separation": quant.separation_path, "terrain_clearance": quant.terrain_clearance}
+    infos.update(zip((f"reward_{t}" for t in batch.REWARD_TERMS), terms, strict=True))
+    infos["cost"] = costs.sum(axis=0)
+    infos.update(zip((f"cost_{n}" for n in batch.COSTS), costs, strict=True))
+    return infos
 
 
 def _copy_seeds(seed, b: int) -> np.ndarray:
