@@ -391,7 +391,7 @@ def test_terrain_stack_equals_line_of_sight_on_grazing_segments():
     """Segments lying (to rounding) in a shrunk side face of a rotated box: where line_of_sight takes its
     broad-phase path (40 points x 20 polytopes > the brute-force size), the stack must not clip with
     another formula, or the rounding of the face value decides differently (it did, on ~12 % of these)."""
-    from covert_env.visibility import LOS_TOLERANCE, _arrays
+    from covert_env.visibility import LOS_TOLERANCE, terrain_arrays
 
     def rbox(cx, cy, a, w, h, z):
         c, s = math.cos(a), math.sin(a)
@@ -402,7 +402,7 @@ def test_terrain_stack_equals_line_of_sight_on_grazing_segments():
     for _ in range(40):
         key = rbox(rng.uniform(-50, 50), rng.uniform(-50, 50), rng.uniform(0, 2 * math.pi), 6, 4, 40)
         terrain = Terrain([key] + [rbox(2000 + 40 * i, 900, 0.3, 5, 5, 30) for i in range(19)])
-        hs = _arrays(terrain).hs[0]
+        hs = terrain_arrays(terrain).hs[0]
         side = [i for i in range(len(hs)) if abs(hs[i, 2]) < 1e-12 and np.any(hs[i, :3])]
         f = side[int(rng.integers(0, len(side)))]
         n, d = hs[f, :3], hs[f, 3]
