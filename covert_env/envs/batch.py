@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from covert_env.engine import _fly, _waypoint_controls
+from covert_env.dynamics import solve_manoeuvre
 
 _TWO_PI = 2.0 * math.pi
 #: Smallest commanded speed as a fraction of V_max: the unicycle needs v > 0 (eq. 1).
@@ -25,9 +25,10 @@ REWARD_TERMS = ("path", "disguise", "los", "zone", "separation", "terrain")
 #: The constraints of the paper's problem (§2.4); ``infos[agent]["cost_<name>"]`` is 1.0 where the slot violated one.
 COSTS = ("los", "zone", "separation", "terrain")
 
-__all__ = ["COSTS", "MIN_SPEED_FRACTION", "OFFSET_CLIP", "REWARD_TERMS", "action_masks", "constraint_costs",
-           "fly_unicycle", "fly_waypoints", "observations", "own_features", "reward_terms", "to_world_batch",
-           "unicycle_actions", "unicycle_controls", "waypoint_actions"]
+__all__ = ["COSTS", "MIN_SPEED_FRACTION", "OFFSET_CLIP", "REWARD_TERMS", "action_masks", "closest_constant_control",
+           "constraint_costs", "fly_turn_straight", "fly_unicycle", "fly_waypoints", "observations", "own_features",
+           "reward_terms", "to_world_batch", "unicycle_actions", "unicycle_controls", "waypoint_actions",
+           "waypoint_controls"]
 
 
 def unicycle_actions(actions, shape: tuple[int, int], agents) -> np.ndarray:
@@ -100,14 +101,121 @@ def fly_unicycle(xy, theta, v, w, times):
 
 
 def fly_waypoints(xy, theta, goals, c, times):
-    """The turn-then-straight manoeuvre to ``goals`` (B, U, 2) (best effort where unreachable, see the engine).
+    """The turn-then-straight manoeuvre to ``goals`` (B, U, 2) (best effort where unreachable, see
+    :func:`waypoint_controls`), flown by :func:`fly_turn_straight`.
 
     Returns path samples (B, U, P, 2), end headings (B, U), speeds v (B, U) and the fallback flags (B, U)."""
     shape = theta.shape
-    v, w, t_turn, fallback = _waypoint_controls(xy.reshape(-1, 2), theta.reshape(-1), goals.reshape(-1, 2), c)
+    v, w, t_turn, fallback = waypoint_controls(xy.reshape(-1, 2), theta.reshape(-1), goals.reshape(-1, 2), c)
     v, w, t_turn = v.reshape(shape), w.reshape(shape), t_turn.reshape(shape)
-    path, end_theta = _fly(xy, theta, v, w, t_turn, times)
+    path, end_theta = fly_turn_straight(xy, theta, v, w, t_turn, times)
     return path, end_theta, v, fallback.reshape(shape)
+
+
+def waypoint_controls(xy, theta, goals, c):
+    """Manoeuvre controls (v, omega, turn time) from (K, 2) poses to (K, 2) goals, and the fallback flags (K,).
+
+    ``solve_manoeuvre`` (eqs. 22-29) where the goal is reachable in one slot; elsewhere the best effort of
+    :func:`closest_constant_control`, held for the whole slot. The engine's rule, value for value."""
+    if not np.all(np.isfinite(goals)):
+        raise ValueError("Engine.step: waypoints must be finite (got NaN or inf)")
+    m = solve_manoeuvre(xy, theta, goals, v_max=c.v_max, w_max=c.w_max, delta=c.delta)
+    feasible = np.asarray(m.feasible, bool).reshape(-1)
+    v = np.where(feasible, np.nan_to_num(m.v), 0.0)
+    w = np.where(feasible, np.nan_to_num(m.omega), 0.0)
+    t_turn = np.where(feasible, np.nan_to_num(m.turn_time), 0.0)
+    bad = ~feasible
+    if bad.any():
+        v[bad], w[bad] = closest_constant_control(xy[bad], theta[bad], goals[bad], c)
+        t_turn[bad] = c.delta
+    return v, w, t_turn, bad
+
+
+def closest_constant_control(xy, theta, goals, c):
+    """Best effort for unreachable waypoints: the admissible constant (v, omega) whose exact end point
+    (:func:`~covert_env.dynamics.unicycle_step` over the slot) lies closest to the waypoint, on a 17 x 17 grid
+    refined twice around the best; (K,) each for (K, 2) poses and goals.
+
+    The arc's turn-dependent factors (sin(omega delta / 2) / (omega delta / 2) and the chord's direction) are
+    computed once per grid omega, not once per (v, omega) pair: the same operations on the same operands as
+    ``unicycle_step``, so the same end points, 17 times fewer sines and cosines."""
+    n = len(goals)
+    x0, y0, th0 = xy[:, 0, None, None], xy[:, 1, None, None], theta[:, None, None]
+    gx, gy = goals[:, 0, None, None], goals[:, 1, None, None]
+    lo_v, hi_v = np.full(n, 0.01 * c.v_max), np.full(n, c.v_max)
+    lo_w, hi_w = np.full(n, -c.w_max), np.full(n, c.w_max)
+    f = np.linspace(0.0, 1.0, 17)
+    rows = np.arange(n)
+    for _ in range(3):
+        gv = lo_v[:, None] + (hi_v - lo_v)[:, None] * f                   # (K, 17): grid speeds
+        gw = lo_w[:, None] + (hi_w - lo_w)[:, None] * f                   # (K, 17): grid turn rates
+        half = 0.5 * gw[:, None, :] * c.delta                              # (K, 1, 17)
+        straight = half == 0.0
+        safe = np.where(straight, 1.0, half)
+        chord = gv[:, :, None] * c.delta * np.where(straight, 1.0, np.sin(safe) / safe)    # (K, 17, 17)
+        mid = th0 + half
+        dx = x0 + chord * np.cos(mid) - gx
+        dy = y0 + chord * np.sin(mid) - gy
+        best = np.argmin((dx ** 2 + dy ** 2).reshape(n, -1), axis=1)      # v major, omega minor
+        bv, bw = gv[rows, best // 17], gw[rows, best % 17]
+        dv, dw = (hi_v - lo_v) / 16, (hi_w - lo_w) / 16
+        lo_v, hi_v = np.maximum(bv - dv, 0.01 * c.v_max), np.minimum(bv + dv, c.v_max)
+        lo_w, hi_w = np.maximum(bw - dw, -c.w_max), np.minimum(bw + dw, c.w_max)
+    return bv, bw
+
+
+def fly_turn_straight(xy, theta, v, w, t_turn, times):
+    """Turn at (v, w) for ``t_turn``, then straight at v: path samples (B, U, P, 2) at ``times`` (P,) from poses
+    (B, U), and the end headings (B, U) in [0, 2 pi).
+
+    Two :func:`~covert_env.dynamics.unicycle_step` arcs per sample, as the engine flies them, with the same
+    operations on the same operands (the same bits), but each sine and cosine computed once per distinct
+    value: after the turn every sample shares the turn's end pose and the straight leg's heading, and before it
+    the straight leg has length 0. Sample 0 is the exact start."""
+    p = len(times)
+    t = times[1:]                                                          # (P-1,)
+    tt = t_turn[..., None]
+    path = np.empty(theta.shape + (p, 2))
+    path[..., 0, :] = xy
+    # The turn's end (t >= t_turn): one pose per UAV, shared by the later samples.
+    t1_end = np.minimum(times[-1], t_turn)
+    x1e, y1e = _arc(xy[..., 0], xy[..., 1], theta, v, w, t1_end)
+    th1e = _wrap(theta + w * t1_end)
+    # The straight leg from there: heading th1e (+ 0.5 * 0.0 * t2 = 0), length v * t2 (* 1.0).
+    mid2 = th1e + 0.0
+    c2, s2 = np.cos(mid2), np.sin(mid2)
+    t2 = np.maximum(t - tt, 0.0)                                           # (B, U, P-1)
+    chord2 = v[..., None] * t2
+    # During the turn (t < t_turn): each sample its own point of the arc; the straight leg adds 0.
+    x1 = np.broadcast_to(x1e[..., None], t2.shape).copy()
+    y1 = np.broadcast_to(y1e[..., None], t2.shape).copy()
+    turning = t < tt
+    if turning.any():
+        bu, j = np.nonzero(turning.reshape(-1, p - 1))
+        x1.reshape(-1, p - 1)[bu, j], y1.reshape(-1, p - 1)[bu, j] = _arc(
+            xy[..., 0].reshape(-1)[bu], xy[..., 1].reshape(-1)[bu], theta.reshape(-1)[bu], v.reshape(-1)[bu],
+            w.reshape(-1)[bu], t[j])
+    np.multiply(chord2, c2[..., None], out=path[..., 1:, 0])
+    path[..., 1:, 0] += x1
+    np.multiply(chord2, s2[..., None], out=path[..., 1:, 1])
+    path[..., 1:, 1] += y1
+    return path, _wrap(th1e + 0.0 * t2[..., -1])
+
+
+def _arc(x, y, theta, v, w, dt):
+    """End point of :func:`~covert_env.dynamics.unicycle_step` (the same operations in the same order)."""
+    half = 0.5 * w * dt
+    straight = half == 0.0
+    safe = np.where(straight, 1.0, half)
+    chord = v * dt * np.where(straight, 1.0, np.sin(safe) / safe)
+    mid = theta + half
+    return x + chord * np.cos(mid), y + chord * np.sin(mid)
+
+
+def _wrap(a):
+    """Into [0, 2 pi), as ``dynamics._wrap_2pi``: ``np.mod`` can return exactly 2 pi for tiny negative input."""
+    w = np.mod(a, _TWO_PI)
+    return np.where(w >= _TWO_PI, 0.0, w)
 
 
 def to_world_batch(offsets, q_xy, phi) -> np.ndarray:
