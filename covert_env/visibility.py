@@ -166,7 +166,9 @@ def face_offsets(n_z, d, z, tol: float = LOS_TOLERANCE):
 
     With one height per call (the UAV plane, the target) it is computed once per face; see
     :func:`face_values`."""
-    return n_z * z + (d + tol)
+    off = n_z * z
+    off += d + tol
+    return off
 
 
 def face_values(n_x, n_y, offsets, x, y):
@@ -177,8 +179,12 @@ def face_values(n_x, n_y, offsets, x, y):
     iff all its face values are <= 0. Written out in this order, not as a matrix product, so that a
     value does not depend on the layout of the batch (a BLAS product may sum in another order, with
     another rounding): every path, and every env that batches copies differently, decides a segment
-    that grazes a face alike."""
-    return (n_x * x + n_y * y) + offsets
+    that grazes a face alike. (Computed in place: ``n_y * y`` and ``offsets`` must broadcast to the shape of
+    ``n_x * x``.)"""
+    val = n_x * x
+    val += n_y * y
+    val += offsets
+    return val
 
 
 def clip_segments(start: np.ndarray, end: np.ndarray) -> np.ndarray:
@@ -191,13 +197,15 @@ def clip_segments(start: np.ndarray, end: np.ndarray) -> np.ndarray:
     segment is blocked iff that interval is non-empty. The one clipping routine behind every LoS path. (Faces
     first: a reduction over a short last axis costs numpy about 15 times more than one over the first.)"""
     den = end - start
+    s = np.negative(start)
     with np.errstate(divide="ignore", invalid="ignore"):
-        s = -start / den                                # the crossing of each face plane
+        s /= den                                        # the crossing of each face plane
     entering = den < 0
     # den == 0 lands on the leaving side: s = -inf (start > 0: empty), +inf (start < 0: no bound) or NaN
     # (segment exactly on the shrunk plane: no bound, ignored by fmin).
-    s_in = np.max(np.where(entering, s, 0.0), axis=0, initial=0.0)
-    s_out = np.minimum(np.fmin.reduce(np.where(entering, 1.0, s), axis=0), 1.0)
+    s_in = np.max(s, axis=0, where=entering, initial=0.0)
+    np.copyto(s, 1.0, where=entering)
+    s_out = np.minimum(np.fmin.reduce(s, axis=0), 1.0)
     return s_in <= s_out
 
 
@@ -489,12 +497,24 @@ class TerrainRows:
         self.cx, self.cy, self.radius, self.z_max = (np.zeros((0, 0)) for _ in range(4))
         self.valid = np.zeros((0, 0), bool)
         self.top = np.zeros((0, 0, 3))
+        self._at: dict = {}
 
     def __len__(self) -> int:
         return len(self.valid)
 
+    def _planes(self, altitude: float, tol: float) -> np.ndarray:
+        """(5, F, R M) n_x, n_y, n_z, d and the offsets at the UAV plane (:func:`face_offsets`), kept per
+        (altitude, tol) until a row changes: one gather gives a candidate all it needs."""
+        key = (float(altitude), float(tol))
+        planes = self._at.get(key)
+        if planes is None:
+            flat = self.faces.reshape(4, self.faces.shape[1], -1)
+            planes = self._at[key] = np.concatenate([flat, face_offsets(flat[2], flat[3], key[0], key[1])[None]])
+        return planes
+
     def set_row(self, r: int, terrain: Terrain) -> None:
         """Write ``terrain`` into row r (growing the arrays as needed)."""
+        self._at.clear()
         arr = terrain_arrays(terrain)
         m, f = arr.hs.shape[:2]
         n = len(self)
@@ -590,9 +610,8 @@ class TerrainRows:
         b, u, idx, ux, uy = b[near], u[near], idx[near], ux[near], uy[near]
         if len(b) == 0:
             return out
-        faces = self.faces.reshape(4, self.faces.shape[1], -1).take(idx, axis=2)      # (4, F, K), contiguous
-        nx, ny, nz, d = faces
-        start = face_values(nx, ny, face_offsets(nz, d, altitude, tol), ux, uy)
+        nx, ny, nz, d, at_h = self._planes(altitude, tol).take(idx, axis=2)            # (F, K) each, contiguous
+        start = face_values(nx, ny, at_h, ux, uy)
         end = face_values(nx, ny, face_offsets(nz, d, qz[b], tol), qx[b], qy[b])
         blocked = clip_segments(start, end)
         out[b[blocked], u[blocked]] = False
