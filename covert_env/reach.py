@@ -115,15 +115,16 @@ class ReachTable:
         """Labels of the cells (2 n, L) float32: rows 2i, 2i+1 the coordinates (a - a0) / h and lateral / h."""
         na, nb = self.shape
         ia, ib = cell[0::2], cell[1::2]
-        np.abs(ib, out=ib)
         np.clip(ia, 0, na - 1, out=ia)
+        np.abs(ib, out=ib)
         np.minimum(ib, nb - 1, out=ib)
-        # The flat cell index floor(ia) nb + ib, truncated once. Float32 rounding may move a point near a cell's
-        # edge into the neighbouring cell: harmless, as a certain cell's 3 x 3 neighbourhood shares its label.
-        np.floor(ia, out=ia)
-        ia *= nb
-        ia += ib
-        return self._flat.take(ia.astype(np.intp))
+        # The flat cell index floor(ia) nb + floor(ib) in int32 (truncation is the floor of these non-negative
+        # numbers). Float32 rounding may move a point near a cell's edge into the neighbouring cell: harmless, as a
+        # certain cell's 3 x 3 neighbourhood shares its label.
+        idx = ia.astype(np.int32)
+        idx *= nb
+        idx += ib.astype(np.int32)
+        return self._flat.take(idx)
 
     def classify(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         """Labels (int8) of points ``a`` ahead, ``b >= 0`` to the side (any shape); beyond the table INFEASIBLE."""
