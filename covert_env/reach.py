@@ -134,21 +134,18 @@ class ReachTable:
         return self._flat[ia * nb + ib]
 
     def reachable(self, xy: np.ndarray, theta: np.ndarray, q_xy: np.ndarray, phi: np.ndarray,
-                  offsets: np.ndarray, *, where: np.ndarray | None = None):
+                  offsets: np.ndarray) -> np.ndarray:
         """(B, U, L) bool: ``solve_manoeuvre(xy[b, u], theta[b, u], goal[b, l], ...).feasible`` for poses ``xy``
         (B, U, 2), ``theta`` (B, U) and the goals ``to_world(offsets, q_xy[b], phi[b])`` (offsets (L, 2), targets
         q_xy (B, 2), phi (B,)): table lookups, then the exact solver on the points in boundary cells (their goals
         computed exactly as :func:`~covert_env.zone.to_world` does, the only goals ever built in float64).
-
-        ``where`` (B, L) bool: solve only the boundary points of the nodes where it is True; the others are left
-        False and returned as ``(reach, pending)``, flat indices into reach that :meth:`settle` decides later (the
-        waypoint mask needs the nodes a copy can see, and the others only when it sees none of its reachable ones).
 
         The lookup works in float32 table units (cells): with ``o`` a node's offset in the target frame, its
         position in the frame of a UAV at (p, theta) is ``(q - p) . e_theta + R(phi - theta) o``, one affine map of
         the offsets per UAV, so the lattice is shared by every copy and all lookups' coordinates come from one
         (B U 2, 3) x (3, L) matrix product. Its rounding (well below a cell, also for a far UAV whose nodes all
         land beyond the table) is covered by the margin of a cell that certain cells keep."""
+        ct, st = np.cos(phi), np.sin(phi)
         # Per UAV: the target in the UAV's frame, in cells (a - a0) / h and lateral / h, and the rotation by
         # phi - theta scaled to cells (float64, then float32 for the product).
         dx, dy = q_xy[:, None, 0] - xy[..., 0], q_xy[:, None, 1] - xy[..., 1]
@@ -172,26 +169,14 @@ class ReachTable:
             flat_lab[s0:s0 + rows] = self._lookup(coef[2 * s0:2 * (s0 + rows)] @ nodes)
         out = lab == FEASIBLE
         flat = np.flatnonzero(lab == BOUNDARY)
-        pending = None
-        if where is not None:
-            b_n, u_n, l_n = lab.shape
-            now = where[flat // (u_n * l_n), flat % l_n]
-            flat, pending = flat[now], flat[~now]
-        self.settle(out, flat, xy, theta, q_xy, phi, offsets)
-        return out if where is None else (out, pending)
-
-    def settle(self, out: np.ndarray, flat: np.ndarray, xy, theta, q_xy, phi, offsets) -> None:
-        """Decide the points ``flat`` (flat indices into ``out`` (B, U, L)) exactly with ``solve_manoeuvre``, in
-        place (the arguments of :meth:`reachable`)."""
-        if len(flat) == 0:
-            return
-        _, u_n, l_n = out.shape
-        bi, rest = np.divmod(flat, u_n * l_n)
-        ui, li = np.divmod(rest, l_n)
-        goals = _goals(q_xy[bi], np.cos(phi[bi]), np.sin(phi[bi]), offsets[li])
-        m = solve_manoeuvre(xy[bi, ui], theta[bi, ui], goals, v_max=self.v_max, w_max=self.w_max,
-                            delta=self.delta)
-        out[bi, ui, li] = m.feasible
+        if len(flat):
+            bi, rest = np.divmod(flat, lab.shape[1] * lab.shape[2])
+            ui, li = np.divmod(rest, lab.shape[2])
+            goals = _goals(q_xy[bi], ct[bi], st[bi], offsets[li])
+            m = solve_manoeuvre(xy[bi, ui], theta[bi, ui], goals, v_max=self.v_max, w_max=self.w_max,
+                                delta=self.delta)
+            out[bi, ui, li] = m.feasible
+        return out
 
 
 def _goals(q_xy, c, s, offsets):

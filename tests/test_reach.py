@@ -70,27 +70,3 @@ def test_a_coarser_table_is_still_exact():
     xy, theta = q[:, None] + rng.uniform(-20, 20, (200, 2, 2)), rng.uniform(0, 7, (200, 2))
     assert np.array_equal(table.reachable(xy, theta, q, phi, offsets),
                           _exact(xy, theta, q, phi, offsets, (50.0, 3.0, 1.0)))
-
-
-def test_where_leaves_the_other_boundary_points_to_settle():
-    """reachable(where=...) solves the boundary points of the chosen nodes only; settle() decides the rest, and
-    together they give exactly the full answer (the waypoint masks use this for the nodes a copy cannot see)."""
-    c = Config()
-    lattice, table = zone_lattice(c), reach_table(c.v_max, c.w_max, c.delta)
-    rng = np.random.default_rng(9)
-    b = 200
-    q, phi = rng.uniform(-500, 500, (b, 2)), rng.uniform(0, 2 * np.pi, b)
-    nodes = np.stack([to_world(lattice, q[j], phi[j]) for j in range(b)])
-    xy = nodes[np.arange(b)[:, None], rng.integers(0, len(lattice), (b, 3))] + rng.normal(0, 15, (b, 3, 2))
-    theta = rng.uniform(0, 2 * np.pi, (b, 3))
-    full = table.reachable(xy, theta, q, phi, lattice)
-    where = rng.random((b, len(lattice))) < 0.5
-    part, pending = table.reachable(xy, theta, q, phi, lattice, where=where)
-    assert len(pending) > 100
-    bi, rest = np.divmod(pending, 3 * len(lattice))
-    assert not where[bi, rest % len(lattice)].any()           # only the nodes outside `where` wait
-    assert np.array_equal(part | full, full)                   # nothing reported reachable wrongly
-    assert np.array_equal(part & where[:, None, :], full & where[:, None, :])
-    assert not np.array_equal(part, full)                      # some pending points are reachable
-    table.settle(part, pending, xy, theta, q, phi, lattice)
-    assert np.array_equal(part, full)

@@ -233,14 +233,10 @@ def action_masks(xy, theta, q_xy, phi, lattice, visible, table) -> np.ndarray:
     slot k+1, reachable in one slot from the poses (B, U) (``table``: the config's
     :class:`~covert_env.reach.ReachTable`, exactly ``solve_manoeuvre``'s answer) and ``visible`` (B, L) there;
     where no node qualifies the reachable ones, and where none is reachable all."""
-    # Only the visible nodes' reachability decides a mask, unless none of them is reachable: the boundary
-    # points of the others are solved for those rows only.
-    reach, pending = table.reachable(xy, theta, q_xy, phi, lattice, where=visible)
+    reach = table.reachable(xy, theta, q_xy, phi, lattice)
     mask = reach & visible[:, None, :]
     empty = ~mask.any(axis=-1)
     if empty.any():                                   # rare: fix those rows only
-        l_n = reach.shape[2]
-        table.settle(reach, pending[empty.reshape(-1)[pending // l_n]], xy, theta, q_xy, phi, lattice)
         rows = reach[empty]
         mask[empty] = np.where(rows.any(axis=-1, keepdims=True), rows, True)
     return mask.view(np.int8)
