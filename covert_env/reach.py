@@ -117,7 +117,7 @@ class ReachTable:
         ia, ib = cell[0::2], cell[1::2]
         np.clip(ia, 0, na - 1, out=ia)
         np.abs(ib, out=ib)
-        np.minimum(ib, nb - 1, out=ib)
+        np.clip(ib, 0, nb - 1, out=ib)                  # (np.clip: several times faster than np.minimum here)
         # The flat cell index floor(ia) nb + floor(ib) in int32 (truncation is the floor of these non-negative
         # numbers). Float32 rounding may move a point near a cell's edge into the neighbouring cell: harmless, as a
         # certain cell's 3 x 3 neighbourhood shares its label.

@@ -514,7 +514,6 @@ class TerrainRows:
 
     def set_row(self, r: int, terrain: Terrain) -> None:
         """Write ``terrain`` into row r (growing the arrays as needed)."""
-        self._at.clear()
         arr = terrain_arrays(terrain)
         m, f = arr.hs.shape[:2]
         n = len(self)
@@ -529,6 +528,7 @@ class TerrainRows:
             old = self.faces
             faces[:, :old.shape[1], :old.shape[2], :old.shape[3]] = old
             self.faces = faces
+            self._at.clear()                                # the kept planes have the old shape
         self.cx, self.cy = _grown(self.cx, (n, mm), 0.0), _grown(self.cy, (n, mm), 0.0)
         self.radius, self.z_max = _grown(self.radius, (n, mm), 0.0), _grown(self.z_max, (n, mm), 0.0)
         self.valid = _grown(self.valid, (n, mm), False)
@@ -539,6 +539,10 @@ class TerrainRows:
         self.cx[r, :m], self.cy[r, :m] = arr.centre[:, 0], arr.centre[:, 1]
         self.radius[r, :m], self.z_max[r, :m], self.valid[r, :m] = arr.radius, arr.z_max, True
         self.top[r, :m] = terrain.highest_points
+        for (alt, tol), planes in self._at.items():         # the kept planes: row r only
+            rows = planes.reshape(5, ff, n, mm)[:, :, r]
+            rows[:4] = self.faces[:, :, r]
+            rows[4] = face_offsets(rows[2], rows[3], alt, tol)
 
     def line_of_sight(self, rows: np.ndarray, uav_xy: np.ndarray, altitude: float, target_xyz: np.ndarray,
                       *, tol: float = LOS_TOLERANCE) -> np.ndarray:

@@ -452,3 +452,22 @@ def test_terrain_rows_equal_line_of_sight_per_copy_also_on_grazing_segments():
                          for j, w in enumerate(which)])
         np.testing.assert_array_equal(got, want)
     assert rows.line_of_sight(np.array([1]), np.zeros((1, 4, 2)), H, np.zeros((1, 3))).all()   # empty row
+
+
+def test_terrain_rows_overwritten_rows_see_their_new_terrain():
+    """Rows of a TerrainRows are overwritten as scenes enter and leave the vector env's pool (and grow to more
+    polytopes and faces): each LoS call sees every row's current terrain, as line_of_sight does."""
+    from covert_env.visibility import TerrainRows
+
+    rng = np.random.default_rng(0)
+    rows, current = TerrainRows(capacity=16), {}
+    for step in range(40):
+        r = int(rng.integers(0, 12))
+        current[r] = random_terrain(rng, int(rng.integers(1, 17)))
+        rows.set_row(r, current[r])
+        which = np.array(sorted(current))[rng.integers(0, len(current), 20)]
+        q = np.stack([random_target(rng) for _ in which])
+        xy = q[:, None, :2] + rng.uniform(-200, 200, (20, 4, 2))
+        want = np.stack([line_of_sight(current[w], xy[j], H, q[j]) for j, w in enumerate(which)])
+        np.testing.assert_array_equal(rows.line_of_sight(which, xy, H, q), want, err_msg=f"step {step}")
+    assert len(rows) <= 16
