@@ -502,15 +502,15 @@ class TerrainRows:
     def __len__(self) -> int:
         return len(self.valid)
 
-    def _planes(self, altitude: float, tol: float) -> np.ndarray:
-        """(5, F, R M) n_x, n_y, n_z, d and the offsets at the UAV plane (:func:`face_offsets`), kept per
-        (altitude, tol) until a row changes: one gather gives a candidate all it needs."""
+    def _offsets_at(self, altitude: float, tol: float) -> np.ndarray:
+        """(F, R M) the faces' offsets at the UAV plane (:func:`face_offsets`), kept per (altitude, tol); a row
+        written later is updated in place."""
         key = (float(altitude), float(tol))
-        planes = self._at.get(key)
-        if planes is None:
+        off = self._at.get(key)
+        if off is None:
             flat = self.faces.reshape(4, self.faces.shape[1], -1)
-            planes = self._at[key] = np.concatenate([flat, face_offsets(flat[2], flat[3], key[0], key[1])[None]])
-        return planes
+            off = self._at[key] = face_offsets(flat[2], flat[3], key[0], key[1])
+        return off
 
     def set_row(self, r: int, terrain: Terrain) -> None:
         """Write ``terrain`` into row r (growing the arrays as needed)."""
@@ -528,7 +528,7 @@ class TerrainRows:
             old = self.faces
             faces[:, :old.shape[1], :old.shape[2], :old.shape[3]] = old
             self.faces = faces
-            self._at.clear()                                # the kept planes have the old shape
+            self._at.clear()                                # the kept offsets have the old shape
         self.cx, self.cy = _grown(self.cx, (n, mm), 0.0), _grown(self.cy, (n, mm), 0.0)
         self.radius, self.z_max = _grown(self.radius, (n, mm), 0.0), _grown(self.z_max, (n, mm), 0.0)
         self.valid = _grown(self.valid, (n, mm), False)
@@ -539,10 +539,8 @@ class TerrainRows:
         self.cx[r, :m], self.cy[r, :m] = arr.centre[:, 0], arr.centre[:, 1]
         self.radius[r, :m], self.z_max[r, :m], self.valid[r, :m] = arr.radius, arr.z_max, True
         self.top[r, :m] = terrain.highest_points
-        for (alt, tol), planes in self._at.items():         # the kept planes: row r only
-            rows = planes.reshape(5, ff, n, mm)[:, :, r]
-            rows[:4] = self.faces[:, :, r]
-            rows[4] = face_offsets(rows[2], rows[3], alt, tol)
+        for (alt, tol), off in self._at.items():            # the kept offsets: row r only
+            off.reshape(ff, n, mm)[:, r] = face_offsets(self.faces[2, :, r], self.faces[3, :, r], alt, tol)
 
     def line_of_sight(self, rows: np.ndarray, uav_xy: np.ndarray, altitude: float, target_xyz: np.ndarray,
                       *, tol: float = LOS_TOLERANCE) -> np.ndarray:
@@ -614,8 +612,8 @@ class TerrainRows:
         b, u, idx, ux, uy = b[near], u[near], idx[near], ux[near], uy[near]
         if len(b) == 0:
             return out
-        nx, ny, nz, d, at_h = self._planes(altitude, tol).take(idx, axis=2)            # (F, K) each, contiguous
-        start = face_values(nx, ny, at_h, ux, uy)
+        nx, ny, nz, d = self.faces.reshape(4, self.faces.shape[1], -1).take(idx, axis=2)   # (F, K) each
+        start = face_values(nx, ny, self._offsets_at(altitude, tol).take(idx, axis=1), ux, uy)
         end = face_values(nx, ny, face_offsets(nz, d, qz[b], tol), qx[b], qy[b])
         blocked = clip_segments(start, end)
         out[b[blocked], u[blocked]] = False
