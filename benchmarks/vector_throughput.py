@@ -139,7 +139,7 @@ def profile_step(b: int, mode: str, steps: int = 70) -> None:
     import pstats
 
     r = Ours(b, mode)
-    prof = cProfile.Profile()
+    prof = cProfile.Profile(time.process_time)          # CPU time: robust to other processes' load
     prof.enable()
     for _ in range(steps):
         r.step()
@@ -147,8 +147,8 @@ def profile_step(b: int, mode: str, steps: int = 70) -> None:
     stats = pstats.Stats(prof)
     step = next(ct for (f, _, name), (_, _, _, ct, _) in stats.stats.items()
                 if name == "step" and f.endswith("vector.py"))
-    print(f"\nprofile: {steps} steps at B = {b}, {mode}: {1e3 * step / steps:.2f} ms per env step (cProfile adds "
-          f"overhead), of which")
+    print(f"\nprofile: {steps} steps at B = {b}, {mode}: {1e3 * step / steps:.2f} ms CPU per batched step (cProfile "
+          f"adds overhead), of which")
     for label, file, func in PARTS:
         ct = sum(ct for (f, _, name), (_, _, _, ct, _) in stats.stats.items() if name == func and f.endswith(file))
         if ct:

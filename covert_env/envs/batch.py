@@ -2,9 +2,12 @@
 
 Pure functions on batch-first arrays ``(B, U, ...)``, no Python loop over copies, UAVs or lattice nodes: the
 vector env (:mod:`covert_env.envs.vector`) is a thin state holder around them. They use the model's own
-functions (the engine's flight, :func:`~covert_env.metrics.moves_quantities`, the manoeuvre solver) with the
-batch as their leading axes, so a copy computes exactly what the parallel env computes for the same scene, starts
-and actions. Written with numpy calls that have direct torch counterparts, so a torch backend is a port.
+functions (:func:`~covert_env.metrics.moves_quantities`, the manoeuvre solver, the reachability table) with the
+batch as their leading axes, and fly with the engine's arithmetic (:func:`fly_unicycle`, :func:`fly_turn_straight`,
+:func:`closest_constant_control`: the operations of ``dynamics.unicycle_step`` in the same order, each sine and
+cosine computed once per distinct value; tests/test_batch_flight.py checks them against the engine bit for bit),
+so a copy computes exactly what the parallel env computes for the same scene, starts and actions. Written with
+numpy calls that have direct torch counterparts, so a torch backend is a port.
 """
 
 from __future__ import annotations
