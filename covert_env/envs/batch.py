@@ -124,9 +124,10 @@ def waypoint_controls(xy, theta, goals, c):
         raise ValueError("Engine.step: waypoints must be finite (got NaN or inf)")
     m = solve_manoeuvre(xy, theta, goals, v_max=c.v_max, w_max=c.w_max, delta=c.delta)
     feasible = np.asarray(m.feasible, bool).reshape(-1)
-    v = np.where(feasible, np.nan_to_num(m.v), 0.0)
-    w = np.where(feasible, np.nan_to_num(m.omega), 0.0)
-    t_turn = np.where(feasible, np.nan_to_num(m.turn_time), 0.0)
+    # The engine's np.where(feasible, np.nan_to_num(.), 0.0): a feasible manoeuvre's numbers are finite.
+    v = np.where(feasible, m.v, 0.0)
+    w = np.where(feasible, m.omega, 0.0)
+    t_turn = np.where(feasible, m.turn_time, 0.0)
     bad = ~feasible
     if bad.any():
         v[bad], w[bad] = closest_constant_control(xy[bad], theta[bad], goals[bad], c)
