@@ -577,14 +577,14 @@ class TerrainRows:
             np.clip(low, 0.0, 1.0, out=low)
         else:
             low = np.ones(cx.shape)
+        # The target inside the circle (or within rounding of it, where the cone below degenerates): every UAV.
+        inside = gap <= r * (1.0 + 1e-9)
         with np.errstate(divide="ignore", invalid="ignore"):
             d_min = (gap - r) / low
-        d_min[gap <= r] = -np.inf
+        d_min[inside] = -np.inf
         d_min[~self.valid[rows]] = np.inf
         # Cone: the UAV's bearing from the target must lie in the cone the circle subtends there,
-        # rel . c >= |rel| sqrt(gap^2 - r^2), written rel . c / sqrt(...) >= |rel| (1e-9 relative slack); every
-        # direction when the target is inside the circle.
-        inside = gap <= r
+        # rel . c >= |rel| sqrt(gap^2 - r^2), written rel . c / sqrt(...) >= |rel| (1e-9 relative slack).
         with np.errstate(divide="ignore", invalid="ignore"):
             scale = 1.0 / (np.sqrt(np.maximum(gap * gap - r * r, 0.0)) * (1.0 - 1e-9))
         scale[inside] = 0.0
