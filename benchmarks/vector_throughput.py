@@ -2,6 +2,10 @@
 
     python benchmarks/vector_throughput.py [--seconds 3] [--sizes 1 64 256 1024] [--rounds 2] [--profile]
 
+``--profile`` also profiles one episode at the largest B in both modes: the share of a step each part takes
+(flight, manoeuvres, line of sight, separation, clearance, zone, observations, masks and their table lookups,
+solve_manoeuvre) and the functions by own time.
+
 Ours: ``covert_env.vector_env(num_envs=B, n_uavs=3, scenario="paper")`` (16 polytopes), automatic resets
 included. Unicycle actions are drawn up front; waypoint actions are drawn from the current masks (a uniform
 allowed node per agent, from pre-drawn noise: that cost is part of using masks). VMAS: ``navigation`` with 3 agents
@@ -109,19 +113,48 @@ def measure(runner, seconds: float) -> tuple[int, float, float]:
             return n, time.perf_counter() - w0, time.process_time() - c0
 
 
+#: The parts of a batched step the profile breaks out (function names in covert_env, cumulative time each).
+PARTS = (
+    ("flight, unicycle (fly_unicycle)", "batch.py", "fly_unicycle"),
+    ("flight, waypoint (fly_waypoints)", "batch.py", "fly_waypoints"),
+    ("  manoeuvres to the chosen nodes (solve_manoeuvre + fallback)", "batch.py", "waypoint_controls"),
+    ("  turn-then-straight path (fly_turn_straight)", "batch.py", "fly_turn_straight"),
+    ("slot quantities (moves_quantities)", "metrics.py", "moves_quantities"),
+    ("  line of sight (TerrainRows.line_of_sight)", "visibility.py", "line_of_sight"),
+    ("  separation along the path (nearest_teammate)", "metrics.py", "nearest_teammate"),
+    ("  terrain clearance", "metrics.py", "terrain_clearance"),
+    ("  zone distance", "zone.py", "zone_distance"),
+    ("observations (own features, rows)", "vector.py", "_obs_rows"),
+    ("waypoint masks (action_masks)", "batch.py", "action_masks"),
+    ("  table lookups (ReachTable._lookup)", "reach.py", "_lookup"),
+    ("solve_manoeuvre, all calls", "dynamics.py", "solve_manoeuvre"),
+    ("automatic resets (_reset_copies)", "vector.py", "_reset_copies"),
+)
+
+
 def profile_step(b: int, mode: str, steps: int = 70) -> None:
-    """cProfile of ``steps`` batched steps (one episode: the automatic resets are in it)."""
+    """cProfile of ``steps`` batched steps (one episode: the automatic resets are in it): where the time of a
+    step goes, by part (cumulative CPU time per step and share of the step), then the functions by own time."""
     import cProfile
     import pstats
 
     r = Ours(b, mode)
-    prof = cProfile.Profile()
+    prof = cProfile.Profile(time.process_time)          # CPU time: robust to other processes' load
     prof.enable()
     for _ in range(steps):
         r.step()
     prof.disable()
-    print(f"\nprofile: {steps} steps at B = {b}, {mode} (tottime per function)")
-    pstats.Stats(prof).sort_stats("tottime").print_stats(18)
+    stats = pstats.Stats(prof)
+    step = next(ct for (f, _, name), (_, _, _, ct, _) in stats.stats.items()
+                if name == "step" and f.endswith("vector.py"))
+    print(f"\nprofile: {steps} steps at B = {b}, {mode}: {1e3 * step / steps:.2f} ms CPU per batched step (cProfile "
+          f"adds overhead), of which")
+    for label, file, func in PARTS:
+        ct = sum(ct for (f, _, name), (_, _, _, ct, _) in stats.stats.items() if name == func and f.endswith(file))
+        if ct:
+            print(f"  {1e3 * ct / steps:7.2f} ms  {100 * ct / step:5.1f} %  {label}")
+    print("functions by own time:")
+    stats.sort_stats("tottime").print_stats(12)
 
 
 def main(argv=None) -> None:

@@ -23,7 +23,7 @@ import math
 import numpy as np
 
 from covert_env.config import MAX_N_UAVS
-from covert_env.flight import check_unicycle, fly, waypoint_controls
+from covert_env.flight import check_unicycle, fly, fly_turn_straight, waypoint_controls
 from covert_env.metrics import SlotQuantities, moves_quantities
 from covert_env.scenario import Scenario
 from covert_env.trajectory import Trajectory
@@ -160,7 +160,9 @@ class Engine:
                                                        c)
             v, w, t_turn = v.reshape(1, u), w.reshape(1, u), t_turn.reshape(1, u)
             flagged |= fallback.reshape(1, u)
-        path, end_theta = fly(xy, theta, v, w, t_turn, self._fractions * c.delta)
+        times = self._fractions * c.delta
+        path, end_theta = fly(xy, theta, v, w, None, times) if t_turn is None else fly_turn_straight(
+            xy, theta, v, w, t_turn, times)
         self._record(path[0], end_theta[0], v[0], w[0], flagged[0], None if decision_time is None
                      else decision_time[0].copy())
         return self.last_quantities()

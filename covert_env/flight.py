@@ -1,18 +1,25 @@
 """Flight over one slot, batch-first: controls from waypoints, and the path flown, for poses of any leading shape.
 
 The engine (one scene) and the vector env (B scenes) fly their UAVs with these functions, so both fly the same
-arithmetic. A UAV's move over a slot is either a unicycle control (v, omega) held for the whole slot (eq. 1,
-integrated exactly) or the turn-then-straight manoeuvre to a waypoint (eqs. 22-29); a waypoint the manoeuvre cannot
-reach is flown as the closest admissible constant control and flagged (see :mod:`covert_env.engine`).
+arithmetic. :func:`fly` is the reference integration (two :func:`~covert_env.dynamics.unicycle_step` arcs per
+sample); :func:`fly_turn_straight` computes the same numbers with each sine and cosine once per distinct value
+(tests/test_batch_flight.py: bit for bit). A UAV's move over a slot is either a unicycle control (v, omega) held
+for the whole slot (eq. 1, integrated exactly) or the turn-then-straight manoeuvre to a waypoint (eqs. 22-29); a
+waypoint the manoeuvre cannot reach is flown as the closest admissible constant control and flagged (see
+:mod:`covert_env.engine`).
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
 from covert_env.dynamics import solve_manoeuvre, unicycle_step
 
-__all__ = ["check_unicycle", "closest_constant_control", "fly", "waypoint_controls"]
+__all__ = ["check_unicycle", "closest_constant_control", "fly", "fly_turn_straight", "waypoint_controls"]
+
+_TWO_PI = 2.0 * math.pi
 
 
 def check_unicycle(ctl: np.ndarray, c) -> None:
@@ -27,43 +34,6 @@ def check_unicycle(ctl: np.ndarray, c) -> None:
     if np.any(np.abs(w) > c.w_max * (1 + 1e-9)):
         raise ValueError(f"Engine.step: turn rate omega must be in [-W_max, W_max] = "
                          f"[{-c.w_max:g}, {c.w_max:g}], got {w.tolist()}")
-
-
-def waypoint_controls(xy, theta, goals, c):
-    """Manoeuvre controls (v, omega, turn time) per UAV from (K, 2) poses to (K, 2) goals, with the
-    best-effort fallback; returns them and the fallback flags, each (K,)."""
-    if not np.all(np.isfinite(goals)):
-        raise ValueError("Engine.step: waypoints must be finite (got NaN or inf)")
-    m = solve_manoeuvre(xy, theta, goals, v_max=c.v_max, w_max=c.w_max, delta=c.delta)
-    feasible = np.asarray(m.feasible, bool).reshape(-1)
-    v = np.where(feasible, np.nan_to_num(m.v), 0.0)
-    w = np.where(feasible, np.nan_to_num(m.omega), 0.0)
-    t_turn = np.where(feasible, np.nan_to_num(m.turn_time), 0.0)
-    bad = ~feasible
-    if bad.any():
-        v[bad], w[bad] = closest_constant_control(xy[bad], theta[bad], goals[bad], c)
-        t_turn[bad] = c.delta
-    return v, w, t_turn, bad
-
-
-def closest_constant_control(xy, theta, goals, c):
-    """Best effort for unreachable waypoints: the admissible constant (v, omega) whose exact end
-    point lies closest to the waypoint, found on a 17 x 17 grid refined twice around the best."""
-    x0, y0, th0 = xy[:, 0, None], xy[:, 1, None], theta[:, None]
-    lo_v, hi_v = np.full(len(goals), 0.01 * c.v_max), np.full(len(goals), c.v_max)
-    lo_w, hi_w = np.full(len(goals), -c.w_max), np.full(len(goals), c.w_max)
-    f = np.linspace(0.0, 1.0, 17)
-    for _ in range(3):
-        gv = (lo_v[:, None] + (hi_v - lo_v)[:, None] * f)[:, :, None] * np.ones(17)       # (B, 17, 17)
-        gw = (lo_w[:, None] + (hi_w - lo_w)[:, None] * f)[:, None, :] * np.ones((17, 1))
-        gv, gw = gv.reshape(len(goals), -1), gw.reshape(len(goals), -1)
-        x, y, _ = unicycle_step(x0, y0, th0, gv, gw, c.delta)
-        best = np.argmin((x - goals[:, :1]) ** 2 + (y - goals[:, 1:]) ** 2, axis=1)
-        bv, bw = gv[np.arange(len(goals)), best], gw[np.arange(len(goals)), best]
-        dv, dw = (hi_v - lo_v) / 16, (hi_w - lo_w) / 16
-        lo_v, hi_v = np.maximum(bv - dv, 0.01 * c.v_max), np.minimum(bv + dv, c.v_max)
-        lo_w, hi_w = np.maximum(bw - dw, -c.w_max), np.minimum(bw + dw, c.w_max)
-    return bv, bw
 
 
 def fly(xy, theta, v, w, t_turn, t):
@@ -82,3 +52,110 @@ def fly(xy, theta, v, w, t_turn, t):
     path[..., 1] = np.moveaxis(y2, 0, -1)
     path[..., 0, :] = xy                                              # exact start, no round-off
     return path, th2[-1]
+
+
+def waypoint_controls(xy, theta, goals, c):
+    """Manoeuvre controls (v, omega, turn time) from (K, 2) poses to (K, 2) goals, and the fallback flags (K,).
+
+    ``solve_manoeuvre`` (eqs. 22-29) where the goal is reachable in one slot; elsewhere the best effort of
+    :func:`closest_constant_control`, held for the whole slot. The engine's rule, value for value."""
+    if not np.all(np.isfinite(goals)):
+        raise ValueError("Engine.step: waypoints must be finite (got NaN or inf)")
+    m = solve_manoeuvre(xy, theta, goals, v_max=c.v_max, w_max=c.w_max, delta=c.delta)
+    feasible = np.asarray(m.feasible, bool).reshape(-1)
+    # The engine's np.where(feasible, np.nan_to_num(.), 0.0): a feasible manoeuvre's numbers are finite.
+    v = np.where(feasible, m.v, 0.0)
+    w = np.where(feasible, m.omega, 0.0)
+    t_turn = np.where(feasible, m.turn_time, 0.0)
+    bad = ~feasible
+    if bad.any():
+        v[bad], w[bad] = closest_constant_control(xy[bad], theta[bad], goals[bad], c)
+        t_turn[bad] = c.delta
+    return v, w, t_turn, bad
+
+
+def closest_constant_control(xy, theta, goals, c):
+    """Best effort for unreachable waypoints: the admissible constant (v, omega) whose exact end point
+    (:func:`~covert_env.dynamics.unicycle_step` over the slot) lies closest to the waypoint, on a 17 x 17 grid
+    refined twice around the best; (K,) each for (K, 2) poses and goals.
+
+    The arc's turn-dependent factors (sin(omega delta / 2) / (omega delta / 2) and the chord's direction) are
+    computed once per grid omega, not once per (v, omega) pair: the same operations on the same operands as
+    ``unicycle_step``, so the same end points, 17 times fewer sines and cosines."""
+    n = len(goals)
+    x0, y0, th0 = xy[:, 0, None, None], xy[:, 1, None, None], theta[:, None, None]
+    gx, gy = goals[:, 0, None, None], goals[:, 1, None, None]
+    lo_v, hi_v = np.full(n, 0.01 * c.v_max), np.full(n, c.v_max)
+    lo_w, hi_w = np.full(n, -c.w_max), np.full(n, c.w_max)
+    f = np.linspace(0.0, 1.0, 17)
+    rows = np.arange(n)
+    for _ in range(3):
+        gv = lo_v[:, None] + (hi_v - lo_v)[:, None] * f                   # (K, 17): grid speeds
+        gw = lo_w[:, None] + (hi_w - lo_w)[:, None] * f                   # (K, 17): grid turn rates
+        half = 0.5 * gw[:, None, :] * c.delta                              # (K, 1, 17)
+        straight = half == 0.0
+        safe = np.where(straight, 1.0, half)
+        chord = gv[:, :, None] * c.delta * np.where(straight, 1.0, np.sin(safe) / safe)    # (K, 17, 17)
+        mid = th0 + half
+        dx = x0 + chord * np.cos(mid) - gx
+        dy = y0 + chord * np.sin(mid) - gy
+        best = np.argmin((dx ** 2 + dy ** 2).reshape(n, -1), axis=1)      # v major, omega minor
+        bv, bw = gv[rows, best // 17], gw[rows, best % 17]
+        dv, dw = (hi_v - lo_v) / 16, (hi_w - lo_w) / 16
+        lo_v, hi_v = np.maximum(bv - dv, 0.01 * c.v_max), np.minimum(bv + dv, c.v_max)
+        lo_w, hi_w = np.maximum(bw - dw, -c.w_max), np.minimum(bw + dw, c.w_max)
+    return bv, bw
+
+
+def fly_turn_straight(xy, theta, v, w, t_turn, times):
+    """Turn at (v, w) for ``t_turn``, then straight at v: path samples (B, U, P, 2) at ``times`` (P,) from poses
+    (B, U), and the end headings (B, U) in [0, 2 pi).
+
+    Two :func:`~covert_env.dynamics.unicycle_step` arcs per sample, as the engine flies them, with the same
+    operations on the same operands (the same bits), but each sine and cosine computed once per distinct
+    value: after the turn every sample shares the turn's end pose and the straight leg's heading, and before it
+    the straight leg has length 0. Sample 0 is the exact start."""
+    p = len(times)
+    t = times[1:]                                                          # (P-1,)
+    tt = t_turn[..., None]
+    path = np.empty(theta.shape + (p, 2))
+    path[..., 0, :] = xy
+    # The turn's end (t >= t_turn): one pose per UAV, shared by the later samples.
+    t1_end = np.minimum(times[-1], t_turn)
+    x1e, y1e = _arc(xy[..., 0], xy[..., 1], theta, v, w, t1_end)
+    th1e = _wrap(theta + w * t1_end)
+    # The straight leg from there: heading th1e (+ 0.5 * 0.0 * t2 = 0), length v * t2 (* 1.0).
+    mid2 = th1e + 0.0
+    c2, s2 = np.cos(mid2), np.sin(mid2)
+    t2 = np.maximum(t - tt, 0.0)                                           # (B, U, P-1)
+    chord2 = v[..., None] * t2
+    # During the turn (t < t_turn): each sample its own point of the arc; the straight leg adds 0.
+    x1 = np.broadcast_to(x1e[..., None], t2.shape).copy()
+    y1 = np.broadcast_to(y1e[..., None], t2.shape).copy()
+    turning = t < tt
+    if turning.any():
+        bu, j = np.nonzero(turning.reshape(-1, p - 1))
+        x1.reshape(-1, p - 1)[bu, j], y1.reshape(-1, p - 1)[bu, j] = _arc(
+            xy[..., 0].reshape(-1)[bu], xy[..., 1].reshape(-1)[bu], theta.reshape(-1)[bu], v.reshape(-1)[bu],
+            w.reshape(-1)[bu], t[j])
+    np.multiply(chord2, c2[..., None], out=path[..., 1:, 0])
+    path[..., 1:, 0] += x1
+    np.multiply(chord2, s2[..., None], out=path[..., 1:, 1])
+    path[..., 1:, 1] += y1
+    return path, _wrap(th1e + 0.0 * t2[..., -1])
+
+
+def _arc(x, y, theta, v, w, dt):
+    """End point of :func:`~covert_env.dynamics.unicycle_step` (the same operations in the same order)."""
+    half = 0.5 * w * dt
+    straight = half == 0.0
+    safe = np.where(straight, 1.0, half)
+    chord = v * dt * np.where(straight, 1.0, np.sin(safe) / safe)
+    mid = theta + half
+    return x + chord * np.cos(mid), y + chord * np.sin(mid)
+
+
+def _wrap(a):
+    """Into [0, 2 pi), as ``dynamics._wrap_2pi``: ``np.mod`` can return exactly 2 pi for tiny negative input."""
+    w = np.mod(a, _TWO_PI)
+    return np.where(w >= _TWO_PI, 0.0, w)

@@ -31,6 +31,7 @@ __all__ = ["ReachTable", "reach_table"]
 INFEASIBLE, FEASIBLE, BOUNDARY = 0, 1, 2
 _CELLS = 128            # coarse cells per V_max delta: 0.39 m at the paper's 50 m
 _REFINE = 8             # fine cells per coarse cell, solved only in the coarse boundary band: 0.05 m
+_BLOCK = 1 << 17        # lookups per block of ReachTable.reachable (about 1 MB of float32 coordinates)
 
 
 class ReachTable:
@@ -67,6 +68,8 @@ class ReachTable:
         self.shape = (na * refine, nb * refine)
         self.labels = self._labels(node, hf, check=False)
         self._flat = self.labels.reshape(-1)
+        self._nodes_key: tuple | None = None
+        self._nodes_arr = np.zeros((3, 0), np.float32)
 
     def _feasible(self, a, b) -> np.ndarray:
         m = solve_manoeuvre(np.zeros(2), 0.0, np.stack([a, b], axis=-1), v_max=self.v_max, w_max=self.w_max,
@@ -100,6 +103,29 @@ class ReachTable:
         labels[0], labels[-1], labels[:, -1] = INFEASIBLE, INFEASIBLE, INFEASIBLE
         return labels
 
+    def _nodes(self, offsets: np.ndarray) -> np.ndarray:
+        """(3, L) float32 ``[o_x, o_y, 1]`` of the lattice offsets, kept for the last lattice asked."""
+        key = (offsets.shape, offsets.tobytes())
+        if self._nodes_key != key:
+            self._nodes_key = key
+            self._nodes_arr = np.vstack([offsets.T, np.ones((1, len(offsets)))]).astype(np.float32)
+        return self._nodes_arr
+
+    def _lookup(self, cell: np.ndarray) -> np.ndarray:
+        """Labels of the cells (2 n, L) float32: rows 2i, 2i+1 the coordinates (a - a0) / h and lateral / h."""
+        na, nb = self.shape
+        ia, ib = cell[0::2], cell[1::2]
+        np.clip(ia, 0, na - 1, out=ia)
+        np.abs(ib, out=ib)
+        np.clip(ib, 0, nb - 1, out=ib)                  # (np.clip: several times faster than np.minimum here)
+        # The flat cell index floor(ia) nb + floor(ib) in int32 (truncation is the floor of these non-negative
+        # numbers). Float32 rounding may move a point near a cell's edge into the neighbouring cell: harmless, as a
+        # certain cell's 3 x 3 neighbourhood shares its label.
+        idx = ia.astype(np.int32)
+        idx *= nb
+        idx += ib.astype(np.int32)
+        return self._flat.take(idx)
+
     def classify(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         """Labels (int8) of points ``a`` ahead, ``b >= 0`` to the side (any shape); beyond the table INFEASIBLE."""
         na, nb = self.shape
@@ -114,36 +140,33 @@ class ReachTable:
         q_xy (B, 2), phi (B,)): table lookups, then the exact solver on the points in boundary cells (their goals
         computed exactly as :func:`~covert_env.zone.to_world` does, the only goals ever built in float64).
 
-        The lookup works in float32 table units (cells), relative to each copy's first goal so that the numbers
-        stay small: its rounding (well below a cell) is covered by the margin of a cell that certain cells keep."""
-        na, nb = self.shape
+        The lookup works in float32 table units (cells): with ``o`` a node's offset in the target frame, its
+        position in the frame of a UAV at (p, theta) is ``(q - p) . e_theta + R(phi - theta) o``, one affine map of
+        the offsets per UAV, so the lattice is shared by every copy and all lookups' coordinates come from one
+        (B U 2, 3) x (3, L) matrix product. Its rounding (well below a cell, also for a far UAV whose nodes all
+        land beyond the table) is covered by the margin of a cell that certain cells keep."""
         ct, st = np.cos(phi), np.sin(phi)
-        origin = _goals(q_xy, ct, st, offsets[0])                                             # (B, 2)
-        rel = (offsets - offsets[0]).astype(np.float32)
-        ct32, st32 = ct.astype(np.float32)[:, None], st.astype(np.float32)[:, None]
-        g = np.empty((len(phi), 3, len(offsets)), np.float32)                  # homogeneous goal coordinates
-        np.subtract(ct32 * rel[:, 0], st32 * rel[:, 1], out=g[:, 0])
-        np.add(st32 * rel[:, 0], ct32 * rel[:, 1], out=g[:, 1])
-        g[:, 2] = 1.0
-        p = (xy - origin[:, None]).astype(np.float32)                                         # (B, U, 2)
-        c, s = np.cos(theta).astype(np.float32) / self.h, np.sin(theta).astype(np.float32) / self.h
-        # Cell coordinates (a - a0) / h and lateral / h of every goal in every UAV's frame: one batched matmul
-        # with the translation in the third column.
-        rot = np.empty(theta.shape + (2, 3), np.float32)                                      # (B, U, 2, 3)
-        rot[..., 0, 0], rot[..., 0, 1], rot[..., 0, 2] = c, s, np.float32(-self.a0 / self.h) - (c * p[..., 0]
-                                                                                               + s * p[..., 1])
-        rot[..., 1, 0], rot[..., 1, 1], rot[..., 1, 2] = -s, c, s * p[..., 0] - c * p[..., 1]
-        cell = rot @ g[:, None]                                                                # (B, U, 2, L)
-        ia, ib = cell[:, :, 0], cell[:, :, 1]
-        np.abs(ib, out=ib)
-        np.clip(ia, 0, na - 1, out=ia)
-        np.minimum(ib, nb - 1, out=ib)
-        # The flat cell index floor(ia) nb + ib, truncated once. Float32 rounding may move a point near a cell's
-        # edge into the neighbouring cell: harmless, as a certain cell's 3 x 3 neighbourhood shares its label.
-        np.floor(ia, out=ia)
-        ia *= nb
-        ia += ib
-        lab = self._flat.take(ia.astype(np.intp))
+        # Per UAV: the target in the UAV's frame, in cells (a - a0) / h and lateral / h, and the rotation by
+        # phi - theta scaled to cells (float64, then float32 for the product).
+        dx, dy = q_xy[:, None, 0] - xy[..., 0], q_xy[:, None, 1] - xy[..., 1]
+        c, s = np.cos(theta), np.sin(theta)
+        rel = phi[:, None] - theta
+        cr, sr = np.cos(rel) / self.h, np.sin(rel) / self.h
+        coef = np.empty(theta.shape + (2, 3), np.float32)                                     # (B, U, 2, 3)
+        coef[..., 0, 0], coef[..., 0, 1] = cr, -sr
+        coef[..., 0, 2] = (c * dx + s * dy - self.a0) / self.h
+        coef[..., 1, 0], coef[..., 1, 1] = sr, cr
+        coef[..., 1, 2] = (c * dy - s * dx) / self.h
+        coef = coef.reshape(-1, 3)
+        nodes = self._nodes(offsets)                                                           # (3, L)
+        lab = np.empty(theta.shape + (len(offsets),), np.int8)
+        flat_lab = lab.reshape(-1, len(offsets))
+        # In blocks of about _BLOCK lookups: each step below is one pass over memory, and a block's arrays stay
+        # in the cache between the passes (at B = 1024 the whole batch's take twice as long). A fixed number of
+        # blocks per call, each one set of array operations.
+        rows = max(1, _BLOCK // len(offsets))
+        for s0 in range(0, len(flat_lab), rows):
+            flat_lab[s0:s0 + rows] = self._lookup(coef[2 * s0:2 * (s0 + rows)] @ nodes)
         out = lab == FEASIBLE
         flat = np.flatnonzero(lab == BOUNDARY)
         if len(flat):

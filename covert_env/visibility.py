@@ -47,15 +47,22 @@ from covert_env.terrain import Terrain
 
 __all__ = [
     "LOS_TOLERANCE",
+    "TerrainArrays",
+    "TerrainRows",
     "TerrainStack",
+    "clip_segments",
+    "face_offsets",
+    "face_values",
     "line_of_sight",
     "line_of_sight_cfg",
     "line_of_sight_rows",
+    "passes_near",
     "shadow_h_min",
     "shadow_polygons",
     "shadow_polygons_cfg",
     "shadow_union",
     "shadow_union_cfg",
+    "terrain_arrays",
 ]
 
 LOS_TOLERANCE = 1e-8
@@ -72,8 +79,8 @@ _CHUNK = 8192  # points per block: bounds the (K, M) and (pairs, F, 4) temporari
 
 # ----------------------------------------------------------------------------- per-terrain cache
 @dataclass(frozen=True)
-class _TerrainArrays:  # noqa: B903
-    """Padded arrays derived once per terrain (cached by identity, see :func:`_arrays`)."""
+class TerrainArrays:  # noqa: B903
+    """Padded arrays derived once per terrain (cached by identity, see :func:`terrain_arrays`)."""
 
     hs: np.ndarray        # (M, F, 4) half-spaces, padded with the always-true row 0.x - 1 <= 0
     z_max: np.ndarray     # (M,)
@@ -85,20 +92,31 @@ class _TerrainArrays:  # noqa: B903
     pair_j: np.ndarray
 
     @cached_property
-    def normals_t(self) -> np.ndarray:
-        """(3, M F) face normals, transposed for ``points @ normals_t``."""
-        return np.ascontiguousarray(self.hs[..., :3].reshape(-1, 3).T)
+    def _offsets(self) -> dict:
+        return {}
+
+    def offsets_at(self, z: float, tol: float) -> np.ndarray:
+        """(F, M) :func:`face_offsets` at one height z, kept for the last few (z, tol) (the UAV plane)."""
+        key = (float(z), float(tol))
+        off = self._offsets.get(key)
+        if off is None:
+            if len(self._offsets) >= 8:
+                self._offsets.clear()
+            off = self._offsets[key] = face_offsets(self.faces[2], self.faces[3], key[0], key[1])
+        return off
 
     @cached_property
-    def offsets(self) -> np.ndarray:
-        """(M F,) face offsets d."""
-        return self.hs[..., 3].reshape(-1).copy()
+    def faces(self) -> np.ndarray:
+        """(4, F, M) the half-spaces' columns n_x, n_y, n_z, d, faces first (for :func:`face_values` and
+        :func:`clip_segments`, which reduces over the faces along the first axis)."""
+        return np.ascontiguousarray(self.hs.transpose(2, 1, 0))
 
 
-_CACHE: weakref.WeakKeyDictionary[Terrain, _TerrainArrays] = weakref.WeakKeyDictionary()
+_CACHE: weakref.WeakKeyDictionary[Terrain, TerrainArrays] = weakref.WeakKeyDictionary()
 
 
-def _arrays(terrain: Terrain) -> _TerrainArrays:
+def terrain_arrays(terrain: Terrain) -> TerrainArrays:
+    """The terrain's padded arrays (:class:`TerrainArrays`), built once per terrain object."""
     arr = _CACHE.get(terrain)
     if arr is None:
         arr = _build_arrays(terrain)
@@ -106,12 +124,12 @@ def _arrays(terrain: Terrain) -> _TerrainArrays:
     return arr
 
 
-def _build_arrays(terrain: Terrain) -> _TerrainArrays:
+def _build_arrays(terrain: Terrain) -> TerrainArrays:
     m = len(terrain)
     if m == 0:
         e2, e3 = np.zeros((0, 1, 2)), np.zeros((0, 1, 3))
-        return _TerrainArrays(np.zeros((0, 1, 4)), np.zeros(0), e2, np.zeros((0, 2)), np.zeros(0), e3,
-                              np.zeros(0, int), np.zeros(0, int))
+        return TerrainArrays(np.zeros((0, 1, 4)), np.zeros(0), e2, np.zeros((0, 2)), np.zeros(0), e3,
+                             np.zeros(0, int), np.zeros(0, int))
     plans = [p.plan_view for p in terrain]
     v = max(len(a) for a in plans)
     plan = np.stack([np.vstack([a, np.repeat(a[-1:], v - len(a), axis=0)]) for a in plans])
@@ -121,8 +139,8 @@ def _build_arrays(terrain: Terrain) -> _TerrainArrays:
     verts = np.stack([np.vstack([p.vertices, np.repeat(p.vertices[-1:], w - len(p.vertices), axis=0)])
                       for p in terrain])
     pi_, pj_ = np.triu_indices(w, k=1)
-    return _TerrainArrays(np.asarray(terrain.halfspace_array, float), np.asarray(terrain.z_max, float),
-                          plan, centre, radius, verts, pi_, pj_)
+    return TerrainArrays(np.asarray(terrain.halfspace_array, float), np.asarray(terrain.z_max, float),
+                         plan, centre, radius, verts, pi_, pj_)
 
 
 def _plan_distance(plan: np.ndarray, q_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -142,6 +160,77 @@ def _plan_distance(plan: np.ndarray, q_xy: np.ndarray) -> tuple[np.ndarray, np.n
     return np.where(inside, 0.0, d), inside
 
 
+# ----------------------------------------------------------------------------- the exact clip (eq. 6)
+def face_offsets(n_z, d, z, tol: float = LOS_TOLERANCE):
+    """``n_z z + (d + tol)``: the part of a face value that depends on the height only (all broadcast).
+
+    With one height per call (the UAV plane, the target) it is computed once per face; see
+    :func:`face_values`."""
+    off = n_z * z
+    off += d + tol
+    return off
+
+
+def face_values(n_x, n_y, offsets, x, y):
+    """Face values ``n . p + d + tol`` of points ``p = (x, y, z)``: ``(n_x x + n_y y) + offsets`` with
+    ``offsets = face_offsets(n_z, d, z, tol)`` (all broadcast).
+
+    The one formula of every line-of-sight path (eq. 6): a point lies in the polytope shrunk by ``tol``
+    iff all its face values are <= 0. Written out in this order, not as a matrix product, so that a
+    value does not depend on the layout of the batch (a BLAS product may sum in another order, with
+    another rounding): every path, and every env that batches copies differently, decides a segment
+    that grazes a face alike. (Computed in place: ``n_y * y`` and ``offsets`` must broadcast to the shape of
+    ``n_x * x``.)"""
+    val = n_x * x
+    val += n_y * y
+    val += offsets
+    return val
+
+
+def clip_segments(start: np.ndarray, end: np.ndarray) -> np.ndarray:
+    """Cyrus-Beck clipping (eq. 6): whether the segment meets the shrunk polytope, from the face values
+    ``start``, ``end`` (F, ...) at its two ends (:func:`face_values`), faces along the first axis; returns (...)
+    bool, True = blocked.
+
+    Along the segment ``x(s) = u + s (t - u)`` each face value is ``start + s (end - start)``, linear in s,
+    so the part inside the polytope is ``[max of entering bounds, min of leaving bounds] ∩ [0, 1]``; the
+    segment is blocked iff that interval is non-empty. The one clipping routine behind every LoS path. (Faces
+    first: a reduction over a short last axis costs numpy about 15 times more than one over the first.)"""
+    den = end - start
+    s = np.negative(start)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s /= den                                        # the crossing of each face plane
+    entering = den < 0
+    # den == 0 lands on the leaving side: s = -inf (start > 0: empty), +inf (start < 0: no bound) or NaN
+    # (segment exactly on the shrunk plane: no bound, ignored by fmin).
+    s_in = np.max(s, axis=0, where=entering, initial=0.0)
+    np.copyto(s, 1.0, where=entering)
+    s_out = np.minimum(np.fmin.reduce(s, axis=0), 1.0)
+    return s_in <= s_out
+
+
+def passes_near(ux, uy, ex, ey, s0, s1, cx, cy, radius) -> np.ndarray:
+    """Whether the 2-D part ``s in [s0, s1]`` of the segment ``u + s e`` comes within ``radius`` (+1 nm) of the
+    centre (the broad phases' footprint-circle test; components written out, all arguments broadcast)."""
+    acx = cx - (ux + s0 * ex)
+    acy = cy - (uy + s0 * ey)
+    abx, aby = (s1 - s0) * ex, (s1 - s0) * ey
+    ab2 = abx * abx + aby * aby
+    w = np.clip((acx * abx + acy * aby) / np.where(ab2 > 0, ab2, 1.0), 0.0, 1.0)
+    dx, dy = acx - w * abx, acy - w * aby
+    return dx * dx + dy * dy <= (radius + 1e-9) ** 2
+
+
+def _low_part(z_max, uz, dz):
+    """Parameter range [s0, s1] along u -> t (s = 0 at the UAV) where the segment is lower than ``z_max``:
+    s >= sc going down, s <= sc going up (dz = t_z - u_z). A level segment (dz = 0) is nudged to a tiny
+    slope, which keeps the whole segment (or none of it: a degenerate end range, harmless in a broad phase)."""
+    down = dz <= 0
+    with np.errstate(over="ignore", divide="ignore"):
+        sc = (z_max - uz) / np.where(dz == 0, -1e-300, dz)
+    return np.clip(np.where(down, sc, 0.0), 0.0, 1.0), np.clip(np.where(down, 1.0, sc), 0.0, 1.0)
+
+
 # ----------------------------------------------------------------------------- line of sight
 def line_of_sight(terrain: Terrain, uav_xy, altitude, target_xyz, *,
                   tol: float = LOS_TOLERANCE) -> np.ndarray:
@@ -149,16 +238,16 @@ def line_of_sight(terrain: Terrain, uav_xy, altitude, target_xyz, *,
 
     The segment from the UAV ``(x, y, altitude)`` to the target ``(x_q, y_q, z_q)`` is blocked iff it
     meets the interior of some polytope C_m. Each polytope is ``{x : n_f . x + d_f <= 0}``; along the
-    segment ``x(t) = u + t (q - u)`` each face value is linear in t, so the segment's part inside C_m is
-    the interval ``[max of entering bounds, min of leaving bounds] ∩ [0, 1]`` (Cyrus-Beck clipping in 3D).
-    Blocked iff that interval is non-empty for the polytope shrunk by ``tol`` metres
-    (:data:`LOS_TOLERANCE`): touching a face, an edge or a vertex is clear.
+    segment each face value is linear, so the segment's part inside C_m is an interval (Cyrus-Beck
+    clipping in 3D, :func:`clip_segments`). Blocked iff that interval is non-empty for the polytope
+    shrunk by ``tol`` metres (:data:`LOS_TOLERANCE`): touching a face, an edge or a vertex is clear.
 
     A cheap broad phase keeps only (point, polytope) pairs that can intersect, so the exact clip runs on
     few pairs: with one target and one altitude, the point's bearing from the target must lie in the
     polytope's angular interval and the part of the segment lower than the polytope's top must reach
     its footprint; otherwise the 2-D part of the segment lower than the top must pass within the
-    footprint's enclosing circle.
+    footprint's enclosing circle. Every path clips with the same face values (:func:`face_values`), so the
+    broad phase never changes a result.
 
     Args:
         terrain: the polytopes.
@@ -183,18 +272,15 @@ def line_of_sight(terrain: Terrain, uav_xy, altitude, target_xyz, *,
         shape = np.broadcast_shapes(uav_xy.shape[:-1], target.shape[:-1], alt.shape)
     if len(terrain) == 0:
         return np.ones(shape, dtype=bool)
-    arr = _arrays(terrain)
+    arr = terrain_arrays(terrain)
     if math.prod(shape) * len(terrain) <= _BRUTE_PAIRS:
         # Few points (an env step): the broad phase's fixed cost exceeds clipping every pair.
-        u = np.empty(shape + (3,))
-        u[..., :2] = uav_xy
-        u[..., 2] = alt
         if one_target:
-            t = target.reshape(1, 3)
-        else:
-            t = np.empty(shape + (3,))
-            t[...] = target
-        return _los_brute(arr, u.reshape(-1, 3), t.reshape(-1, 3), tol).reshape(shape)
+            return _los_brute(arr, uav_xy.reshape(-1, 2), alt, target.reshape(1, 3), tol).reshape(shape)
+        t = np.empty(shape + (3,))
+        t[...] = target
+        xy = np.broadcast_to(uav_xy, shape + (2,)).reshape(-1, 2)
+        return _los_brute(arr, xy, np.broadcast_to(alt, shape).reshape(-1, 1), t.reshape(-1, 3), tol).reshape(shape)
     if target.ndim == 1 and alt.ndim == 0 and float(alt) > target[2]:
         pts = np.broadcast_to(uav_xy, shape + (2,)).reshape(-1, 2)
         out = np.ones(len(pts), dtype=bool)
@@ -236,7 +322,7 @@ def line_of_sight_rows(terrain: Terrain, uav_xy, altitude: float, target_xyz, *,
     out = np.ones((n_rows, n_pts), dtype=bool)
     if len(terrain) == 0 or out.size == 0:
         return out
-    arr = _arrays(terrain)
+    arr = terrain_arrays(terrain)
     rel = xy - q[:, None, :2]
     reach = np.sqrt((rel ** 2).sum(axis=-1).max(axis=1))                         # (S,)
     gap = np.hypot(arr.centre[:, 0] - q[:, 0, None], arr.centre[:, 1] - q[:, 1, None])   # (S, M)
@@ -251,41 +337,30 @@ def line_of_sight_rows(terrain: Terrain, uav_xy, altitude: float, target_xyz, *,
     qk = q[rows].repeat(n_pts, axis=0)
     if altitude > q[:, 2].max():
         s0 = np.clip((arr.z_max[m] - altitude) / (qk[:, 2] - altitude), 0.0, 1.0)   # UAV -> target, going down
-        near = _passes_near(p[:, 0], p[:, 1], qk[:, 0] - p[:, 0], qk[:, 1] - p[:, 1], s0, 1.0,
-                            arr.centre[m, 0], arr.centre[m, 1], arr.radius[m])
+        near = passes_near(p[:, 0], p[:, 1], qk[:, 0] - p[:, 0], qk[:, 1] - p[:, 1], s0, 1.0,
+                           arr.centre[m, 0], arr.centre[m, 1], arr.radius[m])
         k, m, p, qk = k[near], m[near], p[near], qk[near]
-    hm = arr.hs[m]
-    u = np.empty((len(k), 3))
-    u[:, :2] = p
-    u[:, 2] = altitude
-    num = np.einsum("pfi,pi->pf", hm[..., :3], u) + hm[..., 3] + tol
-    vq = np.einsum("pfi,pi->pf", hm[..., :3], qk) + hm[..., 3] + tol
-    blocked = _clip(num, vq - num)
+    nx, ny, nz, d = arr.faces[..., m]                                           # (F, K) each
+    start = face_values(nx, ny, face_offsets(nz, d, altitude, tol), p[:, 0], p[:, 1])
+    end = face_values(nx, ny, face_offsets(nz, d, qk[:, 2], tol), qk[:, 0], qk[:, 1])
+    blocked = clip_segments(start, end)
     flat = out.reshape(-1)
     flat[k[blocked]] = False
     return out
 
 
-def _los_brute(arr: _TerrainArrays, u: np.ndarray, t: np.ndarray, tol: float) -> np.ndarray:
-    """Every (point, polytope) pair clipped exactly, no broad phase. ``u`` (K, 3), ``t`` (K, 3) or one
-    target (1, 3) -> (K,) clear."""
-    m, f = arr.hs.shape[:2]
-    n_t = arr.normals_t                                                 # (3, M F)
-    d = arr.offsets + tol
-    num = u @ n_t + d                                                   # face values at the UAV (K, M F)
-    den = ((t @ n_t + d) - num).reshape(-1, f)                          # target minus UAV
-    num = num.reshape(-1, f)
-    # Cyrus-Beck as in _clip, written for small inputs (fewer temporaries).
-    with np.errstate(divide="ignore", invalid="ignore"):
-        s = -num / den
-    entering = den < 0
-    s_in = np.where(entering, s, 0.0).max(axis=1)
-    s_out = np.fmin.reduce(np.where(entering, 1.0, s), axis=1)
-    blocked = (np.maximum(s_in, 0.0) <= np.minimum(s_out, 1.0)).reshape(len(u), m)
-    return ~blocked.any(axis=1)
+def _los_brute(arr: TerrainArrays, xy: np.ndarray, alt, t: np.ndarray, tol: float) -> np.ndarray:
+    """Every (point, polytope) pair clipped exactly, no broad phase. ``xy`` (K, 2) at heights ``alt`` (a
+    scalar or (K, 1)), ``t`` (K, 3) or one target (1, 3) -> (K,) clear."""
+    nx, ny, nz, d = arr.faces[:, :, None]                               # (F, 1, M) each
+    # Points (K, 1) against every face (F, 1, M): (F, K, M) face values at both ends.
+    off = arr.offsets_at(alt, tol)[:, None] if np.ndim(alt) == 0 else face_offsets(nz, d, alt, tol)
+    start = face_values(nx, ny, off, xy[:, :1], xy[:, 1:])
+    end = face_values(nx, ny, face_offsets(nz, d, t[:, 2:], tol), t[:, :1], t[:, 1:2])
+    return ~clip_segments(start, end).any(axis=1)
 
 
-def _los_single(arr: _TerrainArrays, xy: np.ndarray, h: float, q: np.ndarray, tol: float) -> np.ndarray:
+def _los_single(arr: TerrainArrays, xy: np.ndarray, h: float, q: np.ndarray, tol: float) -> np.ndarray:
     """Fast path: one target, one altitude above it. ``xy`` (K, 2) -> (K,) clear."""
     rho_min, inside = _plan_distance(arr.plan, q[:2])
     # The wedge of directions from q that meet each footprint, bounded by the directions e_lo, e_hi to
@@ -310,68 +385,36 @@ def _los_single(arr: _TerrainArrays, xy: np.ndarray, h: float, q: np.ndarray, to
     k, m = np.nonzero(cand)
     if len(k) == 0:
         return np.ones(len(xy), dtype=bool)
-    hs = arr.hs
-    # Face values at the UAV: n . (x, y, h) + d (+ tol shrinks the polytope); at the target likewise.
-    g = hs[..., 2] * h + hs[..., 3] + tol
-    vq = hs[..., :3] @ q + hs[..., 3] + tol
-    hm = hs[m]
-    num = hm[..., 0] * xy[k, 0, None] + hm[..., 1] * xy[k, 1, None] + g[m]
-    blocked = _clip(num, vq[m] - num)
+    nx, ny, nz, d = arr.faces                                           # (F, M) each
+    # The parts of the face values that are the same for every point: the UAV plane's and the target's.
+    at_h = arr.offsets_at(h, tol)
+    end = face_values(nx, ny, face_offsets(nz, d, q[2], tol), q[0], q[1])
+    start = face_values(nx[:, m], ny[:, m], at_h[:, m], xy[k, 0], xy[k, 1])
+    blocked = clip_segments(start, end[:, m])
     out = np.ones(len(xy), dtype=bool)
     out[k[blocked]] = False
     return out
 
 
-def _los_general(arr: _TerrainArrays, u: np.ndarray, t: np.ndarray, tol: float) -> np.ndarray:
+def _los_general(arr: TerrainArrays, u: np.ndarray, t: np.ndarray, tol: float) -> np.ndarray:
     """General path: per-point targets and altitudes. ``u``, ``t`` (K, 3) -> (K,) clear."""
-    # Parameter range [s0, s1] along u -> t (s = 0 at the UAV) where the segment is lower than each
-    # z_max: s >= sc going down, s <= sc going up. A level segment (dz = 0) is nudged to a tiny slope,
-    # which keeps the whole segment (or none of it: a degenerate end range, harmless in a broad phase).
-    dz = t[:, 2, None] - u[:, 2, None]
-    down = dz <= 0
-    with np.errstate(over="ignore"):
-        sc = (arr.z_max - u[:, 2, None]) / np.where(dz == 0, -1e-300, dz)
-    s0 = np.clip(np.where(down, sc, 0.0), 0.0, 1.0)
-    s1 = np.clip(np.where(down, 1.0, sc), 0.0, 1.0)
+    s0, s1 = _low_part(arr.z_max, u[:, 2, None], t[:, 2, None] - u[:, 2, None])
     # Distance from each footprint circle's centre to the 2-D sub-segment [a, b] (components written
     # out: einsum over a length-2 axis is several times slower on (K, M) arrays).
     ex, ey = t[:, 0, None] - u[:, 0, None], t[:, 1, None] - u[:, 1, None]
-    cand = (s1 > s0 - 1e-12) & _passes_near(u[:, 0, None], u[:, 1, None], ex, ey, s0, s1,
-                                            arr.centre[:, 0], arr.centre[:, 1], arr.radius)
+    cand = (s1 > s0 - 1e-12) & passes_near(u[:, 0, None], u[:, 1, None], ex, ey, s0, s1,
+                                           arr.centre[:, 0], arr.centre[:, 1], arr.radius)
     k, m = np.nonzero(cand)
     if len(k) == 0:
         return np.ones(len(u), dtype=bool)
-    hm = arr.hs[m]
-    num = np.einsum("pfi,pi->pf", hm[..., :3], u[k]) + hm[..., 3] + tol
-    vq = np.einsum("pfi,pi->pf", hm[..., :3], t[k]) + hm[..., 3] + tol
-    blocked = _clip(num, vq - num)
+    nx, ny, nz, d = arr.faces[..., m]                                   # (F, K) each
+    uk, tk = u[k], t[k]
+    start = face_values(nx, ny, face_offsets(nz, d, uk[:, 2], tol), uk[:, 0], uk[:, 1])
+    end = face_values(nx, ny, face_offsets(nz, d, tk[:, 2], tol), tk[:, 0], tk[:, 1])
+    blocked = clip_segments(start, end)
     out = np.ones(len(u), dtype=bool)
     out[k[blocked]] = False
     return out
-
-
-def _passes_near(ux, uy, ex, ey, s0, s1, cx, cy, radius) -> np.ndarray:
-    """Whether the 2-D part ``s in [s0, s1]`` of the segment ``u + s e`` comes within ``radius`` (+1 nm) of the
-    centre (the broad phase's footprint-circle test; components written out, all arguments broadcast)."""
-    acx = cx - (ux + s0 * ex)
-    acy = cy - (uy + s0 * ey)
-    abx, aby = (s1 - s0) * ex, (s1 - s0) * ey
-    ab2 = abx * abx + aby * aby
-    w = np.clip((acx * abx + acy * aby) / np.where(ab2 > 0, ab2, 1.0), 0.0, 1.0)
-    dx, dy = acx - w * abx, acy - w * aby
-    return dx * dx + dy * dy <= (radius + 1e-9) ** 2
-
-
-def _clip(num: np.ndarray, den: np.ndarray) -> np.ndarray:
-    """Cyrus-Beck: does ``num + s den <= 0`` hold on all faces for some s in [0, 1]? (P, F) -> (P,)."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        s = -num / den
-    entering = den < 0
-    # den == 0 lands on the leaving side: s = -inf (num > 0: empty), +inf (num < 0: no bound) or NaN
-    # (segment exactly on the shrunk plane: no bound, ignored by fmin).
-    s_in = np.maximum(np.max(np.where(entering, s, 0.0), axis=1), 0.0)
-    s_out = np.minimum(np.fmin.reduce(np.where(entering, 1.0, s), axis=1), 1.0)
-    return s_in <= s_out
 
 
 class TerrainStack:
@@ -379,7 +422,7 @@ class TerrainStack:
 
     Row ``j`` of the leading axis of every array passed to :meth:`line_of_sight` is checked against
     ``terrains[j]`` only, with the same result as :func:`line_of_sight` on that row (bit for bit: rows of
-    few points are clipped together with its brute-force formula, larger rows go through it row by row).
+    few points are clipped together with the same face values, larger rows go through it row by row).
     The polytopes are stacked into padded (N, M_max, F_max) arrays: extra faces are the always-true row
     ``0.x - 1 <= 0`` and extra polytopes are empty (a row ``0.x + 1 <= 0``), so padding never blocks.
 
@@ -390,7 +433,7 @@ class TerrainStack:
 
     def __init__(self, terrains):
         self.terrains = tuple(terrains)
-        arrs = [_arrays(t) for t in self.terrains]
+        arrs = [terrain_arrays(t) for t in self.terrains]
         n = len(arrs)
         m = max((a.hs.shape[0] for a in arrs), default=0)
         f = max((a.hs.shape[1] for a in arrs), default=1)
@@ -402,8 +445,7 @@ class TerrainStack:
             hs[j, :a.hs.shape[0], :a.hs.shape[1]] = a.hs
             top[j, :len(t)] = t.highest_points
         self._m, self._f = m, f
-        self._normals_t = np.ascontiguousarray(hs[..., :3].reshape(n, m * f, 3).transpose(0, 2, 1))
-        self._offsets = hs[..., 3].reshape(n, 1, m * f)
+        self._faces = np.ascontiguousarray(hs.transpose(3, 2, 0, 1)[:, :, :, None])        # (4, F, N, 1, M)
         self.highest_points = top
 
     def __len__(self) -> int:
@@ -420,23 +462,171 @@ class TerrainStack:
                              f"{len(uav_xy)} (uav_xy) and {len(target)} (target_xyz)")
         shape = np.broadcast_shapes(uav_xy.shape[:-1], target.shape[:-1])
         k = math.prod(shape[1:])
-        # Few pairs: every pair clipped, as line_of_sight clips them (same formula); more, row by row through
-        # line_of_sight's broad phases (which also keeps the results identical).
+        # Few pairs: every pair clipped, as line_of_sight clips them; more, row by row through
+        # line_of_sight's broad phases (the same face values: the results are identical either way).
         if k * self._m > _BRUTE_PAIRS:
             return np.stack([line_of_sight(t, uav_xy[j], altitude, target[j], tol=tol)
                              for j, t in enumerate(self.terrains)]).reshape(shape)
         if self._m == 0:
             return np.ones(shape, dtype=bool)
-        u = np.empty(shape + (3,))
-        u[..., :2] = uav_xy
-        u[..., 2] = altitude
-        t = np.empty(shape + (3,))
-        t[...] = target
-        d = self._offsets + tol
-        num = u.reshape(n, k, 3) @ self._normals_t + d                  # (N, K, M F) face values at the UAV
-        den = ((t.reshape(n, k, 3) @ self._normals_t + d) - num).reshape(-1, self._f)
-        blocked = _clip(num.reshape(-1, self._f), den).reshape(n, k, self._m)
-        return ~blocked.any(axis=2).reshape(shape)
+        u = np.broadcast_to(uav_xy, shape + (2,)).reshape(n, k, 1, 2)
+        t = np.broadcast_to(target, shape + (3,)).reshape(n, k, 1, 3)
+        nx, ny, nz, d = self._faces                                       # (F, N, 1, M) each
+        start = face_values(nx, ny, face_offsets(nz, d, float(altitude), tol), u[..., 0], u[..., 1])
+        end = face_values(nx, ny, face_offsets(nz, d, t[..., 2], tol), t[..., 0], t[..., 1])
+        return ~clip_segments(start, end).any(axis=-1).reshape(shape)
+
+
+class TerrainRows:
+    """Terrains as rows of padded arrays (one terrain per row), for line of sight of a batch of copies, copy b
+    against the terrain in row ``rows[b]`` (the vector env's scene pool keeps one row per scene).
+
+    Rows are written by :meth:`set_row`; the arrays grow (geometrically, up to ``capacity`` rows) to the largest
+    polytope and face counts seen. Extra faces are the always-true row ``0.x - 1 <= 0`` and extra polytopes are
+    marked invalid, so padding never blocks.
+
+    Attributes (rows R, polytopes M, faces F):
+        faces (4, F, R, M): the columns n_x, n_y, n_z, d of each polytope's half-spaces, faces first.
+        cx, cy, radius, z_max (R, M): plan-view enclosing circles and heights; valid (R, M): real polytopes.
+        top (R, M, 3): polytope top points (eq. 3), padded with inf.
+    """
+
+    def __init__(self, capacity: int):
+        self.capacity = capacity
+        self.faces = np.zeros((4, 1, 0, 0))
+        self.cx, self.cy, self.radius, self.z_max = (np.zeros((0, 0)) for _ in range(4))
+        self.valid = np.zeros((0, 0), bool)
+        self.top = np.zeros((0, 0, 3))
+        self._at: dict = {}
+
+    def __len__(self) -> int:
+        return len(self.valid)
+
+    def _offsets_at(self, altitude: float, tol: float) -> np.ndarray:
+        """(F, R M) the faces' offsets at the UAV plane (:func:`face_offsets`), kept per (altitude, tol); a row
+        written later is updated in place."""
+        key = (float(altitude), float(tol))
+        off = self._at.get(key)
+        if off is None:
+            flat = self.faces.reshape(4, self.faces.shape[1], -1)
+            off = self._at[key] = face_offsets(flat[2], flat[3], key[0], key[1])
+        return off
+
+    def set_row(self, r: int, terrain: Terrain) -> None:
+        """Write ``terrain`` into row r (growing the arrays as needed)."""
+        arr = terrain_arrays(terrain)
+        m, f = arr.hs.shape[:2]
+        n = len(self)
+        if r >= n:                                          # grow geometrically: amortised O(1) per row
+            n = max(r + 1, min(2 * n, self.capacity))
+        mm, ff = max(m, self.valid.shape[1]), max(f, self.faces.shape[1])
+        pad = np.zeros((4, 1, 1))
+        pad[3] = -1.0                                       # 0.x - 1 <= 0: always true
+        if self.faces.shape != (4, ff, n, mm):
+            faces = np.empty((4, ff, n, mm))
+            faces[...] = pad[..., None]
+            old = self.faces
+            faces[:, :old.shape[1], :old.shape[2], :old.shape[3]] = old
+            self.faces = faces
+            self._at.clear()                                # the kept offsets have the old shape
+        self.cx, self.cy = _grown(self.cx, (n, mm), 0.0), _grown(self.cy, (n, mm), 0.0)
+        self.radius, self.z_max = _grown(self.radius, (n, mm), 0.0), _grown(self.z_max, (n, mm), 0.0)
+        self.valid = _grown(self.valid, (n, mm), False)
+        self.top = _grown(self.top, (n, mm, 3), np.inf)
+        self.faces[:, :, r] = pad
+        self.faces[:, :f, r, :m] = arr.faces
+        self.cx[r], self.cy[r], self.radius[r], self.z_max[r], self.valid[r], self.top[r] = 0, 0, 0, 0, False, np.inf
+        self.cx[r, :m], self.cy[r, :m] = arr.centre[:, 0], arr.centre[:, 1]
+        self.radius[r, :m], self.z_max[r, :m], self.valid[r, :m] = arr.radius, arr.z_max, True
+        self.top[r, :m] = terrain.highest_points
+        for (alt, tol), off in self._at.items():            # the kept offsets: row r only
+            off.reshape(ff, n, mm)[:, r] = face_offsets(self.faces[2, :, r], self.faces[3, :, r], alt, tol)
+
+    def line_of_sight(self, rows: np.ndarray, uav_xy: np.ndarray, altitude: float, target_xyz: np.ndarray,
+                      *, tol: float = LOS_TOLERANCE) -> np.ndarray:
+        """Clear LoS (eq. 6) from UAVs ``uav_xy`` (B, U, 2) at ``altitude`` to targets ``target_xyz`` (B, 3), copy
+        b against the terrain of row ``rows[b]``; (B, U) bool, the same as :func:`line_of_sight` per copy.
+
+        Two broad phases, then the exact clip (:func:`clip_segments` on :func:`face_values`), each one array
+        operation over the batch: (copy, UAV, polytope) triples whose footprint circle lies in the UAV's direction
+        from the target and within reach of the part of the segment lower than the polytope's top (that part lies
+        within ``|p - q| (z_max - z_q) / (h - z_q)`` of the target); then that part must pass within the circle
+        (:func:`passes_near`); the triples left are clipped exactly. The broad phases only drop triples that
+        cannot block (with slack for rounding), so the result is the exact clip's."""
+        q = target_xyz
+        qx, qy, qz = q[:, 0], q[:, 1], q[:, 2]
+        rel_x, rel_y = uav_xy[..., 0] - qx[:, None], uav_xy[..., 1] - qy[:, None]
+        dist = np.sqrt(rel_x * rel_x + rel_y * rel_y)                                   # (B, U)
+        b_n, u_n = dist.shape
+        n_m = self.valid.shape[1]
+        out = np.ones((b_n, u_n), dtype=bool)
+        if n_m == 0:
+            return out
+        # Per (copy, polytope), once: the footprint circle (centre c relative to the target, radius r + 1 nm).
+        cx, cy = self.cx[rows], self.cy[rows]                                           # (B, M)
+        cx -= qx[:, None]
+        cy -= qy[:, None]
+        r = self.radius[rows]
+        r += 1e-9
+        gap = np.sqrt(cx * cx + cy * cy)
+        # Reach: gap - r <= |p - q| low, i.e. |p - q| >= (gap - r) / low (every UAV when the gap is <= 0).
+        if altitude > qz.max():
+            low = self.z_max[rows]
+            low -= qz[:, None]
+            low /= (altitude - qz)[:, None]
+            np.clip(low, 0.0, 1.0, out=low)
+        else:
+            low = np.ones(cx.shape)
+        # The target inside the circle (or within rounding of it, where the cone below degenerates): every UAV.
+        inside = gap <= r * (1.0 + 1e-9)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            d_min = (gap - r) / low
+        d_min[inside] = -np.inf
+        d_min[~self.valid[rows]] = np.inf
+        # Cone: the UAV's bearing from the target must lie in the cone the circle subtends there,
+        # rel . c >= |rel| sqrt(gap^2 - r^2), written rel . c / sqrt(...) >= |rel| (1e-9 relative slack).
+        with np.errstate(divide="ignore", invalid="ignore"):
+            scale = 1.0 / (np.sqrt(np.maximum(gap * gap - r * r, 0.0)) * (1.0 - 1e-9))
+        scale[inside] = 0.0
+        cx *= scale
+        cy *= scale
+        # Per (copy, UAV, polytope) triple: a few passes over (B, U, M).
+        dot = rel_x[..., None] * cx[:, None, :]
+        dot += rel_y[..., None] * cy[:, None, :]
+        cand = dot >= dist[..., None]
+        if inside.any():
+            cand |= inside[:, None, :]
+        cand &= dist[..., None] >= d_min[:, None, :]
+        flat = np.flatnonzero(cand)
+        if len(flat) == 0:
+            return out
+        b, um = np.divmod(flat, u_n * n_m)
+        u, m = np.divmod(um, n_m)
+        row = rows[b]
+        idx = row * n_m + m
+        # The part of the segment UAV -> target lower than the top, s in [s0, s1], must pass within the circle.
+        ux, uy = uav_xy[b, u, 0], uav_xy[b, u, 1]
+        s0, s1 = _low_part(self.z_max.take(idx), altitude, qz[b] - altitude)
+        near = (s1 > s0 - 1e-12) & passes_near(ux, uy, qx[b] - ux, qy[b] - uy, s0, s1, self.cx.take(idx),
+                                               self.cy.take(idx), self.radius.take(idx))
+        b, u, idx, ux, uy = b[near], u[near], idx[near], ux[near], uy[near]
+        if len(b) == 0:
+            return out
+        nx, ny, nz, d = self.faces.reshape(4, self.faces.shape[1], -1).take(idx, axis=2)   # (F, K) each
+        start = face_values(nx, ny, self._offsets_at(altitude, tol).take(idx, axis=1), ux, uy)
+        end = face_values(nx, ny, face_offsets(nz, d, qz[b], tol), qx[b], qy[b])
+        blocked = clip_segments(start, end)
+        out[b[blocked], u[blocked]] = False
+        return out
+
+
+def _grown(arr: np.ndarray, shape: tuple, fill) -> np.ndarray:
+    """``arr`` copied into a larger array of ``shape`` (each axis at least as long), the rest ``fill``."""
+    if arr.shape == shape:
+        return arr
+    out = np.full(shape, fill, dtype=arr.dtype)
+    out[tuple(slice(0, n) for n in arr.shape)] = arr
+    return out
 
 
 def line_of_sight_cfg(terrain: Terrain, uav_xy, target_xyz, config) -> np.ndarray:
@@ -452,7 +642,7 @@ def shadow_h_min(terrain: Terrain, target_xyz, altitude: float, radius: float) -
     ``C_m ∩ {h_min_m <= z <= h}`` is exact within ``radius``. Clamped just above z_q.
     """
     q = np.asarray(target_xyz, dtype=float)
-    rho_min, _ = _plan_distance(_arrays(terrain).plan, q[:2])
+    rho_min, _ = _plan_distance(terrain_arrays(terrain).plan, q[:2])
     hz = altitude - q[2]
     return np.maximum(q[2] + hz * rho_min / radius, q[2] + 1e-6 * hz)
 
@@ -493,7 +683,7 @@ def shadow_polygons(terrain: Terrain, target_xyz, altitude: float, radius: float
     m = len(terrain)
     if m == 0:
         return []
-    arr = _arrays(terrain)
+    arr = terrain_arrays(terrain)
     rho_min, inside = _plan_distance(arr.plan, q[:2])
     under = (inside | (rho_min < 1e-9)) & (arr.z_max > q[2])
     if np.any(under):

@@ -391,7 +391,7 @@ def test_terrain_stack_equals_line_of_sight_on_grazing_segments():
     """Segments lying (to rounding) in a shrunk side face of a rotated box: where line_of_sight takes its
     broad-phase path (40 points x 20 polytopes > the brute-force size), the stack must not clip with
     another formula, or the rounding of the face value decides differently (it did, on ~12 % of these)."""
-    from covert_env.visibility import LOS_TOLERANCE, _arrays
+    from covert_env.visibility import LOS_TOLERANCE, terrain_arrays
 
     def rbox(cx, cy, a, w, h, z):
         c, s = math.cos(a), math.sin(a)
@@ -402,7 +402,7 @@ def test_terrain_stack_equals_line_of_sight_on_grazing_segments():
     for _ in range(40):
         key = rbox(rng.uniform(-50, 50), rng.uniform(-50, 50), rng.uniform(0, 2 * math.pi), 6, 4, 40)
         terrain = Terrain([key] + [rbox(2000 + 40 * i, 900, 0.3, 5, 5, 30) for i in range(19)])
-        hs = _arrays(terrain).hs[0]
+        hs = terrain_arrays(terrain).hs[0]
         side = [i for i in range(len(hs)) if abs(hs[i, 2]) < 1e-12 and np.any(hs[i, :3])]
         f = side[int(rng.integers(0, len(side)))]
         n, d = hs[f, :3], hs[f, 3]
@@ -413,3 +413,61 @@ def test_terrain_stack_equals_line_of_sight_on_grazing_segments():
         want = line_of_sight(terrain, xy, H, tgt)
         got = TerrainStack([terrain, terrain]).line_of_sight(np.stack([xy, xy]), H, np.stack([tgt, tgt]))
         np.testing.assert_array_equal(got, np.stack([want, want]))
+
+
+def test_terrain_rows_equal_line_of_sight_per_copy_also_on_grazing_segments():
+    """TerrainRows (the vector env's batched LoS, one terrain per row, copies pointing at rows) clips with the
+    same face values as line_of_sight, so it decides exactly alike, also segments lying (to rounding) in a shrunk
+    face plane; padding (rows of fewer polytopes or faces, an empty terrain) never blocks."""
+    from covert_env.visibility import LOS_TOLERANCE, TerrainRows, terrain_arrays
+
+    def rbox(cx, cy, a, w, h, z):
+        c, s = math.cos(a), math.sin(a)
+        base = np.array([[-w, -h], [w, -h], [w, h], [-w, h]]) @ np.array([[c, s], [-s, c]]) + [cx, cy]
+        return Polytope(base, np.column_stack([base, np.full(4, float(z))]))
+
+    rng = np.random.default_rng(3)
+    rows = TerrainRows(capacity=8)
+    terrains = [random_terrain(rng, 16), Terrain(), random_terrain(rng, 5)]
+    for r, t in enumerate(terrains):
+        rows.set_row(r, t)
+    for _ in range(30):
+        key = rbox(rng.uniform(-50, 50), rng.uniform(-50, 50), rng.uniform(0, 2 * math.pi), 6, 4, 40)
+        terrain = Terrain([key, rbox(400, 400, 0.3, 5, 5, 30)])
+        rows.set_row(3, terrain)
+        hs = terrain_arrays(terrain).hs[0]
+        side = [i for i in range(len(hs)) if abs(hs[i, 2]) < 1e-12 and np.any(hs[i, :3])]
+        f = side[int(rng.integers(0, len(side)))]
+        n, d = hs[f, :3], hs[f, 3]
+        p0 = -(d + LOS_TOLERANCE) * n[:2] / (n[:2] @ n[:2])               # on the shrunk face plane
+        tang = np.array([-n[1], n[0]]) / np.hypot(n[0], n[1])
+        ts = (key.plan_view.mean(axis=0) - p0) @ tang + rng.uniform(-3, 3, (8, 2))
+        xy, tgt = p0 + ts[:, :1] * tang, np.column_stack([p0 + ts[:, 1:] * tang, np.full(8, 1.5)])
+        # Each grazing segment as a copy of one UAV on row 3, among copies on the other rows.
+        which = np.r_[np.full(8, 3), rng.integers(0, 3, 24)]
+        targets = np.r_[tgt, np.stack([random_target(rng) for _ in range(24)])]
+        uav = np.r_[xy, np.concatenate([disk_points(rng, q, 1, radius=150) for q in targets[8:]])][:, None]
+        got = rows.line_of_sight(which, uav, H, targets)[:, 0]
+        want = np.array([line_of_sight(terrains[w] if w < 3 else terrain, uav[j], H, targets[j])[0]
+                         for j, w in enumerate(which)])
+        np.testing.assert_array_equal(got, want)
+    assert rows.line_of_sight(np.array([1]), np.zeros((1, 4, 2)), H, np.zeros((1, 3))).all()   # empty row
+
+
+def test_terrain_rows_overwritten_rows_see_their_new_terrain():
+    """Rows of a TerrainRows are overwritten as scenes enter and leave the vector env's pool (and grow to more
+    polytopes and faces): each LoS call sees every row's current terrain, as line_of_sight does."""
+    from covert_env.visibility import TerrainRows
+
+    rng = np.random.default_rng(0)
+    rows, current = TerrainRows(capacity=16), {}
+    for step in range(40):
+        r = int(rng.integers(0, 12))
+        current[r] = random_terrain(rng, int(rng.integers(1, 17)))
+        rows.set_row(r, current[r])
+        which = np.array(sorted(current))[rng.integers(0, len(current), 20)]
+        q = np.stack([random_target(rng) for _ in which])
+        xy = q[:, None, :2] + rng.uniform(-200, 200, (20, 4, 2))
+        want = np.stack([line_of_sight(current[w], xy[j], H, q[j]) for j, w in enumerate(which)])
+        np.testing.assert_array_equal(rows.line_of_sight(which, xy, H, q), want, err_msg=f"step {step}")
+    assert len(rows) <= 16

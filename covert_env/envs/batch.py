@@ -2,9 +2,12 @@
 
 Pure functions on batch-first arrays ``(B, U, ...)``, no Python loop over copies, UAVs or lattice nodes: the
 vector env (:mod:`covert_env.envs.vector`) is a thin state holder around them. They use the model's own
-functions (the engine's flight, :func:`~covert_env.metrics.moves_quantities`, the manoeuvre solver) with the
-batch as their leading axes, so a copy computes exactly what the parallel env computes for the same scene, starts
-and actions. Written with numpy calls that have direct torch counterparts, so a torch backend is a port.
+functions (:func:`~covert_env.metrics.moves_quantities`, the manoeuvre solver, the reachability table) with the
+batch as their leading axes, and fly with :mod:`covert_env.flight`, the engine's flight (:func:`fly_unicycle` is
+its one-arc case with each sine and cosine computed once per distinct value; tests/test_batch_flight.py checks the
+fast paths against the reference integration bit for bit), so a copy computes exactly what the parallel env
+computes for the same scene, starts and actions. Written with numpy calls that have direct torch counterparts, so a
+torch backend is a port.
 """
 
 from __future__ import annotations
@@ -14,7 +17,7 @@ import math
 import numpy as np
 
 from covert_env.envs.observation import OFFSET_CLIP, OWN_SIZE, OWN_SLICES
-from covert_env.flight import fly, waypoint_controls
+from covert_env.flight import fly_turn_straight, waypoint_controls
 
 _TWO_PI = 2.0 * math.pi
 #: Smallest commanded speed as a fraction of V_max: the unicycle needs v > 0 (eq. 1).
@@ -99,14 +102,15 @@ def fly_unicycle(xy, theta, v, w, times):
 
 
 def fly_waypoints(xy, theta, goals, c, times):
-    """The turn-then-straight manoeuvre to ``goals`` (B, U, 2) (best effort where unreachable, see the engine).
+    """The turn-then-straight manoeuvre to ``goals`` (B, U, 2) (best effort where unreachable, see
+    :func:`waypoint_controls`), flown by :func:`fly_turn_straight`.
 
     Returns path samples (B, U, P, 2), end headings (B, U), speeds v (B, U), the fallback flags (B, U) and the
     turn rates omega (B, U)."""
     shape = theta.shape
     v, w, t_turn, fallback = waypoint_controls(xy.reshape(-1, 2), theta.reshape(-1), goals.reshape(-1, 2), c)
     v, w, t_turn = v.reshape(shape), w.reshape(shape), t_turn.reshape(shape)
-    path, end_theta = fly(xy, theta, v, w, t_turn, times)
+    path, end_theta = fly_turn_straight(xy, theta, v, w, t_turn, times)
     return path, end_theta, v, fallback.reshape(shape), w
 
 

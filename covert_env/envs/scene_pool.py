@@ -6,9 +6,8 @@ pool, by :class:`~covert_env.envs.scene_cache.SceneCache` (so every copy and res
 the same numbers), and stacked into arrays ``(R, ...)``. A copy of the vector env only holds its row index: every
 per-step quantity is a gather ``array[rows, slots]``, one array operation for the whole batch.
 
-The terrains are padded to ``(R, M_max, F_max, 4)`` half-spaces as in :class:`~covert_env.visibility.TerrainStack`:
-extra faces are the always-true row ``0.x - 1 <= 0`` and extra polytopes are marked invalid, so padding never
-blocks a line of sight.
+The terrains are rows of a :class:`~covert_env.visibility.TerrainRows` (padded half-spaces, footprint circles and
+tops per row), whose batched line of sight clips with the same routine as every other LoS path.
 """
 
 from __future__ import annotations
@@ -21,7 +20,7 @@ from covert_env.envs.observation import shared_block_size
 from covert_env.envs.scene_cache import SceneCache
 from covert_env.metrics import terrain_clearance
 from covert_env.scenario import Scenario, pick_starts, start_candidates
-from covert_env.visibility import LOS_TOLERANCE, _arrays, _clip, _passes_near
+from covert_env.visibility import LOS_TOLERANCE, TerrainRows
 
 __all__ = ["ScenePool"]
 
@@ -48,8 +47,9 @@ class ScenePool:
         q (R, T, 3), phi (R, T): the target's track, clamped at its end like ``TargetTrack.position``.
         blocks (R, T, D) float32: the observation's shared block per slot (``SceneCache.shared_blocks``).
         lattice_ok (R, T, L) bool: lattice nodes in the eroded zone with clear LoS (waypoint mode only).
-        hs (R, M, F, 4), centre (R, M, 2), radius (R, M), z_max (R, M), valid (R, M): padded terrain.
-        top (R, M, 3): polytope top points (eq. 3), padded with inf.
+        terrains: the scenes' terrains, row r the scene's (:class:`~covert_env.visibility.TerrainRows`).
+        top (R, M, 3): polytope top points (eq. 3), padded with inf; centre (R, M, 2), radius (R, M): footprint
+        circles (views of ``terrains``).
     """
 
     def __init__(self, spec, config, lattice, map_offsets, map_in_zone, *, waypoint: bool, capacity: int):
@@ -63,12 +63,22 @@ class ScenePool:
         self.q, self.phi = np.zeros((0, 1, 3)), np.zeros((0, 1))
         self.blocks = np.zeros((0, 1, d), np.float32)
         self.lattice_ok = np.zeros((0, 1, len(lattice)), bool)
-        self.hs, self.centre = np.zeros((0, 0, 1, 4)), np.zeros((0, 0, 2))
-        self.radius, self.z_max, self.valid = np.zeros((0, 0)), np.zeros((0, 0)), np.zeros((0, 0), bool)
-        self.top = np.zeros((0, 0, 3))
+        self.terrains = TerrainRows(capacity)
 
     def __len__(self) -> int:
         return len(self._rows)
+
+    @property
+    def top(self) -> np.ndarray:
+        return self.terrains.top
+
+    @property
+    def centre(self) -> np.ndarray:
+        return np.stack([self.terrains.cx, self.terrains.cy], axis=-1)
+
+    @property
+    def radius(self) -> np.ndarray:
+        return self.terrains.radius
 
     # ------------------------------------------------------------------ scenes
     def key(self, scene_seed) -> object:
@@ -140,8 +150,6 @@ class ScenePool:
     def _fill(self, r: int, cache: SceneCache) -> None:
         w, c = cache.parts, self.config
         n_t = w.track.n_slots + 1
-        arr = _arrays(w.terrain)
-        m, f = arr.hs.shape[:2]
         rows = max(r + 1, len(self.q))
         t = max(n_t, self.q.shape[1])
         if rows > len(self.q):                              # grow geometrically: amortised O(1) per scene
@@ -151,18 +159,6 @@ class ScenePool:
         self.blocks = _grown(self.blocks, (rows, t, self.blocks.shape[2]), 0.0)
         if self.waypoint:
             self.lattice_ok = _grown(self.lattice_ok, (rows, t, len(self.lattice)), False)
-        mm, ff = max(m, self.hs.shape[1]), max(f, self.hs.shape[2])
-        pad_face = np.array([0.0, 0.0, 0.0, -1.0])
-        hs = _grown(self.hs, (rows, mm, ff, 4), 0.0)
-        hs[len(self.hs):] = pad_face
-        hs[:len(self.hs), :, self.hs.shape[2]:] = pad_face
-        hs[:len(self.hs), self.hs.shape[1]:] = pad_face
-        self.hs = hs
-        self.centre = _grown(self.centre, (rows, mm, 2), 0.0)
-        self.radius = _grown(self.radius, (rows, mm), 0.0)
-        self.z_max = _grown(self.z_max, (rows, mm), 0.0)
-        self.valid = _grown(self.valid, (rows, mm), False)
-        self.top = _grown(self.top, (rows, mm, 3), np.inf)
         while len(self._caches) < rows:
             self._caches.append(None)
             self._start_nodes.append(None)
@@ -173,13 +169,7 @@ class ScenePool:
         self.blocks[r] = cache.shared_blocks()[ks]
         if self.waypoint:
             self.lattice_ok[r] = cache.lattice_visible()[ks]
-        self.hs[r] = pad_face
-        self.hs[r, :m, :f] = arr.hs
-        self.centre[r] = 0.0
-        self.centre[r, :m] = arr.centre
-        self.radius[r], self.z_max[r], self.valid[r], self.top[r] = 0.0, 0.0, False, np.inf
-        self.radius[r, :m], self.z_max[r, :m], self.valid[r, :m] = arr.radius, arr.z_max, True
-        self.top[r, :m] = w.terrain.highest_points
+        self.terrains.set_row(r, w.terrain)
         self._start_nodes[r] = start_candidates(c, w.terrain, w.track)
         self._caches[r] = cache
 
@@ -187,58 +177,9 @@ class ScenePool:
     def line_of_sight(self, rows: np.ndarray, uav_xy: np.ndarray, altitude: float, target_xyz: np.ndarray,
                       *, tol: float = LOS_TOLERANCE) -> np.ndarray:
         """Clear LoS (eq. 6) from UAVs ``uav_xy`` (B, U, 2) at ``altitude`` to targets ``target_xyz`` (B, 3), copy
-        b against the terrain of scene row ``rows[b]``; (B, U) bool.
-
-        Two broad phases, then the exact clip (``visibility``'s Cyrus-Beck routine), each one array operation over
-        the batch: (copy, UAV, polytope) triples whose footprint circle lies in the UAV's direction from the target
-        and within reach of the part of the segment lower than the polytope's top (that part lies within
-        ``|p - q| (z_max - z_q) / (h - z_q)`` of the target); then that part must pass within the circle
-        (``line_of_sight``'s test); the triples left are clipped exactly."""
-        q = target_xyz
-        rel_x, rel_y = uav_xy[..., 0] - q[:, 0, None], uav_xy[..., 1] - q[:, 1, None]
-        dist = np.sqrt(rel_x * rel_x + rel_y * rel_y)                                  # (B, U)
-        z_max, centre, radius = self.z_max[rows], self.centre[rows], self.radius[rows]   # (B, M, ...)
-        if altitude > q[:, 2].max():
-            low = np.clip((z_max - q[:, 2, None]) / (altitude - q[:, 2, None]), 0.0, 1.0)
-        else:
-            low = np.ones(z_max.shape)
-        cx, cy = centre[..., 0] - q[:, 0, None], centre[..., 1] - q[:, 1, None]          # (B, M)
-        gap = np.hypot(cx, cy)
-        r = radius + 1e-9
-        reach = gap - r
-        reach[~self.valid[rows]] = np.inf
-        # The UAV's bearing from the target must lie in the cone the footprint circle subtends there:
-        # rel . c >= |rel| sqrt(gap^2 - r^2) (every direction when the target is inside the circle). 1e-9 slack.
-        cone = np.where(gap > r, np.sqrt(np.maximum(gap * gap - r * r, 0.0)) - 1e-9 * gap, -1e300)
-        cand = reach[:, None, :] <= dist[..., None] * low[:, None, :]
-        dot = rel_x[..., None] * cx[:, None, :] + rel_y[..., None] * cy[:, None, :]
-        cand &= dot >= dist[..., None] * cone[:, None, :]
-        b, u, m = np.nonzero(cand)
-        out = np.ones(uav_xy.shape[:2], dtype=bool)
-        if len(b) == 0:
-            return out
-        # The part of the segment UAV -> target lower than the top, s in [s0, s1], must pass within the circle.
-        ux, uy, qb = uav_xy[b, u, 0], uav_xy[b, u, 1], q[b]
-        dz = qb[:, 2] - altitude
-        with np.errstate(over="ignore", divide="ignore"):
-            sc = (z_max[b, m] - altitude) / np.where(dz == 0, -1e-300, dz)
-        down = dz <= 0
-        s0 = np.clip(np.where(down, sc, 0.0), 0.0, 1.0)
-        s1 = np.clip(np.where(down, 1.0, sc), 0.0, 1.0)
-        near = (s1 > s0 - 1e-12) & _passes_near(ux, uy, qb[:, 0] - ux, qb[:, 1] - uy, s0, s1,
-                                                centre[b, m, 0], centre[b, m, 1], radius[b, m])
-        b, u, m = b[near], u[near], m[near]
-        if len(b) == 0:
-            return out
-        hm = self.hs[rows[b], m]                                                 # (K, F, 4)
-        p = np.empty((len(b), 3))
-        p[:, :2] = uav_xy[b, u]
-        p[:, 2] = altitude
-        num = np.einsum("pfi,pi->pf", hm[..., :3], p) + hm[..., 3] + tol
-        vq = np.einsum("pfi,pi->pf", hm[..., :3], q[b]) + hm[..., 3] + tol
-        blocked = _clip(num, vq - num)
-        out[b[blocked], u[blocked]] = False
-        return out
+        b against the terrain of scene row ``rows[b]``; (B, U) bool (:meth:`TerrainRows.line_of_sight
+        <covert_env.visibility.TerrainRows.line_of_sight>`)."""
+        return self.terrains.line_of_sight(rows, uav_xy, altitude, target_xyz, tol=tol)
 
     def terrain_clearance(self, rows: np.ndarray, xy: np.ndarray, altitude: float) -> np.ndarray:
         """(B, U) distance from (x, y, h) to the nearest polytope top of each copy's scene (eq. 3; inf if none)."""

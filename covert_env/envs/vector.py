@@ -54,9 +54,8 @@ class CovertSensingVectorEnv:
     once per scene.
 
     Copy ``i`` flies exactly what the parallel env flies for the same scene, starts and actions (tested, see
-    Seeding): observations, rewards, costs and infos are bit-identical. (Line of sight is decided by the same exact
-    clip with another summation order, so a segment grazing a polytope within rounding of the 10 nm tolerance of
-    :data:`~covert_env.visibility.LOS_TOLERANCE` could in principle be decided differently; never seen.)
+    Seeding): observations, rewards, costs and infos are bit-identical. (The parallel env is this env with B = 1;
+    every line-of-sight path runs the same clipping routine, :func:`~covert_env.visibility.clip_segments`.)
 
     ## Action Space
 
