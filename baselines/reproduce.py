@@ -26,7 +26,11 @@ Outputs in ``--out``:
   infeasible-slot counts, planning time, negotiation rounds);
 * ``metrics.md``: every rate with a 95 % percentile bootstrap confidence interval over the held-out scenes
   (:func:`bootstrap_ci`), counts, the paper's claims checked, and where the time went;
-* ``sensitivity.md`` (``--sensitivity``): grid step, r_u, h_min and target speed varied one at a time.
+* ``sensitivity.md`` (``--sensitivity``): grid step, r_u, h_min and target speed varied one at a time;
+* ``prediction_study.md``, ``.json`` and ``fig_prediction.png`` (``--prediction-study``): a prediction error of
+  4 m, the planner with r_u = 0, with the eroded zone of eq. 5, and with it and the widened shadows
+  (docs/decisions.md#prediction-los): zone violations and blocked LoS against the true target, with 95 % CIs
+  (:mod:`baselines.prediction_study`).
 
 ``--quick`` flies the paper scene and 2 held-out scenes for 15 slots, chosen so that the paper's effects show:
 the paper scene's zone is in shadow at slots 11-15 and the held-out scenes are the 2 of the first 20 whose zone is
@@ -750,8 +754,9 @@ def build_parser(prog: str = "covert-env reproduce") -> argparse.ArgumentParser:
                    help="DP heading variant: inherited is the paper's (default: inherited)")
     p.add_argument("--config", default=None, help="a Config JSON file (default: the paper's parameters)")
     p.add_argument("--prediction-study", action="store_true",
-                   help="also run baselines/prediction_study.py (prediction error vs r_u, eq. 5): "
-                        "prediction_study.md and .json in --out")
+                   help="also run baselines/prediction_study.py (prediction error b = 4 m: r_u = 0 vs the eroded "
+                        "zone of eq. 5 with and without widened shadows, 3 UAVs; blocked LoS and zone violations "
+                        "against the true target with 95%% CIs): prediction_study.md and .json in --out")
     p.add_argument("--sensitivity", action="store_true",
                    help="also write sensitivity.md: aware vs blind, 1 UAV, on the "
                         f"{SENSITIVITY_SCENES} most shadowed held-out scenes, {SENSITIVITY_SLOTS} slots, varying "
@@ -827,7 +832,9 @@ def _main(args: argparse.Namespace) -> int:
     if args.prediction_study:
         from baselines.prediction_study import write_study
 
-        print(write_study(out, config, quick=args.quick))
+        t3 = time.perf_counter()
+        print(write_study(out, config, quick=args.quick, jobs=jobs, figure=not args.no_figures))
+        print(f"wrote {out}/prediction_study.md and .json in {time.perf_counter() - t3:.0f} s", file=sys.stderr)
     return 0
 
 
