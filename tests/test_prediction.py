@@ -3,7 +3,9 @@
 Default off: the truth is the prediction, bit for bit. On: the true target deviates from every
 prediction (made from its true current position) by at most the bound; the planner and the
 observations read the prediction, the metrics the truth; the zone eroded by r_u >= the bound
-(eq. 5) keeps the UAV in the true target's zone where r_u = 0 does not.
+(eq. 5) keeps the UAV in the true target's zone where r_u = 0 does not, and the planner's shadows widened
+to every position the error allows (docs/decisions.md#prediction-los) keep the line of sight to the true
+target where the prediction's shadows lose it.
 """
 
 from __future__ import annotations
@@ -258,6 +260,8 @@ def test_widened_visibility_covers_every_position_along_the_road():
 
 
 def test_disk_without_a_road_is_more_cautious_than_the_road_piece():
+    """Without a road the possible positions are eq. 5's disk: every node it keeps, the road piece keeps too,
+    and it drops some the road piece keeps; its samples stay within the margin plus their covering radius."""
     from baselines.dp.lattice import VISIBILITY_TOL
     from baselines.dp.possible_targets import PossibleTargets
 
