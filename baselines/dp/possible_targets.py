@@ -28,6 +28,8 @@ a node whose segment to some possible position passes within ``cover`` of a poly
 
 from __future__ import annotations
 
+import weakref
+
 import numpy as np
 
 from covert_env.road import Road
@@ -43,6 +45,18 @@ SAMPLE_COVER = 0.25
 ON_ROAD_TOL = 1e-6
 #: (sample, node, polytope) triples per broad-phase chunk (~8 MB per float array).
 _CHUNK = 1_000_000
+_RADII: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _plan_radii(terrain: Terrain) -> np.ndarray:
+    """(M,) radius about each footprint centroid of a circle enclosing the whole polytope in plan view, its top
+    included (validation lets a top overhang its base by up to 1e-6 of the footprint's size). Once per terrain."""
+    r = _RADII.get(terrain)
+    if r is None:
+        r = np.array([np.hypot(*(p.vertices[:, :2] - c).T).max() for p, c in zip(terrain, terrain.centroids_xy,
+                                                                                     strict=True)])
+        _RADII[terrain] = r
+    return r
 
 
 class PossibleTargets:
@@ -125,7 +139,7 @@ def clear_to_all(terrain: Terrain, xy, altitude: float, targets, grow: float) ->
         return np.ones(n_nodes, dtype=bool)
     hs = terrain.halfspace_array
     centre = terrain.centroids_xy
-    radius = terrain.radii_xy + grow + 1e-9
+    radius = _plan_radii(terrain) + grow + 1e-9
     # Parameter along UAV -> target from which the segment is below the grown top (the UAV is above the target).
     s0 = np.clip((terrain.z_max[None, :] + grow - h) / (tq[:, 2, None] - h), 0.0, 1.0)          # (S, M)
     blocked = np.zeros(n_nodes, dtype=bool)
