@@ -26,7 +26,11 @@ Outputs in ``--out``:
   infeasible-slot counts, planning time, negotiation rounds);
 * ``metrics.md``: every rate with a 95 % percentile bootstrap confidence interval over the held-out scenes
   (:func:`bootstrap_ci`), counts, the paper's claims checked, and where the time went;
-* ``sensitivity.md`` (``--sensitivity``): grid step, r_u, h_min and target speed varied one at a time.
+* ``sensitivity.md`` (``--sensitivity``): grid step, r_u, h_min and target speed varied one at a time;
+* ``prediction_study.md``, ``.json`` and ``fig_prediction.png`` (``--prediction-study``): a prediction error of
+  4 m, the planner with r_u = 0, with the eroded zone of eq. 5, and with it and the widened shadows
+  (docs/decisions.md#prediction-los): zone violations and blocked LoS against the true target, with 95 % CIs
+  (:mod:`baselines.prediction_study`).
 
 ``--quick`` flies the paper scene and 2 held-out scenes for 15 slots, chosen so that the paper's effects show:
 the paper scene's zone is in shadow at slots 11-15 and the held-out scenes are the 2 of the first 20 whose zone is
@@ -172,18 +176,21 @@ def figure_slot(blind_los: np.ndarray, shares: np.ndarray) -> int:
 
 def rollout(scenario: Scenario, *, shadow_aware: bool = True, heading: str = "inherited", heading_bins: int = 16,
             check_path: bool = False, max_rounds: int = 5, separation_margin: float = 0.5,
-            n_slots: int | None = None) -> dict:
+            n_slots: int | None = None, los_margin: float | None = None) -> dict:
     """Fly the DP team planner through a scenario on an :class:`Engine` (one team replan per slot).
 
     This is what :class:`baselines.policies.DPPolicy` does through the waypoint environment; the first
-    waypoint of every UAV's plan is handed to the engine, which flies the manoeuvre.
+    waypoint of every UAV's plan is handed to the engine, which flies the manoeuvre. ``los_margin``: see
+    :class:`DPPlanner` (default: r_u under a prediction error, else 0; the possible true target positions
+    are taken along the scenario's road).
 
     Returns:
         dict with ``engine`` (finished), ``trajectory``, per-slot arrays ``team_time`` (s), ``rounds``,
         ``conflicts`` and ``status`` ((T, U) strings), and ``planner`` (the :class:`DPPlanner`).
     """
     planner = DPPlanner(scenario.config, scenario.terrain, shadow_aware=shadow_aware, heading=heading,
-                        heading_bins=heading_bins, check_path=check_path)
+                        heading_bins=heading_bins, check_path=check_path, los_margin=los_margin,
+                        road=scenario.track.road)
     team = DPTeamPlanner(planner, max_rounds=max_rounds, separation_margin=separation_margin)
     eng = Engine(scenario)
     t_max = scenario.config.n_slots if n_slots is None else int(n_slots)
@@ -747,8 +754,9 @@ def build_parser(prog: str = "covert-env reproduce") -> argparse.ArgumentParser:
                    help="DP heading variant: inherited is the paper's (default: inherited)")
     p.add_argument("--config", default=None, help="a Config JSON file (default: the paper's parameters)")
     p.add_argument("--prediction-study", action="store_true",
-                   help="also run baselines/prediction_study.py (prediction error vs r_u, eq. 5): "
-                        "prediction_study.md and .json in --out")
+                   help="also run baselines/prediction_study.py (prediction error b = 4 m: r_u = 0 vs the eroded "
+                        "zone of eq. 5 with and without widened shadows, 3 UAVs; blocked LoS and zone violations "
+                        "against the true target with 95%% CIs): prediction_study.md and .json in --out")
     p.add_argument("--sensitivity", action="store_true",
                    help="also write sensitivity.md: aware vs blind, 1 UAV, on the "
                         f"{SENSITIVITY_SCENES} most shadowed held-out scenes, {SENSITIVITY_SLOTS} slots, varying "
@@ -824,7 +832,9 @@ def _main(args: argparse.Namespace) -> int:
     if args.prediction_study:
         from baselines.prediction_study import write_study
 
-        print(write_study(out, config, quick=args.quick))
+        t3 = time.perf_counter()
+        print(write_study(out, config, quick=args.quick, jobs=jobs, figure=not args.no_figures))
+        print(f"wrote {out}/prediction_study.md and .json in {time.perf_counter() - t3:.0f} s", file=sys.stderr)
     return 0
 
 

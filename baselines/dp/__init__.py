@@ -9,7 +9,9 @@ are grid nodes of the zone around the predicted target pose q[k+j], phi[k+j]: th
 a node index is an action. The allowed nodes are
 
 * ``shadow_aware=True`` (the paper's method): nodes of the visible zone F[k+j] (eq. 10), i.e. eroded zone
-  and a clear line of sight (eq. 6) to q[k+j];
+  and a clear line of sight (eq. 6) to q[k+j] -- under a prediction error (``Config.prediction_error > 0``)
+  to every true target position within ``los_margin`` (default r_u) of it along the road
+  (:mod:`baselines.dp.possible_targets`, docs/decisions.md#prediction-los);
 * ``shadow_aware=False`` (the earlier method [1], the paper's comparison): every node of the eroded zone;
 
 and, for both, only nodes at least ``d_safe2`` from every polytope's highest point (eq. 3,
@@ -123,7 +125,8 @@ every node pair. None of this depends on the UAV, so a team and successive repla
 * :mod:`~baselines.dp.recursion` -- the forward recursion (eqs. 19-21) and backtracking;
   :mod:`~baselines.dp.selection` -- which transitions are solved exactly; :mod:`~baselines.dp.transitions`
   -- exact transition costs (eq. 18); :mod:`~baselines.dp.states` -- DP layers.
-* :mod:`~baselines.dp.lattice` -- lattice stages and node pairs (cached); :mod:`~baselines.dp.table` -- the
+* :mod:`~baselines.dp.lattice` -- lattice stages and node pairs (cached); :mod:`~baselines.dp.possible_targets`
+  -- line of sight to every position a prediction error allows; :mod:`~baselines.dp.table` -- the
   manoeuvre lookup table; :mod:`~baselines.dp.path_checks` -- checks along a manoeuvre;
   :mod:`~baselines.dp.fallback` -- fallback levels 2 and 3.
 * :mod:`~baselines.dp.plan` -- the results :class:`DPPlan`, :class:`TeamPlan`;

@@ -2,8 +2,9 @@
 
 A :class:`Stage` is the lattice of :func:`covert_env.zone.zone_lattice` (the waypoint actions) placed at
 one predicted target pose q[k+j], phi[k+j]: world positions, alpha and d (eqs. 12-13) and line of sight
-(eq. 6). A :class:`StagePair` holds what the transitions between two consecutive stages share whatever
-the UAV: the disguise part of the stage cost (eq. 18) and the manoeuvre-table index of every node pair.
+(eq. 6; under a prediction error, to every true position it allows: :mod:`baselines.dp.possible_targets`).
+A :class:`StagePair` holds what the transitions between two consecutive stages share whatever the UAV:
+the disguise part of the stage cost (eq. 18) and the manoeuvre-table index of every node pair.
 Neither depends on the UAV, so a team and its successive replans share them through a :class:`StageCache`.
 """
 
@@ -13,6 +14,7 @@ from collections import OrderedDict
 
 import numpy as np
 
+from baselines.dp.possible_targets import PossibleTargets
 from baselines.dp.table import TWO_PI, ManoeuvreTable
 from covert_env.cost import uav_target_angle, uav_target_distance
 from covert_env.terrain import Terrain
@@ -40,10 +42,18 @@ class Stage:
         self.d = uav_target_distance(self.xy, q[:2])
         self._visible = None
 
-    def visible(self, terrain: Terrain, altitude: float) -> np.ndarray:
-        """(L,) LoS clear at this slot (eq. 6); every lattice node is in the eroded zone by construction."""
+    def visible(self, terrain: Terrain, altitude: float, targets: PossibleTargets | None = None) -> np.ndarray:
+        """(L,) LoS clear at this slot (eq. 6); every lattice node is in the eroded zone by construction.
+
+        ``targets``: None checks the predicted target q only (eq. 10 as the paper states it); otherwise every
+        possible true position around q (:class:`PossibleTargets`). A stage belongs to one planner's cache, so
+        it is always asked with the same ``targets``.
+        """
         if self._visible is None:
-            self._visible = line_of_sight(terrain, self.xy, altitude, self.q, tol=VISIBILITY_TOL)
+            if targets is None:
+                self._visible = line_of_sight(terrain, self.xy, altitude, self.q, tol=VISIBILITY_TOL)
+            else:
+                self._visible = targets.visible(terrain, self.xy, altitude, self.q, VISIBILITY_TOL)
             self._visible.setflags(write=False)
         return self._visible
 

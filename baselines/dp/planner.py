@@ -11,11 +11,13 @@ from baselines.dp.fallback import fallback_penalties, nearest_zone_node
 from baselines.dp.lattice import StageCache
 from baselines.dp.path_checks import PathChecker
 from baselines.dp.plan import DPPlan
+from baselines.dp.possible_targets import PossibleTargets
 from baselines.dp.recursion import ForwardRecursion, backtrack
 from baselines.dp.states import Layer, Problem, SolveCounts, batch_layers, best_cost, depths, layers_of
 from baselines.dp.table import TWO_PI, manoeuvre_table
 from covert_env.config import Config
 from covert_env.cost import uav_target_angle, uav_target_distance
+from covert_env.road import Road
 from covert_env.terrain import Terrain
 from covert_env.zone import zone_lattice
 
@@ -54,6 +56,13 @@ class DPPlanner:
             faster; off only for testing).
         cache_size: stages (and stage pairs) kept in the cache; default N + 2. A pair costs ~5-10 MB at the
             2 m grid (L = 577 nodes), ~100 MB at 1 m.
+        los_margin: prediction-error radius (m) of the line-of-sight check: a node is visible only if its line
+            of sight is clear to every true target position within this margin of the predicted one
+            (:mod:`baselines.dp.possible_targets`). None (default): ``config.r_u`` when
+            ``config.prediction_error > 0``, else 0 -- the paper's eq. 10, the predicted target only
+            (docs/decisions.md#prediction-los).
+        road: the target's road; with a margin, the possible positions are the road within arc length
+            ``los_margin`` of the prediction; None: the disk of radius ``los_margin`` (eq. 5's gamma(q)).
 
     Example::
 
@@ -67,15 +76,24 @@ class DPPlanner:
 
     def __init__(self, config: Config, terrain: Terrain, *, shadow_aware: bool = True,
                  heading: str = "inherited", heading_bins: int = 16, check_path: bool = False,
-                 path_samples: int = 21, prune: bool = True, cache_size: int | None = None):
+                 path_samples: int = 21, prune: bool = True, cache_size: int | None = None,
+                 los_margin: float | None = None, road: Road | None = None):
         if heading not in HEADING_MODES:
             raise ValueError(f"DPPlanner: heading must be one of {HEADING_MODES}, got {heading!r}")
         if not (isinstance(heading_bins, (int, np.integer)) and heading_bins >= 1):
             raise ValueError(f"DPPlanner: heading_bins must be an integer >= 1, got {heading_bins!r}")
         if not (isinstance(path_samples, (int, np.integer)) and path_samples >= 2):
             raise ValueError(f"DPPlanner: path_samples must be an integer >= 2, got {path_samples!r}")
+        if los_margin is None:
+            los_margin = config.r_u if config.prediction_error > 0 else 0.0
+        if isinstance(los_margin, bool) or not isinstance(los_margin, (int, float, np.integer, np.floating)) \
+                or not (np.isfinite(los_margin) and los_margin >= 0):
+            raise ValueError(f"DPPlanner: los_margin must be None or a finite number >= 0 (m), got {los_margin!r}")
         self.config = config
         self.terrain = terrain
+        self.los_margin = float(los_margin)
+        #: Where the true target may be around a prediction (None: at the prediction, the paper's eq. 10).
+        self.possible_targets = PossibleTargets(self.los_margin, road) if self.los_margin > 0 else None
         self.shadow_aware = bool(shadow_aware)
         self.heading = heading
         self.heading_bins = int(heading_bins) if heading == "binned" else 1
@@ -94,11 +112,13 @@ class DPPlanner:
     def name(self) -> str:
         """A label such as ``dp-aware-inherited`` or ``dp-blind-binned16-path``."""
         h = "inherited" if self.heading == "inherited" else f"binned{self.heading_bins}"
-        return f"dp-{'aware' if self.shadow_aware else 'blind'}-{h}{'-path' if self.check_path else ''}"
+        margin = f"-los{self.los_margin:g}" if self.los_margin > 0 else ""
+        return f"dp-{'aware' if self.shadow_aware else 'blind'}-{h}{'-path' if self.check_path else ''}{margin}"
 
     def visible_nodes(self, q, phi) -> np.ndarray:
-        """(L,) bool: lattice nodes at target pose (q, phi) with a clear line of sight (cached)."""
-        return self.cache.stage(q, phi).visible(self.terrain, self.config.altitude).copy()
+        """(L,) bool: lattice nodes at target pose (q, phi) with a clear line of sight (cached): to q (eq. 10),
+        or with a ``los_margin`` to every possible true target position around q."""
+        return self.cache.stage(q, phi).visible(self.terrain, self.config.altitude, self.possible_targets).copy()
 
     def clear_nodes(self, q, phi) -> np.ndarray:
         """(L,) bool: lattice nodes at target pose (q, phi) at least d_safe2 from every polytope top (eq. 3)."""
