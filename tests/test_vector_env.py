@@ -316,7 +316,7 @@ def test_disabled_autoreset_records_each_copy_as_the_parallel_env_does(mode):
                   "max_turn_rate", "infeasible"):
             np.testing.assert_array_equal(getattr(a, f), getattr(b, f), err_msg=f)
         view = venv.copy_view(j)
-        assert view.k == 4 and view.done is False
+        assert view.k == 4 and view.done is True           # max_cycles=4 ends the episode
         np.testing.assert_array_equal(view.uav_xy, par.engine.uav_xy)
         np.testing.assert_array_equal(view.predict(2)[0], par.engine.predict(2)[0])
         assert venv.scenario(j).uav_xy.tolist() == par.scenario.uav_xy.tolist()
@@ -359,3 +359,31 @@ def test_scene_cache_size_keeps_every_training_scene(monkeypatch):
         else:
             assert len(built) > len(set(built))               # evicted scenes were built again
     np.testing.assert_array_equal(runs[12], runs[4])
+
+
+def test_refused_resets_leave_the_batch_usable_and_settings_are_checked():
+    """Bad reset options are refused before anything changes; an empty reset_mask is a no-op; scene_seed needs
+    random scenes; settings assigned after construction are validated."""
+    venv = covert_env.vector_env(num_envs=2, n_uavs=2)
+    obs, _ = venv.reset(seed=0)
+    rows = venv.slots.copy()
+    for options, err in (({"scene_seed": [5, -1]}, ValueError), ([1], TypeError), ({"scene_seed": 1.5}, ValueError),
+                         ({"colour": 1}, ValueError)):
+        with pytest.raises(err):
+            venv.reset(options=options)
+    again, _ = venv.reset(options={"reset_mask": np.array([False, False])})
+    np.testing.assert_array_equal(again, obs)
+    assert venv.slots.tolist() == rows.tolist()
+    venv.step(np.zeros((2, 2, 2)))                      # still runs
+    with pytest.raises(ValueError, match="needs scenario='random'"):
+        covert_env.vector_env(num_envs=1, scenario="paper").reset(seed=0, options={"scene_seed": 3})
+    for name, value, err in (("reward_scale", 0.0, ValueError), ("terminate_on_collision", 1, TypeError),
+                             ("penalties", {"los": -1.0, "zone": 1.0, "separation": 1.0, "terrain": 1.0}, ValueError),
+                             ("penalties", {"los": 1.0}, ValueError)):
+        with pytest.raises(err, match=name.split("_")[0] if name != "penalties" else "penalt"):
+            setattr(venv, name, value)
+    with pytest.raises(RuntimeError, match="after reset"):
+        covert_env.vector_env(num_envs=1).scene(0)
+    big = covert_env.parallel_env(scenario="paper")
+    big.reset(seed=2 ** 64 + 3)                         # Gymnasium's seeding takes any int >= 0
+    assert not hasattr(covert_env.parallel_env(), "scenario")

@@ -101,7 +101,10 @@ class VectorEnvVecAdapter(VecEnv):
         return [getattr(self.venv, attr_name)] * len(self._indices(indices))
 
     def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
-        # One env holds every copy: an attribute set for some rows is set for all.
+        # One env holds every copy: an attribute is the same for all rows, so setting it for some only is refused.
+        if sorted(set(self._indices(indices))) != list(range(self.num_envs)):
+            raise ValueError(f"set_attr({attr_name!r}): the vector env holds every copy, so an attribute is set for "
+                             f"all rows at once (indices=None), got indices={indices!r}")
         setattr(self.venv, attr_name, value)
 
     def env_method(self, method_name: str, *method_args, indices: VecEnvIndices = None, **method_kwargs) -> list[Any]:

@@ -167,6 +167,12 @@ class CovertSensingParallelEnv(ParallelEnv):
 
     ## Version History
 
+    * v1, covert_env 0.3.0 (no number changed, so the id stays v1): the env is the B = 1 view of
+      :class:`~covert_env.envs.vector.CovertSensingVectorEnv`; every observation, reward and info of a seeded
+      rollout is bit-identical to 0.2.0. ``env.engine`` is a live, read-only
+      :class:`~covert_env.envs.recorder.CopyView` (no ``reset``/``step``: place UAVs with a ``Scenario``);
+      ``reward_scale``, ``penalties`` and ``terminate_on_collision`` are validated when assigned; ``env.scenario``
+      before the first reset raises an error that is also an ``AttributeError``.
     * v1 (covert_env 0.2.0): infos are flat scalars with the same keys and types at reset and every step
       (``reward_terms[t]`` became ``reward_<t>``); constraint costs ``cost``, ``cost_los``, ``cost_zone``,
       ``cost_separation``, ``cost_terrain``; with ``dict_obs=True`` the action mask is only in the
@@ -246,8 +252,13 @@ class CovertSensingParallelEnv(ParallelEnv):
 
     @property
     def penalties(self) -> dict:
-        """The penalty weights by term (``los``, ``zone``, ``separation``, ``terrain``); a live dict."""
+        """The penalty weights by term (``los``, ``zone``, ``separation``, ``terrain``), read at every step; assigning
+        a dict validates it, item assignment is live and not checked."""
         return self._vec.penalties
+
+    @penalties.setter
+    def penalties(self, value) -> None:
+        self._vec.penalties = value
 
     @property
     def terminate_on_collision(self) -> bool:
@@ -261,14 +272,16 @@ class CovertSensingParallelEnv(ParallelEnv):
     @property
     def engine(self) -> CopyView | None:
         """The UAVs and the target in the engine's terms (``k``, ``uav_xy``, ``uav_theta``, ``predict``,
-        ``trajectory()``, ...; read-only), or None before the first reset."""
+        ``trajectory()``, ...), or None before the first reset. A live, read-only view of the env's one copy: it
+        follows later steps and episodes (copy what you need to keep)."""
         return self._view if self._vec.started else None
 
     @property
     def scenario(self) -> Scenario:
-        """The scene of this episode with the starts actually flown (after a reset)."""
+        """The scene of this episode with the starts actually flown (after a reset; before, an AttributeError as
+        for an attribute not yet set)."""
         if not self._vec.started:
-            raise RuntimeError("env.scenario is known after reset()")
+            raise _NotReset("env.scenario is known after reset()")
         return self._vec.scenario(0)
 
     # ------------------------------------------------------------------ API
@@ -403,6 +416,10 @@ class CovertSensingParallelEnv(ParallelEnv):
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None
+
+
+class _NotReset(RuntimeError, AttributeError):
+    """Asked before ``reset()``: a RuntimeError that ``hasattr``/``getattr(..., default)`` treat as absent."""
 
 
 CovertSensingParallelEnv.__doc__ = CovertSensingParallelEnv.__doc__.replace(

@@ -102,7 +102,8 @@ class CopyView:
 
     @property
     def done(self) -> bool:
-        return self.k >= self.config.n_slots
+        """True once the copy's episode has flown ``episode_length`` slots (``max_cycles`` or the route's end)."""
+        return self.k >= self._venv.episode_length
 
     @property
     def positions(self) -> np.ndarray:

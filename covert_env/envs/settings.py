@@ -12,19 +12,43 @@ import numpy as np
 from gymnasium import spaces
 
 from covert_env.config import Config
+from covert_env.engine import MAX_PATH_SAMPLES
 from covert_env.envs.arguments import bool_arg, int_arg, number_arg
 from covert_env.envs.observation import ObservationLayout
 from covert_env.scenario import PAPER_UAV_STARTS, Scenario
 from covert_env.zone import in_feasible_zone, lattice_offsets, zone_lattice
 
-__all__ = ["ACTION_MODES", "EnvSettings", "MAX_PATH_SAMPLES", "MAX_SCENE_POOL", "RENDER_MODES"]
+__all__ = ["ACTION_MODES", "EnvSettings", "MAX_PATH_SAMPLES", "MAX_SCENE_POOL", "PENALTIES", "RENDER_MODES",
+           "check_penalties", "check_reward_scale"]
 
 ACTION_MODES = ("unicycle", "waypoint")
 RENDER_MODES = ("human", "rgb_array")
 #: Largest ``scene_pool``: training scene seeds 0 .. scene_pool-1 stay below the held-out seeds 1_000_000 + i.
 MAX_SCENE_POOL = 1_000_000
-#: Largest ``path_samples`` accepted: memory per step grows with it, and 1000 samples per 1 s slot is far past useful.
-MAX_PATH_SAMPLES = 1000
+
+
+#: The reward's penalty terms, the keys of ``penalties``.
+PENALTIES = ("los", "zone", "separation", "terrain")
+
+
+def check_reward_scale(value) -> float:
+    """``reward_scale`` as a float in [1e-6, 1e12]: outside, rewards over- or underflow (eq. 18 / reward_scale)."""
+    v = number_arg("reward_scale", value)
+    if not 1e-6 <= v <= 1e12:
+        raise ValueError(f"reward_scale must be a finite number in [1e-06, 1e+12], got {value!r}")
+    return v
+
+
+def check_penalties(values) -> dict[str, float]:
+    """The penalty weights by term (``los``, ``zone``, ``separation``, ``terrain``), each a finite number >= 0."""
+    if not isinstance(values, Mapping) or set(values) != set(PENALTIES):
+        raise ValueError(f"penalties must be a dict with the keys {list(PENALTIES)}, got {values!r}")
+    out = {}
+    for key in PENALTIES:
+        out[key] = number_arg(f"{key}_penalty", values[key])
+        if out[key] < 0:
+            raise ValueError(f"{key}_penalty must be a finite number >= 0, got {values[key]!r}")
+    return out
 
 
 class EnvSettings:
@@ -76,15 +100,9 @@ class EnvSettings:
         # Training scene seeds stay below the held-out ones (1_000_000 + i) that evaluations fly.
         self.scene_pool = int_arg("scene_pool", scene_pool, 1, MAX_SCENE_POOL)
         self.path_samples = int_arg("path_samples", path_samples, 2, MAX_PATH_SAMPLES)
-        self.reward_scale = number_arg("reward_scale", reward_scale)
-        if not 1e-6 <= self.reward_scale <= 1e12:     # outside, rewards over- or underflow (eq. 18 / reward_scale)
-            raise ValueError(f"reward_scale must be a finite number in [1e-06, 1e+12], got {reward_scale!r}")
-        self.penalties = {}
-        for key, val in (("los", los_penalty), ("zone", zone_penalty), ("separation", separation_penalty),
-                         ("terrain", terrain_penalty)):
-            self.penalties[key] = number_arg(f"{key}_penalty", val)
-            if self.penalties[key] < 0:
-                raise ValueError(f"{key}_penalty must be a finite number >= 0, got {val!r}")
+        self.reward_scale = check_reward_scale(reward_scale)
+        self.penalties = check_penalties({"los": los_penalty, "zone": zone_penalty, "separation": separation_penalty,
+                                          "terrain": terrain_penalty})
         self.config = cfg
         self.scenario = scenario
         self.action_mode = action_mode

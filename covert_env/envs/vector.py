@@ -11,10 +11,10 @@ from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
 from covert_env.envs import batch
-from covert_env.envs.arguments import int_arg
+from covert_env.envs.arguments import bool_arg, int_arg
 from covert_env.envs.recorder import CopyView, EpisodeRecorder
 from covert_env.envs.scene_pool import ScenePool
-from covert_env.envs.settings import EnvSettings
+from covert_env.envs.settings import EnvSettings, check_penalties, check_reward_scale
 from covert_env.metrics import moves_quantities, nearest_teammate
 from covert_env.reach import reach_table
 from covert_env.scenario import Scenario
@@ -103,7 +103,7 @@ class CovertSensingVectorEnv:
     * ``infos["final_state"]``: the ``state()`` rows ``(B, S)`` at the end of the episode, valid where
       ``infos["_final_obs"]`` is True.
 
-    Both keys are present only on steps where some copy ended (as in Gymnasium). No ``step()`` ever needs a
+    These keys are present only on steps where some copy ended (as in Gymnasium). No ``step()`` ever needs a
     manual ``reset()``.
 
     ``autoreset_mode=AutoresetMode.DISABLED`` turns this off: a copy whose episode ended keeps its last
@@ -132,7 +132,8 @@ class CovertSensingVectorEnv:
     ``autoreset_mode``: ``AutoresetMode.SAME_STEP`` (default) or ``AutoresetMode.DISABLED`` (see Autoreset).
     ``record``: keep every copy's current episode for the metrics (``trajectory(i)``,
     :class:`~covert_env.envs.recorder.EpisodeRecorder`; about ``n_slots * U * (path_samples + 4) * 16`` bytes per
-    copy, so off by default).
+    copy, so off by default). With same-step autoreset an ended episode is replaced by the next one within the
+    step that ends it: to score whole episodes, record with ``autoreset_mode=DISABLED`` (as the parallel env does).
 
     ## Reading a copy
 
@@ -178,8 +179,8 @@ class CovertSensingVectorEnv:
         self.config, self.action_mode, self.dict_obs = s.config, s.action_mode, s.dict_obs
         self.scenario_spec, self.random_starts = s.scenario, s.random_starts
         self.scene_pool, self.path_samples = s.scene_pool, s.path_samples
-        self.reward_scale, self.penalties = s.reward_scale, dict(s.penalties)
-        self.terminate_on_collision, self.max_cycles = s.terminate_on_collision, s.max_cycles
+        self._reward_scale, self._penalties = s.reward_scale, dict(s.penalties)
+        self._terminate, self.max_cycles = s.terminate_on_collision, s.max_cycles
         self.lattice, self.possible_agents, self.layout = s.lattice, list(s.possible_agents), s.layout
         self.single_observation_space, self.single_action_space = s.observation_space, s.action_space
         self.single_state_space = s.state_space
@@ -219,13 +220,47 @@ class CovertSensingVectorEnv:
     def episode_length(self) -> int:
         return min(self._max_cycles, self.config.n_slots)
 
+    @property
+    def reward_scale(self) -> float:
+        """The stage cost's divisor in the reward (validated on assignment, read at every step)."""
+        return self._reward_scale
+
+    @reward_scale.setter
+    def reward_scale(self, value) -> None:
+        self._reward_scale = check_reward_scale(value)
+
+    @property
+    def penalties(self) -> dict[str, float]:
+        """Penalty weights by term, read at every step. Assigning a dict validates it; item assignment
+        (``penalties["los"] = 2.0``) is live and not checked."""
+        return self._penalties
+
+    @penalties.setter
+    def penalties(self, value) -> None:
+        self._penalties = check_penalties(value)
+
+    @property
+    def terminate_on_collision(self) -> bool:
+        """End a copy's episode when two UAVs come closer than d_safe1 (validated on assignment)."""
+        return self._terminate
+
+    @terminate_on_collision.setter
+    def terminate_on_collision(self, value) -> None:
+        self._terminate = bool_arg("terminate_on_collision", value)
+
     # ------------------------------------------------------------------ API
     def reset(self, *, seed=None, options: dict | None = None):
         """Reset every copy (or those of ``options["reset_mask"]``); returns observations and infos (class
         docstring, Seeding)."""
+        if self._pool is None:
+            raise RuntimeError("reset() called after close()")
         b = self.num_envs
         # Options are checked before any generator changes: a refused call leaves the batch as it was.
         scene_seeds, mask = _reset_options(options, b)
+        if scene_seeds is not None and self.scenario_spec != "random":
+            flown = "the paper scenario" if self.scenario_spec == "paper" else "a given Scenario"
+            raise ValueError("reset(options={'scene_seed': ...}) picks random scenes: it needs scenario='random', "
+                             f"but this env flies {flown}")
         if mask is None:
             chosen = np.arange(b)
         else:
@@ -234,6 +269,8 @@ class CovertSensingVectorEnv:
                                  "their own generators: call a full reset(seed=...) first, and not with it")
             chosen = np.flatnonzero(mask)
             scene_seeds = None if scene_seeds is None else scene_seeds[chosen]
+            if chosen.size == 0:                  # nothing to reset: the batch as it is
+                return self._observation(self._obs_rows()), {key: val.copy() for key, val in self._last_infos.items()}
         if seed is not None:
             self.copy_seeds = _copy_seeds(seed, b)
             self._rngs = [gymnasium.utils.seeding.np_random(int(s))[0] for s in self.copy_seeds]
@@ -253,11 +290,12 @@ class CovertSensingVectorEnv:
 
     def step(self, actions):
         """One slot in every copy; returns ``(obs, rewards, terminations, truncations, infos)`` (class docstring)."""
-        if not self._started:
-            raise RuntimeError("step() called before reset()")
+        if not self._started or self._pool is None:
+            raise RuntimeError("step() called before reset() or after close()")
         if self._ended.any():
-            raise RuntimeError(f"step(): the episodes of copies {np.flatnonzero(self._ended).tolist()} ended and "
-                               "autoreset_mode is DISABLED; reset them (reset(options={'reset_mask': ...}))")
+            raise RuntimeError(f"step(): the episodes of copies {np.flatnonzero(self._ended).tolist()} ended "
+                               "(autoreset_mode DISABLED) or failed to reset; reset them "
+                               "(reset(options={'reset_mask': ...}))")
         c, pool, rows, k = self.config, self._pool, self._rows, self._k
         xy0, th0 = self._xy, self._theta
         q1, phi1 = pool.q[rows, k + 1], pool.phi[rows, k + 1]
@@ -337,10 +375,13 @@ class CovertSensingVectorEnv:
 
     def scene(self, i: int):
         """The scene copy i flies (``config``, ``terrain``, ``track``, ``name``), without starts."""
+        if not self._started or self._pool is None:
+            raise RuntimeError("scene(): the copies have scenes after reset() and before close()")
         return self._pool.cache(self._rows[i]).parts
 
     def scenario(self, i: int) -> Scenario:
         """The :class:`~covert_env.scenario.Scenario` of copy i's episode, with the starts actually flown."""
+        self.scene(i)                                        # the checks
         cache = self._pool.cache(self._rows[i])
         if not self._drawn[i]:
             return cache.seeded_scenario()
@@ -377,8 +418,14 @@ class CovertSensingVectorEnv:
         """Put copies ``idx`` at slot 0 of a new episode: scenes and starts drawn per copy (class docstring)."""
         c, pool = self.config, self._pool
         draw = self.random_starts or (self.scenario_spec == "random" and scene_seeds is None)
-        xy, theta = pool.draw_episodes(self._rows, idx, [self._rngs[j] for j in idx], scene_seeds, self.scene_pool,
-                                       draw, len(self.possible_agents))
+        try:
+            xy, theta = pool.draw_episodes(self._rows, idx, [self._rngs[j] for j in idx], scene_seeds,
+                                           self.scene_pool, draw, len(self.possible_agents))
+        except Exception:
+            # A scene that failed to build leaves these copies without one: they must be reset before a step.
+            self._rows[idx] = np.maximum(self._rows[idx], 0)
+            self._ended[idx] = True
+            raise
         rows = self._rows[idx]
         q, phi = pool.q[rows, 0], pool.phi[rows, 0]
         self._own = None
@@ -460,20 +507,23 @@ def _step_infos(k, quant, flagged, speed, terms, costs) -> dict[str, np.ndarray]
 
 
 def _copy_seeds(seed, b: int) -> np.ndarray:
-    """Per-copy seeds: from ``np.random.SeedSequence(seed)`` for an int, as given for a sequence of b ints."""
+    """Per-copy seeds: from ``np.random.SeedSequence(seed)`` for an int, as given for a sequence of b ints (any
+    size, as Gymnasium's seeding takes them: an int64 array, or an object array of Python ints beyond 2**63 - 1)."""
     if np.ndim(seed) == 0:
         return np.random.SeedSequence(int_arg("seed", seed, 0)).generate_state(b).astype(np.int64)
-    seeds = np.asarray([int_arg("seed", s, 0) for s in seed], dtype=np.int64)
-    if seeds.shape != (b,):
+    seeds = [int_arg("seed", s, 0) for s in seed]
+    if len(seeds) != b:
         raise ValueError(f"reset(seed=...) needs an int or {b} ints (one per copy), got {len(seeds)}")
-    return seeds
+    return np.array(seeds, dtype=np.int64 if max(seeds, default=0) < 2 ** 63 else object)
 
 
 def _reset_options(options: dict | None, b: int) -> tuple[np.ndarray | None, np.ndarray | None]:
     """``options["scene_seed"]`` as b ints and ``options["reset_mask"]`` as b bools (None without them); any other
     option is an error."""
+    if options is not None and not isinstance(options, dict):
+        raise TypeError(f"reset(options=...) must be a dict or None, got {type(options).__name__}")
     options = dict(options or {})
-    unknown = sorted(set(options) - {"scene_seed", "reset_mask"})
+    unknown = sorted(set(options) - {"scene_seed", "reset_mask"}, key=str)
     if unknown:
         raise ValueError(f"reset(): unknown option(s) {unknown}; the vector env knows 'scene_seed' and 'reset_mask'")
     mask = options.get("reset_mask")
@@ -485,12 +535,12 @@ def _reset_options(options: dict | None, b: int) -> tuple[np.ndarray | None, np.
 
 
 def _scene_seeds(seeds, b: int) -> np.ndarray | None:
-    """``options["scene_seed"]`` as b ints (None without it)."""
+    """``options["scene_seed"]`` as b ints >= 0 (None without it)."""
     if seeds is None:
         return None
     arr = np.broadcast_to(np.asarray(seeds), (b,)) if np.ndim(seeds) == 0 else np.asarray(seeds)
-    if arr.shape != (b,) or arr.dtype.kind not in "iu":
-        raise ValueError(f"options['scene_seed'] must be an int or {b} ints, got {seeds!r}")
+    if arr.shape != (b,) or arr.dtype.kind not in "iu" or (arr < 0).any():
+        raise ValueError(f"options['scene_seed'] must be an integer >= 0 or {b} of them (one per copy), got {seeds!r}")
     return arr
 
 
