@@ -95,6 +95,37 @@ def test_table_bounds_hold_against_exact_manoeuvres():
     assert np.median(m.length[ok] - lb[ok]) < 0.6
 
 
+
+def test_planner_stage_costs_are_the_models_stage_cost():
+    """One home for eq. 18: every planned stage cost is covert_env.cost.stage_cost of the planned manoeuvre
+    (bit for bit), and the planner's float32 disguise bound per node pair is -lambda times
+    covert_env.cost.disguise (eq. 11) to float32 rounding."""
+    from baselines.dp.lattice import StageCache
+    from covert_env.cost import disguise, stage_cost
+
+    c = Config()
+    sc = Scenario.paper(c)
+    tq, tp = targets(sc, 12)
+    pl = DPPlanner(c, sc.terrain)
+    start = to_world(zone_lattice(c)[[300]], tq[0, :2], tp[0])[0]
+    plan = pl.plan(start, float(tp[0]), tq, tp)
+    assert plan.status == "ok" and plan.depth == c.horizon
+    m = plan.manoeuvres()
+    pos = np.vstack([start[None], plan.waypoints])
+    al = uav_target_angle(pos, tq[:, :2], tp)
+    d = uav_target_distance(pos, tq[:, :2])
+    g = stage_cost(m.length, al[:-1], al[1:], d[:-1], d[1:], c.eta, c.lam)
+    np.testing.assert_array_equal(plan.stage_costs, g)
+    assert plan.cost == float(np.sum(g))
+    cache = StageCache(zone_lattice(c), pl.table, c.lam, c.eta, 4)
+    a, b = cache.stage(tq[1], tp[1]), cache.stage(tq[2], tp[2])
+    pair = cache.pair(a, b)
+    ref = -c.lam * disguise(a.alpha[:, None], b.alpha[None, :], a.d[:, None], b.d[None, :], c.eta)
+    assert pair.disguise.dtype == np.float32
+    # float32 inputs and arithmetic: a few ulps of values up to ~1.5e3.
+    np.testing.assert_allclose(pair.disguise, ref, rtol=0, atol=2e-3)
+
+
 # ------------------------------------------------------------------ exactness of the pruned recursion
 def test_inherited_dp_equals_dense_reference_on_the_paper_lattice():
     """At the default 2 m grid (577 nodes per stage) the pruned planner returns exactly the dense DP."""
