@@ -413,6 +413,40 @@ def test_team_keeps_d_safe2_from_a_tall_pole_where_a_planner_without_eq_3_does_n
     assert sum(r["terrain_violations"] for r in episode_metrics(old, sc.terrain, c)) > 0
 
 
+
+def test_dense_bound_threads_change_nothing(monkeypatch):
+    """COVERT_DP_THREADS splits the dense bound's targets between threads: a team rollout (negotiation
+    included) plans the same nodes at the same costs with 1 and 3 threads, and the threads did run."""
+    import threading
+
+    import baselines.dp.recursion as recursion
+
+    def rollout_plans():
+        c = Config()
+        sc = Scenario.paper(c, 3)
+        team, eng, out = DPTeamPlanner(DPPlanner(c, sc.terrain)), Engine(sc), []
+        for _ in range(6):
+            plan = team.plan_engine(eng)
+            out.append([(p.nodes.tolist(), repr(p.cost)) for p in plan.plans])   # repr: NaN == NaN
+            eng.step(waypoints=plan.waypoints, infeasible=plan.infeasible)
+        return out
+
+    serial = rollout_plans()
+    seen = set()
+    run_rows = recursion._map
+
+    def spy(f, tasks):
+        return run_rows(lambda t: (seen.add(threading.get_ident()), f(t))[1], tasks)
+
+    monkeypatch.setattr(recursion, "BOUND_THREADS", 3)
+    monkeypatch.setattr(recursion, "_map", spy)
+    assert rollout_plans() == serial
+    assert len(seen) == 3
+    with pytest.raises(ValueError, match="COVERT_DP_THREADS"):
+        monkeypatch.setenv("COVERT_DP_THREADS", "0")
+        recursion._bound_threads()
+
+
 # ------------------------------------------------------------------------------------------ team
 def test_team_plans_are_conflict_free_at_slots_and_along_manoeuvres():
     c = Config()
