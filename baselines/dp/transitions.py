@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from baselines.dp.path_checks import PathChecker, separated
+from baselines.dp.path_checks import PathChecker, record_circles, separated
 from baselines.dp.states import Layer, Problem, SolveCounts
 from baselines.dp.table import TWO_PI
 from covert_env.config import Config
@@ -47,7 +47,9 @@ def solve_transitions(config: Config, paths: PathChecker, prob: Problem, j: int,
         ok[ok] = paths.clearance.manoeuvres_clear(m, ok)           # eq. 3 along the path
     extra = paths.penalties(m, ok, prob.path, j, len(prob.stages), prob.path_soft)
     if prob.avoid is not None and ok.any():
-        ok[ok] = separated(m, ok, prob.avoid, prob.avoid_dist, uav, j)
+        if j not in prob.avoid_circles:
+            prob.avoid_circles[j] = record_circles(prob.avoid, prob.avoid_dist, j)
+        ok[ok] = separated(m, ok, prob.avoid, prob.avoid_dist, uav, j, prob.avoid_circles[j])
     g = transition_costs(c, m, ok, alpha_from, d_from, st.alpha[nodes], st.d[nodes])
     return m, g, extra
 
