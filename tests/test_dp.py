@@ -416,7 +416,7 @@ def test_team_keeps_d_safe2_from_a_tall_pole_where_a_planner_without_eq_3_does_n
 
 def test_dense_bound_threads_change_nothing(monkeypatch):
     """COVERT_DP_THREADS splits the dense bound's targets between threads: a team rollout (negotiation
-    included) plans the same nodes at the same costs with 1 and 3 threads, and the threads did run."""
+    included) plans the same nodes at the same costs with 1 and 3 threads, and several threads did run."""
     import threading
 
     import baselines.dp.recursion as recursion
@@ -441,7 +441,7 @@ def test_dense_bound_threads_change_nothing(monkeypatch):
     monkeypatch.setattr(recursion, "BOUND_THREADS", 3)
     monkeypatch.setattr(recursion, "_map", spy)
     assert rollout_plans() == serial
-    assert len(seen) == 3
+    assert len(seen) >= 2                      # the pool makes its threads as the work needs them
     with pytest.raises(ValueError, match="COVERT_DP_THREADS"):
         monkeypatch.setenv("COVERT_DP_THREADS", "0")
         recursion._bound_threads()
