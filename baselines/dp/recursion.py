@@ -46,8 +46,9 @@ def _bound_threads() -> int:
 
 
 #: Threads that compute the inherited variant's dense bound (read once, from ``COVERT_DP_THREADS``). A
-#: team replan spends about a third of its time there, in large numpy operations that release the GIL:
-#: 2 threads use both cores of a 2-core machine for it (the CPU time is unchanged, the wall time drops).
+#: team replan spends about a third of its time there, in large numpy operations that release the GIL, so
+#: 2 threads can use both cores of an idle 2-core machine for it; on a busy machine they only add switching
+#: (a 3-UAV replan's wall time rose from 70 to 85 ms at load 4.5), hence the default of 1.
 BOUND_THREADS = _bound_threads()
 _POOL: list = []
 
@@ -62,7 +63,8 @@ def _map(f, tasks) -> list:
 
 
 # A forked child has the pool object but not its threads: it makes its own on first use.
-os.register_at_fork(after_in_child=_POOL.clear)
+if hasattr(os, "register_at_fork"):                 # POSIX only; elsewhere processes are spawned
+    os.register_at_fork(after_in_child=_POOL.clear)
 
 
 class ForwardRecursion:
