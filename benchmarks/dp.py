@@ -118,9 +118,10 @@ def compare(rev: str, slots: int, reps: int, sizes=(1, 3, 5), threads: int = 1) 
         subprocess.run(["tar", "-x", "-C", old], input=archive.stdout, check=True)
         paper = [u for u in sizes if COMPARE_SCENES.get(u, 11) < 0]
         rand = [u for u in sizes if COMPARE_SCENES.get(u, 11) >= 0]
-        print(f"\nSame-run comparison with {rev} (2 m grid; U = {paper}: paper scene, {slots - 1} replans; "
-              f"U = {rand}: random scene 11, {max(4, slots // 2)} replans; x {reps} alternating runs each; ms per "
-              f"team replan, negotiation included; new: {threads} bound thread(s)):")
+        scenes = ([f"U = {paper}: paper scene, {slots - 1} replans"] if paper else []) + (
+            [f"U = {rand}: random scene 11, {max(4, slots // 2)} replans"] if rand else [])
+        print(f"\nSame-run comparison with {rev} (2 m grid; {'; '.join(scenes)}; x {reps} alternating runs each; "
+              f"ms per team replan, negotiation included; new: {threads} bound thread(s)):")
         print(f"  {'U':>2} {'new cpu med':>11} {'p90':>6} {'wall med':>9} {'p90':>6} | {'old cpu med':>11} {'p90':>6} "
               f"{'wall med':>9} {'p90':>6} | {'old/new cpu':>11} {'wall':>6} {'same plans':>10}")
         for u in sizes:
