@@ -15,13 +15,14 @@ The first replan of a run (cold caches: the lookup table, all stage pairs) is re
 others reuse N - 1 stages. The machine's load average is printed: timings on a shared machine are upper
 bounds.
 
-Then (``--compare REV``, default b549364, the planner before the speed-ups of issue 12; ``--compare ''``
-skips it): the same rollouts (paper scene, 2 m grid, 1 and 3 UAVs) with this checkout and with REV's code
-(``git archive``), each in a fresh subprocess, alternating, ``--reps`` times; the CPU-time ratio old / new
-is the figure to quote on a shared machine (both sides suffer the same load). Then team slot times for
-U = 5 and 8 (random scene: the paper scene has 3 UAVs) with the negotiation's work counters, and
-(``--profile``) where a 3-UAV replan's time goes. ``--optimality`` adds the small-lattice comparison with
-the brute force (tests/test_dp.py).
+Then (``--compare REV``, default b549364, the planner before the speed-ups of issue 12; ``--compare ''`` skips
+it): the same rollouts (2 m grid; 1 and 3 UAVs on the paper scene, 5 on random scene 11; ``--compare-uavs``
+adds 8, slow on the old side: its safety layer tries every priority order) with this checkout and with REV's
+code (``git archive``), each in a fresh subprocess, alternating, ``--reps`` times; the CPU-time ratio old /
+new is the figure to quote on a shared machine (both sides suffer the same load), the wall-time ratio the one
+for ``--threads 2`` (the dense bound on two threads, ``COVERT_DP_THREADS``) on idle cores. Then team slot
+times for U = 5 and 8 with the negotiation's work counters, and (``--profile``) where a 3-UAV replan's time
+goes. ``--optimality`` adds the small-lattice comparison with the brute force (tests/test_dp.py).
 """
 
 from __future__ import annotations
@@ -94,45 +95,59 @@ print(json.dumps(dict(cpu=cpu[1:], wall=wall[1:], nodes=nodes, work=getattr(plan
 """
 
 
-def _worker(path: str, u: int, slots: int, seed: int = -1) -> dict:
-    env = dict(os.environ, PYTHONPATH=path, OMP_NUM_THREADS="1")
+def _worker(path: str, u: int, slots: int, seed: int = -1, threads: int = 1) -> dict:
+    env = dict(os.environ, PYTHONPATH=path, OMP_NUM_THREADS="1", COVERT_DP_THREADS=str(threads))
     out = subprocess.run([sys.executable, "-c", ROLLOUT_WORKER, str(u), str(slots), str(seed)], env=env,
                          capture_output=True, text=True, check=True, cwd=tempfile.gettempdir())
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-def compare(rev: str, slots: int, reps: int) -> None:
-    """Replan CPU / wall times of this checkout and of ``rev`` in the same run, alternating subprocesses."""
+#: Team sizes of the same-run comparison and their scenes: the paper scene has 3 UAVs' starts; U = 5 and
+#: 8 fly random scene 11 (as :func:`large_teams`).
+COMPARE_SCENES = {1: -1, 3: -1, 5: 11, 8: 11}
+
+
+def compare(rev: str, slots: int, reps: int, sizes=(1, 3, 5), threads: int = 1) -> None:
+    """Replan CPU / wall times of this checkout and of ``rev`` in the same run, alternating subprocesses.
+
+    ``threads``: COVERT_DP_THREADS of this checkout's runs (the old planner has one thread).
+    """
     root = Path(__file__).resolve().parents[1]
     with tempfile.TemporaryDirectory() as old:
         archive = subprocess.run(["git", "-C", str(root), "archive", rev], capture_output=True, check=True)
         subprocess.run(["tar", "-x", "-C", old], input=archive.stdout, check=True)
-        print(f"\nSame-run comparison with {rev} (paper scene, 2 m grid, {slots - 1} replans x {reps} "
-              f"alternating runs each; ms per team replan, negotiation included):")
+        paper = [u for u in sizes if COMPARE_SCENES.get(u, 11) < 0]
+        rand = [u for u in sizes if COMPARE_SCENES.get(u, 11) >= 0]
+        scenes = ([f"U = {paper}: paper scene, {slots - 1} replans"] if paper else []) + (
+            [f"U = {rand}: random scene 11, {max(4, slots // 2)} replans"] if rand else [])
+        print(f"\nSame-run comparison with {rev} (2 m grid; {'; '.join(scenes)}; x {reps} alternating runs each; "
+              f"ms per team replan, negotiation included; new: {threads} bound thread(s)):")
         print(f"  {'U':>2} {'new cpu med':>11} {'p90':>6} {'wall med':>9} {'p90':>6} | {'old cpu med':>11} {'p90':>6} "
-              f"{'wall med':>9} {'p90':>6} | {'old/new cpu':>11} {'same plans':>10}")
-        for u in (1, 3):
+              f"{'wall med':>9} {'p90':>6} | {'old/new cpu':>11} {'wall':>6} {'same plans':>10}")
+        for u in sizes:
+            seed = COMPARE_SCENES.get(u, 11)
+            n = slots if seed < 0 else max(4, slots // 2) + 1
             runs = {"new": [], "old": []}
             for _ in range(reps):
-                runs["new"].append(_worker(str(root), u, slots))
-                runs["old"].append(_worker(old, u, slots))
+                runs["new"].append(_worker(str(root), u, n, seed, threads))
+                runs["old"].append(_worker(old, u, n, seed))
             fig = {}
             for k, rs in runs.items():
                 cpu = np.concatenate([r["cpu"] for r in rs]) * 1e3
                 wall = np.concatenate([r["wall"] for r in rs]) * 1e3
                 fig[k] = (np.median(cpu), np.percentile(cpu, 90), np.median(wall), np.percentile(wall, 90))
             same = all(a["nodes"] == b["nodes"] for a, b in zip(runs["new"], runs["old"], strict=True))
-            n, o = fig["new"], fig["old"]
-            print(f"  {u:2d} {n[0]:11.1f} {n[1]:6.1f} {n[2]:9.1f} {n[3]:6.1f} | {o[0]:11.1f} {o[1]:6.1f} {o[2]:9.1f} "
-                  f"{o[3]:6.1f} | {o[0] / n[0]:11.2f} {str(same):>10}", flush=True)
+            nw, o = fig["new"], fig["old"]
+            print(f"  {u:2d} {nw[0]:11.1f} {nw[1]:6.1f} {nw[2]:9.1f} {nw[3]:6.1f} | {o[0]:11.1f} {o[1]:6.1f} "
+                  f"{o[2]:9.1f} {o[3]:6.1f} | {o[0] / nw[0]:11.2f} {o[2] / nw[2]:6.2f} {str(same):>10}", flush=True)
 
 
-def large_teams(sizes, slots: int, seed: int = 11) -> None:
+def large_teams(sizes, slots: int, seed: int = 11, threads: int = 1) -> None:
     """Team slot times (CPU and wall) for larger U on a random scene, with the negotiation's work."""
     root = str(Path(__file__).resolve().parents[1])
     print(f"\nLarger teams (random scene {seed}, 2 m grid, {slots - 1} slots; ms per team slot):")
     for u in sizes:
-        r = _worker(root, u, slots, seed)
+        r = _worker(root, u, slots, seed, threads)
         cpu, wall = np.array(r["cpu"]) * 1e3, np.array(r["wall"]) * 1e3
         print(f"  U = {u}: cpu median {np.median(cpu):7.1f}, p90 {np.percentile(cpu, 90):7.1f}, max {cpu.max():7.1f}; "
               f"wall median {np.median(wall):7.1f}, max {wall.max():7.1f}; last slot's work {r['work']}", flush=True)
@@ -159,7 +174,8 @@ def profile(slots: int) -> None:
         setattr(owner, name, g)
         return owner, name, f
 
-    patched = [timed(recursion.ForwardRecursion, "_node_bounds", "table bounds (dense, per UAV)"),
+    patched = [timed(recursion.ForwardRecursion, "_node_bounds", "table bounds (dense, per UAV) + round 0"),
+               timed(recursion, "first_round", "round 0 candidates (in the bound chunks)"),
                timed(recursion, "select_per_node", "selection incl. exact solves"),
                timed(transitions, "solve_manoeuvre", "exact manoeuvre solves (eq. 29)"),
                timed(transitions, "separated", "negotiation: separation along paths"),
@@ -189,7 +205,7 @@ def profile(slots: int) -> None:
     print(f"\nWhere a 3-UAV team replan's CPU time goes (paper scene, 2 m grid, mean of {n}; nested rows indented):")
     print(f"  {'total':44s} {total / n * 1e3:6.1f} ms")
     for label, v in sorted(acc.items(), key=lambda x: -x[1]):
-        indent = "    " if label.startswith(("exact", "negotiation: sep")) else "  "
+        indent = "    " if label.startswith(("exact", "negotiation: sep", "round 0")) else "  "
         print(f"{indent}{label:{46 - len(indent)}s} {v / n * 1e3:6.1f} ms")
 
 
@@ -239,6 +255,11 @@ def main(argv=None) -> int:
     ap.add_argument("--optimality", action="store_true", help="also run the brute-force comparison")
     ap.add_argument("--compare", default="b549364", help="git revision to time in the same run ('' to skip)")
     ap.add_argument("--reps", type=int, default=3, help="alternating runs per side in the comparison")
+    ap.add_argument("--compare-uavs", type=int, nargs="+", default=[1, 3, 5],
+                    help="team sizes of the comparison (1, 3: paper scene; others: random scene 11). U = 8 is "
+                         "opt-in: b549364's safety layer tries every priority order, minutes per slot at U = 8")
+    ap.add_argument("--threads", type=int, default=1,
+                    help="COVERT_DP_THREADS of this checkout in the comparison and large-team runs")
     ap.add_argument("--large", type=int, nargs="*", default=[5, 8], help="larger team sizes to time")
     ap.add_argument("--profile", action="store_true", help="also show where a 3-UAV replan's time goes")
     args = ap.parse_args(argv)
@@ -256,9 +277,9 @@ def main(argv=None) -> int:
                       f"{r['median_ms']:10.1f} {r['p90_ms']:8.1f} {r['cpu_median_ms']:8.1f} "
                       f"{r['trans_per_s']:14.3g} {r['exact_per_replan']:13.0f} {r['rounds']:7.2f}", flush=True)
     if args.compare:
-        compare(args.compare, args.slots + 1, args.reps)
+        compare(args.compare, args.slots + 1, args.reps, args.compare_uavs, args.threads)
     if args.large:
-        large_teams(args.large, max(4, args.slots // 2) + 1)
+        large_teams(args.large, max(4, args.slots // 2) + 1, threads=args.threads)
     if args.profile:
         profile(args.slots + 1)
     print(f"load average at end: {os.getloadavg()[0]:.2f}")

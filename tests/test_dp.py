@@ -95,6 +95,37 @@ def test_table_bounds_hold_against_exact_manoeuvres():
     assert np.median(m.length[ok] - lb[ok]) < 0.6
 
 
+
+def test_planner_stage_costs_are_the_models_stage_cost():
+    """One home for eq. 18: every planned stage cost is covert_env.cost.stage_cost of the planned manoeuvre
+    (bit for bit), and the planner's float32 disguise bound per node pair is -lambda times
+    covert_env.cost.disguise (eq. 11) to float32 rounding."""
+    from baselines.dp.lattice import StageCache
+    from covert_env.cost import disguise, stage_cost
+
+    c = Config()
+    sc = Scenario.paper(c)
+    tq, tp = targets(sc, 12)
+    pl = DPPlanner(c, sc.terrain)
+    start = to_world(zone_lattice(c)[[300]], tq[0, :2], tp[0])[0]
+    plan = pl.plan(start, float(tp[0]), tq, tp)
+    assert plan.status == "ok" and plan.depth == c.horizon
+    m = plan.manoeuvres()
+    pos = np.vstack([start[None], plan.waypoints])
+    al = uav_target_angle(pos, tq[:, :2], tp)
+    d = uav_target_distance(pos, tq[:, :2])
+    g = stage_cost(m.length, al[:-1], al[1:], d[:-1], d[1:], c.eta, c.lam)
+    np.testing.assert_array_equal(plan.stage_costs, g)
+    assert plan.cost == float(np.sum(g))
+    cache = StageCache(zone_lattice(c), pl.table, c.lam, c.eta, 4)
+    a, b = cache.stage(tq[1], tp[1]), cache.stage(tq[2], tp[2])
+    pair = cache.pair(a, b)
+    ref = -c.lam * disguise(a.alpha[:, None], b.alpha[None, :], a.d[:, None], b.d[None, :], c.eta)
+    assert pair.disguise.dtype == np.float32
+    # float32 inputs and arithmetic: a few ulps of values up to ~1.5e3.
+    np.testing.assert_allclose(pair.disguise, ref, rtol=0, atol=2e-3)
+
+
 # ------------------------------------------------------------------ exactness of the pruned recursion
 def test_inherited_dp_equals_dense_reference_on_the_paper_lattice():
     """At the default 2 m grid (577 nodes per stage) the pruned planner returns exactly the dense DP."""
@@ -380,6 +411,40 @@ def test_team_keeps_d_safe2_from_a_tall_pole_where_a_planner_without_eq_3_does_n
     without.paths.clearance = TerrainClearance(Terrain(()), c.altitude, c.d_safe2, without.path_samples)
     old = _fly(sc, without, 20)
     assert sum(r["terrain_violations"] for r in episode_metrics(old, sc.terrain, c)) > 0
+
+
+
+def test_dense_bound_threads_change_nothing(monkeypatch):
+    """COVERT_DP_THREADS splits the dense bound's targets between threads: a team rollout (negotiation
+    included) plans the same nodes at the same costs with 1 and 3 threads, and several threads did run."""
+    import threading
+
+    import baselines.dp.recursion as recursion
+
+    def rollout_plans():
+        c = Config()
+        sc = Scenario.paper(c, 3)
+        team, eng, out = DPTeamPlanner(DPPlanner(c, sc.terrain)), Engine(sc), []
+        for _ in range(6):
+            plan = team.plan_engine(eng)
+            out.append([(p.nodes.tolist(), repr(p.cost)) for p in plan.plans])   # repr: NaN == NaN
+            eng.step(waypoints=plan.waypoints, infeasible=plan.infeasible)
+        return out
+
+    serial = rollout_plans()
+    seen = set()
+    run_rows = recursion._map
+
+    def spy(f, tasks):
+        return run_rows(lambda t: (seen.add(threading.get_ident()), f(t))[1], tasks)
+
+    monkeypatch.setattr(recursion, "BOUND_THREADS", 3)
+    monkeypatch.setattr(recursion, "_map", spy)
+    assert rollout_plans() == serial
+    assert len(seen) >= 2                      # the pool makes its threads as the work needs them
+    with pytest.raises(ValueError, match="COVERT_DP_THREADS"):
+        monkeypatch.setenv("COVERT_DP_THREADS", "0")
+        recursion._bound_threads()
 
 
 # ------------------------------------------------------------------------------------------ team

@@ -61,47 +61,62 @@ class Stage:
 class StagePair:
     """Quantities of every node pair between two consecutive stages that do not depend on the UAV.
 
-    disguise: float32 (L, L), ``-lambda (eta |d alpha| + |d d|)``, the disguise part of eq. 18.
-    table_base: float32 (L, L), :meth:`ManoeuvreTable.base_index` of b - a.
-    heading_free_bound: float32 (L, L), ``disguise + chord`` (inf beyond V_max delta), a lower bound on c_ab
-        whatever the heading (built on demand).
+    disguise: float32 (L, L) [source a, target b], ``-lambda (eta |d alpha| + |d d|)``, the disguise part of
+        eq. 18 (:func:`covert_env.cost.disguise` in float32: it feeds bounds only, exact costs come from
+        :func:`covert_env.cost.stage_cost`).
+    table_base: float32 (L, L) [a, b], :meth:`ManoeuvreTable.base_index` of b - a.
+    heading_free_bound: float32 (L, L) [a, b], ``disguise + chord`` (inf beyond V_max delta), a lower bound
+        on c_ab whatever the heading.
+
+    The recursion scans transitions per target node, so the arrays are built target-major (:meth:`by_target`);
+    the source-major views above are their transposes, made on first use (binned headings, cost-to-go).
     """
 
-    __slots__ = ("disguise", "table_base", "_with_penalty", "_heading_free_bound", "_chord", "_reach",
-                 "_by_target")
+    __slots__ = ("_base_t", "_disguise_t", "_chord_t", "_reach", "_with_penalty", "_heading_free_bound",
+                 "_table_base", "_disguise")
 
     def __init__(self, a: Stage, b: Stage, lam: float, eta: float, table: ManoeuvreTable):
         # Everything here feeds bounds only (exact costs are recomputed in float64 from the nodes' alpha
-        # and d), so float32 throughout: half the memory traffic of the S x S arrays.
+        # and d), so float32 throughout: half the memory traffic of the S x S arrays. Element by element the
+        # same arithmetic as source-major arrays, laid out [target b, source a].
         f = np.float32
-        dx = b.xy[None, :, 0].astype(f) - a.xy[:, None, 0].astype(f)
-        dy = b.xy[None, :, 1].astype(f) - a.xy[:, None, 1].astype(f)
+        dx = b.xy[:, None, 0].astype(f) - a.xy[None, :, 0].astype(f)
+        dy = b.xy[:, None, 1].astype(f) - a.xy[None, :, 1].astype(f)
         chord = np.hypot(dx, dy)
         # alpha lies in (-pi, pi], so the difference is in (-2 pi, 2 pi) and |wrap| = min(|x|, 2 pi - |x|).
-        dal = np.abs(b.alpha.astype(f)[None, :] - a.alpha.astype(f)[:, None])
+        dal = np.abs(b.alpha.astype(f)[:, None] - a.alpha.astype(f)[None, :])
         np.minimum(dal, f(TWO_PI) - dal, out=dal)
         dal *= f(eta)
-        dal += np.abs(b.d.astype(f)[None, :] - a.d.astype(f)[:, None])
+        dal += np.abs(b.d.astype(f)[:, None] - a.d.astype(f)[None, :])
         dal *= f(-lam)
-        self.disguise = dal
-        self.table_base = table.base_index(None, chord, np.arctan2(dy, dx))
-        self._chord, self._reach = chord, table.reach
-        self._heading_free_bound = None
+        self._disguise_t = dal
+        self._base_t = table.base_index(None, chord, np.arctan2(dy, dx))
+        self._chord_t, self._reach = chord, table.reach
+        self._heading_free_bound = self._table_base = self._disguise = None
         self._with_penalty: dict = {}
-        self._by_target = None
 
     def by_target(self) -> tuple[np.ndarray, np.ndarray]:
-        """``(table_base, disguise)`` transposed to (target b, source a), C-contiguous: the recursion scans
-        transitions column by column (per target node), which is then a contiguous row."""
-        if self._by_target is None:
-            self._by_target = (np.ascontiguousarray(self.table_base.T), np.ascontiguousarray(self.disguise.T))
-        return self._by_target
+        """``(table_base, disguise)`` laid out [target b, source a], C-contiguous: a target's transitions are
+        one contiguous row."""
+        return self._base_t, self._disguise_t
+
+    @property
+    def table_base(self) -> np.ndarray:
+        if self._table_base is None:
+            self._table_base = np.ascontiguousarray(self._base_t.T)
+        return self._table_base
+
+    @property
+    def disguise(self) -> np.ndarray:
+        if self._disguise is None:
+            self._disguise = np.ascontiguousarray(self._disguise_t.T)
+        return self._disguise
 
     @property
     def heading_free_bound(self) -> np.ndarray:
         if self._heading_free_bound is None:
-            self._heading_free_bound = np.where(self._chord <= self._reach, self.disguise + self._chord,
-                                                np.inf).astype(np.float32)
+            bound = np.where(self._chord_t <= self._reach, self._disguise_t + self._chord_t, np.inf)
+            self._heading_free_bound = np.ascontiguousarray(bound.astype(np.float32).T)
         return self._heading_free_bound
 
     def disguise_plus(self, penalty: np.ndarray, by_target: bool = False) -> np.ndarray:
@@ -111,7 +126,7 @@ class StagePair:
         out = self._with_penalty.get(key)
         if out is None:
             if by_target:
-                out = self.by_target()[1] + penalty.astype(np.float32)[:, None]
+                out = self._disguise_t + penalty.astype(np.float32)[:, None]
             else:
                 out = self.disguise + penalty.astype(np.float32)[None, :]
             if len(self._with_penalty) >= 4:

@@ -30,7 +30,7 @@ from covert_env.terrain import Terrain
 from covert_env.visibility import line_of_sight, shadow_union_cfg
 from covert_env.zone import in_feasible_zone
 
-__all__ = ["FALLBACK_PENALTY", "PathChecker", "PathContext", "SHADOW_MARGIN", "separated"]
+__all__ = ["FALLBACK_PENALTY", "PathChecker", "PathContext", "SHADOW_MARGIN", "record_circles", "separated"]
 
 #: Growth (m) of the shadows used for ``check_path``: shadows equal the blocked set up to ~1e-8 m at their
 #: boundary (tests/test_visibility.py checks 1 cm); a point within 1 cm of a shadow counts as blocked.
@@ -131,12 +131,33 @@ class PathChecker:
         return geom
 
 
+def record_circles(avoid: np.ndarray, avoid_dist: float, j: int) -> tuple:
+    """What :func:`separated` needs from the records alone at stage j (the same for every manoeuvre tested
+    against them, so a problem computes it once per stage): the records' samples after the start
+    ``rec`` (U, M, P - 1, 2), which records exist ``has`` (U, M), the first and last sample of every run
+    of ``SEPARATION_RUN`` samples, and each run's bounding circle (centre, radius + ``avoid_dist`` + 1 um).
+    """
+    rec = avoid[:, :, j, 1:]                        # (U, M, P - 1, 2): sample 0 is the slot's start
+    has = ~np.isnan(rec[:, :, -1, 0])               # (U, M)
+    p = rec.shape[-2] + 1
+    runs = np.array_split(np.arange(p - 1), max(1, (p - 1) // SEPARATION_RUN))
+    cut = np.array([r[0] for r in runs])
+    last = np.array([r[-1] for r in runs])
+    if not has.any():
+        return rec, has, cut, last, None, None
+    centre = np.stack([rec[:, :, r].mean(axis=2) for r in runs], axis=2)        # (U, M, R, 2)
+    radius = np.stack([np.hypot(*(rec[:, :, r] - centre[:, :, h, None]).transpose(3, 0, 1, 2)).max(axis=2)
+                       for h, r in enumerate(runs)], axis=2) + (avoid_dist + 1e-6)  # (U, M, R)
+    return rec, has, cut, last, centre, radius
+
+
 def separated(m: Manoeuvre, ok: np.ndarray, avoid: np.ndarray, avoid_dist: float, uav: np.ndarray,
-              j: int) -> np.ndarray:
+              j: int, circles: tuple | None = None) -> np.ndarray:
     """For feasible manoeuvres into stage j: at least ``avoid_dist`` from every avoided path, sample by sample.
 
     ``avoid``: (U, M, N, P, 2) other UAVs' recorded path samples per UAV of the batch (NaN: none);
-    ``uav``: the batch UAV of every manoeuvre.
+    ``uav``: the batch UAV of every manoeuvre; ``circles``: :func:`record_circles` of these records at stage j
+    if already computed.
 
     At constant speed the sample at fraction f lies within ell f of the start and ell (1 - f) of the goal
     (a lens), so an obstacle sample farther than avoid_dist from that lens cannot be too close. The test
@@ -146,10 +167,9 @@ def separated(m: Manoeuvre, ok: np.ndarray, avoid: np.ndarray, avoid_dist: float
     that last step, so rounding can only keep a pair for it: the result is the sample-by-sample test's.
     """
     out = np.ones(int(ok.sum()), bool)
+    rec, has, cut, last, centre, radius = circles if circles is not None else record_circles(avoid, avoid_dist, j)
     # Records exist only at the stages where conflicts were found: elsewhere there is nothing to check.
-    rec = avoid[:, :, j, 1:]                        # (U, M, P - 1, 2): sample 0 is the slot's start
-    has = ~np.isnan(rec[:, :, -1, 0])               # (U, M)
-    if not has.any():
+    if centre is None:
         return out
     sel = np.flatnonzero(ok)
     t, o = np.nonzero(has[uav[sel]])                # (manoeuvre, record) pairs of the same batch UAV
@@ -161,14 +181,8 @@ def separated(m: Manoeuvre, ok: np.ndarray, avoid: np.ndarray, avoid_dist: float
     start = m.start.reshape(-1, 2)[sel]
     goal = m.goal.reshape(-1, 2)[sel]
     ell = np.asarray(m.length).reshape(-1)[sel]
-    runs = np.array_split(np.arange(p - 1), max(1, (p - 1) // SEPARATION_RUN))
-    cut = np.array([r[0] for r in runs])
-    last = np.array([r[-1] for r in runs])
     owner = uav[sel][t]
-    # Bounding circle of every run of every record (few), then every (manoeuvre, record, run) at once.
-    centre = np.stack([rec[:, :, r].mean(axis=2) for r in runs], axis=2)        # (U, M, R, 2)
-    radius = np.stack([np.hypot(*(rec[:, :, r] - centre[:, :, h, None]).transpose(3, 0, 1, 2)).max(axis=2)
-                       for h, r in enumerate(runs)], axis=2) + slack             # (U, M, R)
+    # Every (manoeuvre, record, run) against the run's bounding circle at once.
     c = centre[owner, o]                                                         # (K, R, 2)
     rad = radius[owner, o]
     el = ell[t][:, None]
@@ -178,7 +192,7 @@ def separated(m: Manoeuvre, ok: np.ndarray, avoid: np.ndarray, avoid_dist: float
     if pair.size == 0:
         return out
     # Every sample of the close runs against the lens.
-    width = max(len(r) for r in runs)
+    width = int((last - cut).max()) + 1
     k = cut[run][:, None] + np.arange(width)[None]                               # (K', C) sample index
     valid = k <= last[run][:, None]
     k = np.minimum(k, p - 2)

@@ -10,11 +10,14 @@ Transitions are bounded through the manoeuvre table and solved exactly only wher
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 
 from baselines.dp.lattice import StageCache
 from baselines.dp.path_checks import PathChecker
-from baselines.dp.selection import BOUND_TOL, nonzero_indices, select_per_bin, select_per_node
+from baselines.dp.selection import BOUND_TOL, first_round, nonzero_indices, select_per_bin, select_per_node
 from baselines.dp.states import Layer, Problem, SolveCounts
 from baselines.dp.table import ManoeuvreTable
 from baselines.dp.transitions import SolvedTransitions, solve_transitions
@@ -28,6 +31,40 @@ OPEN_ROUNDS_CONSTRAINED = 2
 CHUNK = 1 << 22
 #: Entries per chunk of the inherited variant's bound passes (256 KB of int32 indices: stays in L2).
 BOUND_CHUNK = 1 << 16
+
+
+def _bound_threads() -> int:
+    """Threads for the dense bound: ``COVERT_DP_THREADS`` (default 1: the caller's thread only)."""
+    raw = os.environ.get("COVERT_DP_THREADS", "1")
+    try:
+        n = int(raw)
+    except ValueError:
+        n = 0
+    if not 1 <= n <= 64:
+        raise ValueError(f"COVERT_DP_THREADS must be an integer in [1, 64], got {raw!r}")
+    return n
+
+
+#: Threads that compute the inherited variant's dense bound (read once, from ``COVERT_DP_THREADS``). A
+#: team replan spends about a third of its time there, in large numpy operations that release the GIL, so
+#: 2 threads can use both cores of an idle 2-core machine for it; on a busy machine they only add switching
+#: (a 3-UAV replan's wall time rose from 70 to 85 ms at load 4.5), hence the default of 1.
+BOUND_THREADS = _bound_threads()
+_POOL: list = []
+
+
+def _map(f, tasks) -> list:
+    """``[f(t) for t in tasks]``, on ``BOUND_THREADS`` threads (one pool per process, made on first use)."""
+    if BOUND_THREADS == 1 or len(tasks) == 1:
+        return [f(t) for t in tasks]
+    if not _POOL:
+        _POOL.append(ThreadPoolExecutor(BOUND_THREADS, thread_name_prefix="dp-bounds"))
+    return list(_POOL[0].map(f, tasks))
+
+
+# A forked child has the pool object but not its threads: it makes its own on first use.
+if hasattr(os, "register_at_fork"):                 # POSIX only; elsewhere processes are spawned
+    os.register_at_fork(after_in_child=_POOL.clear)
 
 
 class ForwardRecursion:
@@ -93,8 +130,9 @@ class ForwardRecursion:
         solved = SolvedTransitions(self.config, self.paths, len(self.lattice), prob, layer, j, counts)
         pen = prob.penalties[j].astype(np.float32)
         if bins == 1:
-            lb, rowmap = self._node_bounds(pair, pen, layer, upper_bound, cost_to_go_j, counts)
-            select_per_node(lb, rowmap, solved, OPEN_ROUNDS_CONSTRAINED if prob.avoid is not None else None)
+            lb, rowmap, colmin, first = self._node_bounds(pair, pen, layer, upper_bound, cost_to_go_j, counts)
+            select_per_node(lb, rowmap, colmin, first, solved,
+                            OPEN_ROUNDS_CONSTRAINED if prob.avoid is not None else None)
         else:
             rows, nodes, bounds, cells = self._state_bounds(pair, pen, layer, upper_bound, cost_to_go_j, counts)
             select_per_bin(self.table, len(self.lattice), rows, nodes, bounds, cells, layer, bins, solved,
@@ -104,9 +142,11 @@ class ForwardRecursion:
     def _node_bounds(self, pair, pen, layer: Layer, upper_bound, cost_to_go_j, counts: SolveCounts):
         """One state per node: the dense bound LB(a, b) = J(a) + disguise(a, b) + table bound + pen(b), float32.
 
-        Returns ``(lb, rowmap)``: (blocks, L, L) bounds per UAV present, indexed [block, target b, source a]
-        (selection scans per target node, so a target's bounds are one contiguous row), and the layer row
-        of each (block, a).
+        Returns ``(lb, rowmap, colmin, first)``: (blocks, L, L) bounds per UAV present, indexed [block, target
+        b, source a] (selection scans per target node, so a target's bounds are one contiguous row); the layer
+        row of each (block, a); and round 0 of :func:`select_per_node` (:func:`first_round`), found while the
+        bounds are in cache. With ``BOUND_THREADS`` > 1 the targets are split between threads (numpy releases
+        the GIL in these large array operations); the result does not depend on the split.
         """
         tab = self.table
         # Lay every UAV's states out on the full node grid (absent rows have J = inf), so the cached (L, L)
@@ -126,13 +166,19 @@ class ForwardRecursion:
         uav = np.array([u for u, _, _ in blocks])
         shared = pair.disguise_plus(pen[0], by_target=True) if len(pen) == 1 else None
         lb = np.empty((nb, L, L), np.float32)
-        # Chunks of targets small enough that the cell indices and the bounds stay in cache between the
-        # passes (the gather from the 3 MB table is the costly part; its temporaries should not add to it).
+        colmin = np.empty((nb, L), np.float32)
+        thr = None if cost_to_go_j is None else (upper_bound[uav] + BOUND_TOL).astype(np.float32)
         step = max(1, BOUND_CHUNK // L)
-        cell = np.empty((min(step, L), L), np.int32)
-        for b in range(nb):
-            for c0 in range(0, L, step):
-                c1 = min(c0 + step, L)
+
+        def rows(b, t0, t1):
+            """Bounds into targets t0..t1 of block b, with their round-0 candidates (selection.first_round)."""
+            # Chunks of targets small enough that the cell indices and the bounds stay in cache between the
+            # passes (the gather from the 3 MB table is the costly part; its temporaries should not add to
+            # it). A target's bounds lie in one chunk, so its first-round candidates are found there too.
+            cell = np.empty((min(step, t1 - t0), L), np.int32)
+            found = []
+            for c0 in range(t0, t1, step):
+                c1 = min(c0 + step, t1)
                 cb, out = cell[:c1 - c0], lb[b, c0:c1]
                 # float32 difference truncated to int32 on output: the cells of (base - heading).astype(int32).
                 np.subtract(base[c0:c1], heading_cells[b], out=cb, casting="unsafe")
@@ -143,11 +189,21 @@ class ForwardRecursion:
                 else:
                     out += shared[c0:c1]
                 out += cost_grid[b]
+                if thr is not None:
+                    # Transitions whose every completion costs more than the known plan cannot matter.
+                    out[out + cost_to_go_j[c0:c1, None] > thr[b]] = np.inf
+                c, r = first_round(out, colmin[b, c0:c1])
+                found.append((np.full(c.size, b), c + c0, r))
+            return found
+
+        # Every block's targets in BOUND_THREADS contiguous ranges; the results are joined in (block, target)
+        # order whatever thread computed them, so they are those of the serial loop.
+        parts = [(b, t0, min(t0 + -(-L // BOUND_THREADS), L)) for b in range(nb)
+                 for t0 in range(0, L, -(-L // BOUND_THREADS))]
+        found = _map(lambda task: rows(*task), parts)
         counts.bounded += int(np.isfinite(cost_grid).sum()) * L
-        if cost_to_go_j is not None:
-            thr = (upper_bound[uav] + BOUND_TOL).astype(np.float32)
-            lb[lb + cost_to_go_j[None, :, None] > thr[:, None, None]] = np.inf
-        return lb, rowmap
+        first = [x for part in found for x in part]
+        return lb, rowmap, colmin, tuple(np.concatenate(x) for x in zip(*first, strict=True))
 
     def _state_bounds(self, pair, pen, layer: Layer, upper_bound, cost_to_go_j, counts: SolveCounts):
         """(node, bin) states: many rows, so the dense bound is built in row chunks and kept sparse.

@@ -8,7 +8,7 @@ from typing import NamedTuple
 import numpy as np
 
 from baselines.dp.path_checks import FALLBACK_PENALTY
-from baselines.dp.transitions import disguise_term
+from baselines.dp.transitions import transition_costs
 from covert_env.cost import uav_target_angle, uav_target_distance
 from covert_env.dynamics import Manoeuvre, solve_manoeuvre
 
@@ -69,7 +69,7 @@ def secure_first_moves(team, plans, xy, th, target_xyz, target_phi, target_path=
                 ok[ok] = pl.paths.clearance.manoeuvres_clear(m, ok)
             a0 = uav_target_angle(xy[i], tq[0, :2], tp[0])
             d0 = uav_target_distance(xy[i], tq[0, :2])
-            g = np.where(ok, np.nan_to_num(m.length) + disguise_term(c, a0, d0, st.alpha, st.d), np.inf)
+            g = transition_costs(c, m, ok, a0, d0, st.alpha, st.d)
             good = allowed_nodes.copy()
             if ctx is not None and ok.any():
                 clear = np.zeros(len(ok), bool)

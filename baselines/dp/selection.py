@@ -14,7 +14,7 @@ from baselines.dp.states import Layer
 from baselines.dp.table import TWO_PI, ManoeuvreTable
 from baselines.dp.transitions import SolvedTransitions
 
-__all__ = ["BOUND_TOL", "nonzero_indices", "select_per_bin", "select_per_node"]
+__all__ = ["BOUND_TOL", "first_round", "nonzero_indices", "select_per_bin", "select_per_node"]
 
 #: Absolute slack when comparing float32 bounds with float64 exact costs (a few float32 ulps at ~1e4).
 BOUND_TOL = 1e-2
@@ -30,27 +30,38 @@ def nonzero_indices(mask: np.ndarray) -> tuple:
     return np.unravel_index(np.flatnonzero(mask), mask.shape)
 
 
-def select_per_node(lb, rowmap, solved: SolvedTransitions, max_open_rounds) -> None:
+def first_round(lb, colmin) -> tuple[np.ndarray, np.ndarray]:
+    """Round 0 of :func:`select_per_node` for some targets: ``lb`` (targets, L) their bounds [target, source].
+
+    Writes each target's smallest bound into ``colmin`` and returns ``(target, source)`` (C order) of the
+    transitions within ``FIRST_BAND`` of it (none for a target without a finite bound).
+    """
+    lb.min(axis=1, out=colmin)
+    thr = np.where(np.isfinite(colmin), colmin + FIRST_BAND, -np.inf)
+    return nonzero_indices(lb <= thr[:, None])
+
+
+def select_per_node(lb, rowmap, colmin, first, solved: SolvedTransitions, max_open_rounds) -> None:
     """One state per node (B = 1): best-first by bound until every node's winner is proven.
 
-    ``lb`` is (blocks, L, L): per UAV, bound of every transition, indexed [block, target b, source a]. Round
-    0 solves, per target b, every transition within ``FIRST_BAND`` of b's smallest bound: the table's
-    bounds are that tight, so this usually contains the winner and proves it (no unsolved bound is below
-    it). A target whose value is above the band then solves every transition still bounded below its
-    value (and is final); a target with no feasible transition yet ("open") solves the next 1, 2, 4, ...
-    smallest bounds per round. Every round is one exact solve for all UAVs. With ``max_open_rounds``
-    (used under negotiation constraints, where many transitions are removed) open targets are given
-    up after that many rounds: the plan stays valid, the node is just not offered.
+    ``lb`` is (blocks, L, L): per UAV, bound of every transition, indexed [block, target b, source a]; ``colmin``
+    (blocks, L) and ``first`` = (block, target, source) are round 0's candidates (:func:`first_round`, computed with
+    the bounds, while they are in cache). Round 0 solves, per target b, every transition within ``FIRST_BAND`` of
+    b's smallest bound: the table's bounds are that tight, so this usually contains the winner and proves it (no
+    unsolved bound is below it). A target whose value is above the band then solves every transition still bounded
+    below its value (and is final); a target with no feasible transition yet ("open") solves the next 1, 2, 4, ...
+    smallest bounds per round. Every round is one exact solve for all UAVs. With ``max_open_rounds`` (used under
+    negotiation constraints, where many transitions are removed) open targets are given up after that many rounds:
+    the plan stays valid, the node is just not offered.
 
     Transitions are solved in (block, source, target) order within a round, then band before open per
     block: ties between equal exact costs are broken by that order (:meth:`SolvedTransitions.winners`).
     """
     nb, L, _ = lb.shape
     best = np.full((nb, L), np.inf)
-    colmin = lb.min(axis=2)
     reach = np.isfinite(colmin)
     thr = np.where(reach, colmin + FIRST_BAND, -np.inf)
-    bb, c, r = nonzero_indices(lb <= thr[:, :, None])
+    bb, c, r = first
 
     def run(bb, r, c):
         cost = solved.solve(rowmap[bb, r], c)

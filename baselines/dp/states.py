@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -75,6 +75,8 @@ class Problem:
     avoid: np.ndarray | None = None   # (U, M, N, P, 2) other UAVs' planned path samples (NaN: none)
     avoid_dist: float = 0.0           # required distance to them at every sample
     path_soft: bool = False           # check_path in fallback: blocked LoS along a path is a penalty, zone ignored
+    #: per stage, path_checks.record_circles of ``avoid`` (computed once, used by every round's solve)
+    avoid_circles: dict = field(default_factory=dict, repr=False)
 
 
 def depths(layers: list[Layer], u: int) -> np.ndarray:

@@ -2,28 +2,33 @@
 
 A transition a -> b is flown by the turn-then-straight manoeuvre (eqs. 22-29); its cost is the stage
 cost of eq. 18, ``g = v delta - lambda kappa`` with ``kappa = eta |wrap(alpha_b - alpha_a)| + |d_b - d_a|``
-(eq. 11), or inf when no manoeuvre exists or a check along it fails (:mod:`baselines.dp.path_checks`,
-eq. 3 by :mod:`baselines.dp.clearance`).
+(eq. 11), computed by :func:`covert_env.cost.stage_cost` (the model's one definition), or inf when no
+manoeuvre exists or a check along it fails (:mod:`baselines.dp.path_checks`, eq. 3 by
+:mod:`baselines.dp.clearance`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from baselines.dp.path_checks import PathChecker, separated
+from baselines.dp.path_checks import PathChecker, record_circles, separated
 from baselines.dp.states import Layer, Problem, SolveCounts
 from baselines.dp.table import TWO_PI
-from covert_env.angles import wrap_angle
 from covert_env.config import Config
-from covert_env.dynamics import solve_manoeuvre
+from covert_env.cost import stage_cost
+from covert_env.dynamics import Manoeuvre, solve_manoeuvre
 
-__all__ = ["SolvedTransitions", "disguise_term", "solve_transitions"]
+__all__ = ["SolvedTransitions", "solve_transitions", "transition_costs"]
 
 
-def disguise_term(config: Config, alpha_from, d_from, alpha_to, d_to):
-    """``-lambda kappa`` (eqs. 11, 18): the disguise part of the stage cost, from alpha and d at both ends."""
+def transition_costs(config: Config, m: Manoeuvre, ok, alpha_from, d_from, alpha_to, d_to) -> np.ndarray:
+    """Stage costs g (eq. 18, :func:`covert_env.cost.stage_cost`) of the manoeuvres ``m``; inf where not ``ok``.
+
+    alpha and d (eqs. 12-13) at both ends of every transition broadcast against the manoeuvres.
+    """
     c = config
-    return -c.lam * (c.eta * np.abs(wrap_angle(alpha_to - alpha_from)) + np.abs(d_to - d_from))
+    g = stage_cost(np.nan_to_num(m.length), alpha_from, alpha_to, d_from, d_to, c.eta, c.lam)
+    return np.where(ok, g, np.inf)
 
 
 def solve_transitions(config: Config, paths: PathChecker, prob: Problem, j: int, start_xy, theta, uav, alpha_from,
@@ -42,9 +47,10 @@ def solve_transitions(config: Config, paths: PathChecker, prob: Problem, j: int,
         ok[ok] = paths.clearance.manoeuvres_clear(m, ok)           # eq. 3 along the path
     extra = paths.penalties(m, ok, prob.path, j, len(prob.stages), prob.path_soft)
     if prob.avoid is not None and ok.any():
-        ok[ok] = separated(m, ok, prob.avoid, prob.avoid_dist, uav, j)
-    g = np.where(ok, np.nan_to_num(m.length) + disguise_term(c, alpha_from, d_from, st.alpha[nodes], st.d[nodes]),
-                 np.inf)
+        if j not in prob.avoid_circles:
+            prob.avoid_circles[j] = record_circles(prob.avoid, prob.avoid_dist, j)
+        ok[ok] = separated(m, ok, prob.avoid, prob.avoid_dist, uav, j, prob.avoid_circles[j])
+    g = transition_costs(c, m, ok, alpha_from, d_from, st.alpha[nodes], st.d[nodes])
     return m, g, extra
 
 
