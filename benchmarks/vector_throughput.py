@@ -115,10 +115,10 @@ def measure(runner, seconds: float) -> tuple[int, float, float]:
 
 #: The parts of a batched step the profile breaks out (function names in covert_env, cumulative time each).
 PARTS = (
-    ("flight, unicycle (fly_unicycle)", "batch.py", "fly_unicycle"),
+    ("flight, unicycle (fly_arc)", "flight.py", "fly_arc"),
     ("flight, waypoint (fly_waypoints)", "batch.py", "fly_waypoints"),
-    ("  manoeuvres to the chosen nodes (solve_manoeuvre + fallback)", "batch.py", "waypoint_controls"),
-    ("  turn-then-straight path (fly_turn_straight)", "batch.py", "fly_turn_straight"),
+    ("  manoeuvres to the chosen nodes (solve_manoeuvre + fallback)", "flight.py", "waypoint_controls"),
+    ("  turn-then-straight path (fly_turn_straight)", "flight.py", "fly_turn_straight"),
     ("slot quantities (moves_quantities)", "metrics.py", "moves_quantities"),
     ("  line of sight (TerrainRows.line_of_sight)", "visibility.py", "line_of_sight"),
     ("  separation along the path (nearest_teammate)", "metrics.py", "nearest_teammate"),

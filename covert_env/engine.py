@@ -1,9 +1,9 @@
 """The world: terrain, the target on its road, and the UAV team, advanced one slot at a time.
 
-The engine is the single place where physics happens. Environments, the DP planner and the
-evaluation harness all drive an :class:`Engine`, so a DP rollout and an env rollout are the same
-thing, and every episode ends as a :class:`~covert_env.trajectory.Trajectory` that
-:mod:`covert_env.metrics` scores.
+One scene's world, flown with :mod:`covert_env.flight` and scored with
+:func:`~covert_env.metrics.moves_quantities`: the functions the vector env (and so every env) flies and scores its
+B copies with, so a DP rollout on an engine and an env rollout are the same arithmetic (tested), and every
+episode ends as a :class:`~covert_env.trajectory.Trajectory` that :mod:`covert_env.metrics` scores.
 
 Each UAV's move over a slot is either
 
@@ -23,7 +23,7 @@ import math
 import numpy as np
 
 from covert_env.config import MAX_N_UAVS
-from covert_env.flight import check_unicycle, fly, fly_turn_straight, waypoint_controls
+from covert_env.flight import check_unicycle, fly_arc, fly_turn_straight, waypoint_controls
 from covert_env.metrics import SlotQuantities, moves_quantities
 from covert_env.scenario import Scenario
 from covert_env.trajectory import Trajectory
@@ -38,8 +38,8 @@ class Engine:
         scenario: the world and the start poses (a :class:`Scenario`; TypeError otherwise).
         path_samples: samples per slot along each path (endpoints included), used for LoS and
             separation checks between slot times: an integer in [2, 1000] (``MAX_PATH_SAMPLES``).
-        path_los: a bool, whether :meth:`step`'s quantities include LoS along the path (environments turn it
-            off for speed; the episode metrics compute it from the trajectory in any case).
+        path_los: a bool, whether :meth:`step`'s quantities include LoS along the path (off saves time; the
+            episode metrics compute it from the trajectory in any case).
     """
 
     def __init__(self, scenario: Scenario, path_samples: int = 11, path_los: bool = True):
@@ -161,7 +161,7 @@ class Engine:
             v, w, t_turn = v.reshape(1, u), w.reshape(1, u), t_turn.reshape(1, u)
             flagged |= fallback.reshape(1, u)
         times = self._fractions * c.delta
-        path, end_theta = fly(xy, theta, v, w, None, times) if t_turn is None else fly_turn_straight(
+        path, end_theta = fly_arc(xy, theta, v, w, times) if t_turn is None else fly_turn_straight(
             xy, theta, v, w, t_turn, times)
         self._record(path[0], end_theta[0], v[0], w[0], flagged[0], None if decision_time is None
                      else decision_time[0].copy())

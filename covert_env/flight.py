@@ -1,9 +1,10 @@
 """Flight over one slot, batch-first: controls from waypoints, and the path flown, for poses of any leading shape.
 
 The engine (one scene) and the vector env (B scenes) fly their UAVs with these functions, so both fly the same
-arithmetic. :func:`fly` is the reference integration (two :func:`~covert_env.dynamics.unicycle_step` arcs per
-sample); :func:`fly_turn_straight` computes the same numbers with each sine and cosine once per distinct value
-(tests/test_batch_flight.py: bit for bit). A UAV's move over a slot is either a unicycle control (v, omega) held
+arithmetic. :func:`fly_arc` (a control held for the slot) and :func:`fly_turn_straight` (the manoeuvre) compute
+what :func:`~covert_env.dynamics.unicycle_step` gives at every sample, with the same operations in the same order,
+each sine and cosine once per distinct value (tests/test_batch_flight.py checks them against the plain per-sample
+integration, bit for bit). A UAV's move over a slot is either a unicycle control (v, omega) held
 for the whole slot (eq. 1, integrated exactly) or the turn-then-straight manoeuvre to a waypoint (eqs. 22-29); a
 waypoint the manoeuvre cannot reach is flown as the closest admissible constant control and flagged (see
 :mod:`covert_env.engine`).
@@ -15,9 +16,9 @@ import math
 
 import numpy as np
 
-from covert_env.dynamics import solve_manoeuvre, unicycle_step
+from covert_env.dynamics import solve_manoeuvre
 
-__all__ = ["check_unicycle", "closest_constant_control", "fly", "fly_turn_straight", "waypoint_controls"]
+__all__ = ["check_unicycle", "closest_constant_control", "fly_arc", "fly_turn_straight", "waypoint_controls"]
 
 _TWO_PI = 2.0 * math.pi
 
@@ -36,22 +37,34 @@ def check_unicycle(ctl: np.ndarray, c) -> None:
                          f"[{-c.w_max:g}, {c.w_max:g}], got {w.tolist()}")
 
 
-def fly(xy, theta, v, w, t_turn, t):
-    """Integrate turn (v, w) for t_turn then straight (v, 0) from poses (..., U): path samples at the
-    times ``t`` (P,) as (..., U, P, 2), and the end heading (..., U)."""
-    t = t.reshape((-1,) + (1,) * theta.ndim)                          # (P, 1, ...)
-    if t_turn is None or (t_turn >= t[-1]).all():                     # one constant control: one arc
-        x2, y2, th2 = unicycle_step(xy[..., 0], xy[..., 1], theta, v, w, t)
-    else:
-        t1 = np.minimum(t, t_turn)
-        t2 = np.maximum(t - t_turn, 0.0)
-        x1, y1, th1 = unicycle_step(xy[..., 0], xy[..., 1], theta, v, w, t1)
-        x2, y2, th2 = unicycle_step(x1, y1, th1, v, 0.0, t2)
-    path = np.empty(x2.shape[1:] + x2.shape[:1] + (2,))               # (..., U, P, 2)
-    path[..., 0] = np.moveaxis(x2, 0, -1)
-    path[..., 1] = np.moveaxis(y2, 0, -1)
-    path[..., 0, :] = xy                                              # exact start, no round-off
-    return path, th2[-1]
+def fly_arc(xy, theta, v, w, times):
+    """Path samples (B, U, P, 2) at ``times`` (P,) and end headings (B, U) for controls held for the slot.
+
+    The arithmetic of :func:`~covert_env.dynamics.unicycle_step` (so the samples are the engine's, bit for bit),
+    with the heading wrapped only at the slot's end and the exact start as sample 0."""
+    dt = times[1:]
+    # In place where possible (the arrays are B U P: at B = 1024 every temporary spills the cache); each value is
+    # computed with the operations, operands and order of unicycle_step, so the results are the same bits.
+    half = (0.5 * w)[..., None] * dt                                   # (B, U, P-1)
+    straight = half == 0.0
+    safe = np.where(straight, 1.0, half)
+    ratio = np.sin(safe)
+    ratio /= safe
+    ratio[straight] = 1.0
+    chord = v[..., None] * dt
+    chord *= ratio
+    mid = np.add(theta[..., None], half, out=half)
+    path = np.empty(theta.shape + (len(times), 2))
+    path[..., 0, :] = xy
+    out_x, out_y = path[..., 1:, 0], path[..., 1:, 1]
+    np.cos(mid, out=out_x)
+    out_x *= chord
+    out_x += xy[..., 0, None]
+    np.sin(mid, out=out_y)
+    out_y *= chord
+    out_y += xy[..., 1, None]
+    end = np.mod(theta + w * times[-1], _TWO_PI)
+    return path, np.where(end >= _TWO_PI, 0.0, end)
 
 
 def waypoint_controls(xy, theta, goals, c):

@@ -49,6 +49,7 @@ __all__ = [
     "LOS_TOLERANCE",
     "TerrainArrays",
     "TerrainRows",
+    "grown",
     "TerrainStack",
     "clip_segments",
     "face_offsets",
@@ -418,7 +419,7 @@ def _los_general(arr: TerrainArrays, u: np.ndarray, t: np.ndarray, tol: float) -
 
 
 class TerrainStack:
-    """One terrain per row of a batch, for one vectorised LoS call over env copies stepped in lock-step.
+    """One terrain per row of a batch, for one vectorised LoS call over several terrains (rows of one shape).
 
     Row ``j`` of the leading axis of every array passed to :meth:`line_of_sight` is checked against
     ``terrains[j]`` only, with the same result as :func:`line_of_sight` on that row (bit for bit: rows of
@@ -529,10 +530,10 @@ class TerrainRows:
             faces[:, :old.shape[1], :old.shape[2], :old.shape[3]] = old
             self.faces = faces
             self._at.clear()                                # the kept offsets have the old shape
-        self.cx, self.cy = _grown(self.cx, (n, mm), 0.0), _grown(self.cy, (n, mm), 0.0)
-        self.radius, self.z_max = _grown(self.radius, (n, mm), 0.0), _grown(self.z_max, (n, mm), 0.0)
-        self.valid = _grown(self.valid, (n, mm), False)
-        self.top = _grown(self.top, (n, mm, 3), np.inf)
+        self.cx, self.cy = grown(self.cx, (n, mm), 0.0), grown(self.cy, (n, mm), 0.0)
+        self.radius, self.z_max = grown(self.radius, (n, mm), 0.0), grown(self.z_max, (n, mm), 0.0)
+        self.valid = grown(self.valid, (n, mm), False)
+        self.top = grown(self.top, (n, mm, 3), np.inf)
         self.faces[:, :, r] = pad
         self.faces[:, :f, r, :m] = arr.faces
         self.cx[r], self.cy[r], self.radius[r], self.z_max[r], self.valid[r], self.top[r] = 0, 0, 0, 0, False, np.inf
@@ -620,7 +621,7 @@ class TerrainRows:
         return out
 
 
-def _grown(arr: np.ndarray, shape: tuple, fill) -> np.ndarray:
+def grown(arr: np.ndarray, shape: tuple, fill) -> np.ndarray:
     """``arr`` copied into a larger array of ``shape`` (each axis at least as long), the rest ``fill``."""
     if arr.shape == shape:
         return arr

@@ -575,7 +575,7 @@ def test_engine_accepts_a_flat_single_uav_and_numpy_counts():
     assert e.k == 1 and e.path_samples == 5
 
 
-def testsample_starts_on_takes_an_int_seed_like_its_generator():
+def test_sample_starts_takes_an_int_seed_like_its_generator():
     p = Scenario.paper(Config(n_slots=10))
     a = p.sample_starts(5)
     b = p.sample_starts(np.random.default_rng(5))

@@ -1,6 +1,6 @@
-"""covert_env.flight's fast waypoint flight computes the reference numbers bit for bit: controls, best-effort
-fallback (against the plain 17 x 17 grid search below) and the turn-then-straight path (against ``flight.fly``, two
-``unicycle_step`` arcs per sample), while computing each sine and cosine once per distinct value."""
+"""covert_env.flight computes the reference numbers bit for bit: waypoint controls, the best-effort fallback
+(against the plain 17 x 17 grid search below), the turn-then-straight path and the held-control arc (against two
+``unicycle_step`` arcs per sample, below), while computing each sine and cosine once per distinct value."""
 
 from __future__ import annotations
 
@@ -25,6 +25,24 @@ def _poses_and_goals(rng, b, u, c):
     dist = rng.uniform(1, reach, (b, u))
     off[ahead] = (dist[..., None] * np.stack([np.cos(theta), np.sin(theta)], -1))[ahead]
     return xy, theta, xy + off
+
+
+def _reference_fly(xy, theta, v, w, t_turn, t):
+    """The plain integration: turn (v, w) for t_turn then straight (v, 0) from poses (..., U): path samples at the
+    times ``t`` (P,) as (..., U, P, 2), and the end heading (..., U)."""
+    t = t.reshape((-1,) + (1,) * theta.ndim)                          # (P, 1, ...)
+    if t_turn is None or (t_turn >= t[-1]).all():                     # one constant control: one arc
+        x2, y2, th2 = unicycle_step(xy[..., 0], xy[..., 1], theta, v, w, t)
+    else:
+        t1 = np.minimum(t, t_turn)
+        t2 = np.maximum(t - t_turn, 0.0)
+        x1, y1, th1 = unicycle_step(xy[..., 0], xy[..., 1], theta, v, w, t1)
+        x2, y2, th2 = unicycle_step(x1, y1, th1, v, 0.0, t2)
+    path = np.empty(x2.shape[1:] + x2.shape[:1] + (2,))               # (..., U, P, 2)
+    path[..., 0] = np.moveaxis(x2, 0, -1)
+    path[..., 1] = np.moveaxis(y2, 0, -1)
+    path[..., 0, :] = xy                                              # exact start, no round-off
+    return path, th2[-1]
 
 
 def _reference_fallback(xy, theta, goals, c):
@@ -73,7 +91,7 @@ def test_waypoint_controls_and_flight_equal_the_engine(seed, c):
     times = np.linspace(0.0, 1.0, 11) * c.delta
     shape = theta.shape
     path, end = flight.fly_turn_straight(xy, theta, v.reshape(shape), w.reshape(shape), t_turn.reshape(shape), times)
-    ref_path, ref_end = flight.fly(xy, theta, v.reshape(shape), w.reshape(shape), t_turn.reshape(shape), times)
+    ref_path, ref_end = _reference_fly(xy, theta, v.reshape(shape), w.reshape(shape), t_turn.reshape(shape), times)
     assert np.array_equal(path, ref_path) and np.array_equal(end, ref_end)
     assert ((0 <= end) & (end < 2 * np.pi)).all()
     # The path ends at the goal where it was reachable (eq. 29), within rounding.
@@ -97,3 +115,16 @@ def test_non_finite_waypoints_are_refused():
     c = Config()
     with pytest.raises(ValueError, match="finite"):
         flight.waypoint_controls(np.zeros((1, 2)), np.zeros(1), np.array([[np.nan, 0.0]]), c)
+
+
+@pytest.mark.parametrize("c", CONFIGS)
+def test_fly_arc_equals_the_plain_integration(c):
+    rng = np.random.default_rng(3)
+    xy, theta = rng.uniform(-100, 100, (40, 3, 2)), rng.uniform(0, 2 * np.pi, (40, 3))
+    v, w = rng.uniform(0.5, c.v_max, (40, 3)), rng.uniform(-c.w_max, c.w_max, (40, 3))
+    w[0] = 0.0                                                              # straight flight
+    times = np.linspace(0.0, 1.0, 11) * c.delta
+    path, end = flight.fly_arc(xy, theta, v, w, times)
+    ref_path, ref_end = _reference_fly(xy, theta, v, w, None, times)
+    assert np.array_equal(path, ref_path)
+    np.testing.assert_allclose(end, np.mod(ref_end, 2 * np.pi), atol=1e-12)

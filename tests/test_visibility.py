@@ -338,7 +338,7 @@ def test_small_input_path_equals_broad_phase_paths():
         assert (~big).any() or len(terrain) < 6
 
 
-# ----------------------------------------------------------------------------- lock-step copies
+# ----------------------------------------------------------------------------- one terrain per row
 @settings(max_examples=25, deadline=None)
 @given(seed=st.integers(0, 2**31 - 1), n_points=st.sampled_from([1, 3, 30, 200]))
 def test_terrain_stack_equals_line_of_sight_per_terrain(seed, n_points):

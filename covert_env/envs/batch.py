@@ -3,9 +3,8 @@
 Pure functions on batch-first arrays ``(B, U, ...)``, no Python loop over copies, UAVs or lattice nodes: the
 vector env (:mod:`covert_env.envs.vector`) is a thin state holder around them. They use the model's own
 functions (:func:`~covert_env.metrics.moves_quantities`, the manoeuvre solver, the reachability table) with the
-batch as their leading axes, and fly with :mod:`covert_env.flight`, the engine's flight (:func:`fly_unicycle` is
-its one-arc case with each sine and cosine computed once per distinct value; tests/test_batch_flight.py checks the
-fast paths against the reference integration bit for bit), so a copy computes exactly what the parallel env
+batch as their leading axes, and fly with :mod:`covert_env.flight`, the engine's flight (tests/test_batch_flight.py
+checks it against the plain integration bit for bit), so a copy computes exactly what the parallel env
 computes for the same scene, starts and actions. Written with numpy calls that have direct torch counterparts, so a
 torch backend is a port.
 """
@@ -28,7 +27,7 @@ REWARD_TERMS = ("path", "disguise", "los", "zone", "separation", "terrain")
 COSTS = ("los", "zone", "separation", "terrain")
 
 __all__ = ["COSTS", "MIN_SPEED_FRACTION", "OFFSET_CLIP", "REWARD_TERMS", "action_masks", "constraint_costs",
-           "fly_unicycle", "fly_waypoints", "own_features", "reward_terms", "to_world_batch",
+           "fly_waypoints", "own_features", "reward_terms", "to_world_batch",
            "unicycle_actions", "unicycle_controls", "waypoint_actions"]
 
 
@@ -69,36 +68,6 @@ def unicycle_controls(act: np.ndarray, c) -> tuple[np.ndarray, np.ndarray]:
     act = np.minimum(np.maximum(act, -1.0), 1.0)
     v = c.v_max * (MIN_SPEED_FRACTION + (1 - MIN_SPEED_FRACTION) * (act[..., 0] + 1) / 2)
     return v, c.w_max * act[..., 1]
-
-
-def fly_unicycle(xy, theta, v, w, times):
-    """Path samples (B, U, P, 2) at ``times`` (P,) and end headings (B, U) for controls held for the slot.
-
-    The arithmetic of :func:`~covert_env.dynamics.unicycle_step` (so the samples are the engine's, bit for bit),
-    with the heading wrapped only at the slot's end and the exact start as sample 0."""
-    dt = times[1:]
-    # In place where possible (the arrays are B U P: at B = 1024 every temporary spills the cache); each value is
-    # computed with the operations, operands and order of unicycle_step, so the results are the same bits.
-    half = (0.5 * w)[..., None] * dt                                   # (B, U, P-1)
-    straight = half == 0.0
-    safe = np.where(straight, 1.0, half)
-    ratio = np.sin(safe)
-    ratio /= safe
-    ratio[straight] = 1.0
-    chord = v[..., None] * dt
-    chord *= ratio
-    mid = np.add(theta[..., None], half, out=half)
-    path = np.empty(theta.shape + (len(times), 2))
-    path[..., 0, :] = xy
-    out_x, out_y = path[..., 1:, 0], path[..., 1:, 1]
-    np.cos(mid, out=out_x)
-    out_x *= chord
-    out_x += xy[..., 0, None]
-    np.sin(mid, out=out_y)
-    out_y *= chord
-    out_y += xy[..., 1, None]
-    end = np.mod(theta + w * times[-1], _TWO_PI)
-    return path, np.where(end >= _TWO_PI, 0.0, end)
 
 
 def fly_waypoints(xy, theta, goals, c, times):

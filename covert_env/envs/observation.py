@@ -15,7 +15,7 @@ import numpy as np
 from gymnasium import spaces
 
 __all__ = ["FIELDS", "OFFSET_CLIP", "OWN_SIZE", "OWN_SLICES", "ObservationLayout", "observation_table",
-           "shared_block_size"]
+           "shared_block_size", "shared_block_slices"]
 
 #: Offsets in observations are divided by R2 and clipped to this magnitude (500 m at R2 = 100 m).
 OFFSET_CLIP = 5.0
@@ -64,17 +64,31 @@ for _f in FIELDS[:len(OWN)]:
 OWN_SIZE = _start
 
 
+def shared_block_slices(map_cells: int) -> dict[str, slice]:
+    """Slices of the block every agent shares (target displacement, time remaining, maps now and next) within the
+    block: what a scene gives per slot, whatever the UAVs (the scene cache stores these blocks)."""
+    out, start = {}, 0
+    for f in FIELDS:
+        if f.name in SHARED:
+            n = int(map_cells) if f.size == "map" else f.size
+            out[f.name] = slice(start, start + n)
+            start += n
+    return out
+
+
 def shared_block_size(map_cells: int) -> int:
-    """Length of the block every agent shares (target displacement, time remaining, maps now and next): what a
-    scene gives per slot, whatever the UAVs."""
-    return 3 + 2 * int(map_cells)
+    """Length of the shared block (:func:`shared_block_slices`)."""
+    return shared_block_slices(map_cells)["map_next"].stop
 
 
-def observation_table() -> str:
-    """The observation table of the envs' docstrings (markdown), generated from :data:`FIELDS`."""
+def observation_table(single_agent: bool = False) -> str:
+    """The observation table of the envs' docstrings (markdown), generated from :data:`FIELDS`; ``single_agent``:
+    without the teammates' block (one UAV, the Gymnasium envs)."""
     lines = ["| index | observation | scale |", "|---|---|---|"]
     start, symbolic = 0, None
     for f in FIELDS:
+        if single_agent and f.size == "mates":
+            continue
         if isinstance(f.size, int) and symbolic is None:
             idx = f"{start}" if f.size == 1 else f"{start}-{start + f.size - 1}"
             start += f.size
@@ -91,8 +105,8 @@ class ObservationLayout:
 
     Attributes:
         slices: field name -> slice of the observation row.
-        size: D, the row's length; ``own_size`` (6 fields, 8 numbers) and ``shared_size`` (3 + 2 S^2, the scene
-            cache's block: target displacement, time remaining, both maps).
+        size: D, the row's length; ``own_size`` (the own block's length, :data:`OWN_SIZE`) and ``shared_size`` (the
+            scene cache's block: target displacement, time remaining, both maps; ``shared_slices`` within it).
         state_size: S_state = U * own_size + shared_size.
     """
 
@@ -110,7 +124,8 @@ class ObservationLayout:
         self.size = start
         self.low, self.high = np.array(low, np.float32), np.array(high, np.float32)
         self.own_size = OWN_SIZE
-        self.shared_size = shared_block_size(sizes["map"])
+        self.shared_slices = shared_block_slices(sizes["map"])
+        self.shared_size = self.shared_slices["map_next"].stop
         self.state_size = self.n_uavs * self.own_size + self.shared_size
         self._state_index = np.concatenate([np.tile(np.arange(self.own_size), self.n_uavs)]
                                            + [np.arange(self.size)[self.slices[n]] for n in SHARED])
@@ -130,17 +145,19 @@ class ObservationLayout:
         """(B, U, D) float32 rows from own features (B, U, own_size), shared blocks (B, shared_size) and the time
         remaining (B,)."""
         n, u = own.shape[:2]
-        s, m = self.slices, self.map_size ** 2
+        s, b = self.slices, self.shared_slices
         rows = np.empty((n, u, self.size), np.float32)
         rows[..., :self.own_size] = own
-        rows[..., s["target_displacement"].start:s["remaining"].stop] = shared[:, None, :3]
+        # Target displacement and time remaining lie side by side in both: one copy, then the row's own time.
+        rows[..., s["target_displacement"].start:s["remaining"].stop] = \
+            shared[:, None, b["target_displacement"].start:b["remaining"].stop]
         rows[..., s["remaining"].start] = remaining[:, None]
         rows[..., s["teammates"]] = own[:, self.mates, :2].reshape(n, u, -1)
-        rows[..., s["map_now"].start:s["map_next"].stop] = shared[:, None, 3:3 + 2 * m]
+        rows[..., s["map_now"].start:s["map_next"].stop] = shared[:, None, b["map_now"].start:b["map_next"].stop]
         return rows
 
     def state(self, own: np.ndarray, shared: np.ndarray, remaining: np.ndarray) -> np.ndarray:
         """(B, state_size) float32: every UAV's own features, then the shared block with the time remaining."""
         shared = shared.copy()
-        shared[:, 2] = remaining
+        shared[:, self.shared_slices["remaining"].start] = remaining
         return np.concatenate([own.reshape(len(own), -1).astype(np.float32), shared], axis=1)

@@ -12,12 +12,15 @@ import copy
 import numpy as np
 
 from covert_env.config import Config
-from covert_env.envs.observation import shared_block_size
+from covert_env.envs.observation import FIELDS, shared_block_slices
 from covert_env.scenario import Scenario, sample_starts_on
 from covert_env.visibility import line_of_sight_rows
 from covert_env.zone import in_feasible_zone, to_world
 
 __all__ = ["SceneCache", "World"]
+
+#: The target-displacement field of the observation layout (its bounds clip the shared block).
+DISPLACEMENT = next(f for f in FIELDS if f.name == "target_displacement")
 
 
 class SceneCache:
@@ -68,12 +71,15 @@ class SceneCache:
         dx, dy = q_next[:, 0] - q[:, 0], q_next[:, 1] - q[:, 1]
         cs, sn = np.cos(phi), np.sin(phi)
         scale = c.v_max * c.delta
-        blocks = np.zeros((n + 1, shared_block_size(self._n_cells)), np.float32)
-        blocks[:, 0] = np.clip((cs * dx + sn * dy) / scale, -2.0, 2.0)
-        blocks[:, 1] = np.clip((cs * dy - sn * dx) / scale, -2.0, 2.0)
-        blocks[:, 3:3 + self._n_cells] = maps
-        blocks[:, 3 + self._n_cells:] = (maps[np.minimum(np.arange(n + 1) + 1, n)] if track.exact
-                                         else self._maps(q_next, phi_next))
+        at = shared_block_slices(self._n_cells)
+        blocks = np.zeros((n + 1, at["map_next"].stop), np.float32)
+        lo, hi = DISPLACEMENT.low, DISPLACEMENT.high
+        disp = blocks[:, at["target_displacement"]]
+        disp[:, 0] = np.clip((cs * dx + sn * dy) / scale, lo, hi)
+        disp[:, 1] = np.clip((cs * dy - sn * dx) / scale, lo, hi)
+        blocks[:, at["map_now"]] = maps
+        blocks[:, at["map_next"]] = (maps[np.minimum(np.arange(n + 1) + 1, n)] if track.exact
+                                     else self._maps(q_next, phi_next))
         return blocks
 
     def lattice_visible(self) -> np.ndarray:

@@ -20,18 +20,9 @@ from covert_env.envs.observation import shared_block_size
 from covert_env.envs.scene_cache import SceneCache
 from covert_env.metrics import terrain_clearance
 from covert_env.scenario import Scenario, pick_starts, start_candidates
-from covert_env.visibility import LOS_TOLERANCE, TerrainRows
+from covert_env.visibility import LOS_TOLERANCE, TerrainRows, grown
 
 __all__ = ["ScenePool"]
-
-
-def _grown(arr: np.ndarray, shape: tuple, fill) -> np.ndarray:
-    """``arr`` copied into a larger array of ``shape`` (each axis at least as long), the rest ``fill``."""
-    if arr.shape == shape:
-        return arr
-    out = np.full(shape, fill, dtype=arr.dtype)
-    out[tuple(slice(0, n) for n in arr.shape)] = arr
-    return out
 
 
 class ScenePool:
@@ -154,11 +145,11 @@ class ScenePool:
         t = max(n_t, self.q.shape[1])
         if rows > len(self.q):                              # grow geometrically: amortised O(1) per scene
             rows = max(rows, min(2 * len(self.q), self.capacity))
-        self.q = _grown(self.q, (rows, t, 3), 0.0)
-        self.phi = _grown(self.phi, (rows, t), 0.0)
-        self.blocks = _grown(self.blocks, (rows, t, self.blocks.shape[2]), 0.0)
+        self.q = grown(self.q, (rows, t, 3), 0.0)
+        self.phi = grown(self.phi, (rows, t), 0.0)
+        self.blocks = grown(self.blocks, (rows, t, self.blocks.shape[2]), 0.0)
         if self.waypoint:
-            self.lattice_ok = _grown(self.lattice_ok, (rows, t, len(self.lattice)), False)
+            self.lattice_ok = grown(self.lattice_ok, (rows, t, len(self.lattice)), False)
         while len(self._caches) < rows:
             self._caches.append(None)
             self._start_nodes.append(None)

@@ -13,6 +13,7 @@ import gymnasium as gym
 import numpy as np
 
 from covert_env.envs.covert_sensing import CovertSensingParallelEnv
+from covert_env.envs.observation import observation_table
 
 __all__ = ["CovertSensingEnv", "CovertSensingWaypointEnv"]
 
@@ -37,18 +38,9 @@ class CovertSensingEnv(gym.Env):
 
     ``Box(float32)`` in the target's frame, the single-agent version of the parallel env's table:
 
-    | index | observation |
-    |---|---|
-    | 0-1 | own offset from the target / R2 |
-    | 2-3 | cos, sin of own heading relative to the target's |
-    | 4 | last speed / V_max |
-    | 5 | LoS clear (0/1) |
-    | 6 | inside the feasible zone (0/1) |
-    | 7 | signed distance to the zone boundary / (R2 - R1) |
-    | 8-9 | target's next displacement / (V_max delta) |
-    | 10 | fraction of the episode remaining |
-    | 11 .. 11+S*S | visible-zone map now (S = map_size, default 8) |
-    | then S*S | visible-zone map at the next slot |
+    {OBSERVATION_TABLE}
+
+    S = ``map_size`` (default 8).
 
     ## Rewards
 
@@ -137,6 +129,10 @@ class CovertSensingEnv(gym.Env):
 
     def close(self):
         self.par.close()
+
+
+CovertSensingEnv.__doc__ = CovertSensingEnv.__doc__.replace(
+    "{OBSERVATION_TABLE}", observation_table(single_agent=True).replace("\n", "\n    "))
 
 
 class CovertSensingWaypointEnv(CovertSensingEnv):

@@ -15,6 +15,7 @@ from covert_env.envs.arguments import bool_arg, int_arg
 from covert_env.envs.recorder import CopyView, EpisodeRecorder
 from covert_env.envs.scene_pool import ScenePool
 from covert_env.envs.settings import EnvSettings, check_penalties, check_reward_scale
+from covert_env.flight import fly_arc
 from covert_env.metrics import moves_quantities, nearest_teammate
 from covert_env.reach import reach_table
 from covert_env.scenario import Scenario
@@ -302,7 +303,7 @@ class CovertSensingVectorEnv:
         if self.action_mode == "unicycle":
             act = batch.unicycle_actions(actions, (self.num_envs, len(self.possible_agents)), self.possible_agents)
             v, w = batch.unicycle_controls(act, c)
-            path, end_theta = batch.fly_unicycle(xy0, th0, v, w, self._times)
+            path, end_theta = fly_arc(xy0, th0, v, w, self._times)
             flagged = np.zeros(th0.shape, bool)
         else:
             idx = batch.waypoint_actions(actions, (self.num_envs, len(self.possible_agents)), len(self.lattice),
