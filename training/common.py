@@ -94,6 +94,11 @@ def _ranges() -> dict[str, tuple]:
         "tau": float_range(0.0, 1.0, lo_open=True), "iterations": positive_int, "num_env_runners": non_negative_int,
         "num_envs_per_env_runner": positive_int, "sample_timeout_s": positive,
         "net_arch": int_range(1, 65_536), "action_mode": ("choices", ("unicycle", "waypoint")),
+        # training.mappo
+        "algo": ("choices", ("mappo", "ippo")), "head": ("choices", ("node", "flat")), "num_envs": positive_int,
+        "num_steps": int_range(2), "num_minibatches": positive_int, "update_epochs": positive_int,
+        "clip_coef": positive, "hidden": int_range(1, 65_536), "node_hidden": int_range(1, 65_536),
+        "cost_limit": non_negative, "lagrange_lr": non_negative,
     }
 
 
