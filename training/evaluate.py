@@ -345,9 +345,34 @@ def write_outputs(results: dict[str, dict], out: Path, meta: dict) -> None:
             m, s = r["summary"][k]
             cells.append(f"{fmt.format(m)} ± {fmt.format(s)}")
         lines.append(f"| {name} | {r['settings']['action_mode']} | " + " | ".join(cells) + " |")
+    lines += _robust_lines(results)
     lines += ["", f"Command: `{meta['command']}`", ""]
     (out / "leaderboard.md").write_text("\n".join(lines))
     _figure(results, out / "comparison.png")
+
+
+def _robust_lines(results: dict[str, dict]) -> list[str]:
+    """The episode reward's interquartile mean with a 95 % bootstrap interval over the scenes, and the probability
+    of improvement over the DP planner (rliable's definitions, :mod:`training.stats`; each row is one training
+    seed, so the scenes are what is resampled, and P(X > DP) is the share of scenes where X earns more, ties 1/2)."""
+    from training.stats import iqm, probability_of_improvement, stratified_bootstrap_ci
+
+    dp = next((r for r in results.values() if r.get("spec", "").split("@")[0] == "dp"), None)
+    lines = ["", "Episode reward: interquartile mean with its 95 % bootstrap interval over scenes"
+             + (", and P(reward > DP shadow-aware's) on the same scenes" if dp else "") + " (training.stats).", "",
+             "| policy | reward IQM [95 % CI] |" + (" P(> DP) |" if dp else ""),
+             "|---|---|" + ("---|" if dp else "")]
+    for name, r in results.items():
+        rewards = np.array([row["reward"] for row in r["rows"]])
+        point, lo, hi = stratified_bootstrap_ci(rewards[:, None], iqm, reps=2000)
+        cell = f"| {name} | {point:.1f} [{lo:.1f}, {hi:.1f}] |"
+        if dp is not None:
+            ref = {row["scene_seed"]: row["reward"] for row in dp["rows"]}
+            pairs = [(row["reward"], ref[row["scene_seed"]]) for row in r["rows"] if row["scene_seed"] in ref]
+            x, y = np.array(pairs).T if pairs else (None, None)
+            cell += f" {probability_of_improvement(x[None], y[None]):.2f} |" if pairs else " - |"
+        lines.append(cell)
+    return lines
 
 
 def _figure(results: dict[str, dict], path: Path) -> None:
