@@ -72,3 +72,21 @@ def test_poi_ci_brackets_and_bad_input():
         iqm([[np.nan]])
     with pytest.raises(ValueError, match="confidence"):
         stratified_bootstrap_ci([[1.0]], confidence=1.0)
+
+
+def test_learning_curve_band_and_figure(tmp_path):
+    from training.curves import band, main
+
+    # Runs at constant 0 and 2 on different step grids: mean 1, resampled means 0, 1 or 2 -> CI [0, 2].
+    grid, mean_, lo, hi = band([np.array([0.0, 10.0]), np.array([2.0, 8.0, 12.0])],
+                               [np.zeros(2), np.full(3, 2.0)], points=5)
+    np.testing.assert_allclose(grid, [2.0, 4.0, 6.0, 8.0, 10.0])          # the runs' common range [2, 10]
+    assert (mean_ == 1.0).all() and (lo == 0.0).all() and (hi == 2.0).all()
+    for seed, rewards in ((0, [100.0, 150.0]), (1, [110.0, 170.0])):
+        run = tmp_path / f"s{seed}"
+        run.mkdir()
+        (run / "curve.jsonl").write_text("".join(
+            f'{{"env_steps": {1024 * (i + 1)}, "wall_seconds": {10.0 * (i + 1)}, "reward": {r}}}\n'
+            for i, r in enumerate(rewards)))
+    assert main([str(tmp_path / "s0"), str(tmp_path / "s1"), "--dp", "240.4", "--out", str(tmp_path / "c.png")]) == 0
+    assert (tmp_path / "c.png").stat().st_size > 10_000
