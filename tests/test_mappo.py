@@ -75,13 +75,15 @@ def test_lagrangian_raises_lambda_and_harness_scores_the_run(tmp_path):
     from training.evaluate import evaluate, load_policy
 
     run = mappo.main([*TINY, "--lagrangian", "true", "--cost-limit", "0", "--lagrange-lr", "1", "--n-uavs", "2",
+                      "--agent-id", "true",
                       "--total-timesteps", "32", "--runs-dir", str(tmp_path), "--run-name", "lag"])
     rows = _curve(run)
     # With a zero limit, lambda rises by the rollout's violation rate: never falls, and the random start collides.
     lams = [r["lambda"] for r in rows]
     assert lams == sorted(lams) and lams[-1] > 0
     pol, settings = load_policy(f"mappo:{run}", 2)
-    assert settings["action_mode"] == "waypoint" and settings["n_uavs"] == 2
+    assert settings["action_mode"] == "waypoint" and settings["n_uavs"] == 2 and pol.actor.spec["agent_id"]
+    assert pol.actor.p["trunk.0.weight"].shape[1] == 143 - 2 + 2             # obs (one teammate) + one-hot of 2
     res = evaluate(pol, settings, 1, progress=False)
     assert len(res) == 1 and math.isfinite(res[0]["reward"]) and res[0]["scene_seed"] == 1_000_000
 

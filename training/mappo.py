@@ -99,6 +99,9 @@ class Args:
     """hidden width of the node head (per lattice node and agent)"""
     log_std_init: float = -0.5
     """initial log std of the unicycle Gaussian"""
+    agent_id: bool = False
+    """append a one-hot of the agent's index to the actor's input: with one shared actor, two UAVs at the same spot
+    see the same observation and pick the same move, so they can never part"""
     lagrangian: bool = False
     """subtract lambda * cost_separation from the training reward, lambda by dual ascent"""
     cost_limit: float = 0.007
@@ -262,9 +265,10 @@ def train(args: Args) -> Path:
     head = (args.head if waypoint else "gaussian")
     n_feat = N_OWN_FEATURES + U - 1
     actor_spec = dict(head=head, hidden=args.hidden, node_hidden=args.node_hidden, n_feat=n_feat, obs_dim=obs_dim,
-                      n_actions=n_act)
+                      n_actions=n_act, agent_id=args.agent_id)
     Actor, Critic = _nets()
-    actor = Actor(obs_dim, n_act, head, args.hidden, args.node_hidden, n_feat, args.log_std_init)
+    actor = Actor(obs_dim + (U if args.agent_id else 0), n_act, head, args.hidden, args.node_hidden, n_feat,
+                  args.log_std_init)
     critic_in = state_dim + U if args.algo == "mappo" else obs_dim
     critic = Critic(critic_in, args.hidden)
     optim = torch.optim.Adam([*actor.parameters(), *critic.parameters()], lr=args.learning_rate, eps=1e-5)
@@ -287,6 +291,12 @@ def train(args: Args) -> Path:
             if head == "node" else None
 
     eye = np.eye(U, dtype=np.float32)
+
+    def actor_in(flat_obs):
+        """The actor's input rows: observations (agent-minor rows, as (..., U, D) flattened) and, with
+        --agent-id, the one-hot of each row's agent."""
+        x = np.concatenate([flat_obs, eye[np.arange(len(flat_obs)) % U]], 1) if args.agent_id else flat_obs
+        return torch.from_numpy(np.ascontiguousarray(x, dtype=np.float32))
 
     def critic_input(obs_np, state_np):
         """(..., U, critic_in) from observations (..., U, D) and states (..., S)."""
@@ -329,7 +339,7 @@ def train(args: Args) -> Path:
                 mask_buf[t] = env.action_masks().astype(bool)
             with torch.no_grad():
                 flat_obs = obs.reshape(B * U, obs_dim)
-                d = actor.dist(torch.from_numpy(flat_obs), feats_of(flat_obs),
+                d = actor.dist(actor_in(flat_obs), feats_of(flat_obs),
                                torch.from_numpy(mask_buf[t].reshape(B * U, -1)) if waypoint else None)
                 a = d.sample()
                 logp = d.log_prob(a) if waypoint else d.log_prob(a).sum(-1)
@@ -375,6 +385,7 @@ def train(args: Args) -> Path:
         # ------------------------------------------------------------------ PPO update
         N = T * B * U
         f_obs = obs_buf.reshape(N, obs_dim)
+        f_x = actor_in(f_obs)
         f_feats = feats_of(f_obs)                  # once per update: they do not depend on the parameters
         f_cin = critic_input(obs_buf, state_buf).reshape(N, critic_in).astype(np.float32)
         f_mask = mask_buf.reshape(N, -1)
@@ -387,7 +398,7 @@ def train(args: Args) -> Path:
             perm = np.random.permutation(N)
             for s in range(0, N, mb):
                 idx = perm[s:s + mb]
-                d = actor.dist(torch.from_numpy(f_obs[idx]), None if f_feats is None else f_feats[idx],
+                d = actor.dist(f_x[idx], None if f_feats is None else f_feats[idx],
                                torch.from_numpy(f_mask[idx]) if waypoint else None)
                 a = torch.from_numpy(f_act[idx])
                 new_logp = d.log_prob(a) if waypoint else d.log_prob(a).sum(-1)

@@ -12,7 +12,8 @@ Files (no pickle anywhere: ``np.load(..., allow_pickle=False)`` and JSON):
 
 The actor (parameter-shared: one network for every UAV, eq. numbers of docs/paper_to_code.md):
 
-* trunk: the agent's observation (the parallel env's table) through ``Linear + tanh`` layers;
+* trunk: the agent's observation (the parallel env's table), with ``agent_id`` followed by the one-hot of the
+  agent's index, through ``Linear + tanh`` layers;
 * waypoint mode, ``head = "node"``: each lattice node l is scored from the trunk's output and the node's geometry
   relative to the UAV and its teammates (:func:`node_features`): ``logit_l = w . relu(A h + F f_l + b) + c``;
   masked nodes get -inf (a masked categorical). ``head = "flat"``: one logit per node from ``Linear(h)``;
@@ -128,14 +129,18 @@ class LearnedPolicy:
         agents = [a for a in par.possible_agents if a in par.agents]
         obs_d = observations if single is None else {single: observations}
         obs = np.stack([np.asarray(obs_d[a], np.float32) for a in agents])
+        x = obs
+        if self.actor.spec.get("agent_id"):
+            u = len(par.possible_agents)
+            x = np.concatenate([obs, np.eye(u)[[par.possible_agents.index(a) for a in agents]]], axis=1)
         if self.actor.head == "gaussian":
-            act = np.clip(self.actor.mean(obs), -1.0, 1.0).astype(np.float32)
+            act = np.clip(self.actor.mean(x), -1.0, 1.0).astype(np.float32)
             out = {a: act[i] for i, a in enumerate(agents)}
         else:
             c = par.config
             feats = node_features(obs, par.lattice, len(par.possible_agents), c.r2, c.v_max, c.delta, c.d_safe1) \
                 if self.actor.head == "node" else None
-            logits = self.actor.logits(obs, feats)
+            logits = self.actor.logits(x, feats)
             mask = np.stack([par.action_mask(a) for a in agents]).astype(bool)
             out = {a: int(np.argmax(np.where(mask[i], logits[i], -np.inf))) for i, a in enumerate(agents)}
         return out[single] if single is not None else out
