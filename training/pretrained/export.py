@@ -34,7 +34,8 @@ def _commit() -> str:
         return "unknown"
 
 
-def export(run: Path, name: str, episodes: int = 20, out_dir: Path = PRETRAINED_DIR, progress: bool = True) -> Path:
+def export(run: Path, name: str, episodes: int = 20, out_dir: Path = PRETRAINED_DIR, progress: bool = True,
+           training_commit: str = "", note: str = "") -> Path:
     """Write ``out_dir/NAME.npz`` and ``out_dir/NAME.json`` from a :mod:`training.mappo` run folder; returns the
     card's path."""
     import covert_env
@@ -53,7 +54,7 @@ def export(run: Path, name: str, episodes: int = 20, out_dir: Path = PRETRAINED_
     card = {"name": name, "algorithm": meta["algorithm"], "actor": meta["actor"], "env_kwargs": meta["env_kwargs"],
             "env_id": meta["env_id"], "covert_env_version": covert_env.__version__, "commit": _commit(),
             "recipe": {k: v for k, v in args.items() if k not in ("card", "resume", "runs_dir")},
-            "training": {**summary, "run": run.name}}
+            "training": {**summary, "run": run.name, "commit": training_commit or "unknown"}, "note": note}
     card_path = npz.with_suffix(".json")
     card_path.write_text(json.dumps(card, indent=2))          # the loader needs it to score the weights
     pol = load_learned(npz)
@@ -77,12 +78,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--name", default="mappo", help="file stem in training/pretrained/ (pretrained:NAME)")
     p.add_argument("--episodes", type=int, default=20, help="held-out scenes to score (>= 1)")
     p.add_argument("--out-dir", default=str(PRETRAINED_DIR), help="where to write NAME.npz and NAME.json")
+    p.add_argument("--training-commit", default="", help="the commit of the code that trained the run")
+    p.add_argument("--note", default="", help="what a user should know (e.g. the constraints it violates)")
     a = p.parse_args(argv)
     if not (Path(a.run) / "model.npz").is_file():
         p.error(f"{a.run}: no model.npz (not a finished training.mappo run)")
     if a.episodes < 1:
         p.error(f"--episodes {a.episodes}: must be >= 1")
-    card = export(Path(a.run), a.name, a.episodes, Path(a.out_dir))
+    card = export(Path(a.run), a.name, a.episodes, Path(a.out_dir), training_commit=a.training_commit, note=a.note)
     s = json.loads(card.read_text())["scores"]
     print(f"wrote {card} and {card.with_suffix('.npz')}: reward {s['reward_mean']:.1f} ± {s['reward_std']:.1f}, "
           f"IQM {s['reward_iqm']:.1f} [{s['reward_iqm_ci95_over_scenes'][0]:.1f}, "
