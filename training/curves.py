@@ -53,6 +53,7 @@ def main(argv: list[str] | None = None) -> int:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    import matplotlib.ticker  # noqa: F401  (matplotlib.ticker.FuncFormatter below)
 
     curves = [load_curve(Path(r)) for r in a.runs]
     fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharey=True)
@@ -65,6 +66,8 @@ def main(argv: list[str] | None = None) -> int:
         if a.dp is not None:
             ax.axhline(a.dp, ls="--", color="k", label="DP planner (held-out scenes)")
         ax.set_xlabel(label)
+        if key == "env_steps":                      # 400000-wide labels overlap: thousands
+            ax.xaxis.set_major_formatter(matplotlib.ticker.FuncFormatter(lambda v, _: f"{v / 1e3:g}k"))
         ax.grid(alpha=0.3)
     axes[0].set_ylabel("training episode reward (mean over UAVs)")
     axes[0].legend(fontsize=8)
