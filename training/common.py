@@ -31,11 +31,12 @@ import re
 import sys
 import textwrap
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 __all__ = ["parse_args", "run_name", "setup_torch", "TimeBudgetCallback", "TqdmCallback", "make_callbacks",
-           "latest_checkpoint", "save_run", "field_docs", "build_parser", "save_final_vecnormalize"]
+           "latest_checkpoint", "save_run", "field_docs", "build_parser", "save_final_vecnormalize", "train_single"]
 
 
 def setup_torch(threads: int = 1) -> None:
@@ -94,6 +95,11 @@ def _ranges() -> dict[str, tuple]:
         "tau": float_range(0.0, 1.0, lo_open=True), "iterations": positive_int, "num_env_runners": non_negative_int,
         "num_envs_per_env_runner": positive_int, "sample_timeout_s": positive,
         "net_arch": int_range(1, 65_536), "action_mode": ("choices", ("unicycle", "waypoint")),
+        # training.mappo
+        "algo": ("choices", ("mappo", "ippo")), "head": ("choices", ("node", "flat")), "num_envs": positive_int,
+        "num_steps": int_range(2), "num_minibatches": positive_int, "update_epochs": positive_int,
+        "clip_coef": positive, "hidden": int_range(1, 65_536), "node_hidden": int_range(1, 65_536),
+        "cost_limit": non_negative, "lagrange_lr": non_negative,
     }
 
 
@@ -331,3 +337,60 @@ def save_final_vecnormalize(model, run_dir: Path) -> Path | None:
 
 def env_flag(name: str, default: str) -> str:
     return os.environ.get(name, default)
+
+
+def train_single(args: Any, algo: str, sb3_class: str, action_mode: str,
+                 build: Callable[[Any, Any, str], Any]) -> Path:
+    """The single-UAV SB3 scripts' whole run, around the one thing that differs,
+    ``build(args, venv, tensorboard_log)`` (the new model with the script's hyper-parameters):
+
+    run folder (or ``--resume``: the saved settings, the newest checkpoint and its VecNormalize statistics),
+    ``args.json`` with the env settings the harness reads, ``n_envs`` seeded copies of ``args.env_id``
+    (``make_vec_env``), VecNormalize (``norm_obs``/``norm_reward``), ``learn`` with the callbacks of
+    :func:`make_callbacks`, then ``model.zip``, ``vecnormalize.json`` and ``train_summary.json``.
+    ``sb3_class`` is ``"PPO"``, ``"SAC"`` (stable_baselines3) or ``"MaskablePPO"`` (sb3_contrib).
+    """
+    setup_torch(args.torch_threads)
+    if sb3_class == "MaskablePPO":
+        from sb3_contrib import MaskablePPO as cls
+    else:
+        import stable_baselines3
+
+        cls = getattr(stable_baselines3, sb3_class)
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    import covert_env  # noqa: F401  (registers the Gymnasium ids)
+    from training.vec_env import load_vecnormalize
+
+    if args.resume:
+        run_dir = Path(args.resume)
+        args = resumed_args(args, run_dir)
+    else:
+        run_dir = Path(args.runs_dir) / (args.run_name or run_name(args.env_id, algo, args.seed))
+    ekw = dict(max_cycles=args.max_cycles, scene_pool=args.scene_pool)
+    save_run(run_dir, args, {"algo": algo, "sb3_class": sb3_class, "multi_agent": False,
+                             "env_kwargs": {**ekw, "n_uavs": 1, "action_mode": action_mode}})
+    venv = make_vec_env(args.env_id, n_envs=args.n_envs, seed=args.seed, env_kwargs=ekw)
+    ckpt = latest_checkpoint(run_dir) if args.resume else None
+    if ckpt is not None:
+        venv = load_vecnormalize(ckpt[1], venv) if ckpt[1] else venv
+        model = cls.load(str(ckpt[0]), env=venv, device="cpu")
+        print(f"resumed from {ckpt[0]} at {model.num_timesteps} steps", flush=True)
+    else:
+        if args.norm_obs or args.norm_reward:
+            venv = VecNormalize(venv, norm_obs=args.norm_obs, norm_reward=args.norm_reward, gamma=args.gamma)
+        model = build(args, venv, str(run_dir / "tb"))
+    cbs, budget = make_callbacks(run_dir, algo, args.total_timesteps, venv.num_envs, args.checkpoint_freq,
+                                 args.time_budget_minutes, args.progress_bar)
+    t0 = time.monotonic()
+    model.learn(max(args.total_timesteps - model.num_timesteps, 0), callback=cbs, tb_log_name=algo,
+                reset_num_timesteps=ckpt is None)
+    model.save(run_dir / "model.zip")
+    save_final_vecnormalize(model, run_dir)
+    info = {"timesteps": int(model.num_timesteps), "train_minutes": round((time.monotonic() - t0) / 60, 2),
+            "stopped_by_time_budget": budget.stopped}
+    (run_dir / "train_summary.json").write_text(json.dumps(info, indent=2))
+    print(f"saved {run_dir / 'model.zip'}: {info}", flush=True)
+    venv.close()
+    return run_dir

@@ -19,6 +19,9 @@ Policy specs (``SPEC[@MODE]``, MODE = ``unicycle`` or ``waypoint`` picks the env
   observation), so they need ``--n-uavs 1`` unless they were trained with the same team size.
 * ``rllib:PATH``: an RLlib checkpoint of :mod:`training.rllib_ppo`; inference runs in plain torch, no Ray
   cluster is started.
+* ``mappo:PATH``: a MAPPO/IPPO actor of :mod:`training.mappo` -- a run folder (its ``model.npz`` and
+  ``model.json``) or ``NAME.npz`` with its card ``NAME.json``; ``pretrained:NAME``: the weights shipped in
+  ``training/pretrained/`` (``pretrained:mappo``). Both run in numpy (no torch, no pickle): :mod:`training.pretrained`.
 
 Held-out scenes: episode i flies ``reset(seed=s, options={"scene_seed": s})`` with ``s = seed_offset + i``
 (default 1_000_000 + i, outside the training pool ``range(scene_pool)``). Every policy sees the same scenes and
@@ -63,6 +66,8 @@ COLUMNS = [
 ]
 
 BUILTIN_ALIASES = {"heuristic": "hold-centre"}
+#: Spec prefixes of learned policies (their results are never cached: the weights behind a path may change).
+LEARNED_PREFIXES = ("sb3:", "rllib:", "mappo:", "pretrained:")
 
 
 # ---------------------------------------------------------------------- learned policies
@@ -221,6 +226,22 @@ def load_policy(spec: str, n_uavs: int) -> tuple[Any, dict]:
         with _extra("stable_baselines3", "train"), _extra("sb3_contrib", "train"), _extra("torch", "train"):
             pol = load_sb3(spec[4:])
         settings = dict(pol.env_settings)
+    elif spec.startswith(("mappo:", "pretrained:")):
+        from training.pretrained import PRETRAINED_DIR, load_learned, pretrained_names
+
+        if spec.startswith("pretrained:"):
+            name = spec[len("pretrained:"):]
+            if name not in pretrained_names():
+                shipped = ", ".join(pretrained_names()) or "none"
+                raise UsageError(f"no pretrained weights {name!r} (shipped: {shipped})")
+            path = PRETRAINED_DIR / f"{name}.npz"
+        else:
+            path = Path(spec[len("mappo:"):])
+        try:
+            pol = load_learned(path)
+        except ValueError as exc:
+            raise UsageError(f"{spec}: {exc}") from None
+        settings = dict(pol.env_settings)
     elif spec.startswith("rllib:"):
         if not (Path(spec[6:]) / "learner_group").is_dir():
             raise UsageError(f"no RLlib checkpoint at {spec[6:]} (expected a training.rllib_ppo checkpoint folder)")
@@ -235,11 +256,11 @@ def load_policy(spec: str, n_uavs: int) -> tuple[Any, dict]:
         name = BUILTIN_ALIASES.get(spec, spec)
         if name not in POLICIES:
             raise UsageError(f"unknown policy {spec!r}; use one of {', '.join(sorted([*POLICIES, *BUILTIN_ALIASES]))}"
-                             ", sb3:PATH or rllib:PATH")
+                             ", sb3:PATH, rllib:PATH, mappo:PATH or pretrained:NAME")
         pol = make_policy(name)
         settings = {"n_uavs": n_uavs, "action_mode": "waypoint" if name.startswith("dp") else "unicycle"}
     if mode is not None:
-        if (spec.startswith(("sb3:", "rllib:"))) and mode != settings["action_mode"]:
+        if spec.startswith(LEARNED_PREFIXES) and mode != settings["action_mode"]:
             raise UsageError(f"{spec} was trained in {settings['action_mode']} mode; it cannot act in {mode} mode")
         settings["action_mode"] = mode
     if settings["n_uavs"] != n_uavs:
@@ -324,9 +345,34 @@ def write_outputs(results: dict[str, dict], out: Path, meta: dict) -> None:
             m, s = r["summary"][k]
             cells.append(f"{fmt.format(m)} ± {fmt.format(s)}")
         lines.append(f"| {name} | {r['settings']['action_mode']} | " + " | ".join(cells) + " |")
+    lines += _robust_lines(results)
     lines += ["", f"Command: `{meta['command']}`", ""]
     (out / "leaderboard.md").write_text("\n".join(lines))
     _figure(results, out / "comparison.png")
+
+
+def _robust_lines(results: dict[str, dict]) -> list[str]:
+    """The episode reward's interquartile mean with a 95 % bootstrap interval over the scenes, and the probability
+    of improvement over the DP planner (rliable's definitions, :mod:`training.stats`; each row is one training
+    seed, so the scenes are what is resampled, and P(X > DP) is the share of scenes where X earns more, ties 1/2)."""
+    from training.stats import iqm, probability_of_improvement, stratified_bootstrap_ci
+
+    dp = next((r for r in results.values() if r.get("spec", "").split("@")[0] == "dp"), None)
+    lines = ["", "Episode reward: interquartile mean with its 95 % bootstrap interval over scenes"
+             + (", and P(reward > DP shadow-aware's) on the same scenes" if dp else "") + " (training.stats).", "",
+             "| policy | reward IQM [95 % CI] |" + (" P(> DP) |" if dp else ""),
+             "|---|---|" + ("---|" if dp else "")]
+    for name, r in results.items():
+        rewards = np.array([row["reward"] for row in r["rows"]])
+        point, lo, hi = stratified_bootstrap_ci(rewards[:, None], iqm, reps=2000)
+        cell = f"| {name} | {point:.1f} [{lo:.1f}, {hi:.1f}] |"
+        if dp is not None:
+            ref = {row["scene_seed"]: row["reward"] for row in dp["rows"]}
+            pairs = [(row["reward"], ref[row["scene_seed"]]) for row in r["rows"] if row["scene_seed"] in ref]
+            x, y = np.array(pairs).T if pairs else (None, None)
+            cell += f" {probability_of_improvement(x[None], y[None]):.2f} |" if pairs else " - |"
+        lines.append(cell)
+    return lines
 
 
 def _figure(results: dict[str, dict], path: Path) -> None:
@@ -361,7 +407,7 @@ def build_parser(prog: str = "python -m training.evaluate") -> argparse.Argument
                                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     p.add_argument("--policies", nargs="+", default=["random", "hold-centre", "dp", "dp-blind"],
                    help="policy specs: dp, dp-blind, dp-binned, random, hold-centre/heuristic, sb3:PATH, rllib:PATH, "
-                        "each optionally @unicycle or @waypoint")
+                        "mappo:PATH, pretrained:NAME, each optionally @unicycle or @waypoint")
     p.add_argument("--episodes", type=int_range(1, MAX_SCENES), default=20,
                    help=f"held-out scenes per policy, in [1, {MAX_SCENES}]")
     p.add_argument("--n-uavs", type=positive_int, default=3, help="team size, >= 1")
@@ -425,7 +471,7 @@ def _main(args: argparse.Namespace, command: str) -> int:
         while name in results:
             name += "'"
         t0 = time.perf_counter()
-        builtin = not spec.startswith(("sb3:", "rllib:"))
+        builtin = not spec.startswith(LEARNED_PREFIXES)
         key = f"{spec}__{args.episodes}__{args.seed_offset}__{args.n_uavs}".replace("/", "_").replace("@", "-")
         cache = out / "cache" / f"{key}.json"
         if builtin and args.reuse and cache.exists():

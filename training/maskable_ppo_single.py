@@ -12,21 +12,10 @@ Outputs in ``runs/{env}__maskable_ppo_single__{seed}__{time}/`` (model.zip, vecn
 
 from __future__ import annotations
 
-import json
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from training.common import (
-    latest_checkpoint,
-    make_callbacks,
-    parse_args,
-    resumed_args,
-    run_name,
-    save_final_vecnormalize,
-    save_run,
-    setup_torch,
-)
+from training.common import parse_args, train_single
 
 ALGO = "maskable_ppo_single"
 
@@ -83,55 +72,19 @@ class Args:
     """show a tqdm progress bar"""
 
 
-def env_kwargs(args: Args) -> dict:
-    return dict(max_cycles=args.max_cycles, scene_pool=args.scene_pool)
-
-
 def train(args: Args) -> Path:
-    setup_torch(args.torch_threads)
-    from sb3_contrib import MaskablePPO
-    from stable_baselines3.common.env_util import make_vec_env
-    from stable_baselines3.common.vec_env import VecNormalize
+    """Train and save (the shared run of :func:`training.common.train_single`); returns the run folder."""
+    def build(args, venv, tb):
+        from sb3_contrib import MaskablePPO
 
-    import covert_env  # noqa: F401  (registers the Gymnasium ids)
-    from training.vec_env import load_vecnormalize
+        return MaskablePPO("MlpPolicy", venv, learning_rate=args.learning_rate, n_steps=args.n_steps,
+                           batch_size=args.batch_size, n_epochs=args.n_epochs, gamma=args.gamma,
+                           gae_lambda=args.gae_lambda, clip_range=args.clip_range, ent_coef=args.ent_coef,
+                           seed=args.seed, device="cpu",
+                           policy_kwargs=dict(net_arch=dict(pi=list(args.net_arch), vf=list(args.net_arch))),
+                           tensorboard_log=tb, verbose=0)
 
-    if args.resume:
-        run_dir = Path(args.resume)
-        args = resumed_args(args, run_dir)
-    else:
-        run_dir = Path(args.runs_dir) / (args.run_name or run_name(args.env_id, ALGO, args.seed))
-    ekw = env_kwargs(args)
-    save_run(run_dir, args, {"algo": ALGO, "sb3_class": "MaskablePPO", "multi_agent": False,
-                             "env_kwargs": {**ekw, "n_uavs": 1, "action_mode": "waypoint"}})
-    venv = make_vec_env(args.env_id, n_envs=args.n_envs, seed=args.seed, env_kwargs=ekw)
-    ckpt = latest_checkpoint(run_dir) if args.resume else None
-    if ckpt is not None:
-        venv = load_vecnormalize(ckpt[1], venv) if ckpt[1] else venv
-        model = MaskablePPO.load(str(ckpt[0]), env=venv, device="cpu")
-        print(f"resumed from {ckpt[0]} at {model.num_timesteps} steps", flush=True)
-    else:
-        if args.norm_obs or args.norm_reward:
-            venv = VecNormalize(venv, norm_obs=args.norm_obs, norm_reward=args.norm_reward, gamma=args.gamma)
-        model = MaskablePPO("MlpPolicy", venv, learning_rate=args.learning_rate, n_steps=args.n_steps,
-                            batch_size=args.batch_size, n_epochs=args.n_epochs, gamma=args.gamma,
-                            gae_lambda=args.gae_lambda, clip_range=args.clip_range, ent_coef=args.ent_coef,
-                            seed=args.seed, device="cpu",
-                            policy_kwargs=dict(net_arch=dict(pi=list(args.net_arch), vf=list(args.net_arch))),
-                            tensorboard_log=str(run_dir / "tb"), verbose=0)
-    cbs, budget = make_callbacks(run_dir, ALGO, args.total_timesteps, venv.num_envs, args.checkpoint_freq,
-                                 args.time_budget_minutes, args.progress_bar)
-    t0 = time.monotonic()
-    model.learn(max(args.total_timesteps - model.num_timesteps, 0), callback=cbs, tb_log_name=ALGO,
-                reset_num_timesteps=ckpt is None)
-    model.save(run_dir / "model.zip")
-    save_final_vecnormalize(model, run_dir)
-    info = {"timesteps": int(model.num_timesteps), "train_minutes": round((time.monotonic() - t0) / 60, 2),
-            "stopped_by_time_budget": budget.stopped}
-    (run_dir / "train_summary.json").write_text(json.dumps(info, indent=2))
-    print(f"saved {run_dir / 'model.zip'}: {info}", flush=True)
-    venv.close()
-    return run_dir
+    return train_single(args, ALGO, "MaskablePPO", "waypoint", build)
 
 
 def main(argv: list[str] | None = None) -> Path:

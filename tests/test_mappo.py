@@ -1,0 +1,94 @@
+"""training.mappo: smoke runs of MAPPO/IPPO in both action modes (a few hundred agent-steps each), checkpoints
+and resume, the Lagrangian flag, and the numpy actor of training.pretrained against the torch one."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+pytest.importorskip("tensorboard")
+
+from training import mappo  # noqa: E402
+from training.pretrained import N_OWN_FEATURES, NumpyActor, load_learned, node_features  # noqa: E402
+
+TINY = ["--num-envs", "2", "--num-steps", "8", "--num-minibatches", "2", "--update-epochs", "1", "--hidden", "16",
+        "--node-hidden", "8", "--max-cycles", "5", "--checkpoint-every", "16", "--progress-bar", "false"]
+
+
+def _curve(run):
+    return [json.loads(line) for line in (run / "curve.jsonl").read_text().splitlines()]
+
+
+@pytest.mark.parametrize("head", ["node", "flat", "gaussian"])
+def test_numpy_actor_equals_torch_actor(head):
+    torch.manual_seed(0)
+    Actor, _ = mappo._nets()
+    u, d, lat = 3, 143, np.random.default_rng(0).uniform(-100, 30, (40, 2))
+    n_act = len(lat) if head != "gaussian" else 2
+    actor = Actor(d, n_act, head, 16, 8, N_OWN_FEATURES + u - 1, -0.5)
+    for p in actor.parameters():                     # away from the tiny initial output layer
+        torch.nn.init.normal_(p, std=0.5)
+    obs = np.random.default_rng(1).normal(size=(5, d)).astype(np.float32)
+    feats = node_features(obs, lat, u, 100.0, 50.0, 1.0, 5.0)
+    assert feats.shape == (5, len(lat), N_OWN_FEATURES + u - 1) and np.isfinite(feats).all()
+    mask = np.ones((5, n_act), bool)
+    mask[:, ::3] = False
+    with torch.no_grad():
+        dist = actor.dist(torch.from_numpy(obs), torch.from_numpy(feats), torch.from_numpy(mask))
+    np_actor = NumpyActor({k: v.numpy() for k, v in actor.state_dict().items()}, {"head": head})
+    if head == "gaussian":
+        np.testing.assert_allclose(np_actor.mean(obs), dist.mean.numpy(), rtol=1e-5, atol=1e-5)
+    else:
+        logits = np_actor.logits(obs, feats if head == "node" else None)
+        ref = torch.log_softmax(torch.from_numpy(np.where(mask, logits, -np.inf)), -1).numpy()
+        np.testing.assert_allclose(ref[mask], dist.logits.numpy()[mask], rtol=1e-4, atol=1e-4)
+        assert (dist.probs.numpy()[~mask] == 0).all()            # masked nodes are never sampled
+
+
+@pytest.mark.parametrize("algo,mode", [("mappo", "waypoint"), ("ippo", "waypoint"), ("mappo", "unicycle"),
+                                       ("ippo", "unicycle")])
+def test_smoke_run_checkpoint_resume(tmp_path, algo, mode):
+    run = mappo.main([*TINY, "--algo", algo, "--action-mode", mode, "--total-timesteps", "48",
+                      "--runs-dir", str(tmp_path), "--run-name", "r"])
+    rows = _curve(run)
+    assert len(rows) >= 2 and rows[-1]["env_steps"] == 48                # 3 updates of 2 copies x 8 steps
+    for r in rows:
+        for k in ("policy_loss", "value_loss", "entropy", "approx_kl", "reward"):
+            assert math.isfinite(r[k]), (k, r)
+    assert sum(r["episodes"] for r in rows) >= 4                        # 5-slot episodes ended (autoreset)
+    steps = sorted(int(p.stem.split("_")[1]) for p in (run / "checkpoints").glob("step_*.npz"))
+    assert steps[0] == 16 and steps[-1] == 48
+    first = np.load(run / "checkpoints" / "step_16.npz")
+    final = np.load(run / "model.npz")
+    assert any(not np.array_equal(first[k], final[k]) for k in final.files)      # the updates changed the actor
+    pol = load_learned(run)
+    assert pol.env_settings == {"n_uavs": 3, "action_mode": mode, "map_size": 8}
+    # Resume: continues at 48 steps with the saved settings, not the command line's (except the budget).
+    mappo.main(["--resume", str(run), "--total-timesteps", "80", "--progress-bar", "false", "--hidden", "64"])
+    meta = json.loads((run / "model.json").read_text())
+    assert meta["global_step"] == 80 and meta["updates"] == 5 and meta["actor"]["hidden"] == 16
+
+
+def test_lagrangian_raises_lambda_and_harness_scores_the_run(tmp_path):
+    from training.evaluate import evaluate, load_policy
+
+    run = mappo.main([*TINY, "--lagrangian", "true", "--cost-limit", "0", "--lagrange-lr", "1", "--n-uavs", "2",
+                      "--agent-id", "true",
+                      "--total-timesteps", "32", "--runs-dir", str(tmp_path), "--run-name", "lag"])
+    rows = _curve(run)
+    # With a zero limit, lambda rises by the rollout's violation rate: never falls, and the random start collides.
+    lams = [r["lambda"] for r in rows]
+    assert lams == sorted(lams) and lams[-1] > 0
+    pol, settings = load_policy(f"mappo:{run}", 2)
+    assert settings["action_mode"] == "waypoint" and settings["n_uavs"] == 2 and pol.actor.spec["agent_id"]
+    assert pol.actor.p["trunk.0.weight"].shape[1] == 143 - 2 + 2             # obs (one teammate) + one-hot of 2
+    res = evaluate(pol, settings, 1, progress=False)
+    assert len(res) == 1 and math.isfinite(res[0]["reward"]) and res[0]["scene_seed"] == 1_000_000
+
+
+def test_bad_choices_are_one_line_errors(capsys):
+    with pytest.raises(SystemExit) as exc:
+        mappo.main(["--algo", "qmix"])
+    assert exc.value.code == 2 and "--algo" in capsys.readouterr().err

@@ -1,0 +1,180 @@
+"""Learned MAPPO/IPPO teams without torch: the actor's forward pass in numpy, its weights in ``.npz``, a loader.
+
+:mod:`training.mappo` trains the actor in torch; this module is what runs it everywhere else (the harness's
+``mappo:PATH`` and ``pretrained:NAME`` policy specs), so that evaluating a learned team needs neither torch nor
+pickle. The same :func:`node_features` feed the actor in training and here: one definition of its inputs.
+
+Files (no pickle anywhere: ``np.load(..., allow_pickle=False)`` and JSON):
+
+* ``NAME.npz``: the actor's parameters, named as in the torch module (``trunk.0.weight``, ``node_obs.weight``, ...);
+* ``NAME.json``: the model card: ``actor`` (the architecture fields below), ``env_kwargs`` (``n_uavs``,
+  ``action_mode``, ...), and for the shipped weights the algorithm, recipe, commit and scores.
+
+The actor (parameter-shared: one network for every UAV, eq. numbers of docs/paper_to_code.md):
+
+* trunk: the agent's observation (the parallel env's table), with ``agent_id`` followed by the one-hot of the
+  agent's index, through ``Linear + tanh`` layers;
+* waypoint mode, ``head = "node"``: each lattice node l is scored from the trunk's output and the node's geometry
+  relative to the UAV and its teammates (:func:`node_features`): ``logit_l = w . relu(A h + F f_l + b) + c``;
+  masked nodes get -inf (a masked categorical). ``head = "flat"``: one logit per node from ``Linear(h)``;
+* unicycle mode: a Gaussian whose mean is ``Linear(h)``; the env clips actions to [-1, 1] (no tanh squashing).
+
+Deterministic acting (the harness) takes the most likely node, or the clipped mean.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["node_features", "NumpyActor", "LearnedPolicy", "load_learned", "PRETRAINED_DIR", "pretrained_names",
+           "N_OWN_FEATURES"]
+
+PRETRAINED_DIR = Path(__file__).resolve().parent
+#: Features per (agent, node) besides the U - 1 teammate distances (see :func:`node_features`).
+N_OWN_FEATURES = 9
+
+
+def _wrap(a: np.ndarray) -> np.ndarray:
+    return (a + np.pi) % (2 * np.pi) - np.pi
+
+
+def node_features(obs: np.ndarray, lattice: np.ndarray, n_uavs: int, r2: float, v_max: float, delta: float,
+                  d_safe1: float) -> np.ndarray:
+    """Per-node inputs of the actor's waypoint head, ``(..., L, 9 + U - 1)`` float32 from observations ``(..., D)``.
+
+    Everything is read from the agent's own observation (no extra information): its offset from the target
+    (indices 0-1, in units of R2), the target's displacement to the next slot (8-9, in units of V_max delta) and
+    the teammates' offsets (11 ..). The lattice lives in the target's frame at slot k+1; the UAV and its teammates
+    are moved into that frame by subtracting the displacement (the target's turn within one slot is neglected).
+    For node l at ``p_l`` (units of R2) and the UAV at ``o``:
+
+    * ``p_l`` (2) and ``p_l - o`` (2);
+    * ``|p_l - o| R2 / (V_max delta)``: the fraction of a slot's maximal path (energy, eq. 15);
+    * the bearing and range changes the move makes, ``wrap(alpha_l - alpha_o) / pi`` and ``|p_l| - |o|``, and their
+      absolute values: the disguise kappa of eq. 11 is ``eta |d alpha| + |d d|``;
+    * per teammate j, ``min(|p_l - o_j| R2 / (2 d_safe1), 3)``: how close the node is to where j is now (eq. 2).
+    """
+    obs = np.asarray(obs, np.float32)
+    own = obs[..., 0:2]
+    disp = obs[..., 8:10] * (v_max * delta / r2)
+    o = own - disp
+    mates = obs[..., 11:11 + 2 * (n_uavs - 1)].reshape(*obs.shape[:-1], n_uavs - 1, 2) - disp[..., None, :]
+    p = (np.asarray(lattice, np.float32) / r2)                          # (L, 2)
+    shape = (*obs.shape[:-1], len(p))
+    rel = p - o[..., None, :]                                          # (..., L, 2)
+    dist = np.sqrt((rel ** 2).sum(-1)) * (r2 / (v_max * delta))
+    d_alpha = _wrap(np.arctan2(p[:, 1], p[:, 0]) - np.arctan2(o[..., 1], o[..., 0])[..., None]) / np.pi
+    d_range = np.hypot(p[:, 0], p[:, 1]) - np.hypot(o[..., 0], o[..., 1])[..., None]
+    feats = [np.broadcast_to(p, (*shape, 2)), rel, dist[..., None], d_alpha[..., None], np.abs(d_alpha)[..., None],
+             d_range[..., None], np.abs(d_range)[..., None]]
+    if n_uavs > 1:
+        gap = p[:, None, :] - mates[..., None, :, :]                   # (..., L, U-1, 2)
+        feats.append(np.minimum(np.sqrt((gap ** 2).sum(-1)) * (r2 / (2 * d_safe1)), 3.0))
+    return np.concatenate(feats, axis=-1).astype(np.float32)
+
+
+class NumpyActor:
+    """The actor of :mod:`training.mappo` in numpy (same parameter names, same outputs as the torch module)."""
+
+    def __init__(self, params: dict[str, np.ndarray], spec: dict):
+        self.p = {k: np.asarray(v, np.float64) for k, v in params.items()}
+        self.spec = dict(spec)
+        self.head = spec["head"]
+        self.trunk = sorted({int(k.split(".")[1]) for k in self.p if k.startswith("trunk.")})
+        for need in {"node": ("node_obs.weight", "node_feat.weight", "node_out.weight"), "flat": ("flat.weight",),
+                     "gaussian": ("mean.weight",)}[self.head]:
+            if need not in self.p:
+                raise ValueError(f"actor weights lack {need!r} for head {self.head!r}")
+
+    def _trunk(self, obs: np.ndarray) -> np.ndarray:
+        h = np.asarray(obs, np.float64)
+        for i in self.trunk:
+            h = np.tanh(h @ self.p[f"trunk.{i}.weight"].T + self.p[f"trunk.{i}.bias"])
+        return h
+
+    def logits(self, obs: np.ndarray, feats: np.ndarray | None = None) -> np.ndarray:
+        """Unmasked node logits ``(N, L)`` (waypoint heads) for observations ``(N, D)``."""
+        h = self._trunk(obs)
+        if self.head == "flat":
+            return h @ self.p["flat.weight"].T + self.p["flat.bias"]
+        a = h @ self.p["node_obs.weight"].T + self.p["node_obs.bias"]             # (N, H)
+        z = np.maximum(a[:, None, :] + feats @ self.p["node_feat.weight"].T, 0.0)  # (N, L, H)
+        return z @ self.p["node_out.weight"][0] + self.p["node_out.bias"][0]
+
+    def mean(self, obs: np.ndarray) -> np.ndarray:
+        """Gaussian mean ``(N, 2)`` (unicycle head), before the env's clipping."""
+        return self._trunk(obs) @ self.p["mean.weight"].T + self.p["mean.bias"]
+
+
+class LearnedPolicy:
+    """A learned team behind the harness's policy interface (``reset(env, seed)``, ``act(observations, env)``):
+    the agents still flying act at once (one batch), deterministically."""
+
+    def __init__(self, actor: NumpyActor, card: dict, name: str):
+        self.actor, self.card, self.name = actor, card, name
+        ekw = card["env_kwargs"]
+        self.env_settings = {"n_uavs": int(ekw["n_uavs"]), "action_mode": ekw["action_mode"],
+                             "map_size": int(ekw.get("map_size", 8))}
+
+    def reset(self, env, seed: int | None = None) -> None:
+        pass
+
+    def act(self, observations, env):
+        from baselines.policies import parallel_env_of
+
+        par, single = parallel_env_of(env)
+        agents = [a for a in par.possible_agents if a in par.agents]
+        obs_d = observations if single is None else {single: observations}
+        obs = np.stack([np.asarray(obs_d[a], np.float32) for a in agents])
+        x = obs
+        if self.actor.spec.get("agent_id"):
+            u = len(par.possible_agents)
+            x = np.concatenate([obs, np.eye(u)[[par.possible_agents.index(a) for a in agents]]], axis=1)
+        if self.actor.head == "gaussian":
+            act = np.clip(self.actor.mean(x), -1.0, 1.0).astype(np.float32)
+            out = {a: act[i] for i, a in enumerate(agents)}
+        else:
+            c = par.config
+            feats = node_features(obs, par.lattice, len(par.possible_agents), c.r2, c.v_max, c.delta, c.d_safe1) \
+                if self.actor.head == "node" else None
+            logits = self.actor.logits(x, feats)
+            mask = np.stack([par.action_mask(a) for a in agents]).astype(bool)
+            out = {a: int(np.argmax(np.where(mask[i], logits[i], -np.inf))) for i, a in enumerate(agents)}
+        return out[single] if single is not None else out
+
+
+def pretrained_names() -> list[str]:
+    """Names of the weights shipped in this folder (``NAME.npz`` with its card ``NAME.json``)."""
+    return sorted(p.stem for p in PRETRAINED_DIR.glob("*.npz") if p.with_suffix(".json").is_file())
+
+
+def load_learned(path: str | Path) -> LearnedPolicy:
+    """A :class:`LearnedPolicy` from weights (``.npz``) and their card (the ``.json`` beside), or a run folder of
+    :mod:`training.mappo` (its ``model.npz``/``model.json``). Raises ``ValueError`` naming the file on a missing or
+    malformed file."""
+    path = Path(path)
+    npz = path / "model.npz" if path.is_dir() else path
+    card_path = npz.with_suffix(".json")
+    if not npz.is_file() or not card_path.is_file():
+        raise ValueError(f"no learned actor at {path} (expected NAME.npz with NAME.json beside it, or a "
+                         "training.mappo run folder holding model.npz and model.json)")
+    try:
+        card = json.loads(card_path.read_text())
+        spec, ekw = card["actor"], card["env_kwargs"]
+        if spec.get("head") not in ("node", "flat", "gaussian") or ekw.get("action_mode") not in ("unicycle",
+                                                                                                  "waypoint"):
+            raise KeyError("actor.head / env_kwargs.action_mode")
+    except (UnicodeDecodeError, json.JSONDecodeError, KeyError, TypeError) as exc:
+        raise ValueError(f"{card_path}: not a model card of training.mappo ({exc})") from None
+    try:
+        with np.load(npz, allow_pickle=False) as data:
+            params = {k.removeprefix("actor."): data[k] for k in data.files if k.startswith("actor.")}
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"{npz}: not a weights file ({exc})") from None
+    actor = NumpyActor(params, spec)
+    label = card.get("algorithm", "mappo")
+    return LearnedPolicy(actor, card, name=f"{label} ({path.stem if not path.is_dir() else path.name})")
+

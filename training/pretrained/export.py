@@ -1,0 +1,97 @@
+"""Ship a trained actor: ``NAME.npz`` (actor weights, float32, no pickle) and its model card ``NAME.json``.
+
+    python -m training.pretrained.export runs/<mappo-run> --name mappo --episodes 20
+
+The card holds what a reader needs to trust and reproduce the weights: the algorithm, the run's arguments (the
+recipe) and training summary (env steps, wall time), the repository commit, the env's id and covert_env's
+version, and the scores of the harness (:mod:`training.evaluate`, env default reward) on the held-out scenes
+1_000_000 .. 1_000_000 + episodes - 1: mean ± std over scenes, IQM with a 95 % bootstrap interval over scenes
+(:mod:`training.stats`; one training seed, so the scenes are the resampled runs), the paper's metrics, and the
+reward of each scene (``tests/test_pretrained.py`` replays the first few and compares).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from training.pretrained import PRETRAINED_DIR, load_learned
+
+__all__ = ["export", "main"]
+
+
+def _commit() -> str:
+    try:
+        out = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=True,
+                             cwd=Path(__file__).resolve().parent)
+        return out.stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
+def export(run: Path, name: str, episodes: int = 20, out_dir: Path = PRETRAINED_DIR, progress: bool = True,
+           training_commit: str = "", note: str = "") -> Path:
+    """Write ``out_dir/NAME.npz`` and ``out_dir/NAME.json`` from a :mod:`training.mappo` run folder; returns the
+    card's path."""
+    import covert_env
+    from training.evaluate import HELD_OUT_OFFSET, evaluate, summarise
+    from training.stats import iqm, stratified_bootstrap_ci
+
+    run = Path(run)
+    meta = json.loads((run / "model.json").read_text())
+    args = json.loads((run / "args.json").read_text())
+    summary = json.loads((run / "train_summary.json").read_text()) if (run / "train_summary.json").exists() else {}
+    with np.load(run / "model.npz", allow_pickle=False) as data:
+        weights = {k: data[k].astype(np.float32) for k in data.files if k.startswith("actor.")}
+    out_dir.mkdir(parents=True, exist_ok=True)
+    npz = out_dir / f"{name}.npz"
+    np.savez_compressed(npz, **weights)
+    card = {"name": name, "algorithm": meta["algorithm"], "actor": meta["actor"], "env_kwargs": meta["env_kwargs"],
+            "env_id": meta["env_id"], "covert_env_version": covert_env.__version__, "commit": _commit(),
+            "recipe": {k: v for k, v in args.items() if k not in ("card", "resume", "runs_dir")},
+            "training": {**summary, "run": run.name, "commit": training_commit or "unknown"}, "note": note}
+    card_path = npz.with_suffix(".json")
+    card_path.write_text(json.dumps(card, indent=2))          # the loader needs it to score the weights
+    pol = load_learned(npz)
+    rows = evaluate(pol, pol.env_settings, episodes, HELD_OUT_OFFSET, progress=progress, label=name)
+    rewards = np.array([r["reward"] for r in rows])
+    point, lo, hi = stratified_bootstrap_ci(rewards[:, None], iqm, reps=5000)
+    card["scores"] = {
+        "scenes": [HELD_OUT_OFFSET, HELD_OUT_OFFSET + episodes - 1],
+        "reward_mean": float(rewards.mean()), "reward_std": float(rewards.std()),
+        "reward_iqm": point, "reward_iqm_ci95_over_scenes": [lo, hi],
+        "metrics_mean_std": {k: list(v) for k, v in summarise(rows).items() if k != "decision_time_ms"},
+        "per_scene_reward": {str(r["scene_seed"]): r["reward"] for r in rows},
+    }
+    card_path.write_text(json.dumps(card, indent=2))
+    return card_path
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m training.pretrained.export", description=__doc__.split("\n")[0])
+    p.add_argument("run", help="a training.mappo run folder (model.npz, model.json, args.json)")
+    p.add_argument("--name", default="mappo", help="file stem in training/pretrained/ (pretrained:NAME)")
+    p.add_argument("--episodes", type=int, default=20, help="held-out scenes to score (>= 1)")
+    p.add_argument("--out-dir", default=str(PRETRAINED_DIR), help="where to write NAME.npz and NAME.json")
+    p.add_argument("--training-commit", default="", help="the commit of the code that trained the run")
+    p.add_argument("--note", default="", help="what a user should know (e.g. the constraints it violates)")
+    a = p.parse_args(argv)
+    if not (Path(a.run) / "model.npz").is_file():
+        p.error(f"{a.run}: no model.npz (not a finished training.mappo run)")
+    if a.episodes < 1:
+        p.error(f"--episodes {a.episodes}: must be >= 1")
+    card = export(Path(a.run), a.name, a.episodes, Path(a.out_dir), training_commit=a.training_commit, note=a.note)
+    s = json.loads(card.read_text())["scores"]
+    print(f"wrote {card} and {card.with_suffix('.npz')}: reward {s['reward_mean']:.1f} ± {s['reward_std']:.1f}, "
+          f"IQM {s['reward_iqm']:.1f} [{s['reward_iqm_ci95_over_scenes'][0]:.1f}, "
+          f"{s['reward_iqm_ci95_over_scenes'][1]:.1f}]")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
