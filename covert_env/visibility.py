@@ -204,7 +204,7 @@ def clip_segments(start: np.ndarray, end: np.ndarray) -> np.ndarray:
     entering = den < 0
     # den == 0 lands on the leaving side: s = -inf (start > 0: empty), +inf (start < 0: no bound) or NaN
     # (segment exactly on the shrunk plane: no bound, ignored by fmin).
-    s_in = np.max(s, axis=0, where=entering, initial=0.0)
+    s_in = np.maximum.reduce(s, axis=0, where=entering, initial=0.0)
     np.copyto(s, 1.0, where=entering)
     s_out = np.minimum(np.fmin.reduce(s, axis=0), 1.0)
     return s_in <= s_out
@@ -484,7 +484,7 @@ class TerrainRows:
 
     Rows are written by :meth:`set_row`; the arrays grow (geometrically, up to ``capacity`` rows) to the largest
     polytope and face counts seen. Extra faces are the always-true row ``0.x - 1 <= 0`` and extra polytopes are
-    marked invalid, so padding never blocks.
+    empty (a row ``0.x + 1 <= 0``) and marked invalid, so padding never blocks.
 
     Attributes (rows R, polytopes M, faces F):
         faces (4, F, R, M): the columns n_x, n_y, n_z, d of each polytope's half-spaces, faces first.
@@ -498,20 +498,25 @@ class TerrainRows:
         self.cx, self.cy, self.radius, self.z_max = (np.zeros((0, 0)) for _ in range(4))
         self.valid = np.zeros((0, 0), bool)
         self.top = np.zeros((0, 0, 3))
-        self._at: dict = {}
+        # The line of sight's inputs, packed so that a step gathers each in one call: (4, R, 1, M) the circle's
+        # centre x, y, the top z_max (-inf: no polytope) and the radius with slack r' (the broad phase's); and per
+        # tol, (4, F, R M) the faces' n_x, n_y, n_z, d + tol (the clip's).
+        self._circles = np.zeros((4, 0, 1, 0))
+        self._tables: dict = {}
 
     def __len__(self) -> int:
         return len(self.valid)
 
-    def _offsets_at(self, altitude: float, tol: float) -> np.ndarray:
-        """(F, R M) the faces' offsets at the UAV plane (:func:`face_offsets`), kept per (altitude, tol); a row
+    def _clip_table(self, tol: float) -> np.ndarray:
+        """(4, F, R M) the columns n_x, n_y, n_z, d + tol (what :func:`face_offsets` adds), kept per tol; a row
         written later is updated in place."""
-        key = (float(altitude), float(tol))
-        off = self._at.get(key)
-        if off is None:
-            flat = self.faces.reshape(4, self.faces.shape[1], -1)
-            off = self._at[key] = face_offsets(flat[2], flat[3], key[0], key[1])
-        return off
+        table = self._tables.get(tol)
+        if table is None:
+            if len(self._tables) >= 4:
+                self._tables.clear()
+            table = self._tables[tol] = self.faces.reshape(4, self.faces.shape[1], -1).copy()
+            table[3] += tol
+        return table
 
     def set_row(self, r: int, terrain: Terrain) -> None:
         """Write ``terrain`` into row r (growing the arrays as needed)."""
@@ -526,98 +531,107 @@ class TerrainRows:
         if self.faces.shape != (4, ff, n, mm):
             faces = np.empty((4, ff, n, mm))
             faces[...] = pad[..., None]
+            faces[3, 0] = 1.0                               # 0.x + 1 <= 0: no polytope until one is written
             old = self.faces
             faces[:, :old.shape[1], :old.shape[2], :old.shape[3]] = old
             self.faces = faces
-            self._at.clear()                                # the kept offsets have the old shape
+            self._tables.clear()                            # the kept tables have the old shape
+            circles = np.zeros((4, n, 1, mm))
+            circles[2] = -np.inf
+            circles[:, :self._circles.shape[1], :, :self._circles.shape[3]] = self._circles
+            self._circles = circles
         self.cx, self.cy = grown(self.cx, (n, mm), 0.0), grown(self.cy, (n, mm), 0.0)
         self.radius, self.z_max = grown(self.radius, (n, mm), 0.0), grown(self.z_max, (n, mm), 0.0)
         self.valid = grown(self.valid, (n, mm), False)
         self.top = grown(self.top, (n, mm, 3), np.inf)
         self.faces[:, :, r] = pad
+        self.faces[3, 0, r, m:] = 1.0
         self.faces[:, :f, r, :m] = arr.faces
         self.cx[r], self.cy[r], self.radius[r], self.z_max[r], self.valid[r], self.top[r] = 0, 0, 0, 0, False, np.inf
         self.cx[r, :m], self.cy[r, :m] = arr.centre[:, 0], arr.centre[:, 1]
         self.radius[r, :m], self.z_max[r, :m], self.valid[r, :m] = arr.radius, arr.z_max, True
         self.top[r, :m] = terrain.highest_points
-        for (alt, tol), off in self._at.items():            # the kept offsets: row r only
-            off.reshape(ff, n, mm)[:, r] = face_offsets(self.faces[2, :, r], self.faces[3, :, r], alt, tol)
+        # r' = (r + 1 nm)(1 + 1e-9): the circle grown by rounding slack (the broad phase must never drop a triple
+        # the exact clip would block). No polytope: z_max = -inf, beyond every reach (and empty if kept anyway).
+        self._circles[:, r, 0] = np.array([0.0, 0.0, -np.inf, 0.0])[:, None]
+        self._circles[:, r, 0, :m] = arr.centre[:, 0], arr.centre[:, 1], arr.z_max, (arr.radius + 1e-9) * (1.0 + 1e-9)
+        for tol, table in self._tables.items():             # the kept tables: row r only
+            row = table.reshape(4, ff, n, mm)[:, :, r]
+            row[...] = self.faces[:, :, r]
+            row[3] += tol
 
     def line_of_sight(self, rows: np.ndarray, uav_xy: np.ndarray, altitude: float, target_xyz: np.ndarray,
                       *, tol: float = LOS_TOLERANCE) -> np.ndarray:
         """Clear LoS (eq. 6) from UAVs ``uav_xy`` (B, U, 2) at ``altitude`` to targets ``target_xyz`` (B, 3), copy
         b against the terrain of row ``rows[b]``; (B, U) bool, the same as :func:`line_of_sight` per copy.
 
-        Two broad phases, then the exact clip (:func:`clip_segments` on :func:`face_values`), each one array
-        operation over the batch: (copy, UAV, polytope) triples whose footprint circle lies in the UAV's direction
-        from the target and within reach of the part of the segment lower than the polytope's top (that part lies
-        within ``|p - q| (z_max - z_q) / (h - z_q)`` of the target); then that part must pass within the circle
-        (:func:`passes_near`); the triples left are clipped exactly. The broad phases only drop triples that
-        cannot block (with slack for rounding), so the result is the exact clip's."""
+        One broad phase, then the exact clip (:func:`clip_segments` on :func:`face_values`), each a few array
+        operations over the whole batch (their count, not the batch size, is the cost of a small batch). A (copy,
+        UAV, polytope) triple is kept when the polytope's footprint circle (radius r, centre c at distance g from the
+        target q) lies in the UAV's direction from the target -- the UAV's unit bearing e satisfies
+        ``e . (c - q) >= sqrt(g^2 - r^2)`` (the cone the circle subtends at q), or q is inside the circle -- and
+        within reach of the part of the segment lower than the polytope's top, which lies within
+        ``|p - q| (z_max - z_q) / (h - z_q)`` of the target (so ``|p - q| >= (g - r) / low``). Both tests are
+        conservative (r grown by 1 nm and 1e-9 relative, the bearing by 1e-9 relative): they only drop triples
+        the clip finds clear, so the result is the exact clip's."""
         q = target_xyz
-        qx, qy, qz = q[:, 0], q[:, 1], q[:, 2]
-        rel_x, rel_y = uav_xy[..., 0] - qx[:, None], uav_xy[..., 1] - qy[:, None]
-        dist = np.sqrt(rel_x * rel_x + rel_y * rel_y)                                   # (B, U)
-        b_n, u_n = dist.shape
-        n_m = self.valid.shape[1]
-        out = np.ones((b_n, u_n), dtype=bool)
-        if n_m == 0:
-            return out
-        # Per (copy, polytope), once: the footprint circle (centre c relative to the target, radius r + 1 nm).
-        cx, cy = self.cx[rows], self.cy[rows]                                           # (B, M)
-        cx -= qx[:, None]
-        cy -= qy[:, None]
-        r = self.radius[rows]
-        r += 1e-9
-        gap = np.sqrt(cx * cx + cy * cy)
-        # Reach: gap - r <= |p - q| low, i.e. |p - q| >= (gap - r) / low (every UAV when the gap is <= 0).
-        if altitude > qz.max():
-            low = self.z_max[rows]
-            low -= qz[:, None]
-            low /= (altitude - qz)[:, None]
-            np.clip(low, 0.0, 1.0, out=low)
-        else:
-            low = np.ones(cx.shape)
-        # The target inside the circle (or within rounding of it, where the cone below degenerates): every UAV.
-        inside = gap <= r * (1.0 + 1e-9)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            d_min = (gap - r) / low
-        d_min[inside] = -np.inf
-        d_min[~self.valid[rows]] = np.inf
-        # Cone: the UAV's bearing from the target must lie in the cone the circle subtends there,
-        # rel . c >= |rel| sqrt(gap^2 - r^2), written rel . c / sqrt(...) >= |rel| (1e-9 relative slack).
-        with np.errstate(divide="ignore", invalid="ignore"):
-            scale = 1.0 / (np.sqrt(np.maximum(gap * gap - r * r, 0.0)) * (1.0 - 1e-9))
-        scale[inside] = 0.0
-        cx *= scale
-        cy *= scale
-        # Per (copy, UAV, polytope) triple: a few passes over (B, U, M).
-        dot = rel_x[..., None] * cx[:, None, :]
-        dot += rel_y[..., None] * cy[:, None, :]
-        cand = dot >= dist[..., None]
-        if inside.any():
-            cand |= inside[:, None, :]
-        cand &= dist[..., None] >= d_min[:, None, :]
-        flat = np.flatnonzero(cand)
+        b_n, u_n = uav_xy.shape[:2]
+        n_m = self._circles.shape[3]
+        out = np.empty((b_n, u_n), dtype=bool)
+        out.fill(True)
+        # Per (copy, UAV): both ends of each segment, (x, y, z) x (UAV, target) x (B, U), gathered once per
+        # candidate below; the distance to the target and the bearing (with the cone's slack; 0 right above q).
+        ends = np.empty((3, 2, b_n, u_n))
+        ends[:2, 0] = uav_xy.transpose(2, 0, 1)
+        ends[2, 0] = altitude
+        ends[:, 1] = q.T[:, :, None]
+        rel = (ends[:2, 0] - ends[:2, 1])[..., None]
+        ex, ey = rel                                                                    # (B, U, 1) each
+        dist = ex * ex
+        dist += ey * ey
+        np.sqrt(dist, out=dist)                                                         # not hypot: slower
+        rel *= (1.0 + 1e-9) / np.maximum(dist, 1e-300)
+        # Per (copy, polytope): e = g - r' (<= 0: q inside the circle), the cone's threshold sqrt(g^2 - r'^2) (-inf
+        # inside) and the reach d_min = e / low.
+        circles = self._circles.take(rows, axis=1)                                      # (4, B, 1, M), a copy
+        circles[:3] -= q.T[:, :, None, None]                                            # relative to the target
+        cx, cy, z_rel, r = circles
+        e = cx * cx
+        e += cy * cy
+        np.sqrt(e, out=e)
+        thr = e + r
+        e -= r
+        thr *= e
+        outside = e > 0.0
+        r.fill(-np.inf)
+        thr = np.sqrt(thr, out=r, where=outside)
+        hq = altitude - q[:, 2, None, None]
+        if hq.min(initial=np.inf) > 0.0:
+            # low = (z_max - z_q) / (h - z_q), floored at 1e-200: a top not above the target (or no polytope) puts
+            # d_min beyond any UAV, as such a polytope lies below the whole segment.
+            z_rel /= hq
+            np.maximum(z_rel, 1e-200, out=z_rel)
+            e /= z_rel
+        # Per (copy, UAV, polytope) triple: a few passes over (B, U, M), (B, U, 1) against (B, 1, M).
+        dot = ex * cx
+        dot += ey * cy
+        cand = dot >= thr
+        cand &= dist >= e
+        flat = np.flatnonzero(cand)                    # not np.nonzero on (B U, M): many times slower on large B
         if len(flat) == 0:
             return out
-        b, um = np.divmod(flat, u_n * n_m)
-        u, m = np.divmod(um, n_m)
-        row = rows[b]
-        idx = row * n_m + m
-        # The part of the segment UAV -> target lower than the top, s in [s0, s1], must pass within the circle.
-        ux, uy = uav_xy[b, u, 0], uav_xy[b, u, 1]
-        s0, s1 = _low_part(self.z_max.take(idx), altitude, qz[b] - altitude)
-        near = (s1 > s0 - 1e-12) & passes_near(ux, uy, qx[b] - ux, qy[b] - uy, s0, s1, self.cx.take(idx),
-                                               self.cy.take(idx), self.radius.take(idx))
-        b, u, idx, ux, uy = b[near], u[near], idx[near], ux[near], uy[near]
-        if len(b) == 0:
-            return out
-        nx, ny, nz, d = self.faces.reshape(4, self.faces.shape[1], -1).take(idx, axis=2)   # (F, K) each
-        start = face_values(nx, ny, self._offsets_at(altitude, tol).take(idx, axis=1), ux, uy)
-        end = face_values(nx, ny, face_offsets(nz, d, qz[b], tol), qx[b], qy[b])
-        blocked = clip_segments(start, end)
-        out[b[blocked], u[blocked]] = False
+        bu = flat // n_m
+        idx = rows.take(bu // u_n) - bu                # the polytope's column in the rows' tables: rows[b] M + m
+        idx *= n_m
+        idx += flat
+        x, y, z = ends.reshape(3, 2, -1).take(bu, axis=2)                              # (2, K) each
+        nx, ny, nz, dt = self._clip_table(tol).take(idx, axis=2)[:, :, None]          # (F, 1, K) each
+        # Face values at both ends, (F, 2, K): n_x x + n_y y + (n_z z + d + tol), as face_offsets/face_values.
+        off = nz * z
+        off += dt
+        val = face_values(nx, ny, off, x, y)
+        blocked = clip_segments(val[:, 0], val[:, 1])
+        out.reshape(-1)[bu[blocked]] = False
         return out
 
 

@@ -471,3 +471,38 @@ def test_terrain_rows_overwritten_rows_see_their_new_terrain():
         want = np.stack([line_of_sight(current[w], xy[j], H, q[j]) for j, w in enumerate(which)])
         np.testing.assert_array_equal(rows.line_of_sight(which, xy, H, q), want, err_msg=f"step {step}")
     assert len(rows) <= 16
+
+
+def test_terrain_rows_broad_phase_keeps_every_blocking_triple_in_degenerate_cases():
+    """TerrainRows' broad phase (cone + reach, per copy, UAV and polytope) never drops a triple the exact clip
+    blocks, also where its tests degenerate: a UAV right above the target (no bearing), a target inside a footprint
+    or its circle (every bearing), a target at a padding polytope's (zero) centre on a row of fewer polytopes,
+    and copies whose target is above the UAV plane (no reach bound). Each copy is compared with line_of_sight on
+    its own terrain, and blocked results must occur (the comparison is not all-clear)."""
+    from covert_env.visibility import TerrainRows, terrain_arrays
+
+    rng = np.random.default_rng(11)
+    terrains = [random_terrain(rng, 16), random_terrain(rng, 4), random_terrain(rng, 9)]
+    rows = TerrainRows(capacity=4)
+    for r, t in enumerate(terrains):
+        rows.set_row(r, t)
+    n_blocked = 0
+    for trial in range(40):
+        which = rng.integers(0, 3, 12)
+        q = np.stack([random_target(rng) for _ in which])
+        q[0, :2] = 0.0                                              # a padding polytope's centre (rows 1, 2)
+        for j in (1, 2):                                            # inside a footprint / on its circle
+            arr = terrain_arrays(terrains[which[j]])
+            m = int(rng.integers(0, len(arr.centre)))
+            a = rng.uniform(0, 2 * np.pi)
+            q[j, :2] = arr.centre[m] + (0.2 if j == 1 else 1.0) * arr.radius[m] * np.array([np.cos(a), np.sin(a)])
+        alt = H if trial % 2 else float(q[:, 2].max()) - 1.0        # odd trials: no reach bound for some copies
+        if trial % 2 == 0:
+            q[3, 2] = alt + 30.0
+        xy = q[:, None, :2] + rng.uniform(-150, 150, (12, 5, 2))
+        xy[:, 0] = q[:, :2]                                         # right above the target
+        got = rows.line_of_sight(which, xy, alt, q)
+        want = np.stack([line_of_sight(terrains[w], xy[j], alt, q[j]) for j, w in enumerate(which)])
+        np.testing.assert_array_equal(got, want, err_msg=f"trial {trial}")
+        n_blocked += int((~want).sum())
+    assert n_blocked > 50
