@@ -104,12 +104,6 @@ class SceneCache:
             self._seeded = Scenario(w.config, w.terrain, w.track, xy, th, name=w.name)
         return self._seeded
 
-    def with_starts(self, rng: np.random.Generator, n_uavs: int) -> Scenario:
-        """The scene with ``n_uavs`` starts drawn from ``rng`` (see :meth:`Scenario.sample_starts`)."""
-        w = self.parts
-        xy, th = sample_starts_on(w.config, w.terrain, w.track, rng, n_uavs, w.name)
-        return Scenario(w.config, w.terrain, w.track, xy, th, name=w.name)
-
 
 class World:
     """The scene without starts (what the scene cache's slot computations need)."""
