@@ -387,29 +387,37 @@ def test_line_of_sight_rows_equals_line_of_sight_per_row(seed, altitude):
         line_of_sight_rows(terrain, xy[0], altitude, targets)
 
 
+def _rotated_box(cx, cy, a, w, h, z):
+    """A flat-topped box of half-sides w, h rotated by a about (cx, cy), top at z."""
+    c, s = math.cos(a), math.sin(a)
+    base = np.array([[-w, -h], [w, -h], [w, h], [-w, h]]) @ np.array([[c, s], [-s, c]]) + [cx, cy]
+    return Polytope(base, np.column_stack([base, np.full(4, float(z))]))
+
+
+def _grazing_segments(rng, key, terrain, n):
+    """n segments (UAV xy, target xyz) lying, to rounding, in a random shrunk side face plane of ``key`` (polytope 0
+    of ``terrain``): the cases where two summation orders of the face value decide differently."""
+    from covert_env.visibility import LOS_TOLERANCE, terrain_arrays
+
+    hs = terrain_arrays(terrain).hs[0]
+    side = [i for i in range(len(hs)) if abs(hs[i, 2]) < 1e-12 and np.any(hs[i, :3])]
+    f = side[int(rng.integers(0, len(side)))]
+    normal, d = hs[f, :3], hs[f, 3]
+    p0 = -(d + LOS_TOLERANCE) * normal[:2] / (normal[:2] @ normal[:2])    # on the shrunk face plane
+    tang = np.array([-normal[1], normal[0]]) / np.hypot(normal[0], normal[1])
+    ts = (key.plan_view.mean(axis=0) - p0) @ tang + rng.uniform(-3, 3, (n, 2))
+    return p0 + ts[:, :1] * tang, np.column_stack([p0 + ts[:, 1:] * tang, np.full(n, 1.5)])
+
+
 def test_terrain_stack_equals_line_of_sight_on_grazing_segments():
     """Segments lying (to rounding) in a shrunk side face of a rotated box: where line_of_sight takes its
     broad-phase path (40 points x 20 polytopes > the brute-force size), the stack must not clip with
     another formula, or the rounding of the face value decides differently (it did, on ~12 % of these)."""
-    from covert_env.visibility import LOS_TOLERANCE, terrain_arrays
-
-    def rbox(cx, cy, a, w, h, z):
-        c, s = math.cos(a), math.sin(a)
-        base = np.array([[-w, -h], [w, -h], [w, h], [-w, h]]) @ np.array([[c, s], [-s, c]]) + [cx, cy]
-        return Polytope(base, np.column_stack([base, np.full(4, float(z))]))
-
     rng = np.random.default_rng(1)
     for _ in range(40):
-        key = rbox(rng.uniform(-50, 50), rng.uniform(-50, 50), rng.uniform(0, 2 * math.pi), 6, 4, 40)
-        terrain = Terrain([key] + [rbox(2000 + 40 * i, 900, 0.3, 5, 5, 30) for i in range(19)])
-        hs = terrain_arrays(terrain).hs[0]
-        side = [i for i in range(len(hs)) if abs(hs[i, 2]) < 1e-12 and np.any(hs[i, :3])]
-        f = side[int(rng.integers(0, len(side)))]
-        n, d = hs[f, :3], hs[f, 3]
-        p0 = -(d + LOS_TOLERANCE) * n[:2] / (n[:2] @ n[:2])               # on the shrunk face plane
-        tang = np.array([-n[1], n[0]]) / np.hypot(n[0], n[1])
-        ts = (key.plan_view.mean(axis=0) - p0) @ tang + rng.uniform(-3, 3, (40, 2))
-        xy, tgt = p0 + ts[:, :1] * tang, np.column_stack([p0 + ts[:, 1:] * tang, np.full(40, 1.5)])
+        key = _rotated_box(rng.uniform(-50, 50), rng.uniform(-50, 50), rng.uniform(0, 2 * math.pi), 6, 4, 40)
+        terrain = Terrain([key] + [_rotated_box(2000 + 40 * i, 900, 0.3, 5, 5, 30) for i in range(19)])
+        xy, tgt = _grazing_segments(rng, key, terrain, 40)
         want = line_of_sight(terrain, xy, H, tgt)
         got = TerrainStack([terrain, terrain]).line_of_sight(np.stack([xy, xy]), H, np.stack([tgt, tgt]))
         np.testing.assert_array_equal(got, np.stack([want, want]))
@@ -419,12 +427,7 @@ def test_terrain_rows_equal_line_of_sight_per_copy_also_on_grazing_segments():
     """TerrainRows (the vector env's batched LoS, one terrain per row, copies pointing at rows) clips with the
     same face values as line_of_sight, so it decides exactly alike, also segments lying (to rounding) in a shrunk
     face plane; padding (rows of fewer polytopes or faces, an empty terrain) never blocks."""
-    from covert_env.visibility import LOS_TOLERANCE, TerrainRows, terrain_arrays
-
-    def rbox(cx, cy, a, w, h, z):
-        c, s = math.cos(a), math.sin(a)
-        base = np.array([[-w, -h], [w, -h], [w, h], [-w, h]]) @ np.array([[c, s], [-s, c]]) + [cx, cy]
-        return Polytope(base, np.column_stack([base, np.full(4, float(z))]))
+    from covert_env.visibility import TerrainRows
 
     rng = np.random.default_rng(3)
     rows = TerrainRows(capacity=8)
@@ -432,17 +435,10 @@ def test_terrain_rows_equal_line_of_sight_per_copy_also_on_grazing_segments():
     for r, t in enumerate(terrains):
         rows.set_row(r, t)
     for _ in range(30):
-        key = rbox(rng.uniform(-50, 50), rng.uniform(-50, 50), rng.uniform(0, 2 * math.pi), 6, 4, 40)
-        terrain = Terrain([key, rbox(400, 400, 0.3, 5, 5, 30)])
+        key = _rotated_box(rng.uniform(-50, 50), rng.uniform(-50, 50), rng.uniform(0, 2 * math.pi), 6, 4, 40)
+        terrain = Terrain([key, _rotated_box(400, 400, 0.3, 5, 5, 30)])
         rows.set_row(3, terrain)
-        hs = terrain_arrays(terrain).hs[0]
-        side = [i for i in range(len(hs)) if abs(hs[i, 2]) < 1e-12 and np.any(hs[i, :3])]
-        f = side[int(rng.integers(0, len(side)))]
-        n, d = hs[f, :3], hs[f, 3]
-        p0 = -(d + LOS_TOLERANCE) * n[:2] / (n[:2] @ n[:2])               # on the shrunk face plane
-        tang = np.array([-n[1], n[0]]) / np.hypot(n[0], n[1])
-        ts = (key.plan_view.mean(axis=0) - p0) @ tang + rng.uniform(-3, 3, (8, 2))
-        xy, tgt = p0 + ts[:, :1] * tang, np.column_stack([p0 + ts[:, 1:] * tang, np.full(8, 1.5)])
+        xy, tgt = _grazing_segments(rng, key, terrain, 8)
         # Each grazing segment as a copy of one UAV on row 3, among copies on the other rows.
         which = np.r_[np.full(8, 3), rng.integers(0, 3, 24)]
         targets = np.r_[tgt, np.stack([random_target(rng) for _ in range(24)])]
