@@ -75,7 +75,7 @@ def test_lagrangian_raises_lambda_and_harness_scores_the_run(tmp_path):
     from training.evaluate import evaluate, load_policy
 
     run = mappo.main([*TINY, "--lagrangian", "true", "--cost-limit", "0", "--lagrange-lr", "1", "--n-uavs", "2",
-                      "--agent-id", "true",
+                      "--agent-id", "true", "--separation-shield", "false",
                       "--total-timesteps", "32", "--runs-dir", str(tmp_path), "--run-name", "lag"])
     rows = _curve(run)
     # With a zero limit, lambda rises by the rollout's violation rate: never falls, and the random start collides.
@@ -83,6 +83,7 @@ def test_lagrangian_raises_lambda_and_harness_scores_the_run(tmp_path):
     assert lams == sorted(lams) and lams[-1] > 0
     pol, settings = load_policy(f"mappo:{run}", 2)
     assert settings["action_mode"] == "waypoint" and settings["n_uavs"] == 2 and pol.actor.spec["agent_id"]
+    assert pol.shield_distance is None
     assert pol.actor.p["trunk.0.weight"].shape[1] == 143 - 2 + 2             # obs (one teammate) + one-hot of 2
     res = evaluate(pol, settings, 1, progress=False)
     assert len(res) == 1 and math.isfinite(res[0]["reward"]) and res[0]["scene_seed"] == 1_000_000
@@ -92,3 +93,21 @@ def test_bad_choices_are_one_line_errors(capsys):
     with pytest.raises(SystemExit) as exc:
         mappo.main(["--algo", "qmix"])
     assert exc.value.code == 2 and "--algo" in capsys.readouterr().err
+
+
+def test_shielded_run_records_the_shield_and_evaluates_with_it(tmp_path):
+    """The recipe's shield: on by default in the waypoint mode, written to the card, used by the harness (no
+    separation violation in a slot where it found separated nodes); off in the unicycle mode."""
+    from training.evaluate import evaluate, load_policy
+    from training.recipes import MAPPO_RECIPES
+
+    assert MAPPO_RECIPES["3uav-mappo"]["separation_shield"] is True
+    run = mappo.main([*TINY, "--total-timesteps", "32", "--runs-dir", str(tmp_path), "--run-name", "sh"])
+    assert json.loads((run / "model.json").read_text())["separation_shield"] == 5.0        # d_safe1 + margin 0
+    pol, settings = load_policy(f"mappo:{run}", 3)
+    assert pol.shield_distance == 5.0
+    row = evaluate(pol, settings, 1, progress=False)[0]
+    assert row["separation_violations"] <= 1.0 and math.isfinite(row["reward"])
+    uni = mappo.main([*TINY, "--action-mode", "unicycle", "--total-timesteps", "16", "--runs-dir", str(tmp_path),
+                      "--run-name", "uni"])
+    assert json.loads((uni / "model.json").read_text())["separation_shield"] is None

@@ -1,5 +1,6 @@
 """MAPPO and IPPO on the batched vector env (``covert_env.vector_env``), one CleanRL-style file.
 
+    OMP_NUM_THREADS=1 python -m training.mappo --recipe 3uav-mappo --seed 0        # the documented recipe
     OMP_NUM_THREADS=1 python -m training.mappo --algo mappo --action-mode waypoint --time-budget-minutes 55
     OMP_NUM_THREADS=1 python -m training.mappo --algo ippo --action-mode unicycle
     python -m training.mappo --resume runs/<run>                  # continue from the newest checkpoint
@@ -15,6 +16,11 @@ statistics), GAE, the PPO update, checkpoints. Nothing here is pickled: checkpoi
   ``--head flat`` is one logit per node). Unicycle mode: a Gaussian with a state-independent std; actions are
   **clipped** to [-1, 1] by the env (no tanh squashing; the log-probability is that of the unclipped sample,
   as in CleanRL's continuous PPO).
+* **Separation shield** (waypoint mode, ``--separation-shield``, on by default): the UAVs of a copy choose one
+  after another, and a UAV may not choose a node whose path comes closer than d_safe1 to a teammate's chosen
+  path (:mod:`training.shield`; the env's ``waypoint_paths`` flies the candidates). The shielded masks are
+  stored with the actions, so PPO's ratios use the masks the actions were sampled under, and the harness runs
+  the same shield (the model card's ``separation_shield``).
 * **Critic**: MAPPO (``--algo mappo``) sees the centralised ``state()`` of the copy plus a one-hot of the agent
   (the rewards are per agent, so one state value would not do); IPPO (``--algo ippo``) sees the agent's own
   observation. Value targets are normalised by running statistics (``--value-norm``, MAPPO's ValueNorm).
@@ -43,6 +49,8 @@ import numpy as np
 
 from training.common import parse_args, resumed_args, run_name, save_run, setup_torch
 from training.pretrained import N_OWN_FEATURES, node_features
+from training.recipes import MAPPO_RECIPES
+from training.shield import SeparationShield
 
 
 @dataclass
@@ -104,6 +112,12 @@ class Args:
     see the same observation and pick the same move, so they can never part"""
     lagrangian: bool = False
     """subtract lambda * cost_separation from the training reward, lambda by dual ascent"""
+    separation_shield: bool = True
+    """waypoint mode: the UAVs choose one after another and none may choose a node whose path comes closer than
+    d_safe1 + shield_margin to a teammate's chosen path (training.shield); in training and evaluation alike.
+    The unicycle mode has no shield"""
+    shield_margin: float = 0.0
+    """extra distance (m) the shield keeps beyond d_safe1"""
     cost_limit: float = 0.007
     """allowed separation-violation rate per UAV and slot (0.5 of 70 slots) for --lagrangian"""
     lagrange_lr: float = 1.0
@@ -160,17 +174,29 @@ def _nets():
                 self.mean = layer(hidden, n_actions, std=0.01)
                 self.log_std = nn.Parameter(torch.full((n_actions,), float(log_std_init)))
 
-        def dist(self, obs, feats=None, mask=None):
+        def logits(self, obs, feats=None, mask=None):
+            """Node logits (waypoint heads); with ``mask``, the node head scores only the allowed nodes (about
+            two in five: the same values at a fraction of the cost) and the others get -1e8."""
             h = self.trunk(obs)
-            if self.head == "gaussian":
-                mean = self.mean(h)
-                return torch.distributions.Normal(mean, self.log_std.exp().expand_as(mean))
-            if self.head == "node":
+            if self.head != "node":
+                return self.flat(h)
+            if mask is None:
                 z = torch.relu(self.node_obs(h)[:, None, :] + self.node_feat(feats))
-                logits = self.node_out(z)[..., 0]
-            else:
-                logits = self.flat(h)
-            return torch.distributions.Categorical(logits=torch.where(mask, logits, torch.tensor(-1e8)))
+                return self.node_out(z)[..., 0]
+            rows, nodes = mask.nonzero(as_tuple=True)
+            z = torch.relu(self.node_obs(h)[rows] + self.node_feat(feats[rows, nodes]))
+            return torch.full(mask.shape, -1e8).index_put((rows, nodes), self.node_out(z)[:, 0])
+
+        def dist(self, obs, feats=None, mask=None):
+            if self.head == "gaussian":
+                mean = self.mean(self.trunk(obs))
+                return torch.distributions.Normal(mean, self.log_std.exp().expand_as(mean))
+            return masked_categorical(self.logits(obs, feats, mask), mask)
+
+    def masked_categorical(logits, mask):
+        return torch.distributions.Categorical(logits=torch.where(mask, logits, torch.tensor(-1e8)))
+
+    Actor.masked_categorical = staticmethod(masked_categorical)
 
     class Critic(nn.Module):
         def __init__(self, in_dim, hidden):
@@ -266,6 +292,7 @@ def train(args: Args) -> Path:
     n_feat = N_OWN_FEATURES + U - 1
     actor_spec = dict(head=head, hidden=args.hidden, node_hidden=args.node_hidden, n_feat=n_feat, obs_dim=obs_dim,
                       n_actions=n_act, agent_id=args.agent_id)
+    shield = SeparationShield(c.d_safe1 + args.shield_margin) if waypoint and args.separation_shield else None
     Actor, Critic = _nets()
     actor = Actor(obs_dim + (U if args.agent_id else 0), n_act, head, args.hidden, args.node_hidden, n_feat,
                   args.log_std_init)
@@ -281,6 +308,7 @@ def train(args: Args) -> Path:
         vnorm.mean, vnorm.var, vnorm.count = meta["vnorm"]
         print(f"resumed from {ckpt} at {global_step} env steps", flush=True)
     card = {"algorithm": args.algo, "actor": actor_spec, "env_kwargs": ekw, "env_id": env.metadata["name"],
+            "separation_shield": None if shield is None else shield.min_distance,
             "covert_env_version": covert_env.__version__ if hasattr(covert_env, "__version__") else None}
     save_run(run_dir, args, {"card": card})
     writer = SummaryWriter(str(run_dir / "tb"))
@@ -318,6 +346,8 @@ def train(args: Args) -> Path:
     logp_buf, val_buf = np.zeros((T, B, U), np.float32), np.zeros((T, B, U), np.float32)
     rew_buf, done_buf = np.zeros((T, B, U), np.float32), np.zeros((T, B), np.float32)
     sep_buf = np.zeros((T, B, U), np.float32)
+    # The node head's inputs, kept from the rollout for the update (they do not depend on the parameters).
+    feats_buf = torch.zeros((T, B * U, n_act, n_feat) if head == "node" else (T, 0))
     cost_keys = ("cost_los", "cost_zone", "cost_separation", "cost_terrain")
     ep_ret, ep_kappa = np.zeros((B, U)), np.zeros((B, U))
     ep_cost = np.zeros((len(cost_keys), B, U))
@@ -339,9 +369,28 @@ def train(args: Args) -> Path:
                 mask_buf[t] = env.action_masks().astype(bool)
             with torch.no_grad():
                 flat_obs = obs.reshape(B * U, obs_dim)
-                d = actor.dist(actor_in(flat_obs), feats_of(flat_obs),
-                               torch.from_numpy(mask_buf[t].reshape(B * U, -1)) if waypoint else None)
-                a = d.sample()
+                if shield is not None:
+                    # The team chooses one UAV after another (training.shield), sampling each UAV's node by the
+                    # Gumbel-max trick under its shielded mask; those masks are stored for the update.
+                    feats_buf[t] = feats_of(flat_obs)
+                    logits = actor.logits(actor_in(flat_obs), feats_buf[t],
+                                          torch.from_numpy(mask_buf[t].reshape(B * U, -1)))
+                    lg = logits.numpy().reshape(B, U, -1)
+                    copies = np.arange(B)
+
+                    def pick(k, m):
+                        g = -np.log(-np.log(np.random.random(m.shape)))
+                        return np.argmax(np.where(m, lg[copies, k] + g, -np.inf), axis=1)
+
+                    a_np, mask_buf[t] = shield.choose(mask_buf[t], env.waypoint_paths, pick)
+                    d = Actor.masked_categorical(logits, torch.from_numpy(mask_buf[t].reshape(B * U, -1)))
+                    a = torch.from_numpy(a_np.reshape(B * U))
+                else:
+                    if head == "node":
+                        feats_buf[t] = feats_of(flat_obs)
+                    d = actor.dist(actor_in(flat_obs), feats_buf[t] if head == "node" else None,
+                                   torch.from_numpy(mask_buf[t].reshape(B * U, -1)) if waypoint else None)
+                    a = d.sample()
                 logp = d.log_prob(a) if waypoint else d.log_prob(a).sum(-1)
             val_buf[t] = value_of(obs, state)
             act_buf[t] = a.numpy().reshape(act_buf.shape[1:])
@@ -386,7 +435,7 @@ def train(args: Args) -> Path:
         N = T * B * U
         f_obs = obs_buf.reshape(N, obs_dim)
         f_x = actor_in(f_obs)
-        f_feats = feats_of(f_obs)                  # once per update: they do not depend on the parameters
+        f_feats = feats_buf.reshape(N, n_act, n_feat) if head == "node" else None
         f_cin = critic_input(obs_buf, state_buf).reshape(N, critic_in).astype(np.float32)
         f_mask = mask_buf.reshape(N, -1)
         f_act = act_buf.reshape(N, *act_buf.shape[3:])
@@ -430,6 +479,8 @@ def train(args: Args) -> Path:
         writer.add_scalar("losses/clipfrac", float(np.mean(clipfracs)), global_step)
         writer.add_scalar("charts/sps", global_step / max(wall, 1e-9), global_step)
         writer.add_scalar("charts/lambda_separation", lam, global_step)
+        if shield is not None:
+            writer.add_scalar("charts/shield_fallbacks", shield.fallbacks / max(shield.choices, 1), global_step)
         if recent:
             means = {k: float(np.mean([e[k] for e in recent])) for k in recent[0]}
             for k, v in means.items():
@@ -466,7 +517,7 @@ def train(args: Args) -> Path:
 
 
 def main(argv: list[str] | None = None) -> Path:
-    args = parse_args(Args, argv, description=__doc__.split("\n")[0])
+    args = parse_args(Args, argv, description=__doc__.split("\n")[0], presets=MAPPO_RECIPES)
     try:
         check_args(args)
     except ValueError as exc:

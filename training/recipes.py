@@ -46,7 +46,7 @@ this budget; a separation-aware observation or a distance-shaped penalty is the 
 
 from __future__ import annotations
 
-__all__ = ["RECIPES"]
+__all__ = ["RECIPES", "MAPPO_RECIPES"]
 
 RECIPES: dict[str, dict] = {
     "3uav-ppo": dict(
@@ -58,5 +58,16 @@ RECIPES: dict[str, dict] = {
     "smoke": dict(
         n_uavs=3, n_copies=2, total_timesteps=3_000, n_steps=128, batch_size=256, n_epochs=2,
         time_budget_minutes=5.0, checkpoint_freq=1_536, progress_bar=False, max_cycles=20,
+    ),
+}
+
+
+#: Named settings of :mod:`training.mappo` (``python -m training.mappo --recipe NAME``; flags override).
+#: ``3uav-mappo``: MAPPO in the waypoint mode with the separation shield (training.shield) and the Lagrangian
+#: on the separation cost, 50 minutes of wall clock on one core (see training/README.md for the measured runs).
+MAPPO_RECIPES: dict[str, dict] = {
+    "3uav-mappo": dict(
+        algo="mappo", n_uavs=3, num_envs=16, action_mode="waypoint", head="node", learning_rate=1e-3,
+        time_budget_minutes=50.0, separation_shield=True, lagrangian=True, checkpoint_every=100_000,
     ),
 }

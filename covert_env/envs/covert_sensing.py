@@ -393,6 +393,12 @@ class CovertSensingParallelEnv(ParallelEnv):
             raise ValueError(f"action_mask(): unknown agent {agent!r}; the agents are {self.possible_agents}")
         return self._vec.action_masks()[0, self._index[agent]]
 
+    def waypoint_paths(self, nodes) -> np.ndarray:
+        """Where the UAVs would fly in this slot to lattice ``nodes`` ``(U, M)`` (agents in ``possible_agents``
+        order): path samples ``(U, M, path_samples, 2)`` in the world frame (m), flown as ``step`` flies them.
+        Read-only; waypoint mode, after ``reset()`` (:meth:`CovertSensingVectorEnv.waypoint_paths`)."""
+        return self._vec.waypoint_paths(np.asarray(nodes)[None])[0]
+
     def state(self) -> np.ndarray:
         """Global state for centralised critics (see the class docstring)."""
         if not self._vec.started:

@@ -404,6 +404,35 @@ class CovertSensingVectorEnv:
         """(B, U, L) int8 waypoint masks (1 = allowed); all ones (B, U, 2) in unicycle mode."""
         return self._masks.copy()
 
+    def waypoint_paths(self, nodes) -> np.ndarray:
+        """Where the UAVs would fly in this slot to lattice ``nodes``: path samples ``(B, U, M, path_samples, 2)``
+        (world frame, m) for node indices ``(B, U, M)``, at the sample times of ``step`` and flown as ``step``
+        flies them (the manoeuvre of eqs. 22-29, or its best effort where a node is out of reach). An index of -1
+        stands for no node (ragged candidate lists): its samples are NaN and cost nothing.
+
+        A read-only query (the state does not change), for policies that plan with the model: the separation
+        shield of ``training.shield`` tests these paths against eq. 2. Waypoint mode, after ``reset()``."""
+        if self.action_mode != "waypoint":
+            raise RuntimeError("waypoint_paths() is for action_mode='waypoint'")
+        if not self._started or self._pool is None:
+            raise RuntimeError("waypoint_paths() called before reset() or after close()")
+        nodes = np.asarray(nodes)
+        b, u = self.num_envs, len(self.possible_agents)
+        if nodes.ndim != 3 or nodes.shape[:2] != (b, u) or not np.issubdtype(nodes.dtype, np.integer):
+            raise ValueError(f"waypoint_paths(): nodes must be integer indices of shape ({b}, {u}, M), got "
+                             f"{nodes.dtype} {nodes.shape}")
+        if nodes.size and (nodes.min() < -1 or nodes.max() >= len(self.lattice)):
+            raise ValueError(f"waypoint_paths(): node indices must be in [0, {len(self.lattice) - 1}] (or -1 for "
+                             f"none), got [{nodes.min()}, {nodes.max()}]")
+        pool, rows, k1 = self._pool, self._rows, self._k + 1
+        ci, ui, mi = np.nonzero(nodes >= 0)                       # only the real (copy, UAV, node) triples
+        out = np.full((*nodes.shape, self.path_samples, 2), np.nan)
+        goals = batch.to_world_batch(self.lattice[nodes[ci, ui, mi]][:, None], pool.q[rows[ci], k1[ci], :2],
+                                     pool.phi[rows[ci], k1[ci]])
+        out[ci, ui, mi] = batch.fly_waypoints(self._xy[ci, ui][:, None], self._theta[ci, ui][:, None], goals,
+                                              self.config, self._times)[0][:, 0]
+        return out
+
     def state(self) -> np.ndarray:
         """(B, S) float32 global state, row b the parallel env's ``state()`` of copy b."""
         if not self._started:

@@ -116,6 +116,8 @@ class LearnedPolicy:
     def __init__(self, actor: NumpyActor, card: dict, name: str):
         self.actor, self.card, self.name = actor, card, name
         ekw = card["env_kwargs"]
+        #: The separation shield's distance (m) if the team was trained with it (:mod:`training.shield`).
+        self.shield_distance = card.get("separation_shield")
         self.env_settings = {"n_uavs": int(ekw["n_uavs"]), "action_mode": ekw["action_mode"],
                              "map_size": int(ekw.get("map_size", 8))}
 
@@ -142,7 +144,15 @@ class LearnedPolicy:
                 if self.actor.head == "node" else None
             logits = self.actor.logits(x, feats)
             mask = np.stack([par.action_mask(a) for a in agents]).astype(bool)
-            out = {a: int(np.argmax(np.where(mask[i], logits[i], -np.inf))) for i, a in enumerate(agents)}
+            if self.shield_distance is not None:
+                from training.shield import SeparationShield
+
+                shield = SeparationShield(float(self.shield_distance))
+                act, _ = shield.choose(mask[None], lambda n: par.waypoint_paths(n[0])[None],
+                                       lambda k, m: np.argmax(np.where(m, logits[k], -np.inf), axis=-1))
+                out = {a: int(act[0, i]) for i, a in enumerate(agents)}
+            else:
+                out = {a: int(np.argmax(np.where(mask[i], logits[i], -np.inf))) for i, a in enumerate(agents)}
         return out[single] if single is not None else out
 
 

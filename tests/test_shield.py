@@ -1,0 +1,163 @@
+"""The separation shield (training.shield) and the env query it stands on (``waypoint_paths``).
+
+* ``waypoint_paths`` is what ``step`` flies: the same path samples, bit for bit, and it changes no state.
+* The shield's invariants on synthetic paths (hypothesis): shielded masks lie inside the env's masks, every
+  choice lies inside its shielded mask, and the team's chosen paths keep ``min_distance`` at every sample after
+  the first unless the choice is counted as a fallback (free UAVs, with all-ones masks, choose by rejection).
+* In the env: a team choosing random nodes under the shield has no separation violation in a slot without a
+  fallback; without it, the same team collides.
+"""
+
+import gymnasium
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import covert_env
+from training.shield import SeparationShield
+
+DISABLED = gymnasium.vector.AutoresetMode.DISABLED
+
+
+def _env(b=4, u=3, **kw):
+    return covert_env.vector_env(num_envs=b, n_uavs=u, action_mode="waypoint", autoreset_mode=DISABLED, **kw)
+
+
+def _random_allowed(masks, rng):
+    """One allowed node per (copy, UAV), uniformly."""
+    g = rng.random(masks.shape)
+    return np.argmax(np.where(masks.astype(bool), g, -1.0), axis=-1)
+
+
+def test_waypoint_paths_are_the_paths_step_flies_and_change_nothing():
+    env = covert_env.vector_env(num_envs=3, n_uavs=2, action_mode="waypoint", record=True,
+                                autoreset_mode=DISABLED)
+    twin = covert_env.vector_env(num_envs=3, n_uavs=2, action_mode="waypoint", record=True,
+                                 autoreset_mode=DISABLED)
+    env.reset(seed=5)
+    twin.reset(seed=5)
+    rng = np.random.default_rng(0)
+    for _ in range(4):
+        masks = env.action_masks()
+        a = _random_allowed(masks, rng)
+        some = rng.integers(0, len(env.lattice), (3, 2, 6))           # masked nodes too: their best effort
+        before = (env.uav_xy.copy(), env.uav_theta.copy())
+        paths = env.waypoint_paths(np.concatenate([a[..., None], some], axis=2))
+        assert paths.shape == (3, 2, 7, env.path_samples, 2)
+        np.testing.assert_array_equal(env.uav_xy, before[0])           # read-only
+        np.testing.assert_array_equal(env.uav_theta, before[1])
+        out = env.step(a)
+        ref = twin.step(a)                                             # never queried: same outcome
+        np.testing.assert_array_equal(out[0], ref[0])
+        np.testing.assert_array_equal(out[1], ref[1])
+        np.testing.assert_array_equal(paths[:, :, 0, -1], env.uav_xy)  # the chosen path ends where step ended
+        ragged = env.waypoint_paths(np.where(np.arange(3) < 1, some[..., :3], -1))   # -1: no node
+        assert np.isnan(ragged[..., 1:, :, :]).all() and not np.isnan(ragged[..., 0, :, :]).any()
+        for i in range(3):
+            flown = env.trajectory(i).path_xy[-1]                      # (U, P, 2) of the slot just flown
+            np.testing.assert_array_equal(paths[i, :, 0], flown)
+
+
+def test_parallel_env_waypoint_paths_match_the_vector_env():
+    par = covert_env.parallel_env(n_uavs=2, action_mode="waypoint")
+    par.reset(seed=3)
+    nodes = np.array([[0, 5, 9], [1, 2, 3]])
+    p = par.waypoint_paths(nodes)
+    assert p.shape == (2, 3, 11, 2)                                   # path_samples = 11 (default)
+    step_nodes = {a: int(nodes[i, 1]) for i, a in enumerate(par.possible_agents)}
+    par.step(step_nodes)
+    end = np.array([par.engine.uav_xy[i] for i in range(2)])
+    np.testing.assert_array_equal(p[:, 1, -1], end)
+
+
+@pytest.mark.parametrize("bad, err", [
+    (np.zeros((4, 3), int), ValueError),                # missing M axis
+    (np.zeros((4, 3, 2)), ValueError),                  # floats
+    (np.full((4, 3, 1), 10_000), ValueError),           # out of range
+    (np.full((4, 3, 1), -2), ValueError),                # -1 is "no node"; below is an error
+])
+def test_waypoint_paths_bad_input(bad, err):
+    env = _env()
+    env.reset(seed=0)
+    with pytest.raises(err, match="waypoint_paths"):
+        env.waypoint_paths(bad)
+
+
+def test_waypoint_paths_needs_reset_and_waypoint_mode():
+    with pytest.raises(RuntimeError, match="before reset"):
+        _env().waypoint_paths(np.zeros((4, 3, 1), int))
+    uni = covert_env.vector_env(num_envs=2, n_uavs=2, action_mode="unicycle")
+    uni.reset(seed=0)
+    with pytest.raises(RuntimeError, match="waypoint"):
+        uni.waypoint_paths(np.zeros((2, 2, 1), int))
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2 ** 31 - 1), b=st.integers(1, 4), u=st.integers(1, 4), n=st.integers(1, 12),
+       d=st.floats(0.0, 30.0))
+def test_shield_invariants_on_synthetic_paths(seed, b, u, n, d):
+    rng = np.random.default_rng(seed)
+    pts = rng.uniform(-40, 40, (b, u, n, 2))                 # each (copy, UAV, node): a straight 5-sample path
+    start = rng.uniform(-40, 40, (b, u, 1, 2))
+    frac = np.linspace(0, 1, 5)[:, None]
+    table = start[:, :, :, None] + (pts - start)[:, :, :, None] * frac   # (b, u, n, 5, 2)
+    masks = rng.random((b, u, n)) < 0.6
+    masks[..., 0] |= ~masks.any(axis=-1)                     # the env's masks are never empty
+
+    def paths_to(nodes):                                     # as the env's waypoint_paths: -1 is no node
+        out = table[np.arange(b)[:, None, None], np.arange(u)[None, :, None], nodes]
+        out[nodes < 0] = np.nan
+        return out
+
+    def pick(k, m):
+        return np.argmax(np.where(m, rng.random(m.shape), -1.0), axis=1)
+
+    shield = SeparationShield(d)
+    actions, shielded = shield.choose(masks, paths_to, pick)
+    assert shielded.any(axis=-1).all()                                  # never without an action
+    assert not (shielded & ~masks).any()                                # inside the env's masks
+    assert shielded[np.arange(b)[:, None], np.arange(u), actions].all()  # choices inside the shielded masks
+    chosen = table[np.arange(b)[:, None], np.arange(u), actions][:, :, 1:]          # (b, u, 4, 2)
+    gap = np.linalg.norm(chosen[:, :, None] - chosen[:, None], axis=-1).min(-1)     # (b, u, u)
+    gap[:, np.arange(u), np.arange(u)] = np.inf
+    too_close = (gap < d).any(axis=(1, 2))
+    assert too_close.sum() <= shield.fallbacks                           # only a fallback may leave a conflict
+    assert shield.choices == b * u
+
+
+def test_shield_rejects_bad_distance():
+    for bad in (-1.0, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="min_distance"):
+            SeparationShield(bad)
+
+
+def test_shielded_random_team_keeps_separation_in_the_env():
+    """Random choices under the shield: no violation in any slot without a fallback; without the shield the
+    same kind of team violates separation."""
+    rng = np.random.default_rng(1)
+    env = _env(b=8)
+    env.reset(seed=11)
+    shield = SeparationShield(env.config.d_safe1)
+    slots = violations_without_fallback = 0
+    for _ in range(12):
+        before = shield.fallbacks
+        a, _ = shield.choose(env.action_masks(), env.waypoint_paths, lambda k, m: _random_allowed(m, rng))
+        _, _, _, _, infos = env.step(a)
+        sep = infos["separation"].min(axis=1)         # the closest teammate along the slot's path (m)
+        if shield.fallbacks == before:
+            violations_without_fallback += int((sep < env.config.d_safe1).sum())
+        slots += 1
+    assert slots == 12 and violations_without_fallback == 0
+    assert shield.fallbacks <= 0.1 * shield.choices
+
+    env.reset(seed=11)
+    crowded = 0
+    for _ in range(12):                                        # no shield: UAVs all head for the same node
+        masks = env.action_masks().astype(bool)
+        common = np.argmax(masks.all(axis=1), axis=1)          # a node every UAV of the copy may choose
+        ok = masks.all(axis=1).any(axis=1)
+        a = np.where(ok[:, None], common[:, None], _random_allowed(masks, rng))
+        _, _, _, _, infos = env.step(a)
+        crowded += int((infos["separation"].min(axis=1) < env.config.d_safe1).sum())
+    assert crowded > 0

@@ -1,0 +1,175 @@
+"""The separation shield of the learned waypoint teams: the UAVs choose their next nodes one after another, and a
+UAV may not choose a node whose path comes near a path a teammate has already chosen (eq. 2, d_safe1).
+
+Why a shield and not only a penalty: with one shared actor the UAVs of a team score the lattice nodes alike and
+converge on the same best node. A separation penalty (1 per slot by default, or a Lagrangian multiplier) taught
+the first MAPPO team to keep its UAVs apart in only about three of four slots (18 of 70 slots per UAV closer
+than d_safe1, measured in the #13 runs). Eq. 2 is a hard constraint of the paper's problem, and the DP team
+meets it the same way: by priority negotiation, each UAV planning around the plans of the UAVs before it
+(``baselines.dp.DPTeamPlanner``). The shield is that negotiation for one slot: the team shares its chosen paths,
+as the DP team shares its plans.
+
+It acts on the action masks only, so it is part of the policy (training and evaluation use it alike, and PPO's
+probability ratios are taken under the masks the actions were sampled with); the environment is unchanged.
+
+* Every UAV's allowed nodes are flown once per slot (the env's ``waypoint_paths``: the same manoeuvre and the
+  same sample times as ``step``), and a candidate's path is tested against the teammates' chosen paths at the
+  same times, as the env measures separation (``separation_path``). Sample 0, where the UAVs are now, is left
+  out: no choice changes it.
+* A UAV that can reach no lattice node (its env mask then allows every node, flown as a best effort) is far
+  from the zone, and flying all L of its best-effort paths would cost more than the rest of the step: it
+  chooses by rejection instead (a node whose path comes too close is removed and it chooses again, up to
+  ``free_tries`` times).
+* A node whose path comes closer than ``min_distance`` is removed from the UAV's mask. If that leaves no node,
+  the team tries again with that UAV choosing first (at most U tries; the UAVs fly at up to 50 m/s with a
+  bounded turn rate, so a teammate's path can cut off every path of a UAV that chose after it). If every try
+  leaves some UAV without a node, the last try stands and that UAV chooses among the nodes whose paths come
+  least close (the shield never leaves a UAV without an action); such choices are counted in ``fallbacks``.
+
+All copies of a batch go through it at once; the loops are over the UAVs of a team and over the tries, because
+the choices are sequential by design (a UAV needs the paths of the UAVs before it).
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+
+__all__ = ["SeparationShield"]
+
+
+class SeparationShield:
+    """Sequential node choice under the separation constraint (eq. 2) for waypoint-mode teams.
+
+    Args:
+        min_distance: a node is masked if the UAV's path to it comes closer than this (m) to a teammate's chosen
+            path at a sample time: d_safe1 (a violation is a sample closer than d_safe1), plus a margin if wanted.
+    """
+
+    def __init__(self, min_distance: float):
+        if not np.isfinite(min_distance) or min_distance < 0:
+            raise ValueError(f"min_distance must be a finite number >= 0 (m), got {min_distance!r}")
+        self.min_distance = float(min_distance)
+        #: How many nodes a free UAV (one that can reach no node) may try before it keeps a close one.
+        self.free_tries = 8
+        #: UAV choices left without a separated node after every try, and all choices (since construction).
+        self.fallbacks, self.choices = 0, 0
+
+    def restrict(self, mask: np.ndarray, nodes: np.ndarray, paths: np.ndarray, chosen_paths: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+        """One UAV per copy: its mask ``(B, L)`` without the nodes whose paths come closer than ``min_distance``
+        to the teammates' ``chosen_paths`` ``(B, k, P, 2)``, from its candidate ``nodes`` ``(B, M)`` (the mask's
+        nodes, padded with -1) and their ``paths`` ``(B, M, P, 2)``. Returns the mask and the rows ``(B,)``
+        where no node was left: those keep the nodes whose paths come least close."""
+        mask = np.asarray(mask, bool)
+        empty = np.zeros(len(mask), bool)
+        if chosen_paths.shape[1] == 0:
+            return mask, empty
+        gap = paths[:, :, None, 1:] - chosen_paths[:, None, :, 1:]             # (B, M, k, P-1, 2)
+        gap2 = np.einsum("...i,...i->...", gap, gap).min(axis=(2, 3))          # (B, M) closest approach^2
+        gap2[nodes < 0] = -1.0                                                  # padding: never kept
+        keep = gap2 >= self.min_distance ** 2
+        empty = ~keep.any(axis=1)
+        if empty.any():
+            keep[empty] = gap2[empty] >= gap2[empty].max(axis=1, keepdims=True)
+        out = np.zeros_like(mask)
+        rows = np.broadcast_to(np.arange(len(mask))[:, None], nodes.shape)
+        keep &= nodes >= 0
+        out[rows[keep], nodes[keep]] = True
+        return out, empty
+
+    def _pass(self, masks, nodes, paths, free, order, paths_to, pick):
+        """One sequential choice in the per-copy UAV ``order`` ``(B, U)``: actions, shielded masks, and per copy
+        the first position whose UAV had no separated node (U if none)."""
+        B, U, _ = masks.shape
+        copies = np.arange(B)
+        actions = np.zeros((B, U), np.int64)
+        shielded = np.empty_like(masks)
+        failed_at = np.full(B, U)
+        chosen = []
+        for i in range(U):
+            k = order[:, i]
+            past = np.stack(chosen, axis=1) if chosen else np.zeros((B, 0, 1, 2))
+            sm, empty = self.restrict(masks[copies, k], nodes[copies, k], paths[copies, k], past)
+            fk = free[copies, k]
+            sm[fk], empty[fk] = masks[copies, k][fk], False
+            a = pick(k, sm)
+            slot = np.argmax(nodes[copies, k] == a[:, None], axis=1)           # a is one of the candidates
+            path = paths[copies, k, slot]
+            if fk.any():
+                a, path, blocked = self._free_choice(fk, k, a, path, sm, past, paths_to, pick, U)
+                empty |= blocked
+            failed_at[empty & (failed_at == U)] = i
+            shielded[copies, k] = sm
+            actions[copies, k] = a
+            chosen.append(path)
+        return actions, shielded, failed_at
+
+    def _free_choice(self, fk, k, a, path, sm, past, paths_to, pick, U):
+        """The choice of the free UAVs (rows ``fk``) by rejection: a node whose path comes too close to a
+        teammate's is removed from the mask ``sm`` (in place) and the UAV chooses again, up to ``free_tries``
+        times. Returns the actions, their paths (``path`` ``(B, P, 2)`` of the other rows kept), and the rows
+        still too close (fallbacks)."""
+        B = len(a)
+        copies = np.arange(B)
+        path = path.copy()
+        pending = fk.copy()
+        for attempt in range(self.free_tries + 1):
+            one = np.full((B, U, 1), -1)
+            one[copies[pending], k[pending], 0] = a[pending]
+            p = paths_to(one)[copies, k, 0]                                    # (B, P, 2), NaN off pending
+            path[pending] = p[pending]
+            if past.shape[1] == 0:
+                return a, path, np.zeros(B, bool)
+            gap = p[:, None, 1:] - past[:, :, 1:]                              # (B, k, P-1, 2)
+            close = pending & (np.einsum("...i,...i->...", gap, gap).min(axis=(1, 2)) < self.min_distance ** 2)
+            pending = close
+            if not pending.any() or attempt == self.free_tries:
+                break
+            sm[pending, a[pending]] = False
+            if not sm[pending].any(axis=1).all():                              # tried every node: stop
+                sm[pending, a[pending]] = True
+                break
+            a = np.where(pending, pick(k, sm), a)
+        return a, path, pending
+
+    def choose(self, masks: np.ndarray, paths_to: Callable[[np.ndarray], np.ndarray],
+               pick: Callable[[np.ndarray, np.ndarray], np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+        """Choose the team's nodes, UAV 0 first, then again with a blocked UAV first where one was blocked.
+
+        Args:
+            masks: ``(B, U, L)`` the env's action masks.
+            paths_to: ``paths_to(nodes (B, U, M)) -> (B, U, M, P, 2)``: the UAVs' paths to nodes in this slot
+                (the env's ``waypoint_paths``).
+            pick: ``pick(k (B,), mask (B, L)) -> (B,)``: the node of UAV ``k[b]`` of copy b under the shielded
+                mask (sampling in training, the most likely node in evaluation).
+
+        Returns:
+            ``(actions (B, U) int64, shielded masks (B, U, L) bool)``.
+        """
+        masks = np.asarray(masks, bool)
+        B, U, _ = masks.shape
+        # A UAV whose mask allows every node can reach none (the env's rule): it chooses by rejection.
+        free = masks.all(axis=2)
+        # Every other UAV's allowed nodes, padded with -1 (no node, NaN paths), flown once.
+        counts = np.where(free, 0, masks.sum(axis=2))
+        m = max(int(counts.max()), 1)
+        first = np.argsort(~masks, axis=2, kind="stable")[..., :m]
+        nodes = np.where(np.arange(m) < counts[..., None], first, -1)
+        paths = paths_to(nodes)
+        order = np.tile(np.arange(U), (B, 1))
+        actions, shielded, failed_at = self._pass(masks, nodes, paths, free, order, paths_to, pick)
+        for _ in range(U - 1):
+            retry = failed_at < U
+            if not retry.any():
+                break
+            # The blocked UAV first, the others in their order.
+            blocked = order[np.arange(B), np.minimum(failed_at, U - 1)]
+            new_order = np.concatenate([blocked[:, None], order[order != blocked[:, None]].reshape(B, U - 1)], 1)
+            order = np.where(retry[:, None], new_order, order)
+            a2, s2, f2 = self._pass(masks, nodes, paths, free, order, paths_to, pick)
+            actions[retry], shielded[retry], failed_at[retry] = a2[retry], s2[retry], f2[retry]
+        self.fallbacks += int((failed_at < U).sum())
+        self.choices += B * U
+        return actions, shielded
