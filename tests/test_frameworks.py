@@ -334,10 +334,12 @@ def test_benchmarl_smoke_run(task_name, vectorized, tmp_path):
             assert _mask_respected(batch["uav", "action_mask"], batch["uav", "action"]), "MAPPO left the mask"
 
 
-def test_benchmarl_hydra_runner(tmp_path):
-    """``python -m covert_env.integrations.benchmarl algorithm=... task=covert_sensing/...`` (hydra overrides only)."""
+@pytest.mark.parametrize("algorithm", ["mappo", "ippo"])
+def test_benchmarl_hydra_runner(tmp_path, algorithm):
+    """``python -m covert_env.integrations.benchmarl algorithm=... task=covert_sensing/...`` (hydra overrides only):
+    BenchMARL's own MAPPO and IPPO on the waypoint task with its action masks."""
     pytest.importorskip("benchmarl")
-    overrides = ["algorithm=mappo", "task=covert_sensing/waypoint", "task.n_uavs=2", "task.max_cycles=20",
+    overrides = [f"algorithm={algorithm}", "task=covert_sensing/waypoint", "task.n_uavs=2", "task.max_cycles=20",
                  "experiment.max_n_frames=100", "experiment.on_policy_collected_frames_per_batch=100",
                  "experiment.on_policy_n_envs_per_worker=1", "experiment.on_policy_minibatch_size=50",
                  "experiment.on_policy_n_minibatch_iters=1", "experiment.evaluation=false",

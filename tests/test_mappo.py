@@ -111,3 +111,24 @@ def test_shielded_run_records_the_shield_and_evaluates_with_it(tmp_path):
     uni = mappo.main([*TINY, "--action-mode", "unicycle", "--total-timesteps", "16", "--runs-dir", str(tmp_path),
                       "--run-name", "uni"])
     assert json.loads((uni / "model.json").read_text())["separation_shield"] is None
+
+
+def test_seed_group_is_one_leaderboard_row(tmp_path):
+    """``mappo:RUN1,RUN2``: both runs on the same scenes, one row, its IQM interval over seeds x scenes."""
+    from training.evaluate import _reward_matrix, main, split_seeds
+
+    runs = [mappo.main([*TINY, "--seed", str(s), "--total-timesteps", "16", "--runs-dir", str(tmp_path),
+                        "--run-name", f"s{s}"]) for s in (0, 1)]
+    spec = f"mappo:{runs[0]},{runs[1]}"
+    assert split_seeds(spec) == [f"mappo:{runs[0]}", f"mappo:{runs[1]}"]
+    assert split_seeds(spec + "@waypoint") == [f"mappo:{runs[0]}@waypoint", f"mappo:{runs[1]}@waypoint"]
+    assert split_seeds("dp") == ["dp"]
+    out = tmp_path / "lb"
+    assert main(["--policies", spec, "--episodes", "2", "--out", str(out), "--no-progress"]) == 0
+    md = (out / "leaderboard.md").read_text()
+    assert "| mappo (2 seeds) | 2 |" in md
+    rows = [line for line in (out / "episodes.csv").read_text().splitlines()[1:]]
+    assert len(rows) == 4                                                   # 2 seeds x 2 scenes
+    m = _reward_matrix({"rows": [{"scene_seed": s, "reward": float(10 * r + s), "run": r}
+                                 for r in (0, 1) for s in (5, 6)], "runs": 2})
+    np.testing.assert_array_equal(m, [[5, 6], [15, 16]])

@@ -22,6 +22,10 @@ Policy specs (``SPEC[@MODE]``, MODE = ``unicycle`` or ``waypoint`` picks the env
 * ``mappo:PATH``: a MAPPO/IPPO actor of :mod:`training.mappo` -- a run folder (its ``model.npz`` and
   ``model.json``) or ``NAME.npz`` with its card ``NAME.json``; ``pretrained:NAME``: the weights shipped in
   ``training/pretrained/`` (``pretrained:mappo``). Both run in numpy (no torch, no pickle): :mod:`training.pretrained`.
+* **Training seeds as one row**: ``PREFIX:PATH1,PATH2,...`` (``mappo:``, ``sb3:``, ``rllib:``) evaluates each run
+  of a recipe (one per training seed) on the same scenes and reports them as one row: the metrics' mean ± std
+  over seeds x episodes, and the reward's IQM with its 95 % stratified-bootstrap interval over seeds x scenes
+  (seeds resampled within each scene, rliable's method) and P(> DP).
 
 Held-out scenes: episode i flies ``reset(seed=s, options={"scene_seed": s})`` with ``s = seed_offset + i``
 (default 1_000_000 + i, outside the training pool ``range(scene_pool)``). Every policy sees the same scenes and
@@ -47,7 +51,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["main", "load_policy", "evaluate", "SB3Policy", "COLUMNS", "HELD_OUT_OFFSET"]
+__all__ = ["main", "load_policy", "evaluate", "split_seeds", "SB3Policy", "COLUMNS", "HELD_OUT_OFFSET"]
 
 HELD_OUT_OFFSET = 1_000_000
 
@@ -351,26 +355,56 @@ def write_outputs(results: dict[str, dict], out: Path, meta: dict) -> None:
     _figure(results, out / "comparison.png")
 
 
+def split_seeds(spec: str) -> list[str]:
+    """The member specs of a seed group ``PREFIX:PATH1,PATH2[@MODE]`` (a one-element list for any other spec)."""
+    if not spec.startswith(LEARNED_PREFIXES) or "," not in spec:
+        return [spec]
+    prefix, rest = spec.split(":", 1)
+    mode = ""
+    if "@" in rest:
+        rest, mode = rest.rsplit("@", 1)
+        mode = "@" + mode
+    return [f"{prefix}:{part}{mode}" for part in rest.split(",") if part]
+
+
+def _reward_matrix(r: dict) -> np.ndarray:
+    """Episode rewards ``(runs, scenes)``: one row per training seed of a seed group, else ``(1, scenes)``."""
+    rows = r["rows"]
+    runs = r.get("runs", 1)
+    scenes = sorted({row["scene_seed"] for row in rows})
+    m = np.full((runs, len(scenes)), np.nan)
+    col = {s: j for j, s in enumerate(scenes)}
+    for row in rows:
+        m[row.get("run", 0), col[row["scene_seed"]]] = row["reward"]
+    return m
+
+
 def _robust_lines(results: dict[str, dict]) -> list[str]:
-    """The episode reward's interquartile mean with a 95 % bootstrap interval over the scenes, and the probability
-    of improvement over the DP planner (rliable's definitions, :mod:`training.stats`; each row is one training
-    seed, so the scenes are what is resampled, and P(X > DP) is the share of scenes where X earns more, ties 1/2)."""
+    """The episode reward's interquartile mean with its 95 % bootstrap interval, and the probability of
+    improvement over the DP planner (rliable's definitions, :mod:`training.stats`).
+
+    A seed group's rewards are a (seeds, scenes) matrix: the interval resamples the seeds within each scene
+    (stratified by scene) and P(X > DP) is the Mann-Whitney statistic per scene, averaged over scenes. A single
+    run has no seeds to resample, so its interval resamples the scenes instead (said in the table)."""
     from training.stats import iqm, probability_of_improvement, stratified_bootstrap_ci
 
     dp = next((r for r in results.values() if r.get("spec", "").split("@")[0] == "dp"), None)
-    lines = ["", "Episode reward: interquartile mean with its 95 % bootstrap interval over scenes"
+    lines = ["", "Episode reward: interquartile mean with its 95 % stratified-bootstrap interval (over seeds x scenes "
+             "for seed groups, over scenes for single runs)"
              + (", and P(reward > DP shadow-aware's) on the same scenes" if dp else "") + " (training.stats).", "",
-             "| policy | reward IQM [95 % CI] |" + (" P(> DP) |" if dp else ""),
-             "|---|---|" + ("---|" if dp else "")]
+             "| policy | runs | reward IQM [95 % CI] |" + (" P(> DP) |" if dp else ""),
+             "|---|---|---|" + ("---|" if dp else "")]
     for name, r in results.items():
-        rewards = np.array([row["reward"] for row in r["rows"]])
-        point, lo, hi = stratified_bootstrap_ci(rewards[:, None], iqm, reps=2000)
-        cell = f"| {name} | {point:.1f} [{lo:.1f}, {hi:.1f}] |"
+        m = _reward_matrix(r)
+        if m.shape[0] > 1:
+            point, lo, hi = stratified_bootstrap_ci(m, iqm, reps=2000)
+        else:
+            point, lo, hi = stratified_bootstrap_ci(m.T, iqm, reps=2000)        # the scenes as the runs
+        cell = f"| {name} | {m.shape[0]} | {point:.1f} [{lo:.1f}, {hi:.1f}] |"
         if dp is not None:
-            ref = {row["scene_seed"]: row["reward"] for row in dp["rows"]}
-            pairs = [(row["reward"], ref[row["scene_seed"]]) for row in r["rows"] if row["scene_seed"] in ref]
-            x, y = np.array(pairs).T if pairs else (None, None)
-            cell += f" {probability_of_improvement(x[None], y[None]):.2f} |" if pairs else " - |"
+            ref = _reward_matrix(dp)
+            same = sorted({row["scene_seed"] for row in r["rows"]}) == sorted({row["scene_seed"] for row in dp["rows"]})
+            cell += f" {probability_of_improvement(m, ref):.2f} |" if same else " - |"
         lines.append(cell)
     return lines
 
@@ -459,13 +493,18 @@ def _main(args: argparse.Namespace, command: str) -> int:
     loaded = []
     for spec in args.policies:
         try:
-            loaded.append((spec, *load_policy(spec, args.n_uavs)))
+            group = [load_policy(part, args.n_uavs) for part in split_seeds(spec)]
         except UsageError as exc:
             raise UsageError(f"--policies: {exc}") from None
+        if len({json.dumps(st, sort_keys=True) for _, st in group}) > 1:
+            raise UsageError(f"--policies: the runs of {spec} need different env settings "
+                             f"({[st for _, st in group]}); a seed group must share them")
+        loaded.append((spec, group))
     out = output_dir(args.out)
     results: dict[str, dict] = {}
-    for spec, pol, settings in loaded:
-        name = getattr(pol, "name", spec)
+    for spec, group in loaded:
+        pol, settings = group[0]
+        name = getattr(pol, "name", spec) if len(group) == 1 else f"{spec.split(':', 1)[0]} ({len(group)} seeds)"
         if "@" in spec and not name.endswith(spec.rsplit("@", 1)[1]):
             name = f"{name}@{spec.rsplit('@', 1)[1]}"
         while name in results:
@@ -477,12 +516,17 @@ def _main(args: argparse.Namespace, command: str) -> int:
         if builtin and args.reuse and cache.exists():
             rows = json.loads(cache.read_text())
         else:
-            rows = evaluate(pol, settings, args.episodes, args.seed_offset, progress=not args.no_progress,
-                            label=name)
+            rows = []
+            for i, (member, _) in enumerate(group):
+                label = name if len(group) == 1 else f"{name} seed run {i + 1}"
+                for row in evaluate(member, settings, args.episodes, args.seed_offset,
+                                    progress=not args.no_progress, label=label):
+                    rows.append({**row, "run": i} if len(group) > 1 else row)
             if builtin:
                 cache.parent.mkdir(parents=True, exist_ok=True)
                 cache.write_text(json.dumps(rows))
-        results[name] = {"rows": rows, "summary": summarise(rows), "settings": settings, "spec": spec}
+        results[name] = {"rows": rows, "summary": summarise(rows), "settings": settings, "spec": spec,
+                         "runs": len(group)}
         s = results[name]["summary"]
         print(f"{name:40s} reward {s['reward'][0]:8.1f} ± {s['reward'][1]:6.1f}  blocked LoS "
               f"{s['occlusion_rate'][0]:.3f}  zone viol. {s['zone_violation_rate'][0]:.3f}  "

@@ -24,7 +24,8 @@ probability ratios are taken under the masks the actions were sampled with); the
   the team tries again with that UAV choosing first (at most U tries; the UAVs fly at up to 50 m/s with a
   bounded turn rate, so a teammate's path can cut off every path of a UAV that chose after it). If every try
   leaves some UAV without a node, the last try stands and that UAV chooses among the nodes whose paths come
-  least close (the shield never leaves a UAV without an action); such choices are counted in ``fallbacks``.
+  least close (the shield never leaves a UAV without an action); such team choices are counted in
+  ``fallbacks``.
 
 All copies of a batch go through it at once; the loops are over the UAVs of a team and over the tries, because
 the choices are sequential by design (a UAV needs the paths of the UAVs before it).
@@ -53,7 +54,8 @@ class SeparationShield:
         self.min_distance = float(min_distance)
         #: How many nodes a free UAV (one that can reach no node) may try before it keeps a close one.
         self.free_tries = 8
-        #: UAV choices left without a separated node after every try, and all choices (since construction).
+        #: Team choices (one per copy and slot) where some UAV was left without a separated node after every
+        #: try, and all team choices, since construction.
         self.fallbacks, self.choices = 0, 0
 
     def restrict(self, mask: np.ndarray, nodes: np.ndarray, paths: np.ndarray, chosen_paths: np.ndarray
@@ -171,5 +173,5 @@ class SeparationShield:
             a2, s2, f2 = self._pass(masks, nodes, paths, free, order, paths_to, pick)
             actions[retry], shielded[retry], failed_at[retry] = a2[retry], s2[retry], f2[retry]
         self.fallbacks += int((failed_at < U).sum())
-        self.choices += B * U
+        self.choices += B
         return actions, shielded

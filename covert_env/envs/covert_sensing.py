@@ -167,6 +167,8 @@ class CovertSensingParallelEnv(ParallelEnv):
 
     ## Version History
 
+    * v1, covert_env 0.4.0 (no number changed): ``waypoint_paths(nodes)``, the paths the UAVs would fly to given
+      nodes in this slot (read-only), for policies that plan with the model (the separation shield).
     * v1, covert_env 0.3.0 (no number changed, so the id stays v1): the env is the B = 1 view of
       :class:`~covert_env.envs.vector.CovertSensingVectorEnv`; every observation, reward and info of a seeded
       rollout is bit-identical to 0.2.0. ``env.engine`` is a live, read-only

@@ -76,7 +76,9 @@ class CovertSensingVectorEnv:
     Waypoint mode: ``action_masks()`` returns ``(B, U, L)`` int8 (1 = allowed), the parallel env's mask per copy
     and agent. It lives there (and in the observation with ``dict_obs=True``), not in the infos. Reachability
     comes from :class:`~covert_env.reach.ReachTable` (a table in the UAV's frame; only nodes near its boundary
-    are solved), which gives exactly ``solve_manoeuvre``'s answer.
+    are solved), which gives exactly ``solve_manoeuvre``'s answer. ``waypoint_paths(nodes)`` returns the paths
+    the UAVs would fly to given nodes in this slot (read-only; what the separation shield of
+    ``training.shield`` tests).
 
     ## Rewards, Terminations, Truncations
 
@@ -146,7 +148,8 @@ class CovertSensingVectorEnv:
     ## Version History
 
     * v1: initial release (the task and numbers of ``covert_sensing_v1``). covert_env 0.3.0 added
-      ``autoreset_mode``, ``record`` and the copy readers; the numbers are unchanged.
+      ``autoreset_mode``, ``record`` and the copy readers; 0.4.0 added the read-only ``waypoint_paths``; the
+      numbers are unchanged.
     """
 
     metadata = {"name": "covert_sensing_vector_v1", "autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
