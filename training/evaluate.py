@@ -329,13 +329,14 @@ def write_outputs(results: dict[str, dict], out: Path, meta: dict) -> None:
             w.writerow([name, r["settings"]["action_mode"], r["settings"]["n_uavs"], len(r["rows"])]
                        + [f"{x:.6g}" for k, _, _ in COLUMNS for x in s[k]])
     with open(out / "episodes.csv", "w", newline="") as f:
-        keys = ["scene_seed", "reward"] + [k for k in next(iter(results.values()))["rows"][0] if k not in
-                                          ("scene_seed", "reward")]
+        keys = ["scene_seed", "reward"]
+        for r in results.values():                    # a seed group's rows also carry "run"
+            keys += [k for k in r["rows"][0] if k not in keys]
         w = csv.writer(f)
         w.writerow(["policy"] + keys)
         for name, r in results.items():
             for row in r["rows"]:
-                w.writerow([name] + [row[k] for k in keys])
+                w.writerow([name] + [row.get(k, "") for k in keys])
     lines = [f"# Leaderboard: {meta['episodes']} held-out scenes (scene seeds {meta['seed_offset']} .. "
              f"{meta['seed_offset'] + meta['episodes'] - 1}), {meta['n_uavs']} UAV(s)", "",
              "Mean ± std over episodes of the team-mean per-UAV metrics (covert_env.metrics.episode_metrics); "

@@ -117,7 +117,9 @@ class Args:
     d_safe1 + shield_margin to a teammate's chosen path (training.shield); in training and evaluation alike.
     The unicycle mode has no shield"""
     shield_margin: float = 0.0
-    """extra distance (m) the shield keeps beyond d_safe1"""
+    """extra distance (m) the shield keeps beyond d_safe1 along the paths"""
+    shield_end_margin: float = 10.0
+    """where possible, the shield also keeps the UAVs' slot ends d_safe1 + this (m) apart (room for the next slot)"""
     cost_limit: float = 0.007
     """allowed separation-violation rate per UAV and slot (0.5 of 70 slots) for --lagrangian"""
     lagrange_lr: float = 1.0
@@ -292,7 +294,8 @@ def train(args: Args) -> Path:
     n_feat = N_OWN_FEATURES + U - 1
     actor_spec = dict(head=head, hidden=args.hidden, node_hidden=args.node_hidden, n_feat=n_feat, obs_dim=obs_dim,
                       n_actions=n_act, agent_id=args.agent_id)
-    shield = SeparationShield(c.d_safe1 + args.shield_margin) if waypoint and args.separation_shield else None
+    shield = (SeparationShield(c.d_safe1 + args.shield_margin, args.shield_end_margin)
+              if waypoint and args.separation_shield else None)
     Actor, Critic = _nets()
     actor = Actor(obs_dim + (U if args.agent_id else 0), n_act, head, args.hidden, args.node_hidden, n_feat,
                   args.log_std_init)
@@ -309,6 +312,7 @@ def train(args: Args) -> Path:
         print(f"resumed from {ckpt} at {global_step} env steps", flush=True)
     card = {"algorithm": args.algo, "actor": actor_spec, "env_kwargs": ekw, "env_id": env.metadata["name"],
             "separation_shield": None if shield is None else shield.min_distance,
+            "shield_end_margin": None if shield is None else shield.end_margin,
             "covert_env_version": covert_env.__version__ if hasattr(covert_env, "__version__") else None}
     save_run(run_dir, args, {"card": card})
     writer = SummaryWriter(str(run_dir / "tb"))

@@ -20,7 +20,9 @@ probability ratios are taken under the masks the actions were sampled with); the
   from the zone, and flying all L of its best-effort paths would cost more than the rest of the step: it
   chooses by rejection instead (a node whose path comes too close is removed and it chooses again, up to
   ``free_tries`` times).
-* A node whose path comes closer than ``min_distance`` is removed from the UAV's mask. If that leaves no node,
+* A node whose path comes closer than ``min_distance`` is removed from the UAV's mask. With ``end_margin``, so
+  is a node whose path ends closer than ``min_distance + end_margin`` to a teammate's end, where another node
+  is left: the next slot then starts with room to part (most dead ends start from cramped ends). If that leaves no node,
   the team tries again with that UAV choosing first (at most U tries; the UAVs fly at up to 50 m/s with a
   bounded turn rate, so a teammate's path can cut off every path of a UAV that chose after it). If every try
   leaves some UAV without a node, the last try stands and that UAV chooses among the nodes whose paths come
@@ -46,14 +48,17 @@ class SeparationShield:
     Args:
         min_distance: a node is masked if the UAV's path to it comes closer than this (m) to a teammate's chosen
             path at a sample time: d_safe1 (a violation is a sample closer than d_safe1), plus a margin if wanted.
+        end_margin: where it leaves a node, the UAV's path must also end at least ``min_distance + end_margin``
+            (m) from the teammates' ends, so that the next slot starts with room to part (0: no such rule).
     """
 
-    def __init__(self, min_distance: float):
-        if not np.isfinite(min_distance) or min_distance < 0:
-            raise ValueError(f"min_distance must be a finite number >= 0 (m), got {min_distance!r}")
-        self.min_distance = float(min_distance)
+    def __init__(self, min_distance: float, end_margin: float = 0.0):
+        for name, v in (("min_distance", min_distance), ("end_margin", end_margin)):
+            if not np.isfinite(v) or v < 0:
+                raise ValueError(f"{name} must be a finite number >= 0 (m), got {v!r}")
+        self.min_distance, self.end_margin = float(min_distance), float(end_margin)
         #: How many nodes a free UAV (one that can reach no node) may try before it keeps a close one.
-        self.free_tries = 8
+        self.free_tries = 12
         #: Team choices (one per copy and slot) where some UAV was left without a separated node after every
         #: try, and all team choices, since construction.
         self.fallbacks, self.choices = 0, 0
@@ -72,6 +77,10 @@ class SeparationShield:
         gap2 = np.einsum("...i,...i->...", gap, gap).min(axis=(2, 3))          # (B, M) closest approach^2
         gap2[nodes < 0] = -1.0                                                  # padding: never kept
         keep = gap2 >= self.min_distance ** 2
+        if self.end_margin > 0:
+            roomy = keep & (self._end_gap2(paths, chosen_paths) >= (self.min_distance + self.end_margin) ** 2)
+            has = roomy.any(axis=1)
+            keep[has] = roomy[has]
         empty = ~keep.any(axis=1)
         if empty.any():
             keep[empty] = gap2[empty] >= gap2[empty].max(axis=1, keepdims=True)
@@ -80,6 +89,13 @@ class SeparationShield:
         keep &= nodes >= 0
         out[rows[keep], nodes[keep]] = True
         return out, empty
+
+    @staticmethod
+    def _end_gap2(paths, chosen_paths):
+        """Squared distance from each candidate path's end ``(B, M, P, 2)`` to the nearest teammate's end
+        ``(B, k, P, 2)``: ``(B, M)``."""
+        end = paths[:, :, None, -1] - chosen_paths[:, None, :, -1]
+        return np.einsum("...i,...i->...", end, end).min(axis=2)
 
     def _pass(self, masks, nodes, paths, free, order, paths_to, pick):
         """One sequential choice in the per-copy UAV ``order`` ``(B, U)``: actions, shielded masks, and per copy
@@ -126,6 +142,9 @@ class SeparationShield:
                 return a, path, np.zeros(B, bool)
             gap = p[:, None, 1:] - past[:, :, 1:]                              # (B, k, P-1, 2)
             close = pending & (np.einsum("...i,...i->...", gap, gap).min(axis=(1, 2)) < self.min_distance ** 2)
+            if self.end_margin > 0 and attempt < self.free_tries // 2:         # the first tries want room too
+                cramped = self._end_gap2(p[:, None], past)[:, 0] < (self.min_distance + self.end_margin) ** 2
+                close |= pending & cramped
             pending = close
             if not pending.any() or attempt == self.free_tries:
                 break

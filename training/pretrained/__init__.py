@@ -147,7 +147,7 @@ class LearnedPolicy:
             if self.shield_distance is not None:
                 from training.shield import SeparationShield
 
-                shield = SeparationShield(float(self.shield_distance))
+                shield = SeparationShield(float(self.shield_distance), float(self.card.get("shield_end_margin") or 0.0))
                 act, _ = shield.choose(mask[None], lambda n: par.waypoint_paths(n[0])[None],
                                        lambda k, m: np.argmax(np.where(m, logits[k], -np.inf), axis=-1))
                 out = {a: int(act[0, i]) for i, a in enumerate(agents)}

@@ -53,6 +53,7 @@ def export(run: Path, name: str, episodes: int = 20, out_dir: Path = PRETRAINED_
     np.savez_compressed(npz, **weights)
     card = {"name": name, "algorithm": meta["algorithm"], "actor": meta["actor"], "env_kwargs": meta["env_kwargs"],
             "env_id": meta["env_id"], "separation_shield": meta.get("separation_shield"),
+            "shield_end_margin": meta.get("shield_end_margin"),
             "covert_env_version": covert_env.__version__, "commit": _commit(),
             "recipe": {k: v for k, v in args.items() if k not in ("card", "resume", "runs_dir")},
             "training": {**summary, "run": run.name, "commit": training_commit or "unknown"}, "note": note}
