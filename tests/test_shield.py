@@ -161,3 +161,36 @@ def test_shielded_random_team_keeps_separation_in_the_env():
         _, _, _, _, infos = env.step(a)
         crowded += int((infos["separation"].min(axis=1) < env.config.d_safe1).sum())
     assert crowded > 0
+
+
+def test_end_margin_prefers_roomy_ends_but_never_empties_the_mask():
+    """UAV 0 flies to x = 0; UAV 1 may end 8 m or 30 m from it (both paths keep d_safe1 = 5 m): with a 10 m end
+    margin only the 30 m node is left; if the 8 m node is the only one, it stays."""
+    p = 5
+    t = np.linspace(0, 1, p)[:, None]
+
+    def straight(a, b):
+        return np.asarray(a, float) + (np.asarray(b, float) - np.asarray(a, float)) * t        # (P, 2)
+
+    table = np.zeros((1, 2, 3, p, 2))
+    table[0, 0, 0] = straight([0, -50], [0, 0])          # UAV 0, node 0
+    table[0, 1, 1] = straight([8, -50], [8, 0])          # UAV 1, node 1: ends 8 m away
+    table[0, 1, 2] = straight([30, -50], [30, 0])        # UAV 1, node 2: ends 30 m away
+
+    def paths_to(nodes):
+        out = table[0][np.arange(2)[:, None], nodes[0]][None].copy()
+        out[nodes < 0] = np.nan
+        return out
+
+    first = lambda k, m: np.argmax(m, axis=1)            # noqa: E731  (the first allowed node)
+    masks = np.array([[[True, False, False], [False, True, True]]])
+    a, sm = SeparationShield(5.0, end_margin=10.0).choose(masks, paths_to, first)
+    assert a.tolist() == [[0, 2]] and sm[0, 1].tolist() == [False, False, True]
+    a, sm = SeparationShield(5.0, end_margin=0.0).choose(masks, paths_to, first)
+    assert a.tolist() == [[0, 1]]                        # without the margin both nodes are fine
+    only_close = np.array([[[True, False, False], [False, True, False]]])
+    shield = SeparationShield(5.0, end_margin=10.0)
+    a, sm = shield.choose(only_close, paths_to, first)
+    assert a.tolist() == [[0, 1]] and shield.fallbacks == 0          # room is a preference, d_safe1 the rule
+    with pytest.raises(ValueError, match="end_margin"):
+        SeparationShield(5.0, end_margin=-1.0)
