@@ -90,3 +90,14 @@ def test_learning_curve_band_and_figure(tmp_path):
             for i, r in enumerate(rewards)))
     assert main([str(tmp_path / "s0"), str(tmp_path / "s1"), "--dp", "240.4", "--out", str(tmp_path / "c.png")]) == 0
     assert (tmp_path / "c.png").stat().st_size > 10_000
+    # With the separation cost logged (training.mappo writes it), a second row draws the constraint.
+    import matplotlib.image
+
+    one_row = matplotlib.image.imread(tmp_path / "c.png").shape[0]
+    for seed in (0, 1):
+        run = tmp_path / f"s{seed}"
+        (run / "curve.jsonl").write_text("".join(
+            f'{{"env_steps": {1024 * (i + 1)}, "wall_seconds": {10.0 * (i + 1)}, "reward": 1.0, '
+            f'"cost_separation": {c}}}\n' for i, c in enumerate((2.0, 0.3))))
+    assert main([str(tmp_path / "s0"), str(tmp_path / "s1"), "--out", str(tmp_path / "c2.png")]) == 0
+    assert matplotlib.image.imread(tmp_path / "c2.png").shape[0] > 1.5 * one_row

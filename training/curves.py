@@ -1,5 +1,8 @@
 """Learning curves of :mod:`training.mappo` runs: training episode reward vs env steps and vs wall time.
 
+A second row draws the separation constraint the same way: slots per UAV and episode closer than d_safe1
+(``cost_separation``, eq. 2), with the target level (``--separation-target``, default 0.5) as a dashed line.
+
     python -m training.curves runs/<seed0> runs/<seed1> runs/<seed2> --dp 240.4 --out outputs/curves.png
 
 Each run's ``curve.jsonl`` (one line per update: env steps, wall seconds, mean reward of the episodes that ended
@@ -22,11 +25,12 @@ __all__ = ["load_curve", "band", "main"]
 
 
 def load_curve(run: Path) -> dict[str, np.ndarray]:
-    """``env_steps``, ``wall_seconds`` and ``reward`` arrays of a run's ``curve.jsonl``."""
+    """``env_steps``, ``wall_seconds``, ``reward`` and ``cost_separation`` arrays of a run's ``curve.jsonl``."""
     rows = [json.loads(line) for line in (Path(run) / "curve.jsonl").read_text().splitlines() if line.strip()]
     if not rows:
         raise ValueError(f"{run}/curve.jsonl has no rows")
-    return {k: np.array([r[k] for r in rows], float) for k in ("env_steps", "wall_seconds", "reward")}
+    return {k: np.array([r.get(k, np.nan) for r in rows], float)
+            for k in ("env_steps", "wall_seconds", "reward", "cost_separation")}
 
 
 def band(xs: list[np.ndarray], ys: list[np.ndarray], points: int = 200, reps: int = 1000,
@@ -44,6 +48,8 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m training.curves", description=__doc__.split("\n")[0])
     p.add_argument("runs", nargs="+", help="training.mappo run folders (one per training seed)")
     p.add_argument("--dp", type=float, default=None, help="the DP planner's episode reward, drawn as a line")
+    p.add_argument("--separation-target", type=float, default=0.5,
+                   help="separation violations per UAV and episode aimed at, drawn as a line")
     p.add_argument("--out", default="outputs/curves.png", help="figure path")
     a = p.parse_args(argv)
     missing = [r for r in a.runs if not (Path(r) / "curve.jsonl").is_file()]
@@ -56,21 +62,26 @@ def main(argv: list[str] | None = None) -> int:
     import matplotlib.ticker  # noqa: F401  (matplotlib.ticker.FuncFormatter below)
 
     curves = [load_curve(Path(r)) for r in a.runs]
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharey=True)
-    for ax, key, label in ((axes[0], "env_steps", "env steps (copy-slots)"),
-                           (axes[1], "wall_seconds", "wall time (min)")):
-        scale = 60.0 if key == "wall_seconds" else 1.0
-        grid, mean, lo, hi = band([c[key] / scale for c in curves], [c["reward"] for c in curves])
-        ax.plot(grid, mean, label=f"mean of {len(curves)} run(s)")
-        ax.fill_between(grid, lo, hi, alpha=0.3, label="95 % bootstrap CI over runs")
-        if a.dp is not None:
-            ax.axhline(a.dp, ls="--", color="k", label="DP planner (held-out scenes)")
-        ax.set_xlabel(label)
-        if key == "env_steps":                      # 400000-wide labels overlap: thousands
-            ax.xaxis.set_major_formatter(matplotlib.ticker.FuncFormatter(lambda v, _: f"{v / 1e3:g}k"))
-        ax.grid(alpha=0.3)
-    axes[0].set_ylabel("training episode reward (mean over UAVs)")
-    axes[0].legend(fontsize=8)
+    metrics = [("reward", "training episode reward\n(mean over UAVs)", a.dp, "DP planner (held-out scenes)")]
+    if all(np.isfinite(c["cost_separation"]).all() for c in curves):
+        metrics.append(("cost_separation", "separation violations\n(slots per UAV and episode)",
+                        a.separation_target, f"target ({a.separation_target:g})"))
+    fig, axes = plt.subplots(len(metrics), 2, figsize=(11, 3.6 * len(metrics)), sharey="row", squeeze=False)
+    for row, (metric, ylabel, level, level_label) in enumerate(metrics):
+        for ax, key, label in ((axes[row, 0], "env_steps", "env steps (copy-slots)"),
+                               (axes[row, 1], "wall_seconds", "wall time (min)")):
+            scale = 60.0 if key == "wall_seconds" else 1.0
+            grid, mean, lo, hi = band([c[key] / scale for c in curves], [c[metric] for c in curves])
+            ax.plot(grid, mean, label=f"mean of {len(curves)} run(s)")
+            ax.fill_between(grid, lo, hi, alpha=0.3, label="95 % bootstrap CI over runs")
+            if level is not None:
+                ax.axhline(level, ls="--", color="k", label=level_label)
+            ax.set_xlabel(label)
+            if key == "env_steps":                      # 400000-wide labels overlap: thousands
+                ax.xaxis.set_major_formatter(matplotlib.ticker.FuncFormatter(lambda v, _: f"{v / 1e3:g}k"))
+            ax.grid(alpha=0.3)
+        axes[row, 0].set_ylabel(ylabel)
+        axes[row, 0].legend(fontsize=8)
     fig.tight_layout()
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(a.out, dpi=110)
