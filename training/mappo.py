@@ -323,6 +323,7 @@ def train(args: Args) -> Path:
             if head == "node" else None
 
     eye = np.eye(U, dtype=np.float32)
+    copies = np.arange(B)
 
     def actor_in(flat_obs):
         """The actor's input rows: observations (agent-minor rows, as (..., U, D) flattened) and, with
@@ -380,9 +381,8 @@ def train(args: Args) -> Path:
                     logits = actor.logits(actor_in(flat_obs), feats_buf[t],
                                           torch.from_numpy(mask_buf[t].reshape(B * U, -1)))
                     lg = logits.numpy().reshape(B, U, -1)
-                    copies = np.arange(B)
 
-                    def pick(k, m):
+                    def pick(k, m, lg=lg):
                         g = -np.log(-np.log(np.random.random(m.shape)))
                         return np.argmax(np.where(m, lg[copies, k] + g, -np.inf), axis=1)
 

@@ -64,7 +64,8 @@ RECIPES: dict[str, dict] = {
 
 #: Named settings of :mod:`training.mappo` (``python -m training.mappo --recipe NAME``; flags override).
 #: ``3uav-mappo``: MAPPO in the waypoint mode with the separation shield (training.shield) and the Lagrangian
-#: on the separation cost, 45 minutes of wall clock (three seeds at once on 2 cores) (see training/README.md for the measured runs).
+#: on the separation cost, 45 minutes of wall clock (three seeds at once on 2 cores; training/README.md has the
+#: measured runs).
 MAPPO_RECIPES: dict[str, dict] = {
     "3uav-mappo": dict(
         algo="mappo", n_uavs=3, num_envs=16, action_mode="waypoint", head="node", learning_rate=1e-3,

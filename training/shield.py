@@ -35,7 +35,7 @@ the choices are sequential by design (a UAV needs the paths of the UAVs before i
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
