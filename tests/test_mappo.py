@@ -108,6 +108,9 @@ def test_shielded_run_records_the_shield_and_evaluates_with_it(tmp_path):
     assert pol.shield_distance == 5.0
     row = evaluate(pol, settings, 1, progress=False)[0]
     assert row["separation_violations"] <= 1.0 and math.isfinite(row["reward"])
+    flat = mappo.main([*TINY, "--head", "flat", "--total-timesteps", "16", "--runs-dir", str(tmp_path),
+                       "--run-name", "flat"])                          # the flat head under the shield too
+    assert load_policy(f"mappo:{flat}", 3)[0].shield_distance == 5.0
     uni = mappo.main([*TINY, "--action-mode", "unicycle", "--total-timesteps", "16", "--runs-dir", str(tmp_path),
                       "--run-name", "uni"])
     assert json.loads((uni / "model.json").read_text())["separation_shield"] is None

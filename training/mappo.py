@@ -374,12 +374,13 @@ def train(args: Args) -> Path:
                 mask_buf[t] = env.action_masks().astype(bool)
             with torch.no_grad():
                 flat_obs = obs.reshape(B * U, obs_dim)
+                feats = feats_of(flat_obs)
+                if head == "node":
+                    feats_buf[t] = feats
                 if shield is not None:
                     # The team chooses one UAV after another (training.shield), sampling each UAV's node by the
                     # Gumbel-max trick under its shielded mask; those masks are stored for the update.
-                    feats_buf[t] = feats_of(flat_obs)
-                    logits = actor.logits(actor_in(flat_obs), feats_buf[t],
-                                          torch.from_numpy(mask_buf[t].reshape(B * U, -1)))
+                    logits = actor.logits(actor_in(flat_obs), feats, torch.from_numpy(mask_buf[t].reshape(B * U, -1)))
                     lg = logits.numpy().reshape(B, U, -1)
 
                     def pick(k, m, lg=lg):
@@ -390,9 +391,7 @@ def train(args: Args) -> Path:
                     d = Actor.masked_categorical(logits, torch.from_numpy(mask_buf[t].reshape(B * U, -1)))
                     a = torch.from_numpy(a_np.reshape(B * U))
                 else:
-                    if head == "node":
-                        feats_buf[t] = feats_of(flat_obs)
-                    d = actor.dist(actor_in(flat_obs), feats_buf[t] if head == "node" else None,
+                    d = actor.dist(actor_in(flat_obs), feats,
                                    torch.from_numpy(mask_buf[t].reshape(B * U, -1)) if waypoint else None)
                     a = d.sample()
                 logp = d.log_prob(a) if waypoint else d.log_prob(a).sum(-1)
