@@ -54,6 +54,8 @@ def test_waypoint_paths_are_the_paths_step_flies_and_change_nothing():
         np.testing.assert_array_equal(paths[:, :, 0, -1], env.uav_xy)  # the chosen path ends where step ended
         ragged = env.waypoint_paths(np.where(np.arange(3) < 1, some[..., :3], -1))   # -1: no node
         assert np.isnan(ragged[..., 1:, :, :]).all() and not np.isnan(ragged[..., 0, :, :]).any()
+        assert np.isnan(env.waypoint_paths(np.full((3, 2, 2), -1))).all()          # no node at all
+        assert env.waypoint_paths(np.zeros((3, 2, 0), int)).shape == (3, 2, 0, env.path_samples, 2)
         for i in range(3):
             flown = env.trajectory(i).path_xy[-1]                      # (U, P, 2) of the slot just flown
             np.testing.assert_array_equal(paths[i, :, 0], flown)
