@@ -89,6 +89,14 @@ def _phi(a, b, d2, r):
 
 
 @numba.njit(cache=False)
+def _newton_terms(a, b, d2, x, wd):
+    """Eq. 29 as F(r) and dF/dr at r = x (covert_env.dynamics._F and _dF)."""
+    lat = _lateral(d2, b, x)
+    tau = _tau(a, b, x, lat)
+    return x * tau + lat - wd * x, tau + (lat * (x - b) - a * x) / (lat * lat + x * x) - wd
+
+
+@numba.njit(cache=False)
 def scalar_solve(p, theta, g, v_max, w_max, delta, v_out, head_out):
     """covert_env.dynamics.solve_manoeuvre's speed and final heading, one element at a time (same steps)."""
     wd, r_max = w_max * delta, v_max / w_max
@@ -126,10 +134,7 @@ def scalar_solve(p, theta, g, v_max, w_max, delta, v_out, head_out):
         if hi * _tau(a, b, hi, lat) + lat - wd * hi > 0:
             continue
         x = lo
-        lat = _lateral(d2, b, x)
-        tau = _tau(a, b, x, lat)
-        f = x * tau + lat - wd * x
-        fp = tau + (lat * (x - b) - a * x) / (lat * lat + x * x) - wd
+        f, fp = _newton_terms(a, b, d2, x, wd)
         dx_old = dx = hi - lo
         root = np.nan
         for _ in range(100):
@@ -145,10 +150,7 @@ def scalar_solve(p, theta, g, v_max, w_max, delta, v_out, head_out):
                 root = x_new - dx if f == 0 else x_new
                 break
             x = x_new
-            lat = _lateral(d2, b, x)
-            tau = _tau(a, b, x, lat)
-            f = x * tau + lat - wd * x
-            fp = tau + (lat * (x - b) - a * x) / (lat * lat + x * x) - wd
+            f, fp = _newton_terms(a, b, d2, x, wd)
         if not math.isfinite(root):
             continue
         lat = _lateral(d2, b, root)
