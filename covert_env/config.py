@@ -17,8 +17,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-__all__ = ["Config", "polytope_capacity", "scene_road_length", "MAX_HORIZON", "MAX_LATTICE", "MAX_N_POLYTOPES",
-           "MAX_N_SLOTS", "MAX_N_UAVS", "MAX_ROUTE", "MAX_VERTICES", "MAX_WEIGHT"]
+import numpy as np
+
+__all__ = ["Config", "check_coordinates", "polytope_capacity", "scene_road_length", "MAX_COORDINATE", "MAX_HORIZON",
+           "MAX_LATTICE", "MAX_LENGTH", "MAX_N_POLYTOPES", "MAX_N_SLOTS", "MAX_N_UAVS", "MAX_ROUTE", "MAX_VERTICES",
+           "MAX_WEIGHT"]
 
 
 @dataclass(frozen=True)
@@ -29,7 +32,10 @@ class Config:
     the allowed range. Integer fields take ints or numpy integers (stored as int; floats such as 3.0
     and bools are rejected), the others any real number (stored as float). Sizes have upper bounds
     (stated per field) so that a typo fails here rather than as a hang or a MemoryError later, and a
-    config whose eroded zone holds no lattice node, or no room for the team's starts, is rejected.
+    config whose eroded zone holds no lattice node, or no room for the team's starts, is rejected. Real
+    fields have finite upper bounds too: lengths at most ``MAX_LENGTH`` (100 km), ``v_max`` and
+    ``target_speed`` at most ``MAX_SPEED`` (10 km/s), ``w_max`` at most ``MAX_TURN_RATE`` (1000 rad/s),
+    ``delta`` at most ``MAX_DELTA`` (1 h), ``eta`` and ``lam`` at most ``MAX_WEIGHT`` (1e6).
     ``Config.from_json(cfg.to_json()) == cfg``.
     """
 
@@ -247,6 +253,19 @@ MAX_N_POLYTOPES = 10_000
 MAX_VERTICES = 64
 #: Largest weights eta and lambda of the cost (eqs. 11, 18).
 MAX_WEIGHT = 1e6
+MAX_LENGTH = 100_000.0
+"""Largest length field of a Config (m): altitude, radii, distances, heights, grid step. Any real scene is far
+smaller; the bound keeps products of lengths (areas, the shadow projection's ratios) finite."""
+MAX_SPEED = 10_000.0
+"""Largest ``v_max`` and ``target_speed`` (m/s)."""
+MAX_TURN_RATE = 1_000.0
+"""Largest ``w_max`` (rad/s)."""
+MAX_DELTA = 3_600.0
+"""Longest slot ``delta`` (s)."""
+MAX_COORDINATE = 1_000_000.0
+"""Largest absolute world coordinate (m) of a road point, a polytope vertex or a UAV start: 1,000 km from the
+origin. Beyond it distances between points lose the centimetres the geometry's tolerances rely on, and their
+squares and areas overflow; check it with :func:`check_coordinates` where coordinates enter."""
 MAX_ROUTE = 200_000.0
 """Longest target route (m), ``target_speed * delta * (n_slots + horizon + 1)``: the road is sampled
 every 2 m, so this bounds its arrays (and the terrain generator's search along it)."""
@@ -254,6 +273,10 @@ MAX_LATTICE = 200_000
 """Most nodes of the waypoint lattice's bounding box (:func:`covert_env.zone.lattice_size`), about
 ``(2 r2 sin(mu / 2) / grid_step) * ((r2 - r1 cos(mu / 2)) / grid_step)`` for mu <= pi; 975 by default."""
 
+#: Upper bounds of the real fields (mu, eta and lam have their own checks); lengths not listed here are bounded
+#: by MAX_LENGTH.
+_UPPER = {"v_max": (MAX_SPEED, "m/s"), "target_speed": (MAX_SPEED, "m/s"), "w_max": (MAX_TURN_RATE, "rad/s"),
+          "delta": (MAX_DELTA, "s")}
 _POSITIVE = ("v_max", "w_max", "altitude", "delta", "eta", "lam", "d_safe1", "d_safe2", "r1", "r2",
              "min_height", "min_radius", "max_radius", "target_speed", "grid_step")
 _NON_NEGATIVE = ("r_u", "road_clearance", "road_max_offset", "target_height", "shadow_margin", "prediction_error")
@@ -261,6 +284,20 @@ _OPTIONAL = ("max_height", "h_min")
 #: Integer fields: (lowest, highest) allowed value.
 _INTS = {"horizon": (1, MAX_HORIZON), "n_slots": (1, MAX_N_SLOTS), "n_polytopes": (0, MAX_N_POLYTOPES),
          "min_vertices": (3, MAX_VERTICES), "max_vertices": (3, MAX_VERTICES), "n_uavs": (1, MAX_N_UAVS)}
+
+
+def check_coordinates(values, where: str) -> np.ndarray:
+    """``values`` as a float array, every entry finite and within +-MAX_COORDINATE (m); otherwise a ValueError
+    starting with ``where`` that names the first offending entry, its value and the bound. Callers check the shape
+    and the types they accept first (this only takes numbers)."""
+    a = np.asarray(values, dtype=float)
+    bad = ~(np.abs(a) <= MAX_COORDINATE)          # NaN compares False: caught here too
+    if bad.any():
+        idx = np.unravel_index(int(np.argmax(bad)), a.shape) if a.ndim else ()
+        at = "[" + ", ".join(str(int(i)) for i in idx) + "]" if idx else ""
+        raise ValueError(f"{where}{at} = {float(a[idx])!r} must be a finite coordinate within +-{MAX_COORDINATE:g} m "
+                         f"(1,000 km of the origin); shift the scene towards the origin")
+    return a
 
 
 def _as_int(name: str, v: Any, low: int, high: int) -> int:
@@ -300,6 +337,13 @@ def _validate(c: Config) -> None:
     for name in _NON_NEGATIVE:
         if getattr(c, name) < 0:
             raise ValueError(f"Config.{name} must be >= 0, got {getattr(c, name)!r}")
+    for name in _POSITIVE + _NON_NEGATIVE + _OPTIONAL:
+        if name in ("eta", "lam"):
+            continue
+        bound, unit = _UPPER.get(name, (MAX_LENGTH, "m"))
+        v = getattr(c, name)
+        if v is not None and v > bound:
+            raise ValueError(f"Config.{name} must be <= {bound:g} {unit}, got {v!r}")
     for name in ("eta", "lam"):
         # The stage cost multiplies them (lambda * eta * |d alpha|): beyond this it overflows to inf.
         if getattr(c, name) > MAX_WEIGHT:

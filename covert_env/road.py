@@ -20,6 +20,8 @@ from functools import cached_property
 import numpy as np
 from shapely.geometry import LineString
 
+from covert_env.config import check_coordinates
+
 __all__ = ["Road", "TargetTrack", "speed_noise_offsets"]
 
 
@@ -63,6 +65,7 @@ class Road:
             raise ValueError(f"Road.points must be a (K, 2) array with K >= 2, got shape {pts.shape}")
         if not np.all(np.isfinite(pts)):
             raise ValueError("Road.points must be finite (no NaN or inf)")
+        check_coordinates(pts, "Road.points")
         seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
         if np.any(seg <= 1e-9):
             raise ValueError("Road.points: consecutive points must be distinct")
@@ -100,6 +103,7 @@ class Road:
             raise ValueError(f"Road.random: start must be a point (x, y), got {start!r}") from None
         if not np.all(np.isfinite(start)):
             raise ValueError(f"Road.random: start must be finite, got {start.tolist()}")
+        check_coordinates(start, "Road.random: start")
         rng = _generator(seed, "Road.random")
         n = max(2, int(np.ceil(length / step)) + 1)
         s = np.arange(n) * step

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from covert_env.config import SCENE_ROAD_LEAD_IN, SCENE_ROAD_TAIL, Config
+from covert_env.config import SCENE_ROAD_LEAD_IN, SCENE_ROAD_TAIL, Config, check_coordinates
 from covert_env.road import Road, TargetTrack
 from covert_env.terrain import Terrain
 from covert_env.zone import to_world
@@ -74,6 +74,7 @@ class Scenario:
             raise ValueError(f"Scenario: {len(xy)} start positions but {len(th)} start headings")
         if not (np.all(np.isfinite(xy)) and np.all(np.isfinite(th))):
             raise ValueError("Scenario: start poses must be finite")
+        check_coordinates(xy, "Scenario.uav_xy")
         need = self.config.n_slots + self.config.horizon
         if self.track.n_slots < need:
             raise ValueError(f"Scenario.track must cover n_slots + horizon = {need} slots, has {self.track.n_slots}")

@@ -32,7 +32,7 @@ import shapely
 from scipy.spatial import ConvexHull
 from shapely.geometry import LinearRing, Polygon
 
-from covert_env.config import MAX_N_POLYTOPES, Config, read_json
+from covert_env.config import MAX_N_POLYTOPES, Config, check_coordinates, read_json
 from covert_env.road import Road
 
 __all__ = ["Polytope", "Terrain"]
@@ -49,7 +49,22 @@ _AREA_TOL = 1e-6
 
 # ---------------------------------------------------------------------------------- validation
 #: Most vertices a polytope's base (footprint) may have; validation is quadratic in it (generator: <= 64).
-MAX_FOOTPRINT_VERTICES = 1024
+MAX_FOOTPRINT_VERTICES = 256
+#: Most footprint vertices of a whole terrain (a terrain's line-of-sight arrays grow with it): 10,000
+#: polytopes of 10 vertices, or 390 of 256. Loading and the first reset stay within seconds.
+MAX_TERRAIN_VERTICES = 100_000
+
+
+def _check_size(counts, where: str) -> None:
+    """At most MAX_N_POLYTOPES polytopes and MAX_TERRAIN_VERTICES footprint vertices in all (``counts``: the
+    footprints' vertex counts); checked before any geometry work."""
+    if len(counts) > MAX_N_POLYTOPES:
+        raise ValueError(f"{where} has {len(counts)} polytopes, more than {MAX_N_POLYTOPES}; split the area "
+                         f"into scenes")
+    total = sum(counts)
+    if total > MAX_TERRAIN_VERTICES:
+        raise ValueError(f"{where} has {total} footprint vertices in all, more than {MAX_TERRAIN_VERTICES}; "
+                         f"simplify the footprints (e.g. shapely's simplify) or split the area into scenes")
 
 
 def _check_polytope(base, top, base_name: str = "base",
@@ -87,6 +102,7 @@ def _check_polytope(base, top, base_name: str = "base",
     if bad.any():
         j = int(np.argmax(bad))
         raise ValueError(f"{base_name} vertex {j} is not finite (NaN or inf): {b[j].tolist()}")
+    check_coordinates(b, base_name)
     if t.ndim != 2 or t.shape[1] != 3:
         raise ValueError(f"{top_name} must be an (n, 3) array of (x, y, z) vertices, got shape {t.shape}")
     if len(t) != n:
@@ -95,6 +111,7 @@ def _check_polytope(base, top, base_name: str = "base",
     if bad.any():
         j = int(np.argmax(bad))
         raise ValueError(f"{top_name} vertex {j} is not finite (NaN or inf): {t[j].tolist()}")
+    check_coordinates(t, top_name)
 
     scale = max(float(np.ptp(b, axis=0).max()), 1e-12)
     nxt = np.append(np.arange(1, n), 0)      # x[nxt] is np.roll(x, -1, axis=0), at a fraction of its cost
@@ -421,6 +438,14 @@ def _label(i: int, feat) -> str:
     return s
 
 
+def _ring_length(feat) -> int:
+    """The vertex count of a feature's exterior ring, 0 if it is malformed (for the size check)."""
+    try:
+        return max(len(feat["geometry"]["coordinates"][0]) - 1, 0)
+    except (KeyError, IndexError, TypeError):
+        return 0
+
+
 def _parse_feature(feat, altitude: float | None) -> Polytope:
     """One Feature -> Polytope; ValueError messages name the field (the caller adds the label)."""
     if not isinstance(feat, dict) or feat.get("type") != "Feature":
@@ -502,6 +527,7 @@ class Terrain:
         for i, p in enumerate(polys):
             if not isinstance(p, Polytope):
                 raise TypeError(f"Terrain: polytope {i} must be a Polytope, got {type(p).__name__}")
+        _check_size([len(p.base) for p in polys], "Terrain")
         object.__setattr__(self, "polytopes", polys)
         hit = _first_overlap(polys)
         if hit is not None:
@@ -619,7 +645,9 @@ class Terrain:
         either ``properties.height`` (flat top at that height) or ``properties.top`` (the top's
         distinct vertices as [x, y, z], same count and order as the footprint's distinct vertices).
         The polytope is the hull of footprint and top. Rings may be clockwise (they are reoriented).
-        With ``altitude`` every height must be < altitude. Errors are ValueErrors naming the feature
+        With ``altitude`` every height must be < altitude. At most ``MAX_N_POLYTOPES`` (10,000) features
+        and ``MAX_TERRAIN_VERTICES`` (100,000) footprint vertices, checked before any is parsed; every
+        coordinate within ``MAX_COORDINATE`` (1,000 km). Errors are ValueErrors naming the feature
         (index, and ``id`` or ``properties.name`` when given) and the field.
         """
         if not isinstance(obj, dict) or obj.get("type") != "FeatureCollection":
@@ -628,6 +656,9 @@ class Terrain:
         feats = obj.get("features")
         if not isinstance(feats, list):
             raise ValueError("GeoJSON FeatureCollection.features must be a list")
+        # Sizes first, before any feature is parsed: each costs geometry work, the overlap check more. A malformed
+        # feature counts as none here; parsing it names its error.
+        _check_size([_ring_length(feat) for feat in feats], "GeoJSON FeatureCollection")
         if altitude is not None and (isinstance(altitude, bool) or not isinstance(altitude, numbers.Real)
                                      or not 0 < altitude < math.inf):
             raise ValueError(f"altitude must be a positive number or None, got {altitude!r}")

@@ -49,11 +49,19 @@ CONFIG_CASES = {
     "max_vertices huge": (dict(max_vertices=10**9), r"Config\.max_vertices must be an integer >= 3 and <= 64"),
     "n_polytopes huge": (dict(n_polytopes=10**6), r"Config\.n_polytopes must be an integer >= 0 and <= 10000"),
     "n_uavs huge": (dict(n_uavs=65), r"Config\.n_uavs must be an integer >= 1 and <= 64, got 65"),
-    "delta huge": (dict(delta=1e12), r"route target_speed \* delta \* \(n_slots \+ horizon \+ 1\) = 10 \* 1e\+12 "
-                                     r"\* 76 = 7\.6e\+14 m exceeds 200000 m"),
-    "target_speed huge": (dict(target_speed=1e12), r"route .* = 7\.6e\+13 m exceeds 200000 m; reduce target_speed"),
+    "delta huge": (dict(delta=1e12), r"Config\.delta must be <= 3600 s, got 1000000000000\.0"),
+    "route of a long slot": (dict(delta=3000.0), r"route target_speed \* delta \* \(n_slots \+ horizon \+ 1\) = "
+                                                 r"10 \* 3000 \* 76 = 2\.28e\+06 m exceeds 200000 m"),
+    "target_speed huge": (dict(target_speed=1e12), r"Config\.target_speed must be <= 10000 m/s"),
+    "route of a fast target": (dict(target_speed=5000.0), r"route .* = 3\.8e\+05 m exceeds 200000 m; reduce "
+                                                          r"target_speed"),
+    "altitude absurd": (dict(altitude=1e308), r"Config\.altitude must be <= 100000 m, got 1e\+308"),
+    "r1 absurd": (dict(r1=1e300, r2=2e300), r"Config\.r1 must be <= 100000 m"),
+    "max_height absurd": (dict(max_height=1e200), r"Config\.max_height must be <= 100000 m"),
+    "v_max absurd": (dict(v_max=1e308), r"Config\.v_max must be <= 10000 m/s"),
+    "w_max absurd": (dict(w_max=1e9), r"Config\.w_max must be <= 1000 rad/s"),
     "route too long": (dict(n_slots=10_000, target_speed=30.0), r"route .* exceeds 200000 m"),
-    "r2 huge": (dict(r2=1e12), r"waypoint lattice would have 1\.9\d*e\+23 nodes .* more than 200000; "
+    "r2 huge": (dict(r2=5e4), r"waypoint lattice would have 4\.779e\+08 nodes .* more than 200000; "
                                r"increase grid_step"),
     "grid_step tiny": (dict(grid_step=0.01), r"waypoint lattice would have .* grid_step=0\.01\), more than"),
     "n_uavs fractional": (dict(n_uavs=2.7), r"Config\.n_uavs must be an integer .* got 2\.7 \(float\)"),
@@ -423,30 +431,82 @@ def _city(n_side: int, pitch: float = 12.0, size: float = 8.0) -> dict:
     return {"type": "FeatureCollection", "features": feats}
 
 
-def test_twenty_thousand_buildings_load_and_overlaps_are_found(tmp_path):
+def test_ten_thousand_buildings_load_and_overlaps_are_found(tmp_path):
     """The overlap check is an R-tree query, not an M x M array (which needed 25 GB for 23k buildings)."""
-    obj = _city(142)                                        # 20,164 disjoint buildings
+    obj = _city(100)                                        # 10,000 disjoint buildings: the most a Terrain holds
     path = tmp_path / "city.geojson"
     path.write_text(json.dumps(obj))
     t0 = time.perf_counter()
     terrain = Terrain.load(path, altitude=80.0)
     print(f"\nTerrain.load of {len(terrain)} buildings: {time.perf_counter() - t0:.2f} s")
-    assert len(terrain) == 142 * 142
-    np.testing.assert_array_equal(terrain[143].base, [[12.0, 12.0], [20.0, 12.0], [20.0, 20.0], [12.0, 20.0]])
+    assert len(terrain) == 100 * 100
+    np.testing.assert_array_equal(terrain[101].base, [[12.0, 12.0], [20.0, 12.0], [20.0, 20.0], [12.0, 20.0]])
     assert terrain.z_max[143] == 10.0 + 143 % 7
     # A planted overlap is found and named by both features, wherever it sits in the file.
-    i, j = 19_000, 7_001
+    i, j = 9_000, 7_001
     x, y = obj["features"][j]["geometry"]["coordinates"][0][0]
     obj["features"][i]["geometry"]["coordinates"] = [[[x + 4, y + 4], [x + 9, y + 4], [x + 9, y + 9], [x + 4, y + 9],
                                                       [x + 4, y + 4]]]
     path.write_text(json.dumps(obj))
-    with pytest.raises(ValueError, match=r"city\.geojson: feature 7001 \(id 7001\) and feature 19000 \(id 19000\): "
+    with pytest.raises(ValueError, match=r"city\.geojson: feature 7001 \(id 7001\) and feature 9000 \(id 9000\): "
                                          r"footprints overlap \(intersection area 16 m\^2\)"):
         Terrain.load(path)
     polys = list(terrain.polytopes)
     polys[i] = Polytope.prism([[x + 4, y + 4], [x + 9, y + 4], [x + 9, y + 9], [x + 4, y + 9]], 20.0)
-    with pytest.raises(ValueError, match=r"Terrain: polytopes 7001 and 19000: footprints overlap"):
+    with pytest.raises(ValueError, match=r"Terrain: polytopes 7001 and 9000: footprints overlap"):
         Terrain(polys)
+
+
+def test_terrain_sizes_are_refused_before_any_geometry_work(tmp_path):
+    """A file with too many polytopes or vertices fails at once, naming the count and the bound."""
+    from covert_env.terrain import MAX_TERRAIN_VERTICES
+
+    path = tmp_path / "huge.geojson"
+    path.write_text(json.dumps(_city(101)))                 # 10,201 buildings
+    t0 = time.perf_counter()
+    with pytest.raises(ValueError, match=r"huge\.geojson: GeoJSON FeatureCollection has 10201 polytopes, more than "
+                                         r"10000; split the area"):
+        Terrain.load(path)
+    assert time.perf_counter() - t0 < 2.0                   # parsing 10,201 features takes several seconds
+    ring = np.c_[np.cos(np.linspace(0, 2 * np.pi, 201)[:-1]), np.sin(np.linspace(0, 2 * np.pi, 201)[:-1])]
+    feats = [{"type": "Feature", "properties": {"height": 10.0},
+              "geometry": {"type": "Polygon", "coordinates": [(3 * ring + [3.0 * k, 0.0]).tolist()
+                                                              + [(3 * ring[0] + [3.0 * k, 0.0]).tolist()]]}}
+             for k in range(MAX_TERRAIN_VERTICES // 200 + 1)]
+    with pytest.raises(ValueError, match=rf"has {200 * (MAX_TERRAIN_VERTICES // 200 + 1)} footprint vertices in all, "
+                                         rf"more than {MAX_TERRAIN_VERTICES}; simplify"):
+        Terrain.from_geojson({"type": "FeatureCollection", "features": feats})
+
+
+COORDINATE_CASES = {
+    "road at 1e308": (lambda: Road([[0.0, 0.0], [1e308, 0.0]]), r"Road\.points\[1, 0\] = 1e\+308 must be a finite "
+                                                                 r"coordinate within \+-1e\+06 m"),
+    "road just outside": (lambda: Road([[0.0, 0.0], [0.0, -1.5e6]]), r"Road\.points\[1, 1\] = -1500000\.0"),
+    "random road start far away": (lambda: Road.random(0, start=(0.0, 2e6)),
+                                   r"Road\.random: start\[1\] = 2000000\.0 must be a finite coordinate"),
+    "footprint at 1e300": (lambda: Polytope.prism([[0, 0], [1e300, 0], [1e300, 1e300], [0, 1e300]], 10.0),
+                           r"Polytope: base\[1, 0\] = 1e\+300 must be a finite coordinate"),
+    "top absurdly high": (lambda: Polytope(np.array(SQUARE), np.c_[np.array(SQUARE), [1e7] * 4]),
+                          r"Polytope: top\[0, 2\] = 10000000\.0 must be a finite coordinate"),
+    "uav start at 1e308": (lambda: Scenario(Config(n_slots=10), Terrain(), _track(Config(n_slots=10)), [[1e308, 0.0]],
+                                            [0.0]), r"Scenario\.uav_xy\[0, 0\] = 1e\+308 must be a finite coordinate"),
+}
+
+
+@pytest.mark.parametrize("make, pattern", COORDINATE_CASES.values(), ids=COORDINATE_CASES.keys())
+def test_coordinates_are_bounded(make, pattern):
+    with pytest.raises(ValueError, match=pattern):
+        make()
+
+
+def test_the_largest_lengths_make_a_working_env():
+    """The bounds are not just numbers: a config at MAX_LENGTH's altitude builds its scene and steps, finite."""
+    import covert_env
+
+    env = covert_env.parallel_env(config=Config(altitude=1e5, n_slots=3), n_uavs=1)
+    env.reset(seed=0)
+    _, rewards, *_ , infos = env.step({"uav_0": np.zeros(2, np.float32)})
+    assert math.isfinite(rewards["uav_0"]) and math.isfinite(infos["uav_0"]["terrain_clearance"])
 
 
 def _brute_first_overlap(polys):
@@ -480,7 +540,7 @@ def _engine():
 
 
 BOUNDARY_CASES = {
-    "max_radius larger than the road": (lambda: Config(max_radius=1e12), ValueError,
+    "max_radius larger than the road": (lambda: Config(max_radius=1e4), ValueError,
                                         r"Config\.max_radius must be <= half the scenario road's length \(960 m"),
     "n_polytopes beyond the band's area": (lambda: Config(n_polytopes=300), ValueError,
                                            r"Config\.n_polytopes=300 cannot fit beside the 960 m scenario road"),
@@ -602,7 +662,7 @@ def test_terrain_feasibility_checks_keep_workable_configs(kwargs):
 def test_footprint_vertex_bound_fails_fast_in_a_file(tmp_path):
     from covert_env.terrain import MAX_FOOTPRINT_VERTICES
 
-    n = 200_000
+    n = 1_000                                          # one footprint: the bound per footprint, not the terrain's
     ring = [[100 * math.cos(2 * math.pi * k / n), 100 * math.sin(2 * math.pi * k / n)] for k in range(n)]
     ring.append(ring[0])
     path = tmp_path / "big.geojson"

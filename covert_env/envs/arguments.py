@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import math
 import operator
+from collections.abc import Mapping
 
+import gymnasium
 import numpy as np
 
-__all__ = ["bool_arg", "int_arg", "number_arg"]
+__all__ = ["bool_arg", "int_arg", "number_arg", "reset_options"]
 
 
 def int_arg(name: str, value, low: int, high: int | None = None) -> int:
@@ -39,3 +41,17 @@ def bool_arg(name: str, value) -> bool:
     if not isinstance(value, (bool, np.bool_)):
         raise TypeError(f"{name} must be True or False, got {value!r}")
     return bool(value)
+
+
+def reset_options(options, known: tuple[str, ...]) -> dict:
+    """``reset(options=...)`` as a dict: None gives ``{}``, anything but a mapping is a TypeError. Keys other than
+    ``known`` are warned about and ignored, by every env kind alike: PettingZoo's API test passes
+    ``options={"options": 1}`` to every env, so they cannot be an error."""
+    if options is None:
+        return {}
+    if not isinstance(options, Mapping):
+        raise TypeError(f"reset(options=...) must be a dict or None, got {type(options).__name__}")
+    unknown = sorted(set(options) - set(known), key=str)
+    if unknown:
+        gymnasium.logger.warn(f"reset(options=...): ignoring unknown option(s) {unknown}; known: {list(known)}")
+    return dict(options)

@@ -19,7 +19,7 @@ from pettingzoo import ParallelEnv
 from pettingzoo.utils import parallel_to_aec, wrappers
 
 from covert_env.config import Config
-from covert_env.envs.arguments import int_arg
+from covert_env.envs.arguments import int_arg, reset_options
 from covert_env.envs.observation import observation_table
 from covert_env.envs.recorder import CopyView
 from covert_env.envs.settings import ACTION_MODES, MAX_PATH_SAMPLES, MAX_SCENE_POOL, RENDER_MODES, EnvSettings
@@ -147,6 +147,14 @@ class CovertSensingParallelEnv(ParallelEnv):
     end of the target's route: a larger ``max_cycles`` cannot extend the route). Termination only if
     ``terminate_on_collision=True`` and two UAVs come closer than d_safe1.
 
+    ## Calls Out of Order
+
+    ``step()``, ``render()``, ``state()`` and ``action_mask()`` before the first ``reset()``, and every call but
+    ``close()`` after ``close()``, raise a RuntimeError that names the call (the vector env, the AEC env and the
+    Gymnasium envs alike; their order-enforcing wrappers may answer first). ``reset(options=...)`` warns about
+    keys other than ``scene_seed`` and ignores them. ``penalties`` is validated on item assignment too. The AEC
+    env checks each agent's action at that agent's own ``step()``.
+
     ## Arguments
 
     * ``config``: a :class:`~covert_env.config.Config` or dict (paper defaults).
@@ -167,6 +175,10 @@ class CovertSensingParallelEnv(ParallelEnv):
 
     ## Version History
 
+    * v1, covert_env 0.5.0 (no number of a valid seeded rollout changed): calls out of order raise alike in
+      every env kind (``render()`` before ``reset()`` returned None, ``step()`` after ``close()`` went on);
+      ``penalties`` items are validated; the AEC env checks an action at its agent's ``step()``; coordinates,
+      lengths and terrain sizes have finite bounds (:mod:`covert_env.config`).
     * v1, covert_env 0.4.0 (no number changed): ``waypoint_paths(nodes)``, the paths the UAVs would fly to given
       nodes in this slot (read-only), for policies that plan with the model (the separation shield).
     * v1, covert_env 0.3.0 (no number changed, so the id stays v1): the env is the B = 1 view of
@@ -255,7 +267,7 @@ class CovertSensingParallelEnv(ParallelEnv):
     @property
     def penalties(self) -> dict:
         """The penalty weights by term (``los``, ``zone``, ``separation``, ``terrain``), read at every step; assigning
-        a dict validates it, item assignment is live and not checked."""
+        a dict or an item (``penalties["los"] = 2.0``, live) validates it."""
         return self._vec.penalties
 
     @penalties.setter
@@ -298,14 +310,8 @@ class CovertSensingParallelEnv(ParallelEnv):
 
     def _scene_seed_option(self, options) -> int | None:
         """``options["scene_seed"]`` checked: an integer >= 0, and only for ``scenario="random"``. Other keys are
-        warned about, not rejected: PettingZoo's API test passes ``options={"options": 1}`` to every env."""
-        if options is None:
-            return None
-        if not isinstance(options, Mapping):
-            raise TypeError(f"reset(options=...) must be a dict or None, got {type(options).__name__}")
-        unknown = sorted(set(options) - {"scene_seed"}, key=str)
-        if unknown:
-            gymnasium.logger.warn(f"reset(options=...): ignoring unknown option(s) {unknown}; known: ['scene_seed']")
+        warned about and ignored (:func:`~covert_env.envs.arguments.reset_options`)."""
+        options = reset_options(options, ("scene_seed",))
         if options.get("scene_seed") is None:
             return None
         if self.scenario_spec != "random":
@@ -315,8 +321,9 @@ class CovertSensingParallelEnv(ParallelEnv):
         return int_arg("options['scene_seed']", options["scene_seed"], 0)
 
     def step(self, actions: dict[str, Any]):
-        if not self._vec.started or not self.agents:
-            raise RuntimeError("step() called before reset() or after the episode ended; call reset()")
+        self._vec.require_running("step()")
+        if not self.agents:
+            raise RuntimeError("step() called after the episode ended; call reset()")
         if not isinstance(actions, Mapping):
             raise TypeError(f"step() expects a dict {{agent: action}} for the agents {self.agents}, "
                             f"got {type(actions).__name__}")
@@ -355,16 +362,16 @@ class CovertSensingParallelEnv(ParallelEnv):
 
     def _waypoint_indices(self, actions: dict[str, Any]) -> np.ndarray:
         """(U,) lattice indices from Discrete(L) actions, validated (integers; floats only with an integral value)."""
-        n = len(self.lattice)
-        idx = np.empty(len(self.agents), dtype=int)
-        for i, a in enumerate(self.agents):
-            act = np.asarray(actions[a])
-            val = float(act.reshape(-1)[0]) if act.size == 1 and act.ndim <= 1 and act.dtype.kind in "iuf" \
-                else math.nan
-            if not (math.isfinite(val) and val == int(val) and 0 <= val < n):
-                raise ValueError(f"action for {a} must be an integer in [0, {n - 1}], got {actions[a]!r}")
-            idx[i] = int(val)
-        return idx
+        return np.array([_one_waypoint_index(a, actions[a], len(self.lattice)) for a in self.agents], dtype=int)
+
+    def check_action(self, agent: str, action) -> None:
+        """Raise the error ``step()`` would raise for ``agent``'s ``action`` (the AEC env checks each agent's action
+        as it is given, not when the last agent's completes the slot)."""
+        self._vec.require_running("step()")
+        if self.action_mode == "unicycle":
+            _one_unicycle_action(agent, action)
+        else:
+            _one_waypoint_index(agent, action, len(self.lattice))
 
     def _obs_dict(self, obs) -> dict[str, Any]:
         """Per-agent observations from the vector env's batch of one."""
@@ -387,10 +394,7 @@ class CovertSensingParallelEnv(ParallelEnv):
 
     def action_mask(self, agent: str) -> np.ndarray:
         """The waypoint action mask of ``agent`` (int8, 1 = allowed); all ones in unicycle mode."""
-        if self.action_mode != "waypoint":
-            return np.ones(2, np.int8)
-        if not self._vec.started:
-            raise RuntimeError("action_mask() called before reset(): the mask depends on the UAVs' poses")
+        self._vec.require_running("action_mask()")
         if agent not in self._index:
             raise ValueError(f"action_mask(): unknown agent {agent!r}; the agents are {self.possible_agents}")
         return self._vec.action_masks()[0, self._index[agent]]
@@ -403,16 +407,16 @@ class CovertSensingParallelEnv(ParallelEnv):
 
     def state(self) -> np.ndarray:
         """Global state for centralised critics (see the class docstring)."""
-        if not self._vec.started:
-            raise RuntimeError("state() called before reset()")
         return self._vec.state()[0]
 
     def render(self):
+        """The current slot drawn (``rgb_array``: an (H, W, 3) uint8 frame; ``human``: a window, None). Before
+        ``reset()`` and after ``close()`` a RuntimeError, as Gymnasium's order enforcing does; without a render_mode
+        a warning and None."""
         if self.render_mode is None:
             gymnasium.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' or 'human'")
             return None
-        if not self._vec.started:
-            return None
+        self._vec.require_running("render()")
         from covert_env.render import EpisodeRenderer
 
         if self._renderer is None:
@@ -421,9 +425,12 @@ class CovertSensingParallelEnv(ParallelEnv):
         return frame if self.render_mode == "rgb_array" else None
 
     def close(self) -> None:
+        """Close the render window and release the scene; later calls but ``close()`` raise a RuntimeError."""
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None
+        self._vec.close()
+        self.agents = []
 
 
 class _NotReset(RuntimeError, AttributeError):
@@ -451,6 +458,15 @@ def _one_unicycle_action(agent: str, value) -> np.ndarray:
     return one
 
 
+def _one_waypoint_index(agent: str, value, n: int) -> int:
+    """One agent's Discrete(n) action as an int (integers; floats only with an integral value), or a clear error."""
+    act = np.asarray(value)
+    val = float(act.reshape(-1)[0]) if act.size == 1 and act.ndim <= 1 and act.dtype.kind in "iuf" else math.nan
+    if not (math.isfinite(val) and val == int(val) and 0 <= val < n):
+        raise ValueError(f"action for {agent} must be an integer in [0, {n - 1}], got {value!r}")
+    return int(val)
+
+
 def raw_env(**kwargs) -> CovertSensingParallelEnv:
     """The bare parallel environment (no wrappers)."""
     return CovertSensingParallelEnv(**kwargs)
@@ -472,6 +488,14 @@ class _AECEnv(wrappers.OrderEnforcingWrapper):
     @max_cycles.setter
     def max_cycles(self, value) -> None:
         self.unwrapped.max_cycles = value
+
+    def step(self, action) -> None:
+        # parallel_to_aec stores the action until the last agent acts: check it now, so the error names the
+        # agent that gave it and comes from its own step() call. A finished agent's action is None.
+        agent = self.agent_selection
+        if self._has_reset and not (self.terminations.get(agent) or self.truncations.get(agent)):
+            self.unwrapped.check_action(agent, action)
+        super().step(action)
 
 
 def env(**kwargs):

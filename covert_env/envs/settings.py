@@ -19,7 +19,7 @@ from covert_env.scenario import PAPER_UAV_STARTS, Scenario
 from covert_env.zone import in_feasible_zone, lattice_offsets, zone_lattice
 
 __all__ = ["ACTION_MODES", "EnvSettings", "MAX_PATH_SAMPLES", "MAX_SCENE_POOL", "PENALTIES", "RENDER_MODES",
-           "check_penalties", "check_reward_scale"]
+           "PenaltyWeights", "check_penalties", "check_reward_scale"]
 
 ACTION_MODES = ("unicycle", "waypoint")
 RENDER_MODES = ("human", "rgb_array")
@@ -39,16 +39,46 @@ def check_reward_scale(value) -> float:
     return v
 
 
-def check_penalties(values) -> dict[str, float]:
-    """The penalty weights by term (``los``, ``zone``, ``separation``, ``terrain``), each a finite number >= 0."""
-    if not isinstance(values, Mapping) or set(values) != set(PENALTIES):
-        raise ValueError(f"penalties must be a dict with the keys {list(PENALTIES)}, got {values!r}")
-    out = {}
-    for key in PENALTIES:
-        out[key] = number_arg(f"{key}_penalty", values[key])
-        if out[key] < 0:
-            raise ValueError(f"{key}_penalty must be a finite number >= 0, got {values[key]!r}")
-    return out
+def _penalty(key, value) -> float:
+    if key not in PENALTIES:
+        raise KeyError(f"penalties: unknown term {key!r}; the terms are {list(PENALTIES)}")
+    v = number_arg(f"{key}_penalty", value)
+    if v < 0:
+        raise ValueError(f"{key}_penalty must be a finite number >= 0, got {value!r}")
+    return v
+
+
+class PenaltyWeights(dict):
+    """The penalty weights by term (``los``, ``zone``, ``separation``, ``terrain``), each a finite number >= 0.
+
+    A dict that checks what is written into it: ``penalties["los"] = 2.0`` is validated as the constructor
+    arguments are (a NaN, a negative weight or an unknown term raise), and no term can be removed (set it to 0.0)."""
+
+    def __init__(self, values) -> None:
+        if not isinstance(values, Mapping) or set(values) != set(PENALTIES):
+            raise ValueError(f"penalties must be a dict with the keys {list(PENALTIES)}, got {values!r}")
+        super().__init__((key, _penalty(key, values[key])) for key in PENALTIES)
+
+    def __setitem__(self, key, value) -> None:
+        super().__setitem__(key, _penalty(key, value))
+
+    def update(self, *args, **kwargs) -> None:
+        for key, value in dict(*args, **kwargs).items():
+            self[key] = value
+
+    def setdefault(self, key, default=None):
+        return self[key] if key in self else self.__setitem__(key, default)
+
+    def _fixed_keys(self, *args, **kwargs):
+        raise TypeError(f"penalties keep one weight per term {list(PENALTIES)}: set a weight to 0.0 to turn a term "
+                        "off")
+
+    __delitem__ = pop = popitem = clear = _fixed_keys
+
+
+def check_penalties(values) -> PenaltyWeights:
+    """The penalty weights by term, validated (:class:`PenaltyWeights`)."""
+    return PenaltyWeights(values)
 
 
 class EnvSettings:

@@ -11,7 +11,7 @@ from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
 from covert_env.envs import batch
-from covert_env.envs.arguments import bool_arg, int_arg
+from covert_env.envs.arguments import bool_arg, int_arg, reset_options
 from covert_env.envs.recorder import CopyView, EpisodeRecorder
 from covert_env.envs.scene_pool import ScenePool
 from covert_env.envs.settings import EnvSettings, check_penalties, check_reward_scale
@@ -148,8 +148,10 @@ class CovertSensingVectorEnv:
     ## Version History
 
     * v1: initial release (the task and numbers of ``covert_sensing_v1``). covert_env 0.3.0 added
-      ``autoreset_mode``, ``record`` and the copy readers; 0.4.0 added the read-only ``waypoint_paths``; the
-      numbers are unchanged.
+      ``autoreset_mode``, ``record`` and the copy readers; 0.4.0 added the read-only ``waypoint_paths``; 0.5.0
+      checks copy indices (``scene(-1)`` returned the last copy), raises on ``action_masks()`` before ``reset()``
+      and warns about unknown reset options instead of raising, as the parallel env does; the numbers are
+      unchanged.
     """
 
     metadata = {"name": "covert_sensing_vector_v1", "autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
@@ -183,7 +185,7 @@ class CovertSensingVectorEnv:
         self.config, self.action_mode, self.dict_obs = s.config, s.action_mode, s.dict_obs
         self.scenario_spec, self.random_starts = s.scenario, s.random_starts
         self.scene_pool, self.path_samples = s.scene_pool, s.path_samples
-        self._reward_scale, self._penalties = s.reward_scale, dict(s.penalties)
+        self._reward_scale, self._penalties = s.reward_scale, check_penalties(s.penalties)
         self._terminate, self.max_cycles = s.terminate_on_collision, s.max_cycles
         self.lattice, self.possible_agents, self.layout = s.lattice, list(s.possible_agents), s.layout
         self.single_observation_space, self.single_action_space = s.observation_space, s.action_space
@@ -235,8 +237,8 @@ class CovertSensingVectorEnv:
 
     @property
     def penalties(self) -> dict[str, float]:
-        """Penalty weights by term, read at every step. Assigning a dict validates it; item assignment
-        (``penalties["los"] = 2.0``) is live and not checked."""
+        """Penalty weights by term, read at every step. Assigning a dict validates it, and so does item
+        assignment (``penalties["los"] = 2.0``, live: :class:`~covert_env.envs.settings.PenaltyWeights`)."""
         return self._penalties
 
     @penalties.setter
@@ -294,8 +296,7 @@ class CovertSensingVectorEnv:
 
     def step(self, actions):
         """One slot in every copy; returns ``(obs, rewards, terminations, truncations, infos)`` (class docstring)."""
-        if not self._started or self._pool is None:
-            raise RuntimeError("step() called before reset() or after close()")
+        self.require_running("step()")
         if self._ended.any():
             raise RuntimeError(f"step(): the episodes of copies {np.flatnonzero(self._ended).tolist()} ended "
                                "(autoreset_mode DISABLED) or failed to reset; reset them "
@@ -379,13 +380,12 @@ class CovertSensingVectorEnv:
 
     def scene(self, i: int):
         """The scene copy i flies (``config``, ``terrain``, ``track``, ``name``), without starts."""
-        if not self._started or self._pool is None:
-            raise RuntimeError("scene(): the copies have scenes after reset() and before close()")
+        i = self._copy("scene()", i)
         return self._pool.cache(self._rows[i]).parts
 
     def scenario(self, i: int) -> Scenario:
         """The :class:`~covert_env.scenario.Scenario` of copy i's episode, with the starts actually flown."""
-        self.scene(i)                                        # the checks
+        i = self._copy("scenario()", i)
         cache = self._pool.cache(self._rows[i])
         if not self._drawn[i]:
             return cache.seeded_scenario()
@@ -397,6 +397,7 @@ class CovertSensingVectorEnv:
         """Copy i's episode so far as a :class:`~covert_env.trajectory.Trajectory` (needs ``record=True``)."""
         if self._recorder is None:
             raise RuntimeError("trajectory() needs the vector env built with record=True")
+        i = self._copy("trajectory()", i)
         return self._recorder.trajectory(i, int(self._k[i]), self.scene(i).track)
 
     def copy_view(self, i: int) -> CopyView:
@@ -404,7 +405,9 @@ class CovertSensingVectorEnv:
         return CopyView(self, int_arg("copy index", i, 0, self.num_envs - 1))
 
     def action_masks(self) -> np.ndarray:
-        """(B, U, L) int8 waypoint masks (1 = allowed); all ones (B, U, 2) in unicycle mode."""
+        """(B, U, L) int8 waypoint masks (1 = allowed); all ones (B, U, 2) in unicycle mode. Known after
+        ``reset()``: before it (or after ``close()``) a RuntimeError, as in the parallel env."""
+        self.require_running("action_masks()")
         return self._masks.copy()
 
     def waypoint_paths(self, nodes) -> np.ndarray:
@@ -417,8 +420,7 @@ class CovertSensingVectorEnv:
         shield of ``training.shield`` tests these paths against eq. 2. Waypoint mode, after ``reset()``."""
         if self.action_mode != "waypoint":
             raise RuntimeError("waypoint_paths() is for action_mode='waypoint'")
-        if not self._started or self._pool is None:
-            raise RuntimeError("waypoint_paths() called before reset() or after close()")
+        self.require_running("waypoint_paths()")
         nodes = np.asarray(nodes)
         b, u = self.num_envs, len(self.possible_agents)
         if nodes.ndim != 3 or nodes.shape[:2] != (b, u) or not np.issubdtype(nodes.dtype, np.integer):
@@ -438,13 +440,26 @@ class CovertSensingVectorEnv:
 
     def state(self) -> np.ndarray:
         """(B, S) float32 global state, row b the parallel env's ``state()`` of copy b."""
-        if not self._started:
-            raise RuntimeError("state() called before reset()")
+        self.require_running("state()")
         return self.layout.state(self._own_features(), self._pool.blocks[self._rows, self._slots()],
                                  self._remaining())
 
     def close(self) -> None:
+        """Release the scenes; every later call but ``close()`` raises a RuntimeError."""
         self._pool = None
+
+    def require_running(self, what: str) -> None:
+        """A RuntimeError naming ``what`` before the first ``reset()`` or after ``close()``."""
+        if self._pool is None:
+            raise RuntimeError(f"{what} called after close(); make a new env")
+        if not self._started:
+            raise RuntimeError(f"{what} called before reset(); call reset() first")
+
+    def _copy(self, what: str, i) -> int:
+        """Copy index ``i`` checked (an integer in [0, num_envs - 1]; no negative indices, bools or floats) while
+        the env is running."""
+        self.require_running(what)
+        return int_arg(f"{what}: copy index", i, 0, self.num_envs - 1)
 
     # ------------------------------------------------------------------ internals
     def _reset_copies(self, idx: np.ndarray, scene_seeds) -> None:
@@ -551,14 +566,9 @@ def _copy_seeds(seed, b: int) -> np.ndarray:
 
 
 def _reset_options(options: dict | None, b: int) -> tuple[np.ndarray | None, np.ndarray | None]:
-    """``options["scene_seed"]`` as b ints and ``options["reset_mask"]`` as b bools (None without them); any other
-    option is an error."""
-    if options is not None and not isinstance(options, dict):
-        raise TypeError(f"reset(options=...) must be a dict or None, got {type(options).__name__}")
-    options = dict(options or {})
-    unknown = sorted(set(options) - {"scene_seed", "reset_mask"}, key=str)
-    if unknown:
-        raise ValueError(f"reset(): unknown option(s) {unknown}; the vector env knows 'scene_seed' and 'reset_mask'")
+    """``options["scene_seed"]`` as b ints and ``options["reset_mask"]`` as b bools (None without them); other
+    keys are warned about and ignored (:func:`~covert_env.envs.arguments.reset_options`)."""
+    options = reset_options(options, ("scene_seed", "reset_mask"))
     mask = options.get("reset_mask")
     if mask is not None:
         mask = np.asarray(mask)
