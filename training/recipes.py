@@ -24,9 +24,9 @@ Why these settings:
 * Time budget: ``time_budget_minutes = 50`` stops training gracefully and saves; ``total_timesteps`` is an
   upper bound that the 2-core machine does not reach in 50 minutes.
 
-Measured with covert_env 0.1.0 and its lock-step SB3 adapter (seed 0, 2 shared CPU cores): 50.0 min, 13,715,520
-agent-steps (~4,570/s; a run on slower env code reached 3,658,800 at ~1,200/s). On the 20 held-out scenes 1_000_000..1_000_019
-(``outputs/leaderboard``; mean ± std over episodes):
+Measured with covert_env 0.1.0 and its lock-step SB3 adapter (seed 0, 2 shared CPU cores): 50.0 min,
+13,715,520 agent-steps (~4,570/s; a run on slower env code reached 3,658,800 at ~1,200/s). On the 20 held-out scenes
+1_000_000..1_000_019 (``outputs/leaderboard``; mean ± std over episodes):
 
 | policy | reward | blocked LoS (slots) | zone violations | disguise | path (m) | separation violations |
 |---|---|---|---|---|---|---|
