@@ -15,7 +15,7 @@ The first replan of a run (cold caches: the lookup table, all stage pairs) is re
 others reuse N - 1 stages. The machine's load average is printed: timings on a shared machine are upper
 bounds.
 
-Then (``--compare REV``, default b549364, the planner before the speed-ups of issue 12; ``--compare ''`` skips
+Then (``--compare REV``, default b549364, a planner without the speed-ups of this one; ``--compare ''`` skips
 it): the same rollouts (2 m grid; 1 and 3 UAVs on the paper scene, 5 on random scene 11; ``--compare-uavs``
 adds 8, slow on the old side: its safety layer tries every priority order) with this checkout and with REV's
 code (``git archive``), each in a fresh subprocess, alternating, ``--reps`` times; the CPU-time ratio old /

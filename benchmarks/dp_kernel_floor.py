@@ -1,4 +1,4 @@
-"""How much a compiled kernel would gain on the DP planner's two hot spots (issue 12's 4x question).
+"""How much a compiled kernel would gain on the DP planner's two hot spots (could a replan be 4x b549364's?).
 
 Run ``python benchmarks/dp_kernel_floor.py`` in an environment with numba (``pip install numba``; numba is *not*
 a covert_env dependency, and nothing in the package imports it). A 3-UAV team flies the paper scene at the
@@ -13,10 +13,10 @@ a compiled planner would (the bound and round 0 fused into one loop per target; 
 element at a time), and checked to give the same numbers. Printed: ms per replan for both, their ratio, the
 measured team replan time, and the replan time projected with both kernels compiled (the rest unchanged, and
 the rest 3x faster), against 1/4 of the b549364 planner's time (``--old-ms``, default: the same-run figure of
-``benchmarks/dp.py --compare`` on this machine, 61.5 ms CPU, 2026-11-30).
+``benchmarks/dp.py --compare`` on the 2-core CI machine, 61.5 ms CPU).
 
 The bound is a gather from the 3 MB manoeuvre table per node pair: memory-bound, so fusing its passes gains
-~1.5x, not the ~4x of the solver, whose numpy cost is per-call overhead.
+~2x, not the ~4x of the solver, whose numpy cost is per-call overhead.
 """
 
 from __future__ import annotations

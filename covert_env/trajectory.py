@@ -33,7 +33,8 @@ class Trajectory:
         target_path_xyz: (T, P, 3) target positions at the same instants as ``path_xy``.
         max_speed: (T, U) highest speed commanded during each slot.
         max_turn_rate: (T, U) highest |omega| commanded during each slot.
-        infeasible: (T, U) True where the policy flagged its move as a fallback (no feasible plan).
+        infeasible: (T, U) True where the move was flagged as a fallback: by the policy (no feasible plan), or
+            by the engine for a waypoint it flew as its best effort (out of the manoeuvre's reach).
         decision_time: (T, U) seconds the policy took to choose the move (NaN if not measured).
     """
 

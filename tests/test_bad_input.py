@@ -1,5 +1,5 @@
 """Bad input to the model fails at the boundary, with a message naming the field, the value and the
-allowed range or the fix (issue 10, item 6): never a hang, a MemoryError, a silent coercion or a failure
+allowed range or the fix: never a hang, a MemoryError, a silent coercion or a failure
 in some later reset. One parametrised case per input."""
 
 from __future__ import annotations
@@ -532,7 +532,7 @@ def test_rtree_overlap_check_matches_the_pairwise_definition(seed):
     assert _first_overlap(polys) == _brute_first_overlap(polys)
 
 
-# ----------------------------------------------------------------------------- issue 10 survey, second pass
+# ----------------------------------------------------------------------------- config, scenario, terrain, track, engine
 def _engine():
     from covert_env.engine import Engine
 

@@ -308,7 +308,7 @@ TRAINING_SCRIPTS = ["ppo_multi", "ppo_single", "sac_single", "maskable_ppo_singl
 
 @pytest.mark.parametrize("script", TRAINING_SCRIPTS)
 def test_training_help_prints_each_true_default_once(script):
-    """The training scripts used to print `(default: 0) (default: None)`; now one default, the dataclass's."""
+    """Each training flag's --help shows one default, the dataclass's (never `(default: 0) (default: None)`)."""
     import dataclasses
     import importlib
 

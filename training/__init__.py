@@ -1,12 +1,17 @@
-"""Training and evaluation for covert_env (layout: docs/README.md#layout; issue #5).
+"""Training and evaluation for covert_env (layout: docs/README.md#layout).
 
 * :mod:`training.vec_env` -- :class:`~training.vec_env.ParallelEnvVecAdapter`, our small SB3 ``VecEnv``
-  over PettingZoo ParallelEnvs: copies x agents flattened, one shared policy (no SuperSuit).
+  over PettingZoo ParallelEnvs: copies x agents flattened, one shared policy (no SuperSuit);
+  :func:`~training.vec_env.make_vec_env` returns the batched one of :mod:`training.vector_adapter` for our env.
 * :mod:`training.ppo_multi` -- parameter-shared multi-agent PPO (the 3-UAV recipe of :mod:`training.recipes`).
 * :mod:`training.ppo_single`, :mod:`training.sac_single`, :mod:`training.maskable_ppo_single` -- single-UAV SB3.
 * :mod:`training.rllib_ppo` -- multi-agent PPO on RLlib (``[rllib]`` extra), one shared policy.
+* :mod:`training.mappo` -- MAPPO / IPPO on the batched ``covert_env.vector_env`` (the ``3uav-mappo`` recipe),
+  with the separation shield of :mod:`training.shield`; :mod:`training.curves` draws its learning curves.
+* :mod:`training.pretrained` -- the learned actor in numpy and the shipped weights (``pretrained:mappo``).
 * :mod:`training.evaluate` -- ``python -m training.evaluate``: every policy on the same held-out seeds,
-  scored by :func:`covert_env.metrics.episode_metrics`, written to ``leaderboard.md`` / ``.csv`` and a figure.
+  scored by :func:`covert_env.metrics.episode_metrics`, written to ``leaderboard.md`` / ``.csv`` and a figure;
+  :mod:`training.stats` gives its IQM and bootstrap intervals.
 
 Outputs go to the git-ignored ``runs/`` (training) and ``outputs/`` (evaluation) folders.
 """

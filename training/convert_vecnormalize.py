@@ -1,4 +1,4 @@
-"""One-off conversion of VecNormalize statistics pickled by older covert_env versions to the JSON we now write.
+"""One-off conversion of VecNormalize statistics pickled by older covert_env versions to the JSON the scripts write.
 
     python -m training.convert_vecnormalize runs/<run>                  # every .pkl of the run and its checkpoints
     python -m training.convert_vecnormalize runs/<run>/vecnormalize.pkl

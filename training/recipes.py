@@ -1,6 +1,6 @@
 """Named training settings (documented recipes). ``python -m training.ppo_multi --recipe NAME``; flags override.
 
-``3uav-ppo`` -- the documented 3-UAV parameter-shared PPO recipe (issue #5): trains in <= 60 minutes on 2 CPU cores.
+``3uav-ppo`` -- the documented 3-UAV parameter-shared PPO recipe: trains in <= 60 minutes on 2 CPU cores.
 
     OMP_NUM_THREADS=1 python -m training.ppo_multi --recipe 3uav-ppo          # ~50 min wall clock, then saves
     python -m training.evaluate --policies random hold-centre dp sb3:runs/<run> --episodes 20
@@ -24,22 +24,22 @@ Why these settings:
 * Time budget: ``time_budget_minutes = 50`` stops training gracefully and saves; ``total_timesteps`` is an
   upper bound that the 2-core machine does not reach in 50 minutes.
 
-Measured (2026-11-22, seed 0, 2 shared CPU cores): 50.0 min, 13,715,520 agent-steps (~4,570/s, with the adapter's
-lock-step stepping; the first run reached 3,658,800 at ~1,200/s). On the 20 held-out scenes 1_000_000..1_000_019
-(``outputs/leaderboard``; mean ± std over episodes):
+Measured with covert_env 0.1.0 and its lock-step SB3 adapter (seed 0, 2 shared CPU cores): 50.0 min,
+13,715,520 agent-steps (~4,570/s; a run on slower env code reached 3,658,800 at ~1,200/s). On the 20 held-out scenes
+1_000_000..1_000_019 (``outputs/leaderboard``; mean ± std over episodes):
 
 | policy | reward | blocked LoS (slots) | zone violations | disguise | path (m) | separation violations |
 |---|---|---|---|---|---|---|
 | random (unicycle) | -104.4 ± 13.1 | 0.451 | 0.978 | 20.2 | 1756 | 0.23 |
 | this recipe | 121.9 ± 15.0 | 0.014 | 0.022 | 23.6 | 1372 | 26.9 |
-| this recipe, first run (3.66 M steps) | 110.7 ± 7.5 | 0.005 | 0.019 | 21.8 | 1285 | 27.5 |
+| this recipe, shorter run (3.66 M steps) | 110.7 ± 7.5 | 0.005 | 0.019 | 21.8 | 1285 | 27.5 |
 | DP shadow-aware (waypoint) | 240.4 ± 2.7 | 0.000 | 0.000 | 38.6 | 2958 | 0.07 |
 
 Known weakness: the team flies bunched up (27 of 70 slots per UAV closer than d_safe1, min separation 0.5-0.7 m):
 staying in the zone is learned first and the separation penalty of 1 per slot is too weak against it. The DP
 planner's disguise (kappa ~39 vs ~24) is the rest of the reward gap. An exploratory 25-min run with
 ``--separation-penalty 3`` (2.08 M steps) only reduced it to 21.1 slots and earned less (80.7 ± 6.0): not a fix at
-this budget; a separation-aware observation or a distance-shaped penalty is the next thing to try.
+this budget.
 
 ``smoke`` -- a few thousand steps, for CI.
 """

@@ -58,7 +58,18 @@ class CovertSensingEnv(gym.Env):
 
     ## Episode End
 
-    Truncated after ``max_cycles`` slots (default 70, the end of the route); never terminated.
+    Truncated after ``min(max_cycles, config.n_slots)`` slots (default 70, the end of the route); never
+    terminated.
+
+    ## Vectorized Environment
+
+    ``gym.make_vec("covert_env/CovertSensing-v1", num_envs=N)`` gives Gymnasium's ``SyncVectorEnv`` (or, with
+    ``vectorization_mode="async"``, ``AsyncVectorEnv``) of N of these envs; it resets an ended env in
+    Gymnasium's next-step mode (``AutoresetMode.NEXT_STEP``: the ``step()`` after the end resets it and ignores
+    its action). ``covert_env.vector_env(num_envs=N, n_uavs=1)`` is the batched alternative (one process, array
+    operations over all copies, observations ``(N, 1, D)``), and it resets in the same step
+    (``AutoresetMode.SAME_STEP``, the last observation in ``infos["final_obs"]``; see
+    :class:`~covert_env.envs.vector.CovertSensingVectorEnv`).
 
     ## Arguments
 
@@ -140,8 +151,12 @@ class CovertSensingWaypointEnv(CovertSensingEnv):
 
     Each action is a node of the fixed lattice in the target's frame (the DP planner's node set),
     placed at the target's next pose; the env flies the turn-then-straight manoeuvre (eqs. 22-29)
-    to it. ``action_masks()`` (and ``info["action_mask"]``) mark nodes reachable in one slot and in
-    the visible zone (eq. 10). See :class:`CovertSensingEnv` for everything else.
+    to it. ``action_masks()`` (and ``info["action_mask"]``, or ``obs["action_mask"]`` with ``dict_obs=True``)
+    mark nodes reachable in one slot and in the visible zone (eq. 10). If no node is both, the reachable nodes
+    are allowed; if the UAV can reach no node at all (about 5 % of slots under a random masked policy), every
+    node is, so a masked sampler always has a choice. A node the UAV cannot reach is flown as a best effort (the
+    admissible constant (v, omega) ending closest to it) and flagged ``info["infeasible"]``, as is a masked-out
+    node. See :class:`CovertSensingEnv` for everything else.
     """
 
     _action_mode = "waypoint"

@@ -74,7 +74,10 @@ class CovertSensingVectorEnv:
     ## Action Masks
 
     Waypoint mode: ``action_masks()`` returns ``(B, U, L)`` int8 (1 = allowed), the parallel env's mask per copy
-    and agent. It lives there (and in the observation with ``dict_obs=True``), not in the infos. Reachability
+    and agent. It lives there (and in the observation with ``dict_obs=True``), not in the infos. A row with no
+    node both reachable and visible allows the reachable nodes, and a row whose UAV can reach no node is all ones
+    (about 5 % of UAV-slots under a random masked policy); a node taken there is flown as a best effort (the
+    admissible constant (v, omega) ending closest to it) and flagged ``infos["infeasible"]``. Reachability
     comes from :class:`~covert_env.reach.ReachTable` (a table in the UAV's frame; only nodes near its boundary
     are solved), which gives exactly ``solve_manoeuvre``'s answer. ``waypoint_paths(nodes)`` returns the paths
     the UAVs would fly to given nodes in this slot (read-only; what the separation shield of
@@ -107,7 +110,8 @@ class CovertSensingVectorEnv:
       ``infos["_final_obs"]`` is True.
 
     These keys are present only on steps where some copy ended (as in Gymnasium). No ``step()`` ever needs a
-    manual ``reset()``.
+    manual ``reset()``. (``gym.make_vec`` on the registered single-UAV ids gives Gymnasium's own vector envs,
+    which reset in next-step mode instead: the step after the end resets and ignores that copy's action.)
 
     ``autoreset_mode=AutoresetMode.DISABLED`` turns this off: a copy whose episode ended keeps its last
     observation and state, and ``step()`` raises until it is reset with ``reset(options={"reset_mask": m})``.
