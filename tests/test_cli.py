@@ -197,6 +197,28 @@ def _user_error_cases(tmp: Path) -> dict[str, tuple[list[str], str]]:
         "reproduce empty out": (["reproduce", "--quick", "--out", ""], "--out '': empty; give a path"),
         "reproduce blank out": (["reproduce", "--quick", "--out", "  "], "--out '  ': empty"),
         "evaluate empty out": (["evaluate", "--policies", "random", "--out", ""], "--out '': empty; give a path"),
+        "scene config /dev/zero": (["scene", "--config", "/dev/zero"],
+                                   "--config /dev/zero: is a character device, expected a Config JSON file"),
+        "scene config /dev/null": (["scene", "--config", "/dev/null"],
+                                   "--config /dev/null: is a character device, expected a Config JSON file"),
+        "scene config fifo": (["scene", "--config", str(tmp / "fifo")],
+                              f"--config {tmp / 'fifo'}: is a named pipe, expected a Config JSON file"),
+        "animate config fifo": (["animate", "--config", str(tmp / "fifo")], "is a named pipe"),
+        "reproduce config /dev/zero": (["reproduce", "--out", str(tmp / "r"), "--config", "/dev/zero"],
+                                       "is a character device"),
+        "scene out is a fifo": (["scene", "--out", str(tmp / "fifo.png")],
+                                f"--out {tmp / 'fifo.png'}: is a named pipe, expected a regular file name"),
+        "reproduce out holds a folder where a file goes": (
+            ["reproduce", "--quick", "--out", str(tmp / "full")],
+            f"--out {tmp / 'full'}: {tmp / 'full' / 'metrics.md'} is a directory, but the command writes the file "
+            "metrics.md there"),
+        "reproduce out holds a folder where a figure goes": (
+            ["reproduce", "--quick", "--out", str(tmp / "figs")], "fig_heldout.png is a directory"),
+        "evaluate out holds a folder where a file goes": (
+            ["evaluate", "--policies", "random", "--out", str(tmp / "full")],
+            f"{tmp / 'full' / 'leaderboard.md'} is a directory, but the command writes the file leaderboard.md"),
+        "evaluate cache is a file": (["evaluate", "--policies", "random", "--out", str(tmp / "cached")],
+                                     f"{tmp / 'cached' / 'cache'} is a file, but the command writes into a folder"),
     }
 
 
@@ -206,6 +228,12 @@ def error_dir(tmp_path):
     (tmp_path / "a_dir").mkdir()
     (tmp_path / "bad.json").write_text("{not json")
     (tmp_path / "bad_value.json").write_text('{"n_uavs": -1}')
+    for name in ("fifo", "fifo.png"):
+        os.mkfifo(tmp_path / name)
+    for name in ("full/metrics.md", "full/leaderboard.md", "figs/fig_heldout.png"):
+        (tmp_path / name).mkdir(parents=True)
+    (tmp_path / "cached").mkdir()
+    (tmp_path / "cached" / "cache").write_text("x")
     return tmp_path
 
 
@@ -237,6 +265,60 @@ def test_user_errors_from_the_console_have_no_traceback(argv, error_dir):
     assert "Traceback" not in res.stderr
     assert len([ln for ln in res.stderr.splitlines() if "error:" in ln]) == 1
     assert res.stdout == ""
+
+
+READ_ONLY_OUTS = {
+    "scene in /proc": (["scene", "--out", "/proc/covert_env_test.png"], "cannot write in /proc"),
+    "scene in /sys": (["scene", "--out", "/sys/covert_env_test.png"], "cannot write in /sys"),
+    "scene in a new folder in /proc": (["scene", "--out", "/proc/covert_env_test/x.png"], "cannot create the folder"),
+    "animate in /sys": (["animate", "--out", "/sys/covert_env_test.gif"], "cannot write in /sys"),
+    "reproduce into /proc": (["reproduce", "--out", "/proc"], "cannot write in /proc"),
+    "reproduce into a new folder in /sys": (["reproduce", "--out", "/sys/covert_env_test"],
+                                            "cannot create the folder"),
+    "evaluate into /proc": (["evaluate", "--policies", "dp", "--out", "/proc"], "cannot write in /proc"),
+    "evaluate into a new folder in /sys": (["evaluate", "--policies", "dp", "--out", "/sys/covert_env_test"],
+                                           "cannot write in /sys"),
+}
+
+
+@pytest.mark.skipif(not (Path("/proc/self").is_dir() and Path("/sys/kernel").is_dir()), reason="needs /proc and /sys")
+@pytest.mark.parametrize("case", list(READ_ONLY_OUTS))
+def test_unwritable_out_fails_before_the_run(case, capsys, monkeypatch):
+    """/proc and /sys refuse new files even to root, for whom os.access says yes: the output folder is probed by
+    writing a temporary file, before any planning or evaluation runs (those are replaced by a failure here)."""
+    import baselines.reproduce
+    import training.evaluate
+
+    def ran(*a, **k):
+        raise AssertionError("the run started before --out was checked")
+
+    monkeypatch.setattr(baselines.reproduce, "_run_all", ran)
+    monkeypatch.setattr(baselines.reproduce, "write_gif", ran)
+    monkeypatch.setattr(training.evaluate, "evaluate", ran)
+    argv, expected = READ_ONLY_OUTS[case]
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.splitlines() if "error:" in ln]
+    assert len(lines) == 1 and "Traceback" not in err, err
+    out = argv[argv.index("--out") + 1]
+    assert re.fullmatch(rf"covert-env {argv[0]}: error: --out {re.escape(out)}: {expected}( in /\w+)? \(.+\)",
+                        lines[0]), lines[0]
+
+
+def test_output_checks_leave_nothing_behind(tmp_path):
+    from covert_env.cli import output_dir, output_file
+
+    output_dir(tmp_path / "a", create=False)
+    assert list(tmp_path.iterdir()) == []
+    assert output_dir(tmp_path / "a" / "b") == tmp_path / "a" / "b"
+    assert [p.relative_to(tmp_path) for p in tmp_path.rglob("*")] == [Path("a"), Path("a/b")]
+    f = tmp_path / "x.png"
+    f.write_bytes(b"old")
+    assert output_file(f, suffixes=("png",)) == f
+    assert f.read_bytes() == b"old"                        # opened for writing, not changed
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a", "x.png"]
 
 
 def test_genuine_bugs_keep_their_traceback(tmp_path, monkeypatch):

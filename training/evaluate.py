@@ -485,11 +485,23 @@ def _check_team(n_uavs: int, seed: int) -> None:
         env.close()
 
 
+#: The files :func:`main` writes into ``--out`` (besides ``cache/``).
+OUTPUT_FILES = ("leaderboard.md", "leaderboard.csv", "episodes.csv", "comparison.png", "results.json")
+
+
+def _cache_name(spec: str, args: argparse.Namespace) -> str:
+    """The cached results of built-in policy ``spec`` inside ``--out``: ``cache/<spec, episodes, seeds, team>.json``."""
+    key = f"{spec}__{args.episodes}__{args.seed_offset}__{args.n_uavs}".replace("/", "_").replace("@", "-")
+    return f"cache/{key}.json"
+
+
 def _main(args: argparse.Namespace, command: str) -> int:
     from covert_env.cli import UsageError, output_dir
 
     _check_team(args.n_uavs, args.seed_offset)
-    output_dir(args.out, create=False)
+    caches = {spec: _cache_name(spec, args) for spec in args.policies if not spec.startswith(LEARNED_PREFIXES)}
+    outputs = {"files": (*OUTPUT_FILES, *caches.values()), "folders": ("cache",) if caches else ()}
+    output_dir(args.out, create=False, **outputs)
     # Every spec is loaded before any evaluation: a bad one fails at once, not after the others have run.
     loaded = []
     for spec in args.policies:
@@ -501,7 +513,7 @@ def _main(args: argparse.Namespace, command: str) -> int:
             raise UsageError(f"--policies: the runs of {spec} need different env settings "
                              f"({[st for _, st in group]}); a seed group must share them")
         loaded.append((spec, group))
-    out = output_dir(args.out)
+    out = output_dir(args.out, **outputs)
     results: dict[str, dict] = {}
     for spec, group in loaded:
         pol, settings = group[0]
@@ -511,9 +523,8 @@ def _main(args: argparse.Namespace, command: str) -> int:
         while name in results:
             name += "'"
         t0 = time.perf_counter()
-        builtin = not spec.startswith(LEARNED_PREFIXES)
-        key = f"{spec}__{args.episodes}__{args.seed_offset}__{args.n_uavs}".replace("/", "_").replace("@", "-")
-        cache = out / "cache" / f"{key}.json"
+        builtin = spec in caches
+        cache = out / caches[spec] if builtin else None
         if builtin and args.reuse and cache.exists():
             rows = json.loads(cache.read_text())
         else:
