@@ -439,7 +439,7 @@ def test_evaluate_sb3_file_that_is_not_a_model_is_one_line(error_dir, capsys, mo
     monkeypatch.chdir(error_dir)
     with pytest.raises(SystemExit) as exc:
         main(["evaluate", "--policies", "sb3:a_file", "--episodes", "1", "--n-uavs", "1", "--no-progress",
-              "--out", "o"])
+              "--out", "o", "--trust-checkpoint"])
     assert exc.value.code == 2
     err = capsys.readouterr().err
     lines = [ln for ln in err.splitlines() if "error:" in ln]

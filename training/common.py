@@ -7,7 +7,7 @@ Every script keeps its own readable ``Args`` dataclass (CleanRL style); this mod
 * :class:`TimeBudgetCallback`: stops ``learn()`` gracefully after a wall-clock budget (the model is then saved);
 * SB3's ``CheckpointCallback`` every ``checkpoint_freq`` steps, with the VecNormalize statistics beside the model
   as JSON (:func:`training.vec_env.save_vecnormalize`; nothing we write is a pickle, but SB3's ``model.zip``
-  itself holds pickled parts: load models only from trusted sources).
+  itself holds pickled parts, so ``--resume`` loads it only with ``--trust-checkpoint``: :mod:`training.trust`).
 
 Run layout (git-ignored ``runs/``)::
 
@@ -36,7 +36,8 @@ from pathlib import Path
 from typing import Any
 
 __all__ = ["parse_args", "run_name", "setup_torch", "TimeBudgetCallback", "TqdmCallback", "make_callbacks",
-           "latest_checkpoint", "save_run", "field_docs", "build_parser", "save_final_vecnormalize", "train_single"]
+           "latest_checkpoint", "resume_checkpoint", "save_run", "field_docs", "build_parser",
+           "save_final_vecnormalize", "train_single"]
 
 
 def setup_torch(threads: int = 1) -> None:
@@ -164,7 +165,9 @@ def parse_args(cls: type, argv: list[str] | None = None, description: str | None
     """Build an argparse CLI from dataclass ``cls`` (``--field-name value``; booleans take true/false).
 
     ``presets`` (name -> overrides) adds ``--recipe NAME``: the preset is applied first, explicit flags win.
-    Out-of-range values and a ``--resume`` folder that is not a run exit with status 2 and one error line.
+    Out-of-range values, a ``--resume`` folder that is not a run and, for scripts whose ``Args`` has
+    ``trust_checkpoint``, a ``--resume`` that would load a pickled checkpoint without ``--trust-checkpoint`` exit
+    with status 2 and one error line.
     """
     p = build_parser(cls, description, presets, prog)
     ns = p.parse_args(argv)
@@ -182,6 +185,18 @@ def parse_args(cls: type, argv: list[str] | None = None, description: str | None
             p.error(f"--resume {resume}: no such folder")
         if not (run / "args.json").is_file() and not (run.parent / "args.json").is_file():
             p.error(f"--resume {resume}: not a run folder (no args.json in it or beside it)")
+        if "trust_checkpoint" in {f.name for f in dataclasses.fields(cls)}:
+            from covert_env.cli import UsageError
+            from training.trust import require_trust
+
+            trust = values.get("trust_checkpoint", False)
+            try:
+                if (run / "learner_group").is_dir():                   # an RLlib checkpoint (training.rllib_ppo)
+                    require_trust(run, "an RLlib checkpoint", trust)
+                else:
+                    resume_checkpoint(run, trust_checkpoint=trust)
+            except UsageError as exc:
+                p.error(f"--resume {resume}: {exc}")
     return cls(**values)
 
 
@@ -200,7 +215,7 @@ def save_run(run_dir: Path, args: Any, extra: dict | None = None) -> None:
 
 #: Arguments a resumed run takes from the command line rather than from the saved run.
 RESUME_OVERRIDES = frozenset({"resume", "total_timesteps", "iterations", "time_budget_minutes", "progress_bar",
-                              "torch_threads", "verbose", "address", "num_env_runners"})
+                              "torch_threads", "verbose", "address", "num_env_runners", "trust_checkpoint"})
 
 
 def resumed_args(args: Any, run_dir: Path) -> Any:
@@ -240,6 +255,18 @@ def latest_checkpoint(run_dir: Path) -> tuple[Path, Path | None] | None:
     steps, path = best
     prefix = path.name[: -len(f"_{steps}_steps.zip")]
     return path, stats(path.parent / f"{prefix}_vecnormalize_{steps}_steps.json")
+
+
+def resume_checkpoint(run_dir: Path, *, trust_checkpoint: bool = False) -> tuple[Path, Path | None] | None:
+    """:func:`latest_checkpoint` of a run to resume. Its model is an SB3 ``.zip``, which holds pickles: unless
+    ``trust_checkpoint=True`` a run that has one is refused (:func:`training.trust.require_trust`), before
+    anything is loaded."""
+    from training.trust import require_trust
+
+    ckpt = latest_checkpoint(run_dir)
+    if ckpt is not None:
+        require_trust(ckpt[0], "an SB3 model", trust_checkpoint)
+    return ckpt
 
 
 def _callback_base():
@@ -364,8 +391,10 @@ def train_single(args: Any, algo: str, sb3_class: str, action_mode: str,
     import covert_env  # noqa: F401  (registers the Gymnasium ids)
     from training.vec_env import load_vecnormalize
 
+    ckpt = None
     if args.resume:
         run_dir = Path(args.resume)
+        ckpt = resume_checkpoint(run_dir, trust_checkpoint=args.trust_checkpoint)
         args = resumed_args(args, run_dir)
     else:
         run_dir = Path(args.runs_dir) / (args.run_name or run_name(args.env_id, algo, args.seed))
@@ -373,7 +402,6 @@ def train_single(args: Any, algo: str, sb3_class: str, action_mode: str,
     save_run(run_dir, args, {"algo": algo, "sb3_class": sb3_class, "multi_agent": False,
                              "env_kwargs": {**ekw, "n_uavs": 1, "action_mode": action_mode}})
     venv = make_vec_env(args.env_id, n_envs=args.n_envs, seed=args.seed, env_kwargs=ekw)
-    ckpt = latest_checkpoint(run_dir) if args.resume else None
     if ckpt is not None:
         venv = load_vecnormalize(ckpt[1], venv) if ckpt[1] else venv
         model = cls.load(str(ckpt[0]), env=venv, device="cpu")

@@ -1,8 +1,9 @@
 """The evaluation harness: every policy on the same held-out scenes, scored by the shared metrics code.
 
-    python -m training.evaluate --policies random hold-centre dp dp-blind sb3:runs/<run> --episodes 20
-    python -m training.evaluate --policies random sb3:runs/<run>/checkpoints/ppo_multi_500000_steps.zip
-    python -m training.evaluate --policies dp rllib:runs/<rllib-run>/checkpoint
+    python -m training.evaluate --policies random hold-centre dp dp-blind pretrained:mappo --episodes 20
+    python -m training.evaluate --policies random sb3:runs/<run> --trust-checkpoint
+    python -m training.evaluate --trust-checkpoint --policies sb3:runs/<run>/checkpoints/ppo_multi_500000_steps.zip
+    python -m training.evaluate --policies dp rllib:runs/<rllib-run>/checkpoint --trust-checkpoint
     covert-env evaluate ...                          # the same (forwards to training.evaluate.main)
 
 Policy specs (``SPEC[@MODE]``, MODE = ``unicycle`` or ``waypoint`` picks the env's action mode):
@@ -14,11 +15,13 @@ Policy specs (``SPEC[@MODE]``, MODE = ``unicycle`` or ``waypoint`` picks the env
 * ``sb3:PATH``: an SB3 model (PPO, SAC, MaskablePPO) -- a run folder (its ``model.zip``) or a ``.zip``
   checkpoint; its ``args.json`` gives the env settings and the VecNormalize statistics beside the model
   (``vecnormalize.json``, read without pickle; older ``.pkl`` statistics are refused, see
-  :mod:`training.convert_vecnormalize`) are applied. SB3 ``.zip`` files and RLlib checkpoints contain pickles:
-  load them only from trusted sources. Single-UAV models act for every UAV independently (each sees its own
-  observation), so they need ``--n-uavs 1`` unless they were trained with the same team size.
+  :mod:`training.convert_vecnormalize`) are applied. Single-UAV models act for every UAV independently (each sees
+  its own observation), so they need ``--n-uavs 1`` unless they were trained with the same team size.
 * ``rllib:PATH``: an RLlib checkpoint of :mod:`training.rllib_ppo`; inference runs in plain torch, no Ray
   cluster is started.
+* SB3 ``.zip`` files and RLlib checkpoints hold pickles, which run any code they carry when loaded: ``sb3:`` and
+  ``rllib:`` specs are refused unless ``--trust-checkpoint`` is given (``trust_checkpoint=True`` in
+  :func:`load_policy`), only for files from a source you trust (:mod:`training.trust`).
 * ``mappo:PATH``: a MAPPO/IPPO actor of :mod:`training.mappo` -- a run folder (its ``model.npz`` and
   ``model.json``) or ``NAME.npz`` with its card ``NAME.json``; ``pretrained:NAME``: the weights shipped in
   ``training/pretrained/`` (``pretrained:mappo``). Both run in numpy (no torch, no pickle): :mod:`training.pretrained`.
@@ -133,18 +136,21 @@ def vecnormalize_path(model_path: Path) -> Path:
     return model_path.parent / "vecnormalize.json"
 
 
-def load_sb3(path: str | Path) -> SB3Policy:
+def load_sb3(path: str | Path, *, trust_checkpoint: bool = False) -> SB3Policy:
     """Load an SB3 run folder or checkpoint (.zip) with its VecNormalize statistics (JSON) and env settings.
 
-    Statistics pickled by older versions (``.pkl``) are refused with the command that converts them. The model
-    ``.zip`` itself is loaded by SB3, which unpickles parts of it: load only models from trusted sources.
+    The model ``.zip`` is loaded by SB3, which unpickles parts of it: without ``trust_checkpoint=True`` it is
+    refused (:func:`training.trust.require_trust`) before anything is read. Statistics pickled by older versions
+    (``.pkl``) are refused with the command that converts them.
     """
     from covert_env.cli import UsageError
+    from training.trust import require_trust
 
     path = Path(path)
     model_path = path / "model.zip" if path.is_dir() else path
     if not model_path.is_file():
         raise UsageError(f"no SB3 model at {model_path} (expected a run folder holding model.zip, or a .zip)")
+    require_trust(model_path, "an SB3 model", trust_checkpoint)
     vn_path = vecnormalize_path(model_path)
     if not vn_path.exists() and vn_path.with_suffix(".pkl").exists():
         vn_path = vn_path.with_suffix(".pkl")                    # refused below, with the conversion command
@@ -213,11 +219,12 @@ def _extra(module: str, extra: str):
             from None
 
 
-def load_policy(spec: str, n_uavs: int) -> tuple[Any, dict]:
+def load_policy(spec: str, n_uavs: int, *, trust_checkpoint: bool = False) -> tuple[Any, dict]:
     """A policy object and its env settings (``n_uavs``, ``action_mode``) from a spec (see the module docstring).
 
     A bad spec (unknown name or mode, missing path, team size or action mode that do not fit) raises
-    :class:`covert_env.cli.UsageError` (a ``ValueError``) naming it.
+    :class:`covert_env.cli.UsageError` (a ``ValueError``) naming it, and so do ``sb3:`` and ``rllib:`` specs
+    (pickled checkpoints) unless ``trust_checkpoint=True``.
     """
     from covert_env.cli import UsageError
 
@@ -228,7 +235,7 @@ def load_policy(spec: str, n_uavs: int) -> tuple[Any, dict]:
             raise UsageError(f"unknown action mode {mode!r} in policy spec {spec}@{mode} (use @unicycle or @waypoint)")
     if spec.startswith("sb3:"):
         with _extra("stable_baselines3", "train"), _extra("sb3_contrib", "train"), _extra("torch", "train"):
-            pol = load_sb3(spec[4:])
+            pol = load_sb3(spec[4:], trust_checkpoint=trust_checkpoint)
         settings = dict(pol.env_settings)
     elif spec.startswith(("mappo:", "pretrained:")):
         from training.pretrained import PRETRAINED_DIR, load_learned, pretrained_names
@@ -249,10 +256,13 @@ def load_policy(spec: str, n_uavs: int) -> tuple[Any, dict]:
     elif spec.startswith("rllib:"):
         if not (Path(spec[6:]) / "learner_group").is_dir():
             raise UsageError(f"no RLlib checkpoint at {spec[6:]} (expected a training.rllib_ppo checkpoint folder)")
+        from training.trust import require_trust
+
+        require_trust(spec[6:], "an RLlib checkpoint", trust_checkpoint)
         with _extra("ray", "rllib"):
             from training.rllib_ppo import load_policy as load_rllib
 
-            pol = load_rllib(spec[6:])
+            pol = load_rllib(spec[6:], trust_checkpoint=True)
         settings = dict(pol.env_settings)
     else:
         from baselines.policies import POLICIES, make_policy
@@ -450,6 +460,10 @@ def build_parser(prog: str = "python -m training.evaluate") -> argparse.Argument
                    help="first held-out scene seed, >= 0")
     p.add_argument("--out", default="outputs/leaderboard", help="output folder (git-ignored outputs/)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    p.add_argument("--trust-checkpoint", action="store_true",
+                   help="allow sb3: and rllib: specs: their files hold pickles, which run any code they carry when "
+                        "loaded; pass this only for files from a source you trust (mappo:, pretrained: and the "
+                        "built-in policies need no trust)")
     p.add_argument("--reuse", action="store_true",
                    help="reuse the per-episode results of built-in policies (dp, random, ...) cached in OUT/cache "
                         "by an earlier run with the same episodes, seed offset and team size (they are deterministic)")
@@ -506,7 +520,8 @@ def _main(args: argparse.Namespace, command: str) -> int:
     loaded = []
     for spec in args.policies:
         try:
-            group = [load_policy(part, args.n_uavs) for part in split_seeds(spec)]
+            group = [load_policy(part, args.n_uavs, trust_checkpoint=args.trust_checkpoint)
+                     for part in split_seeds(spec)]
         except UsageError as exc:
             raise UsageError(f"--policies: {exc}") from None
         if len({json.dumps(st, sort_keys=True) for _, st in group}) > 1:

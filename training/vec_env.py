@@ -26,7 +26,7 @@ Works under ``VecMonitor`` (episode statistics per agent row) and ``VecNormalize
 VecNormalize statistics are saved as JSON, not pickled (:func:`save_vecnormalize`, :func:`load_vecnormalize`,
 :func:`read_vecnormalize`): a run folder holds ``vecnormalize.json`` beside ``model.zip``. Loading a file never
 runs code from it; ``.pkl`` statistics of older runs are refused (convert a trusted one explicitly with
-``python -m training.convert_vecnormalize PATH``).
+``python -m training.convert_vecnormalize --trust-checkpoint PATH``).
 """
 
 from __future__ import annotations
@@ -257,7 +257,8 @@ def _refuse_pickle(path: Path) -> None:
         raise ValueError(
             f"{path}: VecNormalize statistics pickled by an older covert_env; they are not loaded, since unpickling "
             f"a file can run any code. If you trust the file, convert it once with "
-            f"`python -m training.convert_vecnormalize {path}` (writes {path.with_suffix('.json').name} beside it)")
+            f"`python -m training.convert_vecnormalize --trust-checkpoint {path}` (writes "
+            f"{path.with_suffix('.json').name} beside it)")
 
 
 def read_vecnormalize(path: str | Path) -> NormStats:
