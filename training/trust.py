@@ -14,11 +14,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-__all__ = ["TRUST_FLAG", "TRUST_HELP", "require_trust"]
+__all__ = ["TRUST_FLAG", "require_trust"]
 
 TRUST_FLAG = "--trust-checkpoint"
-TRUST_HELP = ("load pickled checkpoints (SB3 .zip models, RLlib checkpoints): unpickling runs any code the file "
-              "carries, so pass this only for files from a source you trust")
 
 
 def require_trust(path: str | Path, what: str, trust_checkpoint: bool) -> None:
