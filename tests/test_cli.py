@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import re
 import subprocess
@@ -445,3 +446,78 @@ def test_evaluate_sb3_file_that_is_not_a_model_is_one_line(error_dir, capsys, mo
     lines = [ln for ln in err.splitlines() if "error:" in ln]
     assert len(lines) == 1 and "Traceback" not in err, err
     assert "--policies: sb3:a_file: a_file is not a loadable PPO model" in lines[0], lines[0]
+
+
+# ---------------------------------------------------------------------- files evaluate reads: named with the field
+def _evaluate_file_cases(tmp: Path) -> dict[str, tuple[list[str], str]]:
+    """name -> (argv after `evaluate`, regex the one error line must match after `error: `); files under ``tmp``."""
+    cache = tmp / "lb" / "cache" / "random__2__1000000__3.json"
+    sb3, rllib = tmp / "sb3run", tmp / "rllibrun" / "checkpoint"
+    base = ["--episodes", "2", "--n-uavs", "3", "--no-progress"]
+    return {
+        "truncated cache": (["--policies", "random", "--out", str(tmp / "lb"), "--reuse", *base],
+                            rf"--reuse: cached results {re.escape(str(cache))}: invalid JSON \(.*\); "
+                            r"delete it \(it is rewritten\) or run without --reuse"),
+        "cache of other scenes": (["--policies", "random", "--out", str(tmp / "lb2"), "--reuse", *base],
+                                  r"--reuse: cached results .*: row 0 has scene_seed 5, expected 1000000; delete it"),
+        "cache with a text reward": (["--policies", "random", "--out", str(tmp / "lb3"), "--reuse", *base],
+                                     r"--reuse: cached results .*: row 1 field reward must be a number, got 'high'"),
+        "sb3 args.json n_uavs three": (["--policies", f"sb3:{sb3}", "--trust-checkpoint", "--out", str(tmp / "o"),
+                                        *base],
+                                       rf"--policies: {re.escape(str(sb3 / 'args.json'))}: env_kwargs: n_uavs must "
+                                       r"be an integer, got str 'three'"),
+        "rllib args.json map_size": (["--policies", f"rllib:{rllib}", "--trust-checkpoint", "--out", str(tmp / "o"),
+                                      *base],
+                                     rf"--policies: {re.escape(str(rllib.parent / 'args.json'))}: env_kwargs: "
+                                     r"map_size must be an integer in \[2, 64\], got 1"),
+    }
+
+
+@pytest.fixture
+def evaluate_files(tmp_path):
+    from training.evaluate import COLUMNS
+
+    good = [{"scene_seed": 1_000_000 + i, **{k: 1.0 for k, _, _ in COLUMNS}} for i in range(2)]
+    for out, text in [("lb", json.dumps(good)[:40]), ("lb2", json.dumps([{**good[0], "scene_seed": 5}, good[1]])),
+                      ("lb3", json.dumps([good[0], {**good[1], "reward": "high"}]))]:
+        cache = tmp_path / out / "cache" / "random__2__1000000__3.json"
+        cache.parent.mkdir(parents=True)
+        cache.write_text(text)
+    (tmp_path / "sb3run").mkdir()
+    (tmp_path / "sb3run" / "model.zip").write_bytes(b"never read: the settings fail first")
+    (tmp_path / "sb3run" / "args.json").write_text(json.dumps({"env_kwargs": {"n_uavs": "three"}}))
+    (tmp_path / "rllibrun" / "checkpoint" / "learner_group" / "learner" / "rl_module" / "shared_policy").mkdir(
+        parents=True)
+    (tmp_path / "rllibrun" / "args.json").write_text(json.dumps({"env_kwargs": {"n_uavs": 3, "map_size": 1}}))
+    return tmp_path
+
+
+@pytest.mark.parametrize("case", list(_evaluate_file_cases(Path("/tmp"))))
+def test_evaluate_file_errors_name_the_file_and_field(case, evaluate_files, capsys, monkeypatch):
+    import training.evaluate
+
+    def ran(*a, **k):
+        raise AssertionError("evaluation started before the files were checked")
+
+    monkeypatch.setattr(training.evaluate, "evaluate", ran)
+    argv, pattern = _evaluate_file_cases(evaluate_files)[case]
+    with pytest.raises(SystemExit) as exc:
+        main(["evaluate", *argv])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.splitlines() if "error:" in ln]
+    assert len(lines) == 1 and "Traceback" not in err, err
+    assert re.fullmatch(rf"covert-env evaluate: error: {pattern}.*", lines[0]), lines[0]
+
+
+def test_evaluate_reuses_a_sound_cache(evaluate_files, capsys, monkeypatch):
+    import training.evaluate
+
+    monkeypatch.setattr(training.evaluate, "evaluate", lambda *a, **k: (_ for _ in ()).throw(AssertionError("ran")))
+    cache = evaluate_files / "lb3" / "cache" / "random__2__1000000__3.json"
+    rows = json.loads(cache.read_text())
+    rows[1]["reward"] = 2.0
+    cache.write_text(json.dumps(rows))
+    assert main(["evaluate", "--policies", "random", "--out", str(evaluate_files / "lb3"), "--reuse", "--episodes",
+                 "2", "--no-progress"]) == 0
+    assert "random" in (evaluate_files / "lb3" / "leaderboard.md").read_text()

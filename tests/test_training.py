@@ -666,3 +666,19 @@ def test_convert_vecnormalize_needs_trust_checkpoint(tmp_path, capsys, monkeypat
     with pytest.raises(ValueError, match="a pickled VecNormalize file.*--trust-checkpoint"):
         convert(run / "vecnormalize.pkl")
     assert calls == []
+
+
+@pytest.mark.parametrize("env_kwargs, pattern", [
+    ({"n_uavs": 2}, r"takes observations as a Box of shape \(143,\), but the env of its settings \(.*args\.json: "
+                    r"n_uavs=2, action_mode=unicycle, map_size=8\) has a Box of shape \(141,\)"),
+    ({"n_uavs": 3, "action_mode": "waypoint"}, r"takes actions as a Box of shape \(2,\), but .* has Discrete\(577\)"),
+])
+def test_sb3_model_that_does_not_fit_its_args_json_is_named(tmp_path, env_kwargs, pattern):
+    from covert_env.cli import UsageError
+    from training.evaluate import load_policy
+
+    run, _ = _sb3_run(tmp_path)
+    meta = json.loads((run / "args.json").read_text())
+    (run / "args.json").write_text(json.dumps({**meta, "env_kwargs": env_kwargs}))
+    with pytest.raises(UsageError, match=rf"^sb3:.*run: .*model\.zip {pattern}$"):
+        load_policy(f"sb3:{run}", env_kwargs["n_uavs"], trust_checkpoint=True)

@@ -119,6 +119,42 @@ class SB3Policy:
         return out[single] if single is not None else out
 
 
+def read_run_json(path: Path, what: str) -> Any:
+    """A JSON file of a run (``args.json``, a model card, a cache), with every problem -- missing, not a regular
+    file, too large, not UTF-8, invalid JSON -- as a :class:`~covert_env.cli.UsageError` naming the file."""
+    from covert_env.cli import UsageError
+    from covert_env.config import read_json
+
+    try:
+        return read_json(path, what)
+    except (OSError, ValueError) as exc:
+        raise UsageError(str(exc)) from None
+
+
+def run_env(env_kwargs: Any, where: str, n_uavs: int = 1) -> tuple[dict, Any]:
+    """The env settings (``n_uavs``, ``action_mode``, ``map_size``) of a run's ``env_kwargs`` (from ``where``, an
+    ``args.json`` or model card; ``n_uavs`` defaults to ``n_uavs``) and the parallel env they build, in which the
+    policy will act. A field the env rejects is a :class:`~covert_env.cli.UsageError` naming the file, the field, the
+    value and what is allowed (the env's own check)."""
+    from covert_env.cli import UsageError
+    from covert_env.envs.covert_sensing import CovertSensingParallelEnv
+
+    if not isinstance(env_kwargs, dict):
+        raise UsageError(f"{where}: env_kwargs must be a JSON object, got {type(env_kwargs).__name__} "
+                         f"{str(env_kwargs)[:60]}")
+    settings = {"n_uavs": env_kwargs.get("n_uavs", n_uavs), "action_mode": env_kwargs.get("action_mode", "unicycle"),
+                "map_size": env_kwargs.get("map_size", 8)}
+    try:
+        env = CovertSensingParallelEnv(**settings)
+    except (TypeError, ValueError) as exc:
+        raise UsageError(f"{where}: env_kwargs: {exc}") from None
+    return settings, env
+
+
+def _space_text(space) -> str:
+    return f"Discrete({space.n})" if hasattr(space, "n") else f"a Box of shape {tuple(space.shape)}"
+
+
 def _find_args_json(path: Path) -> Path | None:
     for d in [path if path.is_dir() else path.parent, *(path if path.is_dir() else path.parent).parents][:3]:
         if (d / "args.json").exists():
@@ -155,13 +191,13 @@ def load_sb3(path: str | Path, *, trust_checkpoint: bool = False) -> SB3Policy:
     if not vn_path.exists() and vn_path.with_suffix(".pkl").exists():
         vn_path = vn_path.with_suffix(".pkl")                    # refused below, with the conversion command
     args_json = _find_args_json(path)
-    try:
-        meta = json.loads(args_json.read_text()) if args_json else {}
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise UsageError(f"{args_json}: invalid JSON ({exc})") from None
+    meta = read_run_json(args_json, "run arguments") if args_json else {}
+    if not isinstance(meta, dict):
+        raise UsageError(f"{args_json}: must be a JSON object (a run's arguments), got {type(meta).__name__}")
     cls_name = meta.get("sb3_class", "PPO")
     if cls_name not in ("PPO", "SAC", "MaskablePPO"):
         raise UsageError(f"{args_json}: unknown sb3_class {cls_name!r} (PPO, SAC or MaskablePPO)")
+    settings, env = run_env(meta.get("env_kwargs", {}), str(args_json or f"sb3:{path} (no args.json)"))
 
     from training.vec_env import read_vecnormalize
 
@@ -191,9 +227,15 @@ def load_sb3(path: str | Path, *, trust_checkpoint: bool = False) -> SB3Policy:
     if norm is not None and norm.obs_mean.shape != model.observation_space.shape:
         raise UsageError(f"{vn_path}: statistics of observations of shape {norm.obs_mean.shape}, but {model_path} "
                          f"takes observations of shape {model.observation_space.shape}")
-    ekw = meta.get("env_kwargs", {})
-    settings = {"n_uavs": int(ekw.get("n_uavs", 1)), "action_mode": ekw.get("action_mode", "unicycle"),
-                "map_size": int(ekw.get("map_size", 8))}
+    agent = env.possible_agents[0]
+    for kind, space, wanted in (("observations", model.observation_space, env.observation_space(agent)),
+                                ("actions", model.action_space, env.action_space(agent))):
+        if _space_text(space) != _space_text(wanted):
+            raise UsageError(f"sb3:{path}: {model_path} takes {kind} as {_space_text(space)}, but the env of its "
+                             f"settings ({args_json or 'defaults, no args.json'}: n_uavs={settings['n_uavs']}, "
+                             f"action_mode={settings['action_mode']}, map_size={settings['map_size']}) has "
+                             f"{_space_text(wanted)}")
+    env.close()
     label = meta.get("algo", cls_name.lower())
     if path.is_dir():
         name = f"{label} ({path.name})"
@@ -503,6 +545,34 @@ def _check_team(n_uavs: int, seed: int) -> None:
 OUTPUT_FILES = ("leaderboard.md", "leaderboard.csv", "episodes.csv", "comparison.png", "results.json")
 
 
+def read_cache(path: Path, args: argparse.Namespace) -> list[dict]:
+    """The per-episode rows cached at ``path`` by an earlier run (``--reuse``), checked against ``args``: one row
+    per held-out scene ``seed_offset + i`` with every leaderboard column a number. A damaged or foreign file is a
+    :class:`~covert_env.cli.UsageError` naming it and the first bad field."""
+    from covert_env.cli import UsageError
+
+    fix = "; delete it (it is rewritten) or run without --reuse"
+    try:
+        rows = read_run_json(path, "--reuse: cached results")
+    except UsageError as exc:
+        raise UsageError(f"{exc}{fix}") from None
+    where = f"--reuse: cached results {path}"
+    if not isinstance(rows, list) or len(rows) != args.episodes:
+        got = f"{len(rows)} rows" if isinstance(rows, list) else type(rows).__name__
+        raise UsageError(f"{where}: expected a list of {args.episodes} episode rows, got {got}{fix}")
+    for i, row in enumerate(rows):
+        if not isinstance(row, dict):
+            raise UsageError(f"{where}: row {i} must be a JSON object, got {type(row).__name__}{fix}")
+        seed = row.get("scene_seed")
+        if seed != args.seed_offset + i or isinstance(seed, bool):
+            raise UsageError(f"{where}: row {i} has scene_seed {seed!r}, expected {args.seed_offset + i}{fix}")
+        for key, _, _ in COLUMNS:
+            v = row.get(key)
+            if isinstance(v, bool) or not isinstance(v, (int, float)):
+                raise UsageError(f"{where}: row {i} field {key} must be a number, got {v!r}{fix}")
+    return rows
+
+
 def _cache_name(spec: str, args: argparse.Namespace) -> str:
     """The cached results of built-in policy ``spec`` inside ``--out``: ``cache/<spec, episodes, seeds, team>.json``."""
     key = f"{spec}__{args.episodes}__{args.seed_offset}__{args.n_uavs}".replace("/", "_").replace("@", "-")
@@ -528,6 +598,9 @@ def _main(args: argparse.Namespace, command: str) -> int:
             raise UsageError(f"--policies: the runs of {spec} need different env settings "
                              f"({[st for _, st in group]}); a seed group must share them")
         loaded.append((spec, group))
+    # Cached results are read and checked before any evaluation too.
+    reused = {spec: read_cache(Path(args.out) / name, args) for spec, name in caches.items()
+              if args.reuse and (Path(args.out) / name).exists()}
     out = output_dir(args.out, **outputs)
     results: dict[str, dict] = {}
     for spec, group in loaded:
@@ -540,8 +613,8 @@ def _main(args: argparse.Namespace, command: str) -> int:
         t0 = time.perf_counter()
         builtin = spec in caches
         cache = out / caches[spec] if builtin else None
-        if builtin and args.reuse and cache.exists():
-            rows = json.loads(cache.read_text())
+        if spec in reused:
+            rows = reused[spec]
         else:
             rows = []
             for i, (member, _) in enumerate(group):

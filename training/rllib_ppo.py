@@ -249,22 +249,30 @@ class RLlibPolicy:
 
 def load_policy(path: str | Path, *, trust_checkpoint: bool = False) -> RLlibPolicy:
     """Load the shared policy of a :mod:`training.rllib_ppo` checkpoint for inference, without starting Ray.
-    The checkpoint is pickled: refused unless ``trust_checkpoint=True`` (:func:`training.trust.require_trust`)."""
+    The checkpoint is pickled: refused unless ``trust_checkpoint=True`` (:func:`training.trust.require_trust`).
+    The env settings come from ``args.json`` beside it, checked before the checkpoint is loaded."""
     require_trust(path, "an RLlib checkpoint", trust_checkpoint)
-    import torch
-    from ray.rllib.core.rl_module.rl_module import RLModule
+    from covert_env.cli import UsageError
+    from training.evaluate import read_run_json, run_env
 
-    torch.set_num_threads(1)
     path = Path(path)
     module_dir = path / "learner_group" / "learner" / "rl_module" / MODULE_ID
     if not module_dir.exists():
         raise FileNotFoundError(f"no RLlib module at {module_dir} (expected a training.rllib_ppo checkpoint)")
+    meta_path = path.parent / "args.json"
+    meta = read_run_json(meta_path, "run arguments") if meta_path.exists() else {}
+    where = str(meta_path) if meta_path.exists() else f"{path} (no args.json beside it)"
+    if not isinstance(meta, dict):
+        raise UsageError(f"{where}: must be a JSON object (a run's arguments), got {type(meta).__name__}")
+    settings, env = run_env(meta.get("env_kwargs", {}), where, n_uavs=3)
+    env.close()
+
+    import torch
+    from ray.rllib.core.rl_module.rl_module import RLModule
+
+    torch.set_num_threads(1)
     module = RLModule.from_checkpoint(str(module_dir))
     module.eval()
-    meta_path = path.parent / "args.json"
-    meta = json.loads(meta_path.read_text()) if meta_path.exists() else {}
-    ekw = meta.get("env_kwargs", {})
-    settings = {"n_uavs": int(ekw.get("n_uavs", 3)), "action_mode": ekw.get("action_mode", "unicycle")}
     return RLlibPolicy(module, settings, name=f"rllib_ppo ({path.parent.name})")
 
 

@@ -265,10 +265,9 @@ def read_vecnormalize(path: str | Path) -> NormStats:
     """Read VecNormalize statistics written by :func:`save_vecnormalize` (``ValueError`` naming the file if not)."""
     path = Path(path)
     _refuse_pickle(path)
-    try:
-        d = json.loads(path.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
-        raise ValueError(f"{path}: not a VecNormalize statistics JSON file ({exc})") from None
+    from covert_env.config import read_json
+
+    d = read_json(path, "VecNormalize statistics")          # a ValueError naming the file, or FileNotFoundError
     if not isinstance(d, dict) or d.get("format") != VECNORMALIZE_FORMAT:
         raise ValueError(f"{path}: not a VecNormalize statistics file (no \"format\": \"{VECNORMALIZE_FORMAT}\")")
     if d.get("version") != _VN_VERSION:
