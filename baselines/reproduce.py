@@ -35,7 +35,7 @@ Outputs in ``--out``:
 ``--quick`` flies the paper scene and 2 held-out scenes for 15 slots, chosen so that the paper's effects show:
 the paper scene's zone is in shadow at slots 11-15 and the held-out scenes are the 2 of the first 20 whose zone is
 most in shadow over those slots (:func:`most_shadowed_scenes`, geometry only). ``--jobs`` sets worker processes.
-``covert-env animate`` (:func:`write_gif`) writes the README's animation.
+``covert-env animate --out docs/dp_team.gif`` (:func:`write_gif`) writes the README's animation.
 """
 
 from __future__ import annotations

@@ -4,7 +4,8 @@
     covert-env evaluate --help                               # score policies on held-out scenes
     covert-env scene --seed 3 --slot 10 --out scene.png     # a picture of one slot (3D + top view)
     covert-env scene --paper --slot 0 --out paper.png        # the paper scenario
-    covert-env animate --out docs/dp_team.gif                # the README's animation: the DP team flying
+    covert-env animate                                       # the DP team flying: outputs/dp_team.gif
+    covert-env animate --out docs/dp_team.gif                # regenerate the README's animation
 
 ``reproduce`` and ``evaluate`` live in ``baselines`` and ``training`` (imported only when called).
 
@@ -321,8 +322,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("animate", help="fly the DP team on the paper scene and write an animated GIF",
                        description="Fly the DP team planner on the paper scene and write an animated GIF (top view "
                                    "following the target: zone, shadows, visible zone, lines of sight).")
-    p.add_argument("--out", default="docs/dp_team.gif",
-                   help="GIF file to write (its folder is created) (default: docs/dp_team.gif)")
+    p.add_argument("--out", default="outputs/dp_team.gif",
+                   help="GIF file to write (its folder is created); the README's is docs/dp_team.gif "
+                        "(default: outputs/dp_team.gif)")
     p.add_argument("--uavs", type=int_range(1, 3), default=3, help="team size, in [1, 3] (default: 3)")
     p.add_argument("--method", choices=("aware", "blind"), default="aware",
                    help="aware: the paper's shadow-aware planner; blind: the earlier one (default: aware)")

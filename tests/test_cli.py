@@ -118,6 +118,12 @@ def test_parser_defaults_and_usage_errors(capsys):
     assert "--slot" in capsys.readouterr().err
 
 
+def test_animate_default_out_is_not_the_tracked_gif():
+    """`covert-env animate` alone writes into the git-ignored outputs/, not over the README's docs/dp_team.gif."""
+    args = build_parser().parse_args(["animate"])
+    assert args.out == "outputs/dp_team.gif"
+
+
 def test_scene_does_not_leak_figures(tmp_path):
     plt.close("all")
     main(["scene", "--seed", "0", "--slot", "0", "--out", str(tmp_path / "a.png"), "--dpi", "30"])
