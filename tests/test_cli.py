@@ -527,3 +527,69 @@ def test_evaluate_reuses_a_sound_cache(evaluate_files, capsys, monkeypatch):
     assert main(["evaluate", "--policies", "random", "--out", str(evaluate_files / "lb3"), "--reuse", "--episodes",
                  "2", "--no-progress"]) == 0
     assert "random" in (evaluate_files / "lb3" / "leaderboard.md").read_text()
+
+
+# ---------------------------------------------------------------------- training scripts: paths and saved arguments
+def _training_path_cases(tmp: Path) -> dict[str, tuple[str, list[str], str]]:
+    """name -> (script, argv, regex of the error line after `error: `); folders under ``tmp``."""
+    return {
+        "saved seed out of range": ("ppo_single", ["--resume", str(tmp / "neg_seed")],
+                                    rf"--resume {re.escape(str(tmp / 'neg_seed'))}: .*args\.json: seed: must be an "
+                                    r"integer >= 0, got -3"),
+        "saved args not json": ("sac_single", ["--resume", str(tmp / "broken")],
+                                r"--resume .*broken: .*args\.json: invalid JSON \(.*\)"),
+        "saved args a list": ("ppo_multi", ["--resume", str(tmp / "listed")],
+                              r"--resume .*listed: .*args\.json: must be a JSON object \(a run's arguments\), "
+                              r"got list"),
+        "saved net_arch of text": ("maskable_ppo_single", ["--resume", str(tmp / "net")],
+                                   r"--resume .*net: .*args\.json: net_arch must be a list of int, got \[64, 'x'\]"),
+        "saved algo of another script": ("mappo", ["--resume", str(tmp / "other")],
+                                         r"--resume .*other: .*args\.json: algo must be one of mappo, ippo, got "
+                                         r"'ppo_single'"),
+        "run name with a folder where args.json goes": (
+            "mappo", ["--runs-dir", str(tmp / "runs"), "--run-name", "taken"],
+            rf"--run-name {re.escape(str(tmp / 'runs' / 'taken'))}: .*args\.json is a directory, but the command "
+            r"writes the file args\.json there; move it away or choose another --run-name"),
+        "runs dir under a file": ("ppo_single", ["--runs-dir", str(tmp / "a_file" / "runs")],
+                                  r"--runs-dir .*: .*a_file is a file, not a folder"),
+    }
+
+
+@pytest.fixture
+def training_dirs(tmp_path):
+    for name, text in [("neg_seed", '{"seed": -3}'), ("broken", "{"), ("listed", "[1, 2]"),
+                       ("net", '{"net_arch": [64, "x"]}'), ("other", '{"algo": "ppo_single"}')]:
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "args.json").write_text(text)
+    (tmp_path / "runs" / "taken" / "args.json").mkdir(parents=True)
+    (tmp_path / "a_file").write_text("x")
+    return tmp_path
+
+
+@pytest.mark.parametrize("case", list(_training_path_cases(Path("/tmp"))))
+def test_training_scripts_check_paths_and_saved_arguments_first(case, training_dirs, capsys):
+    import importlib
+
+    from training.common import parse_args
+
+    script, argv, pattern = _training_path_cases(training_dirs)[case]
+    module = importlib.import_module(f"training.{script}")
+    with pytest.raises(SystemExit) as exc:
+        parse_args(module.Args, argv)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.splitlines() if "error:" in ln]
+    assert len(lines) == 1 and "Traceback" not in err, err
+    assert re.fullmatch(rf"python -m training\.{script}: error: {pattern}", lines[0]), lines[0]
+
+
+@pytest.mark.skipif(not Path("/proc/self").is_dir(), reason="needs /proc")
+def test_training_runs_dir_on_a_read_only_filesystem(capsys):
+    from training import ppo_multi
+    from training.common import parse_args
+
+    with pytest.raises(SystemExit) as exc:
+        parse_args(ppo_multi.Args, ["--runs-dir", "/proc/covert_env_runs"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "error: --runs-dir /proc/covert_env_runs: cannot write in /proc (" in err and "Traceback" not in err

@@ -165,9 +165,10 @@ def parse_args(cls: type, argv: list[str] | None = None, description: str | None
     """Build an argparse CLI from dataclass ``cls`` (``--field-name value``; booleans take true/false).
 
     ``presets`` (name -> overrides) adds ``--recipe NAME``: the preset is applied first, explicit flags win.
-    Out-of-range values, a ``--resume`` folder that is not a run and, for scripts whose ``Args`` has
-    ``trust_checkpoint``, a ``--resume`` that would load a pickled checkpoint without ``--trust-checkpoint`` exit
-    with status 2 and one error line.
+    Out-of-range values, a ``--resume`` folder that is not a run, whose saved ``args.json`` is damaged or out of
+    range, or that cannot be written, a ``--runs-dir``/``--run-name`` that cannot be written, and, for scripts whose
+    ``Args`` has ``trust_checkpoint``, a ``--resume`` that would load a pickled checkpoint without
+    ``--trust-checkpoint`` exit with status 2 and one error line, before anything runs.
     """
     p = build_parser(cls, description, presets, prog)
     ns = p.parse_args(argv)
@@ -178,6 +179,8 @@ def parse_args(cls: type, argv: list[str] | None = None, description: str | None
         v = getattr(ns, f.name)
         if v is not None:
             values[f.name] = type(getattr(cls(), f.name))(v) if isinstance(getattr(cls(), f.name), tuple) else v
+    from covert_env.cli import UsageError, output_dir
+
     resume = values.get("resume")
     if resume:
         run = Path(resume)
@@ -185,8 +188,22 @@ def parse_args(cls: type, argv: list[str] | None = None, description: str | None
             p.error(f"--resume {resume}: no such folder")
         if not (run / "args.json").is_file() and not (run.parent / "args.json").is_file():
             p.error(f"--resume {resume}: not a run folder (no args.json in it or beside it)")
+        # The saved arguments the run continues with (resumed_args): checked like the command line's.
+        saved_path = run.parent / "args.json" if (run / "learner_group").is_dir() else run / "args.json"
+        if saved_path.is_file():
+            from covert_env.config import read_json
+
+            try:
+                problem = _saved_args_problem(cls, read_json(saved_path, "run arguments"))
+            except (OSError, ValueError) as exc:
+                problem = str(exc).removeprefix(f"run arguments {saved_path}: ")
+            if problem:
+                p.error(f"--resume {resume}: {saved_path}: {problem}")
+        try:                                     # the run folder is written to (args.json, checkpoints, model)
+            output_dir(run, "--resume", create=False, files=("args.json", "train_summary.json"))
+        except UsageError as exc:
+            p.error(str(exc))
         if "trust_checkpoint" in {f.name for f in dataclasses.fields(cls)}:
-            from covert_env.cli import UsageError
             from training.trust import require_trust
 
             trust = values.get("trust_checkpoint", False)
@@ -197,7 +214,46 @@ def parse_args(cls: type, argv: list[str] | None = None, description: str | None
                     resume_checkpoint(run, trust_checkpoint=trust)
             except UsageError as exc:
                 p.error(f"--resume {resume}: {exc}")
+    elif any(f.name == "runs_dir" for f in dataclasses.fields(cls)):
+        runs_dir = values.get("runs_dir", cls().runs_dir)
+        try:                                     # probed now, not after the first checkpoint interval
+            output_dir(runs_dir, "--runs-dir", create=False)
+            if values.get("run_name"):
+                output_dir(Path(runs_dir) / values["run_name"], "--run-name", create=False,
+                           files=("args.json", "train_summary.json"))
+        except UsageError as exc:
+            p.error(str(exc))
     return cls(**values)
+
+
+def _saved_args_problem(cls: type, saved: Any) -> str | None:
+    """What is wrong with a run's saved arguments ``saved`` (its ``args.json``) for dataclass ``cls``, or None: each
+    field a resumed run takes from it must have its default's type and pass the command line's range check."""
+    if not isinstance(saved, dict):
+        return f"must be a JSON object (a run's arguments), got {type(saved).__name__}"
+    ranges = _ranges()
+    defaults = cls()
+    for f in dataclasses.fields(cls):
+        if f.name not in saved or f.name in RESUME_OVERRIDES:
+            continue
+        v, default, check = saved[f.name], getattr(defaults, f.name), ranges.get(f.name)
+        items = v if isinstance(default, tuple) and isinstance(v, list) else [v]
+        kind = type(default[0] if isinstance(default, tuple) and default else default)
+        fits = {bool: lambda x: isinstance(x, bool), int: lambda x: isinstance(x, int) and not isinstance(x, bool),
+                float: lambda x: isinstance(x, (int, float)) and not isinstance(x, bool),
+                str: lambda x: isinstance(x, str)}.get(kind, lambda x: True)
+        if (isinstance(default, tuple) and not isinstance(v, list)) or not all(fits(x) for x in items):
+            shape = f"a list of {kind.__name__}" if isinstance(default, tuple) else kind.__name__
+            return f"{f.name} must be {shape}, got {v!r}"
+        for x in items:
+            if isinstance(check, tuple) and x not in check[1]:
+                return f"{f.name} must be one of {', '.join(check[1])}, got {x!r}"
+            if callable(check):
+                try:
+                    check(str(x))
+                except argparse.ArgumentTypeError as exc:
+                    return f"{f.name}: {exc}"
+    return None
 
 
 def run_name(env_id: str, algo: str, seed: int) -> str:
