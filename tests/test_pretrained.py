@@ -153,3 +153,16 @@ def test_learned_weights_that_do_not_fit_name_the_file_and_parameter(tmp_path, c
     err = capsys.readouterr().err
     assert exc.value.code == 2 and "Traceback" not in err, err
     assert len([ln for ln in err.splitlines() if "error:" in ln]) == 1
+
+
+def test_weights_beyond_the_size_cap_are_refused_before_unpacking(tmp_path, monkeypatch):
+    import training.pretrained
+
+    run = _tiny_run(tmp_path)
+    monkeypatch.setattr(training.pretrained, "MAX_WEIGHTS_BYTES", 1000)
+    calls = []
+    monkeypatch.setattr(np, "load", lambda *a, **k: calls.append(a))
+    with pytest.raises(ValueError, match=rf"{re.escape(str(run / 'model.npz'))}: \d+ bytes of arrays, more than the "
+                                         r"1000 a weights file may hold"):
+        load_policy(f"mappo:{run}", 2)
+    assert calls == []

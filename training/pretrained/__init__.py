@@ -24,6 +24,7 @@ Deterministic acting (the harness) takes the most likely node, or the clipped me
 
 from __future__ import annotations
 
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +33,8 @@ __all__ = ["node_features", "NumpyActor", "LearnedPolicy", "load_learned", "chec
            "pretrained_names", "N_OWN_FEATURES"]
 
 PRETRAINED_DIR = Path(__file__).resolve().parent
+#: The largest weights file :func:`load_learned` unpacks (bytes of arrays): the shipped actor holds well under 1 MB.
+MAX_WEIGHTS_BYTES = 256 * 2**20
 #: Features per (agent, node) besides the U - 1 teammate distances (see :func:`node_features`).
 N_OWN_FEATURES = 9
 
@@ -189,6 +192,14 @@ def load_learned(path: str | Path) -> LearnedPolicy:
             allowed = "a number > 0" if key == "separation_shield" else "a number >= 0"
             raise ValueError(f"{card_path}: {key} must be null or {allowed}, got {v!r}")
     _, env = run_env(ekw, str(card_path))
+    try:
+        with zipfile.ZipFile(npz) as z:                         # sizes from the zip's directory, nothing unpacked
+            unpacked = sum(info.file_size for info in z.infolist())
+    except (OSError, zipfile.BadZipFile) as exc:
+        raise ValueError(f"{npz}: not a weights file ({exc})") from None
+    if unpacked > MAX_WEIGHTS_BYTES:
+        raise ValueError(f"{npz}: {unpacked} bytes of arrays, more than the {MAX_WEIGHTS_BYTES} a weights file may "
+                         "hold")
     try:
         with np.load(npz, allow_pickle=False) as data:
             params = {k.removeprefix("actor."): data[k] for k in data.files if k.startswith("actor.")}
