@@ -9,8 +9,9 @@
 
 ``reproduce`` and ``evaluate`` live in ``baselines`` and ``training`` (imported only when called).
 
-Mistakes in the command line or in the files it names (a missing or invalid ``--config``, an unknown policy, an
-``--out`` that is a file where a folder is expected, a number out of range) print one ``error:`` line after the
+Mistakes in the command line or in the files it names (a missing or invalid ``--config``, or one that is not a
+regular file; an unknown policy; an ``--out`` that is a file where a folder is expected, or that cannot be written,
+checked before the run by writing a temporary file; a number out of range) print one ``error:`` line after the
 usage and exit with status 2, without a traceback. Only those are caught: any other exception is a bug and keeps
 its traceback. Code that validates user input raises :class:`UsageError`; the helpers below (argparse ``type=``
 functions, :func:`load_config`, :func:`output_dir`, :func:`output_file`) raise it or argparse's own error.
