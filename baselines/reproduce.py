@@ -35,7 +35,7 @@ Outputs in ``--out``:
 ``--quick`` flies the paper scene and 2 held-out scenes for 15 slots, chosen so that the paper's effects show:
 the paper scene's zone is in shadow at slots 11-15 and the held-out scenes are the 2 of the first 20 whose zone is
 most in shadow over those slots (:func:`most_shadowed_scenes`, geometry only). ``--jobs`` sets worker processes.
-``covert-env animate`` (:func:`write_gif`) writes the README's animation.
+``covert-env animate --out docs/dp_team.gif`` (:func:`write_gif`) writes the README's animation.
 """
 
 from __future__ import annotations
@@ -493,19 +493,39 @@ def _fig_los_between(plt, results: dict):
 def _figure_tasks(out: Path, results: dict, config: Config) -> list[tuple]:
     """One task per figure: (kind, output path, the results it needs, config). Small enough to pickle."""
     tasks = []
-    for u, nos in {1: (8, 9, 10, 11), 3: (12, 13, 14, 15)}.items():
+    for u, nos in PAPER_FIGURES.items():
         aw = results.get(("paper", 0, u, "aware"))
         bl = results.get(("paper", 0, u, "blind"))
         if aw is None or bl is None:
             continue
         pair = {"aware": aw["series"], "blind": bl["series"], "u": u}
-        for kind, no in zip(("trajectories", "los", "zones", "disguise"), nos, strict=True):
+        for kind, no in zip(PAPER_FIGURE_KINDS, nos, strict=True):
             tasks.append((kind, out / f"fig{no:02d}_{kind}_{u}uav.png", dict(pair, no=no), config.to_dict()))
     held = {key: {"series": r["series"]} for key, r in results.items() if key[0] == "random"}
     if held:
         tasks.append(("heldout", out / "fig_heldout.png", held, config.to_dict()))
         tasks.append(("between", out / "fig_los_between_slots.png", held, config.to_dict()))
     return tasks
+
+
+#: The paper's figure numbers per team size, in the order of :data:`PAPER_FIGURE_KINDS`.
+PAPER_FIGURES = {1: (8, 9, 10, 11), 3: (12, 13, 14, 15)}
+PAPER_FIGURE_KINDS = ("trajectories", "los", "zones", "disguise")
+
+
+def output_files(args: argparse.Namespace) -> tuple[str, ...]:
+    """The files :func:`main` writes into ``--out`` with these arguments (checked before the runs: a folder in
+    the place of one is an error)."""
+    names = ["metrics.json", "metrics.md"]
+    if not args.no_figures:
+        names += [f"fig{no:02d}_{kind}_{u}uav.png" for u, nos in PAPER_FIGURES.items()
+                  for kind, no in zip(PAPER_FIGURE_KINDS, nos, strict=True)]
+        names += ["fig_heldout.png", "fig_los_between_slots.png"]
+    if args.sensitivity:
+        names.append("sensitivity.md")
+    if args.prediction_study:
+        names += ["prediction_study.md", "prediction_study.json"] + ([] if args.no_figures else ["fig_prediction.png"])
+    return tuple(names)
 
 
 def _draw(task) -> str:
@@ -799,7 +819,7 @@ def _main(args: argparse.Namespace) -> int:
         raise UsageError(f"--scenes must be in [0, {QUICK_POOL}] with --quick (chosen among the first "
                          f"{QUICK_POOL} held-out scenes), got {n_scenes}")
     jobs = args.jobs if args.jobs is not None else min(os.cpu_count() or 1, 2)
-    out = output_dir(args.out)
+    out = output_dir(args.out, files=output_files(args))
     t0 = time.perf_counter()
     load0 = os.getloadavg()[0]
     seeds = most_shadowed_scenes(n_scenes, n_slots, config) if args.quick and n_scenes else n_scenes

@@ -4,12 +4,14 @@
     covert-env evaluate --help                               # score policies on held-out scenes
     covert-env scene --seed 3 --slot 10 --out scene.png     # a picture of one slot (3D + top view)
     covert-env scene --paper --slot 0 --out paper.png        # the paper scenario
-    covert-env animate --out docs/dp_team.gif                # the README's animation: the DP team flying
+    covert-env animate                                       # the DP team flying: outputs/dp_team.gif
+    covert-env animate --out docs/dp_team.gif                # regenerate the README's animation
 
 ``reproduce`` and ``evaluate`` live in ``baselines`` and ``training`` (imported only when called).
 
-Mistakes in the command line or in the files it names (a missing or invalid ``--config``, an unknown policy, an
-``--out`` that is a file where a folder is expected, a number out of range) print one ``error:`` line after the
+Mistakes in the command line or in the files it names (a missing or invalid ``--config``, or one that is not a
+regular file; an unknown policy; an ``--out`` that is a file where a folder is expected, or that cannot be written,
+checked before the run by writing a temporary file; a number out of range) print one ``error:`` line after the
 usage and exit with status 2, without a traceback. Only those are caught: any other exception is a bug and keeps
 its traceback. Code that validates user input raises :class:`UsageError`; the helpers below (argparse ``type=``
 functions, :func:`load_config`, :func:`output_dir`, :func:`output_file`) raise it or argparse's own error.
@@ -24,7 +26,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 __all__ = ["main", "build_parser", "UsageError", "int_range", "float_range", "positive_int", "non_negative_int",
-           "load_config", "output_dir", "output_file", "run_main"]
+           "load_config", "regular_file", "output_dir", "output_file", "run_main"]
 
 
 class UsageError(ValueError):
@@ -96,17 +98,36 @@ MAX_DPI = 1000
 
 # ---------------------------------------------------------------------- files named on the command line
 def load_config(path: str | Path, flag: str = "--config"):
-    """``Config.from_json(path)`` with a missing, unreadable or invalid file as a :class:`UsageError`."""
+    """``Config.from_json(path)`` with a missing, unreadable or invalid file as a :class:`UsageError`. A path that
+    is not a regular file (a folder, ``/dev/zero``, a named pipe) is refused before anything is read."""
     from covert_env.config import Config
 
+    _not_empty(path, flag)
+    regular_file(path, flag, "a Config JSON file")
     p = Path(path)
-    if not p.is_file():
-        raise UsageError(f"{flag} {path}: " + ("is a directory, expected a Config JSON file" if p.is_dir()
-                                               else "no such file"))
     try:
         return Config.from_json(p)
     except (OSError, ValueError, RecursionError) as exc:   # Config's own validation raises ValueError
         raise UsageError(f"{flag} {path}: {exc}") from None
+
+
+def regular_file(path: str | Path, flag: str, expected: str = "a file") -> Path:
+    """``path`` if it names an existing regular file; else a :class:`UsageError` saying what it is instead (missing,
+    a folder, a device such as ``/dev/zero``, a named pipe). Uses ``stat`` only: nothing is opened or read."""
+    import stat as stat_
+
+    from covert_env.config import file_kind
+
+    p = Path(path)
+    try:
+        mode = p.stat().st_mode
+    except FileNotFoundError:
+        raise UsageError(f"{flag} {path}: no such file") from None
+    except OSError as exc:
+        raise UsageError(f"{flag} {path}: cannot be read ({exc.strerror or exc})") from None
+    if not stat_.S_ISREG(mode):
+        raise UsageError(f"{flag} {path}: is {file_kind(mode)}, expected {expected}")
+    return p
 
 
 def _not_empty(path: str | Path, flag: str) -> None:
@@ -122,28 +143,79 @@ def _file_in_the_way(p: Path) -> Path | None:
     return None
 
 
-def output_dir(path: str | Path, flag: str = "--out", create: bool = True) -> Path:
-    """Create the output folder ``path`` (and its parents); a file in the way is a :class:`UsageError`.
-    ``create=False`` only checks (so that later checks can fail before anything is written). An empty or blank
-    ``path`` is a :class:`UsageError` (``Path('')`` would be the current folder)."""
+def _probe(folder: Path, flag: str, path: str | Path) -> None:
+    """Create and remove a temporary file in the existing folder ``folder``: a :class:`UsageError` if that fails.
+    Only writing tells: ``os.access`` says yes to root on a read-only filesystem, in ``/proc`` or ``/sys``."""
+    import os
+    import tempfile
+
+    try:
+        fd, name = tempfile.mkstemp(dir=folder, prefix=".covert-env-write-test-")
+    except OSError as exc:
+        raise UsageError(f"{flag} {path}: cannot write in {folder} ({exc.strerror or exc})") from None
+    os.close(fd)
+    os.unlink(name)
+
+
+def _nearest_existing(p: Path) -> Path:
+    for q in (p.absolute(), *p.absolute().parents):
+        if q.exists():
+            return q
+    return Path(p.absolute().anchor)
+
+
+def output_dir(path: str | Path, flag: str = "--out", create: bool = True, files: tuple[str, ...] = (),
+               folders: tuple[str, ...] = ()) -> Path:
+    """Create the output folder ``path`` (and its parents) and check that files can be written in it (a temporary
+    file is created and removed); a file in the way or a folder that cannot be written is a :class:`UsageError`.
+    ``files`` and ``folders`` name what the command will write inside: one already there as the other kind (a
+    folder where a file goes, a file where a folder goes) is a :class:`UsageError` too.
+    ``create=False`` only checks, writing the temporary file in the nearest existing folder (so that later checks
+    can fail before anything is written). An empty or blank ``path`` is a :class:`UsageError` (``Path('')`` would
+    be the current folder)."""
     _not_empty(path, flag)
-    p = Path(path)
+    return _output_dir(Path(path), flag, path, create, files, folders)
+
+
+def _output_dir(p: Path, flag: str, path: str | Path, create: bool = True, files: tuple[str, ...] = (),
+                folders: tuple[str, ...] = ()) -> Path:
+    """:func:`output_dir` of folder ``p``; errors name ``flag`` and ``path``, the value given on the command line."""
     if p.exists() and not p.is_dir():
         raise UsageError(f"{flag} {path}: is a file, expected a folder (it is created if missing)")
     blocker = _file_in_the_way(p)
     if blocker is not None:
         raise UsageError(f"{flag} {path}: {blocker} is a file, not a folder")
+    for name in files:
+        q = p / name
+        if q.exists() and not q.is_file():
+            raise UsageError(f"{flag} {path}: {q} is {_kind(q)}, but the command writes the file {name} there; "
+                             f"move it away or choose another {flag}")
+    for name in folders:
+        q = p / name
+        if q.exists() and not q.is_dir():
+            raise UsageError(f"{flag} {path}: {q} is a file, but the command writes into a folder {name} there; "
+                             f"move it away or choose another {flag}")
     if not create:
+        _probe(_nearest_existing(p), flag, path)
         return p
     try:
         p.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise UsageError(f"{flag} {path}: cannot create the folder ({exc.strerror or exc})") from None
+    _probe(p, flag, path)
     return p
 
 
+def _kind(p: Path) -> str:
+    from covert_env.config import file_kind
+
+    return file_kind(p.stat().st_mode)
+
+
 def output_file(path: str | Path, flag: str = "--out", suffixes: tuple[str, ...] | None = None) -> Path:
-    """Check that ``path`` can be written as a file (its folder is created); ``suffixes`` lists allowed ones."""
+    """Check that ``path`` can be written as a file: its folder is created and written to (a temporary file), an
+    existing ``path`` must be a regular file that can be opened for writing (it is not changed); ``suffixes`` lists
+    the allowed file types. Any problem is a :class:`UsageError`."""
     _not_empty(path, flag)
     p = Path(path)
     if p.is_dir():
@@ -154,7 +226,15 @@ def output_file(path: str | Path, flag: str = "--out", suffixes: tuple[str, ...]
     blocker = _file_in_the_way(p)
     if blocker is not None:
         raise UsageError(f"{flag} {path}: {blocker} is a file, not a folder")
-    output_dir(p.parent, flag=flag)
+    if p.exists() and not p.is_file():
+        raise UsageError(f"{flag} {path}: is {_kind(p)}, expected a regular file name")
+    _output_dir(p.parent, flag, path)
+    if p.exists():
+        try:
+            with open(p, "r+b"):                    # opened for writing, nothing written
+                pass
+        except OSError as exc:
+            raise UsageError(f"{flag} {path}: cannot be overwritten ({exc.strerror or exc})") from None
     return p
 
 
@@ -243,8 +323,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("animate", help="fly the DP team on the paper scene and write an animated GIF",
                        description="Fly the DP team planner on the paper scene and write an animated GIF (top view "
                                    "following the target: zone, shadows, visible zone, lines of sight).")
-    p.add_argument("--out", default="docs/dp_team.gif",
-                   help="GIF file to write (its folder is created) (default: docs/dp_team.gif)")
+    p.add_argument("--out", default="outputs/dp_team.gif",
+                   help="GIF file to write (its folder is created); the README's is docs/dp_team.gif "
+                        "(default: outputs/dp_team.gif)")
     p.add_argument("--uavs", type=int_range(1, 3), default=3, help="team size, in [1, 3] (default: 3)")
     p.add_argument("--method", choices=("aware", "blind"), default="aware",
                    help="aware: the paper's shadow-aware planner; blind: the earlier one (default: aware)")

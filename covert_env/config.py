@@ -12,7 +12,9 @@ import json
 import math
 import numbers
 import operator
+import os
 import reprlib
+import stat
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -217,17 +219,49 @@ def parse_json(text: str, where: str) -> Any:
         raise ValueError(f"{where}: JSON nested too deeply to parse") from None
 
 
-def read_json(path: str | Path, what: str) -> Any:
+#: The largest JSON file :func:`read_json` reads (bytes): far above any config, terrain (10_000 polytopes of 64
+#: vertices) or run file, low enough that a wrong path cannot exhaust memory.
+MAX_JSON_BYTES = 64 * 2**20
+
+
+def file_kind(mode: int) -> str:
+    """What a ``stat`` mode names, for error messages: "a regular file", "a directory", "a named pipe" ..."""
+    for test, kind in ((stat.S_ISREG, "a regular file"), (stat.S_ISDIR, "a directory"),
+                       (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+                       (stat.S_ISFIFO, "a named pipe"), (stat.S_ISSOCK, "a socket")):
+        if test(mode):
+            return kind
+    return "not a regular file"
+
+
+def read_json(path: str | Path, what: str, max_bytes: int = MAX_JSON_BYTES) -> Any:
     """Parse the JSON file at ``path`` (UTF-8, a byte-order mark allowed). Errors name ``what`` and the
-    path: FileNotFoundError for a missing file, ValueError for anything else."""
+    path: FileNotFoundError for a missing file, ValueError for anything else -- among them a path that is not a
+    regular file (a folder, ``/dev/zero``, a named pipe: refused before reading, so nothing blocks) and a file
+    larger than ``max_bytes``."""
     p = Path(path)
     where = f"{what} {p}"
     try:
-        raw = p.read_bytes()
+        # O_NONBLOCK: opening a named pipe for reading does not wait for a writer (no effect on regular files).
+        fd = os.open(p, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
     except FileNotFoundError:
         raise FileNotFoundError(f"{where}: no such file") from None
     except OSError as exc:
         raise ValueError(f"{where}: cannot be read ({exc.strerror or exc})") from None
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            raise ValueError(f"{where}: cannot be read ({file_kind(st.st_mode)}, not a regular file)")
+        if st.st_size > max_bytes:
+            raise ValueError(f"{where}: {st.st_size} bytes, more than the {max_bytes} a JSON file may have")
+        with os.fdopen(os.dup(fd), "rb") as f:
+            raw = f.read(max_bytes + 1)
+    except OSError as exc:
+        raise ValueError(f"{where}: cannot be read ({exc.strerror or exc})") from None
+    finally:
+        os.close(fd)
+    if len(raw) > max_bytes:
+        raise ValueError(f"{where}: more than the {max_bytes} bytes a JSON file may have")
     try:
         text = raw.decode("utf-8-sig")
     except UnicodeDecodeError as exc:

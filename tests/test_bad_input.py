@@ -7,7 +7,9 @@ from __future__ import annotations
 import copy
 import json
 import math
+import os
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -162,6 +164,56 @@ def test_json_file_errors_name_the_file(tmp_path, case, load, what):
         load(path)
     with pytest.raises(exc, match=pattern):
         load(str(path))
+
+
+def _read_in_a_child(path: str, timeout: float = 60.0):
+    """``Config.from_json(path)`` and ``Terrain.load(path)`` in a child process (a blocking read would hang the test
+    run, here it times out): their exception lines."""
+    import subprocess
+    import sys
+
+    code = ("import sys\nfrom covert_env.config import Config\nfrom covert_env.terrain import Terrain\n"
+            "for load in (Config.from_json, Terrain.load):\n"
+            "    try:\n        load(sys.argv[1])\n    except (OSError, ValueError) as exc:\n"
+            "        print(type(exc).__name__, exc)\n")
+    res = subprocess.run([sys.executable, "-c", code, path], capture_output=True, text=True, timeout=timeout,
+                         env=dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path)))
+    assert res.returncode == 0, res.stderr
+    return res.stdout.splitlines()
+
+
+@pytest.mark.parametrize("path, kind", [("/dev/zero", "a character device"), ("/dev/null", "a character device"),
+                                        ("fifo", "a named pipe")])
+def test_json_files_that_are_not_regular_files_are_refused_without_reading(tmp_path, path, kind):
+    """/dev/zero would be read forever and a named pipe would block until a writer comes: both are refused
+    by type before any byte is read."""
+    if path == "fifo":
+        if not hasattr(os, "mkfifo"):
+            pytest.skip("no named pipes on this platform")
+        path = str(tmp_path / "fifo")
+        os.mkfifo(path)
+    elif not Path(path).exists():
+        pytest.skip(f"no {path} on this platform")
+    lines = _read_in_a_child(path)
+    assert lines == [f"ValueError Config file {path}: cannot be read ({kind}, not a regular file)",
+                     f"ValueError Terrain file {path}: cannot be read ({kind}, not a regular file)"]
+
+
+def test_json_files_beyond_the_size_cap_are_refused_before_reading(tmp_path):
+    from covert_env.config import MAX_JSON_BYTES, read_json
+
+    big = tmp_path / "big.json"
+    with open(big, "wb") as f:                               # sparse: no disk space, no time
+        f.truncate(MAX_JSON_BYTES + 1)
+    for load, what in [(Config.from_json, "Config file"), (Terrain.load, "Terrain file")]:
+        with pytest.raises(ValueError, match=rf"^{what} .*big\.json: {MAX_JSON_BYTES + 1} bytes, more than the "
+                                             rf"{MAX_JSON_BYTES} a JSON file may have$"):
+            load(big)
+    small = tmp_path / "small.json"
+    small.write_text('{"n_uavs": 2}')
+    assert read_json(small, "x", max_bytes=13) == {"n_uavs": 2}         # the cap itself is allowed
+    with pytest.raises(ValueError, match=r"small\.json: 13 bytes, more than the 12"):
+        read_json(small, "x", max_bytes=12)
 
 
 @pytest.mark.parametrize("load, pattern", [

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import re
 import subprocess
@@ -117,6 +118,12 @@ def test_parser_defaults_and_usage_errors(capsys):
     assert "--slot" in capsys.readouterr().err
 
 
+def test_animate_default_out_is_not_the_tracked_gif():
+    """`covert-env animate` alone writes into the git-ignored outputs/, not over the README's docs/dp_team.gif."""
+    args = build_parser().parse_args(["animate"])
+    assert args.out == "outputs/dp_team.gif"
+
+
 def test_scene_does_not_leak_figures(tmp_path):
     plt.close("all")
     main(["scene", "--seed", "0", "--slot", "0", "--out", str(tmp_path / "a.png"), "--dpi", "30"])
@@ -197,6 +204,28 @@ def _user_error_cases(tmp: Path) -> dict[str, tuple[list[str], str]]:
         "reproduce empty out": (["reproduce", "--quick", "--out", ""], "--out '': empty; give a path"),
         "reproduce blank out": (["reproduce", "--quick", "--out", "  "], "--out '  ': empty"),
         "evaluate empty out": (["evaluate", "--policies", "random", "--out", ""], "--out '': empty; give a path"),
+        "scene config /dev/zero": (["scene", "--config", "/dev/zero"],
+                                   "--config /dev/zero: is a character device, expected a Config JSON file"),
+        "scene config /dev/null": (["scene", "--config", "/dev/null"],
+                                   "--config /dev/null: is a character device, expected a Config JSON file"),
+        "scene config fifo": (["scene", "--config", str(tmp / "fifo")],
+                              f"--config {tmp / 'fifo'}: is a named pipe, expected a Config JSON file"),
+        "animate config fifo": (["animate", "--config", str(tmp / "fifo")], "is a named pipe"),
+        "reproduce config /dev/zero": (["reproduce", "--out", str(tmp / "r"), "--config", "/dev/zero"],
+                                       "is a character device"),
+        "scene out is a fifo": (["scene", "--out", str(tmp / "fifo.png")],
+                                f"--out {tmp / 'fifo.png'}: is a named pipe, expected a regular file name"),
+        "reproduce out holds a folder where a file goes": (
+            ["reproduce", "--quick", "--out", str(tmp / "full")],
+            f"--out {tmp / 'full'}: {tmp / 'full' / 'metrics.md'} is a directory, but the command writes the file "
+            "metrics.md there"),
+        "reproduce out holds a folder where a figure goes": (
+            ["reproduce", "--quick", "--out", str(tmp / "figs")], "fig_heldout.png is a directory"),
+        "evaluate out holds a folder where a file goes": (
+            ["evaluate", "--policies", "random", "--out", str(tmp / "full")],
+            f"{tmp / 'full' / 'leaderboard.md'} is a directory, but the command writes the file leaderboard.md"),
+        "evaluate cache is a file": (["evaluate", "--policies", "random", "--out", str(tmp / "cached")],
+                                     f"{tmp / 'cached' / 'cache'} is a file, but the command writes into a folder"),
     }
 
 
@@ -206,6 +235,12 @@ def error_dir(tmp_path):
     (tmp_path / "a_dir").mkdir()
     (tmp_path / "bad.json").write_text("{not json")
     (tmp_path / "bad_value.json").write_text('{"n_uavs": -1}')
+    for name in ("fifo", "fifo.png"):
+        os.mkfifo(tmp_path / name)
+    for name in ("full/metrics.md", "full/leaderboard.md", "figs/fig_heldout.png"):
+        (tmp_path / name).mkdir(parents=True)
+    (tmp_path / "cached").mkdir()
+    (tmp_path / "cached" / "cache").write_text("x")
     return tmp_path
 
 
@@ -237,6 +272,60 @@ def test_user_errors_from_the_console_have_no_traceback(argv, error_dir):
     assert "Traceback" not in res.stderr
     assert len([ln for ln in res.stderr.splitlines() if "error:" in ln]) == 1
     assert res.stdout == ""
+
+
+READ_ONLY_OUTS = {
+    "scene in /proc": (["scene", "--out", "/proc/covert_env_test.png"], "cannot write in /proc"),
+    "scene in /sys": (["scene", "--out", "/sys/covert_env_test.png"], "cannot write in /sys"),
+    "scene in a new folder in /proc": (["scene", "--out", "/proc/covert_env_test/x.png"], "cannot create the folder"),
+    "animate in /sys": (["animate", "--out", "/sys/covert_env_test.gif"], "cannot write in /sys"),
+    "reproduce into /proc": (["reproduce", "--out", "/proc"], "cannot write in /proc"),
+    "reproduce into a new folder in /sys": (["reproduce", "--out", "/sys/covert_env_test"],
+                                            "cannot create the folder"),
+    "evaluate into /proc": (["evaluate", "--policies", "dp", "--out", "/proc"], "cannot write in /proc"),
+    "evaluate into a new folder in /sys": (["evaluate", "--policies", "dp", "--out", "/sys/covert_env_test"],
+                                           "cannot write in /sys"),
+}
+
+
+@pytest.mark.skipif(not (Path("/proc/self").is_dir() and Path("/sys/kernel").is_dir()), reason="needs /proc and /sys")
+@pytest.mark.parametrize("case", list(READ_ONLY_OUTS))
+def test_unwritable_out_fails_before_the_run(case, capsys, monkeypatch):
+    """/proc and /sys refuse new files even to root, for whom os.access says yes: the output folder is probed by
+    writing a temporary file, before any planning or evaluation runs (those are replaced by a failure here)."""
+    import baselines.reproduce
+    import training.evaluate
+
+    def ran(*a, **k):
+        raise AssertionError("the run started before --out was checked")
+
+    monkeypatch.setattr(baselines.reproduce, "_run_all", ran)
+    monkeypatch.setattr(baselines.reproduce, "write_gif", ran)
+    monkeypatch.setattr(training.evaluate, "evaluate", ran)
+    argv, expected = READ_ONLY_OUTS[case]
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.splitlines() if "error:" in ln]
+    assert len(lines) == 1 and "Traceback" not in err, err
+    out = argv[argv.index("--out") + 1]
+    assert re.fullmatch(rf"covert-env {argv[0]}: error: --out {re.escape(out)}: {expected}( in /\w+)? \(.+\)",
+                        lines[0]), lines[0]
+
+
+def test_output_checks_leave_nothing_behind(tmp_path):
+    from covert_env.cli import output_dir, output_file
+
+    output_dir(tmp_path / "a", create=False)
+    assert list(tmp_path.iterdir()) == []
+    assert output_dir(tmp_path / "a" / "b") == tmp_path / "a" / "b"
+    assert [p.relative_to(tmp_path) for p in tmp_path.rglob("*")] == [Path("a"), Path("a/b")]
+    f = tmp_path / "x.png"
+    f.write_bytes(b"old")
+    assert output_file(f, suffixes=("png",)) == f
+    assert f.read_bytes() == b"old"                        # opened for writing, not changed
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a", "x.png"]
 
 
 def test_genuine_bugs_keep_their_traceback(tmp_path, monkeypatch):
@@ -357,9 +446,150 @@ def test_evaluate_sb3_file_that_is_not_a_model_is_one_line(error_dir, capsys, mo
     monkeypatch.chdir(error_dir)
     with pytest.raises(SystemExit) as exc:
         main(["evaluate", "--policies", "sb3:a_file", "--episodes", "1", "--n-uavs", "1", "--no-progress",
-              "--out", "o"])
+              "--out", "o", "--trust-checkpoint"])
     assert exc.value.code == 2
     err = capsys.readouterr().err
     lines = [ln for ln in err.splitlines() if "error:" in ln]
     assert len(lines) == 1 and "Traceback" not in err, err
     assert "--policies: sb3:a_file: a_file is not a loadable PPO model" in lines[0], lines[0]
+
+
+# ---------------------------------------------------------------------- files evaluate reads: named with the field
+def _evaluate_file_cases(tmp: Path) -> dict[str, tuple[list[str], str]]:
+    """name -> (argv after `evaluate`, regex the one error line must match after `error: `); files under ``tmp``."""
+    cache = tmp / "lb" / "cache" / "random__2__1000000__3.json"
+    sb3, rllib = tmp / "sb3run", tmp / "rllibrun" / "checkpoint"
+    base = ["--episodes", "2", "--n-uavs", "3", "--no-progress"]
+    return {
+        "truncated cache": (["--policies", "random", "--out", str(tmp / "lb"), "--reuse", *base],
+                            rf"--reuse: cached results {re.escape(str(cache))}: invalid JSON \(.*\); "
+                            r"delete it \(it is rewritten\) or run without --reuse"),
+        "cache of other scenes": (["--policies", "random", "--out", str(tmp / "lb2"), "--reuse", *base],
+                                  r"--reuse: cached results .*: row 0 has scene_seed 5, expected 1000000; delete it"),
+        "cache with a text reward": (["--policies", "random", "--out", str(tmp / "lb3"), "--reuse", *base],
+                                     r"--reuse: cached results .*: row 1 field reward must be a number, got 'high'"),
+        "sb3 args.json n_uavs three": (["--policies", f"sb3:{sb3}", "--trust-checkpoint", "--out", str(tmp / "o"),
+                                        *base],
+                                       rf"--policies: {re.escape(str(sb3 / 'args.json'))}: env_kwargs: n_uavs must "
+                                       r"be an integer, got str 'three'"),
+        "rllib args.json map_size": (["--policies", f"rllib:{rllib}", "--trust-checkpoint", "--out", str(tmp / "o"),
+                                      *base],
+                                     rf"--policies: {re.escape(str(rllib.parent / 'args.json'))}: env_kwargs: "
+                                     r"map_size must be an integer in \[2, 64\], got 1"),
+    }
+
+
+@pytest.fixture
+def evaluate_files(tmp_path):
+    from training.evaluate import COLUMNS
+
+    good = [{"scene_seed": 1_000_000 + i, **{k: 1.0 for k, _, _ in COLUMNS}} for i in range(2)]
+    for out, text in [("lb", json.dumps(good)[:40]), ("lb2", json.dumps([{**good[0], "scene_seed": 5}, good[1]])),
+                      ("lb3", json.dumps([good[0], {**good[1], "reward": "high"}]))]:
+        cache = tmp_path / out / "cache" / "random__2__1000000__3.json"
+        cache.parent.mkdir(parents=True)
+        cache.write_text(text)
+    (tmp_path / "sb3run").mkdir()
+    (tmp_path / "sb3run" / "model.zip").write_bytes(b"never read: the settings fail first")
+    (tmp_path / "sb3run" / "args.json").write_text(json.dumps({"env_kwargs": {"n_uavs": "three"}}))
+    (tmp_path / "rllibrun" / "checkpoint" / "learner_group" / "learner" / "rl_module" / "shared_policy").mkdir(
+        parents=True)
+    (tmp_path / "rllibrun" / "args.json").write_text(json.dumps({"env_kwargs": {"n_uavs": 3, "map_size": 1}}))
+    return tmp_path
+
+
+@pytest.mark.parametrize("case", list(_evaluate_file_cases(Path("/tmp"))))
+def test_evaluate_file_errors_name_the_file_and_field(case, evaluate_files, capsys, monkeypatch):
+    import training.evaluate
+
+    def ran(*a, **k):
+        raise AssertionError("evaluation started before the files were checked")
+
+    monkeypatch.setattr(training.evaluate, "evaluate", ran)
+    argv, pattern = _evaluate_file_cases(evaluate_files)[case]
+    with pytest.raises(SystemExit) as exc:
+        main(["evaluate", *argv])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.splitlines() if "error:" in ln]
+    assert len(lines) == 1 and "Traceback" not in err, err
+    assert re.fullmatch(rf"covert-env evaluate: error: {pattern}.*", lines[0]), lines[0]
+
+
+def test_evaluate_reuses_a_sound_cache(evaluate_files, capsys, monkeypatch):
+    import training.evaluate
+
+    monkeypatch.setattr(training.evaluate, "evaluate", lambda *a, **k: (_ for _ in ()).throw(AssertionError("ran")))
+    cache = evaluate_files / "lb3" / "cache" / "random__2__1000000__3.json"
+    rows = json.loads(cache.read_text())
+    rows[1]["reward"] = 2.0
+    cache.write_text(json.dumps(rows))
+    assert main(["evaluate", "--policies", "random", "--out", str(evaluate_files / "lb3"), "--reuse", "--episodes",
+                 "2", "--no-progress"]) == 0
+    assert "random" in (evaluate_files / "lb3" / "leaderboard.md").read_text()
+
+
+# ---------------------------------------------------------------------- training scripts: paths and saved arguments
+def _training_path_cases(tmp: Path) -> dict[str, tuple[str, list[str], str]]:
+    """name -> (script, argv, regex of the error line after `error: `); folders under ``tmp``."""
+    return {
+        "saved seed out of range": ("ppo_single", ["--resume", str(tmp / "neg_seed")],
+                                    rf"--resume {re.escape(str(tmp / 'neg_seed'))}: .*args\.json: seed: must be an "
+                                    r"integer >= 0, got -3"),
+        "saved args not json": ("sac_single", ["--resume", str(tmp / "broken")],
+                                r"--resume .*broken: .*args\.json: invalid JSON \(.*\)"),
+        "saved args a list": ("ppo_multi", ["--resume", str(tmp / "listed")],
+                              r"--resume .*listed: .*args\.json: must be a JSON object \(a run's arguments\), "
+                              r"got list"),
+        "saved net_arch of text": ("maskable_ppo_single", ["--resume", str(tmp / "net")],
+                                   r"--resume .*net: .*args\.json: net_arch must be a list of int, got \[64, 'x'\]"),
+        "saved algo of another script": ("mappo", ["--resume", str(tmp / "other")],
+                                         r"--resume .*other: .*args\.json: algo must be one of mappo, ippo, got "
+                                         r"'ppo_single'"),
+        "run name with a folder where args.json goes": (
+            "mappo", ["--runs-dir", str(tmp / "runs"), "--run-name", "taken"],
+            rf"--run-name {re.escape(str(tmp / 'runs' / 'taken'))}: .*args\.json is a directory, but the command "
+            r"writes the file args\.json there; move it away or choose another --run-name"),
+        "runs dir under a file": ("ppo_single", ["--runs-dir", str(tmp / "a_file" / "runs")],
+                                  r"--runs-dir .*: .*a_file is a file, not a folder"),
+    }
+
+
+@pytest.fixture
+def training_dirs(tmp_path):
+    for name, text in [("neg_seed", '{"seed": -3}'), ("broken", "{"), ("listed", "[1, 2]"),
+                       ("net", '{"net_arch": [64, "x"]}'), ("other", '{"algo": "ppo_single"}')]:
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "args.json").write_text(text)
+    (tmp_path / "runs" / "taken" / "args.json").mkdir(parents=True)
+    (tmp_path / "a_file").write_text("x")
+    return tmp_path
+
+
+@pytest.mark.parametrize("case", list(_training_path_cases(Path("/tmp"))))
+def test_training_scripts_check_paths_and_saved_arguments_first(case, training_dirs, capsys):
+    import importlib
+
+    from training.common import parse_args
+
+    script, argv, pattern = _training_path_cases(training_dirs)[case]
+    module = importlib.import_module(f"training.{script}")
+    with pytest.raises(SystemExit) as exc:
+        parse_args(module.Args, argv)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.splitlines() if "error:" in ln]
+    assert len(lines) == 1 and "Traceback" not in err, err
+    assert re.fullmatch(rf"python -m training\.{script}: error: {pattern}", lines[0]), lines[0]
+
+
+@pytest.mark.skipif(not Path("/proc/self").is_dir(), reason="needs /proc")
+def test_training_runs_dir_on_a_read_only_filesystem(capsys):
+    from training import ppo_multi
+    from training.common import parse_args
+
+    with pytest.raises(SystemExit) as exc:
+        parse_args(ppo_multi.Args, ["--runs-dir", "/proc/covert_env_runs"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "error: --runs-dir /proc/covert_env_runs: cannot write in /proc (" in err and "Traceback" not in err

@@ -1,6 +1,7 @@
 """Shipped weights reproduce their model card; export -> card -> loader round trip (numpy only, no torch)."""
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -86,3 +87,82 @@ def test_bad_learned_specs_are_one_line_errors(tmp_path, capsys):
         assert exc.value.code == 2 and msg in err and "Traceback" not in err, err
     with pytest.raises(ValueError, match="node_obs.weight"):
         NumpyActor({}, {"head": "node"})
+
+
+def _rewrite(run, params=None, card=None):
+    """Change a run's weights (``params``: name -> array, None to drop) or card fields (``card``: dotted key ->
+    value)."""
+    if params:
+        with np.load(run / "model.npz", allow_pickle=False) as data:
+            arrays = {k: data[k] for k in data.files}
+        for k, v in params.items():
+            if v is None:
+                arrays.pop(f"actor.{k}")
+            else:
+                arrays[f"actor.{k}"] = v
+        np.savez(run / "model.npz", **arrays)
+    if card:
+        meta = json.loads((run / "model.json").read_text())
+        for key, v in card.items():
+            d = meta
+            *head, last = key.split(".")
+            for h in head:
+                d = d[h]
+            d[last] = v
+        (run / "model.json").write_text(json.dumps(meta))
+
+
+BAD_LEARNED = {
+    # name: (head, mode, params, card, regex after "<file>: ")
+    "trunk input one too wide": ("node", "waypoint", {"trunk.0.weight": np.zeros((8, 142), np.float32)}, None,
+                                 r"actor\.trunk\.0\.weight has shape \(8, 142\), expected \(\*, 141\) "
+                                 r"\(observations of 141 values\)"),
+    "trunk layers do not chain": ("node", "waypoint", {"trunk.2.weight": np.zeros((8, 5), np.float32)}, None,
+                                  r"actor\.trunk\.2\.weight has shape \(8, 5\), expected \(\*, 8\) "
+                                  r"\(trunk\.0 has 8 outputs\)"),
+    "bias of the wrong length": ("node", "waypoint", {"trunk.0.bias": np.zeros(7, np.float32)}, None,
+                                 r"actor\.trunk\.0\.bias has shape \(7,\), expected \(8,\)"),
+    "node features for another team": ("node", "waypoint", {"node_feat.weight": np.zeros((4, 12), np.float32)}, None,
+                                       r"actor\.node_feat\.weight has shape \(4, 12\), expected \(4, 10\) "
+                                       r"\(10 node features for 2 UAVs"),
+    "missing head weight": ("node", "waypoint", {"node_out.weight": None}, None,
+                            r"actor\.node_out\.weight is missing \(node head\)"),
+    "gaussian head of 3 actions": ("gaussian", "unicycle", {"mean.weight": np.zeros((3, 8), np.float32)}, None,
+                                   r"actor\.mean\.weight has shape \(3, 8\), expected \(2, 8\) "
+                                   r"\(2 action components"),
+    "non-finite weight": ("node", "waypoint", {"trunk.0.bias": np.full(8, np.nan, np.float32)}, None,
+                          r"actor\.trunk\.0\.bias holds non-finite values"),
+    "card n_uavs three": ("node", "waypoint", None, {"env_kwargs.n_uavs": "three"},
+                          r"env_kwargs: n_uavs must be an integer, got str 'three'"),
+    "card shield text": ("node", "waypoint", None, {"separation_shield": "far"},
+                         r"separation_shield must be null or a number > 0, got 'far'"),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD_LEARNED))
+def test_learned_weights_that_do_not_fit_name_the_file_and_parameter(tmp_path, capsys, case):
+    head, mode, params, card, pattern = BAD_LEARNED[case]
+    run = _tiny_run(tmp_path, head, mode)
+    load_policy(f"mappo:{run}", 2)                                  # the untouched run loads
+    _rewrite(run, params, card)
+    bad = run / ("model.npz" if params else "model.json")
+    with pytest.raises(ValueError, match=rf"^mappo:{re.escape(str(run))}: {re.escape(str(bad))}: {pattern}"):
+        load_policy(f"mappo:{run}", 2)
+    with pytest.raises(SystemExit) as exc:
+        main(["--policies", f"mappo:{run}", "--n-uavs", "2", "--episodes", "1", "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and "Traceback" not in err, err
+    assert len([ln for ln in err.splitlines() if "error:" in ln]) == 1
+
+
+def test_weights_beyond_the_size_cap_are_refused_before_unpacking(tmp_path, monkeypatch):
+    import training.pretrained
+
+    run = _tiny_run(tmp_path)
+    monkeypatch.setattr(training.pretrained, "MAX_WEIGHTS_BYTES", 1000)
+    calls = []
+    monkeypatch.setattr(np, "load", lambda *a, **k: calls.append(a))
+    with pytest.raises(ValueError, match=rf"{re.escape(str(run / 'model.npz'))}: \d+ bytes of arrays, more than the "
+                                         r"1000 a weights file may hold"):
+        load_policy(f"mappo:{run}", 2)
+    assert calls == []

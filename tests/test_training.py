@@ -261,7 +261,7 @@ def _evaluate(tmp_path, spec, n_uavs, extra=()):
 
     out = tmp_path / "lb"
     assert evaluate_main(["--policies", "random", spec, *extra, "--episodes", "1", "--n-uavs", str(n_uavs),
-                          "--out", str(out), "--no-progress"]) == 0
+                          "--out", str(out), "--no-progress", "--trust-checkpoint"]) == 0
     md = (out / "leaderboard.md").read_text()
     csv_text = (out / "leaderboard.csv").read_text()
     assert (out / "comparison.png").exists()
@@ -284,8 +284,8 @@ def test_ppo_multi_train_resume_evaluate(tmp_path):
     assert list((run / "checkpoints").glob("ppo_multi_vecnormalize_*_steps.json"))
     assert not list(run.rglob("*.pkl"))                          # nothing we write is a pickle
     assert list((run / "tb").iterdir())
-    run2 = ppo_multi.main(["--recipe", "smoke", "--resume", str(run), "--total-timesteps", "4500",
-                           "--progress-bar", "false"])
+    run2 = ppo_multi.main(["--recipe", "smoke", "--resume", str(run), "--trust-checkpoint", "--total-timesteps",
+                           "4500", "--progress-bar", "false"])
     assert run2 == run and json.loads((run / "train_summary.json").read_text())["timesteps"] >= 4500
     ckpt = sorted((run / "checkpoints").glob("ppo_multi_*_steps.zip"))[0]
     md = _evaluate(tmp_path, f"sb3:{run}", 3, extra=(f"sb3:{ckpt}",))
@@ -327,7 +327,7 @@ def test_harness_rejects_team_size_mismatch(tmp_path):
     run = ppo_single.main(["--total-timesteps", "256", "--n-envs", "1", "--n-steps", "256", "--batch-size", "64",
                            "--checkpoint-freq", "0", *_common(tmp_path)])
     with pytest.raises(ValueError, match="--n-uavs 1"):
-        load_policy(f"sb3:{run}", 3)
+        load_policy(f"sb3:{run}", 3, trust_checkpoint=True)
     with pytest.raises(ValueError, match="action mode"):
         load_policy("random@hover", 3)
     with pytest.raises(ValueError, match="unknown policy 'nonsense'"):
@@ -452,7 +452,7 @@ def test_evaluation_normalises_like_the_training_vecnormalize(tmp_path, monkeypa
         raise AssertionError("pickle used for VecNormalize statistics")
 
     monkeypatch.setattr(pickle, "load", no_pickle)               # SB3's model.zip is not read with pickle.load
-    pol = load_sb3(run)
+    pol = load_sb3(run, trust_checkpoint=True)
     obs = _raw_observations()
     assert np.array_equal(pol.norm.normalize_obs(obs), in_memory.normalize_obs(obs))
     # and the policy acts on exactly those observations
@@ -481,18 +481,18 @@ def test_pickled_statistics_are_refused_with_the_conversion_command(tmp_path, mo
     real_load = pickle.load
     monkeypatch.setattr(pickle, "load", lambda *a, **k: calls.append(a) or real_load(*a, **k))
     with pytest.raises(UsageError, match="convert_vecnormalize") as exc:
-        load_sb3(run)
+        load_sb3(run, trust_checkpoint=True)
     assert "older covert_env" in str(exc.value) and str(run / "vecnormalize.pkl") in str(exc.value)
     with pytest.raises(ValueError, match="convert_vecnormalize"):
         load_vecnormalize(run / "vecnormalize.pkl", VecMonitor(make_vec_env(2, SMALL)))   # resume path
     assert calls == []                                           # refused without unpickling
     # the explicit one-off conversion of a trusted file, then evaluation works and normalises the same
-    assert convert_main([str(run)]) == 0
+    assert convert_main(["--trust-checkpoint", str(run)]) == 0
     assert calls                                                 # (that one does unpickle, on request)
     obs = _raw_observations()
     assert np.array_equal(read_vecnormalize(run / "vecnormalize.json").normalize_obs(obs),
                           in_memory.normalize_obs(obs))
-    assert np.array_equal(load_sb3(run).norm.normalize_obs(obs), in_memory.normalize_obs(obs))
+    assert np.array_equal(load_sb3(run, trust_checkpoint=True).norm.normalize_obs(obs), in_memory.normalize_obs(obs))
 
 
 def test_no_pickle_on_the_statistics_path():
@@ -508,3 +508,177 @@ def test_no_pickle_on_the_statistics_path():
             continue
         assert "import pickle" not in src and "VecNormalize.load" not in src, f.name
         assert "save_vecnormalize=True" not in src and "get_env().save(" not in src, f.name
+
+
+# ---------------------------------------------------------------------- pickled checkpoints load only on request
+def _payload_model(tmp_path, marker):
+    """A real SB3 run folder whose model.zip ``data`` entry also carries a cloudpickle payload that creates
+    ``marker`` when unpickled (as a hostile file would run its code)."""
+    import base64
+    import pathlib
+    import pickle
+    import zipfile
+
+    run, _ = _sb3_run(tmp_path)
+    payload = base64.b64encode(pickle.dumps(_Touch(str(marker)))).decode()
+    src = run / "model.zip"
+    entries = {}
+    with zipfile.ZipFile(src) as z:
+        for name in z.namelist():
+            entries[name] = z.read(name)
+    data = json.loads(entries["data"])
+    data["payload"] = {":type:": "<class 'pathlib.Path'>", ":serialized:": payload}
+    entries["data"] = json.dumps(data).encode()
+    with zipfile.ZipFile(src, "w") as z:
+        for name, blob in entries.items():
+            z.writestr(name, blob)
+    assert pathlib.Path(marker).exists() is False
+    return run
+
+
+class _Touch:
+    def __init__(self, path: str):
+        self.path = path
+
+    def __reduce__(self):
+        import pathlib
+
+        return pathlib.Path.touch, (pathlib.Path(self.path),)
+
+
+TRUST_RE = (r"is an SB3 model, which holds pickled Python objects: loading it runs any code they carry\. "
+            r"Pass --trust-checkpoint \(trust_checkpoint=True in Python\) only if it comes from a source you trust$")
+
+
+@pytest.mark.parametrize("which", ["run folder", "zip path"])
+def test_evaluate_refuses_a_pickled_model_without_trust_checkpoint(tmp_path, capsys, which):
+    import re
+
+    from covert_env.cli import main
+
+    marker = tmp_path / "payload_ran"
+    run = _payload_model(tmp_path, marker)
+    spec = f"sb3:{run if which == 'run folder' else run / 'model.zip'}"
+    with pytest.raises(SystemExit) as exc:
+        main(["evaluate", "--policies", "random", spec, "--episodes", "1", "--n-uavs", "3", "--no-progress",
+              "--out", str(tmp_path / "lb")])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.splitlines() if "error:" in ln]
+    assert len(lines) == 1 and "Traceback" not in err, err
+    assert re.fullmatch(rf"covert-env evaluate: error: --policies: {re.escape(str(run / 'model.zip'))} {TRUST_RE}",
+                        lines[0]), lines[0]
+    assert not marker.exists()                                   # the payload never ran
+    assert not (tmp_path / "lb").exists()                        # and nothing was evaluated or written
+
+
+def test_load_policy_trust_checkpoint_is_the_only_way_in(tmp_path, monkeypatch):
+    import stable_baselines3
+
+    from covert_env.cli import UsageError
+    from training.evaluate import load_policy
+
+    marker = tmp_path / "payload_ran"
+    run = _payload_model(tmp_path, marker)
+    calls = []
+    real_load = stable_baselines3.PPO.load
+    monkeypatch.setattr(stable_baselines3.PPO, "load", classmethod(
+        lambda cls, *a, **k: calls.append(a) or real_load.__func__(cls, *a, **k)))
+    for kw in ({}, {"trust_checkpoint": False}):
+        with pytest.raises(UsageError, match=TRUST_RE):
+            load_policy(f"sb3:{run}", 3, **kw)
+    with pytest.raises(TypeError, match="trust_checkpoint must be True or False, got 'yes'"):
+        load_policy(f"sb3:{run}", 3, trust_checkpoint="yes")
+    assert calls == [] and not marker.exists()
+    pol, settings = load_policy(f"sb3:{run}", 3, trust_checkpoint=True)     # the opt-in loads it
+    assert len(calls) == 1 and settings["n_uavs"] == 3 and pol.model.policy is not None
+    assert marker.exists()                     # the payload was real: only the refusal kept it from running
+
+
+def test_rllib_checkpoints_are_refused_without_trust_before_ray_loads(tmp_path, capsys):
+    from covert_env.cli import UsageError, main
+    from training import rllib_ppo
+
+    ckpt = tmp_path / "run" / "checkpoint"
+    (ckpt / "learner_group").mkdir(parents=True)
+    (tmp_path / "run" / "args.json").write_text("{}")
+    with pytest.raises(UsageError, match=r"checkpoint is an RLlib checkpoint, which holds pickled Python objects.*"
+                                         r"--trust-checkpoint"):
+        rllib_ppo.load_policy(ckpt)
+    with pytest.raises(SystemExit) as exc:
+        main(["evaluate", "--policies", f"rllib:{ckpt}", "--out", str(tmp_path / "lb")])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and "Traceback" not in err
+    assert f"--policies: {ckpt} is an RLlib checkpoint" in err and "--trust-checkpoint" in err
+    with pytest.raises(SystemExit) as exc:
+        rllib_ppo.main(["--resume", str(ckpt)])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and "Traceback" not in err
+    assert f"error: --resume {ckpt}: {ckpt} is an RLlib checkpoint" in err and "--trust-checkpoint" in err
+    with pytest.raises(UsageError, match="--trust-checkpoint"):
+        rllib_ppo.train(rllib_ppo.Args(resume=str(ckpt)))
+
+
+def test_resume_of_an_sb3_run_needs_trust_checkpoint(tmp_path, capsys, monkeypatch):
+    import stable_baselines3
+
+    from covert_env.cli import UsageError
+    from training import ppo_single
+    from training.common import train_single
+
+    run = ppo_single.main(["--total-timesteps", "256", "--n-envs", "1", "--n-steps", "256", "--batch-size", "64",
+                           "--checkpoint-freq", "0", *_common(tmp_path)])
+    args_before = (run / "args.json").read_text()
+
+    def never(*a, **k):
+        raise AssertionError("the pickled model was loaded")
+
+    monkeypatch.setattr(stable_baselines3.PPO, "load", never)
+    with pytest.raises(SystemExit) as exc:
+        ppo_single.main(["--resume", str(run), "--total-timesteps", "512", "--progress-bar", "false"])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and "Traceback" not in err
+    assert f"error: --resume {run}: {run / 'model.zip'} is an SB3 model, which holds pickled" in err, err
+    assert "--trust-checkpoint" in err
+    with pytest.raises(UsageError, match=TRUST_RE):
+        train_single(ppo_single.Args(resume=str(run)), "ppo_single", "PPO", "unicycle", None)
+    assert (run / "args.json").read_text() == args_before             # refused before anything was written
+    monkeypatch.undo()
+    assert ppo_single.main(["--resume", str(run), "--trust-checkpoint", "--total-timesteps", "512",
+                            "--progress-bar", "false"]) == run
+    assert json.loads((run / "train_summary.json").read_text())["timesteps"] >= 512
+
+
+def test_convert_vecnormalize_needs_trust_checkpoint(tmp_path, capsys, monkeypatch):
+    import pickle
+
+    from training.convert_vecnormalize import convert
+    from training.convert_vecnormalize import main as convert_main
+
+    run, model = _sb3_run(tmp_path)
+    model.get_vec_normalize_env().save(str(run / "vecnormalize.pkl"))
+    calls = []
+    monkeypatch.setattr(pickle, "load", lambda *a, **k: calls.append(a))
+    with pytest.raises(SystemExit) as exc:
+        convert_main([str(run)])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and "--trust-checkpoint" in err and "Traceback" not in err
+    with pytest.raises(ValueError, match="a pickled VecNormalize file.*--trust-checkpoint"):
+        convert(run / "vecnormalize.pkl")
+    assert calls == []
+
+
+@pytest.mark.parametrize("env_kwargs, pattern", [
+    ({"n_uavs": 2}, r"takes observations as a Box of shape \(143,\), but the env of its settings \(.*args\.json: "
+                    r"n_uavs=2, action_mode=unicycle, map_size=8\) has a Box of shape \(141,\)"),
+    ({"n_uavs": 3, "action_mode": "waypoint"}, r"takes actions as a Box of shape \(2,\), but .* has Discrete\(577\)"),
+])
+def test_sb3_model_that_does_not_fit_its_args_json_is_named(tmp_path, env_kwargs, pattern):
+    from covert_env.cli import UsageError
+    from training.evaluate import load_policy
+
+    run, _ = _sb3_run(tmp_path)
+    meta = json.loads((run / "args.json").read_text())
+    (run / "args.json").write_text(json.dumps({**meta, "env_kwargs": env_kwargs}))
+    with pytest.raises(UsageError, match=rf"^sb3:.*run: .*model\.zip {pattern}$"):
+        load_policy(f"sb3:{run}", env_kwargs["n_uavs"], trust_checkpoint=True)

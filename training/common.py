@@ -7,7 +7,7 @@ Every script keeps its own readable ``Args`` dataclass (CleanRL style); this mod
 * :class:`TimeBudgetCallback`: stops ``learn()`` gracefully after a wall-clock budget (the model is then saved);
 * SB3's ``CheckpointCallback`` every ``checkpoint_freq`` steps, with the VecNormalize statistics beside the model
   as JSON (:func:`training.vec_env.save_vecnormalize`; nothing we write is a pickle, but SB3's ``model.zip``
-  itself holds pickled parts: load models only from trusted sources).
+  itself holds pickled parts, so ``--resume`` loads it only with ``--trust-checkpoint``: :mod:`training.trust`).
 
 Run layout (git-ignored ``runs/``)::
 
@@ -36,7 +36,8 @@ from pathlib import Path
 from typing import Any
 
 __all__ = ["parse_args", "run_name", "setup_torch", "TimeBudgetCallback", "TqdmCallback", "make_callbacks",
-           "latest_checkpoint", "save_run", "field_docs", "build_parser", "save_final_vecnormalize", "train_single"]
+           "latest_checkpoint", "resume_checkpoint", "save_run", "field_docs", "build_parser",
+           "save_final_vecnormalize", "train_single"]
 
 
 def setup_torch(threads: int = 1) -> None:
@@ -164,7 +165,10 @@ def parse_args(cls: type, argv: list[str] | None = None, description: str | None
     """Build an argparse CLI from dataclass ``cls`` (``--field-name value``; booleans take true/false).
 
     ``presets`` (name -> overrides) adds ``--recipe NAME``: the preset is applied first, explicit flags win.
-    Out-of-range values and a ``--resume`` folder that is not a run exit with status 2 and one error line.
+    Out-of-range values, a ``--resume`` folder that is not a run, whose saved ``args.json`` is damaged or out of
+    range, or that cannot be written, a ``--runs-dir``/``--run-name`` that cannot be written, and, for scripts whose
+    ``Args`` has ``trust_checkpoint``, a ``--resume`` that would load a pickled checkpoint without
+    ``--trust-checkpoint`` exit with status 2 and one error line, before anything runs.
     """
     p = build_parser(cls, description, presets, prog)
     ns = p.parse_args(argv)
@@ -175,6 +179,8 @@ def parse_args(cls: type, argv: list[str] | None = None, description: str | None
         v = getattr(ns, f.name)
         if v is not None:
             values[f.name] = type(getattr(cls(), f.name))(v) if isinstance(getattr(cls(), f.name), tuple) else v
+    from covert_env.cli import UsageError, output_dir
+
     resume = values.get("resume")
     if resume:
         run = Path(resume)
@@ -182,7 +188,72 @@ def parse_args(cls: type, argv: list[str] | None = None, description: str | None
             p.error(f"--resume {resume}: no such folder")
         if not (run / "args.json").is_file() and not (run.parent / "args.json").is_file():
             p.error(f"--resume {resume}: not a run folder (no args.json in it or beside it)")
+        # The saved arguments the run continues with (resumed_args): checked like the command line's.
+        saved_path = run.parent / "args.json" if (run / "learner_group").is_dir() else run / "args.json"
+        if saved_path.is_file():
+            from covert_env.config import read_json
+
+            try:
+                problem = _saved_args_problem(cls, read_json(saved_path, "run arguments"))
+            except (OSError, ValueError) as exc:
+                problem = str(exc).removeprefix(f"run arguments {saved_path}: ")
+            if problem:
+                p.error(f"--resume {resume}: {saved_path}: {problem}")
+        try:                                     # the run folder is written to (args.json, checkpoints, model)
+            output_dir(run, "--resume", create=False, files=("args.json", "train_summary.json"))
+        except UsageError as exc:
+            p.error(str(exc))
+        if "trust_checkpoint" in {f.name for f in dataclasses.fields(cls)}:
+            from training.trust import require_trust
+
+            trust = values.get("trust_checkpoint", False)
+            try:
+                if (run / "learner_group").is_dir():                   # an RLlib checkpoint (training.rllib_ppo)
+                    require_trust(run, "an RLlib checkpoint", trust)
+                else:
+                    resume_checkpoint(run, trust_checkpoint=trust)
+            except UsageError as exc:
+                p.error(f"--resume {resume}: {exc}")
+    elif any(f.name == "runs_dir" for f in dataclasses.fields(cls)):
+        runs_dir = values.get("runs_dir", cls().runs_dir)
+        try:                                     # probed now, not after the first checkpoint interval
+            output_dir(runs_dir, "--runs-dir", create=False)
+            if values.get("run_name"):
+                output_dir(Path(runs_dir) / values["run_name"], "--run-name", create=False,
+                           files=("args.json", "train_summary.json"))
+        except UsageError as exc:
+            p.error(str(exc))
     return cls(**values)
+
+
+def _saved_args_problem(cls: type, saved: Any) -> str | None:
+    """What is wrong with a run's saved arguments ``saved`` (its ``args.json``) for dataclass ``cls``, or None: each
+    field a resumed run takes from it must have its default's type and pass the command line's range check."""
+    if not isinstance(saved, dict):
+        return f"must be a JSON object (a run's arguments), got {type(saved).__name__}"
+    ranges = _ranges()
+    defaults = cls()
+    for f in dataclasses.fields(cls):
+        if f.name not in saved or f.name in RESUME_OVERRIDES:
+            continue
+        v, default, check = saved[f.name], getattr(defaults, f.name), ranges.get(f.name)
+        items = v if isinstance(default, tuple) and isinstance(v, list) else [v]
+        kind = type(default[0] if isinstance(default, tuple) and default else default)
+        fits = {bool: lambda x: isinstance(x, bool), int: lambda x: isinstance(x, int) and not isinstance(x, bool),
+                float: lambda x: isinstance(x, (int, float)) and not isinstance(x, bool),
+                str: lambda x: isinstance(x, str)}.get(kind, lambda x: True)
+        if (isinstance(default, tuple) and not isinstance(v, list)) or not all(fits(x) for x in items):
+            shape = f"a list of {kind.__name__}" if isinstance(default, tuple) else kind.__name__
+            return f"{f.name} must be {shape}, got {v!r}"
+        for x in items:
+            if isinstance(check, tuple) and x not in check[1]:
+                return f"{f.name} must be one of {', '.join(check[1])}, got {x!r}"
+            if callable(check):
+                try:
+                    check(str(x))
+                except argparse.ArgumentTypeError as exc:
+                    return f"{f.name}: {exc}"
+    return None
 
 
 def run_name(env_id: str, algo: str, seed: int) -> str:
@@ -200,7 +271,7 @@ def save_run(run_dir: Path, args: Any, extra: dict | None = None) -> None:
 
 #: Arguments a resumed run takes from the command line rather than from the saved run.
 RESUME_OVERRIDES = frozenset({"resume", "total_timesteps", "iterations", "time_budget_minutes", "progress_bar",
-                              "torch_threads", "verbose", "address", "num_env_runners"})
+                              "torch_threads", "verbose", "address", "num_env_runners", "trust_checkpoint"})
 
 
 def resumed_args(args: Any, run_dir: Path) -> Any:
@@ -240,6 +311,18 @@ def latest_checkpoint(run_dir: Path) -> tuple[Path, Path | None] | None:
     steps, path = best
     prefix = path.name[: -len(f"_{steps}_steps.zip")]
     return path, stats(path.parent / f"{prefix}_vecnormalize_{steps}_steps.json")
+
+
+def resume_checkpoint(run_dir: Path, *, trust_checkpoint: bool = False) -> tuple[Path, Path | None] | None:
+    """:func:`latest_checkpoint` of a run to resume. Its model is an SB3 ``.zip``, which holds pickles: unless
+    ``trust_checkpoint=True`` a run that has one is refused (:func:`training.trust.require_trust`), before
+    anything is loaded."""
+    from training.trust import require_trust
+
+    ckpt = latest_checkpoint(run_dir)
+    if ckpt is not None:
+        require_trust(ckpt[0], "an SB3 model", trust_checkpoint)
+    return ckpt
 
 
 def _callback_base():
@@ -364,8 +447,10 @@ def train_single(args: Any, algo: str, sb3_class: str, action_mode: str,
     import covert_env  # noqa: F401  (registers the Gymnasium ids)
     from training.vec_env import load_vecnormalize
 
+    ckpt = None
     if args.resume:
         run_dir = Path(args.resume)
+        ckpt = resume_checkpoint(run_dir, trust_checkpoint=args.trust_checkpoint)
         args = resumed_args(args, run_dir)
     else:
         run_dir = Path(args.runs_dir) / (args.run_name or run_name(args.env_id, algo, args.seed))
@@ -373,7 +458,6 @@ def train_single(args: Any, algo: str, sb3_class: str, action_mode: str,
     save_run(run_dir, args, {"algo": algo, "sb3_class": sb3_class, "multi_agent": False,
                              "env_kwargs": {**ekw, "n_uavs": 1, "action_mode": action_mode}})
     venv = make_vec_env(args.env_id, n_envs=args.n_envs, seed=args.seed, env_kwargs=ekw)
-    ckpt = latest_checkpoint(run_dir) if args.resume else None
     if ckpt is not None:
         venv = load_vecnormalize(ckpt[1], venv) if ckpt[1] else venv
         model = cls.load(str(ckpt[0]), env=venv, device="cpu")

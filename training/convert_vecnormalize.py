@@ -1,9 +1,10 @@
 """One-off conversion of VecNormalize statistics pickled by older covert_env versions to the JSON the scripts write.
 
-    python -m training.convert_vecnormalize runs/<run>                  # every .pkl of the run and its checkpoints
-    python -m training.convert_vecnormalize runs/<run>/vecnormalize.pkl
+    python -m training.convert_vecnormalize --trust-checkpoint runs/<run>   # every .pkl of the run and its checkpoints
+    python -m training.convert_vecnormalize --trust-checkpoint runs/<run>/vecnormalize.pkl
 
-Unpickling a file can run any code it contains: run this only on files you made yourself or otherwise trust.
+Unpickling a file can run any code it contains: the files are unpickled only with ``--trust-checkpoint``
+(``trust_checkpoint=True`` in :func:`convert`), for files you made yourself or otherwise trust.
 Nothing else in covert_env loads a ``.pkl`` (training resumes and ``evaluate --policies sb3:...`` read the
 ``.json`` written here, :func:`training.vec_env.read_vecnormalize`). Each ``X.pkl`` gives ``X.json`` beside it;
 the ``.pkl`` is left in place.
@@ -17,10 +18,13 @@ import sys
 from pathlib import Path
 
 
-def convert(pkl: Path) -> Path:
-    """Unpickle the trusted VecNormalize file ``pkl`` and write its statistics to ``pkl.with_suffix('.json')``."""
+def convert(pkl: Path, *, trust_checkpoint: bool = False) -> Path:
+    """Unpickle the trusted VecNormalize file ``pkl`` and write its statistics to ``pkl.with_suffix('.json')``.
+    Refused (:func:`training.trust.require_trust`) unless ``trust_checkpoint=True``."""
+    from training.trust import require_trust
     from training.vec_env import save_vecnormalize
 
+    require_trust(pkl, "a pickled VecNormalize file", trust_checkpoint)
     with open(pkl, "rb") as f:
         vn = pickle.load(f)  # noqa: S301 -- explicit, documented one-off on a file the user trusts
     if not all(hasattr(vn, a) for a in ("norm_obs", "ret_rms", "clip_obs", "epsilon")):
@@ -31,6 +35,9 @@ def convert(pkl: Path) -> Path:
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m training.convert_vecnormalize", description=__doc__.split("\n")[0])
     p.add_argument("paths", nargs="+", help="a pickled VecNormalize file (.pkl) or a run folder (all its .pkl)")
+    p.add_argument("--trust-checkpoint", action="store_true",
+                   help="unpickle the files (required): unpickling runs any code a file carries, so pass this only "
+                        "for files you made yourself or otherwise trust")
     args = p.parse_args(argv)
     files: list[Path] = []
     for s in args.paths:
@@ -44,9 +51,12 @@ def main(argv: list[str] | None = None) -> int:
             files.append(path)
         else:
             p.error(f"{s}: expected a .pkl file or a run folder")
+    if not args.trust_checkpoint:
+        p.error(f"{files[0]} is a pickled VecNormalize file: unpickling runs any code it carries. Pass "
+                "--trust-checkpoint only if you made it yourself or otherwise trust it")
     for pkl in files:
         try:
-            out = convert(pkl)
+            out = convert(pkl, trust_checkpoint=True)
         except ValueError as exc:
             p.error(str(exc))
         print(f"wrote {out}")

@@ -1,8 +1,9 @@
 """The evaluation harness: every policy on the same held-out scenes, scored by the shared metrics code.
 
-    python -m training.evaluate --policies random hold-centre dp dp-blind sb3:runs/<run> --episodes 20
-    python -m training.evaluate --policies random sb3:runs/<run>/checkpoints/ppo_multi_500000_steps.zip
-    python -m training.evaluate --policies dp rllib:runs/<rllib-run>/checkpoint
+    python -m training.evaluate --policies random hold-centre dp dp-blind pretrained:mappo --episodes 20
+    python -m training.evaluate --policies random sb3:runs/<run> --trust-checkpoint
+    python -m training.evaluate --trust-checkpoint --policies sb3:runs/<run>/checkpoints/ppo_multi_500000_steps.zip
+    python -m training.evaluate --policies dp rllib:runs/<rllib-run>/checkpoint --trust-checkpoint
     covert-env evaluate ...                          # the same (forwards to training.evaluate.main)
 
 Policy specs (``SPEC[@MODE]``, MODE = ``unicycle`` or ``waypoint`` picks the env's action mode):
@@ -14,11 +15,13 @@ Policy specs (``SPEC[@MODE]``, MODE = ``unicycle`` or ``waypoint`` picks the env
 * ``sb3:PATH``: an SB3 model (PPO, SAC, MaskablePPO) -- a run folder (its ``model.zip``) or a ``.zip``
   checkpoint; its ``args.json`` gives the env settings and the VecNormalize statistics beside the model
   (``vecnormalize.json``, read without pickle; older ``.pkl`` statistics are refused, see
-  :mod:`training.convert_vecnormalize`) are applied. SB3 ``.zip`` files and RLlib checkpoints contain pickles:
-  load them only from trusted sources. Single-UAV models act for every UAV independently (each sees its own
-  observation), so they need ``--n-uavs 1`` unless they were trained with the same team size.
+  :mod:`training.convert_vecnormalize`) are applied. Single-UAV models act for every UAV independently (each sees
+  its own observation), so they need ``--n-uavs 1`` unless they were trained with the same team size.
 * ``rllib:PATH``: an RLlib checkpoint of :mod:`training.rllib_ppo`; inference runs in plain torch, no Ray
   cluster is started.
+* SB3 ``.zip`` files and RLlib checkpoints hold pickles, which run any code they carry when loaded: ``sb3:`` and
+  ``rllib:`` specs are refused unless ``--trust-checkpoint`` is given (``trust_checkpoint=True`` in
+  :func:`load_policy`), only for files from a source you trust (:mod:`training.trust`).
 * ``mappo:PATH``: a MAPPO/IPPO actor of :mod:`training.mappo` -- a run folder (its ``model.npz`` and
   ``model.json``) or ``NAME.npz`` with its card ``NAME.json``; ``pretrained:NAME``: the weights shipped in
   ``training/pretrained/`` (``pretrained:mappo``). Both run in numpy (no torch, no pickle): :mod:`training.pretrained`.
@@ -116,6 +119,42 @@ class SB3Policy:
         return out[single] if single is not None else out
 
 
+def read_run_json(path: Path, what: str) -> Any:
+    """A JSON file of a run (``args.json``, a model card, a cache), with every problem -- missing, not a regular
+    file, too large, not UTF-8, invalid JSON -- as a :class:`~covert_env.cli.UsageError` naming the file."""
+    from covert_env.cli import UsageError
+    from covert_env.config import read_json
+
+    try:
+        return read_json(path, what)
+    except (OSError, ValueError) as exc:
+        raise UsageError(str(exc)) from None
+
+
+def run_env(env_kwargs: Any, where: str, n_uavs: int = 1) -> tuple[dict, Any]:
+    """The env settings (``n_uavs``, ``action_mode``, ``map_size``) of a run's ``env_kwargs`` (from ``where``, an
+    ``args.json`` or model card; ``n_uavs`` defaults to ``n_uavs``) and the parallel env they build, in which the
+    policy will act. A field the env rejects is a :class:`~covert_env.cli.UsageError` naming the file, the field, the
+    value and what is allowed (the env's own check)."""
+    from covert_env.cli import UsageError
+    from covert_env.envs.covert_sensing import CovertSensingParallelEnv
+
+    if not isinstance(env_kwargs, dict):
+        raise UsageError(f"{where}: env_kwargs must be a JSON object, got {type(env_kwargs).__name__} "
+                         f"{str(env_kwargs)[:60]}")
+    settings = {"n_uavs": env_kwargs.get("n_uavs", n_uavs), "action_mode": env_kwargs.get("action_mode", "unicycle"),
+                "map_size": env_kwargs.get("map_size", 8)}
+    try:
+        env = CovertSensingParallelEnv(**settings)
+    except (TypeError, ValueError) as exc:
+        raise UsageError(f"{where}: env_kwargs: {exc}") from None
+    return settings, env
+
+
+def _space_text(space) -> str:
+    return f"Discrete({space.n})" if hasattr(space, "n") else f"a Box of shape {tuple(space.shape)}"
+
+
 def _find_args_json(path: Path) -> Path | None:
     for d in [path if path.is_dir() else path.parent, *(path if path.is_dir() else path.parent).parents][:3]:
         if (d / "args.json").exists():
@@ -133,29 +172,32 @@ def vecnormalize_path(model_path: Path) -> Path:
     return model_path.parent / "vecnormalize.json"
 
 
-def load_sb3(path: str | Path) -> SB3Policy:
+def load_sb3(path: str | Path, *, trust_checkpoint: bool = False) -> SB3Policy:
     """Load an SB3 run folder or checkpoint (.zip) with its VecNormalize statistics (JSON) and env settings.
 
-    Statistics pickled by older versions (``.pkl``) are refused with the command that converts them. The model
-    ``.zip`` itself is loaded by SB3, which unpickles parts of it: load only models from trusted sources.
+    The model ``.zip`` is loaded by SB3, which unpickles parts of it: without ``trust_checkpoint=True`` it is
+    refused (:func:`training.trust.require_trust`) before anything is read. Statistics pickled by older versions
+    (``.pkl``) are refused with the command that converts them.
     """
     from covert_env.cli import UsageError
+    from training.trust import require_trust
 
     path = Path(path)
     model_path = path / "model.zip" if path.is_dir() else path
     if not model_path.is_file():
         raise UsageError(f"no SB3 model at {model_path} (expected a run folder holding model.zip, or a .zip)")
+    require_trust(model_path, "an SB3 model", trust_checkpoint)
     vn_path = vecnormalize_path(model_path)
     if not vn_path.exists() and vn_path.with_suffix(".pkl").exists():
         vn_path = vn_path.with_suffix(".pkl")                    # refused below, with the conversion command
     args_json = _find_args_json(path)
-    try:
-        meta = json.loads(args_json.read_text()) if args_json else {}
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise UsageError(f"{args_json}: invalid JSON ({exc})") from None
+    meta = read_run_json(args_json, "run arguments") if args_json else {}
+    if not isinstance(meta, dict):
+        raise UsageError(f"{args_json}: must be a JSON object (a run's arguments), got {type(meta).__name__}")
     cls_name = meta.get("sb3_class", "PPO")
     if cls_name not in ("PPO", "SAC", "MaskablePPO"):
         raise UsageError(f"{args_json}: unknown sb3_class {cls_name!r} (PPO, SAC or MaskablePPO)")
+    settings, env = run_env(meta.get("env_kwargs", {}), str(args_json or f"sb3:{path} (no args.json)"))
 
     from training.vec_env import read_vecnormalize
 
@@ -185,9 +227,15 @@ def load_sb3(path: str | Path) -> SB3Policy:
     if norm is not None and norm.obs_mean.shape != model.observation_space.shape:
         raise UsageError(f"{vn_path}: statistics of observations of shape {norm.obs_mean.shape}, but {model_path} "
                          f"takes observations of shape {model.observation_space.shape}")
-    ekw = meta.get("env_kwargs", {})
-    settings = {"n_uavs": int(ekw.get("n_uavs", 1)), "action_mode": ekw.get("action_mode", "unicycle"),
-                "map_size": int(ekw.get("map_size", 8))}
+    agent = env.possible_agents[0]
+    for kind, space, wanted in (("observations", model.observation_space, env.observation_space(agent)),
+                                ("actions", model.action_space, env.action_space(agent))):
+        if _space_text(space) != _space_text(wanted):
+            raise UsageError(f"sb3:{path}: {model_path} takes {kind} as {_space_text(space)}, but the env of its "
+                             f"settings ({args_json or 'defaults, no args.json'}: n_uavs={settings['n_uavs']}, "
+                             f"action_mode={settings['action_mode']}, map_size={settings['map_size']}) has "
+                             f"{_space_text(wanted)}")
+    env.close()
     label = meta.get("algo", cls_name.lower())
     if path.is_dir():
         name = f"{label} ({path.name})"
@@ -213,11 +261,12 @@ def _extra(module: str, extra: str):
             from None
 
 
-def load_policy(spec: str, n_uavs: int) -> tuple[Any, dict]:
+def load_policy(spec: str, n_uavs: int, *, trust_checkpoint: bool = False) -> tuple[Any, dict]:
     """A policy object and its env settings (``n_uavs``, ``action_mode``) from a spec (see the module docstring).
 
     A bad spec (unknown name or mode, missing path, team size or action mode that do not fit) raises
-    :class:`covert_env.cli.UsageError` (a ``ValueError``) naming it.
+    :class:`covert_env.cli.UsageError` (a ``ValueError``) naming it, and so do ``sb3:`` and ``rllib:`` specs
+    (pickled checkpoints) unless ``trust_checkpoint=True``.
     """
     from covert_env.cli import UsageError
 
@@ -228,7 +277,7 @@ def load_policy(spec: str, n_uavs: int) -> tuple[Any, dict]:
             raise UsageError(f"unknown action mode {mode!r} in policy spec {spec}@{mode} (use @unicycle or @waypoint)")
     if spec.startswith("sb3:"):
         with _extra("stable_baselines3", "train"), _extra("sb3_contrib", "train"), _extra("torch", "train"):
-            pol = load_sb3(spec[4:])
+            pol = load_sb3(spec[4:], trust_checkpoint=trust_checkpoint)
         settings = dict(pol.env_settings)
     elif spec.startswith(("mappo:", "pretrained:")):
         from training.pretrained import PRETRAINED_DIR, load_learned, pretrained_names
@@ -249,10 +298,13 @@ def load_policy(spec: str, n_uavs: int) -> tuple[Any, dict]:
     elif spec.startswith("rllib:"):
         if not (Path(spec[6:]) / "learner_group").is_dir():
             raise UsageError(f"no RLlib checkpoint at {spec[6:]} (expected a training.rllib_ppo checkpoint folder)")
+        from training.trust import require_trust
+
+        require_trust(spec[6:], "an RLlib checkpoint", trust_checkpoint)
         with _extra("ray", "rllib"):
             from training.rllib_ppo import load_policy as load_rllib
 
-            pol = load_rllib(spec[6:])
+            pol = load_rllib(spec[6:], trust_checkpoint=True)
         settings = dict(pol.env_settings)
     else:
         from baselines.policies import POLICIES, make_policy
@@ -450,6 +502,10 @@ def build_parser(prog: str = "python -m training.evaluate") -> argparse.Argument
                    help="first held-out scene seed, >= 0")
     p.add_argument("--out", default="outputs/leaderboard", help="output folder (git-ignored outputs/)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    p.add_argument("--trust-checkpoint", action="store_true",
+                   help="allow sb3: and rllib: specs: their files hold pickles, which run any code they carry when "
+                        "loaded; pass this only for files from a source you trust (mappo:, pretrained: and the "
+                        "built-in policies need no trust)")
     p.add_argument("--reuse", action="store_true",
                    help="reuse the per-episode results of built-in policies (dp, random, ...) cached in OUT/cache "
                         "by an earlier run with the same episodes, seed offset and team size (they are deterministic)")
@@ -485,23 +541,67 @@ def _check_team(n_uavs: int, seed: int) -> None:
         env.close()
 
 
+#: The files :func:`main` writes into ``--out`` (besides ``cache/``).
+OUTPUT_FILES = ("leaderboard.md", "leaderboard.csv", "episodes.csv", "comparison.png", "results.json")
+
+
+def read_cache(path: Path, args: argparse.Namespace) -> list[dict]:
+    """The per-episode rows cached at ``path`` by an earlier run (``--reuse``), checked against ``args``: one row
+    per held-out scene ``seed_offset + i`` with every leaderboard column a number. A damaged or foreign file is a
+    :class:`~covert_env.cli.UsageError` naming it and the first bad field."""
+    from covert_env.cli import UsageError
+
+    fix = "; delete it (it is rewritten) or run without --reuse"
+    try:
+        rows = read_run_json(path, "--reuse: cached results")
+    except UsageError as exc:
+        raise UsageError(f"{exc}{fix}") from None
+    where = f"--reuse: cached results {path}"
+    if not isinstance(rows, list) or len(rows) != args.episodes:
+        got = f"{len(rows)} rows" if isinstance(rows, list) else type(rows).__name__
+        raise UsageError(f"{where}: expected a list of {args.episodes} episode rows, got {got}{fix}")
+    for i, row in enumerate(rows):
+        if not isinstance(row, dict):
+            raise UsageError(f"{where}: row {i} must be a JSON object, got {type(row).__name__}{fix}")
+        seed = row.get("scene_seed")
+        if seed != args.seed_offset + i or isinstance(seed, bool):
+            raise UsageError(f"{where}: row {i} has scene_seed {seed!r}, expected {args.seed_offset + i}{fix}")
+        for key, _, _ in COLUMNS:
+            v = row.get(key)
+            if isinstance(v, bool) or not isinstance(v, (int, float)):
+                raise UsageError(f"{where}: row {i} field {key} must be a number, got {v!r}{fix}")
+    return rows
+
+
+def _cache_name(spec: str, args: argparse.Namespace) -> str:
+    """The cached results of built-in policy ``spec`` inside ``--out``: ``cache/<spec, episodes, seeds, team>.json``."""
+    key = f"{spec}__{args.episodes}__{args.seed_offset}__{args.n_uavs}".replace("/", "_").replace("@", "-")
+    return f"cache/{key}.json"
+
+
 def _main(args: argparse.Namespace, command: str) -> int:
     from covert_env.cli import UsageError, output_dir
 
     _check_team(args.n_uavs, args.seed_offset)
-    output_dir(args.out, create=False)
+    caches = {spec: _cache_name(spec, args) for spec in args.policies if not spec.startswith(LEARNED_PREFIXES)}
+    outputs = {"files": (*OUTPUT_FILES, *caches.values()), "folders": ("cache",) if caches else ()}
+    output_dir(args.out, create=False, **outputs)
     # Every spec is loaded before any evaluation: a bad one fails at once, not after the others have run.
     loaded = []
     for spec in args.policies:
         try:
-            group = [load_policy(part, args.n_uavs) for part in split_seeds(spec)]
+            group = [load_policy(part, args.n_uavs, trust_checkpoint=args.trust_checkpoint)
+                     for part in split_seeds(spec)]
         except UsageError as exc:
             raise UsageError(f"--policies: {exc}") from None
         if len({json.dumps(st, sort_keys=True) for _, st in group}) > 1:
             raise UsageError(f"--policies: the runs of {spec} need different env settings "
                              f"({[st for _, st in group]}); a seed group must share them")
         loaded.append((spec, group))
-    out = output_dir(args.out)
+    # Cached results are read and checked before any evaluation too.
+    reused = {spec: read_cache(Path(args.out) / name, args) for spec, name in caches.items()
+              if args.reuse and (Path(args.out) / name).exists()}
+    out = output_dir(args.out, **outputs)
     results: dict[str, dict] = {}
     for spec, group in loaded:
         pol, settings = group[0]
@@ -511,11 +611,10 @@ def _main(args: argparse.Namespace, command: str) -> int:
         while name in results:
             name += "'"
         t0 = time.perf_counter()
-        builtin = not spec.startswith(LEARNED_PREFIXES)
-        key = f"{spec}__{args.episodes}__{args.seed_offset}__{args.n_uavs}".replace("/", "_").replace("@", "-")
-        cache = out / "cache" / f"{key}.json"
-        if builtin and args.reuse and cache.exists():
-            rows = json.loads(cache.read_text())
+        builtin = spec in caches
+        cache = out / caches[spec] if builtin else None
+        if spec in reused:
+            rows = reused[spec]
         else:
             rows = []
             for i, (member, _) in enumerate(group):

@@ -4,8 +4,8 @@ The action is a node of the DP planner's waypoint lattice; ``env.action_masks()`
 slot and in the visible zone (eq. 10), and MaskablePPO never samples a masked node.
 
     OMP_NUM_THREADS=1 python -m training.maskable_ppo_single --total-timesteps 500000
-    python -m training.maskable_ppo_single --resume runs/<run>
-    python -m training.evaluate --n-uavs 1 --policies random@waypoint dp sb3:runs/<run>
+    python -m training.maskable_ppo_single --resume runs/<run> --trust-checkpoint
+    python -m training.evaluate --n-uavs 1 --policies random@waypoint dp sb3:runs/<run> --trust-checkpoint
 
 Outputs in ``runs/{env}__maskable_ppo_single__{seed}__{time}/`` (model.zip, vecnormalize.json, checkpoints/, tb/).
 """
@@ -66,6 +66,9 @@ class Args:
     """run folder name; empty: {env}__maskable_ppo_single__{seed}__{time}"""
     resume: str = ""
     """a run folder to continue from its newest checkpoint"""
+    trust_checkpoint: bool = False
+    """allow --resume to load the run's SB3 checkpoint (.zip), which holds pickles that run any code they carry:
+    only for a run from a source you trust"""
     torch_threads: int = 1
     """torch threads (1: 2 threads on 2 busy cores can be 50x slower)"""
     progress_bar: bool = True

@@ -4,11 +4,11 @@ One policy acts for every UAV of every env copy: :class:`training.vec_env.Parall
 ``n_copies x n_uavs`` agents into SB3 rows. Timesteps count agent-steps (rows), as in SB3.
 
     OMP_NUM_THREADS=1 python -m training.ppo_multi --recipe 3uav-ppo            # the documented recipe
-    python -m training.ppo_multi --recipe 3uav-ppo --resume runs/<run>          # continue from the last checkpoint
+    python -m training.ppo_multi --recipe 3uav-ppo --resume runs/<run> --trust-checkpoint   # from the last checkpoint
     tensorboard --logdir runs
 
 Outputs in ``runs/{env}__ppo_multi__{seed}__{time}/`` (see :mod:`training.common`). Evaluate with
-``python -m training.evaluate --policies random dp sb3:runs/<run>``.
+``python -m training.evaluate --policies random dp sb3:runs/<run> --trust-checkpoint``.
 """
 
 from __future__ import annotations
@@ -19,9 +19,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from training.common import (
-    latest_checkpoint,
     make_callbacks,
     parse_args,
+    resume_checkpoint,
     resumed_args,
     run_name,
     save_final_vecnormalize,
@@ -97,6 +97,9 @@ class Args:
     """run folder name; empty: {env}__ppo_multi__{seed}__{time}"""
     resume: str = ""
     """a run folder to continue from its newest checkpoint (same settings)"""
+    trust_checkpoint: bool = False
+    """allow --resume to load the run's SB3 checkpoint (.zip), which holds pickles that run any code they carry:
+    only for a run from a source you trust"""
     torch_threads: int = 1
     """torch threads (1: 2 threads on 2 busy cores can be 50x slower)"""
     progress_bar: bool = True
@@ -164,15 +167,18 @@ def _info_stats_callback(verbose: int):
 
 
 def train(args: Args) -> Path:
-    """Train (or resume) and return the run folder (holding model.zip, vecnormalize.json, args.json)."""
+    """Train (or resume) and return the run folder (holding model.zip, vecnormalize.json, args.json).
+    Resuming from an SB3 checkpoint (pickled) needs ``args.trust_checkpoint``."""
     setup_torch(args.torch_threads)
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import VecMonitor, VecNormalize
 
     from training.vec_env import load_vecnormalize, make_vec_env
 
+    ckpt = None
     if args.resume:
         run_dir = Path(args.resume)
+        ckpt = resume_checkpoint(run_dir, trust_checkpoint=args.trust_checkpoint)
         args = resumed_args(args, run_dir)
     else:
         run_dir = Path(args.runs_dir) / (args.run_name or run_name(args.env_id, ALGO, args.seed))
@@ -180,7 +186,6 @@ def train(args: Args) -> Path:
     save_run(run_dir, args, {"algo": ALGO, "sb3_class": "PPO", "multi_agent": True, "env_kwargs": ekw})
 
     venv = VecMonitor(make_vec_env(args.n_copies, ekw, reward_fn=shaped_reward(args.disguise_in_zone_only)))
-    ckpt = latest_checkpoint(run_dir) if args.resume else None
     if ckpt is not None:
         model_path, vn_path = ckpt
         venv = load_vecnormalize(vn_path, venv) if vn_path else venv

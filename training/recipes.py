@@ -3,7 +3,7 @@
 ``3uav-ppo`` -- the documented 3-UAV parameter-shared PPO recipe: trains in <= 60 minutes on 2 CPU cores.
 
     OMP_NUM_THREADS=1 python -m training.ppo_multi --recipe 3uav-ppo          # ~50 min wall clock, then saves
-    python -m training.evaluate --policies random hold-centre dp sb3:runs/<run> --episodes 20
+    python -m training.evaluate --policies random hold-centre dp sb3:runs/<run> --trust-checkpoint --episodes 20
 
 Why these settings:
 

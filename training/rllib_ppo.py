@@ -6,11 +6,12 @@ maps to the module ``shared_policy`` (parameter sharing, as in :mod:`training.pp
     PYTHONHASHSEED=0 OMP_NUM_THREADS=1 python -m training.rllib_ppo --iterations 200 --num-env-runners 2
     ray start --head                                        # or join an existing cluster:
     PYTHONHASHSEED=0 python -m training.rllib_ppo --address auto --num-env-runners 16
-    python -m training.rllib_ppo --resume runs/<run>/checkpoint --iterations 100
-    python -m training.evaluate --policies random dp rllib:runs/<run>/checkpoint
+    python -m training.rllib_ppo --resume runs/<run>/checkpoint --trust-checkpoint --iterations 100
+    python -m training.evaluate --policies random dp rllib:runs/<run>/checkpoint --trust-checkpoint
 
 Checkpoints: ``runs/{env}__rllib_ppo__{seed}__{time}/checkpoint`` (``Algorithm.save_to_path``), with
-``args.json`` beside it.
+``args.json`` beside it. They are pickled: ``--resume`` and :func:`load_policy` load one only with
+``--trust-checkpoint`` / ``trust_checkpoint=True`` (:mod:`training.trust`).
 
 Inference without Ray running (what the evaluation harness does, :func:`load_policy`): the checkpoint holds the
 RLModule's own state under ``learner_group/learner/rl_module/shared_policy``; ``RLModule.from_checkpoint`` on
@@ -50,6 +51,7 @@ from pathlib import Path
 import numpy as np
 
 from training.common import parse_args, resumed_args, run_name, save_run, setup_torch
+from training.trust import require_trust
 
 ALGO = "rllib_ppo"
 ENV_NAME = "covert_sensing_v1"
@@ -108,7 +110,10 @@ class Args:
     run_name: str = ""
     """run folder name; empty: {env}__rllib_ppo__{seed}__{time}"""
     resume: str = ""
-    """a checkpoint folder to continue from"""
+    """a checkpoint folder to continue from (pickled: needs --trust-checkpoint)"""
+    trust_checkpoint: bool = False
+    """allow --resume to load the checkpoint, which is pickled and runs any code it carries: only for a
+    checkpoint from a source you trust"""
     progress_bar: bool = True
     """show a tqdm progress bar over iterations"""
 
@@ -150,7 +155,10 @@ def build_config(args: Args):
 
 
 def train(args: Args) -> Path:
-    """Train and return the checkpoint folder."""
+    """Train and return the checkpoint folder. ``args.resume`` (a pickled checkpoint) needs
+    ``args.trust_checkpoint``."""
+    if args.resume:
+        require_trust(args.resume, "an RLlib checkpoint", args.trust_checkpoint)
     setup_torch(1)
     import ray
     from ray.tune.registry import register_env
@@ -239,22 +247,32 @@ class RLlibPolicy:
         return out[single] if single is not None else out
 
 
-def load_policy(path: str | Path) -> RLlibPolicy:
-    """Load the shared policy of a :mod:`training.rllib_ppo` checkpoint for inference, without starting Ray."""
-    import torch
-    from ray.rllib.core.rl_module.rl_module import RLModule
+def load_policy(path: str | Path, *, trust_checkpoint: bool = False) -> RLlibPolicy:
+    """Load the shared policy of a :mod:`training.rllib_ppo` checkpoint for inference, without starting Ray.
+    The checkpoint is pickled: refused unless ``trust_checkpoint=True`` (:func:`training.trust.require_trust`).
+    The env settings come from ``args.json`` beside it, checked before the checkpoint is loaded."""
+    require_trust(path, "an RLlib checkpoint", trust_checkpoint)
+    from covert_env.cli import UsageError
+    from training.evaluate import read_run_json, run_env
 
-    torch.set_num_threads(1)
     path = Path(path)
     module_dir = path / "learner_group" / "learner" / "rl_module" / MODULE_ID
     if not module_dir.exists():
         raise FileNotFoundError(f"no RLlib module at {module_dir} (expected a training.rllib_ppo checkpoint)")
+    meta_path = path.parent / "args.json"
+    meta = read_run_json(meta_path, "run arguments") if meta_path.exists() else {}
+    where = str(meta_path) if meta_path.exists() else f"{path} (no args.json beside it)"
+    if not isinstance(meta, dict):
+        raise UsageError(f"{where}: must be a JSON object (a run's arguments), got {type(meta).__name__}")
+    settings, env = run_env(meta.get("env_kwargs", {}), where, n_uavs=3)
+    env.close()
+
+    import torch
+    from ray.rllib.core.rl_module.rl_module import RLModule
+
+    torch.set_num_threads(1)
     module = RLModule.from_checkpoint(str(module_dir))
     module.eval()
-    meta_path = path.parent / "args.json"
-    meta = json.loads(meta_path.read_text()) if meta_path.exists() else {}
-    ekw = meta.get("env_kwargs", {})
-    settings = {"n_uavs": int(ekw.get("n_uavs", 3)), "action_mode": ekw.get("action_mode", "unicycle")}
     return RLlibPolicy(module, settings, name=f"rllib_ppo ({path.parent.name})")
 
 

@@ -1,8 +1,8 @@
 """Single-UAV SAC on ``gym.make("covert_env/CovertSensing-v1")`` (SB3, continuous (v, omega) actions).
 
     OMP_NUM_THREADS=1 python -m training.sac_single --total-timesteps 300000
-    python -m training.sac_single --resume runs/<run>                 # continue from the newest checkpoint
-    python -m training.evaluate --n-uavs 1 --policies random dp sb3:runs/<run>
+    python -m training.sac_single --resume runs/<run> --trust-checkpoint   # continue from the newest checkpoint
+    python -m training.evaluate --n-uavs 1 --policies random dp sb3:runs/<run> --trust-checkpoint
 
 Outputs in ``runs/{env}__sac_single__{seed}__{time}/`` (model.zip, vecnormalize.json, checkpoints/, tb/, args.json).
 The replay buffer is not checkpointed (it is large); ``--resume`` restarts with an empty buffer and refills it
@@ -65,6 +65,9 @@ class Args:
     """run folder name; empty: {env}__sac_single__{seed}__{time}"""
     resume: str = ""
     """a run folder to continue from its newest checkpoint"""
+    trust_checkpoint: bool = False
+    """allow --resume to load the run's SB3 checkpoint (.zip), which holds pickles that run any code they carry:
+    only for a run from a source you trust"""
     torch_threads: int = 1
     """torch threads (1: 2 threads on 2 busy cores can be 50x slower)"""
     progress_bar: bool = True

@@ -26,7 +26,7 @@ Works under ``VecMonitor`` (episode statistics per agent row) and ``VecNormalize
 VecNormalize statistics are saved as JSON, not pickled (:func:`save_vecnormalize`, :func:`load_vecnormalize`,
 :func:`read_vecnormalize`): a run folder holds ``vecnormalize.json`` beside ``model.zip``. Loading a file never
 runs code from it; ``.pkl`` statistics of older runs are refused (convert a trusted one explicitly with
-``python -m training.convert_vecnormalize PATH``).
+``python -m training.convert_vecnormalize --trust-checkpoint PATH``).
 """
 
 from __future__ import annotations
@@ -257,17 +257,17 @@ def _refuse_pickle(path: Path) -> None:
         raise ValueError(
             f"{path}: VecNormalize statistics pickled by an older covert_env; they are not loaded, since unpickling "
             f"a file can run any code. If you trust the file, convert it once with "
-            f"`python -m training.convert_vecnormalize {path}` (writes {path.with_suffix('.json').name} beside it)")
+            f"`python -m training.convert_vecnormalize --trust-checkpoint {path}` (writes "
+            f"{path.with_suffix('.json').name} beside it)")
 
 
 def read_vecnormalize(path: str | Path) -> NormStats:
     """Read VecNormalize statistics written by :func:`save_vecnormalize` (``ValueError`` naming the file if not)."""
     path = Path(path)
     _refuse_pickle(path)
-    try:
-        d = json.loads(path.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
-        raise ValueError(f"{path}: not a VecNormalize statistics JSON file ({exc})") from None
+    from covert_env.config import read_json
+
+    d = read_json(path, "VecNormalize statistics")          # a ValueError naming the file, or FileNotFoundError
     if not isinstance(d, dict) or d.get("format") != VECNORMALIZE_FORMAT:
         raise ValueError(f"{path}: not a VecNormalize statistics file (no \"format\": \"{VECNORMALIZE_FORMAT}\")")
     if d.get("version") != _VN_VERSION:

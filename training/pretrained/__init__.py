@@ -24,15 +24,17 @@ Deterministic acting (the harness) takes the most likely node, or the clipped me
 
 from __future__ import annotations
 
-import json
+import zipfile
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["node_features", "NumpyActor", "LearnedPolicy", "load_learned", "PRETRAINED_DIR", "pretrained_names",
-           "N_OWN_FEATURES"]
+__all__ = ["node_features", "NumpyActor", "LearnedPolicy", "load_learned", "check_weights", "PRETRAINED_DIR",
+           "pretrained_names", "N_OWN_FEATURES"]
 
 PRETRAINED_DIR = Path(__file__).resolve().parent
+#: The largest weights file :func:`load_learned` unpacks (bytes of arrays): the shipped actor holds well under 1 MB.
+MAX_WEIGHTS_BYTES = 256 * 2**20
 #: Features per (agent, node) besides the U - 1 teammate distances (see :func:`node_features`).
 N_OWN_FEATURES = 9
 
@@ -163,28 +165,90 @@ def pretrained_names() -> list[str]:
 
 def load_learned(path: str | Path) -> LearnedPolicy:
     """A :class:`LearnedPolicy` from weights (``.npz``) and their card (the ``.json`` beside), or a run folder of
-    :mod:`training.mappo` (its ``model.npz``/``model.json``). Raises ``ValueError`` naming the file on a missing or
-    malformed file."""
+    :mod:`training.mappo` (its ``model.npz``/``model.json``). Raises ``ValueError`` naming the file and the field on
+    a missing or malformed file: the card's fields, the env its ``env_kwargs`` build, and every weight's shape
+    against that env's observation and action sizes (:func:`check_weights`), so that a wrong file fails here and
+    not inside an episode."""
+    from training.evaluate import read_run_json, run_env
+
     path = Path(path)
     npz = path / "model.npz" if path.is_dir() else path
     card_path = npz.with_suffix(".json")
     if not npz.is_file() or not card_path.is_file():
         raise ValueError(f"no learned actor at {path} (expected NAME.npz with NAME.json beside it, or a "
                          "training.mappo run folder holding model.npz and model.json)")
+    card = read_run_json(card_path, "model card")
     try:
-        card = json.loads(card_path.read_text())
         spec, ekw = card["actor"], card["env_kwargs"]
-        if spec.get("head") not in ("node", "flat", "gaussian") or ekw.get("action_mode") not in ("unicycle",
-                                                                                                  "waypoint"):
+        if not isinstance(spec, dict) or spec.get("head") not in ("node", "flat", "gaussian") \
+                or not isinstance(ekw, dict) or ekw.get("action_mode") not in ("unicycle", "waypoint"):
             raise KeyError("actor.head / env_kwargs.action_mode")
-    except (UnicodeDecodeError, json.JSONDecodeError, KeyError, TypeError) as exc:
+    except (KeyError, TypeError) as exc:
         raise ValueError(f"{card_path}: not a model card of training.mappo ({exc})") from None
+    for key, lo in (("separation_shield", 0.0), ("shield_end_margin", 0.0)):
+        v = card.get(key)
+        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v)
+                              or v < lo or (key == "separation_shield" and v == 0)):
+            allowed = "a number > 0" if key == "separation_shield" else "a number >= 0"
+            raise ValueError(f"{card_path}: {key} must be null or {allowed}, got {v!r}")
+    _, env = run_env(ekw, str(card_path))
+    try:
+        with zipfile.ZipFile(npz) as z:                         # sizes from the zip's directory, nothing unpacked
+            unpacked = sum(info.file_size for info in z.infolist())
+    except (OSError, zipfile.BadZipFile) as exc:
+        raise ValueError(f"{npz}: not a weights file ({exc})") from None
+    if unpacked > MAX_WEIGHTS_BYTES:
+        raise ValueError(f"{npz}: {unpacked} bytes of arrays, more than the {MAX_WEIGHTS_BYTES} a weights file may "
+                         "hold")
     try:
         with np.load(npz, allow_pickle=False) as data:
             params = {k.removeprefix("actor."): data[k] for k in data.files if k.startswith("actor.")}
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError, EOFError) as exc:
         raise ValueError(f"{npz}: not a weights file ({exc})") from None
+    agent = env.possible_agents[0]
+    check_weights(params, spec, obs_dim=env.observation_space(agent).shape[0], n_uavs=len(env.possible_agents),
+                  n_actions=int(getattr(env.action_space(agent), "n", 2)), where=str(npz))
+    env.close()
     actor = NumpyActor(params, spec)
     label = card.get("algorithm", "mappo")
     return LearnedPolicy(actor, card, name=f"{label} ({path.stem if not path.is_dir() else path.name})")
 
+
+def check_weights(params: dict[str, np.ndarray], spec: dict, *, obs_dim: int, n_uavs: int, n_actions: int,
+                  where: str) -> None:
+    """``ValueError`` naming ``where`` and the parameter unless ``params`` form the actor of ``spec`` (its ``head``
+    and ``agent_id``) for an env with observations of ``obs_dim``, ``n_uavs`` UAVs and ``n_actions`` lattice nodes
+    (waypoint mode; 2 in unicycle mode): real finite arrays, each layer's input the previous layer's output."""
+    for k, v in params.items():
+        if v.dtype.kind not in "fiu":
+            raise ValueError(f"{where}: actor.{k} must hold numbers, got dtype {v.dtype}")
+        if not np.all(np.isfinite(v)):
+            raise ValueError(f"{where}: actor.{k} holds non-finite values")
+
+    def need(key: str, shape: tuple, why: str) -> np.ndarray:
+        if key not in params:
+            raise ValueError(f"{where}: actor.{key} is missing ({spec['head']} head)")
+        got = params[key].shape
+        if len(got) != len(shape) or any(e is not None and g != e for g, e in zip(got, shape, strict=False)):
+            text = "(" + ", ".join("*" if e is None else str(e) for e in shape) + ("," if len(shape) == 1 else "") + ")"
+            raise ValueError(f"{where}: actor.{key} has shape {got}, expected {text} ({why})")
+        return params[key]
+
+    width = obs_dim + (n_uavs if spec.get("agent_id") else 0)
+    why = f"observations of {obs_dim} values" + (f" + {n_uavs} agent-id inputs" if spec.get("agent_id") else "")
+    for i in sorted({int(k.split(".")[1]) for k in params if k.startswith("trunk.") and k.split(".")[1].isdigit()}):
+        w = need(f"trunk.{i}.weight", (None, width), why)
+        need(f"trunk.{i}.bias", (w.shape[0],), f"trunk.{i}.weight has {w.shape[0]} outputs")
+        width, why = w.shape[0], f"trunk.{i} has {w.shape[0]} outputs"
+    if spec["head"] == "node":
+        n_feat = N_OWN_FEATURES + n_uavs - 1
+        h = need("node_obs.weight", (None, width), why).shape[0]
+        need("node_obs.bias", (h,), f"node_obs.weight has {h} outputs")
+        need("node_feat.weight", (h, n_feat), f"{n_feat} node features for {n_uavs} UAVs, node_obs has {h} outputs")
+        need("node_out.weight", (1, h), f"node_obs has {h} outputs")
+        need("node_out.bias", (1,), "one logit per node")
+    else:
+        key, n = ("flat", n_actions) if spec["head"] == "flat" else ("mean", 2)
+        what = f"{n} lattice nodes" if key == "flat" else "2 action components (v, omega)"
+        need(f"{key}.weight", (n, width), f"{what}; {why}")
+        need(f"{key}.bias", (n,), what)
