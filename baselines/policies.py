@@ -18,7 +18,7 @@ Policies:
 * :class:`DPPolicy` -- the paper's DP planner (:mod:`baselines.dp`), shadow-aware or shadow-blind, with
   the team negotiation. In waypoint mode its action is the planned node, exactly the move the planner
   makes (the env's lattice is the planner's node set), so an env rollout equals
-  :func:`baselines.reproduce.rollout` for the same scene. In unicycle mode see :func:`arc_action`.
+  :func:`baselines.rollout.rollout` for the same scene. In unicycle mode see :func:`arc_action`.
 * :class:`RandomPolicy` -- uniform over the allowed waypoints (the action mask), or uniform in the box.
 * :class:`HoldZoneCentrePolicy` -- heads for the centre of the feasible zone behind the target, every slot:
   covert-naive (no disguise) but always in the zone when it can be reached.

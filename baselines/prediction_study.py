@@ -18,7 +18,7 @@ Per UAV-slot, against the true target:
 
 Eq. 5 with r_u >= b guarantees the first (up to the heading change between predicted and true position on a
 curved road, at most R2 * b * max curvature); the widened shadows guarantee LoS at slot times on feasible moves.
-Every rate comes with a 95 % percentile bootstrap interval over the scenes (:func:`baselines.reproduce.bootstrap_ci`).
+Every rate comes with a 95 % percentile bootstrap interval over the scenes (:func:`baselines.intervals.bootstrap_ci`).
 
 Run: ``covert-env reproduce --out DIR --prediction-study`` (writes ``prediction_study.md``,
 ``prediction_study.json`` and ``fig_prediction.png``), or ``python -m baselines.prediction_study``.
@@ -32,6 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
+from baselines.intervals import bootstrap_ci
+from baselines.rollout import rollout
 from covert_env.config import Config
 from covert_env.metrics import slot_quantities
 from covert_env.scenario import Scenario
@@ -73,8 +75,6 @@ def fly(kind: str, seed: int, config: Config, r_u: float, los_margin: float | No
     """One scene flown by the shadow-aware DP team with uncertainty radius ``r_u`` and ``los_margin``: the counts
     of :data:`COUNTS` and the largest zone distance of a planned move. The world (road, terrain, true track,
     starts) is drawn with r_u = 0 whatever ``r_u``, so the planners fly the same scene."""
-    from baselines.reproduce import rollout
-
     world = _scene(kind, seed, config.replace(r_u=0.0))
     cfg = config.replace(r_u=float(r_u))
     sc = Scenario(cfg, world.terrain, world.track, world.uav_xy, world.uav_theta, name=world.name)
@@ -106,8 +106,6 @@ def prediction_study(config: Config | None = None, *, bound: float = BOUND, scen
         jobs: worker processes (spawned; 1 runs in this process).
         compared: (label, r_u, los_margin) triples instead of :func:`variants`.
     """
-    from baselines.reproduce import bootstrap_ci
-
     base = (config or Config()).replace(n_uavs=int(n_uavs), prediction_error=float(bound))
     compared = tuple(compared) if compared is not None else variants(bound)
     tasks = [(len(scenes) * v + s, kind, int(seed), base.to_dict(), r_u, margin, int(n_slots))

@@ -51,11 +51,36 @@ from pathlib import Path
 
 import numpy as np
 
-from baselines.dp import DPPlanner, DPTeamPlanner
+from baselines.intervals import BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, bootstrap_ci
+from baselines.prediction_study import write_study
+from baselines.rollout import rollout
+from covert_env.command_line import (
+    MAX_JOBS,
+    MAX_SCENES,
+    UsageError,
+    int_range,
+    load_config,
+    output_dir,
+    positive_int,
+    run_main,
+)
 from covert_env.config import Config
-from covert_env.engine import Engine
 from covert_env.metrics import episode_metrics, slot_quantities
+from covert_env.render import (
+    TERRAIN_COLOR,
+    UAV_COLORS,
+    draw_3d_view,
+    draw_top_view,
+    episode_frames,
+    fill_geometry,
+    outline_geometry,
+    save_episode_gif,
+    shadow_share,
+    zones_at,
+)
 from covert_env.scenario import Scenario
+from covert_env.visibility import line_of_sight
+from covert_env.zone import feasible_zone, to_world, zone_lattice
 
 __all__ = ["HELDOUT_SEED_BASE", "METHODS", "RunSpec", "bootstrap_ci", "figure_slot", "main", "make_scenario",
            "most_shadowed_scenes", "rollout", "run", "write_gif", "zone_shadow_shares"]
@@ -101,50 +126,8 @@ QUICK_SLOTS = 15
 QUICK_SCENES = 2
 QUICK_POOL = 20
 #: Percentile bootstrap over scenes: resamples and seed (fixed: metrics.md is reproducible).
-BOOTSTRAP_RESAMPLES = 10_000
-BOOTSTRAP_SEED = 0
-
-
-def bootstrap_ci(values, stat=None, *, level: float = 0.95, n_resamples: int = BOOTSTRAP_RESAMPLES,
-                 seed: int = BOOTSTRAP_SEED) -> tuple[float, float]:
-    """Percentile bootstrap confidence interval of ``stat`` over the rows of ``values`` (one row per scene).
-
-    Draws ``n_resamples`` samples of the n rows with replacement (rows stay whole, so paired quantities such as
-    (aware, blind) of one scene are resampled together), evaluates ``stat`` on each and returns the
-    ``(1 - level) / 2`` and ``(1 + level) / 2`` percentiles.
-
-    Args:
-        values: (n,) or (n, ...) array; row i belongs to scene i.
-        stat: maps a (B, n, ...) array of B resamples to (B,) statistics; default: the mean over the scenes.
-        level: confidence level in (0, 1).
-        n_resamples: number of bootstrap resamples B.
-        seed: seed of the resampling (numpy's default_rng).
-
-    Returns:
-        (low, high); (nan, nan) with no scene; (s, s) with one scene (s = ``stat`` of it: no spread to estimate).
-    """
-    x = np.asarray(values, dtype=float)
-    if not 0.0 < level < 1.0:
-        raise ValueError(f"level must be in (0, 1), got {level}")
-    if stat is None:
-        def stat(sample):
-            return sample.mean(axis=1)
-    n = len(x)
-    if n == 0:
-        return float("nan"), float("nan")
-    if n == 1:
-        s = float(np.asarray(stat(x[None]))[0])
-        return s, s
-    idx = np.random.default_rng(seed).integers(0, n, size=(int(n_resamples), n))
-    stats = np.asarray(stat(x[idx]), dtype=float)
-    lo, hi = np.percentile(stats, [50 * (1 - level), 50 * (1 + level)])
-    return float(lo), float(hi)
-
-
 def zone_shadow_shares(scenario: Scenario, slots) -> np.ndarray:
     """Share of the feasible zone in shadow at each of ``slots`` (:func:`covert_env.render.shadow_share`)."""
-    from covert_env.render import shadow_share
-
     return np.array([shadow_share(scenario, int(k)) for k in slots])
 
 
@@ -172,40 +155,6 @@ def figure_slot(blind_los: np.ndarray, shares: np.ndarray) -> int:
     blocked = (~np.asarray(blind_los, bool)).sum(axis=1)
     order = np.lexsort((-np.asarray(shares), -blocked))    # last key first: most blocked, then most shadow
     return int(order[0]) + 1
-
-
-def rollout(scenario: Scenario, *, shadow_aware: bool = True, heading: str = "inherited", heading_bins: int = 16,
-            check_path: bool = False, max_rounds: int = 5, separation_margin: float = 0.5,
-            n_slots: int | None = None, los_margin: float | None = None) -> dict:
-    """Fly the DP team planner through a scenario on an :class:`Engine` (one team replan per slot).
-
-    This is what :class:`baselines.policies.DPPolicy` does through the waypoint environment; the first
-    waypoint of every UAV's plan is handed to the engine, which flies the manoeuvre. ``los_margin``: see
-    :class:`DPPlanner` (default: r_u under a prediction error, else 0; the possible true target positions
-    are taken along the scenario's road).
-
-    Returns:
-        dict with ``engine`` (finished), ``trajectory``, per-slot arrays ``team_time`` (s), ``rounds``,
-        ``conflicts`` and ``status`` ((T, U) strings), and ``planner`` (the :class:`DPPlanner`).
-    """
-    planner = DPPlanner(scenario.config, scenario.terrain, shadow_aware=shadow_aware, heading=heading,
-                        heading_bins=heading_bins, check_path=check_path, los_margin=los_margin,
-                        road=scenario.track.road)
-    team = DPTeamPlanner(planner, max_rounds=max_rounds, separation_margin=separation_margin)
-    eng = Engine(scenario)
-    t_max = scenario.config.n_slots if n_slots is None else int(n_slots)
-    times, rounds, conflicts, status = [], [], [], []
-    while eng.k < t_max:
-        plan = team.plan_engine(eng)
-        u = len(plan.plans)
-        eng.step(waypoints=plan.waypoints, infeasible=plan.infeasible, decision_time=np.full(u, plan.time / u))
-        times.append(plan.time)
-        rounds.append(plan.rounds)
-        conflicts.append(plan.conflicts)
-        status.append([p.status for p in plan.plans])
-    return {"engine": eng, "trajectory": eng.trajectory(), "team_time": np.array(times),
-            "rounds": np.array(rounds), "conflicts": np.array(conflicts), "status": np.array(status),
-            "planner": planner}
 
 
 def run(spec: RunSpec, config: Config | None = None) -> dict:
@@ -273,9 +222,6 @@ def _target_frame(xy: np.ndarray, q: np.ndarray, phi: np.ndarray) -> np.ndarray:
 
 def _fig_trajectories(plt, sc: Scenario, aw: dict, bl: dict, u: int, fig_no: int, config: Config):
     """Figs. 8 / 12: top views (one per method), a cropped 3D view and the positions in the target's frame."""
-    from covert_env.render import TERRAIN_COLOR, UAV_COLORS, draw_3d_view, fill_geometry, outline_geometry
-    from covert_env.zone import feasible_zone
-
     k_end = aw["series"]["uav_xy"].shape[0] - 1
     tq = aw["series"]["target_xyz"]
     pts = np.vstack([tq[:, :2]] + [r["series"]["uav_xy"].reshape(-1, 2) for r in (aw, bl)])
@@ -360,10 +306,6 @@ def _fig_los(plt, aw: dict, bl: dict, u: int, fig_no: int):
 
 def _fig_zones(plt, sc: Scenario, aw: dict, bl: dict, u: int, fig_no: int, config: Config):
     """Figs. 10 / 14: both methods at the slot of :func:`figure_slot`, zoomed on the zone."""
-    from covert_env.render import draw_top_view, zones_at
-    from covert_env.visibility import line_of_sight
-    from covert_env.zone import to_world, zone_lattice
-
     t = bl["series"]["los"].shape[0]
     shares = zone_shadow_shares(sc, range(1, t + 1))
     k = figure_slot(bl["series"]["los"], shares)
@@ -751,7 +693,6 @@ def _markdown(rows: list[dict], records: list[dict], config: Config, elapsed: fl
 
 # ===================================================================================== main
 def build_parser(prog: str = "covert-env reproduce") -> argparse.ArgumentParser:
-    from covert_env.cli import MAX_JOBS, MAX_SCENES, int_range, positive_int
 
     p = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n")[0])
     p.add_argument("--out", required=True, help="output folder (created)")
@@ -799,7 +740,6 @@ def specs_for(scenes, n_slots: int, heading: str = "inherited", path_uavs=(1,)) 
 
 
 def main(argv: list[str] | None = None, prog: str = "covert-env reproduce") -> int:
-    from covert_env.cli import run_main
 
     parser = build_parser(prog)
     args = parser.parse_args(argv)
@@ -807,7 +747,6 @@ def main(argv: list[str] | None = None, prog: str = "covert-env reproduce") -> i
 
 
 def _main(args: argparse.Namespace) -> int:
-    from covert_env.cli import UsageError, load_config, output_dir
 
     config = load_config(args.config) if args.config else Config()
     n_scenes = args.scenes if args.scenes is not None else (QUICK_SCENES if args.quick else 20)
@@ -850,8 +789,6 @@ def _main(args: argparse.Namespace) -> int:
         print(f"wrote {out}/sensitivity.md in {time.perf_counter() - t2:.0f} s", file=sys.stderr)
     print((out / "metrics.md").read_text().split("## The paper's claims")[1].split("Columns:")[0].strip())
     if args.prediction_study:
-        from baselines.prediction_study import write_study
-
         t3 = time.perf_counter()
         print(write_study(out, config, quick=args.quick, jobs=jobs, figure=not args.no_figures))
         print(f"wrote {out}/prediction_study.md and .json in {time.perf_counter() - t3:.0f} s", file=sys.stderr)
@@ -964,8 +901,6 @@ def write_gif(path, *, n_uavs: int = 3, method: str = "aware", n_slots: int | No
               size: int = 420, dpi: int = 70, fps: int = 6, config: Config | None = None) -> dict:
     """Fly the DP team on the paper scene and write the animation (:func:`covert_env.render.episode_frames`,
     :func:`covert_env.render.save_episode_gif`). Returns {"frames", "bytes", "slots"}."""
-    from covert_env.render import episode_frames, save_episode_gif
-
     config = config or Config()
     sc = make_scenario("paper", 0, n_uavs, config)
     out = rollout(sc, n_slots=n_slots, **METHODS[method])

@@ -21,6 +21,8 @@ from typing import Any
 
 import numpy as np
 
+from covert_env.zone import MAX_LATTICE, lattice_size, zone_capacity
+
 __all__ = ["Config", "check_coordinates", "polytope_capacity", "scene_road_length", "MAX_COORDINATE", "MAX_HORIZON",
            "MAX_LATTICE", "MAX_LENGTH", "MAX_N_POLYTOPES", "MAX_N_SLOTS", "MAX_N_UAVS", "MAX_ROUTE", "MAX_VERTICES",
            "MAX_WEIGHT"]
@@ -303,9 +305,6 @@ squares and areas overflow; check it with :func:`check_coordinates` where coordi
 MAX_ROUTE = 200_000.0
 """Longest target route (m), ``target_speed * delta * (n_slots + horizon + 1)``: the road is sampled
 every 2 m, so this bounds its arrays (and the terrain generator's search along it)."""
-MAX_LATTICE = 200_000
-"""Most nodes of the waypoint lattice's bounding box (:func:`covert_env.zone.lattice_size`), about
-``(2 r2 sin(mu / 2) / grid_step) * ((r2 - r1 cos(mu / 2)) / grid_step)`` for mu <= pi; 975 by default."""
 
 #: Upper bounds of the real fields (mu, eta and lam have their own checks); lengths not listed here are bounded
 #: by MAX_LENGTH.
@@ -419,8 +418,6 @@ def _check_sizes(c: Config) -> None:
         raise ValueError(f"Config: the target's route target_speed * delta * (n_slots + horizon + 1) = "
                          f"{c.target_speed:g} * {c.delta:g} * {c.n_slots + c.horizon + 1} = {route:.4g} m exceeds "
                          f"{MAX_ROUTE:g} m; reduce target_speed, delta or n_slots")
-    from covert_env.zone import lattice_size
-
     size = lattice_size(c.r1, c.r2, c.mu, c.grid_step)
     if size > MAX_LATTICE:
         raise ValueError(f"Config: the waypoint lattice would have {size:.4g} nodes (r1={c.r1:g}, r2={c.r2:g}, "
@@ -481,8 +478,6 @@ def _check_terrain(c: Config) -> None:
 def _check_zone(c: Config) -> None:
     """The eroded zone must hold a lattice node (the waypoint actions, the DP's states), and room for the
     team's starts: ``n_uavs`` nodes at least ``d_safe1`` apart (see :meth:`Scenario.sample_starts`)."""
-    from covert_env.zone import zone_capacity
-
     nodes, spread = zone_capacity(c.r1, c.r2, c.mu, c.grid_step, c.r_u, c.d_safe1, c.n_uavs)
     zone = f"r1={c.r1:g}, r2={c.r2:g}, mu={c.mu:g}, r_u={c.r_u:g}, grid_step={c.grid_step:g}"
     if nodes == 0:

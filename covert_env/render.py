@@ -7,12 +7,11 @@ polytopes, the road and the target, and a top view of the feasible zone (eq. 5),
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 
-if TYPE_CHECKING:  # pragma: no cover
-    from covert_env.scenario import Scenario
+from covert_env.scenario import Scenario
+from covert_env.visibility import line_of_sight, shadow_polygons
+from covert_env.zone import feasible_zone, visible_zone
 
 __all__ = ["scene_figure", "draw_top_view", "draw_3d_view", "zones_at", "shadow_share", "EpisodeRenderer",
            "fill_geometry", "outline_geometry",
@@ -56,9 +55,6 @@ def zones_at(scenario: Scenario, k: int, q=None, phi: float | None = None):
     """(feasible zone, shadow polygons, visible zone) at slot k, as used by the pictures.
 
     ``q`` (3,) and ``phi`` override the target's pose (e.g. between slot times)."""
-    from covert_env.visibility import shadow_polygons
-    from covert_env.zone import feasible_zone, visible_zone
-
     c = scenario.config
     q = scenario.track.position(k) if q is None else np.asarray(q, float)
     phi = float(scenario.track.heading(k)) if phi is None else float(phi)
@@ -108,8 +104,6 @@ def draw_top_view(ax, scenario: Scenario, k: int, uav_xy=None, trails=None, lege
     if uav_xy is not None:
         pts = np.asarray(uav_xy, float).reshape(-1, 2)
         if los_lines:
-            from covert_env.visibility import line_of_sight
-
             clear = line_of_sight(scenario.terrain, pts, c.altitude, q)
             for p, ok in zip(pts, clear, strict=True):
                 ax.plot([p[0], q[0]], [p[1], q[1]], color="green" if ok else "red", lw=1.4 if ok else 2.0,

@@ -20,7 +20,7 @@ from functools import cached_property
 import numpy as np
 from shapely.geometry import LineString
 
-from covert_env.config import check_coordinates
+from covert_env.config import MAX_N_SLOTS, MAX_ROUTE, check_coordinates
 
 __all__ = ["Road", "TargetTrack", "speed_noise_offsets"]
 
@@ -227,8 +227,6 @@ class TargetTrack:
     def constant(cls, road: Road, speed: float, n_slots: int, *, delta: float = 1.0, z: float = 1.5,
                  s0: float = 0.0) -> TargetTrack:
         """A target at constant ``speed`` for ``n_slots`` slots."""
-        from covert_env.config import MAX_N_SLOTS, MAX_ROUTE
-
         # The bounds of Config: n_slots + horizon + 1 slots of at most MAX_N_SLOTS + MAX_HORIZON + 1, over a
         # route of at most MAX_ROUTE metres (the arrays are per slot; a typo must not be a MemoryError).
         most = 2 * MAX_N_SLOTS

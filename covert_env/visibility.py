@@ -42,8 +42,10 @@ from functools import cached_property
 import numpy as np
 import shapely
 from shapely.geometry import Polygon
+from shapely.geometry.base import BaseGeometry
 
 from covert_env.terrain import Terrain
+from covert_env.zone import ARC_RESOLUTION, feasible_zone_cfg, visible_zone
 
 __all__ = [
     "LOS_TOLERANCE",
@@ -57,6 +59,7 @@ __all__ = [
     "line_of_sight",
     "line_of_sight_cfg",
     "line_of_sight_rows",
+    "visible_zone_cfg",
     "passes_near",
     "shadow_h_min",
     "shadow_polygons",
@@ -764,3 +767,13 @@ def shadow_union_cfg(terrain: Terrain, target_xyz, config):
     """:func:`shadow_union` with the config's altitude, ``h_min`` and radius ``r2 + shadow_margin``."""
     return shadow_union(terrain, target_xyz, config.altitude, _radius_cfg(config), config.h_min)
 
+
+def visible_zone_cfg(terrain, target_xyz, phi: float, config, *, uncertain: bool = True,
+                     arc_resolution: float = ARC_RESOLUTION) -> BaseGeometry:
+    """Eq. 10 in one call: the eroded zone minus the shadows, with ``config``'s parameters.
+
+    Shadows use ``config.altitude``, ``config.h_min`` and radius ``r2 + shadow_margin``.
+    """
+    q = np.asarray(target_xyz, dtype=float)
+    zone = feasible_zone_cfg(q[:2], phi, config, uncertain=uncertain, arc_resolution=arc_resolution)
+    return visible_zone(zone, shadow_union_cfg(terrain, q, config))

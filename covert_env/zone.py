@@ -42,6 +42,10 @@ from shapely.geometry.base import BaseGeometry
 
 from covert_env.angles import wrap_angle
 
+MAX_LATTICE = 200_000
+"""Most nodes of the waypoint lattice's bounding box (:func:`lattice_size`), about
+``(2 r2 sin(mu / 2) / grid_step) * ((r2 - r1 cos(mu / 2)) / grid_step)`` for mu <= pi; 975 by default."""
+
 __all__ = [
     "ARC_RESOLUTION",
     "arc_error",
@@ -55,7 +59,6 @@ __all__ = [
     "lattice_offsets_cfg",
     "to_world",
     "visible_zone",
-    "visible_zone_cfg",
     "zone_distance",
     "zone_distance_cfg",
     "zone_mask", "zone_lattice", "lattice_size", "spread_nodes", "zone_capacity"]
@@ -222,19 +225,6 @@ def visible_zone(zone: BaseGeometry, shadows) -> BaseGeometry:
     return zone.difference(shadows)
 
 
-def visible_zone_cfg(terrain, target_xyz, phi: float, config, *, uncertain: bool = True,
-                     arc_resolution: float = ARC_RESOLUTION) -> BaseGeometry:
-    """Eq. 10 in one call: the eroded zone minus the shadows, with ``config``'s parameters.
-
-    Shadows use ``config.altitude``, ``config.h_min`` and radius ``r2 + shadow_margin``.
-    """
-    from covert_env.visibility import shadow_union_cfg
-
-    q = np.asarray(target_xyz, dtype=float)
-    zone = feasible_zone_cfg(q[:2], phi, config, uncertain=uncertain, arc_resolution=arc_resolution)
-    return visible_zone(zone, shadow_union_cfg(terrain, q, config))
-
-
 # ----------------------------------------------------------------------------- lattice / grid nodes
 def _lattice_range(r1: float, r2: float, mu: float, step: float) -> tuple[np.ndarray, np.ndarray]:
     """Float index bounds (i0, i1) per axis of the lattice: the multiples of step in the sector's box."""
@@ -277,8 +267,6 @@ def lattice_offsets(r1: float, r2: float, mu: float, step: float) -> np.ndarray:
     ascending. Independent of q and phi, so the same index is the same move at every slot; use
     :func:`zone_mask` for membership. The returned array is shared and read-only.
     """
-    from covert_env.config import MAX_LATTICE
-
     if not step > 0:
         raise ValueError(f"step must be > 0, got {step}")
     size = lattice_size(r1, r2, mu, step)

@@ -12,7 +12,7 @@ from shapely.geometry import Point, Polygon
 
 from covert_env.config import Config
 from covert_env.terrain import Polytope, Terrain
-from covert_env.visibility import line_of_sight, shadow_polygons, shadow_union
+from covert_env.visibility import line_of_sight, shadow_polygons, shadow_union, visible_zone_cfg
 from covert_env.zone import (
     ARC_RESOLUTION,
     arc_error,
@@ -26,7 +26,6 @@ from covert_env.zone import (
     lattice_offsets_cfg,
     to_world,
     visible_zone,
-    visible_zone_cfg,
     zone_distance,
     zone_distance_cfg,
     zone_mask,

@@ -35,6 +35,10 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from covert_env.command_line import UsageError, float_range, int_range, non_negative_int, output_dir, positive_int
+from covert_env.config import read_json
+from training.trust import require_trust
+
 __all__ = ["parse_args", "run_name", "setup_torch", "TimeBudgetCallback", "TqdmCallback", "make_callbacks",
            "latest_checkpoint", "resume_checkpoint", "save_run", "field_docs", "build_parser",
            "save_final_vecnormalize", "train_single"]
@@ -77,7 +81,6 @@ def _ranges() -> dict[str, tuple]:
     """Allowed values of the numeric (and choice) fields of the scripts' ``Args``, by field name: an argparse
     ``type=`` function naming its range, or ``("choices", (...))``. Every int/float field of every script must be
     listed (a test checks it)."""
-    from covert_env.cli import float_range, int_range, non_negative_int, positive_int
 
     positive = float_range(0.0, lo_open=True)
     non_negative = float_range(0.0)
@@ -179,7 +182,6 @@ def parse_args(cls: type, argv: list[str] | None = None, description: str | None
         v = getattr(ns, f.name)
         if v is not None:
             values[f.name] = type(getattr(cls(), f.name))(v) if isinstance(getattr(cls(), f.name), tuple) else v
-    from covert_env.cli import UsageError, output_dir
 
     resume = values.get("resume")
     if resume:
@@ -191,8 +193,6 @@ def parse_args(cls: type, argv: list[str] | None = None, description: str | None
         # The saved arguments the run continues with (resumed_args): checked like the command line's.
         saved_path = run.parent / "args.json" if (run / "learner_group").is_dir() else run / "args.json"
         if saved_path.is_file():
-            from covert_env.config import read_json
-
             try:
                 problem = _saved_args_problem(cls, read_json(saved_path, "run arguments"))
             except (OSError, ValueError) as exc:
@@ -204,8 +204,6 @@ def parse_args(cls: type, argv: list[str] | None = None, description: str | None
         except UsageError as exc:
             p.error(str(exc))
         if "trust_checkpoint" in {f.name for f in dataclasses.fields(cls)}:
-            from training.trust import require_trust
-
             trust = values.get("trust_checkpoint", False)
             try:
                 if (run / "learner_group").is_dir():                   # an RLlib checkpoint (training.rllib_ppo)
@@ -317,8 +315,6 @@ def resume_checkpoint(run_dir: Path, *, trust_checkpoint: bool = False) -> tuple
     """:func:`latest_checkpoint` of a run to resume. Its model is an SB3 ``.zip``, which holds pickles: unless
     ``trust_checkpoint=True`` a run that has one is refused (:func:`training.trust.require_trust`), before
     anything is loaded."""
-    from training.trust import require_trust
-
     ckpt = latest_checkpoint(run_dir)
     if ckpt is not None:
         require_trust(ckpt[0], "an SB3 model", trust_checkpoint)

@@ -17,12 +17,13 @@ import pickle
 import sys
 from pathlib import Path
 
+from training.trust import require_trust
+
 
 def convert(pkl: Path, *, trust_checkpoint: bool = False) -> Path:
     """Unpickle the trusted VecNormalize file ``pkl`` and write its statistics to ``pkl.with_suffix('.json')``.
     Refused (:func:`training.trust.require_trust`) unless ``trust_checkpoint=True``."""
-    from training.trust import require_trust
-    from training.vec_env import save_vecnormalize
+    from training.vec_env import save_vecnormalize  # needs SB3 (the [train] extra)
 
     require_trust(pkl, "a pickled VecNormalize file", trust_checkpoint)
     with open(pkl, "rb") as f:

@@ -54,6 +54,23 @@ from typing import Any
 
 import numpy as np
 
+from baselines.policies import POLICIES, make_policy, parallel_env_of, run_episode
+from covert_env.command_line import (
+    MAX_SCENES,
+    UsageError,
+    int_range,
+    non_negative_int,
+    output_dir,
+    positive_int,
+    run_main,
+)
+from covert_env.envs.covert_sensing import CovertSensingParallelEnv
+from training.pretrained import PRETRAINED_DIR, load_learned, pretrained_names
+from training.rllib_ppo import load_policy as load_rllib
+from training.runs import read_run_json, run_env
+from training.stats import iqm, probability_of_improvement, stratified_bootstrap_ci
+from training.trust import require_trust
+
 __all__ = ["main", "load_policy", "evaluate", "split_seeds", "SB3Policy", "COLUMNS", "HELD_OUT_OFFSET"]
 
 HELD_OUT_OFFSET = 1_000_000
@@ -99,8 +116,6 @@ class SB3Policy:
         pass
 
     def _par(self, env):
-        from baselines.policies import parallel_env_of
-
         return parallel_env_of(env)
 
     def act(self, observations, env):
@@ -117,38 +132,6 @@ class SB3Policy:
         out = {a: (int(actions[i]) if np.ndim(actions[i]) == 0 else np.asarray(actions[i]))
                for i, a in enumerate(agents)}
         return out[single] if single is not None else out
-
-
-def read_run_json(path: Path, what: str) -> Any:
-    """A JSON file of a run (``args.json``, a model card, a cache), with every problem -- missing, not a regular
-    file, too large, not UTF-8, invalid JSON -- as a :class:`~covert_env.cli.UsageError` naming the file."""
-    from covert_env.cli import UsageError
-    from covert_env.config import read_json
-
-    try:
-        return read_json(path, what)
-    except (OSError, ValueError) as exc:
-        raise UsageError(str(exc)) from None
-
-
-def run_env(env_kwargs: Any, where: str, n_uavs: int = 1) -> tuple[dict, Any]:
-    """The env settings (``n_uavs``, ``action_mode``, ``map_size``) of a run's ``env_kwargs`` (from ``where``, an
-    ``args.json`` or model card; ``n_uavs`` defaults to ``n_uavs``) and the parallel env they build, in which the
-    policy will act. A field the env rejects is a :class:`~covert_env.cli.UsageError` naming the file, the field, the
-    value and what is allowed (the env's own check)."""
-    from covert_env.cli import UsageError
-    from covert_env.envs.covert_sensing import CovertSensingParallelEnv
-
-    if not isinstance(env_kwargs, dict):
-        raise UsageError(f"{where}: env_kwargs must be a JSON object, got {type(env_kwargs).__name__} "
-                         f"{str(env_kwargs)[:60]}")
-    settings = {"n_uavs": env_kwargs.get("n_uavs", n_uavs), "action_mode": env_kwargs.get("action_mode", "unicycle"),
-                "map_size": env_kwargs.get("map_size", 8)}
-    try:
-        env = CovertSensingParallelEnv(**settings)
-    except (TypeError, ValueError) as exc:
-        raise UsageError(f"{where}: env_kwargs: {exc}") from None
-    return settings, env
 
 
 def _space_text(space) -> str:
@@ -179,9 +162,6 @@ def load_sb3(path: str | Path, *, trust_checkpoint: bool = False) -> SB3Policy:
     refused (:func:`training.trust.require_trust`) before anything is read. Statistics pickled by older versions
     (``.pkl``) are refused with the command that converts them.
     """
-    from covert_env.cli import UsageError
-    from training.trust import require_trust
-
     path = Path(path)
     model_path = path / "model.zip" if path.is_dir() else path
     if not model_path.is_file():
@@ -249,13 +229,12 @@ def load_sb3(path: str | Path, *, trust_checkpoint: bool = False) -> SB3Policy:
 
 @contextlib.contextmanager
 def _extra(module: str, extra: str):
-    """A missing optional dependency ``module`` as a :class:`~covert_env.cli.UsageError` naming the extra."""
+    """A missing optional dependency ``module`` as a :class:`~covert_env.command_line.UsageError` naming the extra."""
     try:
         yield
     except ModuleNotFoundError as exc:
         if exc.name is None or exc.name.split(".")[0] != module:
             raise
-        from covert_env.cli import UsageError
 
         raise UsageError(f"this policy needs {module}, which is not installed: pip install -e \".[{extra}]\"") \
             from None
@@ -265,10 +244,9 @@ def load_policy(spec: str, n_uavs: int, *, trust_checkpoint: bool = False) -> tu
     """A policy object and its env settings (``n_uavs``, ``action_mode``) from a spec (see the module docstring).
 
     A bad spec (unknown name or mode, missing path, team size or action mode that do not fit) raises
-    :class:`covert_env.cli.UsageError` (a ``ValueError``) naming it, and so do ``sb3:`` and ``rllib:`` specs
+    :class:`covert_env.command_line.UsageError` (a ``ValueError``) naming it, and so do ``sb3:`` and ``rllib:`` specs
     (pickled checkpoints) unless ``trust_checkpoint=True``.
     """
-    from covert_env.cli import UsageError
 
     mode = None
     if "@" in spec:
@@ -280,8 +258,6 @@ def load_policy(spec: str, n_uavs: int, *, trust_checkpoint: bool = False) -> tu
             pol = load_sb3(spec[4:], trust_checkpoint=trust_checkpoint)
         settings = dict(pol.env_settings)
     elif spec.startswith(("mappo:", "pretrained:")):
-        from training.pretrained import PRETRAINED_DIR, load_learned, pretrained_names
-
         if spec.startswith("pretrained:"):
             name = spec[len("pretrained:"):]
             if name not in pretrained_names():
@@ -298,17 +274,11 @@ def load_policy(spec: str, n_uavs: int, *, trust_checkpoint: bool = False) -> tu
     elif spec.startswith("rllib:"):
         if not (Path(spec[6:]) / "learner_group").is_dir():
             raise UsageError(f"no RLlib checkpoint at {spec[6:]} (expected a training.rllib_ppo checkpoint folder)")
-        from training.trust import require_trust
-
         require_trust(spec[6:], "an RLlib checkpoint", trust_checkpoint)
         with _extra("ray", "rllib"):
-            from training.rllib_ppo import load_policy as load_rllib
-
             pol = load_rllib(spec[6:], trust_checkpoint=True)
         settings = dict(pol.env_settings)
     else:
-        from baselines.policies import POLICIES, make_policy
-
         name = BUILTIN_ALIASES.get(spec, spec)
         if name not in POLICIES:
             raise UsageError(f"unknown policy {spec!r}; use one of {', '.join(sorted([*POLICIES, *BUILTIN_ALIASES]))}"
@@ -337,9 +307,6 @@ def _team_row(result: dict) -> dict:
 def evaluate(policy, settings: dict, episodes: int, seed_offset: int = HELD_OUT_OFFSET,
              env_kwargs: dict | None = None, progress: bool = True, label: str | None = None) -> list[dict]:
     """Run ``policy`` on held-out scenes ``seed_offset + i`` and return one metrics row per episode."""
-    from baselines.policies import run_episode
-    from covert_env.envs.covert_sensing import CovertSensingParallelEnv
-
     kw = dict(env_kwargs or {})
     kw.update(n_uavs=settings["n_uavs"], action_mode=settings["action_mode"])
     if "map_size" in settings:
@@ -439,8 +406,6 @@ def _robust_lines(results: dict[str, dict]) -> list[str]:
     A seed group's rewards are a (seeds, scenes) matrix: the interval resamples the seeds within each scene
     (stratified by scene) and P(X > DP) is the Mann-Whitney statistic per scene, averaged over scenes. A single
     run has no seeds to resample, so its interval resamples the scenes instead (said in the table)."""
-    from training.stats import iqm, probability_of_improvement, stratified_bootstrap_ci
-
     dp = next((r for r in results.values() if r.get("spec", "").split("@")[0] == "dp"), None)
     lines = ["", "Episode reward: interquartile mean with its 95 % stratified-bootstrap interval (over seeds x scenes "
              "for seed groups, over scenes for single runs)"
@@ -488,7 +453,6 @@ def _figure(results: dict[str, dict], path: Path) -> None:
 
 
 def build_parser(prog: str = "python -m training.evaluate") -> argparse.ArgumentParser:
-    from covert_env.cli import MAX_SCENES, int_range, non_negative_int, positive_int
 
     p = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n")[0],
                                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
@@ -514,8 +478,7 @@ def build_parser(prog: str = "python -m training.evaluate") -> argparse.Argument
 
 def main(argv: list[str] | None = None, prog: str = "python -m training.evaluate") -> int:
     """The harness's command line (``prog``: the name in usage and error lines, ``covert-env evaluate`` from
-    :mod:`covert_env.cli`). Mistakes in the arguments exit with status 2 and one error line."""
-    from covert_env.cli import run_main
+    :mod:`covert_env.command_line`). Mistakes in the arguments exit with status 2 and one error line."""
 
     parser = build_parser(prog)
     args = parser.parse_args(argv)
@@ -526,9 +489,6 @@ def main(argv: list[str] | None = None, prog: str = "python -m training.evaluate
 def _check_team(n_uavs: int, seed: int) -> None:
     """Build the env with ``--n-uavs`` and reset it on the first held-out scene, so that a team size the env
     rejects (or cannot place) fails with one error line before any evaluation runs."""
-    from covert_env.cli import UsageError
-    from covert_env.envs.covert_sensing import CovertSensingParallelEnv
-
     try:
         env = CovertSensingParallelEnv(n_uavs=n_uavs)
     except ValueError as exc:
@@ -548,8 +508,7 @@ OUTPUT_FILES = ("leaderboard.md", "leaderboard.csv", "episodes.csv", "comparison
 def read_cache(path: Path, args: argparse.Namespace) -> list[dict]:
     """The per-episode rows cached at ``path`` by an earlier run (``--reuse``), checked against ``args``: one row
     per held-out scene ``seed_offset + i`` with every leaderboard column a number. A damaged or foreign file is a
-    :class:`~covert_env.cli.UsageError` naming it and the first bad field."""
-    from covert_env.cli import UsageError
+    :class:`~covert_env.command_line.UsageError` naming it and the first bad field."""
 
     fix = "; delete it (it is rewritten) or run without --reuse"
     try:
@@ -580,7 +539,6 @@ def _cache_name(spec: str, args: argparse.Namespace) -> str:
 
 
 def _main(args: argparse.Namespace, command: str) -> int:
-    from covert_env.cli import UsageError, output_dir
 
     _check_team(args.n_uavs, args.seed_offset)
     caches = {spec: _cache_name(spec, args) for spec in args.policies if not spec.startswith(LEARNED_PREFIXES)}

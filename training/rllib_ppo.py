@@ -50,7 +50,11 @@ from pathlib import Path
 
 import numpy as np
 
+from baselines.policies import parallel_env_of
+from covert_env.command_line import UsageError
+from covert_env.envs.covert_sensing import CovertSensingParallelEnv
 from training.common import parse_args, resumed_args, run_name, save_run, setup_torch
+from training.runs import read_run_json, run_env
 from training.trust import require_trust
 
 ALGO = "rllib_ppo"
@@ -126,8 +130,6 @@ def env_kwargs(args: Args) -> dict:
 def _env_creator(env_config: dict):
     import torch
     from ray.rllib.env.wrappers.pettingzoo_env import ParallelPettingZooEnv
-
-    from covert_env.envs.covert_sensing import CovertSensingParallelEnv
 
     torch.set_num_threads(1)                    # one torch thread per worker (see the module docstring)
     return ParallelPettingZooEnv(CovertSensingParallelEnv(**env_config))
@@ -229,8 +231,6 @@ class RLlibPolicy:
     def act(self, observations, env):
         import torch
 
-        from baselines.policies import parallel_env_of
-
         par, single = parallel_env_of(env)
         agents = [a for a in par.possible_agents if a in par.agents]
         obs_d = observations if single is None else {single: observations}
@@ -252,9 +252,6 @@ def load_policy(path: str | Path, *, trust_checkpoint: bool = False) -> RLlibPol
     The checkpoint is pickled: refused unless ``trust_checkpoint=True`` (:func:`training.trust.require_trust`).
     The env settings come from ``args.json`` beside it, checked before the checkpoint is loaded."""
     require_trust(path, "an RLlib checkpoint", trust_checkpoint)
-    from covert_env.cli import UsageError
-    from training.evaluate import read_run_json, run_env
-
     path = Path(path)
     module_dir = path / "learner_group" / "learner" / "rl_module" / MODULE_ID
     if not module_dir.exists():

@@ -14,20 +14,21 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from covert_env.command_line import UsageError
+
 __all__ = ["TRUST_FLAG", "require_trust"]
 
 TRUST_FLAG = "--trust-checkpoint"
 
 
 def require_trust(path: str | Path, what: str, trust_checkpoint: bool) -> None:
-    """Return if ``trust_checkpoint`` is True; else a :class:`~covert_env.cli.UsageError` saying that ``path``
-    (``what``: "an SB3 model", "an RLlib checkpoint" ...) is pickled and naming the opt-in. A non-bool
+    """Return if ``trust_checkpoint`` is True; else a :class:`~covert_env.command_line.UsageError` saying that
+    ``path`` (``what``: "an SB3 model", "an RLlib checkpoint" ...) is pickled and naming the opt-in. A non-bool
     ``trust_checkpoint`` is a TypeError (a string such as ``"no"`` must not count as yes)."""
     if not isinstance(trust_checkpoint, bool):
         raise TypeError(f"trust_checkpoint must be True or False, got {trust_checkpoint!r}")
     if trust_checkpoint:
         return
-    from covert_env.cli import UsageError
 
     raise UsageError(f"{path} is {what}, which holds pickled Python objects: loading it runs any code they carry. "
                      f"Pass {TRUST_FLAG} (trust_checkpoint=True in Python) only if it comes from a source you trust")

@@ -42,6 +42,8 @@ import numpy as np
 from gymnasium import spaces
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvObs, VecEnvStepReturn
 
+from covert_env.config import read_json
+
 __all__ = ["ParallelEnvVecAdapter", "make_vec_env", "save_vecnormalize", "load_vecnormalize", "read_vecnormalize",
            "vecnormalize_state", "NormStats", "VECNORMALIZE_FORMAT"]
 
@@ -265,8 +267,6 @@ def read_vecnormalize(path: str | Path) -> NormStats:
     """Read VecNormalize statistics written by :func:`save_vecnormalize` (``ValueError`` naming the file if not)."""
     path = Path(path)
     _refuse_pickle(path)
-    from covert_env.config import read_json
-
     d = read_json(path, "VecNormalize statistics")          # a ValueError naming the file, or FileNotFoundError
     if not isinstance(d, dict) or d.get("format") != VECNORMALIZE_FORMAT:
         raise ValueError(f"{path}: not a VecNormalize statistics file (no \"format\": \"{VECNORMALIZE_FORMAT}\")")

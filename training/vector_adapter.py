@@ -129,7 +129,5 @@ def make_vector_vec_env(n_copies: int, env_kwargs: dict | None = None,
                         reward_fn: Callable[[float, dict], float] | None = None) -> VectorEnvVecAdapter:
     """``n_copies`` copies of the covert_env env built with ``env_kwargs`` as one vector env, flattened for a shared
     SB3 policy (the drop-in for :func:`training.vec_env.make_vec_env`)."""
-    from covert_env import vector_env
-
-    return VectorEnvVecAdapter(vector_env(num_envs=n_copies, **dict(env_kwargs or {})), reward_fn=reward_fn)
+    return VectorEnvVecAdapter(CovertSensingVectorEnv(num_envs=n_copies, **dict(env_kwargs or {})), reward_fn=reward_fn)
 

@@ -24,6 +24,7 @@ from covert_env.envs.observation import observation_table
 from covert_env.envs.recorder import CopyView
 from covert_env.envs.settings import ACTION_MODES, MAX_PATH_SAMPLES, MAX_SCENE_POOL, RENDER_MODES, EnvSettings
 from covert_env.envs.vector import INFO_KEYS, CovertSensingVectorEnv
+from covert_env.render import EpisodeRenderer
 from covert_env.scenario import Scenario
 
 __all__ = ["CovertSensingParallelEnv", "env", "parallel_env", "raw_env", "ACTION_MODES", "MAX_PATH_SAMPLES",
@@ -417,8 +418,6 @@ class CovertSensingParallelEnv(ParallelEnv):
             gymnasium.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' or 'human'")
             return None
         self._vec.require_running("render()")
-        from covert_env.render import EpisodeRenderer
-
         if self._renderer is None:
             self._renderer = EpisodeRenderer(human=self.render_mode == "human")
         frame = self._renderer.draw(self.scenario, self._view)

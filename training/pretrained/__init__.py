@@ -29,6 +29,10 @@ from pathlib import Path
 
 import numpy as np
 
+from baselines.policies import parallel_env_of
+from training.runs import read_run_json, run_env
+from training.shield import SeparationShield
+
 __all__ = ["node_features", "NumpyActor", "LearnedPolicy", "load_learned", "check_weights", "PRETRAINED_DIR",
            "pretrained_names", "N_OWN_FEATURES"]
 
@@ -127,8 +131,6 @@ class LearnedPolicy:
         pass
 
     def act(self, observations, env):
-        from baselines.policies import parallel_env_of
-
         par, single = parallel_env_of(env)
         agents = [a for a in par.possible_agents if a in par.agents]
         obs_d = observations if single is None else {single: observations}
@@ -147,8 +149,6 @@ class LearnedPolicy:
             logits = self.actor.logits(x, feats)
             mask = np.stack([par.action_mask(a) for a in agents]).astype(bool)
             if self.shield_distance is not None:
-                from training.shield import SeparationShield
-
                 shield = SeparationShield(float(self.shield_distance), float(self.card.get("shield_end_margin") or 0.0))
                 act, _ = shield.choose(mask[None], lambda n: par.waypoint_paths(n[0])[None],
                                        lambda k, m: np.argmax(np.where(m, logits[k], -np.inf), axis=-1))
@@ -169,8 +169,6 @@ def load_learned(path: str | Path) -> LearnedPolicy:
     a missing or malformed file: the card's fields, the env its ``env_kwargs`` build, and every weight's shape
     against that env's observation and action sizes (:func:`check_weights`), so that a wrong file fails here and
     not inside an episode."""
-    from training.evaluate import read_run_json, run_env
-
     path = Path(path)
     npz = path / "model.npz" if path.is_dir() else path
     card_path = npz.with_suffix(".json")

@@ -20,7 +20,10 @@ from pathlib import Path
 
 import numpy as np
 
+import covert_env
+from training.evaluate import HELD_OUT_OFFSET, evaluate, summarise
 from training.pretrained import PRETRAINED_DIR, load_learned
+from training.stats import iqm, stratified_bootstrap_ci
 
 __all__ = ["export", "main"]
 
@@ -38,10 +41,6 @@ def export(run: Path, name: str, episodes: int = 20, out_dir: Path = PRETRAINED_
            training_commit: str = "", note: str = "") -> Path:
     """Write ``out_dir/NAME.npz`` and ``out_dir/NAME.json`` from a :mod:`training.mappo` run folder; returns the
     card's path."""
-    import covert_env
-    from training.evaluate import HELD_OUT_OFFSET, evaluate, summarise
-    from training.stats import iqm, stratified_bootstrap_ci
-
     run = Path(run)
     meta = json.loads((run / "model.json").read_text())
     args = json.loads((run / "args.json").read_text())
