@@ -20,7 +20,7 @@ from functools import cached_property
 import numpy as np
 from shapely.geometry import LineString
 
-from covert_env.config import MAX_N_SLOTS, MAX_ROUTE, check_coordinates
+from covert_env.config import MAX_HORIZON, MAX_N_SLOTS, MAX_ROUTE, MAX_SPEED, check_coordinates
 
 __all__ = ["Road", "TargetTrack", "speed_noise_offsets"]
 
@@ -32,6 +32,46 @@ _MAX_POINTS = 1_000_000
 def _bad_real(v) -> bool:
     """Not a finite real number (bools are not numbers here: True as a length is a mistake)."""
     return isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(v)
+
+
+def _numbers(v, where: str) -> np.ndarray:
+    """``v`` as a float array of finite numbers (ints and floats; no bools, strings or NaN)."""
+    a = np.asarray(v)
+    if a.dtype.kind not in "iuf":
+        raise TypeError(f"{where} must be numbers, got {_short(v)}")
+    a = a.astype(float, copy=False)
+    if not np.isfinite(a).all():
+        raise ValueError(f"{where} must be finite, got {_short(v)}")
+    return a
+
+
+def _arc_lengths(s, where: str) -> np.ndarray:
+    return _numbers(s, f"{where}: arc length s")
+
+
+def _slots(k, where: str) -> np.ndarray:
+    """Slot indices as an integer array (ints or numpy integers; no floats, bools or strings)."""
+    a = np.asarray(k)
+    if a.dtype.kind not in "iu":
+        raise TypeError(f"{where}: slot k must be an integer or an integer array, got {_short(k)}")
+    return a
+
+
+def _fractions(f, where: str) -> np.ndarray:
+    """Fractions of a slot, each in [0, 1]."""
+    a = _numbers(f, f"{where}: fractions")
+    if ((a < 0) | (a > 1)).any():
+        raise ValueError(f"{where}: fractions must lie in [0, 1] (of a slot), got {_short(f)}")
+    return a
+
+
+def _check_prediction(k, horizon, where: str) -> None:
+    """A prediction's slot ``k`` (an integer >= -1: -1 predicts slot 0 before the episode starts) and ``horizon``
+    (an integer in [0, MAX_HORIZON])."""
+    for name, v, low, high in (("k", k, -1, None), ("horizon", horizon, 0, MAX_HORIZON)):
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < low or (high is not None and v > high):
+            allowed = f"in [{low}, {high}]" if high is not None else f">= {low}"
+            raise ValueError(f"{where}: {name} must be an integer {allowed}, got {_short(v)}")
 
 
 def _short(v) -> str:
@@ -57,6 +97,8 @@ class Road:
     points: np.ndarray
 
     def __post_init__(self) -> None:
+        if np.asarray(self.points).dtype.kind not in "iuf":
+            raise ValueError(f"Road.points must be a (K, 2) array of numbers (int or float), got {_short(self.points)}")
         try:
             pts = np.array(self.points, dtype=float)   # a copy: freezing it must not freeze the caller's
         except (TypeError, ValueError) as exc:
@@ -97,6 +139,10 @@ class Road:
         if length / step > _MAX_POINTS:
             raise ValueError(f"Road.random: length / step = {length:g} / {step:g} would give more than "
                              f"{_MAX_POINTS} points; use a shorter road or a larger step")
+        if max_curvature > 1.0 or length > MAX_ROUTE or straight_start > length:
+            raise ValueError(f"Road.random: max_curvature must be <= 1 (1/m: a turn radius of at least 1 m), length "
+                             f"<= {MAX_ROUTE:g} m and straight_start <= length, got max_curvature={max_curvature!r}, "
+                             f"length={length!r}, straight_start={straight_start!r}")
         try:
             start = np.array(start, dtype=float).reshape(2)
         except (TypeError, ValueError):
@@ -135,7 +181,7 @@ class Road:
 
     def point_at(self, s) -> np.ndarray:
         """Position(s) at arc length ``s`` (clamped to [0, length]); shape (..., 2)."""
-        s = np.clip(np.asarray(s, dtype=float), 0.0, self.length)
+        s = np.clip(_arc_lengths(s, "Road.point_at"), 0.0, self.length)
         cl = self.cumulative_length
         i = np.clip(np.searchsorted(cl, s, side="right") - 1, 0, len(cl) - 2)
         t = ((s - cl[i]) / (cl[i + 1] - cl[i]))[..., None]
@@ -143,7 +189,7 @@ class Road:
 
     def heading_at(self, s) -> np.ndarray:
         """Heading(s) phi (rad, the road tangent) at arc length ``s``."""
-        s = np.clip(np.asarray(s, dtype=float), 0.0, self.length)
+        s = np.clip(_arc_lengths(s, "Road.heading_at"), 0.0, self.length)
         cl = self.cumulative_length
         i = np.clip(np.searchsorted(cl, s, side="right") - 1, 0, len(cl) - 2)
         d = self.points[i + 1] - self.points[i]
@@ -162,7 +208,9 @@ class Road:
 
     def distance_to(self, xy) -> np.ndarray:
         """Horizontal distance(s) from point(s) ``xy`` (..., 2) to the centreline (vectorised)."""
-        xy = np.asarray(xy, dtype=float)
+        xy = _numbers(xy, "Road.distance_to: xy")
+        if xy.ndim == 0 or xy.shape[-1] != 2:
+            raise ValueError(f"Road.distance_to: xy must be points (..., 2), got shape {xy.shape}")
         a, b = self.points[:-1], self.points[1:]
         ab = b - a
         ap = xy[..., None, :] - a
@@ -200,11 +248,13 @@ class TargetTrack:
             raise TypeError(f"TargetTrack.road must be a Road, got {type(self.road).__name__}")
         try:
             sp = np.atleast_1d(np.array(self.speeds, dtype=float))
+            if np.asarray(self.speeds).dtype.kind not in "iuf":
+                raise TypeError("not numbers")
         except (TypeError, ValueError):
             sp = np.array([np.nan])                 # reported below, with the other malformed speeds
-        if sp.ndim != 1 or len(sp) == 0 or not np.all(np.isfinite(sp)) or np.any(sp < 0):
-            raise ValueError(f"TargetTrack.speeds must be a non-empty 1-D array of finite speeds >= 0, "
-                             f"got {_short(self.speeds)}")
+        if sp.ndim != 1 or len(sp) == 0 or not np.all(np.isfinite(sp)) or np.any(sp < 0) or np.any(sp > MAX_SPEED):
+            raise ValueError(f"TargetTrack.speeds must be a non-empty 1-D array of numbers in [0, {MAX_SPEED:g}] "
+                             f"(m/s), got {_short(self.speeds)}")
         if _bad_real(self.delta) or not self.delta > 0:
             raise ValueError(f"TargetTrack.delta must be a finite number > 0 (s), got {self.delta!r}")
         for name in ("z", "s0"):
@@ -251,8 +301,10 @@ class TargetTrack:
         :func:`speed_noise_offsets` for the model. ``bound == 0`` returns ``self`` (the truth is the
         prediction, bit for bit).
         """
-        if _bad_real(bound) or bound < 0:
-            raise ValueError(f"TargetTrack.with_speed_noise: bound must be a finite number >= 0 (m), got {bound!r}")
+        most = float(self.speeds.max()) * self.delta
+        if _bad_real(bound) or not 0 <= bound <= most:
+            raise ValueError(f"TargetTrack.with_speed_noise: bound must be a number in [0, max(speeds) * delta = "
+                             f"{most:g}] (m; larger noise would make the target reverse), got {bound!r}")
         if bound == 0:
             return self
         rng = _generator(seed, "TargetTrack.with_speed_noise")
@@ -292,20 +344,20 @@ class TargetTrack:
 
     def position(self, k) -> np.ndarray:
         """q[k] as (x, y, z); k may be an int or an integer array (clamped to the track's end)."""
-        if isinstance(k, (int, np.integer)):
+        if isinstance(k, (int, np.integer)) and not isinstance(k, bool):
             return self.positions[min(max(int(k), 0), self.n_slots)].copy()
-        return self.positions[np.clip(np.asarray(k), 0, self.n_slots)]
+        return self.positions[np.clip(_slots(k, "TargetTrack.position"), 0, self.n_slots)]
 
     def position_between(self, k: int, fractions) -> np.ndarray:
         """Target positions (len(fractions), 3) at times (k + f) delta within slot k, f in [0, 1].
 
         ``k`` may also be an integer array (..., ): the result is then (..., len(fractions), 3).
         """
-        if isinstance(k, (int, np.integer)):
+        if isinstance(k, (int, np.integer)) and not isinstance(k, bool):
             k = min(max(int(k), 0), self.n_slots - 1)
         else:
-            k = np.clip(np.asarray(k, dtype=int), 0, self.n_slots - 1)
-        f = np.asarray(fractions, dtype=float)
+            k = np.clip(_slots(k, "TargetTrack.position_between"), 0, self.n_slots - 1)
+        f = _fractions(fractions, "TargetTrack.position_between")
         key = f.tobytes()
         table = self._between.get(key)
         if table is None:   # one road lookup per set of fractions, for every slot at once
@@ -322,9 +374,9 @@ class TargetTrack:
 
     def heading(self, k) -> np.ndarray | float:
         """phi[k], the road tangent at the target's position (rad)."""
-        if isinstance(k, (int, np.integer)):
+        if isinstance(k, (int, np.integer)) and not isinstance(k, bool):
             return float(self.headings[min(max(int(k), 0), self.n_slots)])
-        return self.headings[np.clip(np.asarray(k), 0, self.n_slots)]
+        return self.headings[np.clip(_slots(k, "TargetTrack.heading"), 0, self.n_slots)]
 
     def _predicted_arc(self, k: int, horizon: int) -> np.ndarray:
         """(horizon + 1,) arc lengths a tracker at slot k expects at slots k..k+horizon: the true current
@@ -344,6 +396,7 @@ class TargetTrack:
         the truth by at most the bound of :meth:`with_speed_noise`, which an eroded zone with r_u >= that
         bound absorbs (eq. 5).
         """
+        _check_prediction(k, horizon, "TargetTrack.predict")
         if self.exact:
             ks = np.arange(k + 1, k + horizon + 1)
             return self.position(ks), np.asarray(self.heading(ks))
@@ -354,10 +407,11 @@ class TargetTrack:
     def predict_between(self, k: int, horizon: int, fractions) -> np.ndarray:
         """Predicted target positions (horizon, len(fractions), 3) within slots k..k+horizon-1, made at
         slot k: the :meth:`position_between` of the prediction (the track itself when :attr:`exact`)."""
+        _check_prediction(k, horizon, "TargetTrack.predict_between")
         if self.exact:
             return self.position_between(np.arange(k, k + horizon), fractions)
         s = self._predicted_arc(k, horizon)
-        f = np.asarray(fractions, dtype=float)
+        f = _fractions(fractions, "TargetTrack.predict_between")
         xy = self.road.point_at(s[:-1, None] + f * np.diff(s)[:, None])
         return np.concatenate([xy, np.full(xy.shape[:-1] + (1,), self.z)], axis=-1)
 
