@@ -23,9 +23,9 @@ import numpy as np
 
 from covert_env.zone import MAX_LATTICE, lattice_size, zone_capacity
 
-__all__ = ["Config", "check_coordinates", "polytope_capacity", "scene_road_length", "MAX_COORDINATE", "MAX_HORIZON",
-           "MAX_LATTICE", "MAX_LENGTH", "MAX_N_POLYTOPES", "MAX_N_SLOTS", "MAX_N_UAVS", "MAX_ROUTE", "MAX_VERTICES",
-           "MAX_WEIGHT"]
+__all__ = ["Config", "check_coordinates", "short_repr", "polytope_capacity", "scene_road_length", "MAX_COORDINATE",
+           "MAX_HORIZON", "MAX_LATTICE", "MAX_LENGTH", "MAX_N_POLYTOPES", "MAX_N_SLOTS", "MAX_N_UAVS", "MAX_ROUTE",
+           "MAX_VERTICES", "MAX_WEIGHT"]
 
 
 @dataclass(frozen=True)
@@ -210,15 +210,28 @@ class Config:
             raise ValueError(f"{where}: {exc}") from None
 
 
+def _unique_keys(pairs: list[tuple[str, Any]]) -> dict:
+    # A repeated key would silently keep its last value: in a config that hides a typo or a merge mistake.
+    out = {}
+    for key, value in pairs:
+        if key in out:
+            raise ValueError(f"the key {key!r} appears twice in one object; give each field once")
+        out[key] = value
+    return out
+
+
 def parse_json(text: str, where: str) -> Any:
-    """``json.loads(text)``; a ValueError starting with ``where`` for invalid or too deeply nested JSON."""
+    """``json.loads(text)``; a ValueError starting with ``where`` for invalid or too deeply nested JSON, a key
+    repeated in one object, or a number Python will not parse (an integer of more than 4300 digits)."""
     try:
-        return json.loads(text)
+        return json.loads(text, object_pairs_hook=_unique_keys)
     except json.JSONDecodeError as exc:
         raise ValueError(f"{where}: invalid JSON ({exc})") from None
     except RecursionError:
         # The stdlib parser recurses once per nesting level; no file of ours nests more than a few.
         raise ValueError(f"{where}: JSON nested too deeply to parse") from None
+    except ValueError as exc:                   # a repeated key, or int()'s digit limit
+        raise ValueError(f"{where}: invalid JSON ({exc})") from None
 
 
 #: The largest JSON file :func:`read_json` reads (bytes): far above any config, terrain (10_000 polytopes of 64
@@ -250,6 +263,8 @@ def read_json(path: str | Path, what: str, max_bytes: int = MAX_JSON_BYTES) -> A
         raise FileNotFoundError(f"{where}: no such file") from None
     except OSError as exc:
         raise ValueError(f"{where}: cannot be read ({exc.strerror or exc})") from None
+    except ValueError:                          # os.open's answer to a NUL byte in the path
+        raise ValueError(f"{what} {str(path)!r}: a path cannot hold a NUL byte") from None
     try:
         st = os.fstat(fd)
         if not stat.S_ISREG(st.st_mode):
@@ -275,7 +290,7 @@ _REPR = reprlib.Repr()
 _REPR.maxstring = _REPR.maxother = 60
 
 
-def _show(v: Any) -> str:
+def short_repr(v: Any) -> str:
     """A short repr for an error message: a bad value may be a huge string or a deeply nested list."""
     return _REPR.repr(v)
 
@@ -337,7 +352,7 @@ def _as_int(name: str, v: Any, low: int, high: int) -> int:
     # numpy integers are counts too (operator.index accepts them); floats are not, even 3.0: a float
     # count is a computed value the caller should round deliberately, not one to truncate silently.
     if isinstance(v, bool) or not isinstance(v, numbers.Integral):
-        raise ValueError(f"Config.{name} must be an integer >= {low} and <= {high}, got {_show(v)} "
+        raise ValueError(f"Config.{name} must be an integer >= {low} and <= {high}, got {short_repr(v)} "
                          f"({type(v).__name__}); counts must be whole numbers (int or a numpy integer)")
     v = operator.index(v)
     if not low <= v <= high:
@@ -347,7 +362,7 @@ def _as_int(name: str, v: Any, low: int, high: int) -> int:
 
 def _as_float(name: str, v: Any) -> float:
     if isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(v):
-        raise ValueError(f"Config.{name} must be a finite number, got {_show(v)} ({type(v).__name__})")
+        raise ValueError(f"Config.{name} must be a finite number, got {short_repr(v)} ({type(v).__name__})")
     return float(v)
 
 

@@ -22,10 +22,10 @@ import math
 
 import numpy as np
 
-from covert_env.config import MAX_N_UAVS
+from covert_env.config import MAX_N_UAVS, check_coordinates, short_repr
 from covert_env.flight import check_unicycle, fly_arc, fly_turn_straight, waypoint_controls
 from covert_env.metrics import SlotQuantities, moves_quantities
-from covert_env.scenario import Scenario
+from covert_env.scenario import Scenario, valid_start_shapes
 from covert_env.trajectory import Trajectory
 
 __all__ = ["Engine", "MAX_PATH_SAMPLES"]
@@ -45,13 +45,13 @@ class Engine:
     def __init__(self, scenario: Scenario, path_samples: int = 11, path_los: bool = True):
         if not isinstance(scenario, Scenario):
             raise TypeError(f"Engine: scenario must be a Scenario (e.g. Scenario.paper() or Scenario.random(seed)), "
-                            f"got {_short(scenario)} ({type(scenario).__name__})")
+                            f"got {short_repr(scenario)} ({type(scenario).__name__})")
         if (isinstance(path_samples, bool) or not isinstance(path_samples, (int, np.integer))
                 or not 2 <= path_samples <= MAX_PATH_SAMPLES):
             raise ValueError(f"Engine.path_samples must be an integer in [2, {MAX_PATH_SAMPLES}], got "
-                             f"{_short(path_samples)} ({type(path_samples).__name__})")
+                             f"{short_repr(path_samples)} ({type(path_samples).__name__})")
         if not isinstance(path_los, (bool, np.bool_)):
-            raise TypeError(f"Engine.path_los must be a bool, got {_short(path_los)} ({type(path_los).__name__})")
+            raise TypeError(f"Engine.path_los must be a bool, got {short_repr(path_los)} ({type(path_los).__name__})")
         self.scenario = scenario
         self.config = scenario.config
         self.terrain = scenario.terrain
@@ -71,14 +71,18 @@ class Engine:
             th = self.scenario.uav_theta if uav_theta is None else np.asarray(uav_theta, dtype=float).reshape(-1)
         except (TypeError, ValueError):
             raise ValueError(f"Engine.reset: uav_xy must be a (U, 2) array of numbers and uav_theta a (U,) array, "
-                             f"got {_short(uav_xy)} and {_short(uav_theta)}") from None
+                             f"got {short_repr(uav_xy)} and {short_repr(uav_theta)}") from None
+        if not valid_start_shapes(xy if uav_xy is None else uav_xy, th if uav_theta is None else uav_theta):
+            raise ValueError(f"Engine.reset: uav_xy must be a (U, 2) array and uav_theta a (U,) array, got shapes "
+                             f"{np.shape(uav_xy)} and {np.shape(uav_theta)}")
         if len(xy) != len(th):
             raise ValueError(f"Engine.reset: {len(xy)} positions (uav_xy) but {len(th)} headings (uav_theta)")
         if not (np.isfinite(xy).all() and np.isfinite(th).all()):
             raise ValueError(f"Engine.reset: uav_xy positions and uav_theta headings must be finite (no NaN or inf), "
-                             f"got {_short(xy.tolist())} and {_short(th.tolist())}")
+                             f"got {short_repr(xy.tolist())} and {short_repr(th.tolist())}")
         if not 1 <= len(xy) <= MAX_N_UAVS:
             raise ValueError(f"Engine.reset: the team must have 1 to {MAX_N_UAVS} UAVs, got {len(xy)}")
+        check_coordinates(xy, "Engine.reset: uav_xy")
         self.k = 0
         self.uav_xy = xy.copy()
         self.uav_theta = np.mod(th, 2 * math.pi)
@@ -135,7 +139,7 @@ class Engine:
                 ok = False
             if not ok:
                 raise TypeError(f"Engine.step: {name} must be a {_shape_text(shape)} array of numbers (U = {u} UAVs), "
-                                f"got {_short(a)} ({type(a).__name__})")
+                                f"got {short_repr(a)} ({type(a).__name__})")
             # The size and the last axis must match: a (3, 2) array reshaped from (2, 3) would scramble UAVs.
             if arr.size != math.prod(shape) or (len(shape) == 2 and arr.shape[-1:] != (2,)):
                 raise ValueError(f"Engine.step: {name} must have shape {_shape_text(shape)} (U = {u} UAVs), "
@@ -182,7 +186,9 @@ class Engine:
 
     # ------------------------------------------------------------------ records
     def trajectory(self, last: int | None = None) -> Trajectory:
-        """The episode so far as a :class:`Trajectory` (only the last ``last`` slots if given)."""
+        """The episode so far as a :class:`Trajectory` (only the last ``last`` slots if given: an integer >= 0)."""
+        if last is not None and (isinstance(last, bool) or not isinstance(last, (int, np.integer)) or last < 0):
+            raise ValueError(f"Engine.trajectory: last must be None or an integer >= 0 (slots), got {short_repr(last)}")
         k0 = 0 if last is None else max(self.k - last, 0)
         ks = np.arange(k0, self.k + 1)
         u = self.n_uavs
@@ -220,11 +226,6 @@ class Engine:
 #: Most samples per slot along a path (Engine's path_samples): every slot stores (U, path_samples, 2) points.
 MAX_PATH_SAMPLES = 1000
 
-
-def _short(v) -> str:
-    import reprlib
-
-    return reprlib.repr(v)
 
 
 def _shape_text(shape) -> str:

@@ -13,14 +13,13 @@ from __future__ import annotations
 
 import math
 import numbers
-import reprlib
 from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
 from shapely.geometry import LineString
 
-from covert_env.config import MAX_HORIZON, MAX_N_SLOTS, MAX_ROUTE, MAX_SPEED, check_coordinates
+from covert_env.config import MAX_HORIZON, MAX_N_SLOTS, MAX_ROUTE, MAX_SPEED, check_coordinates, short_repr
 
 __all__ = ["Road", "TargetTrack", "speed_noise_offsets"]
 
@@ -38,10 +37,10 @@ def _numbers(v, where: str) -> np.ndarray:
     """``v`` as a float array of finite numbers (ints and floats; no bools, strings or NaN)."""
     a = np.asarray(v)
     if a.dtype.kind not in "iuf":
-        raise TypeError(f"{where} must be numbers, got {_short(v)}")
+        raise TypeError(f"{where} must be numbers, got {short_repr(v)}")
     a = a.astype(float, copy=False)
     if not np.isfinite(a).all():
-        raise ValueError(f"{where} must be finite, got {_short(v)}")
+        raise ValueError(f"{where} must be finite, got {short_repr(v)}")
     return a
 
 
@@ -53,7 +52,7 @@ def _slots(k, where: str) -> np.ndarray:
     """Slot indices as an integer array (ints or numpy integers; no floats, bools or strings)."""
     a = np.asarray(k)
     if a.dtype.kind not in "iu":
-        raise TypeError(f"{where}: slot k must be an integer or an integer array, got {_short(k)}")
+        raise TypeError(f"{where}: slot k must be an integer or an integer array, got {short_repr(k)}")
     return a
 
 
@@ -61,7 +60,7 @@ def _fractions(f, where: str) -> np.ndarray:
     """Fractions of a slot, each in [0, 1]."""
     a = _numbers(f, f"{where}: fractions")
     if ((a < 0) | (a > 1)).any():
-        raise ValueError(f"{where}: fractions must lie in [0, 1] (of a slot), got {_short(f)}")
+        raise ValueError(f"{where}: fractions must lie in [0, 1] (of a slot), got {short_repr(f)}")
     return a
 
 
@@ -71,18 +70,15 @@ def _check_prediction(k, horizon, where: str) -> None:
     for name, v, low, high in (("k", k, -1, None), ("horizon", horizon, 0, MAX_HORIZON)):
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < low or (high is not None and v > high):
             allowed = f"in [{low}, {high}]" if high is not None else f">= {low}"
-            raise ValueError(f"{where}: {name} must be an integer {allowed}, got {_short(v)}")
+            raise ValueError(f"{where}: {name} must be an integer {allowed}, got {short_repr(v)}")
 
-
-def _short(v) -> str:
-    return reprlib.repr(v)
 
 
 def _generator(seed, where: str) -> np.random.Generator:
     try:
         return np.random.default_rng(seed)
     except (TypeError, ValueError) as exc:
-        raise ValueError(f"{where}: seed must be None, an integer >= 0 or a numpy Generator, got {_short(seed)} "
+        raise ValueError(f"{where}: seed must be None, an integer >= 0 or a numpy Generator, got {short_repr(seed)} "
                          f"({exc})") from None
 
 
@@ -98,7 +94,8 @@ class Road:
 
     def __post_init__(self) -> None:
         if np.asarray(self.points).dtype.kind not in "iuf":
-            raise ValueError(f"Road.points must be a (K, 2) array of numbers (int or float), got {_short(self.points)}")
+            raise ValueError(f"Road.points must be a (K, 2) array of numbers (int or float), got "
+                             f"{short_repr(self.points)}")
         try:
             pts = np.array(self.points, dtype=float)   # a copy: freezing it must not freeze the caller's
         except (TypeError, ValueError) as exc:
@@ -254,7 +251,7 @@ class TargetTrack:
             sp = np.array([np.nan])                 # reported below, with the other malformed speeds
         if sp.ndim != 1 or len(sp) == 0 or not np.all(np.isfinite(sp)) or np.any(sp < 0) or np.any(sp > MAX_SPEED):
             raise ValueError(f"TargetTrack.speeds must be a non-empty 1-D array of numbers in [0, {MAX_SPEED:g}] "
-                             f"(m/s), got {_short(self.speeds)}")
+                             f"(m/s), got {short_repr(self.speeds)}")
         if _bad_real(self.delta) or not self.delta > 0:
             raise ValueError(f"TargetTrack.delta must be a finite number > 0 (s), got {self.delta!r}")
         for name in ("z", "s0"):
@@ -269,7 +266,7 @@ class TargetTrack:
                 nom = np.array([np.nan])
             if nom.shape != sp.shape or not np.all(np.isfinite(nom)) or np.any(nom < 0):
                 raise ValueError(f"TargetTrack.nominal_speeds must be None or {len(sp)} finite speeds >= 0 "
-                                 f"(one per slot, like speeds), got {_short(self.nominal_speeds)}")
+                                 f"(one per slot, like speeds), got {short_repr(self.nominal_speeds)}")
             nom.setflags(write=False)
             object.__setattr__(self, "nominal_speeds", nom)
 
@@ -282,7 +279,7 @@ class TargetTrack:
         most = 2 * MAX_N_SLOTS
         if isinstance(n_slots, bool) or not isinstance(n_slots, (int, np.integer)) or not 1 <= n_slots <= most:
             raise ValueError(f"TargetTrack.constant: n_slots must be an integer >= 1 and <= {most}, "
-                             f"got {_short(n_slots)}")
+                             f"got {short_repr(n_slots)}")
         if _bad_real(speed) or speed < 0:
             raise ValueError(f"TargetTrack.constant: speed must be a finite number >= 0 (m/s), got {speed!r}")
         if _bad_real(delta) or not delta > 0:

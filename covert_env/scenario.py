@@ -13,12 +13,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from covert_env.config import SCENE_ROAD_LEAD_IN, SCENE_ROAD_TAIL, Config, check_coordinates
+from covert_env.config import SCENE_ROAD_LEAD_IN, SCENE_ROAD_TAIL, Config, check_coordinates, short_repr
 from covert_env.road import Road, TargetTrack
 from covert_env.terrain import Terrain
 from covert_env.zone import to_world
 
-__all__ = ["Scenario", "PAPER_UAV_STARTS", "PAPER_SEED", "pick_starts", "sample_starts_on", "start_candidates"]
+__all__ = ["Scenario", "PAPER_UAV_STARTS", "PAPER_SEED", "pick_starts", "sample_starts_on", "start_candidates", "valid_start_shapes"]
 
 #: The paper's UAV starts (x, y, heading), §3.1-3.2.
 PAPER_UAV_STARTS = np.array([[40.0, 10.0, 2 * math.pi], [60.0, 0.0, math.pi], [50.0, -10.0, math.pi / 2]])
@@ -70,6 +70,11 @@ class Scenario:
             th = np.asarray(self.uav_theta, dtype=float).reshape(-1)
         except (TypeError, ValueError) as exc:
             raise ValueError(f"Scenario: uav_xy must be (U, 2) and uav_theta (U,) numbers ({exc})") from None
+        if not valid_start_shapes(self.uav_xy, self.uav_theta):
+            raise ValueError(f"Scenario: uav_xy must be (U, 2) and uav_theta (U,) (or (2,) and a number for one UAV), "
+                             f"got shapes {np.shape(self.uav_xy)} and {np.shape(self.uav_theta)}")
+        if not isinstance(self.name, str):
+            raise TypeError(f"Scenario.name must be a str, got {short_repr(self.name)}")
         if len(xy) != len(th):
             raise ValueError(f"Scenario: {len(xy)} start positions but {len(th)} start headings")
         if not (np.all(np.isfinite(xy)) and np.all(np.isfinite(th))):
@@ -179,7 +184,7 @@ class Scenario:
         if not isinstance(rng, np.random.Generator):
             if isinstance(rng, bool) or not isinstance(rng, (int, np.integer)):
                 raise TypeError(f"Scenario.sample_starts: rng must be a numpy Generator (np.random.default_rng(seed)) "
-                                f"or an integer seed >= 0, got {_short(rng)} ({type(rng).__name__})")
+                                f"or an integer seed >= 0, got {short_repr(rng)} ({type(rng).__name__})")
             _check_seed(rng, "Scenario.sample_starts", "rng")
             rng = np.random.default_rng(rng)
         u = self.n_uavs if n_uavs is None else n_uavs
@@ -235,16 +240,18 @@ def _noise_generator(seed) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence(seed).spawn(1)[0])
 
 
-def _short(v) -> str:
-    import reprlib
 
-    return reprlib.repr(v)
+def valid_start_shapes(xy, theta) -> bool:
+    """Start poses shaped (U, 2) and (U,), or (2,) and a number for one UAV: a flat (2U,) array or a (U, 3) one would
+    otherwise be reshaped into some other team without a word."""
+    xy_shape = np.shape(xy)
+    return (len(xy_shape) == 2 and xy_shape[1] == 2 or xy_shape == (2,)) and np.ndim(theta) <= 1
 
 
 def _check_seed(seed, where: str, name: str = "seed") -> None:
     """A scene seed: an integer >= 0 (numpy integers too; bools, floats and strings are refused)."""
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise ValueError(f"{where}: {name} must be an integer >= 0, got {_short(seed)} ({type(seed).__name__})")
+        raise ValueError(f"{where}: {name} must be an integer >= 0, got {short_repr(seed)} ({type(seed).__name__})")
 
 
 def _check_config(config, where: str) -> Config:
@@ -253,7 +260,7 @@ def _check_config(config, where: str) -> Config:
         return Config()
     if not isinstance(config, Config):
         hint = "; build it with Config.from_dict(...)" if isinstance(config, dict) else ""
-        raise TypeError(f"{where}: config must be a Config or None, got {_short(config)} "
+        raise TypeError(f"{where}: config must be a Config or None, got {short_repr(config)} "
                         f"({type(config).__name__}){hint}")
     return config
 

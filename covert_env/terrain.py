@@ -32,15 +32,10 @@ import shapely
 from scipy.spatial import ConvexHull
 from shapely.geometry import LinearRing, Polygon
 
-from covert_env.config import MAX_N_POLYTOPES, Config, check_coordinates, read_json
+from covert_env.config import MAX_N_POLYTOPES, Config, check_coordinates, read_json, short_repr
 from covert_env.road import Road
 
 __all__ = ["Polytope", "Terrain"]
-
-def _short(v) -> str:
-    import reprlib
-
-    return reprlib.repr(v)
 
 
 _AREA_TOL = 1e-6
@@ -81,12 +76,12 @@ def _check_polytope(base, top, base_name: str = "base",
         except (TypeError, ValueError):
             kind = "O"
         if kind not in "iuf":
-            raise ValueError(f"{name} must be an array of numbers (int or float), got {_short(v)}"
+            raise ValueError(f"{name} must be an array of numbers (int or float), got {short_repr(v)}"
                              + (" (strings: convert them with float first)" if kind in "US" else ""))
     try:
         b = np.array(base, dtype=float)
         t = np.array(top, dtype=float)
-    except (TypeError, ValueError) as exc:
+    except (TypeError, ValueError, OverflowError) as exc:     # OverflowError: an integer beyond float's range
         raise ValueError(f"{base_name} and {top_name} must be arrays of numbers ({exc})") from None
     if b.ndim != 2 or b.shape[1] != 2:
         raise ValueError(f"{base_name} must be an (n, 2) array of (x, y) vertices, got shape {b.shape}")
@@ -276,7 +271,7 @@ class Polytope:
             raise ValueError(f"Polytope.prism: height must be a number > 0 (m), got {height!r}")
         try:
             b = np.asarray(base, dtype=float)
-        except (TypeError, ValueError) as exc:
+        except (TypeError, ValueError, OverflowError) as exc:
             raise ValueError(f"Polytope: base must be an (n, 2) array of numbers ({exc})") from None
         ok = b.ndim == 2 and b.shape[1] == 2
         return cls(b, np.column_stack([b, np.full(len(b), float(height))]) if ok else np.empty((0, 3)))
@@ -699,7 +694,7 @@ class Terrain:
         """
         if not isinstance(path, (str, Path)):
             raise TypeError(f"Terrain.load: path must be a str or pathlib.Path naming a GeoJSON file, got "
-                            f"{_short(path)} ({type(path).__name__}); for a dict use Terrain.from_geojson")
+                            f"{short_repr(path)} ({type(path).__name__}); for a dict use Terrain.from_geojson")
         if not str(path).strip():
             raise ValueError("Terrain.load: path is empty; give the GeoJSON file's path")
         obj = read_json(path, "Terrain file")

@@ -534,6 +534,24 @@ def test_ten_thousand_buildings_load_and_overlaps_are_found(tmp_path):
         Terrain(polys)
 
 
+@pytest.mark.parametrize("text, pattern", [
+    ('{"n_uavs": 2, "n_uavs": 3}', r"Config JSON text: invalid JSON \(the key 'n_uavs' appears twice in one object"),
+    ('{"n_uavs": ' + "9" * 5001 + "}", r"Config JSON text: invalid JSON \(Exceeds the limit \(4300 digits\)"),
+])
+def test_json_that_python_would_read_loosely_is_refused(text, pattern):
+    with pytest.raises(ValueError, match=pattern):
+        Config.from_json(text)
+
+
+def test_a_nul_byte_in_a_path_is_named():
+    from pathlib import Path
+
+    with pytest.raises(ValueError, match=r"Config file 'a\\x00b': a path cannot hold a NUL byte"):
+        Config.from_json(Path("a\x00b"))
+    with pytest.raises(ValueError, match=r"Terrain file 'a\\x00b': a path cannot hold a NUL byte"):
+        Terrain.load("a\x00b")
+
+
 def test_terrain_sizes_are_refused_before_any_geometry_work(tmp_path):
     """A file with too many polytopes or vertices fails at once, naming the count and the bound."""
     from covert_env.terrain import MAX_TERRAIN_VERTICES
@@ -556,6 +574,8 @@ def test_terrain_sizes_are_refused_before_any_geometry_work(tmp_path):
 
 
 COORDINATE_CASES = {
+    "integer beyond float": (lambda: Polytope.prism([[0, 0], [10**400, 0], [0, 5]], 5.0),
+                             r"Polytope: base must be an \(n, 2\) array of numbers \(int too large to convert"),
     "road at 1e308": (lambda: Road([[0.0, 0.0], [1e308, 0.0]]), r"Road\.points\[1, 0\] = 1e\+308 must be a finite "
                                                                  r"coordinate within \+-1e\+06 m"),
     "road just outside": (lambda: Road([[0.0, 0.0], [0.0, -1.5e6]]), r"Road\.points\[1, 1\] = -1500000\.0"),
@@ -565,6 +585,12 @@ COORDINATE_CASES = {
                            r"Polytope: base\[1, 0\] = 1e\+300 must be a finite coordinate"),
     "top absurdly high": (lambda: Polytope(np.array(SQUARE), np.c_[np.array(SQUARE), [1e7] * 4]),
                           r"Polytope: top\[0, 2\] = 10000000\.0 must be a finite coordinate"),
+    "flat starts of 3 UAVs": (lambda: Scenario(Config(n_slots=10), Terrain(), _track(Config(n_slots=10)),
+                                               [0.0, 0.0, 1.0, 1.0, 2.0, 2.0], [0.0, 0.0, 0.0]),
+                              r"Scenario: uav_xy must be \(U, 2\) and uav_theta \(U,\).*got shapes \(6,\) and \(3,\)"),
+    "starts of 3 columns": (lambda: Scenario(Config(n_slots=10), Terrain(), _track(Config(n_slots=10)),
+                                             [[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]], [0.0, 0.0, 0.0]),
+                            r"got shapes \(2, 3\) and \(3,\)"),
     "uav start at 1e308": (lambda: Scenario(Config(n_slots=10), Terrain(), _track(Config(n_slots=10)), [[1e308, 0.0]],
                                             [0.0]), r"Scenario\.uav_xy\[0, 0\] = 1e\+308 must be a finite coordinate"),
 }

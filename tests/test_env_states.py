@@ -147,7 +147,8 @@ def test_penalty_items_are_validated(kind):
     env = _make(kind)
     penalties = env.unwrapped.par.penalties if kind == "gymnasium" else env.penalties
     for bad, exc, pattern in ((math.nan, ValueError, r"los_penalty must be finite, got nan"),
-                              (-1.0, ValueError, r"los_penalty must be a finite number >= 0, got -1\.0"),
+                              (-1.0, ValueError, r"los_penalty must be a finite number in \[0, 1e\+06\], got -1\.0"),
+                              (1e308, ValueError, r"los_penalty must be a finite number in \[0, 1e\+06\], got 1e\+308"),
                               ("2", TypeError, r"los_penalty must be a number, got str '2'")):
         with pytest.raises(exc, match=pattern):
             penalties["los"] = bad
@@ -164,6 +165,22 @@ def test_penalty_items_are_validated(kind):
     values = np.asarray(list(rewards.values()) if isinstance(rewards, dict) else rewards, float)
     assert np.isfinite(values).all()
     assert dict(penalties) == {"los": 0.0, "zone": 1.0, "separation": 1.0, "terrain": 1.0}
+
+
+def test_vector_misuse_is_named():
+    venv = covert_env.vector_env(2, n_uavs=2, action_mode="waypoint")
+    with pytest.raises(RuntimeError, match=r"copy_view\(\) called before reset\(\)"):
+        venv.copy_view(0)
+    venv.reset(seed=0)
+    with pytest.raises(AttributeError, match=r"num_envs"):
+        venv.num_envs = 3
+    with pytest.raises(ValueError, match=r"at most \d+ nodes per UAV \(the lattice's\), got M = 100000"):
+        venv.waypoint_paths(np.full((2, 2, 100_000), -1))
+    with pytest.raises(ValueError, match=r"waypoint actions must have shape \(2, 2\) \(copies, agents\), got a ragged"):
+        venv.step([[0, 1], [2]])
+    env = covert_env.parallel_env(action_mode="waypoint")
+    with pytest.raises(ValueError, match=r"read-only"):
+        env.lattice[0] = 0.0
 
 
 @pytest.mark.parametrize("mode, bad, exc, pattern", [

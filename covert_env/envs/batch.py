@@ -15,6 +15,7 @@ import math
 
 import numpy as np
 
+from covert_env.config import short_repr
 from covert_env.envs.observation import OFFSET_CLIP, OWN_SIZE, OWN_SLICES
 from covert_env.flight import fly_turn_straight, waypoint_controls
 
@@ -33,8 +34,12 @@ __all__ = ["COSTS", "MIN_SPEED_FRACTION", "OFFSET_CLIP", "REWARD_TERMS", "action
 
 def unicycle_actions(actions, shape: tuple[int, int], agents) -> np.ndarray:
     """Box actions (B, U, 2) as floats, checked: numbers, the shape, finite (errors name the copy and agent)."""
-    a = np.asarray(actions)
     shape = shape + (2,)
+    try:
+        a = np.asarray(actions)
+    except ValueError:                      # ragged nesting: no array of any shape
+        raise ValueError(f"unicycle actions must have shape {shape} (copies, agents, 2), got a ragged nesting "
+                         f"{short_repr(actions)}") from None
     if a.dtype.kind not in "iuf":
         raise TypeError(f"unicycle actions must be numbers (speed, turn rate) in [-1, 1], got dtype {a.dtype}")
     if a.shape != shape:
@@ -49,7 +54,11 @@ def unicycle_actions(actions, shape: tuple[int, int], agents) -> np.ndarray:
 
 def waypoint_actions(actions, shape: tuple[int, int], n: int, agents) -> np.ndarray:
     """Lattice indices (B, U) as int64, checked: numbers, the shape, integers in [0, n) (errors name copy, agent)."""
-    a = np.asarray(actions)
+    try:
+        a = np.asarray(actions)
+    except ValueError:
+        raise ValueError(f"waypoint actions must have shape {shape} (copies, agents), got a ragged nesting "
+                         f"{short_repr(actions)}") from None
     if a.dtype.kind not in "iuf":
         raise TypeError(f"waypoint actions must be integers (lattice node indices), got dtype {a.dtype}")
     if a.shape != shape:

@@ -39,12 +39,16 @@ def check_reward_scale(value) -> float:
     return v
 
 
+#: Largest penalty weight: beyond it a slot's reward loses the stage cost's precision (and 1e308 overflows).
+MAX_PENALTY = 1e6
+
+
 def _penalty(key, value) -> float:
     if key not in PENALTIES:
         raise KeyError(f"penalties: unknown term {key!r}; the terms are {list(PENALTIES)}")
     v = number_arg(f"{key}_penalty", value)
-    if v < 0:
-        raise ValueError(f"{key}_penalty must be a finite number >= 0, got {value!r}")
+    if not 0 <= v <= MAX_PENALTY:
+        raise ValueError(f"{key}_penalty must be a finite number in [0, {MAX_PENALTY:g}], got {value!r}")
     return v
 
 
@@ -145,6 +149,7 @@ class EnvSettings:
         c = cfg
         self.possible_agents = [f"uav_{i}" for i in range(c.n_uavs)]
         self.lattice = zone_lattice(c)                        # the DP planner's nodes, target frame
+        self.lattice.setflags(write=False)                    # the actions index it: not to be edited in place
         box = lattice_offsets(c.r1, c.r2, c.mu, c.grid_step)
         lo, hi = box.min(0), box.max(0)
         s = self.map_size

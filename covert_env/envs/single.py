@@ -74,7 +74,8 @@ class CovertSensingEnv(gym.Env):
     ## Arguments
 
     Every keyword of the parallel env: ``config``, ``scenario``, ``max_cycles``, ``render_mode``,
-    ``map_size``, reward weights, ``scene_pool``, ``path_samples``; ``n_uavs`` may only be 1 and
+    ``map_size``, reward weights, ``scene_pool``, ``path_samples``; ``n_uavs`` may only be 1 (``config.n_uavs``
+    is not read: a Config's default team of 3 would otherwise forbid every Config here) and
     ``action_mode`` only this env's (an error otherwise); ``dict_obs=True`` (waypoint env only) puts the
     action mask in the observation.
 

@@ -177,7 +177,7 @@ class CovertSensingVectorEnv:
         return venv
 
     def _setup(self, num_envs, s: EnvSettings, autoreset_mode, record, scene_cache_size) -> None:
-        self.num_envs = int_arg("num_envs", num_envs, 1, MAX_NUM_ENVS)
+        self._num_envs = int_arg("num_envs", num_envs, 1, MAX_NUM_ENVS)
         cache_size = self.num_envs + 32 if scene_cache_size is None else int_arg(
             "scene_cache_size", scene_cache_size, self.num_envs, MAX_SCENE_CACHE)
         if autoreset_mode not in AUTORESET_MODES:
@@ -238,6 +238,11 @@ class CovertSensingVectorEnv:
     @reward_scale.setter
     def reward_scale(self, value) -> None:
         self._reward_scale = check_reward_scale(value)
+
+    @property
+    def num_envs(self) -> int:
+        """B, the number of copies (fixed at construction: every array is sized by it)."""
+        return self._num_envs
 
     @property
     def penalties(self) -> dict[str, float]:
@@ -405,8 +410,8 @@ class CovertSensingVectorEnv:
         return self._recorder.trajectory(i, int(self._k[i]), self.scene(i).track)
 
     def copy_view(self, i: int) -> CopyView:
-        """Copy i read as an engine (:class:`~covert_env.envs.recorder.CopyView`)."""
-        return CopyView(self, int_arg("copy index", i, 0, self.num_envs - 1))
+        """Copy i read as an engine (:class:`~covert_env.envs.recorder.CopyView`), after ``reset()``."""
+        return CopyView(self, self._copy("copy_view()", i))
 
     def action_masks(self) -> np.ndarray:
         """(B, U, L) int8 waypoint masks (1 = allowed); all ones (B, U, 2) in unicycle mode. Known after
@@ -430,6 +435,9 @@ class CovertSensingVectorEnv:
         if nodes.ndim != 3 or nodes.shape[:2] != (b, u) or not np.issubdtype(nodes.dtype, np.integer):
             raise ValueError(f"waypoint_paths(): nodes must be integer indices of shape ({b}, {u}, M), got "
                              f"{nodes.dtype} {nodes.shape}")
+        if nodes.shape[2] > len(self.lattice):
+            raise ValueError(f"waypoint_paths(): at most {len(self.lattice)} nodes per UAV (the lattice's), got "
+                             f"M = {nodes.shape[2]}")
         if nodes.size and (nodes.min() < -1 or nodes.max() >= len(self.lattice)):
             raise ValueError(f"waypoint_paths(): node indices must be in [0, {len(self.lattice) - 1}] (or -1 for "
                              f"none), got [{nodes.min()}, {nodes.max()}]")
