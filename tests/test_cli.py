@@ -16,6 +16,7 @@ matplotlib.use("Agg")
 import matplotlib.image as mpimg  # noqa: E402
 import matplotlib.pyplot as plt  # noqa: E402
 import pytest  # noqa: E402
+from _extras import needs  # noqa: E402
 
 from covert_env.cli import build_parser, main  # noqa: E402
 from covert_env.config import Config  # noqa: E402
@@ -380,7 +381,7 @@ for script in {TRAINING_SCRIPTS!r}:
 
 
 def test_evaluate_sb3_file_that_is_not_a_model_is_one_line(error_dir, capsys, monkeypatch):
-    pytest.importorskip("stable_baselines3")
+    needs("stable_baselines3")
     monkeypatch.chdir(error_dir)
     with pytest.raises(SystemExit) as exc:
         main(["evaluate", "--policies", "sb3:a_file", "--episodes", "1", "--n-uavs", "1", "--no-progress",

@@ -6,15 +6,22 @@ import math
 
 import numpy as np
 import pytest
+from _extras import needs
 
-torch = pytest.importorskip("torch")
-pytest.importorskip("tensorboard")
+torch = needs("torch")
 
 from training import mappo  # noqa: E402
 from training.pretrained import N_OWN_FEATURES, NumpyActor, load_learned, node_features  # noqa: E402
 
 TINY = ["--num-envs", "2", "--num-steps", "8", "--num-minibatches", "2", "--update-epochs", "1", "--hidden", "16",
         "--node-hidden", "8", "--max-cycles", "5", "--checkpoint-every", "16", "--progress-bar", "false"]
+
+
+@pytest.fixture
+def train_extra():
+    """What training.mappo.train imports besides torch."""
+    needs("tensorboard")
+    needs("tqdm")
 
 
 def _curve(run):
@@ -49,7 +56,7 @@ def test_numpy_actor_equals_torch_actor(head):
 
 @pytest.mark.parametrize("algo,mode", [("mappo", "waypoint"), ("ippo", "waypoint"), ("mappo", "unicycle"),
                                        ("ippo", "unicycle")])
-def test_smoke_run_checkpoint_resume(tmp_path, algo, mode):
+def test_smoke_run_checkpoint_resume(tmp_path, algo, mode, train_extra):
     run = mappo.main([*TINY, "--algo", algo, "--action-mode", mode, "--total-timesteps", "48",
                       "--runs-dir", str(tmp_path), "--run-name", "r"])
     rows = _curve(run)
@@ -71,7 +78,7 @@ def test_smoke_run_checkpoint_resume(tmp_path, algo, mode):
     assert meta["global_step"] == 80 and meta["updates"] == 5 and meta["actor"]["hidden"] == 16
 
 
-def test_lagrangian_raises_lambda_and_harness_scores_the_run(tmp_path):
+def test_lagrangian_raises_lambda_and_harness_scores_the_run(tmp_path, train_extra):
     from training.evaluate import evaluate, load_policy
 
     run = mappo.main([*TINY, "--lagrangian", "true", "--cost-limit", "0", "--lagrange-lr", "1", "--n-uavs", "2",
@@ -95,7 +102,7 @@ def test_bad_choices_are_one_line_errors(capsys):
     assert exc.value.code == 2 and "--algo" in capsys.readouterr().err
 
 
-def test_shielded_run_records_the_shield_and_evaluates_with_it(tmp_path):
+def test_shielded_run_records_the_shield_and_evaluates_with_it(tmp_path, train_extra):
     """The recipe's shield: on by default in the waypoint mode, written to the card, used by the harness (no
     separation violation in a slot where it found separated nodes); off in the unicycle mode."""
     from training.evaluate import evaluate, load_policy
@@ -116,7 +123,7 @@ def test_shielded_run_records_the_shield_and_evaluates_with_it(tmp_path):
     assert json.loads((uni / "model.json").read_text())["separation_shield"] is None
 
 
-def test_seed_group_is_one_leaderboard_row(tmp_path):
+def test_seed_group_is_one_leaderboard_row(tmp_path, train_extra):
     """``mappo:RUN1,RUN2``: both runs on the same scenes, one row, its IQM interval over seeds x scenes."""
     from training.evaluate import _reward_matrix, main, split_seeds
 

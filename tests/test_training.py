@@ -7,9 +7,10 @@ import json
 
 import numpy as np
 import pytest
+from _extras import needs
 
-pytest.importorskip("stable_baselines3")
-pytest.importorskip("sb3_contrib")
+needs("stable_baselines3")
+needs("sb3_contrib")
 
 import torch  # noqa: E402
 from stable_baselines3 import PPO  # noqa: E402
@@ -337,7 +338,7 @@ def test_harness_rejects_team_size_mismatch(tmp_path):
 
 
 def test_rllib_one_iteration_and_harness(tmp_path):
-    pytest.importorskip("ray.rllib")
+    needs("ray.rllib")
     from training import rllib_ppo
 
     ckpt = rllib_ppo.main(["--iterations", "1", "--num-env-runners", "0", "--train-batch-size", "256",
