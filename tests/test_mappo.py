@@ -142,3 +142,50 @@ def test_seed_group_is_one_leaderboard_row(tmp_path, train_extra):
     m = _reward_matrix({"rows": [{"scene_seed": s, "reward": float(10 * r + s), "run": r}
                                  for r in (0, 1) for s in (5, 6)], "runs": 2})
     np.testing.assert_array_equal(m, [[5, 6], [15, 16]])
+
+
+def test_expected_steps_is_the_binding_budget():
+    from training.common import expected_steps
+
+    assert expected_steps(50_000_000, 0, 0.0, 2.0, 0.0) == 50_000_000              # no rate yet
+    assert expected_steps(50_000_000, 1000, 10.0, 0.0, 100.0) == 50_000_000        # no time budget
+    assert expected_steps(50_000_000, 1000, 10.0, 2.0, 100.0) == 1000 + 100 * 110   # 110 s left at 100 steps/s
+    assert expected_steps(5_000, 1000, 10.0, 2.0, 100.0) == 5_000                   # the step budget ends it first
+    assert expected_steps(50_000_000, 9000, 130.0, 2.0, 100.0) == 9000              # past the budget
+
+
+@pytest.mark.parametrize("budget, total, binding", [("0.03", "10000000", "time"), ("10", "48", "steps")])
+def test_progress_bar_ends_where_the_run_stops(tmp_path, monkeypatch, train_extra, budget, total, binding):
+    """Under a time budget the bar's total is the projected end of the budget, not total_timesteps, so its ETA is
+    the budget's (a 2-minute run shows about 2 minutes); under a step budget that ends first, total_timesteps."""
+    import tqdm.auto
+
+    seen, closed = [], []
+
+    class Recording(tqdm.auto.tqdm):
+        def update(self, n=1):
+            out = super().update(n)
+            d = self.format_dict
+            rate = d["rate"] or (d["n"] - d["initial"]) / d["elapsed"]     # what the bar's ETA divides by
+            seen.append((d["total"], d["elapsed"] + (d["total"] - d["n"]) / rate))   # total, predicted end (s)
+            return out
+
+        def close(self):
+            closed.append((self.n, self.total))
+            return super().close()
+
+    monkeypatch.setattr(tqdm.auto, "tqdm", Recording)
+    args = [a if a != "false" else "true" for a in TINY]           # the progress bar on
+    run = mappo.main([*args, "--action-mode", "unicycle", "--n-uavs", "1", "--checkpoint-every", "0",
+                      "--time-budget-minutes", budget, "--total-timesteps", total, "--runs-dir", str(tmp_path),
+                      "--run-name", "bar"])
+    summary = json.loads((run / "train_summary.json").read_text())
+    steps = summary["env_steps"]
+    assert summary["stopped_by_time_budget"] == (binding == "time")
+    assert closed[0] == (steps, steps)                              # the bar ends full, at the last step
+    if binding == "steps":
+        assert steps == 48 and {t for t, _ in seen} == {48}
+    else:
+        budget_s = 60 * float(budget)
+        assert seen and all(t < 10_000_000 for t, _ in seen), seen
+        assert all(0.3 * budget_s <= end <= 3 * budget_s for _, end in seen), (budget_s, seen)

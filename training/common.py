@@ -39,8 +39,8 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     from training.callbacks import TimeBudgetCallback
 
-__all__ = ["parse_args", "run_name", "setup_torch", "make_callbacks", "latest_checkpoint", "save_run", "field_docs",
-           "build_parser", "save_final_vecnormalize", "train_single"]
+__all__ = ["parse_args", "run_name", "setup_torch", "make_callbacks", "expected_steps", "latest_checkpoint", "save_run",
+           "field_docs", "build_parser", "save_final_vecnormalize", "train_single"]
 
 
 def setup_torch(threads: int = 1) -> None:
@@ -193,6 +193,17 @@ def run_name(env_id: str, algo: str, seed: int) -> str:
     """``{env}__{algo}__{seed}__{time}`` (CleanRL convention)."""
     env = re.sub(r"[^A-Za-z0-9_.-]+", "-", env_id).strip("-")
     return f"{env}__{algo}__{seed}__{int(time.time())}"
+
+
+def expected_steps(total_timesteps: int, steps: int, seconds: float, time_budget_minutes: float,
+                   rate: float) -> int:
+    """The step count at which a run is expected to stop, for a progress bar's total (and so its ETA): the step
+    budget ``total_timesteps``, or fewer when the time budget ends the run first. ``steps`` done after ``seconds``
+    of the budget's clock, at ``rate`` steps per second (0 or less: not known yet, the step budget is shown)."""
+    if time_budget_minutes <= 0 or rate <= 0:
+        return int(total_timesteps)
+    left = max(60.0 * time_budget_minutes - seconds, 0.0)
+    return int(min(total_timesteps, steps + rate * left))
 
 
 def save_run(run_dir: Path, args: Any, extra: dict | None = None) -> None:
