@@ -358,6 +358,38 @@ def test_time_budget_stops_and_saves(tmp_path):
     assert (run / "model.zip").exists() and (run / "vecnormalize.json").exists()
 
 
+def test_progress_bar_ends_with_the_time_budget(tmp_path, monkeypatch):
+    """The SB3 bar's total is the projected end of the time budget, not total_timesteps, so its ETA is the
+    budget's; it ends full at the step where the budget stopped the run."""
+    import tqdm.auto
+
+    from training import ppo_multi
+
+    seen, closed = [], []
+
+    class Recording(tqdm.auto.tqdm):
+        def update(self, n=1):
+            out = super().update(n)
+            d = self.format_dict
+            if d["n"] > d["initial"]:
+                rate = d["rate"] or (d["n"] - d["initial"]) / d["elapsed"]
+                seen.append((d["total"], d["elapsed"] + (d["total"] - d["n"]) / rate))
+            return out
+
+        def close(self):
+            closed.append((self.n, self.total))
+            return super().close()
+
+    monkeypatch.setattr(tqdm.auto, "tqdm", Recording)
+    run = ppo_multi.main(["--recipe", "smoke", *_common(tmp_path), "--progress-bar", "true",
+                          "--total-timesteps", "10000000", "--time-budget-minutes", "0.03", "--checkpoint-freq", "0"])
+    summary = json.loads((run / "train_summary.json").read_text())
+    assert summary["stopped_by_time_budget"] is True
+    assert closed[0] == (summary["timesteps"], summary["timesteps"])
+    late = seen[len(seen) // 2:]                       # the second half of the run: the rate is measured
+    assert late and all(t < 10_000_000 and 0.3 * 1.8 <= end <= 3 * 1.8 for t, end in late), seen
+
+
 # ---------------------------------------------------------------------- VecNormalize statistics as JSON, no pickle
 def _trained_vecnormalize(norm_reward: bool = True) -> VecNormalize:
     """A VecNormalize whose statistics moved away from their initial values."""

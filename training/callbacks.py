@@ -12,6 +12,7 @@ import time
 
 from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
 
+from training.common import expected_steps
 from training.vec_env import save_vecnormalize
 
 __all__ = ["TimeBudgetCallback", "TqdmCallback", "JsonCheckpointCallback"]
@@ -40,29 +41,39 @@ class TimeBudgetCallback(BaseCallback):
 
 
 class TqdmCallback(BaseCallback):
-    """A tqdm progress bar over timesteps (starts at the resumed step count)."""
+    """A tqdm progress bar over timesteps (starts at the resumed step count). Its total, and so its ETA, is where
+    the run is expected to stop: ``total``, or fewer when a time budget of ``minutes`` ends it first (at the rate
+    so far, :func:`training.common.expected_steps`)."""
 
-    def __init__(self, total: int):
+    def __init__(self, total: int, minutes: float = 0.0):
         super().__init__()
         self.total = int(total)
+        self.minutes = float(minutes)
         self.bar = None
+        self.t0, self.step0 = time.monotonic(), 0
 
     def _on_training_start(self) -> None:
         from tqdm.auto import tqdm
 
         tty = sys.stderr.isatty()
+        self.t0, self.step0 = time.monotonic(), self.model.num_timesteps
         self.bar = tqdm(total=self.total, initial=self.model.num_timesteps, unit="step", dynamic_ncols=True,
                         mininterval=0.5 if tty else 30.0, smoothing=0.05)
 
     def _on_step(self) -> bool:
         if self.bar is not None:
-            self.bar.n = self.model.num_timesteps
+            steps, seconds = self.model.num_timesteps, time.monotonic() - self.t0
+            self.bar.total = expected_steps(self.total, steps, seconds, self.minutes,
+                                            (steps - self.step0) / max(seconds, 1e-9))
+            self.bar.n = steps
             self.bar.update(0)
         return True
 
     def _on_training_end(self) -> None:
         if self.bar is not None:
             self.bar.n = self.model.num_timesteps
+            if self.bar.n < self.total:             # stopped early (the time budget): the bar ends full
+                self.bar.total = self.bar.n
             self.bar.close()
 
 

@@ -269,7 +269,7 @@ def make_callbacks(run_dir: Path, algo: str, total_timesteps: int, num_envs: int
         cbs.append(JsonCheckpointCallback(save_freq=max(checkpoint_freq // num_envs, 1),
                                           save_path=str(Path(run_dir) / "checkpoints"), name_prefix=algo))
     if progress_bar:
-        cbs.append(TqdmCallback(total_timesteps))
+        cbs.append(TqdmCallback(total_timesteps, time_budget_minutes))
     return cbs, budget
 
 
