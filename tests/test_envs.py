@@ -139,6 +139,7 @@ def test_determinism_1000_steps(mode):
     assert not _equal(d, e)
 
 
+@pytest.mark.slow
 def test_random_steps_stay_in_space():
     rng = np.random.default_rng(0)
     total = 0

@@ -64,6 +64,7 @@ def test_optional_packages_are_skipped_through_needs():
             assert name not in EXTRA_OF, f"{path.name}: importorskip({name!r}); use _extras.needs"
 
 
+@pytest.mark.slow
 def test_suite_skips_without_the_optional_packages():
     """All tests collected, and those that touch an optional package run, with every package of
     :data:`_extras.EXTRA_OF` unimportable: nothing fails or errors, each skip names its package and extra."""

@@ -147,6 +147,7 @@ _CHECKS = {"sb3": _check_sb3, "rllib": _check_rllib, "torchrl": _check_torchrl, 
            "tianshou": _check_tianshou}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("framework", "code"), _snippet_params())
 def test_snippet(framework, code, tmp_path, monkeypatch):
     needs(FRAMEWORKS[framework])

@@ -123,6 +123,7 @@ def test_shielded_run_records_the_shield_and_evaluates_with_it(tmp_path, train_e
     assert json.loads((uni / "model.json").read_text())["separation_shield"] is None
 
 
+@pytest.mark.slow
 def test_seed_group_is_one_leaderboard_row(tmp_path, train_extra):
     """``mappo:RUN1,RUN2``: both runs on the same scenes, one row, its IQM interval over seeds x scenes."""
     from training.evaluate import _reward_matrix, main, split_seeds

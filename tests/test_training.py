@@ -275,6 +275,7 @@ def _common(tmp_path):
             "--max-cycles", "16"]
 
 
+@pytest.mark.slow
 def test_ppo_multi_train_resume_evaluate(tmp_path):
     from training import ppo_multi
 
@@ -293,6 +294,7 @@ def test_ppo_multi_train_resume_evaluate(tmp_path):
     assert "ppo_multi" in md
 
 
+@pytest.mark.slow
 def test_ppo_single_train_evaluate(tmp_path):
     from training import ppo_single
 
@@ -302,6 +304,7 @@ def test_ppo_single_train_evaluate(tmp_path):
     assert "ppo_single" in _evaluate(tmp_path, f"sb3:{run}", 1)
 
 
+@pytest.mark.slow
 def test_sac_single_train_evaluate(tmp_path):
     from training import sac_single
 
@@ -311,6 +314,7 @@ def test_sac_single_train_evaluate(tmp_path):
     assert "sac_single" in _evaluate(tmp_path, f"sb3:{run}", 1)
 
 
+@pytest.mark.slow
 def test_maskable_ppo_single_train_evaluate(tmp_path):
     from training import maskable_ppo_single
 
