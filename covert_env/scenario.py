@@ -18,7 +18,8 @@ from covert_env.road import Road, TargetTrack
 from covert_env.terrain import Terrain
 from covert_env.zone import to_world
 
-__all__ = ["Scenario", "PAPER_UAV_STARTS", "PAPER_SEED", "pick_starts", "sample_starts_on", "start_candidates", "valid_start_shapes"]
+__all__ = ["Scenario", "PAPER_UAV_STARTS", "PAPER_SEED", "pick_starts", "sample_starts_on", "start_candidates",
+           "valid_start_shapes"]
 
 #: The paper's UAV starts (x, y, heading), §3.1-3.2.
 PAPER_UAV_STARTS = np.array([[40.0, 10.0, 2 * math.pi], [60.0, 0.0, math.pi], [50.0, -10.0, math.pi / 2]])

@@ -508,6 +508,7 @@ def _city(n_side: int, pitch: float = 12.0, size: float = 8.0) -> dict:
     return {"type": "FeatureCollection", "features": feats}
 
 
+@pytest.mark.slow
 def test_ten_thousand_buildings_load_and_overlaps_are_found(tmp_path):
     """The overlap check is an R-tree query, not an M x M array (which needed 25 GB for 23k buildings)."""
     obj = _city(100)                                        # 10,000 disjoint buildings: the most a Terrain holds

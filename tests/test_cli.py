@@ -17,6 +17,7 @@ matplotlib.use("Agg")
 import matplotlib.image as mpimg  # noqa: E402
 import matplotlib.pyplot as plt  # noqa: E402
 import pytest  # noqa: E402
+from _extras import needs  # noqa: E402
 
 from covert_env.cli import build_parser, main  # noqa: E402
 from covert_env.config import Config  # noqa: E402
@@ -441,8 +442,35 @@ def test_every_numeric_training_flag_is_range_checked(script, capsys):
     assert parse_args(module.Args, []) == module.Args()     # the defaults are in range
 
 
+#: Packages of the extras that no training script's ``--help`` (nor ``import training.common``) may need.
+OPTIONAL_PACKAGES = ("stable_baselines3", "sb3_contrib", "torch", "tensorboard", "tqdm", "rich", "ray", "torchrl",
+                     "tensordict", "benchmarl", "tianshou")
+
+
+def test_training_help_needs_no_optional_package():
+    """Every training script's ``--help`` runs with the optional packages made unimportable (``None`` in
+    ``sys.modules``), whether or not they are installed here."""
+    code = f"""
+import runpy, sys
+sys.modules.update(dict.fromkeys({OPTIONAL_PACKAGES!r}))
+import training.common
+for script in {TRAINING_SCRIPTS!r}:
+    sys.argv = [script, "--help"]
+    try:
+        runpy.run_module("training." + script, run_name="__main__", alter_sys=True)
+    except SystemExit as exc:
+        print(script, "exit", exc.code)
+"""
+    root = Path(__file__).resolve().parents[1]
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=root, timeout=120)
+    assert res.returncode == 0, res.stderr[-3000:]
+    for script in TRAINING_SCRIPTS:
+        assert f"usage: python -m training.{script}" in res.stdout, res.stdout[-2000:]
+        assert f"{script} exit 0" in res.stdout, res.stdout[-2000:]
+
+
 def test_evaluate_sb3_file_that_is_not_a_model_is_one_line(error_dir, capsys, monkeypatch):
-    pytest.importorskip("stable_baselines3")
+    needs("stable_baselines3")
     monkeypatch.chdir(error_dir)
     with pytest.raises(SystemExit) as exc:
         main(["evaluate", "--policies", "sb3:a_file", "--episodes", "1", "--n-uavs", "1", "--no-progress",

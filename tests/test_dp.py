@@ -236,6 +236,7 @@ def _optimality_instances(count: int, grid_step: float = 14.0):
     return out
 
 
+@pytest.mark.slow
 def test_dp_against_brute_force_on_small_lattices(record_property):
     """N = 3, <= 12 nodes per stage: J* by enumeration with continuous headings. Both variants' plans cost
     >= J*; the binned variant converges to J* as B grows (B = 64 within 1% on >= 95% of instances); the
@@ -393,6 +394,7 @@ def test_allowed_nodes_exclude_the_disk_around_a_tall_top():
         assert np.all(_clearance_3d(plan.path_points(21)[1:], sc.terrain, c.altitude) >= c.d_safe2 - 1e-9)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("aware", [True, False])
 def test_team_keeps_d_safe2_from_a_tall_pole_where_a_planner_without_eq_3_does_not(aware):
     """A 76 m pole where the zone passes: the team ends no slot within d_safe2 of its top (the metrics'
@@ -572,6 +574,7 @@ def claim_runs():
     return runs
 
 
+@pytest.mark.slow
 def test_shadow_aware_keeps_los_at_every_unflagged_slot(claim_runs):
     aware = [r for r in claim_runs if r["aware"]]
     blocked_unflagged = sum(int((~r["q"].los & ~r["out"]["trajectory"].infeasible).sum()) for r in aware)
@@ -580,6 +583,7 @@ def test_shadow_aware_keeps_los_at_every_unflagged_slot(claim_runs):
     assert flagged <= 2
 
 
+@pytest.mark.slow
 def test_shadow_blind_loses_los_where_the_aware_planner_keeps_it(claim_runs):
     """The paper's comparison: on the same scenes and slots the blind method ends UAV-slots with blocked LoS
     (at least 5, in at least 2 of the 5 scenes), never fewer than the aware method, which has none."""
@@ -589,12 +593,14 @@ def test_shadow_blind_loses_los_where_the_aware_planner_keeps_it(claim_runs):
     assert sum(blind) >= 5 and sum(b > 0 for b in blind) >= 2
 
 
+@pytest.mark.slow
 def test_disguise_of_aware_is_at_least_80_percent_of_blind(claim_runs):
     k_aware = np.mean([m["mean_disguise"] for r in claim_runs if r["aware"] for m in r["m"]])
     k_blind = np.mean([m["mean_disguise"] for r in claim_runs if not r["aware"] for m in r["m"]])
     assert k_aware >= 0.8 * k_blind
 
 
+@pytest.mark.slow
 def test_claim_runs_keep_separation_and_fly_the_planned_moves(claim_runs):
     """No separation violation (eq. 2; the paper scene has 3 UAVs), and every unflagged slot ends exactly on a
     lattice node of the zone at that slot: the planner only plans manoeuvres within V_max and W_max, so the
@@ -610,6 +616,7 @@ def test_claim_runs_keep_separation_and_fly_the_planned_moves(claim_runs):
             assert np.all(gap[~traj.infeasible[k]] < 1e-6), (k, gap)
 
 
+@pytest.mark.slow
 def test_check_path_keeps_los_between_slots():
     """With check_path=True no UAV-slot has blocked LoS along the flown path (held-out scenes)."""
     total = flagged = 0

@@ -197,6 +197,7 @@ def test_feasible_goal_is_never_inside_its_turning_circle():
     assert np.all(np.hypot(*(g[f] - centre).T) >= r * (1 - 1e-12))
 
 
+@pytest.mark.slow
 def test_feasibility_matches_brute_force_over_speeds():
     # Independent check of the classification: eq. 29 (paper-literal) on a dense grid of radii up to
     # V_max / W_max must change sign iff solve_manoeuvre reports a manoeuvre, and near the same speed.

@@ -131,6 +131,7 @@ def test_pettingzoo_battery_dict_obs_default_arguments():
     api_test(covert_env.env(n_uavs=3, action_mode="waypoint", dict_obs=True))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mode", MODES)
 @pytest.mark.parametrize("u", [1, 3])
 def test_max_cycles_render_and_performance_default_arguments(mode, u):
@@ -191,6 +192,7 @@ def _rss_mb() -> float:
         return int(f.read().split()[1]) * 4096 / 2 ** 20
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not __import__("os").path.exists("/proc/self/statm"), reason="needs /proc (Linux)")
 def test_rss_flat_over_1000_envs():
     for i in range(1000):

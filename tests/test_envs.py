@@ -6,6 +6,7 @@ import warnings
 import gymnasium as gym
 import numpy as np
 import pytest
+from _extras import needs
 from pettingzoo.test import (
     api_test,
     max_cycles_test,
@@ -63,12 +64,16 @@ def test_render_battery(mode):
 
 
 @pytest.mark.parametrize("env_id", ["covert_env/CovertSensing-v1", "covert_env/CovertSensingWaypoint-v1"])
-def test_gymnasium_and_sb3_checkers(env_id):
+def test_gymnasium_checker(env_id):
     from gymnasium.utils.env_checker import check_env
-    from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
     env = gym.make(env_id, render_mode="rgb_array", max_cycles=SHORT)
     check_env(env.unwrapped, skip_render_check=False)
+
+
+@pytest.mark.parametrize("env_id", ["covert_env/CovertSensing-v1", "covert_env/CovertSensingWaypoint-v1"])
+def test_sb3_checker(env_id):
+    sb3_check_env = needs("stable_baselines3.common.env_checker").check_env
     sb3_check_env(gym.make(env_id, max_cycles=SHORT).unwrapped, warn=True)
 
 
@@ -134,6 +139,7 @@ def test_determinism_1000_steps(mode):
     assert not _equal(d, e)
 
 
+@pytest.mark.slow
 def test_random_steps_stay_in_space():
     rng = np.random.default_rng(0)
     total = 0
@@ -316,10 +322,7 @@ def test_rgb_frame_and_record_video(tmp_path):
     frame = env.render()
     assert frame.dtype == np.uint8 and frame.ndim == 3 and frame.shape[2] == 3 and frame.std() > 5
     genv = gym.make("covert_env/CovertSensing-v1", render_mode="rgb_array", max_cycles=3)
-    try:
-        import moviepy  # noqa: F401
-    except ImportError:
-        pytest.skip("RecordVideo needs moviepy")
+    needs("moviepy")                                    # RecordVideo writes the mp4 with it
     rec = RecordVideo(genv, str(tmp_path), episode_trigger=lambda e: True)
     rec.reset(seed=0)
     done = False

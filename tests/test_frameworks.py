@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _extras import needs
 
 import covert_env
 
@@ -146,9 +147,10 @@ _CHECKS = {"sb3": _check_sb3, "rllib": _check_rllib, "torchrl": _check_torchrl, 
            "tianshou": _check_tianshou}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("framework", "code"), _snippet_params())
 def test_snippet(framework, code, tmp_path, monkeypatch):
-    pytest.importorskip(FRAMEWORKS[framework])
+    needs(FRAMEWORKS[framework])
     monkeypatch.chdir(tmp_path)                      # BenchMARL and SB3 write logs to the current folder
     monkeypatch.syspath_prepend(str(ROOT))           # `from training.vec_env import ...`
     ns: dict = {"__name__": f"snippet_{framework}"}
@@ -169,7 +171,7 @@ def _torchrl_env(mode, dict_obs, **kw):
 
 @pytest.mark.parametrize(("mode", "dict_obs"), MODES, ids=["unicycle", "waypoint", "waypoint-dict_obs"])
 def test_torchrl_check_env_specs_and_rollout(mode, dict_obs):
-    pytest.importorskip("torchrl")
+    needs("torchrl")
     import torch
     from torchrl.envs.utils import check_env_specs
 
@@ -213,7 +215,7 @@ def test_torchrl_check_env_specs_and_rollout(mode, dict_obs):
 
 @pytest.mark.parametrize("dict_obs", [False, True], ids=["infos", "dict_obs"])
 def test_torchrl_masks_equal_env_action_mask(dict_obs):
-    pytest.importorskip("torchrl")
+    needs("torchrl")
     from torchrl.envs.utils import step_mdp
 
     pz, env = _torchrl_env("waypoint", dict_obs, max_cycles=12)
@@ -239,7 +241,7 @@ def _csv_values(folder: Path, name: str) -> list[float]:
 
 @pytest.mark.parametrize("task_name", ["UNICYCLE", "WAYPOINT"])
 def test_benchmarl_task_specs(task_name):
-    pytest.importorskip("benchmarl")
+    needs("benchmarl")
     from covert_env.integrations.benchmarl import CovertSensingTask
 
     task = CovertSensingTask[task_name].get_task()
@@ -266,7 +268,7 @@ def test_benchmarl_task_specs(task_name):
 
 
 def test_benchmarl_task_config():
-    pytest.importorskip("benchmarl")
+    needs("benchmarl")
     from covert_env.integrations.benchmarl import CovertSensingTask
 
     task = CovertSensingTask.UNICYCLE.get_task(config={"n_uavs": 1, "max_cycles": 20,
@@ -300,7 +302,7 @@ class _KeepBatches(_Callback):
                                                        ("WAYPOINT", True)])
 def test_benchmarl_smoke_run(task_name, vectorized, tmp_path):
     """A few hundred frames of MAPPO on the shipped task: frames collected, losses finite, masks respected."""
-    pytest.importorskip("benchmarl")
+    needs("benchmarl")
     from benchmarl.algorithms import MappoConfig
     from benchmarl.experiment import Experiment, ExperimentConfig
     from benchmarl.models import MlpConfig
@@ -338,7 +340,7 @@ def test_benchmarl_smoke_run(task_name, vectorized, tmp_path):
 def test_benchmarl_hydra_runner(tmp_path, algorithm):
     """``python -m covert_env.integrations.benchmarl algorithm=... task=covert_sensing/...`` (hydra overrides only):
     BenchMARL's own MAPPO and IPPO on the waypoint task with its action masks."""
-    pytest.importorskip("benchmarl")
+    needs("benchmarl")
     overrides = [f"algorithm={algorithm}", "task=covert_sensing/waypoint", "task.n_uavs=2", "task.max_cycles=20",
                  "experiment.max_n_frames=100", "experiment.on_policy_collected_frames_per_batch=100",
                  "experiment.on_policy_n_envs_per_worker=1", "experiment.on_policy_minibatch_size=50",
@@ -353,7 +355,7 @@ def test_benchmarl_hydra_runner(tmp_path, algorithm):
 # ----------------------------------------------------------------------------- Tianshou
 def test_tianshou_mask_only_with_dict_obs():
     """Tianshou reads the mask from ``observation["action_mask"]`` only: dict_obs=True is the setting it needs."""
-    pytest.importorskip("tianshou")
+    needs("tianshou")
     from tianshou.env import PettingZooEnv
 
     with_mask, _ = PettingZooEnv(covert_env.env(n_uavs=3, action_mode="waypoint", dict_obs=True)).reset(seed=0)

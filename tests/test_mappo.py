@@ -6,15 +6,22 @@ import math
 
 import numpy as np
 import pytest
+from _extras import needs
 
-torch = pytest.importorskip("torch")
-pytest.importorskip("tensorboard")
+torch = needs("torch")
 
 from training import mappo  # noqa: E402
 from training.pretrained import N_OWN_FEATURES, NumpyActor, load_learned, node_features  # noqa: E402
 
 TINY = ["--num-envs", "2", "--num-steps", "8", "--num-minibatches", "2", "--update-epochs", "1", "--hidden", "16",
         "--node-hidden", "8", "--max-cycles", "5", "--checkpoint-every", "16", "--progress-bar", "false"]
+
+
+@pytest.fixture
+def train_extra():
+    """What training.mappo.train imports besides torch."""
+    needs("tensorboard")
+    needs("tqdm")
 
 
 def _curve(run):
@@ -49,7 +56,7 @@ def test_numpy_actor_equals_torch_actor(head):
 
 @pytest.mark.parametrize("algo,mode", [("mappo", "waypoint"), ("ippo", "waypoint"), ("mappo", "unicycle"),
                                        ("ippo", "unicycle")])
-def test_smoke_run_checkpoint_resume(tmp_path, algo, mode):
+def test_smoke_run_checkpoint_resume(tmp_path, algo, mode, train_extra):
     run = mappo.main([*TINY, "--algo", algo, "--action-mode", mode, "--total-timesteps", "48",
                       "--runs-dir", str(tmp_path), "--run-name", "r"])
     rows = _curve(run)
@@ -71,7 +78,7 @@ def test_smoke_run_checkpoint_resume(tmp_path, algo, mode):
     assert meta["global_step"] == 80 and meta["updates"] == 5 and meta["actor"]["hidden"] == 16
 
 
-def test_lagrangian_raises_lambda_and_harness_scores_the_run(tmp_path):
+def test_lagrangian_raises_lambda_and_harness_scores_the_run(tmp_path, train_extra):
     from training.evaluate import evaluate, load_policy
 
     run = mappo.main([*TINY, "--lagrangian", "true", "--cost-limit", "0", "--lagrange-lr", "1", "--n-uavs", "2",
@@ -95,7 +102,7 @@ def test_bad_choices_are_one_line_errors(capsys):
     assert exc.value.code == 2 and "--algo" in capsys.readouterr().err
 
 
-def test_shielded_run_records_the_shield_and_evaluates_with_it(tmp_path):
+def test_shielded_run_records_the_shield_and_evaluates_with_it(tmp_path, train_extra):
     """The recipe's shield: on by default in the waypoint mode, written to the card, used by the harness (no
     separation violation in a slot where it found separated nodes); off in the unicycle mode."""
     from training.evaluate import evaluate, load_policy
@@ -116,7 +123,8 @@ def test_shielded_run_records_the_shield_and_evaluates_with_it(tmp_path):
     assert json.loads((uni / "model.json").read_text())["separation_shield"] is None
 
 
-def test_seed_group_is_one_leaderboard_row(tmp_path):
+@pytest.mark.slow
+def test_seed_group_is_one_leaderboard_row(tmp_path, train_extra):
     """``mappo:RUN1,RUN2``: both runs on the same scenes, one row, its IQM interval over seeds x scenes."""
     from training.evaluate import _reward_matrix, main, split_seeds
 
@@ -135,3 +143,50 @@ def test_seed_group_is_one_leaderboard_row(tmp_path):
     m = _reward_matrix({"rows": [{"scene_seed": s, "reward": float(10 * r + s), "run": r}
                                  for r in (0, 1) for s in (5, 6)], "runs": 2})
     np.testing.assert_array_equal(m, [[5, 6], [15, 16]])
+
+
+def test_expected_steps_is_the_binding_budget():
+    from training.budget import expected_steps
+
+    assert expected_steps(50_000_000, 0, 0.0, 2.0, 0.0) == 50_000_000              # no rate yet
+    assert expected_steps(50_000_000, 1000, 10.0, 0.0, 100.0) == 50_000_000        # no time budget
+    assert expected_steps(50_000_000, 1000, 10.0, 2.0, 100.0) == 1000 + 100 * 110   # 110 s left at 100 steps/s
+    assert expected_steps(5_000, 1000, 10.0, 2.0, 100.0) == 5_000                   # the step budget ends it first
+    assert expected_steps(50_000_000, 9000, 130.0, 2.0, 100.0) == 9000              # past the budget
+
+
+@pytest.mark.parametrize("budget, total, binding", [("0.03", "10000000", "time"), ("10", "48", "steps")])
+def test_progress_bar_ends_where_the_run_stops(tmp_path, monkeypatch, train_extra, budget, total, binding):
+    """Under a time budget the bar's total is the projected end of the budget, not total_timesteps, so its ETA is
+    the budget's (a 2-minute run shows about 2 minutes); under a step budget that ends first, total_timesteps."""
+    import tqdm.auto
+
+    seen, closed = [], []
+
+    class Recording(tqdm.auto.tqdm):
+        def update(self, n=1):
+            out = super().update(n)
+            d = self.format_dict
+            rate = d["rate"] or (d["n"] - d["initial"]) / d["elapsed"]     # what the bar's ETA divides by
+            seen.append((d["total"], d["elapsed"] + (d["total"] - d["n"]) / rate))   # total, predicted end (s)
+            return out
+
+        def close(self):
+            closed.append((self.n, self.total))
+            return super().close()
+
+    monkeypatch.setattr(tqdm.auto, "tqdm", Recording)
+    args = [a if a != "false" else "true" for a in TINY]           # the progress bar on
+    run = mappo.main([*args, "--action-mode", "unicycle", "--n-uavs", "1", "--checkpoint-every", "0",
+                      "--time-budget-minutes", budget, "--total-timesteps", total, "--runs-dir", str(tmp_path),
+                      "--run-name", "bar"])
+    summary = json.loads((run / "train_summary.json").read_text())
+    steps = summary["env_steps"]
+    assert summary["stopped_by_time_budget"] == (binding == "time")
+    assert closed[0] == (steps, steps)                              # the bar ends full, at the last step
+    if binding == "steps":
+        assert steps == 48 and {t for t, _ in seen} == {48}
+    else:
+        budget_s = 60 * float(budget)
+        assert seen and all(t < 10_000_000 for t, _ in seen), seen
+        assert all(0.3 * budget_s <= end <= 3 * budget_s for _, end in seen), (budget_s, seen)

@@ -191,6 +191,7 @@ def test_eroded_zone_around_the_prediction_lies_in_the_true_zone_on_a_straight_r
         assert not in_feasible_zone(nodes, true_q[:2], float(tr.heading(1)), c.r1, c.r2, c.mu).all()
 
 
+@pytest.mark.slow
 def test_dp_keeps_the_true_zone_with_r_u_at_the_bound_and_leaves_it_without(tmp_path):
     """The paper scene and held-out scene 1_000_003, 1 UAV, 25 slots, bound 4 m (counts of the
     deterministic runs; see baselines/prediction_study.py for the table, written here with its figure)."""
@@ -322,6 +323,7 @@ def test_planner_margin_rule_and_the_paper_setting_unchanged():
             DPPlanner(noisy, sc.terrain, los_margin=bad)
 
 
+@pytest.mark.slow
 def test_widened_shadows_keep_los_to_the_true_target_where_the_prediction_loses_it():
     """3 UAVs, bound 4 m. Held-out scene 1_000_002, 6 slots: the r_u = 0 planner loses LoS to the true target
     (slot 5); held-out scene 1_000_005, 20 slots: the eroded zone with the prediction's shadows (the paper's

@@ -359,6 +359,7 @@ def test_random_slanted_tops_are_slanted_planes():
         assert np.hypot(*coef[:2]) > 0.01
 
 
+@pytest.mark.slow
 def test_random_is_fast():
     road = Road.random(0)
     Terrain.random(0, road=road)

@@ -9,8 +9,9 @@ import sys
 
 import numpy as np
 import pytest
+from _extras import needs
 
-torchrl = pytest.importorskip("torchrl")
+torchrl = needs("torchrl")
 import torch  # noqa: E402
 from torchrl.envs.utils import check_env_specs, step_mdp  # noqa: E402
 

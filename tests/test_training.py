@@ -7,9 +7,10 @@ import json
 
 import numpy as np
 import pytest
+from _extras import needs
 
-pytest.importorskip("stable_baselines3")
-pytest.importorskip("sb3_contrib")
+needs("stable_baselines3")
+needs("sb3_contrib")
 
 import torch  # noqa: E402
 from stable_baselines3 import PPO  # noqa: E402
@@ -274,6 +275,7 @@ def _common(tmp_path):
             "--max-cycles", "16"]
 
 
+@pytest.mark.slow
 def test_ppo_multi_train_resume_evaluate(tmp_path):
     from training import ppo_multi
 
@@ -292,6 +294,7 @@ def test_ppo_multi_train_resume_evaluate(tmp_path):
     assert "ppo_multi" in md
 
 
+@pytest.mark.slow
 def test_ppo_single_train_evaluate(tmp_path):
     from training import ppo_single
 
@@ -301,6 +304,7 @@ def test_ppo_single_train_evaluate(tmp_path):
     assert "ppo_single" in _evaluate(tmp_path, f"sb3:{run}", 1)
 
 
+@pytest.mark.slow
 def test_sac_single_train_evaluate(tmp_path):
     from training import sac_single
 
@@ -310,6 +314,7 @@ def test_sac_single_train_evaluate(tmp_path):
     assert "sac_single" in _evaluate(tmp_path, f"sb3:{run}", 1)
 
 
+@pytest.mark.slow
 def test_maskable_ppo_single_train_evaluate(tmp_path):
     from training import maskable_ppo_single
 
@@ -337,7 +342,7 @@ def test_harness_rejects_team_size_mismatch(tmp_path):
 
 
 def test_rllib_one_iteration_and_harness(tmp_path):
-    pytest.importorskip("ray.rllib")
+    needs("ray.rllib")
     from training import rllib_ppo
 
     ckpt = rllib_ppo.main(["--iterations", "1", "--num-env-runners", "0", "--train-batch-size", "256",
@@ -355,6 +360,38 @@ def test_time_budget_stops_and_saves(tmp_path):
     summary = json.loads((run / "train_summary.json").read_text())
     assert summary["stopped_by_time_budget"] is True and summary["timesteps"] < 1_000_000
     assert (run / "model.zip").exists() and (run / "vecnormalize.json").exists()
+
+
+def test_progress_bar_ends_with_the_time_budget(tmp_path, monkeypatch):
+    """The SB3 bar's total is the projected end of the time budget, not total_timesteps, so its ETA is the
+    budget's; it ends full at the step where the budget stopped the run."""
+    import tqdm.auto
+
+    from training import ppo_multi
+
+    seen, closed = [], []
+
+    class Recording(tqdm.auto.tqdm):
+        def update(self, n=1):
+            out = super().update(n)
+            d = self.format_dict
+            if d["n"] > d["initial"]:
+                rate = d["rate"] or (d["n"] - d["initial"]) / d["elapsed"]
+                seen.append((d["total"], d["elapsed"] + (d["total"] - d["n"]) / rate))
+            return out
+
+        def close(self):
+            closed.append((self.n, self.total))
+            return super().close()
+
+    monkeypatch.setattr(tqdm.auto, "tqdm", Recording)
+    run = ppo_multi.main(["--recipe", "smoke", *_common(tmp_path), "--progress-bar", "true",
+                          "--total-timesteps", "10000000", "--time-budget-minutes", "0.03", "--checkpoint-freq", "0"])
+    summary = json.loads((run / "train_summary.json").read_text())
+    assert summary["stopped_by_time_budget"] is True
+    assert closed[0] == (summary["timesteps"], summary["timesteps"])
+    late = seen[len(seen) // 2:]                       # the second half of the run: the rate is measured
+    assert late and all(t < 10_000_000 and 0.3 * 1.8 <= end <= 3 * 1.8 for t, end in late), seen
 
 
 # ---------------------------------------------------------------------- VecNormalize statistics as JSON, no pickle

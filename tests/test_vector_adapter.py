@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from _extras import needs
 
-pytest.importorskip("stable_baselines3")
+needs("stable_baselines3")
 
 from covert_env.envs.vector import INFO_KEYS  # noqa: E402
 from training.vec_env import make_vec_env  # noqa: E402

@@ -1,10 +1,11 @@
 """Shared plumbing of the SB3 scripts: dataclass -> argparse, run names, callbacks, checkpoints and resume.
 
 Every script keeps its own readable ``Args`` dataclass (CleanRL style); this module only turns it into a CLI whose
-``--help`` shows each field's docstring, and provides the callbacks every script uses:
+``--help`` shows each field's docstring, and :func:`make_callbacks` gives the SB3 callbacks every SB3 script uses
+(:mod:`training.callbacks`, imported only there: this module, and so every script's ``--help``, needs no SB3):
 
 * a tqdm progress bar (``mininterval`` 30 s when stdout is not a terminal, so logs stay small);
-* :class:`TimeBudgetCallback`: stops ``learn()`` gracefully after a wall-clock budget (the model is then saved);
+* ``TimeBudgetCallback``: stops ``learn()`` gracefully after a wall-clock budget (the model is then saved);
 * SB3's ``CheckpointCallback`` every ``checkpoint_freq`` steps, with the VecNormalize statistics beside the model
   as JSON (:func:`training.vec_env.save_vecnormalize`; nothing we write is a pickle, but SB3's ``model.zip``
   itself holds pickled parts, so ``--resume`` loads it only with ``--trust-checkpoint``: :mod:`training.trust`).
@@ -33,15 +34,17 @@ import textwrap
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from covert_env.command_line import UsageError, float_range, int_range, non_negative_int, output_dir, positive_int
 from covert_env.config import read_json
 from training.trust import require_trust
 
-__all__ = ["parse_args", "run_name", "setup_torch", "TimeBudgetCallback", "TqdmCallback", "make_callbacks",
-           "latest_checkpoint", "resume_checkpoint", "save_run", "field_docs", "build_parser",
-           "save_final_vecnormalize", "train_single"]
+if TYPE_CHECKING:
+    from training.callbacks import TimeBudgetCallback
+
+__all__ = ["parse_args", "run_name", "setup_torch", "make_callbacks", "latest_checkpoint",
+           "resume_checkpoint", "save_run", "field_docs", "build_parser", "save_final_vecnormalize", "train_single"]
 
 
 def setup_torch(threads: int = 1) -> None:
@@ -321,89 +324,19 @@ def resume_checkpoint(run_dir: Path, *, trust_checkpoint: bool = False) -> tuple
     return ckpt
 
 
-def _callback_base():
-    from stable_baselines3.common.callbacks import BaseCallback
-
-    return BaseCallback
-
-
-class TimeBudgetCallback(_callback_base()):
-    """Stop training gracefully once ``minutes`` of wall-clock time have passed (0 or less: no budget)."""
-
-    def __init__(self, minutes: float):
-        super().__init__()
-        self.minutes = float(minutes)
-        self.t0 = time.monotonic()
-        self.stopped = False
-
-    def _on_training_start(self) -> None:
-        self.t0 = time.monotonic()
-
-    def _on_step(self) -> bool:
-        if self.minutes > 0 and time.monotonic() - self.t0 > 60.0 * self.minutes:
-            if not self.stopped:
-                print(f"time budget of {self.minutes:g} min reached at {self.num_timesteps} steps: stopping",
-                      flush=True)
-            self.stopped = True
-            return False
-        return True
-
-
-class TqdmCallback(_callback_base()):
-    """A tqdm progress bar over timesteps (starts at the resumed step count)."""
-
-    def __init__(self, total: int):
-        super().__init__()
-        self.total = int(total)
-        self.bar = None
-
-    def _on_training_start(self) -> None:
-        from tqdm.auto import tqdm
-
-        tty = sys.stderr.isatty()
-        self.bar = tqdm(total=self.total, initial=self.model.num_timesteps, unit="step", dynamic_ncols=True,
-                        mininterval=0.5 if tty else 30.0, smoothing=0.05)
-
-    def _on_step(self) -> bool:
-        if self.bar is not None:
-            self.bar.n = self.model.num_timesteps
-            self.bar.update(0)
-        return True
-
-    def _on_training_end(self) -> None:
-        if self.bar is not None:
-            self.bar.n = self.model.num_timesteps
-            self.bar.close()
-
-
-def _checkpoint_callback(**kw):
-    """SB3's ``CheckpointCallback``, with the VecNormalize statistics saved as JSON beside each checkpoint
-    (``{prefix}_vecnormalize_{steps}_steps.json``) instead of SB3's pickle."""
-    from stable_baselines3.common.callbacks import CheckpointCallback
-
-    from training.vec_env import save_vecnormalize
-
-    class JsonCheckpointCallback(CheckpointCallback):
-        def _on_step(self) -> bool:
-            super()._on_step()
-            vn = self.model.get_vec_normalize_env()
-            if self.n_calls % self.save_freq == 0 and vn is not None:
-                save_vecnormalize(vn, self._checkpoint_path("vecnormalize_", extension="json"))
-            return True
-
-    return JsonCheckpointCallback(save_vecnormalize=False, **kw)
-
-
 def make_callbacks(run_dir: Path, algo: str, total_timesteps: int, num_envs: int, checkpoint_freq: int,
                    time_budget_minutes: float, progress_bar: bool = True) -> tuple[list, TimeBudgetCallback]:
-    """Checkpoints every ``checkpoint_freq`` steps (with VecNormalize stats), a time budget and a progress bar."""
+    """Checkpoints every ``checkpoint_freq`` steps (with VecNormalize stats), a time budget and a progress bar
+    (the SB3 callbacks of :mod:`training.callbacks`)."""
+    from training.callbacks import JsonCheckpointCallback, TimeBudgetCallback, TqdmCallback
+
     budget = TimeBudgetCallback(time_budget_minutes)
     cbs: list = [budget]
     if checkpoint_freq > 0:
-        cbs.append(_checkpoint_callback(save_freq=max(checkpoint_freq // num_envs, 1),
-                                        save_path=str(Path(run_dir) / "checkpoints"), name_prefix=algo))
+        cbs.append(JsonCheckpointCallback(save_freq=max(checkpoint_freq // num_envs, 1),
+                                          save_path=str(Path(run_dir) / "checkpoints"), name_prefix=algo))
     if progress_bar:
-        cbs.append(TqdmCallback(total_timesteps))
+        cbs.append(TqdmCallback(total_timesteps, time_budget_minutes))
     return cbs, budget
 
 

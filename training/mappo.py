@@ -47,6 +47,7 @@ from pathlib import Path
 
 import numpy as np
 
+from training.budget import expected_steps
 from training.common import parse_args, resumed_args, run_name, save_run, setup_torch
 from training.pretrained import N_OWN_FEATURES, node_features
 from training.recipes import MAPPO_RECIPES
@@ -135,7 +136,8 @@ class Args:
     torch_threads: int = 1
     """torch threads (1: 2 threads on 2 busy cores can be 50x slower)"""
     progress_bar: bool = True
-    """show a tqdm progress bar"""
+    """show a tqdm progress bar over env steps; its total and ETA are where the run is expected to stop (the time
+    budget's end at the rate so far, or total_timesteps, whichever comes first)"""
 
 
 def check_args(args: Args) -> None:
@@ -363,6 +365,7 @@ def train(args: Args) -> Path:
     bar = tqdm(total=args.total_timesteps, initial=global_step, unit="step", disable=not args.progress_bar,
                mininterval=0.5 if os.isatty(2) else 30.0, smoothing=0.05)
     t_start, stopped = time.monotonic() - wall0, False
+    t_run, step_run = time.monotonic(), global_step          # this process's rate projects the time budget's end
     last_ckpt = global_step
     while global_step < args.total_timesteps:
         if args.anneal_lr:
@@ -420,6 +423,9 @@ def train(args: Args) -> Path:
                                                                for i, k in enumerate(cost_keys)}})
             ep_ret[done], ep_kappa[done], ep_cost[:, done] = 0.0, 0.0, 0.0
             global_step += B
+        now = time.monotonic()
+        bar.total = expected_steps(args.total_timesteps, global_step, now - t_start, args.time_budget_minutes,
+                                   (global_step - step_run) / max(now - t_run, 1e-9))
         bar.update(B * T)
         # ------------------------------------------------------------------ GAE
         next_val = value_of(obs, state)
@@ -504,6 +510,8 @@ def train(args: Args) -> Path:
             last_ckpt = global_step
         if stopped:
             break
+    if stopped:
+        bar.total = bar.n                       # the time budget ended the run here
     bar.close()
     save_checkpoint(run_dir / "checkpoints" / f"step_{global_step}.npz", actor, critic, optim, meta)
     # The final actor alone, in the format training.pretrained loads (mappo:RUN and the shipped weights).
