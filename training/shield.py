@@ -39,6 +39,8 @@ from collections.abc import Callable
 
 import numpy as np
 
+from covert_env.separation import separation
+
 __all__ = ["SeparationShield"]
 
 
@@ -73,17 +75,16 @@ class SeparationShield:
         empty = np.zeros(len(mask), bool)
         if chosen_paths.shape[1] == 0:
             return mask, empty
-        gap = paths[:, :, None, 1:] - chosen_paths[:, None, :, 1:]             # (B, M, k, P-1, 2)
-        gap2 = np.einsum("...i,...i->...", gap, gap).min(axis=(2, 3))          # (B, M) closest approach^2
-        gap2[nodes < 0] = -1.0                                                  # padding: never kept
-        keep = gap2 >= self.min_distance ** 2
+        gap = separation(paths[:, :, None, 1:], chosen_paths[:, None, :, 1:]).min(axis=2)   # (B, M)
+        gap[nodes < 0] = -1.0                                                   # padding: never kept
+        keep = gap >= self.min_distance
         if self.end_margin > 0:
-            roomy = keep & (self._end_gap2(paths, chosen_paths) >= (self.min_distance + self.end_margin) ** 2)
+            roomy = keep & (self._end_gap(paths, chosen_paths) >= self.min_distance + self.end_margin)
             has = roomy.any(axis=1)
             keep[has] = roomy[has]
         empty = ~keep.any(axis=1)
         if empty.any():
-            keep[empty] = gap2[empty] >= gap2[empty].max(axis=1, keepdims=True)
+            keep[empty] = gap[empty] >= gap[empty].max(axis=1, keepdims=True)
         out = np.zeros_like(mask)
         rows = np.broadcast_to(np.arange(len(mask))[:, None], nodes.shape)
         keep &= nodes >= 0
@@ -91,11 +92,10 @@ class SeparationShield:
         return out, empty
 
     @staticmethod
-    def _end_gap2(paths, chosen_paths):
-        """Squared distance from each candidate path's end ``(B, M, P, 2)`` to the nearest teammate's end
-        ``(B, k, P, 2)``: ``(B, M)``."""
-        end = paths[:, :, None, -1] - chosen_paths[:, None, :, -1]
-        return np.einsum("...i,...i->...", end, end).min(axis=2)
+    def _end_gap(paths, chosen_paths):
+        """Distance from each candidate path's end ``(B, M, P, 2)`` to the nearest teammate's end ``(B, k, P, 2)``:
+        ``(B, M)``."""
+        return separation(paths[:, :, None, -1:], chosen_paths[:, None, :, -1:]).min(axis=2)
 
     def _pass(self, masks, nodes, paths, free, order, paths_to, pick):
         """One sequential choice in the per-copy UAV ``order`` ``(B, U)``: actions, shielded masks, and per copy
@@ -140,10 +140,9 @@ class SeparationShield:
             path[pending] = p[pending]
             if past.shape[1] == 0:
                 return a, path, np.zeros(B, bool)
-            gap = p[:, None, 1:] - past[:, :, 1:]                              # (B, k, P-1, 2)
-            close = pending & (np.einsum("...i,...i->...", gap, gap).min(axis=(1, 2)) < self.min_distance ** 2)
+            close = pending & (separation(p[:, None, 1:], past[:, :, 1:]).min(axis=1) < self.min_distance)
             if self.end_margin > 0 and attempt < self.free_tries // 2:         # the first tries want room too
-                cramped = self._end_gap2(p[:, None], past)[:, 0] < (self.min_distance + self.end_margin) ** 2
+                cramped = self._end_gap(p[:, None], past)[:, 0] < self.min_distance + self.end_margin
                 close |= pending & cramped
             pending = close
             if not pending.any() or attempt == self.free_tries:

@@ -11,6 +11,7 @@ from baselines.dp.path_checks import FALLBACK_PENALTY
 from baselines.dp.transitions import transition_costs
 from covert_env.cost import uav_target_angle, uav_target_distance
 from covert_env.dynamics import Manoeuvre, solve_manoeuvre
+from covert_env.separation import separation
 
 __all__ = ["secure_first_moves"]
 
@@ -79,11 +80,11 @@ def secure_first_moves(team, plans, xy, th, target_xyz, target_phi, target_path=
         return cands[i]
 
     def clear_of(pts, others):
-        """(n,) smallest distance from candidate paths (n, P-1, 2) to the given settled paths."""
-        d = np.full(len(pts), np.inf)
-        for f in others:
-            d = np.minimum(d, np.hypot(*(pts - f[None]).transpose(2, 0, 1)).min(axis=1))
-        return d
+        """(n,) smallest distance (eq. 2) from candidate paths (n, P-1, 2) to the given settled paths."""
+        others = list(others)
+        if not others:
+            return np.full(len(pts), np.inf)
+        return separation(pts[:, None], np.stack(others)[None]).min(axis=1)
 
     def pick(i, fixed):
         m, ok, pts, g, allowed = candidates(i)
@@ -103,7 +104,7 @@ def secure_first_moves(team, plans, xy, th, target_xyz, target_phi, target_path=
         ch = np.flatnonzero(ok_h & (clear_of(p_h, rest) >= lim))
         if ci.size == 0 or ch.size == 0:
             return None
-        d = np.hypot(*(p_h[ch][:, None] - p_i[ci][None]).transpose(3, 0, 1, 2)).min(axis=2)
+        d = separation(p_h[ch][:, None], p_i[ci][None])
         # Prefer both visible, then the lowest total stage cost.
         score = g_h[ch][:, None] + g_i[ci][None] + FALLBACK_PENALTY * (
             (~al_h[ch])[:, None].astype(float) + (~al_i[ci])[None].astype(float))
@@ -117,7 +118,7 @@ def secure_first_moves(team, plans, xy, th, target_xyz, target_phi, target_path=
         """Moves per UAV settled in ``order``; and the first UAV left without a separated move (None: clean)."""
         fixed, moves, stuck = {}, {}, None
         for i in order:
-            if all(np.hypot(*(own[i] - f).T).min() >= lim for f in fixed.values()):
+            if clear_of(own[i][None], fixed.values())[0] >= lim:
                 moves[i] = None                               # keeps its plan
                 fixed[i] = own[i]
                 continue
