@@ -23,10 +23,11 @@ probability ratios are taken under the masks the actions were sampled with); the
 * A node whose path comes closer than ``min_distance`` is removed from the UAV's mask. With ``end_margin``, so
   is a node whose path ends closer than ``min_distance + end_margin`` to a teammate's end, where another node
   is left: the next slot then starts with room to part (most dead ends start from cramped ends). If that leaves no node,
-  the team tries again with that UAV choosing first (at most U tries; the UAVs fly at up to 50 m/s with a
-  bounded turn rate, so a teammate's path can cut off every path of a UAV that chose after it). If every try
-  leaves some UAV without a node, the last try stands and that UAV chooses among the nodes whose paths come
-  least close (the shield never leaves a UAV without an action); such team choices are counted in
+  the team tries again with that UAV choosing first (the DP team's order rule,
+  :func:`covert_env.separation.priority_negotiation`: each UAV promoted at most once, at most U tries; the UAVs fly
+  at up to 50 m/s with a bounded turn rate, so a teammate's path can cut off every path of a UAV that chose after
+  it). If every try leaves some UAV without a node, the last try stands and that UAV chooses among the nodes whose
+  paths come least close (the shield never leaves a UAV without an action); such team choices are counted in
   ``fallbacks``.
 
 All copies of a batch go through it at once; the loops are over the UAVs of a team and over the tries, because
@@ -39,7 +40,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from covert_env.separation import separation
+from covert_env.separation import priority_negotiation, separation
 
 __all__ = ["SeparationShield"]
 
@@ -178,18 +179,13 @@ class SeparationShield:
         first = np.argsort(~masks, axis=2, kind="stable")[..., :m]
         nodes = np.where(np.arange(m) < counts[..., None], first, -1)
         paths = paths_to(nodes)
-        order = np.tile(np.arange(U), (B, 1))
-        actions, shielded, failed_at = self._pass(masks, nodes, paths, free, order, paths_to, pick)
-        for _ in range(U - 1):
-            retry = failed_at < U
-            if not retry.any():
-                break
-            # The blocked UAV first, the others in their order.
-            blocked = order[np.arange(B), np.minimum(failed_at, U - 1)]
-            new_order = np.concatenate([blocked[:, None], order[order != blocked[:, None]].reshape(B, U - 1)], 1)
-            order = np.where(retry[:, None], new_order, order)
-            a2, s2, f2 = self._pass(masks, nodes, paths, free, order, paths_to, pick)
-            actions[retry], shielded[retry], failed_at[retry] = a2[retry], s2[retry], f2[retry]
-        self.fallbacks += int((failed_at < U).sum())
+        actions, shielded = np.zeros((B, U), np.int64), np.empty_like(masks)
+
+        def settle(order, rows):
+            a, s, failed_at = self._pass(masks, nodes, paths, free, order, paths_to, pick)
+            actions[rows], shielded[rows] = a[rows], s[rows]
+            return failed_at
+
+        self.fallbacks += int(priority_negotiation(settle, B, U).sum())
         self.choices += B
         return actions, shielded

@@ -109,7 +109,8 @@ is actually flown (the records can leave a loser no separated move, so it falls 
 replaces, in priority order, the conflicting UAV's first move by its best one-slot move that keeps the
 distance to every higher-priority UAV's first manoeuvre (``status="safety"``); when the priority order
 leaves some UAV no such move (a fast teammate sweeping past), that UAV is promoted to the front and the layer
-runs again (each UAV at most once). The work is polynomial in U (``TeamPlan.work``, docs/model.md#team-negotiation).
+runs again (each UAV at most once, at most U orders: :func:`covert_env.separation.priority_negotiation`).
+The work is polynomial in U (``TeamPlan.work``, docs/model.md#team-negotiation).
 
 ## Caching
 

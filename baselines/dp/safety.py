@@ -11,7 +11,7 @@ from baselines.dp.path_checks import FALLBACK_PENALTY
 from baselines.dp.transitions import transition_costs
 from covert_env.cost import uav_target_angle, uav_target_distance
 from covert_env.dynamics import Manoeuvre, solve_manoeuvre
-from covert_env.separation import separation
+from covert_env.separation import priority_negotiation, separation
 
 __all__ = ["secure_first_moves"]
 
@@ -34,16 +34,16 @@ class _Move(NamedTuple):
 def secure_first_moves(team, plans, xy, th, target_xyz, target_phi, target_path=None) -> list:
     """Safety layer for the slot that is flown, after the negotiation left a conflict in it.
 
-    In priority order, a UAV keeps its plan if its first manoeuvre keeps ``d_safe1 + separation_margin``
-    from those of the UAVs already settled, at every sample; otherwise it takes, among all lattice nodes
-    of the next slot (solved exactly from its pose), the separated move to an allowed (visible) node with
-    the lowest stage cost (eq. 18), else to any node (flagged infeasible). If it has no separated move
+    In the order of :func:`~covert_env.separation.priority_negotiation`, a UAV keeps its plan if its first
+    manoeuvre keeps ``d_safe1 + separation_margin`` from those of the UAVs already settled, at every sample;
+    otherwise it takes, among all lattice nodes of the next slot (solved exactly from its pose), the separated
+    move to an allowed (visible) node with the lowest stage cost (eq. 18), else to any node (flagged
+    infeasible). If it has no separated move
     at all, its move and that of one settled UAV are re-chosen together (every pair of their candidates;
     a fast teammate sweeping past can leave no single move). With ``check_path``, "allowed" also means
-    LoS kept along the manoeuvre. Failing that, the UAV left without a separated move is promoted to
-    the front of the order and the layer is run again (each UAV promoted at most once: at most U orders,
-    see docs/decisions.md#team-priority-rule); if none works the priority order's result is kept with the
-    most separated move (flagged). ``status="safety"``.
+    LoS kept along the manoeuvre. Failing that, the UAV is left without a separated move (the order rule
+    then promotes it, docs/decisions.md#safety-layer) and, in the order that stands, takes its most separated
+    move (flagged). ``status="safety"``.
 
     Cost: at most U orders, each O(U) picks and O(U^2) pair repairs; every UAV's candidate moves are solved
     once (L manoeuvres). ``team.stats`` counts ``safety_orders`` and ``safety_solves``.
@@ -143,21 +143,17 @@ def secure_first_moves(team, plans, xy, th, target_xyz, target_phi, target_path=
             fixed[i] = candidates(i).samples[mv.node]
         return moves, stuck
 
-    # Priority order first; a UAV left stuck is promoted to the front (once each), so at most U orders.
-    order, promoted, first = list(range(u)), set(), None
-    while True:
+    settled: dict = {}
+
+    def settle_order(order, rows):
         team.stats["safety_orders"] += 1
-        moves, stuck = settle(order)
-        first = first if first is not None else moves
-        if stuck is None:
-            break
-        if stuck in promoted or order[0] == stuck:
-            moves = first
-            break
-        promoted.add(stuck)
-        order = [stuck] + [i for i in order if i != stuck]
+        seq = order[0].tolist()
+        settled["moves"], stuck = settle(seq)
+        return np.array([u if stuck is None else seq.index(stuck)])
+
+    priority_negotiation(settle_order, 1, u)
     out = list(plans)
-    for i, mv in moves.items():
+    for i, mv in settled["moves"].items():
         if mv is None:
             continue
         node, flag = mv
