@@ -17,7 +17,7 @@ __all__ = ["Conflict", "DPTeamPlanner", "WORK_COUNTERS"]
 #: What :attr:`DPTeamPlanner.stats` counts per team replan. With U UAVs and R = ``max_rounds``:
 #: ``dp_calls`` (batched DP runs) <= 1 + R; ``uav_plans`` (UAV plans inside them) <= U + R (U - 1);
 #: ``conflict_checks`` (pairs of plans compared) <= (1 + R + 1) U (U - 1) / 2; ``safety_orders`` <= U;
-#: ``safety_solves`` (one-slot candidate sets, L manoeuvres each) <= U. Polynomial in U: O(R U^2).
+#: ``safety_solves`` (one-slot candidate sets, L manoeuvres or best efforts each) <= U. Polynomial in U: O(R U^2).
 WORK_COUNTERS = ("dp_calls", "uav_plans", "conflict_checks", "safety_orders", "safety_solves")
 
 
