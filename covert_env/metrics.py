@@ -19,6 +19,7 @@ import numpy as np
 
 from covert_env.config import Config
 from covert_env.cost import disguise, stage_cost, uav_target_angle, uav_target_distance
+from covert_env.separation import nearest_teammate, team_separation
 from covert_env.terrain import Terrain
 from covert_env.trajectory import Trajectory
 from covert_env.visibility import line_of_sight
@@ -42,8 +43,9 @@ class SlotQuantities:
         kappa: disguise of the slot, eq. 11.
         g: stage cost of the slot, eq. 18.
         path_length: distance flown, v delta.
-        separation: distance to the nearest teammate at the end of the slot (inf with one UAV).
-        separation_path: nearest-teammate distance over the samples along the path (synchronous).
+        separation: distance to the nearest teammate at the end of the slot, eq. 2 (inf with one UAV).
+        separation_path: nearest-teammate distance over the samples along the path (synchronous), eq. 2
+            (:func:`covert_env.separation.team_separation`).
         terrain_clearance: distance from the UAV to the nearest polytope top point, eq. 3 (inf if none).
     """
 
@@ -59,25 +61,6 @@ class SlotQuantities:
     separation: np.ndarray
     separation_path: np.ndarray
     terrain_clearance: np.ndarray
-
-
-def nearest_teammate(xy: np.ndarray) -> np.ndarray:
-    """(..., U, 2) -> (..., U) distance to the nearest other UAV (inf with one UAV)."""
-    u = xy.shape[-2]
-    if u == 1:
-        return np.full(xy.shape[:-1], np.inf)
-    # Each unordered pair once (hypot is the cost, and |p_i - p_j| = |p_j - p_i| exactly in floating point).
-    i, j, of = _pairs(u)
-    d = np.hypot(xy[..., i, 0] - xy[..., j, 0], xy[..., i, 1] - xy[..., j, 1])
-    return d[..., of].min(axis=-1)
-
-
-@functools.cache
-def _pairs(u: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Pairs i < j of U UAVs, and for each UAV the indices of its U - 1 pairs."""
-    i, j = np.triu_indices(u, 1)
-    of = np.array([[k for k in range(len(i)) if a in (i[k], j[k])] for a in range(u)])
-    return i, j, of
 
 
 def terrain_clearance(xy: np.ndarray, altitude: float, terrain) -> np.ndarray:
@@ -152,10 +135,9 @@ def moves_quantities(start_xy, end_xy, target_start, phi_start, target_end, phi_
         los = los_fn(end_xy, c.altitude, target_end[..., None, :])
         los_path = np.full(los.shape, np.nan)
 
-    # Like LoS: sample 0 is the previous slot's end (counted there), so each instant counts once. The last
-    # sample is the slot's end, so the slot-time separation comes with it.
-    sep_all = nearest_teammate(np.swapaxes(path_xy[..., 1:, :], -3, -2))              # (*B, P-1, U)
-    sep, sep_path = sep_all[..., -1, :], sep_all.min(axis=-2)
+    # Like LoS: sample 0 is the previous slot's end (counted there), so each instant counts once.
+    sep_path = team_separation(path_xy[..., 1:, :])
+    sep = team_separation(path_xy[..., -1:, :])
     clearance = terrain_clearance(end_xy, c.altitude, terrain)
     return SlotQuantities(los=los, los_path=los_path, in_zone=zd <= 0.0, zone_distance=zd,
                           alpha=alpha, d=d,

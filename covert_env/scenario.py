@@ -168,7 +168,9 @@ class Scenario:
         (``np.random.default_rng(rng)``); anything else is a TypeError naming ``rng``.
 
         Always: distinct lattice nodes of the eroded zone (eq. 5) at slot 0, pairwise at least
-        ``d_safe1`` apart (eq. 2), headings uniform in [0, 2 pi). Placement tries, in order:
+        ``d_safe1`` apart (eq. 2) and at least ``d_safe2`` from every polytope top (eq. 3; only a top
+        within d_safe2 of the altitude removes nodes, which the random generator's default heights never
+        make), headings uniform in [0, 2 pi). Placement tries, in order:
 
         1. nodes with clear LoS (eq. 6), at least ``2 d_safe1`` apart, in a random order (the
            usual case; these starts are bit-identical to earlier releases, same generator draws);
@@ -177,8 +179,8 @@ class Scenario:
         3. the same order with the eq. 2 minimum ``d_safe1`` instead of ``2 d_safe1``;
         4. the nodes in lattice order, ``d_safe1`` apart: :class:`~covert_env.Config` rejects a
            config for which this leaves fewer than ``config.n_uavs`` starts, so a reset with the
-           config's team never fails on some seeds. A larger ``n_uavs`` than the config's can fail
-           (ValueError naming n_uavs and d_safe1, on every seed alike).
+           config's team never fails on some seeds (unless eq. 3 removes nodes). A larger ``n_uavs``
+           than the config's can fail (ValueError naming n_uavs and d_safe1, on every seed alike).
 
         So starts may be in shadow (fallbacks 2-4) only when the scene leaves no other choice.
         """
@@ -199,39 +201,44 @@ def sample_starts_on(c: Config, terrain: Terrain, track: TargetTrack, rng: np.ra
     return pick_starts(c, *start_candidates(c, terrain, track), rng, u, name)
 
 
-def start_candidates(c: Config, terrain: Terrain, track: TargetTrack) -> tuple[np.ndarray, np.ndarray]:
-    """The zone lattice at slot 0 (world positions) and the indices of its nodes with clear LoS: what the start
-    sampler draws from, the same for every draw on a scene (the vector env computes it once per scene)."""
+def start_candidates(c: Config, terrain: Terrain, track: TargetTrack) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What the start sampler draws from, the same for every draw on a scene (the vector env computes it once per
+    scene): the zone lattice at slot 0 (world positions), and the indices of its nodes at least d_safe2 from every
+    polytope top (eq. 3) with clear LoS, and without it."""
+    from covert_env.metrics import terrain_clearance
     from covert_env.visibility import line_of_sight
     from covert_env.zone import zone_lattice
 
     q0, phi0 = track.position(0), float(track.heading(0))
     # The same nodes as grid_nodes(...) (one lattice, one rotation), so step 1 is the historical sampler.
     nodes = to_world(zone_lattice(c), q0[:2], phi0)
-    return nodes, np.flatnonzero(line_of_sight(terrain, nodes, c.altitude, q0))
+    clear = terrain_clearance(nodes, c.altitude, terrain) >= c.d_safe2
+    visible = line_of_sight(terrain, nodes, c.altitude, q0)
+    return nodes, np.flatnonzero(visible & clear), np.flatnonzero(~visible & clear)
 
 
-def pick_starts(c: Config, nodes: np.ndarray, clear: np.ndarray, rng: np.random.Generator, u: int,
-                 name: str) -> tuple[np.ndarray, np.ndarray]:
+def pick_starts(c: Config, nodes: np.ndarray, visible: np.ndarray, shadowed: np.ndarray, rng: np.random.Generator,
+                u: int, name: str) -> tuple[np.ndarray, np.ndarray]:
     """Steps 1-4 of :meth:`Scenario.sample_starts` on the candidates of :func:`start_candidates`."""
     from covert_env.zone import SPREAD_MARGIN, spread_nodes, zone_lattice
 
-    order = clear[rng.permutation(len(clear))]
+    order = visible[rng.permutation(len(visible))]
     picked = spread_nodes(nodes, order, 2 * c.d_safe1, u)
     if len(picked) < u:
-        shadowed = np.setdiff1d(np.arange(len(nodes)), clear)
         order = np.concatenate([order, shadowed[rng.permutation(len(shadowed))]])
         picked = spread_nodes(nodes, order, 2 * c.d_safe1, u)
         if len(picked) < u:
             picked = spread_nodes(nodes, order, c.d_safe1, u)
         if len(picked) < u:
-            # Decided on the target-frame offsets, exactly as Config's check, with its margin.
-            offsets = zone_lattice(c)
-            picked = spread_nodes(offsets, np.arange(len(offsets)), c.d_safe1 * (1.0 + SPREAD_MARGIN), u)
+            # Decided on the target-frame offsets, exactly as Config's check, with its margin (the lattice's
+            # order; eq. 3 can only remove nodes near a top within d_safe2 of the flight altitude).
+            picked = spread_nodes(zone_lattice(c), np.union1d(visible, shadowed), c.d_safe1 * (1.0 + SPREAD_MARGIN),
+                                  u)
         if len(picked) < u:
             raise ValueError(f"Scenario {name}: the eroded zone has room for only {len(picked)} starts "
                              f"d_safe1={c.d_safe1:g} m apart, asked for n_uavs={u} (the config's n_uavs="
-                             f"{c.n_uavs} fit); use fewer UAVs or a smaller d_safe1")
+                             f"{c.n_uavs} fit); use fewer UAVs or a smaller d_safe1 (starts also keep "
+                             f"d_safe2={c.d_safe2:g} m from every polytope top, eq. 3)")
     return nodes[picked], rng.uniform(0, 2 * math.pi, u)
 
 

@@ -41,6 +41,7 @@ from shapely.geometry import Polygon
 from shapely.geometry.base import BaseGeometry
 
 from covert_env.angles import wrap_angle
+from covert_env.separation import separation
 
 MAX_LATTICE = 200_000
 """Most nodes of the waypoint lattice's bounding box (:func:`lattice_size`), about
@@ -360,8 +361,8 @@ def spread_nodes(points, order, min_dist: float, k: int) -> np.ndarray:
         first = free[0]
         picked.append(int(order[first]))
         p = cand[first]
-        # The same expression as np.hypot(*(p - o)) per pair, so picks match a per-point loop bit for bit.
-        alive &= np.hypot(cand[:, 0] - p[0], cand[:, 1] - p[1]) >= min_dist
+        # Eq. 2 between the pick and every candidate: np.hypot(*(p - o)) per pair, as a per-point loop computes it.
+        alive &= separation(cand[:, None], p[None, None]) >= min_dist
     return np.array(picked, dtype=int)
 
 

@@ -12,7 +12,7 @@ from covert_env.road import Road, TargetTrack
 from covert_env.scenario import PAPER_UAV_STARTS, Scenario
 from covert_env.terrain import Terrain
 from covert_env.visibility import line_of_sight
-from covert_env.zone import in_feasible_zone
+from covert_env.zone import grid_nodes_cfg, in_feasible_zone
 
 PAPER_XY = np.array([[40.0, 10.0], [60.0, 0.0], [50.0, -10.0]])
 PAPER_THETA = np.array([2 * math.pi, math.pi, math.pi / 2])
@@ -145,6 +145,30 @@ def test_random_starts_visible_and_separated(seed):
     cph, sph = math.cos(phi0), math.sin(phi0)
     local = np.column_stack([cph * rel[:, 0] + sph * rel[:, 1], -sph * rel[:, 0] + cph * rel[:, 1]])
     np.testing.assert_allclose(local / c.grid_step, np.round(local / c.grid_step), atol=1e-6)
+
+
+@pytest.mark.parametrize("seed", [41, 106, 196])
+def test_starts_keep_clear_of_tall_tops(seed):
+    """Eq. 3 at the start. With tops up to 79 m (1 m below the flight altitude) some zone nodes of these scenes lie
+    within d_safe2 of a top (a start 4.6 m from one was drawn on scene 106); the starts a scene and the env place
+    never do, and stay d_safe1 apart (eq. 2)."""
+    import covert_env
+
+    c = Config(max_height=79.0)
+
+    def clearance(xy):                                     # eq. 3, measured here independently
+        tops = s.terrain.highest_points
+        flat = np.concatenate([xy, np.full((len(xy), 1), c.altitude)], axis=1)
+        return np.linalg.norm(flat[:, None] - tops[None], axis=-1).min(axis=1)
+
+    s = Scenario.random(seed, c)
+    q0, phi0 = s.track.position(0), float(s.track.heading(0))
+    assert (clearance(grid_nodes_cfg(q0[:2], phi0, c)) < c.d_safe2).any()
+    env = covert_env.vector_env(num_envs=8, config=c, random_starts=True)
+    env.reset(seed=seed, options={"scene_seed": seed})
+    for xy in [s.uav_xy, *env.uav_xy]:
+        assert clearance(xy).min() >= c.d_safe2
+        assert np.linalg.norm(xy[:, None] - xy[None], axis=-1)[np.triu_indices(len(xy), 1)].min() >= c.d_safe1
 
 
 @pytest.mark.parametrize("u", [1, 3, 5])

@@ -23,10 +23,11 @@ probability ratios are taken under the masks the actions were sampled with); the
 * A node whose path comes closer than ``min_distance`` is removed from the UAV's mask. With ``end_margin``, so
   is a node whose path ends closer than ``min_distance + end_margin`` to a teammate's end, where another node
   is left: the next slot then starts with room to part (most dead ends start from cramped ends). If that leaves no node,
-  the team tries again with that UAV choosing first (at most U tries; the UAVs fly at up to 50 m/s with a
-  bounded turn rate, so a teammate's path can cut off every path of a UAV that chose after it). If every try
-  leaves some UAV without a node, the last try stands and that UAV chooses among the nodes whose paths come
-  least close (the shield never leaves a UAV without an action); such team choices are counted in
+  the team tries again with that UAV choosing first (the DP team's order rule,
+  :func:`covert_env.separation.priority_negotiation`: each UAV promoted at most once, at most U tries; the UAVs fly
+  at up to 50 m/s with a bounded turn rate, so a teammate's path can cut off every path of a UAV that chose after
+  it). If every try leaves some UAV without a node, the last try stands and that UAV chooses among the nodes whose
+  paths come least close (the shield never leaves a UAV without an action); such team choices are counted in
   ``fallbacks``.
 
 All copies of a batch go through it at once; the loops are over the UAVs of a team and over the tries, because
@@ -38,6 +39,8 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
+
+from covert_env.separation import priority_negotiation, separation
 
 __all__ = ["SeparationShield"]
 
@@ -73,17 +76,16 @@ class SeparationShield:
         empty = np.zeros(len(mask), bool)
         if chosen_paths.shape[1] == 0:
             return mask, empty
-        gap = paths[:, :, None, 1:] - chosen_paths[:, None, :, 1:]             # (B, M, k, P-1, 2)
-        gap2 = np.einsum("...i,...i->...", gap, gap).min(axis=(2, 3))          # (B, M) closest approach^2
-        gap2[nodes < 0] = -1.0                                                  # padding: never kept
-        keep = gap2 >= self.min_distance ** 2
+        gap = separation(paths[:, :, None, 1:], chosen_paths[:, None, :, 1:]).min(axis=2)   # (B, M)
+        gap[nodes < 0] = -1.0                                                   # padding: never kept
+        keep = gap >= self.min_distance
         if self.end_margin > 0:
-            roomy = keep & (self._end_gap2(paths, chosen_paths) >= (self.min_distance + self.end_margin) ** 2)
+            roomy = keep & (self._end_gap(paths, chosen_paths) >= self.min_distance + self.end_margin)
             has = roomy.any(axis=1)
             keep[has] = roomy[has]
         empty = ~keep.any(axis=1)
         if empty.any():
-            keep[empty] = gap2[empty] >= gap2[empty].max(axis=1, keepdims=True)
+            keep[empty] = gap[empty] >= gap[empty].max(axis=1, keepdims=True)
         out = np.zeros_like(mask)
         rows = np.broadcast_to(np.arange(len(mask))[:, None], nodes.shape)
         keep &= nodes >= 0
@@ -91,11 +93,10 @@ class SeparationShield:
         return out, empty
 
     @staticmethod
-    def _end_gap2(paths, chosen_paths):
-        """Squared distance from each candidate path's end ``(B, M, P, 2)`` to the nearest teammate's end
-        ``(B, k, P, 2)``: ``(B, M)``."""
-        end = paths[:, :, None, -1] - chosen_paths[:, None, :, -1]
-        return np.einsum("...i,...i->...", end, end).min(axis=2)
+    def _end_gap(paths, chosen_paths):
+        """Distance from each candidate path's end ``(B, M, P, 2)`` to the nearest teammate's end ``(B, k, P, 2)``:
+        ``(B, M)``."""
+        return separation(paths[:, :, None, -1:], chosen_paths[:, None, :, -1:]).min(axis=2)
 
     def _pass(self, masks, nodes, paths, free, order, paths_to, pick):
         """One sequential choice in the per-copy UAV ``order`` ``(B, U)``: actions, shielded masks, and per copy
@@ -140,10 +141,9 @@ class SeparationShield:
             path[pending] = p[pending]
             if past.shape[1] == 0:
                 return a, path, np.zeros(B, bool)
-            gap = p[:, None, 1:] - past[:, :, 1:]                              # (B, k, P-1, 2)
-            close = pending & (np.einsum("...i,...i->...", gap, gap).min(axis=(1, 2)) < self.min_distance ** 2)
+            close = pending & (separation(p[:, None, 1:], past[:, :, 1:]).min(axis=1) < self.min_distance)
             if self.end_margin > 0 and attempt < self.free_tries // 2:         # the first tries want room too
-                cramped = self._end_gap2(p[:, None], past)[:, 0] < (self.min_distance + self.end_margin) ** 2
+                cramped = self._end_gap(p[:, None], past)[:, 0] < self.min_distance + self.end_margin
                 close |= pending & cramped
             pending = close
             if not pending.any() or attempt == self.free_tries:
@@ -179,18 +179,13 @@ class SeparationShield:
         first = np.argsort(~masks, axis=2, kind="stable")[..., :m]
         nodes = np.where(np.arange(m) < counts[..., None], first, -1)
         paths = paths_to(nodes)
-        order = np.tile(np.arange(U), (B, 1))
-        actions, shielded, failed_at = self._pass(masks, nodes, paths, free, order, paths_to, pick)
-        for _ in range(U - 1):
-            retry = failed_at < U
-            if not retry.any():
-                break
-            # The blocked UAV first, the others in their order.
-            blocked = order[np.arange(B), np.minimum(failed_at, U - 1)]
-            new_order = np.concatenate([blocked[:, None], order[order != blocked[:, None]].reshape(B, U - 1)], 1)
-            order = np.where(retry[:, None], new_order, order)
-            a2, s2, f2 = self._pass(masks, nodes, paths, free, order, paths_to, pick)
-            actions[retry], shielded[retry], failed_at[retry] = a2[retry], s2[retry], f2[retry]
-        self.fallbacks += int((failed_at < U).sum())
+        actions, shielded = np.zeros((B, U), np.int64), np.empty_like(masks)
+
+        def settle(order, rows):
+            a, s, failed_at = self._pass(masks, nodes, paths, free, order, paths_to, pick)
+            actions[rows], shielded[rows] = a[rows], s[rows]
+            return failed_at
+
+        self.fallbacks += int(priority_negotiation(settle, B, U).sum())
         self.choices += B
         return actions, shielded

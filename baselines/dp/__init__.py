@@ -89,7 +89,8 @@ The planner never raises for lack of a plan. In order:
    penalty, and leaving the zone between slots is tolerated. ``status="fallback"``.
 3. If no zone node at all is reachable in one slot: the waypoint is the zone node nearest to the UAV
    (a visible one if one is as near), which the engine flies as its documented best effort (the
-   admissible constant control ending closest to it, see :class:`covert_env.engine.Engine`).
+   admissible constant control ending closest to it, see :class:`covert_env.engine.Engine`); that flight
+   does not end on the node, so eq. 3 is checked along it (the nearest node whose best effort keeps clear).
    ``status="fallback"``.
 
 ``plan.infeasible`` is True exactly for ``status="fallback"``: the slot is then flagged to the engine.
@@ -107,9 +108,11 @@ until no conflict remains or ``max_rounds``. Records only accumulate and the top
 the negotiation terminates; usually one or two rounds suffice. If a conflict is left in the slot that
 is actually flown (the records can leave a loser no separated move, so it falls back), a safety layer
 replaces, in priority order, the conflicting UAV's first move by its best one-slot move that keeps the
-distance to every higher-priority UAV's first manoeuvre (``status="safety"``); when the priority order
-leaves some UAV no such move (a fast teammate sweeping past), that UAV is promoted to the front and the layer
-runs again (each UAV at most once). The work is polynomial in U (``TeamPlan.work``, docs/model.md#team-negotiation).
+distance to every higher-priority UAV's first move (``status="safety"``), all checked on the paths the engine
+will fly (a fallback's best effort included); when the priority order leaves some UAV no such move (a fast
+teammate sweeping past), that UAV is promoted to the front and the layer runs again (each UAV at most once,
+at most U orders: :func:`covert_env.separation.priority_negotiation`). The work is polynomial in U
+(``TeamPlan.work``, docs/model.md#team-negotiation).
 
 ## Caching
 

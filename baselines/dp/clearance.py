@@ -73,10 +73,17 @@ class TerrainClearance:
             np.hypot(*(self.tops[None] - b[:, None]).transpose(2, 0, 1))
         near = (foci <= ell[:, None] + 2.0 * self.radius[None]).any(axis=1)
         if near.any():
-            need = np.where(self.distance(a[near]) >= self.d_safe2, self.d_safe2, -np.inf)
-            pts = take_manoeuvres(m, np.flatnonzero(ok)[near]).points(self.path_samples)[:, 1:]
-            out[near] = self.distance(pts).min(axis=1) >= need
+            out[near] = self.paths_clear(take_manoeuvres(m, np.flatnonzero(ok)[near]).points(self.path_samples))
         return out
+
+    def paths_clear(self, paths) -> np.ndarray:
+        """(K,) bool: paths (K, P, 2) sampled from their start clear of every top at each later sample (a path
+        starting closer than d_safe2 is held to nothing, as in :meth:`manoeuvres_clear`)."""
+        paths = np.asarray(paths, float)
+        if not self.active:
+            return np.ones(len(paths), bool)
+        need = np.where(self.distance(paths[:, 0]) >= self.d_safe2, self.d_safe2, -np.inf)
+        return self.distance(paths[:, 1:]).min(axis=1) >= need
 
 
 def take_manoeuvres(m: Manoeuvre, idx: np.ndarray) -> Manoeuvre:

@@ -8,7 +8,7 @@ from baselines.dp.lattice import Stage
 from baselines.dp.path_checks import FALLBACK_PENALTY
 from covert_env.config import Config
 
-__all__ = ["fallback_penalties", "nearest_zone_node"]
+__all__ = ["fallback_penalties", "nearest_zone_node", "nearness"]
 
 
 def fallback_penalties(allowed: np.ndarray, blocked: np.ndarray) -> list[np.ndarray]:
@@ -22,7 +22,10 @@ def fallback_penalties(allowed: np.ndarray, blocked: np.ndarray) -> list[np.ndar
 def nearest_zone_node(config: Config, stage: Stage, start, allowed: np.ndarray, blocked: np.ndarray) -> int:
     """Level 3: the stage-1 node nearest to ``start`` (not ``blocked`` if any is free; a visible one on near-ties)."""
     free = ~blocked if (~blocked).any() else np.ones(len(stage.xy), bool)
-    dist = np.hypot(*(stage.xy - start).T)
-    # Visible nodes win near-ties: keeping LoS matters more than one grid step of distance.
-    score = np.where(free, dist - np.where(allowed, config.grid_step, 0.0), np.inf)
-    return int(np.argmin(score))
+    return int(np.argmin(np.where(free, nearness(config, stage, start, allowed), np.inf)))
+
+
+def nearness(config: Config, stage: Stage, start, allowed: np.ndarray) -> np.ndarray:
+    """(L,) level 3's preference among the stage-1 nodes, lowest first: the distance from ``start``, one grid step
+    less for an ``allowed`` node (keeping LoS matters more than one grid step of distance)."""
+    return np.hypot(*(stage.xy - start).T) - np.where(allowed, config.grid_step, 0.0)

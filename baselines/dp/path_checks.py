@@ -26,6 +26,7 @@ from baselines.dp.lattice import VISIBILITY_TOL
 from covert_env.angles import wrap_angle
 from covert_env.config import Config
 from covert_env.dynamics import Manoeuvre, unicycle_step
+from covert_env.separation import separation
 from covert_env.terrain import Terrain
 from covert_env.visibility import line_of_sight, shadow_union_cfg
 from covert_env.zone import in_feasible_zone
@@ -210,7 +211,7 @@ def separated(m: Manoeuvre, ok: np.ndarray, avoid: np.ndarray, avoid_dist: float
     # Fly only the (manoeuvre, instant) pairs some obstacle sample may be near, each once.
     key, inv = np.unique(rows * p + ks, return_inverse=True)
     pts = sample_points(take_manoeuvres(m, sel[key // p]), key % p, p)
-    too_close = np.hypot(*(pts[inv] - qs).T) < avoid_dist
+    too_close = separation(pts[inv, None], qs[:, None]) < avoid_dist
     out[rows[too_close]] = False
     return out
 

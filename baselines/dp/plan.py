@@ -10,8 +10,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from covert_env.dynamics import Manoeuvre, solve_manoeuvre
+from covert_env.envs.batch import fly_waypoints
 
-__all__ = ["DPPlan", "TeamPlan"]
+__all__ = ["DPPlan", "TeamPlan", "flown_paths"]
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)
@@ -77,11 +78,11 @@ class DPPlan:
                                w_max=self.w_max, delta=self.delta)
 
     def path_points(self, n: int) -> np.ndarray:
-        """(depth, n, 2) positions at n equally spaced instants of each slot along the planned path.
+        """(depth, n, 2) positions at n equally spaced instants of each slot along the path the engine flies.
 
-        A best-effort fallback move is drawn as the straight segment to its waypoint (the engine flies its own
-        best-effort control instead, so this is an approximation used only for conflict checks). Cached: treat
-        the result as read-only.
+        A planned manoeuvre is flown as planned; a best-effort fallback move (always a plan's only move) as the
+        engine flies it (:func:`flown_paths`), which does not end on its waypoint. Cached: treat the result as
+        read-only.
         """
         if n in self._points:
             return self._points[n]
@@ -90,12 +91,21 @@ class DPPlan:
         bad = ~np.asarray(m.feasible, bool).reshape(-1)
         if bad.any():
             start = np.vstack([self.start_xy[None], self.waypoints[: self.depth - 1]])
-            f = np.linspace(0.0, 1.0, n)[:, None]
-            seg = start[:, None, :] * (1 - f) + self.waypoints[: self.depth, None, :] * f
-            pts[bad] = seg[bad]
+            theta = np.nan_to_num(np.concatenate([[self.start_theta], self.headings[: self.depth - 1]]))
+            pts[bad] = flown_paths(start[bad], theta[bad], self.waypoints[: self.depth][bad], self, n)
         pts.setflags(write=False)
         self._points[n] = pts
         return pts
+
+
+def flown_paths(xy, theta, goals, limits, n: int) -> np.ndarray:
+    """(K, n, 2) the paths the engine flies in one slot from poses ``xy`` (K, 2), ``theta`` (K,) to waypoints
+    ``goals`` (K, 2), at n equally spaced instants (the start first): the manoeuvre (eqs. 22-29) where the waypoint
+    is reachable, else the engine's best effort (:func:`covert_env.flight.waypoint_controls`). ``limits``: anything
+    with ``v_max``, ``w_max`` and ``delta`` (a :class:`~covert_env.config.Config`, a :class:`DPPlan`)."""
+    times = np.linspace(0.0, 1.0, n) * limits.delta                   # the engine's sample times
+    xy, theta, goals = (np.asarray(a, float) for a in (xy, theta, goals))
+    return fly_waypoints(xy.reshape(-1, 2), theta.reshape(-1), goals.reshape(-1, 2), limits, times)[0]
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)

@@ -10,7 +10,7 @@ import numpy as np
 from baselines.dp.fallback import fallback_penalties, nearest_zone_node
 from baselines.dp.lattice import StageCache
 from baselines.dp.path_checks import PathChecker
-from baselines.dp.plan import DPPlan
+from baselines.dp.plan import DPPlan, flown_paths
 from baselines.dp.possible_targets import PossibleTargets
 from baselines.dp.recursion import ForwardRecursion, backtrack
 from baselines.dp.states import Layer, Problem, SolveCounts, batch_layers, best_cost, depths, layers_of
@@ -216,8 +216,14 @@ class DPPlanner:
             pose = dict(start_xy=np.array(start[i]), start_theta=float(theta0[i]))
             o = outcomes[i]
             if o is None:
-                # Level 3: no zone node reachable in one slot; head for the nearest one.
-                node = nearest_zone_node(self.config, stages[0], start[i], allowed[0], removed[i, 0])
+                # Level 3: no zone node reachable in one slot; head for the nearest one whose best effort keeps
+                # eq. 3 along the path the engine flies (it does not end on the node).
+                blocked = removed[i, 0]
+                if self.paths.clearance.active:
+                    flown = flown_paths(np.broadcast_to(start[i], stages[0].xy.shape), np.full(L, theta0[i]),
+                                        stages[0].xy, c, self.path_samples)
+                    blocked = blocked | ~self.paths.clearance.paths_clear(flown)
+                node = nearest_zone_node(self.config, stages[0], start[i], allowed[0], blocked)
                 plans.append(DPPlan(**_single_move(node, stages[0], n), status="fallback", infeasible=True,
                                     **pose, **common))
             else:

@@ -10,13 +10,14 @@ import numpy as np
 from baselines.dp.plan import TeamPlan
 from baselines.dp.planner import DPPlanner
 from baselines.dp.safety import secure_first_moves
+from covert_env.separation import separation
 
 __all__ = ["Conflict", "DPTeamPlanner", "WORK_COUNTERS"]
 
 #: What :attr:`DPTeamPlanner.stats` counts per team replan. With U UAVs and R = ``max_rounds``:
 #: ``dp_calls`` (batched DP runs) <= 1 + R; ``uav_plans`` (UAV plans inside them) <= U + R (U - 1);
-#: ``conflict_checks`` (pairs of plans compared) <= (1 + R + 1) U (U - 1) / 2; ``safety_orders`` <= U + 1;
-#: ``safety_solves`` (one-slot candidate sets, L manoeuvres each) <= U. Polynomial in U: O(R U^2).
+#: ``conflict_checks`` (pairs of plans compared) <= (1 + R + 1) U (U - 1) / 2; ``safety_orders`` <= U;
+#: ``safety_solves`` (one-slot candidate sets, L manoeuvres or best efforts each) <= U. Polynomial in U: O(R U^2).
 WORK_COUNTERS = ("dp_calls", "uav_plans", "conflict_checks", "safety_orders", "safety_solves")
 
 
@@ -96,7 +97,7 @@ class DPTeamPlanner:
             first: dict[int, int] = {}
             for win, lose, t, _ in conflicts:
                 pw = plans[win]
-                blocked[lose, t] |= np.hypot(*(stages[t].xy - pw.waypoints[t]).T) < lim
+                blocked[lose, t] |= separation(stages[t].xy[:, None], pw.waypoints[t][None, None]) < lim
                 records[lose][t].append(pw.path_points(self.path_samples)[t])
                 first[lose] = min(first.get(lose, n), t)
             losers = sorted(first)
@@ -161,9 +162,8 @@ class DPTeamPlanner:
             # Sample 0 of a slot is the previous slot's last one, or the current positions: nothing to plan.
             pts[i, :p.depth] = p.path_points(self.path_samples)[:, 1:]
         i, k = np.triu_indices(u, 1)
-        node = np.hypot(*(wp[i] - wp[k]).transpose(2, 0, 1))                        # (pairs, N)
-        with np.errstate(invalid="ignore"):
-            path = np.hypot(*(pts[i] - pts[k]).transpose(3, 0, 1, 2)).min(axis=2)   # (pairs, N)
+        node = separation(wp[i, :, None], wp[k, :, None])                           # (pairs, N)
+        path = separation(pts[i], pts[k])                                           # (pairs, N)
         node_hit = node < lim
         hit = node_hit | (path < lim)
         pair, t = np.nonzero(hit)

@@ -123,9 +123,10 @@ class ScenePool:
                 xy[n], theta[n] = sc.uav_xy, sc.uav_theta
         return xy, theta
 
-    def start_candidates(self, row: int) -> tuple[np.ndarray, np.ndarray]:
+    def start_candidates(self, row: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """What ``Scenario.sample_starts`` draws the scene's starts from (``scenario.start_candidates``): the
-        zone lattice at slot 0 and its nodes with clear LoS, computed once per scene."""
+        zone lattice at slot 0 and its nodes clear of the tops (eq. 3) with and without LoS, computed once per
+        scene."""
         return self._start_nodes[row]
 
     def _build(self, key) -> SceneCache:

@@ -16,9 +16,10 @@ from covert_env.envs.recorder import CopyView, EpisodeRecorder
 from covert_env.envs.scene_pool import ScenePool
 from covert_env.envs.settings import EnvSettings, check_penalties, check_reward_scale
 from covert_env.flight import fly_arc
-from covert_env.metrics import moves_quantities, nearest_teammate
+from covert_env.metrics import moves_quantities
 from covert_env.reach import reach_table
 from covert_env.scenario import Scenario
+from covert_env.separation import nearest_teammate
 from covert_env.trajectory import Trajectory
 from covert_env.zone import zone_distance
 
