@@ -241,9 +241,9 @@ def run_episode(policy: Policy, env, *, seed: int | None = None, options: dict |
         ``decision_time_ms`` of ``act`` split over the UAVs), ``return`` (sum of rewards per agent) and
         ``steps``.
     """
+    par, single = parallel_env_of(env)           # first: a wrong env is named before anything runs
     obs, _ = env.reset(seed=seed, options=options)
     policy.reset(env, seed)
-    par, single = parallel_env_of(env)
     agents = list(par.possible_agents)
     total = {a: 0.0 for a in agents}
     times = []

@@ -748,7 +748,7 @@ def main(argv: list[str] | None = None, prog: str = "covert-env reproduce") -> i
 
 def _main(args: argparse.Namespace) -> int:
 
-    config = load_config(args.config) if args.config else Config()
+    config = load_config(args.config) if args.config is not None else Config()
     n_scenes = args.scenes if args.scenes is not None else (QUICK_SCENES if args.quick else 20)
     n_slots = args.slots if args.slots is not None else (min(QUICK_SLOTS, config.n_slots) if args.quick
                                                           else config.n_slots)

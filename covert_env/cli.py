@@ -51,10 +51,10 @@ IMAGE_SUFFIXES = ("png", "pdf", "svg", "jpg", "jpeg", "webp", "tif", "tiff", "ep
 
 
 def _scene(args: argparse.Namespace) -> int:
-    config = load_config(args.config) if args.config else Config()
+    config = load_config(args.config) if args.config is not None else Config()
     if args.slot > config.n_slots:
         raise UsageError(f"--slot must be in [0, {config.n_slots}]"
-                         f"{' (n_slots of --config)' if args.config else ''}, got {args.slot}")
+                         f"{' (n_slots of --config)' if args.config is not None else ''}, got {args.slot}")
     out = output_file(args.out, suffixes=IMAGE_SUFFIXES)
 
     import matplotlib
@@ -75,11 +75,11 @@ def _scene(args: argparse.Namespace) -> int:
 
 # ---------------------------------------------------------------------- covert-env animate
 def _animate(args: argparse.Namespace) -> int:
-    config = load_config(args.config) if args.config else Config()
+    config = load_config(args.config) if args.config is not None else Config()
     n_slots = config.n_slots if args.slots is None else args.slots
     if n_slots > config.n_slots:
-        raise UsageError(f"--slots must be in [1, {config.n_slots}]{' (n_slots of --config)' if args.config else ''}"
-                         f", got {n_slots}")
+        of = " (n_slots of --config)" if args.config is not None else ""
+        raise UsageError(f"--slots must be in [1, {config.n_slots}]{of}, got {n_slots}")
     out = output_file(args.out, suffixes=("gif",))
 
     import matplotlib

@@ -220,11 +220,22 @@ def _unique_keys(pairs: list[tuple[str, Any]]) -> dict:
     return out
 
 
+class _LongInteger(str):
+    """An integer literal too long for Python's int(): kept as text, so the field that holds it is named."""
+
+    def __repr__(self) -> str:
+        return f"<an integer of {len(self)} digits>"
+
+
+def _parse_int(text: str) -> int | _LongInteger:
+    return _LongInteger(text) if len(text) > 4000 else int(text)
+
+
 def parse_json(text: str, where: str) -> Any:
     """``json.loads(text)``; a ValueError starting with ``where`` for invalid or too deeply nested JSON, a key
     repeated in one object, or a number Python will not parse (an integer of more than 4300 digits)."""
     try:
-        return json.loads(text, object_pairs_hook=_unique_keys)
+        return json.loads(text, object_pairs_hook=_unique_keys, parse_int=_parse_int)
     except json.JSONDecodeError as exc:
         raise ValueError(f"{where}: invalid JSON ({exc})") from None
     except RecursionError:

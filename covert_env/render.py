@@ -176,8 +176,12 @@ def draw_3d_view(ax, scenario: Scenario, k: int, uav_xy=None, extent=None) -> No
 
 
 def scene_figure(scenario: Scenario, k: int = 0, uav_xy=None, trails=None):
-    """A figure with the 3D view (left) and the top view (right) at slot k."""
+    """A figure with the 3D view (left) and the top view (right) at slot k (in [0, n_slots])."""
     import matplotlib.pyplot as plt
+
+    n = scenario.config.n_slots
+    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 0 <= k <= n:
+        raise ValueError(f"scene_figure: slot k must be an integer in [0, {n}] (n_slots), got {k!r}")
 
     fig = plt.figure(figsize=(15, 6.5))
     ax3 = fig.add_subplot(1, 2, 1, projection="3d")
@@ -318,6 +322,8 @@ def save_episode_gif(frames, path, fps: int = 4, colors: int = 64) -> None:
     from matplotlib.colors import to_rgb
     from PIL import Image
 
+    if isinstance(fps, bool) or not isinstance(fps, (int, np.integer)) or not 1 <= fps <= 100:
+        raise ValueError(f"save_episode_gif: fps must be an integer in [1, 100], got {fps!r}")
     frames = [np.asarray(f, dtype=np.uint8) for f in frames]
     if not frames:
         raise ValueError("no frames to save")

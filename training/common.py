@@ -37,7 +37,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from covert_env.command_line import UsageError, float_range, int_range, non_negative_int, output_dir, positive_int
-from covert_env.config import read_json
+from covert_env.config import MAX_N_UAVS, read_json
+from covert_env.envs.settings import MAX_SCENE_POOL
+from covert_env.envs.vector import MAX_NUM_ENVS
 from training.trust import require_trust
 
 if TYPE_CHECKING:
@@ -89,8 +91,9 @@ def _ranges() -> dict[str, tuple]:
     non_negative = float_range(0.0)
     unit = float_range(0.0, 1.0)
     return {
-        "seed": non_negative_int, "n_uavs": positive_int, "n_copies": positive_int, "n_envs": positive_int,
-        "max_cycles": positive_int, "scene_pool": positive_int, "total_timesteps": positive_int,
+        "seed": non_negative_int, "n_uavs": int_range(1, MAX_N_UAVS), "n_copies": int_range(1, MAX_NUM_ENVS),
+        "n_envs": int_range(1, MAX_NUM_ENVS), "max_cycles": positive_int, "scene_pool": int_range(1, MAX_SCENE_POOL),
+        "total_timesteps": positive_int,
         "time_budget_minutes": non_negative, "learning_rate": positive, "lr": positive, "n_steps": int_range(2),
         "batch_size": int_range(2), "minibatch_size": int_range(2), "train_batch_size": int_range(2),
         "n_epochs": positive_int, "num_epochs": positive_int, "gamma": unit, "gae_lambda": unit, "lambda_": unit,
@@ -103,7 +106,8 @@ def _ranges() -> dict[str, tuple]:
         "num_envs_per_env_runner": positive_int, "sample_timeout_s": positive,
         "net_arch": int_range(1, 65_536), "action_mode": ("choices", ("unicycle", "waypoint")),
         # training.mappo
-        "algo": ("choices", ("mappo", "ippo")), "head": ("choices", ("node", "flat")), "num_envs": positive_int,
+        "algo": ("choices", ("mappo", "ippo")), "head": ("choices", ("node", "flat")),
+        "num_envs": int_range(1, MAX_NUM_ENVS),
         "num_steps": int_range(2), "num_minibatches": positive_int, "update_epochs": positive_int,
         "clip_coef": positive, "hidden": int_range(1, 65_536), "node_hidden": int_range(1, 65_536),
         "cost_limit": non_negative, "lagrange_lr": non_negative, "shield_margin": non_negative,
@@ -219,8 +223,13 @@ def parse_args(cls: type, argv: list[str] | None = None, description: str | None
         runs_dir = values.get("runs_dir", cls().runs_dir)
         try:                                     # probed now, not after the first checkpoint interval
             output_dir(runs_dir, "--runs-dir", create=False)
-            if values.get("run_name"):
-                output_dir(Path(runs_dir) / values["run_name"], "--run-name", create=False,
+            name = values.get("run_name")
+            if name and (Path(name).name != name or name in (".", "..")):
+                # A run lives inside --runs-dir: a path here would write elsewhere (or over another folder).
+                raise UsageError(f"--run-name {name!r}: must be a plain folder name inside --runs-dir "
+                                 f"({runs_dir}), without '/' or '..'")
+            if name:
+                output_dir(Path(runs_dir) / name, "--run-name", create=False,
                            files=("args.json", "train_summary.json"))
         except UsageError as exc:
             p.error(str(exc))

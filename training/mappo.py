@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import json
 import os
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -146,6 +147,12 @@ def check_args(args: Args) -> None:
                           ("head", ("node", "flat"))):
         if getattr(args, name) not in allowed:
             raise ValueError(f"--{name.replace('_', '-')} {getattr(args, name)!r}: must be one of {allowed}")
+    rows = args.num_envs * args.num_steps * args.n_uavs
+    if rows < 2 * args.num_minibatches:
+        # A minibatch of one row has no advantage spread to normalise by: its update would be NaN.
+        raise ValueError(f"--num-minibatches {args.num_minibatches}: a batch of num_envs * num_steps * n_uavs = "
+                         f"{rows} rows gives minibatches of fewer than 2 rows; use at most {max(rows // 2, 1)} "
+                         f"minibatches or a larger batch")
 
 
 # ---------------------------------------------------------------------------------------------- networks
@@ -532,7 +539,8 @@ def main(argv: list[str] | None = None) -> Path:
     try:
         check_args(args)
     except ValueError as exc:
-        raise SystemExit(f"error: {exc}") from None
+        print(f"python -m training.mappo: error: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
     return train(args)
 
 

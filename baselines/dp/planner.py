@@ -15,8 +15,9 @@ from baselines.dp.possible_targets import PossibleTargets
 from baselines.dp.recursion import ForwardRecursion, backtrack
 from baselines.dp.states import Layer, Problem, SolveCounts, batch_layers, best_cost, depths, layers_of
 from baselines.dp.table import TWO_PI, manoeuvre_table
-from covert_env.config import Config
+from covert_env.config import MAX_HORIZON, Config
 from covert_env.cost import uav_target_angle, uav_target_distance
+from covert_env.engine import MAX_PATH_SAMPLES
 from covert_env.road import Road
 from covert_env.terrain import Terrain
 from covert_env.zone import zone_lattice
@@ -78,12 +79,21 @@ class DPPlanner:
                  heading: str = "inherited", heading_bins: int = 16, check_path: bool = False,
                  path_samples: int = 21, prune: bool = True, cache_size: int | None = None,
                  los_margin: float | None = None, road: Road | None = None):
+        if not isinstance(config, Config):
+            raise TypeError(f"DPPlanner: config must be a covert_env.Config, got {type(config).__name__}")
+        if not isinstance(terrain, Terrain):
+            raise TypeError(f"DPPlanner: terrain must be a covert_env.terrain.Terrain (Terrain() for none), got "
+                            f"{type(terrain).__name__}")
+        if road is not None and not isinstance(road, Road):
+            raise TypeError(f"DPPlanner: road must be None or a covert_env.road.Road, got {type(road).__name__}")
         if heading not in HEADING_MODES:
             raise ValueError(f"DPPlanner: heading must be one of {HEADING_MODES}, got {heading!r}")
-        if not (isinstance(heading_bins, (int, np.integer)) and heading_bins >= 1):
-            raise ValueError(f"DPPlanner: heading_bins must be an integer >= 1, got {heading_bins!r}")
-        if not (isinstance(path_samples, (int, np.integer)) and path_samples >= 2):
-            raise ValueError(f"DPPlanner: path_samples must be an integer >= 2, got {path_samples!r}")
+        for name, value, low, high in (("heading_bins", heading_bins, 1, 360), ("path_samples", path_samples, 2,
+                                                                                 MAX_PATH_SAMPLES),
+                                       ("cache_size", config.horizon + 2 if cache_size is None else cache_size, 1,
+                                        10 * MAX_HORIZON)):
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not low <= value <= high:
+                raise ValueError(f"DPPlanner: {name} must be an integer in [{low}, {high}], got {value!r}")
         if los_margin is None:
             los_margin = config.r_u if config.prediction_error > 0 else 0.0
         if isinstance(los_margin, bool) or not isinstance(los_margin, (int, float, np.integer, np.floating)) \
