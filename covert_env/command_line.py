@@ -159,7 +159,10 @@ def output_dir(path: str | Path, flag: str = "--out", create: bool = True, files
     can fail before anything is written). An empty or blank ``path`` is a :class:`UsageError` (``Path('')`` would
     be the current folder)."""
     _not_empty(path, flag)
-    return _output_dir(Path(path), flag, path, create, files, folders)
+    try:
+        return _output_dir(Path(path), flag, path, create, files, folders)
+    except OSError as exc:                      # a name too long, a loop of links: what stat itself refuses
+        raise UsageError(f"{flag} {str(path)[:80]}: cannot be used as a folder ({exc.strerror or exc})") from None
 
 
 def _output_dir(p: Path, flag: str, path: str | Path, create: bool = True, files: tuple[str, ...] = (),
@@ -200,7 +203,13 @@ def output_file(path: str | Path, flag: str = "--out", suffixes: tuple[str, ...]
     existing ``path`` must be a regular file that can be opened for writing (it is not changed); ``suffixes`` lists
     the allowed file types. Any problem is a :class:`UsageError`."""
     _not_empty(path, flag)
-    p = Path(path)
+    try:
+        return _output_file(Path(path), flag, path, suffixes)
+    except OSError as exc:                      # a name too long, a loop of links: what stat itself refuses
+        raise UsageError(f"{flag} {str(path)[:80]}: cannot be used as a file ({exc.strerror or exc})") from None
+
+
+def _output_file(p: Path, flag: str, path: str | Path, suffixes: tuple[str, ...] | None) -> Path:
     if p.is_dir():
         raise UsageError(f"{flag} {path}: is a folder, expected a file name")
     if suffixes is not None and p.suffix.lower().lstrip(".") not in suffixes:

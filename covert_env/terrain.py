@@ -44,9 +44,9 @@ _AREA_TOL = 1e-6
 
 # ---------------------------------------------------------------------------------- validation
 #: Most vertices a polytope's base (footprint) may have; validation is quadratic in it (generator: <= 64).
-MAX_FOOTPRINT_VERTICES = 256
+MAX_FOOTPRINT_VERTICES = 1024
 #: Most footprint vertices of a whole terrain (a terrain's line-of-sight arrays grow with it): 10,000
-#: polytopes of 10 vertices, or 390 of 256. Loading and the first reset stay within seconds.
+#: polytopes of 10 vertices, or 97 of 1024. Loading and the first reset stay within seconds.
 MAX_TERRAIN_VERTICES = 100_000
 
 
@@ -581,9 +581,9 @@ class Terrain:
         n = int(n)
         if road is not None and not isinstance(road, Road):
             raise TypeError(f"Terrain.random: road must be a Road or None, got {type(road).__name__}")
+        rng = _generator(seed)                         # first: a bad seed is named as Terrain.random's
         if road is None:
             road = Road.random(seed)
-        rng = _generator(seed)
         clear, length, line = cfg.road_clearance, road.length, road.linestring
         zmin, zmax = cfg.min_height, cfg.max_polytope_height
         polys: list[Polytope] = []
@@ -661,7 +661,7 @@ class Terrain:
         for i, feat in enumerate(feats):
             try:
                 polys.append(_parse_feature(feat, altitude))
-            except ValueError as exc:
+            except (ValueError, OverflowError) as exc:     # OverflowError: an integer beyond float's range
                 raise ValueError(f"{_label(i, feat)}: {exc}") from None
         hit = _first_overlap(polys)
         if hit is not None:

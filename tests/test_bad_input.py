@@ -767,7 +767,7 @@ def test_terrain_feasibility_checks_keep_workable_configs(kwargs):
 def test_footprint_vertex_bound_fails_fast_in_a_file(tmp_path):
     from covert_env.terrain import MAX_FOOTPRINT_VERTICES
 
-    n = 1_000                                          # one footprint: the bound per footprint, not the terrain's
+    n = 2_000                                          # one footprint: the bound per footprint, not the terrain's
     ring = [[100 * math.cos(2 * math.pi * k / n), 100 * math.sin(2 * math.pi * k / n)] for k in range(n)]
     ring.append(ring[0])
     path = tmp_path / "big.geojson"

@@ -367,7 +367,7 @@ def test_scenario_and_a_different_config_rejected():
     ({"scene_seed": 2.7}, TypeError, r"options\['scene_seed'\] must be an integer"),
     ({"scene_seed": "5"}, TypeError, r"options\['scene_seed'\] must be an integer"),
     ({"scene_seed": True}, TypeError, r"options\['scene_seed'\] must be an integer"),
-    ({"scene_seed": -1}, ValueError, r"options\['scene_seed'\] must be an integer >= 0"),
+    ({"scene_seed": -1}, ValueError, r"options\['scene_seed'\] must be an integer in \[0, 9223372036854775807\]"),
     ([1], TypeError, r"reset\(options=...\) must be a dict"),
 ])
 def test_bad_reset_options(options, exc, pattern):

@@ -59,12 +59,12 @@ from covert_env.command_line import (
     MAX_SCENES,
     UsageError,
     int_range,
-    non_negative_int,
     output_dir,
     positive_int,
     run_main,
 )
 from covert_env.envs.covert_sensing import CovertSensingParallelEnv
+from covert_env.envs.vector import MAX_SCENE_SEED
 from training.pretrained import PRETRAINED_DIR, load_learned, pretrained_names
 from training.rllib_ppo import load_policy as load_rllib
 from training.runs import read_run_json, run_env
@@ -200,7 +200,8 @@ def load_sb3(path: str | Path, *, trust_checkpoint: bool = False) -> SB3Policy:
         cls = getattr(stable_baselines3, cls_name)
     try:
         model = cls.load(str(model_path), device="cpu")
-    except (ValueError, KeyError, OSError, EOFError) as exc:    # not a zip, or a zip that is not an SB3 model
+    except (ValueError, KeyError, OSError, EOFError, AssertionError) as exc:
+        # Not a zip, or a zip that is not an SB3 model (SB3 asserts "No data found in the saved file").
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         reason = first.removeprefix("Error: ")
         raise UsageError(f"sb3:{path}: {model_path} is not a loadable {cls_name} model ({reason})") from None
@@ -462,8 +463,8 @@ def build_parser(prog: str = "python -m training.evaluate") -> argparse.Argument
     p.add_argument("--episodes", type=int_range(1, MAX_SCENES), default=20,
                    help=f"held-out scenes per policy, in [1, {MAX_SCENES}]")
     p.add_argument("--n-uavs", type=positive_int, default=3, help="team size, >= 1")
-    p.add_argument("--seed-offset", type=non_negative_int, default=HELD_OUT_OFFSET,
-                   help="first held-out scene seed, >= 0")
+    p.add_argument("--seed-offset", type=int_range(0, MAX_SCENE_SEED - MAX_SCENES), default=HELD_OUT_OFFSET,
+                   help=f"first held-out scene seed, in [0, {MAX_SCENE_SEED - MAX_SCENES}]")
     p.add_argument("--out", default="outputs/leaderboard", help="output folder (git-ignored outputs/)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.add_argument("--trust-checkpoint", action="store_true",
@@ -527,8 +528,8 @@ def read_cache(path: Path, args: argparse.Namespace) -> list[dict]:
             raise UsageError(f"{where}: row {i} has scene_seed {seed!r}, expected {args.seed_offset + i}{fix}")
         for key, _, _ in COLUMNS:
             v = row.get(key)
-            if isinstance(v, bool) or not isinstance(v, (int, float)):
-                raise UsageError(f"{where}: row {i} field {key} must be a number, got {v!r}{fix}")
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise UsageError(f"{where}: row {i} field {key} must be a finite number, got {v!r}{fix}")
     return rows
 
 

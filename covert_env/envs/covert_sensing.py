@@ -23,7 +23,7 @@ from covert_env.envs.arguments import int_arg, reset_options
 from covert_env.envs.observation import observation_table
 from covert_env.envs.recorder import CopyView
 from covert_env.envs.settings import ACTION_MODES, MAX_PATH_SAMPLES, MAX_SCENE_POOL, RENDER_MODES, EnvSettings
-from covert_env.envs.vector import INFO_KEYS, CovertSensingVectorEnv
+from covert_env.envs.vector import INFO_KEYS, MAX_SCENE_SEED, CovertSensingVectorEnv
 from covert_env.render import EpisodeRenderer
 from covert_env.scenario import Scenario
 
@@ -236,10 +236,15 @@ class CovertSensingParallelEnv(ParallelEnv):
     # Plain lookups, not functools.cache: a cache on a method is a module-level dict that would keep every env
     # ever built alive. The dicts return the same object every call, as PettingZoo's API test requires.
     def observation_space(self, agent: str) -> gymnasium.Space:
-        return self.observation_spaces[agent]
+        return self.observation_spaces[self._known(agent)]
 
     def action_space(self, agent: str) -> gymnasium.Space:
-        return self.action_spaces[agent]
+        return self.action_spaces[self._known(agent)]
+
+    def _known(self, agent) -> str:
+        if agent not in self._index:
+            raise KeyError(f"unknown agent {agent!r}; the agents are {self.possible_agents}")
+        return agent
 
     # ------------------------------------------------------------------ settings read live by the vector env
     @property
@@ -319,7 +324,7 @@ class CovertSensingParallelEnv(ParallelEnv):
             flown = "the paper scenario" if self.scenario_spec == "paper" else "a given Scenario"
             raise ValueError("reset(options={'scene_seed': ...}) picks a random scene: it needs scenario='random', "
                              f"but this env flies {flown}")
-        return int_arg("options['scene_seed']", options["scene_seed"], 0)
+        return int_arg("options['scene_seed']", options["scene_seed"], 0, MAX_SCENE_SEED)
 
     def step(self, actions: dict[str, Any]):
         self._vec.require_running("step()")

@@ -10,6 +10,7 @@ import numpy as np
 from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
+from covert_env.config import short_repr
 from covert_env.envs import batch
 from covert_env.envs.arguments import bool_arg, int_arg, reset_options
 from covert_env.envs.recorder import CopyView, EpisodeRecorder
@@ -23,8 +24,11 @@ from covert_env.separation import nearest_teammate
 from covert_env.trajectory import Trajectory
 from covert_env.zone import zone_distance
 
-__all__ = ["AUTORESET_MODES", "CovertSensingVectorEnv", "vector_env", "INFO_KEYS", "INFO_DTYPES", "MAX_NUM_ENVS"]
+__all__ = ["AUTORESET_MODES", "CovertSensingVectorEnv", "vector_env", "INFO_KEYS", "INFO_DTYPES", "MAX_NUM_ENVS",
+           "MAX_SCENE_SEED"]
 
+#: Largest scene seed: scenes are keyed by int64 in the scene pool.
+MAX_SCENE_SEED = 2**63 - 1
 #: Largest ``num_envs`` accepted: memory grows linearly with it (see benchmarks/vector_throughput.py).
 MAX_NUM_ENVS = 1 << 16
 #: Largest ``scene_cache_size``: a scene holds ~40 kB (~80 kB in waypoint mode), so this is a few GB at most.
@@ -591,12 +595,13 @@ def _reset_options(options: dict | None, b: int) -> tuple[np.ndarray | None, np.
 
 
 def _scene_seeds(seeds, b: int) -> np.ndarray | None:
-    """``options["scene_seed"]`` as b ints >= 0 (None without it)."""
+    """``options["scene_seed"]`` as b ints in [0, MAX_SCENE_SEED] (None without it)."""
     if seeds is None:
         return None
     arr = np.broadcast_to(np.asarray(seeds), (b,)) if np.ndim(seeds) == 0 else np.asarray(seeds)
-    if arr.shape != (b,) or arr.dtype.kind not in "iu" or (arr < 0).any():
-        raise ValueError(f"options['scene_seed'] must be an integer >= 0 or {b} of them (one per copy), got {seeds!r}")
+    if arr.shape != (b,) or arr.dtype.kind not in "iu" or (arr < 0).any() or (arr > MAX_SCENE_SEED).any():
+        raise ValueError(f"options['scene_seed'] must be an integer in [0, {MAX_SCENE_SEED}] (2**63 - 1) or {b} of "
+                         f"them (one per copy), got {short_repr(seeds)}")
     return arr
 
 
