@@ -6,10 +6,12 @@ Every UAV flies at the fixed altitude h as a unicycle (eq. 1)::
 
 Two tools live here:
 
-* :func:`unicycle_step` / :func:`unicycle_path` integrate the unicycle **exactly** for constant
-  ``(v, omega)``: the path is a circular arc (a segment when ``omega = 0``). The paper's discrete model
-  (eq. 7) is one explicit Euler step; over a whole slot of ``delta = 1 s`` at ``omega = 3 rad/s`` that
-  step would put the UAV tens of metres from where the kinematics actually take it, so we never use it.
+* :func:`unicycle_arc` integrates the unicycle **exactly** for constant ``(v, omega)``: the path is a
+  circular arc (a segment when ``omega = 0``). It is eq. 1's one home: :func:`unicycle_step`,
+  :func:`unicycle_path`, :meth:`Manoeuvre.points` and the batched flight of :mod:`covert_env.flight` all call
+  it. The paper's discrete model (eq. 7) is one explicit Euler step; over a whole slot of ``delta = 1 s`` at
+  ``omega = 3 rad/s`` that step would put the UAV tens of metres from where the kinematics actually take it,
+  so we never use it.
 * :func:`solve_manoeuvre` finds, for many (start pose, waypoint) pairs at once, the paper's
   turn-then-straight manoeuvre (eqs. 22-29): turn at ``+-W_max`` with constant speed ``v`` until the
   heading points at the waypoint (the tangent point ``z``), then fly straight to it at the same ``v``,
@@ -77,15 +79,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from covert_env.angles import TWO_PI, wrap_heading
+
 __all__ = [
     "Manoeuvre",
     "fly_manoeuvre",
     "solve_manoeuvre",
+    "unicycle_arc",
     "unicycle_path",
     "unicycle_step",
 ]
-
-_TWO_PI = 2.0 * np.pi
 # A waypoint whose lateral offset is below this fraction of its distance counts as dead ahead: flying
 # straight then misses it by at most 1e-12 of the distance, far below any tolerance that matters.
 _STRAIGHT_REL = 1e-12
@@ -98,12 +101,6 @@ _PHI_BISECT_ITER = 60
 MIN_GOAL_DISTANCE = 1e-9
 """Goals closer than this (m) to the start count as the start itself: infeasible, since v > 0 (eq. 1).
 (Below it the side of the turn is decided by rounding, and mirrored goals would disagree.)"""
-
-
-def _wrap_2pi(a):
-    """Wrap into [0, 2 pi). ``np.mod`` can return exactly 2 pi for tiny negative input; fold that to 0."""
-    w = np.mod(a, _TWO_PI)
-    return np.where(w >= _TWO_PI, 0.0, w)
 
 
 def _turn_side(cross):
@@ -124,14 +121,75 @@ def _scalar_or_array(a):
 # --------------------------------------------------------------------------------------- unicycle
 
 
-def unicycle_step(x, y, theta, v, omega, dt):
-    """Fly the unicycle (eq. 1) for ``dt`` seconds with constant speed ``v`` and turn rate ``omega``.
+def unicycle_arc(x, y, theta, v, omega, dt, *, out=None):
+    """Eq. 1 integrated exactly: the pose after flying constant ``(v, omega)`` for ``dt`` seconds from
+    ``(x, y, theta)``.
 
-    The integration is exact: the path is a circular arc of radius ``v / omega``, whose chord has length
-    ``v dt sinc(omega dt / 2)`` and direction ``theta + omega dt / 2``. Writing it with
-    ``sinc(u) = sin(u) / u`` instead of ``(v / omega)(sin(theta + omega dt) - sin(theta))`` keeps it
-    accurate as ``omega -> 0`` (no 0/0; ``omega = 0`` gives the straight segment of eq. 7). This replaces
+    ``x' = v cos(theta), y' = v sin(theta), theta' = omega``: the path is a circular arc of radius
+    ``v / omega``, whose chord has length ``v dt sinc(omega dt / 2)`` and direction ``theta + omega dt / 2``.
+    Writing it with ``sinc(u) = sin(u) / u`` instead of ``(v / omega)(sin(theta + omega dt) - sin(theta))``
+    keeps it accurate as ``omega -> 0`` (no 0/0; ``omega = 0`` gives the straight segment). This replaces
     the paper's Euler step (eq. 7), which ignores the heading change within the slot.
+
+    Batch-first: the arguments broadcast against each other (numpy rules), and each factor is evaluated at the
+    shape of the arguments it depends on: the chord's ratio at that of ``omega dt``, its direction at that of
+    ``theta + omega dt / 2``. So speeds (K, V, 1) against turn rates (K, 1, W) take one sine per turn rate, and a
+    straight leg (``omega`` the scalar 0) one sine and cosine per heading, not per time. Every caller gets the
+    same bits for the same operands, whatever the batch around them.
+
+    Args:
+        x, y: start position (m). theta: start heading (rad, counter-clockwise from +x).
+        v: linear speed (m/s). omega: turn rate (rad/s, positive = left). dt: duration (s).
+        out: optional ``(x_out, y_out)`` arrays of the broadcast shape that receive the position (large batches
+            write their path samples in place instead of through temporaries).
+
+    Returns:
+        ``(x1, y1, theta1)``: the position, and the heading ``theta + omega dt`` unwrapped
+        (:func:`~covert_env.angles.wrap_heading` brings it into ``[0, 2 pi)``).
+    """
+    if np.ndim(omega) == 0 and omega == 0:
+        chord = np.multiply(v, dt, dtype=float)
+        mid = np.add(theta, 0.0)
+    else:
+        half = np.multiply(np.multiply(0.5, omega, dtype=float), dt)
+        # sin(half) / half: the exact arc-to-chord ratio, 1 at half = 0. No cancellation near 0 (sin(h) ~ h in
+        # floating point too), and several times cheaper than np.sinc on the few-element arrays of an env step.
+        straight = half == 0.0
+        safe = np.where(straight, 1.0, half)
+        ratio = np.sin(safe)
+        if np.ndim(ratio):
+            ratio /= safe
+            ratio[straight] = 1.0
+        else:
+            ratio = 1.0 if straight else ratio / safe
+        chord = _times(np.multiply(v, dt, dtype=float), ratio)
+        # theta + half, in half's memory when it has the result's shape (half is not needed again).
+        own = isinstance(half, np.ndarray) and half.shape == np.broadcast_shapes(np.shape(theta), half.shape)
+        mid = np.add(theta, half, out=half if own else None)
+    heading = np.add(theta, np.multiply(omega, dt))
+    if out is None:
+        return x + chord * np.cos(mid), y + chord * np.sin(mid), heading
+    out_x, out_y = out
+    np.cos(mid, out=out_x)
+    out_x *= chord
+    out_x += x
+    np.sin(mid, out=out_y)
+    out_y *= chord
+    out_y += y
+    return out_x, out_y, heading
+
+
+def _times(a, b):
+    """``a * b``, in ``a``'s memory when it already has the product's shape."""
+    if isinstance(a, np.ndarray) and a.shape == np.broadcast_shapes(a.shape, np.shape(b)):
+        a *= b
+        return a
+    return a * b
+
+
+def unicycle_step(x, y, theta, v, omega, dt):
+    """Fly the unicycle (eq. 1, :func:`unicycle_arc`) for ``dt`` seconds with constant speed ``v`` and turn rate
+    ``omega``.
 
     Args:
         x, y: start position (m). theta: start heading (rad, counter-clockwise from +x).
@@ -143,16 +201,8 @@ def unicycle_step(x, y, theta, v, omega, dt):
     """
     x, y, theta = np.asarray(x, dtype=float), np.asarray(y, dtype=float), np.asarray(theta, dtype=float)
     v, omega, dt = np.asarray(v, dtype=float), np.asarray(omega, dtype=float), np.asarray(dt, dtype=float)
-    half = 0.5 * omega * dt
-    # sin(half) / half: the exact arc-to-chord ratio, 1 at half = 0. No cancellation near 0 (sin(h) ~ h in
-    # floating point too), and several times cheaper than np.sinc on the few-element arrays of an env step.
-    straight = half == 0.0
-    safe = np.where(straight, 1.0, half)
-    chord = v * dt * np.where(straight, 1.0, np.sin(safe) / safe)
-    mid = theta + half
-    x1 = x + chord * np.cos(mid)
-    y1 = y + chord * np.sin(mid)
-    th1 = _wrap_2pi(theta + omega * dt)
+    x1, y1, th1 = unicycle_arc(x, y, theta, v, omega, dt)
+    x1, y1, th1 = np.asarray(x1), np.asarray(y1), np.asarray(wrap_heading(th1))
     if not x1.shape == y1.shape == th1.shape:
         x1, y1, th1 = np.broadcast_arrays(x1, y1, th1)
     if x1.ndim:
@@ -199,7 +249,8 @@ def _tau(a, b, r, L):
     ex = L * a - r * (b - r)
     ey = r * a_minus_l + L * b
     t = np.arctan2(ey, ex)
-    return np.where(t < 0, t + _TWO_PI, t)
+    # A left turn's angle, not a heading: just below a full circle it may round to 2 pi, which must not fold to 0.
+    return np.where(t < 0, t + TWO_PI, t)
 
 
 def _F(a, b, d2, r, wd):
@@ -464,7 +515,7 @@ def solve_manoeuvre(p, theta, goals, *, v_max: float = 50.0, w_max: float = 3.0,
         turn = np.where(feasible, turn, 0).astype(np.int8)
         omega = np.where(feasible, turn * w_max, np.nan)
         turn_time = np.where(feasible, np.minimum(tau / w_max, delta), np.nan)
-        heading_after = np.where(feasible, _wrap_2pi(TH + turn * tau), np.nan)
+        heading_after = np.where(feasible, wrap_heading(TH + turn * tau), np.nan)
         length = v * delta
         # Tangent point z, mapped back from the UAV frame: (r sin tau, turn * r (1 - cos tau)).
         rr = np.where(turn != 0, r, 0.0)

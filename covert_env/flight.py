@@ -1,26 +1,23 @@
 """Flight over one slot, batch-first: controls from waypoints, and the path flown, for poses of any leading shape.
 
 The engine (one scene) and the vector env (B scenes) fly their UAVs with these functions, so both fly the same
-arithmetic. :func:`fly_arc` (a control held for the slot) and :func:`fly_turn_straight` (the manoeuvre) compute
-what :func:`~covert_env.dynamics.unicycle_step` gives at every sample, with the same operations in the same order,
-each sine and cosine once per distinct value (tests/test_batch_flight.py checks them against the plain per-sample
-integration, bit for bit). A UAV's move over a slot is either a unicycle control (v, omega) held
-for the whole slot (eq. 1, integrated exactly) or the turn-then-straight manoeuvre to a waypoint (eqs. 22-29); a
-waypoint the manoeuvre cannot reach is flown as the closest admissible constant control and flagged (see
-:mod:`covert_env.engine`).
+arithmetic. :func:`fly_arc` (a control held for the slot), :func:`fly_turn_straight` (the manoeuvre) and
+:func:`closest_constant_control` (the fallback's grid search) fly eq. 1 through
+:func:`~covert_env.dynamics.unicycle_arc`, shaping its arguments so that each sine and cosine is computed once per
+distinct value (tests/test_batch_flight.py checks them against the plain per-sample integration, bit for bit).
+A UAV's move over a slot is either a unicycle control (v, omega) held for the whole slot (eq. 1, integrated
+exactly) or the turn-then-straight manoeuvre to a waypoint (eqs. 22-29); a waypoint the manoeuvre cannot reach is
+flown as the closest admissible constant control and flagged (see :mod:`covert_env.engine`).
 """
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
-from covert_env.dynamics import solve_manoeuvre
+from covert_env.angles import wrap_heading
+from covert_env.dynamics import solve_manoeuvre, unicycle_arc
 
 __all__ = ["check_unicycle", "closest_constant_control", "fly_arc", "fly_turn_straight", "waypoint_controls"]
-
-_TWO_PI = 2.0 * math.pi
 
 
 def check_unicycle(ctl: np.ndarray, c) -> None:
@@ -38,33 +35,14 @@ def check_unicycle(ctl: np.ndarray, c) -> None:
 
 
 def fly_arc(xy, theta, v, w, times):
-    """Path samples (B, U, P, 2) at ``times`` (P,) and end headings (B, U) for controls held for the slot.
-
-    The arithmetic of :func:`~covert_env.dynamics.unicycle_step` (so the samples are the engine's, bit for bit),
-    with the heading wrapped only at the slot's end and the exact start as sample 0."""
-    dt = times[1:]
-    # In place where possible (the arrays are B U P: at B = 1024 every temporary spills the cache); each value is
-    # computed with the operations, operands and order of unicycle_step, so the results are the same bits.
-    half = (0.5 * w)[..., None] * dt                                   # (B, U, P-1)
-    straight = half == 0.0
-    safe = np.where(straight, 1.0, half)
-    ratio = np.sin(safe)
-    ratio /= safe
-    ratio[straight] = 1.0
-    chord = v[..., None] * dt
-    chord *= ratio
-    mid = np.add(theta[..., None], half, out=half)
+    """Path samples (B, U, P, 2) at ``times`` (P,) and end headings (B, U) in [0, 2 pi) for controls held for the
+    slot: :func:`~covert_env.dynamics.unicycle_arc` per sample, written into the path in place (the arrays are
+    B U P: at B = 1024 every temporary spills the cache), with the exact start as sample 0."""
     path = np.empty(theta.shape + (len(times), 2))
     path[..., 0, :] = xy
-    out_x, out_y = path[..., 1:, 0], path[..., 1:, 1]
-    np.cos(mid, out=out_x)
-    out_x *= chord
-    out_x += xy[..., 0, None]
-    np.sin(mid, out=out_y)
-    out_y *= chord
-    out_y += xy[..., 1, None]
-    end = np.mod(theta + w * times[-1], _TWO_PI)
-    return path, np.where(end >= _TWO_PI, 0.0, end)
+    _, _, heading = unicycle_arc(xy[..., 0, None], xy[..., 1, None], theta[..., None], v[..., None], w[..., None],
+                                 times[1:], out=(path[..., 1:, 0], path[..., 1:, 1]))
+    return path, wrap_heading(heading[..., -1])
 
 
 def waypoint_controls(xy, theta, goals, c):
@@ -89,12 +67,11 @@ def waypoint_controls(xy, theta, goals, c):
 
 def closest_constant_control(xy, theta, goals, c):
     """Best effort for unreachable waypoints: the admissible constant (v, omega) whose exact end point
-    (:func:`~covert_env.dynamics.unicycle_step` over the slot) lies closest to the waypoint, on a 17 x 17 grid
+    (:func:`~covert_env.dynamics.unicycle_arc` over the slot) lies closest to the waypoint, on a 17 x 17 grid
     refined twice around the best; (K,) each for (K, 2) poses and goals.
 
-    The arc's turn-dependent factors (sin(omega delta / 2) / (omega delta / 2) and the chord's direction) are
-    computed once per grid omega, not once per (v, omega) pair: the same operations on the same operands as
-    ``unicycle_step``, so the same end points, 17 times fewer sines and cosines."""
+    Speeds (K, 17, 1) against turn rates (K, 1, 17): the arc's turn-dependent factors are computed once per grid
+    omega, not once per (v, omega) pair, 17 times fewer sines and cosines."""
     n = len(goals)
     x0, y0, th0 = xy[:, 0, None, None], xy[:, 1, None, None], theta[:, None, None]
     gx, gy = goals[:, 0, None, None], goals[:, 1, None, None]
@@ -105,13 +82,8 @@ def closest_constant_control(xy, theta, goals, c):
     for _ in range(3):
         gv = lo_v[:, None] + (hi_v - lo_v)[:, None] * f                   # (K, 17): grid speeds
         gw = lo_w[:, None] + (hi_w - lo_w)[:, None] * f                   # (K, 17): grid turn rates
-        half = 0.5 * gw[:, None, :] * c.delta                              # (K, 1, 17)
-        straight = half == 0.0
-        safe = np.where(straight, 1.0, half)
-        chord = gv[:, :, None] * c.delta * np.where(straight, 1.0, np.sin(safe) / safe)    # (K, 17, 17)
-        mid = th0 + half
-        dx = x0 + chord * np.cos(mid) - gx
-        dy = y0 + chord * np.sin(mid) - gy
+        x, y, _ = unicycle_arc(x0, y0, th0, gv[:, :, None], gw[:, None, :], c.delta)     # (K, 17, 17)
+        dx, dy = x - gx, y - gy
         best = np.argmin((dx ** 2 + dy ** 2).reshape(n, -1), axis=1)      # v major, omega minor
         bv, bw = gv[rows, best // 17], gw[rows, best % 17]
         dv, dw = (hi_v - lo_v) / 16, (hi_w - lo_w) / 16
@@ -124,51 +96,28 @@ def fly_turn_straight(xy, theta, v, w, t_turn, times):
     """Turn at (v, w) for ``t_turn``, then straight at v: path samples (B, U, P, 2) at ``times`` (P,) from poses
     (B, U), and the end headings (B, U) in [0, 2 pi).
 
-    Two :func:`~covert_env.dynamics.unicycle_step` arcs per sample, as the engine flies them, with the same
-    operations on the same operands (the same bits), but each sine and cosine computed once per distinct
-    value: after the turn every sample shares the turn's end pose and the straight leg's heading, and before it
-    the straight leg has length 0. Sample 0 is the exact start."""
+    Two :func:`~covert_env.dynamics.unicycle_arc` legs per sample, as the engine flies them, with each sine and
+    cosine computed once per distinct value: after the turn every sample shares the turn's end pose and the
+    straight leg's heading, and before it the straight leg has length 0. Sample 0 is the exact start."""
     p = len(times)
     t = times[1:]                                                          # (P-1,)
     tt = t_turn[..., None]
     path = np.empty(theta.shape + (p, 2))
     path[..., 0, :] = xy
     # The turn's end (t >= t_turn): one pose per UAV, shared by the later samples.
-    t1_end = np.minimum(times[-1], t_turn)
-    x1e, y1e = _arc(xy[..., 0], xy[..., 1], theta, v, w, t1_end)
-    th1e = _wrap(theta + w * t1_end)
-    # The straight leg from there: heading th1e (+ 0.5 * 0.0 * t2 = 0), length v * t2 (* 1.0).
-    mid2 = th1e + 0.0
-    c2, s2 = np.cos(mid2), np.sin(mid2)
-    t2 = np.maximum(t - tt, 0.0)                                           # (B, U, P-1)
-    chord2 = v[..., None] * t2
+    x1e, y1e, th1e = unicycle_arc(xy[..., 0], xy[..., 1], theta, v, w, np.minimum(times[-1], t_turn))
+    th1e = wrap_heading(th1e)
     # During the turn (t < t_turn): each sample its own point of the arc; the straight leg adds 0.
+    t2 = np.maximum(t - tt, 0.0)                                           # (B, U, P-1)
     x1 = np.broadcast_to(x1e[..., None], t2.shape).copy()
     y1 = np.broadcast_to(y1e[..., None], t2.shape).copy()
     turning = t < tt
     if turning.any():
         bu, j = np.nonzero(turning.reshape(-1, p - 1))
-        x1.reshape(-1, p - 1)[bu, j], y1.reshape(-1, p - 1)[bu, j] = _arc(
+        x1.reshape(-1, p - 1)[bu, j], y1.reshape(-1, p - 1)[bu, j], _ = unicycle_arc(
             xy[..., 0].reshape(-1)[bu], xy[..., 1].reshape(-1)[bu], theta.reshape(-1)[bu], v.reshape(-1)[bu],
             w.reshape(-1)[bu], t[j])
-    np.multiply(chord2, c2[..., None], out=path[..., 1:, 0])
-    path[..., 1:, 0] += x1
-    np.multiply(chord2, s2[..., None], out=path[..., 1:, 1])
-    path[..., 1:, 1] += y1
-    return path, _wrap(th1e + 0.0 * t2[..., -1])
-
-
-def _arc(x, y, theta, v, w, dt):
-    """End point of :func:`~covert_env.dynamics.unicycle_step` (the same operations in the same order)."""
-    half = 0.5 * w * dt
-    straight = half == 0.0
-    safe = np.where(straight, 1.0, half)
-    chord = v * dt * np.where(straight, 1.0, np.sin(safe) / safe)
-    mid = theta + half
-    return x + chord * np.cos(mid), y + chord * np.sin(mid)
-
-
-def _wrap(a):
-    """Into [0, 2 pi), as ``dynamics._wrap_2pi``: ``np.mod`` can return exactly 2 pi for tiny negative input."""
-    w = np.mod(a, _TWO_PI)
-    return np.where(w >= _TWO_PI, 0.0, w)
+    # The straight leg from there, omega the scalar 0: one sine and cosine per UAV.
+    _, _, heading = unicycle_arc(x1, y1, th1e[..., None], v[..., None], 0.0, t2,
+                                 out=(path[..., 1:, 0], path[..., 1:, 1]))
+    return path, wrap_heading(heading[..., -1])

@@ -11,7 +11,7 @@ import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from covert_env.dynamics import Manoeuvre, fly_manoeuvre, solve_manoeuvre, unicycle_path, unicycle_step
+from covert_env.dynamics import Manoeuvre, fly_manoeuvre, solve_manoeuvre, unicycle_arc, unicycle_path, unicycle_step
 
 TWO_PI = 2 * np.pi
 
@@ -128,6 +128,43 @@ def test_unicycle_step_composes():
     h = unicycle_step(3.0, 4.0, 1.0, 20.0, -2.0, 0.4)
     b = unicycle_step(*h, 20.0, -2.0, 0.4)
     np.testing.assert_allclose(a, b, atol=1e-12)
+
+
+def test_unicycle_arc_is_the_same_per_element_whatever_the_batch():
+    # Every caller of eq. 1 (engine, vector env, fallback grid, manoeuvre points) relies on this: a factor
+    # computed once for a broadcast axis gives the bits the element-by-element evaluation gives.
+    rng = np.random.default_rng(4)
+    k, nv, nw = 6, 5, 7
+    x, y, th = rng.uniform(-80, 80, (k, 1, 1)), rng.uniform(-80, 80, (k, 1, 1)), rng.uniform(0, TWO_PI, (k, 1, 1))
+    v, om = rng.uniform(0.5, 50, (k, nv, 1)), rng.uniform(-3, 3, (k, 1, nw))
+    om[:, :, 0] = 0.0                                                      # straight flight in the grid
+    dt = 0.8
+    bx, by, bth = unicycle_arc(x, y, th, v, om, dt)
+    assert bx.shape == by.shape == (k, nv, nw) and bth.shape == (k, 1, nw)
+    flat = np.broadcast_arrays(x, y, th, v, om)
+    ex, ey, eth = (np.empty((k, nv, nw)) for _ in range(3))
+    for i in np.ndindex(k, nv, nw):
+        ex[i], ey[i], eth[i] = unicycle_arc(*(a[i] for a in flat), dt)
+    assert np.array_equal(bx, ex) and np.array_equal(by, ey)
+    assert np.array_equal(np.broadcast_to(bth, (k, nv, nw)), eth)
+    np.testing.assert_array_equal(bth, th + om * dt)                       # the heading, unwrapped
+    # Written into given arrays: the same bits.
+    ox, oy = np.empty((k, nv, nw)), np.empty((k, nv, nw))
+    rx, ry, _ = unicycle_arc(x, y, th, v, om, dt, out=(ox, oy))
+    assert rx is ox and ry is oy and np.array_equal(ox, bx) and np.array_equal(oy, by)
+
+
+def test_unicycle_arc_straight_leg_equals_the_general_arc():
+    # omega the scalar 0 takes one sine and cosine per heading (the manoeuvre's straight leg); the result must be
+    # the general formula's at omega = 0, bit for bit.
+    rng = np.random.default_rng(8)
+    x, y, th = rng.uniform(-80, 80, (4, 3, 1)), rng.uniform(-80, 80, (4, 3, 1)), rng.uniform(0, TWO_PI, (4, 3, 1))
+    v, dt = rng.uniform(0.5, 50, (4, 3, 1)), rng.uniform(0, 1, (4, 3, 9))
+    fast = unicycle_arc(x, y, th, v, 0.0, dt)
+    general = unicycle_arc(x, y, th, v, np.zeros((4, 3, 9)), dt)
+    for a, b in zip(fast, general, strict=True):
+        assert np.array_equal(a, b)
+    np.testing.assert_allclose(fast[0], x + v * dt * np.cos(th), rtol=0, atol=1e-12)
 
 
 def test_unicycle_path_shape_and_geometry():
