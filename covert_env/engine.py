@@ -22,6 +22,7 @@ import math
 
 import numpy as np
 
+from covert_env.angles import wrap_heading
 from covert_env.config import MAX_N_UAVS, check_coordinates, short_repr
 from covert_env.flight import check_unicycle, fly_arc, fly_turn_straight, waypoint_controls
 from covert_env.metrics import SlotQuantities, moves_quantities
@@ -85,7 +86,7 @@ class Engine:
         check_coordinates(xy, "Engine.reset: uav_xy")
         self.k = 0
         self.uav_xy = xy.copy()
-        self.uav_theta = np.mod(th, 2 * math.pi)
+        self.uav_theta = wrap_heading(th)
         u = len(xy)
         self._xy = [self.uav_xy.copy()]
         self._theta = [self.uav_theta.copy()]
@@ -179,7 +180,7 @@ class Engine:
         self._infeasible.append(flagged)
         self._dtime.append(decision_time)                             # None = not measured (NaN in trajectories)
         self.uav_xy = path[:, -1].copy()
-        self.uav_theta = np.mod(end_theta, 2 * math.pi)
+        self.uav_theta = wrap_heading(end_theta)
         self.k += 1
         self._xy.append(self.uav_xy.copy())
         self._theta.append(self.uav_theta.copy())

@@ -44,6 +44,7 @@ import shapely
 from shapely.geometry import Polygon
 from shapely.geometry.base import BaseGeometry
 
+from covert_env.angles import wrap_angle
 from covert_env.terrain import Terrain
 from covert_env.zone import ARC_RESOLUTION, feasible_zone_cfg, visible_zone
 
@@ -374,7 +375,7 @@ def _los_single(arr: TerrainArrays, xy: np.ndarray, h: float, q: np.ndarray, tol
     b = np.arctan2(arr.centre[:, 1] - q[1], arr.centre[:, 0] - q[0])
     rel = arr.plan - q[:2]
     vb = np.arctan2(rel[..., 1], rel[..., 0]) - b[:, None]
-    vb = (vb + np.pi) % (2 * np.pi) - np.pi
+    vb = wrap_angle(vb)
     rows = np.arange(len(rel))
     e_lo, e_hi = rel[rows, vb.argmin(axis=1)], rel[rows, vb.argmax(axis=1)]
     e_lo = e_lo / np.maximum(np.linalg.norm(e_lo, axis=1, keepdims=True), 1e-300)   # q on a vertex: 0

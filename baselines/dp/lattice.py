@@ -15,7 +15,8 @@ from collections import OrderedDict
 import numpy as np
 
 from baselines.dp.possible_targets import PossibleTargets
-from baselines.dp.table import TWO_PI, ManoeuvreTable
+from baselines.dp.table import ManoeuvreTable
+from covert_env.angles import abs_wrapped
 from covert_env.cost import uav_target_angle, uav_target_distance
 from covert_env.terrain import Terrain
 from covert_env.visibility import line_of_sight
@@ -83,9 +84,9 @@ class StagePair:
         dx = b.xy[:, None, 0].astype(f) - a.xy[None, :, 0].astype(f)
         dy = b.xy[:, None, 1].astype(f) - a.xy[None, :, 1].astype(f)
         chord = np.hypot(dx, dy)
-        # alpha lies in (-pi, pi], so the difference is in (-2 pi, 2 pi) and |wrap| = min(|x|, 2 pi - |x|).
-        dal = np.abs(b.alpha.astype(f)[:, None] - a.alpha.astype(f)[None, :])
-        np.minimum(dal, f(TWO_PI) - dal, out=dal)
+        # alpha lies in (-pi, pi], so the difference is one abs_wrapped takes.
+        dal = b.alpha.astype(f)[:, None] - a.alpha.astype(f)[None, :]
+        abs_wrapped(dal, out=dal)
         dal *= f(eta)
         dal += np.abs(b.d.astype(f)[:, None] - a.d.astype(f)[None, :])
         dal *= f(-lam)

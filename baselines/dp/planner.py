@@ -14,7 +14,8 @@ from baselines.dp.plan import DPPlan, flown_paths
 from baselines.dp.possible_targets import PossibleTargets
 from baselines.dp.recursion import ForwardRecursion, backtrack
 from baselines.dp.states import Layer, Problem, SolveCounts, batch_layers, best_cost, depths, layers_of
-from baselines.dp.table import TWO_PI, manoeuvre_table
+from baselines.dp.table import manoeuvre_table
+from covert_env.angles import wrap_heading
 from covert_env.config import MAX_HORIZON, Config
 from covert_env.cost import uav_target_angle, uav_target_distance
 from covert_env.engine import MAX_PATH_SAMPLES
@@ -178,7 +179,7 @@ class DPPlanner:
         """
         t0 = time.perf_counter()
         start = np.asarray(start_xy, dtype=float).reshape(-1, 2)
-        theta0 = np.mod(np.asarray(start_theta, dtype=float).reshape(-1), TWO_PI)
+        theta0 = wrap_heading(np.asarray(start_theta, dtype=float).reshape(-1))
         u = len(start)
         tq = np.asarray(target_xyz, dtype=float).reshape(-1, 3)
         tphi = np.asarray(target_phi, dtype=float).reshape(-1)

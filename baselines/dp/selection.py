@@ -11,8 +11,9 @@ from __future__ import annotations
 import numpy as np
 
 from baselines.dp.states import Layer
-from baselines.dp.table import TWO_PI, ManoeuvreTable
+from baselines.dp.table import ManoeuvreTable
 from baselines.dp.transitions import SolvedTransitions
+from covert_env.angles import TWO_PI
 
 __all__ = ["BOUND_TOL", "first_round", "nonzero_indices", "select_per_bin", "select_per_node"]
 

@@ -11,12 +11,10 @@ from functools import lru_cache
 
 import numpy as np
 
-from covert_env.angles import wrap_angle
+from covert_env.angles import TWO_PI, wrap_angle, wrap_heading
 from covert_env.dynamics import solve_manoeuvre
 
-__all__ = ["ManoeuvreTable", "TWO_PI", "manoeuvre_table"]
-
-TWO_PI = 2.0 * math.pi
+__all__ = ["ManoeuvreTable", "manoeuvre_table"]
 
 
 class ManoeuvreTable:
@@ -114,7 +112,7 @@ class ManoeuvreTable:
 
     def cell(self, base, theta) -> np.ndarray:
         """int32 cell indices from :meth:`base_index` values and headings (rad, any range)."""
-        th = np.mod(np.asarray(theta, float), TWO_PI) * self.psi_scale
+        th = wrap_heading(np.asarray(theta, float)) * self.psi_scale
         return (np.asarray(base, np.float32) - th.astype(np.float32)).astype(np.int32)
 
     def lower_bound(self, rel_xy, theta) -> np.ndarray:

@@ -13,7 +13,7 @@ import numpy as np
 
 from baselines.dp.path_checks import PathChecker, record_circles, separated
 from baselines.dp.states import Layer, Problem, SolveCounts
-from baselines.dp.table import TWO_PI
+from covert_env.angles import TWO_PI, wrap_heading
 from covert_env.config import Config
 from covert_env.cost import stage_cost
 from covert_env.dynamics import Manoeuvre, solve_manoeuvre
@@ -82,7 +82,7 @@ class SolvedTransitions:
         node_key = self.layer.uav[rows] * self.n_nodes + nodes
         if bins == 1:
             return node_key
-        return node_key * bins + (np.floor(np.mod(head, TWO_PI) * (bins / TWO_PI)).astype(np.int64) % bins)
+        return node_key * bins + (np.floor(wrap_heading(head) * (bins / TWO_PI)).astype(np.int64) % bins)
 
     def best(self, n_keys: int, bins: int) -> np.ndarray:
         """(n_keys,) best exact cost per (uav, node, bin) key so far."""
@@ -107,4 +107,4 @@ class SolvedTransitions:
         order = np.lexsort((cost, key))
         first = np.concatenate([[True], key[order][1:] != key[order][:-1]])
         w = order[first]
-        return Layer(self.layer.uav[rows[w]], nodes[w], np.mod(head[w], TWO_PI), cost[w], rows[w], v[w], g[w])
+        return Layer(self.layer.uav[rows[w]], nodes[w], wrap_heading(head[w]), cost[w], rows[w], v[w], g[w])

@@ -11,15 +11,12 @@ torch backend is a port.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from covert_env.config import short_repr
 from covert_env.envs.observation import OFFSET_CLIP, OWN_SIZE, OWN_SLICES
 from covert_env.flight import fly_turn_straight, waypoint_controls
 
-_TWO_PI = 2.0 * math.pi
 #: Smallest commanded speed as a fraction of V_max: the unicycle needs v > 0 (eq. 1).
 MIN_SPEED_FRACTION = 0.01
 #: The reward's terms; ``infos[agent]["reward_<term>"]`` holds each (the parallel env's Rewards section).

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import gymnasium
@@ -10,6 +9,7 @@ import numpy as np
 from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
+from covert_env.angles import wrap_heading
 from covert_env.config import short_repr
 from covert_env.envs import batch
 from covert_env.envs.arguments import bool_arg, int_arg, reset_options
@@ -337,7 +337,7 @@ class CovertSensingVectorEnv:
         terms = batch.reward_terms(quant, costs, c, self.reward_scale, self.penalties)
         rewards = terms.sum(axis=0)
         self._k, self._own = k + 1, None
-        self._xy, self._theta = end, np.mod(end_theta, 2 * math.pi)
+        self._xy, self._theta = end, wrap_heading(end_theta)
         if self._recorder is not None:
             self._recorder.record(k, path, self._theta, v, w, flagged, c.delta)
         self._speed, self._los, self._zone = quant.path_length / c.delta, quant.los, quant.zone_distance
@@ -494,7 +494,7 @@ class CovertSensingVectorEnv:
         rows = self._rows[idx]
         q, phi = pool.q[rows, 0], pool.phi[rows, 0]
         self._own = None
-        self._xy[idx], self._theta[idx] = xy, np.mod(theta, 2 * math.pi)
+        self._xy[idx], self._theta[idx] = xy, wrap_heading(theta)
         self._start_xy[idx], self._start_theta[idx], self._drawn[idx], self._ended[idx] = xy, theta, draw, False
         if self._recorder is not None:
             self._recorder.start(idx, xy, self._theta[idx])

@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from baselines.policies import parallel_env_of
+from covert_env.angles import wrap_angle
 from training.runs import read_run_json, run_env
 from training.shield import SeparationShield
 
@@ -41,10 +42,6 @@ PRETRAINED_DIR = Path(__file__).resolve().parent
 MAX_WEIGHTS_BYTES = 256 * 2**20
 #: Features per (agent, node) besides the U - 1 teammate distances (see :func:`node_features`).
 N_OWN_FEATURES = 9
-
-
-def _wrap(a: np.ndarray) -> np.ndarray:
-    return (a + np.pi) % (2 * np.pi) - np.pi
 
 
 def node_features(obs: np.ndarray, lattice: np.ndarray, n_uavs: int, r2: float, v_max: float, delta: float,
@@ -72,7 +69,7 @@ def node_features(obs: np.ndarray, lattice: np.ndarray, n_uavs: int, r2: float, 
     shape = (*obs.shape[:-1], len(p))
     rel = p - o[..., None, :]                                          # (..., L, 2)
     dist = np.sqrt((rel ** 2).sum(-1)) * (r2 / (v_max * delta))
-    d_alpha = _wrap(np.arctan2(p[:, 1], p[:, 0]) - np.arctan2(o[..., 1], o[..., 0])[..., None]) / np.pi
+    d_alpha = wrap_angle(np.arctan2(p[:, 1], p[:, 0]) - np.arctan2(o[..., 1], o[..., 0])[..., None]) / np.pi
     d_range = np.hypot(p[:, 0], p[:, 1]) - np.hypot(o[..., 0], o[..., 1])[..., None]
     feats = [np.broadcast_to(p, (*shape, 2)), rel, dist[..., None], d_alpha[..., None], np.abs(d_alpha)[..., None],
              d_range[..., None], np.abs(d_range)[..., None]]
