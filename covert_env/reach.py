@@ -16,6 +16,9 @@ about 1 % of the cells are boundary cells. Cells near the origin (where every bo
 circle ``|g - p| = V_max delta`` (where ``solve_manoeuvre`` cuts exactly) are always boundary cells; points
 beyond the table are infeasible (farther than V_max delta). Tested against ``solve_manoeuvre`` on many random
 poses; building a table takes about a second, once per process and set of limits.
+
+It holds labels only, no cost: a planner that needs bounds on the manoeuvre's length or heading change tabulates
+those itself (the DP planner's ``baselines.dp.table.ManoeuvreBoundsTable``).
 """
 
 from __future__ import annotations

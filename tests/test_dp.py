@@ -11,7 +11,7 @@ import math
 import numpy as np
 import pytest
 
-from baselines.dp import DPPlanner, DPTeamPlanner, brute_force_plan, evaluate_plan, manoeuvre_table
+from baselines.dp import DPPlanner, DPTeamPlanner, brute_force_plan, evaluate_plan, manoeuvre_bounds_table
 from baselines.reproduce import HELDOUT_SEED_BASE, make_scenario, rollout
 from covert_env import Config, Engine, Road, Scenario, TargetTrack, Terrain
 from covert_env.angles import wrap_angle
@@ -76,7 +76,7 @@ def test_table_bounds_hold_against_exact_manoeuvres():
     exact path length, it must never call a feasible goal unreachable, and its heading-change interval must
     contain the exact heading change (4e5 random goals)."""
     c = Config()
-    tab = manoeuvre_table(c.v_max, c.w_max, c.delta)
+    tab = manoeuvre_bounds_table(c.v_max, c.w_max, c.delta)
     rng = np.random.default_rng(0)
     n = 400_000
     rho = rng.uniform(0, c.v_max * c.delta * 1.02, n)

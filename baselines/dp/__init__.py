@@ -129,8 +129,8 @@ every node pair. None of this depends on the UAV, so a team and successive repla
   :mod:`~baselines.dp.selection` -- which transitions are solved exactly; :mod:`~baselines.dp.transitions`
   -- exact transition costs (eq. 18); :mod:`~baselines.dp.states` -- DP layers.
 * :mod:`~baselines.dp.lattice` -- lattice stages and node pairs (cached); :mod:`~baselines.dp.possible_targets`
-  -- line of sight to every position a prediction error allows; :mod:`~baselines.dp.table` -- the
-  manoeuvre lookup table; :mod:`~baselines.dp.path_checks` -- checks along a manoeuvre;
+  -- line of sight to every position a prediction error allows; :mod:`~baselines.dp.table` -- bounds on
+  the manoeuvre's length and heading change; :mod:`~baselines.dp.path_checks` -- checks along a manoeuvre;
   :mod:`~baselines.dp.fallback` -- fallback levels 2 and 3.
 * :mod:`~baselines.dp.plan` -- the results :class:`DPPlan`, :class:`TeamPlan`;
   :mod:`~baselines.dp.reference` -- exact references (:func:`evaluate_plan`, :func:`brute_force_plan`).
@@ -139,7 +139,7 @@ every node pair. None of this depends on the UAV, so a team and successive repla
 from baselines.dp.plan import DPPlan, TeamPlan
 from baselines.dp.planner import HEADING_MODES, DPPlanner
 from baselines.dp.reference import brute_force_plan, evaluate_plan
-from baselines.dp.table import ManoeuvreTable, manoeuvre_table
+from baselines.dp.table import ManoeuvreBoundsTable, manoeuvre_bounds_table
 from baselines.dp.team import DPTeamPlanner
 
 __all__ = [
@@ -147,9 +147,9 @@ __all__ = [
     "DPPlanner",
     "DPTeamPlanner",
     "HEADING_MODES",
-    "ManoeuvreTable",
+    "ManoeuvreBoundsTable",
     "TeamPlan",
     "brute_force_plan",
     "evaluate_plan",
-    "manoeuvre_table",
+    "manoeuvre_bounds_table",
 ]

@@ -15,7 +15,7 @@ from collections import OrderedDict
 import numpy as np
 
 from baselines.dp.possible_targets import PossibleTargets
-from baselines.dp.table import ManoeuvreTable
+from baselines.dp.table import ManoeuvreBoundsTable
 from covert_env.angles import abs_wrapped
 from covert_env.cost import uav_target_angle, uav_target_distance
 from covert_env.terrain import Terrain
@@ -65,7 +65,7 @@ class StagePair:
     disguise: float32 (L, L) [source a, target b], ``-lambda (eta |d alpha| + |d d|)``, the disguise part of
         eq. 18 (:func:`covert_env.cost.disguise` in float32: it feeds bounds only, exact costs come from
         :func:`covert_env.cost.stage_cost`).
-    table_base: float32 (L, L) [a, b], :meth:`ManoeuvreTable.base_index` of b - a.
+    table_base: float32 (L, L) [a, b], :meth:`ManoeuvreBoundsTable.base_index` of b - a.
     heading_free_bound: float32 (L, L) [a, b], ``disguise + chord`` (inf beyond V_max delta), a lower bound
         on c_ab whatever the heading.
 
@@ -76,7 +76,7 @@ class StagePair:
     __slots__ = ("_base_t", "_disguise_t", "_chord_t", "_reach", "_with_penalty", "_heading_free_bound",
                  "_table_base", "_disguise")
 
-    def __init__(self, a: Stage, b: Stage, lam: float, eta: float, table: ManoeuvreTable):
+    def __init__(self, a: Stage, b: Stage, lam: float, eta: float, table: ManoeuvreBoundsTable):
         # Everything here feeds bounds only (exact costs are recomputed in float64 from the nodes' alpha
         # and d), so float32 throughout: half the memory traffic of the S x S arrays. Element by element the
         # same arithmetic as source-major arrays, laid out [target b, source a].
@@ -139,7 +139,7 @@ class StagePair:
 class StageCache:
     """Least-recently-used stages (keyed by the target pose) and stage pairs of one scene."""
 
-    def __init__(self, lattice: np.ndarray, table: ManoeuvreTable, lam: float, eta: float, size: int):
+    def __init__(self, lattice: np.ndarray, table: ManoeuvreBoundsTable, lam: float, eta: float, size: int):
         self.lattice, self.table, self.lam, self.eta, self.size = lattice, table, lam, eta, int(size)
         self._stages: OrderedDict = OrderedDict()
         self._pairs: OrderedDict = OrderedDict()

@@ -14,7 +14,7 @@ from baselines.dp.plan import DPPlan, flown_paths
 from baselines.dp.possible_targets import PossibleTargets
 from baselines.dp.recursion import ForwardRecursion, backtrack
 from baselines.dp.states import Layer, Problem, SolveCounts, batch_layers, best_cost, depths, layers_of
-from baselines.dp.table import manoeuvre_table
+from baselines.dp.table import manoeuvre_bounds_table
 from covert_env.angles import wrap_heading
 from covert_env.config import MAX_HORIZON, Config
 from covert_env.cost import uav_target_angle, uav_target_distance
@@ -112,7 +112,7 @@ class DPPlanner:
         self.path_samples = int(path_samples)
         self.prune = bool(prune)
         self.lattice = zone_lattice(config)
-        self.table = manoeuvre_table(config.v_max, config.w_max, config.delta)
+        self.table = manoeuvre_bounds_table(config.v_max, config.w_max, config.delta)
         # A replan at slot k+1 reuses N - 1 of the stages and N - 2 of the pairs of the one at slot k.
         size = int(cache_size) if cache_size is not None else config.horizon + 2
         self.cache = StageCache(self.lattice, self.table, config.lam, config.eta, size)

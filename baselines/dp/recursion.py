@@ -19,7 +19,7 @@ from baselines.dp.lattice import StageCache
 from baselines.dp.path_checks import PathChecker
 from baselines.dp.selection import BOUND_TOL, first_round, nonzero_indices, select_per_bin, select_per_node
 from baselines.dp.states import Layer, Problem, SolveCounts
-from baselines.dp.table import ManoeuvreTable
+from baselines.dp.table import ManoeuvreBoundsTable
 from baselines.dp.transitions import SolvedTransitions, solve_transitions
 from covert_env.config import Config
 
@@ -70,7 +70,7 @@ if hasattr(os, "register_at_fork"):                 # POSIX only; elsewhere proc
 class ForwardRecursion:
     """Eqs. 19-20 over a :class:`Problem`; bounds from the manoeuvre table, exact costs where they matter."""
 
-    def __init__(self, config: Config, lattice: np.ndarray, table: ManoeuvreTable, cache: StageCache,
+    def __init__(self, config: Config, lattice: np.ndarray, table: ManoeuvreBoundsTable, cache: StageCache,
                  paths: PathChecker):
         self.config, self.lattice, self.table, self.cache, self.paths = config, lattice, table, cache, paths
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from baselines.dp.states import Layer
-from baselines.dp.table import ManoeuvreTable
+from baselines.dp.table import ManoeuvreBoundsTable
 from baselines.dp.transitions import SolvedTransitions
 from covert_env.angles import TWO_PI
 
@@ -109,7 +109,7 @@ def select_per_node(lb, rowmap, colmin, first, solved: SolvedTransitions, max_op
         k, rounds = min(2 * k, 64), rounds + 1
 
 
-def select_per_bin(table: ManoeuvreTable, n_nodes: int, rows, nodes, bounds, cells, layer: Layer, bins: int,
+def select_per_bin(table: ManoeuvreBoundsTable, n_nodes: int, rows, nodes, bounds, cells, layer: Layer, bins: int,
                    solved: SolvedTransitions, constrained: bool) -> None:
     """(node, bin) states: the table's heading-change interval names the bins a transition can land in.
 

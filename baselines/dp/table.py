@@ -1,7 +1,15 @@
-"""Lookup table of the turn-then-straight manoeuvre (eqs. 22-29) in the UAV's own frame.
+"""Bounds on the turn-then-straight manoeuvre (eqs. 22-29), tabulated in the UAV's own frame.
 
-The planner uses it only to bound transitions and decide which ones to solve exactly; every cost it
+The planner uses them only to bound transitions and decide which ones to solve exactly; every cost it
 returns comes from the exact solver (:func:`covert_env.dynamics.solve_manoeuvre`).
+
+Not the model's reach table (:class:`covert_env.reach.ReachTable`), although both tabulate the same solver in the
+UAV's frame: that one answers *whether* a waypoint is reachable, exactly (it solves the points near the boundary
+of the reachable set), for the env's action masks; this one gives, per (range, bearing) cell, a lower bound on the
+path length (eq. 18's energy term) and an interval of the heading change, which the planner's selection of
+transitions needs and the reach table does not hold. Its own reachability is coarser: a cell none of whose corners
+is feasible gets an infinite bound and its transitions are never solved (the reachable set is taken to be no
+thinner than a cell), where the reach table would solve the points near the boundary.
 """
 
 from __future__ import annotations
@@ -14,10 +22,10 @@ import numpy as np
 from covert_env.angles import TWO_PI, wrap_angle, wrap_heading
 from covert_env.dynamics import solve_manoeuvre
 
-__all__ = ["ManoeuvreTable", "manoeuvre_table"]
+__all__ = ["ManoeuvreBoundsTable", "manoeuvre_bounds_table"]
 
 
-class ManoeuvreTable:
+class ManoeuvreBoundsTable:
     """Bounds on the turn-then-straight manoeuvre (eqs. 22-29), tabulated in the UAV's own frame.
 
     A goal at range rho and bearing psi from the UAV (relative to its heading) needs a path of length
@@ -38,7 +46,7 @@ class ManoeuvreTable:
 
     def __init__(self, v_max: float, w_max: float, delta: float, n_rho: int = 256, n_psi: int = 1024):
         if n_psi & (n_psi - 1):
-            raise ValueError(f"ManoeuvreTable: n_psi must be a power of two, got {n_psi}")
+            raise ValueError(f"ManoeuvreBoundsTable: n_psi must be a power of two, got {n_psi}")
         self.v_max, self.w_max, self.delta = float(v_max), float(w_max), float(delta)
         self.n_rho, self.n_psi = int(n_rho), int(n_psi)
         self.reach = self.v_max * self.delta
@@ -121,7 +129,7 @@ class ManoeuvreTable:
 
 
 @lru_cache(maxsize=8)
-def manoeuvre_table(v_max: float, w_max: float, delta: float) -> ManoeuvreTable:
-    """The :class:`ManoeuvreTable` for these limits, built once per process (~0.1 s)."""
-    return ManoeuvreTable(v_max, w_max, delta)
+def manoeuvre_bounds_table(v_max: float, w_max: float, delta: float) -> ManoeuvreBoundsTable:
+    """The :class:`ManoeuvreBoundsTable` for these limits, built once per process (~0.1 s)."""
+    return ManoeuvreBoundsTable(v_max, w_max, delta)
 
