@@ -86,6 +86,7 @@ __all__ = [
     "fly_manoeuvre",
     "solve_manoeuvre",
     "unicycle_arc",
+    "unicycle_heading",
     "unicycle_path",
     "unicycle_step",
 ]
@@ -121,7 +122,7 @@ def _scalar_or_array(a):
 # --------------------------------------------------------------------------------------- unicycle
 
 
-def unicycle_arc(x, y, theta, v, omega, dt, *, out=None):
+def unicycle_arc(x, y, theta, v, omega, dt, *, out=None, heading: bool = True):
     """Eq. 1 integrated exactly: the pose after flying constant ``(v, omega)`` for ``dt`` seconds from
     ``(x, y, theta)``.
 
@@ -142,16 +143,18 @@ def unicycle_arc(x, y, theta, v, omega, dt, *, out=None):
         v: linear speed (m/s). omega: turn rate (rad/s, positive = left). dt: duration (s).
         out: optional ``(x_out, y_out)`` arrays of the broadcast shape that receive the position (large batches
             write their path samples in place instead of through temporaries).
+        heading: False skips the heading (None is returned): path samples need only positions, and their
+            callers ask :func:`unicycle_heading` for the end heading alone.
 
     Returns:
-        ``(x1, y1, theta1)``: the position, and the heading ``theta + omega dt`` unwrapped
+        ``(x1, y1, theta1)``: the position, and the heading :func:`unicycle_heading` unwrapped
         (:func:`~covert_env.angles.wrap_heading` brings it into ``[0, 2 pi)``).
     """
     if np.ndim(omega) == 0 and omega == 0:
-        chord = np.multiply(v, dt, dtype=float)
-        mid = np.add(theta, 0.0)
+        chord = v * dt
+        mid = theta + 0.0
     else:
-        half = np.multiply(np.multiply(0.5, omega, dtype=float), dt)
+        half = 0.5 * omega * dt
         # sin(half) / half: the exact arc-to-chord ratio, 1 at half = 0. No cancellation near 0 (sin(h) ~ h in
         # floating point too), and several times cheaper than np.sinc on the few-element arrays of an env step.
         straight = half == 0.0
@@ -162,29 +165,35 @@ def unicycle_arc(x, y, theta, v, omega, dt, *, out=None):
             ratio[straight] = 1.0
         else:
             ratio = 1.0 if straight else ratio / safe
-        chord = _times(np.multiply(v, dt, dtype=float), ratio)
-        # theta + half, in half's memory when it has the result's shape (half is not needed again).
-        own = isinstance(half, np.ndarray) and half.shape == np.broadcast_shapes(np.shape(theta), half.shape)
-        mid = np.add(theta, half, out=half if own else None)
-    heading = np.add(theta, np.multiply(omega, dt))
+        chord = _into_first(np.multiply, v * dt, ratio)
+        mid = _into_first(np.add, half, theta)          # half is not needed again
+    theta1 = unicycle_heading(theta, omega, dt) if heading else None
     if out is None:
-        return x + chord * np.cos(mid), y + chord * np.sin(mid), heading
-    out_x, out_y = out
-    np.cos(mid, out=out_x)
-    out_x *= chord
-    out_x += x
-    np.sin(mid, out=out_y)
-    out_y *= chord
-    out_y += y
-    return out_x, out_y, heading
+        return x + chord * np.cos(mid), y + chord * np.sin(mid), theta1
+    for trig, dst, start in ((np.cos, out[0], x), (np.sin, out[1], y)):
+        if np.shape(mid) == dst.shape:
+            trig(mid, out=dst)
+            dst *= chord
+        else:                                           # at mid's shape, before broadcasting against the chord
+            np.multiply(trig(mid), chord, out=dst)
+        dst += start
+    return out[0], out[1], theta1
 
 
-def _times(a, b):
-    """``a * b``, in ``a``'s memory when it already has the product's shape."""
-    if isinstance(a, np.ndarray) and a.shape == np.broadcast_shapes(a.shape, np.shape(b)):
-        a *= b
-        return a
-    return a * b
+def unicycle_heading(theta, omega, dt):
+    """The heading part of eq. 1, ``theta' = omega``: ``theta + omega dt``, unwrapped (any broadcast shape).
+    :func:`unicycle_arc` returns it with the position; this is it alone, for a slot's end heading."""
+    return theta + omega * dt
+
+
+def _into_first(op, a, b):
+    """``op(a, b)`` in ``a``'s memory when ``a`` is an array of the result's shape (commutative ``op`` only)."""
+    if isinstance(a, np.ndarray) and a.ndim >= np.ndim(b):
+        try:
+            return op(a, b, out=a)
+        except (ValueError, TypeError):                 # b broadcasts a to a larger shape, or a is not float
+            pass
+    return op(a, b)
 
 
 def unicycle_step(x, y, theta, v, omega, dt):

@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from covert_env.angles import wrap_heading
-from covert_env.dynamics import solve_manoeuvre, unicycle_arc
+from covert_env.dynamics import solve_manoeuvre, unicycle_arc, unicycle_heading
 
 __all__ = ["check_unicycle", "closest_constant_control", "fly_arc", "fly_turn_straight", "waypoint_controls"]
 
@@ -40,9 +40,9 @@ def fly_arc(xy, theta, v, w, times):
     B U P: at B = 1024 every temporary spills the cache), with the exact start as sample 0."""
     path = np.empty(theta.shape + (len(times), 2))
     path[..., 0, :] = xy
-    _, _, heading = unicycle_arc(xy[..., 0, None], xy[..., 1, None], theta[..., None], v[..., None], w[..., None],
-                                 times[1:], out=(path[..., 1:, 0], path[..., 1:, 1]))
-    return path, wrap_heading(heading[..., -1])
+    unicycle_arc(xy[..., 0, None], xy[..., 1, None], theta[..., None], v[..., None], w[..., None], times[1:],
+                 out=(path[..., 1:, 0], path[..., 1:, 1]), heading=False)
+    return path, wrap_heading(unicycle_heading(theta, w, times[-1]))
 
 
 def waypoint_controls(xy, theta, goals, c):
@@ -82,8 +82,9 @@ def closest_constant_control(xy, theta, goals, c):
     for _ in range(3):
         gv = lo_v[:, None] + (hi_v - lo_v)[:, None] * f                   # (K, 17): grid speeds
         gw = lo_w[:, None] + (hi_w - lo_w)[:, None] * f                   # (K, 17): grid turn rates
-        x, y, _ = unicycle_arc(x0, y0, th0, gv[:, :, None], gw[:, None, :], c.delta)     # (K, 17, 17)
-        dx, dy = x - gx, y - gy
+        dx, dy, _ = unicycle_arc(x0, y0, th0, gv[:, :, None], gw[:, None, :], c.delta, heading=False)  # (K, 17, 17)
+        dx -= gx                                                           # in place: (K, 17, 17) spills the cache
+        dy -= gy
         best = np.argmin((dx ** 2 + dy ** 2).reshape(n, -1), axis=1)      # v major, omega minor
         bv, bw = gv[rows, best // 17], gw[rows, best % 17]
         dv, dw = (hi_v - lo_v) / 16, (hi_w - lo_w) / 16
@@ -116,8 +117,8 @@ def fly_turn_straight(xy, theta, v, w, t_turn, times):
         bu, j = np.nonzero(turning.reshape(-1, p - 1))
         x1.reshape(-1, p - 1)[bu, j], y1.reshape(-1, p - 1)[bu, j], _ = unicycle_arc(
             xy[..., 0].reshape(-1)[bu], xy[..., 1].reshape(-1)[bu], theta.reshape(-1)[bu], v.reshape(-1)[bu],
-            w.reshape(-1)[bu], t[j])
+            w.reshape(-1)[bu], t[j], heading=False)
     # The straight leg from there, omega the scalar 0: one sine and cosine per UAV.
-    _, _, heading = unicycle_arc(x1, y1, th1e[..., None], v[..., None], 0.0, t2,
-                                 out=(path[..., 1:, 0], path[..., 1:, 1]))
-    return path, wrap_heading(heading[..., -1])
+    unicycle_arc(x1, y1, th1e[..., None], v[..., None], 0.0, t2, out=(path[..., 1:, 0], path[..., 1:, 1]),
+                 heading=False)
+    return path, wrap_heading(unicycle_heading(th1e, 0.0, t2[..., -1]))
