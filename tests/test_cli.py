@@ -495,7 +495,8 @@ def _evaluate_file_cases(tmp: Path) -> dict[str, tuple[list[str], str]]:
         "cache of other scenes": (["--policies", "random", "--out", str(tmp / "lb2"), "--reuse", *base],
                                   r"--reuse: cached results .*: row 0 has scene_seed 5, expected 1000000; delete it"),
         "cache with a text reward": (["--policies", "random", "--out", str(tmp / "lb3"), "--reuse", *base],
-                                     r"--reuse: cached results .*: row 1 field reward must be a finite number, got 'high'"),
+                                     r"--reuse: cached results .*: row 1 field reward must be a finite number, "
+                                     r"got 'high'"),
         "sb3 args.json n_uavs three": (["--policies", f"sb3:{sb3}", "--trust-checkpoint", "--out", str(tmp / "o"),
                                         *base],
                                        rf"--policies: {re.escape(str(sb3 / 'args.json'))}: env_kwargs: n_uavs must "
