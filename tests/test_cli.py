@@ -545,6 +545,22 @@ def test_evaluate_file_errors_name_the_file_and_field(case, evaluate_files, caps
     assert re.fullmatch(rf"covert-env evaluate: error: {pattern}.*", lines[0]), lines[0]
 
 
+def test_resume_needs_the_run_folder_itself(tmp_path, capsys, monkeypatch):
+    """A folder inside a run is not the run: its args.json must be in the folder itself (an RLlib checkpoint, with
+    learner_group/, keeps it beside)."""
+    from training.mappo import main as mappo_main
+
+    (tmp_path / "run" / "sub").mkdir(parents=True)
+    (tmp_path / "run" / "args.json").write_text("{}")
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as exc:
+        mappo_main(["--resume", "run/sub"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    assert re.search(r"error: --resume run/sub: not a run folder \(no run/sub/args\.json\)", err), err
+
+
 def test_evaluate_reuses_a_sound_cache(evaluate_files, capsys, monkeypatch):
     import training.evaluate
 

@@ -195,10 +195,11 @@ def parse_args(cls: type, argv: list[str] | None = None, description: str | None
         run = Path(resume)
         if not run.is_dir():
             p.error(f"--resume {resume}: no such folder")
-        if not (run / "args.json").is_file() and not (run.parent / "args.json").is_file():
-            p.error(f"--resume {resume}: not a run folder (no args.json in it or beside it)")
-        # The saved arguments the run continues with (resumed_args): checked like the command line's.
+        # The saved arguments the run continues with (resumed_args): checked like the command line's. An RLlib
+        # checkpoint folder (with learner_group/) has them beside it, any other run in it.
         saved_path = run.parent / "args.json" if (run / "learner_group").is_dir() else run / "args.json"
+        if not saved_path.is_file():
+            p.error(f"--resume {resume}: not a run folder (no {saved_path})")
         if saved_path.is_file():
             try:
                 problem = _saved_args_problem(cls, read_json(saved_path, "run arguments"))
