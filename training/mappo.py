@@ -48,6 +48,7 @@ from pathlib import Path
 
 import numpy as np
 
+from covert_env.envs.batch import COSTS
 from training.budget import expected_steps
 from training.common import parse_args, resumed_args, run_name, save_run, setup_torch
 from training.pretrained import N_OWN_FEATURES, node_features
@@ -362,7 +363,8 @@ def train(args: Args) -> Path:
     sep_buf = np.zeros((T, B, U), np.float32)
     # The node head's inputs, kept from the rollout for the update (they do not depend on the parameters).
     feats_buf = torch.zeros((T, B * U, n_act, n_feat) if head == "node" else (T, 0))
-    cost_keys = ("cost_los", "cost_zone", "cost_separation", "cost_terrain")
+    cost_keys = tuple(f"cost_{name}" for name in COSTS)              # the env's constraint costs, by name
+    separation = COSTS.index("separation")
     ep_ret, ep_kappa = np.zeros((B, U)), np.zeros((B, U))
     ep_cost = np.zeros((len(cost_keys), B, U))
     recent: list[dict] = []
@@ -418,12 +420,12 @@ def train(args: Args) -> Path:
             ep_ret += rew
             ep_cost += step_costs
             ep_kappa += kappa
-            r = rew - lam * step_costs[2] if args.lagrangian else rew.copy()
+            r = rew - lam * step_costs[separation] if args.lagrangian else rew.copy()
             cut = trunc[:, 0] & ~term[:, 0]
             if cut.any() and env.episode_length < c.n_slots:
                 ended = np.flatnonzero(cut)        # time limit before the route's end: bootstrap V(final)
                 r[ended] += args.gamma * value_of(infos["final_obs"][ended], infos["final_state"][ended])
-            rew_buf[t], done_buf[t], sep_buf[t] = r, done, step_costs[2]
+            rew_buf[t], done_buf[t], sep_buf[t] = r, done, step_costs[separation]
             for b in np.flatnonzero(done):
                 recent.append({"reward": float(ep_ret[b].mean()), "kappa": float(ep_kappa[b].mean() / max(
                     infos["final_info"]["slot"][b, 0], 1)), **{k: float(ep_cost[i, b].mean())

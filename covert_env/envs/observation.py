@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 from gymnasium import spaces
 
-__all__ = ["FIELDS", "OFFSET_CLIP", "OWN_SIZE", "OWN_SLICES", "ObservationLayout", "observation_table",
+__all__ = ["FIELDS", "OFFSET_CLIP", "OWN_SIZE", "OWN_SLICES", "ObservationLayout", "field_slices", "observation_table",
            "shared_block_size", "shared_block_slices"]
 
 #: Offsets in observations are divided by R2 and clipped to this magnitude (500 m at R2 = 100 m).
@@ -100,6 +100,17 @@ def observation_table(single_agent: bool = False) -> str:
     return "\n".join(lines)
 
 
+def field_slices(n_uavs: int, map_size: int) -> dict[str, slice]:
+    """Field name -> slice of the observation row (:data:`FIELDS` in order) for U UAVs and S x S maps."""
+    sizes = {"mates": 2 * (int(n_uavs) - 1), "map": int(map_size) ** 2}
+    out, start = {}, 0
+    for f in FIELDS:
+        n = sizes[f.size] if isinstance(f.size, str) else f.size
+        out[f.name] = slice(start, start + n)
+        start += n
+    return out
+
+
 class ObservationLayout:
     """Slices, bounds and builders of the observation row and ``state()`` for U UAVs and S x S maps.
 
@@ -112,19 +123,16 @@ class ObservationLayout:
 
     def __init__(self, n_uavs: int, map_size: int):
         self.n_uavs, self.map_size = int(n_uavs), int(map_size)
-        sizes = {"mates": 2 * (self.n_uavs - 1), "map": self.map_size ** 2}
-        self.slices: dict[str, slice] = {}
-        low, high, start = [], [], 0
+        self.slices = field_slices(self.n_uavs, self.map_size)
+        low, high = [], []
         for f in FIELDS:
-            n = sizes.get(f.size, f.size) if isinstance(f.size, str) else f.size
-            self.slices[f.name] = slice(start, start + n)
+            n = self.slices[f.name].stop - self.slices[f.name].start
             low += [f.low] * n
             high += [f.high] * n
-            start += n
-        self.size = start
+        self.size = self.slices[FIELDS[-1].name].stop
         self.low, self.high = np.array(low, np.float32), np.array(high, np.float32)
         self.own_size = OWN_SIZE
-        self.shared_slices = shared_block_slices(sizes["map"])
+        self.shared_slices = shared_block_slices(self.map_size ** 2)
         self.shared_size = self.shared_slices["map_next"].stop
         self.state_size = self.n_uavs * self.own_size + self.shared_size
         self._state_index = np.concatenate([np.tile(np.arange(self.own_size), self.n_uavs)]

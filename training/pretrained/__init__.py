@@ -31,6 +31,7 @@ import numpy as np
 
 from baselines.policies import parallel_env_of
 from covert_env.angles import wrap_angle
+from covert_env.envs.observation import field_slices
 from training.runs import read_run_json, run_env
 from training.shield import SeparationShield
 
@@ -49,9 +50,10 @@ def node_features(obs: np.ndarray, lattice: np.ndarray, n_uavs: int, r2: float, 
     """Per-node inputs of the actor's waypoint head, ``(..., L, 9 + U - 1)`` float32 from observations ``(..., D)``.
 
     Everything is read from the agent's own observation (no extra information): its offset from the target
-    (indices 0-1, in units of R2), the target's displacement to the next slot (8-9, in units of V_max delta) and
-    the teammates' offsets (11 ..). The lattice lives in the target's frame at slot k+1; the UAV and its teammates
-    are moved into that frame by subtracting the displacement (the target's turn within one slot is neglected).
+    (field ``offset``, in units of R2), the target's displacement to the next slot (``target_displacement``, in units
+    of V_max delta) and the teammates' offsets (``teammates``), read by name from the observation layout. The
+    lattice lives in the target's frame at slot k+1; the UAV and its teammates are moved into that frame by
+    subtracting the displacement (the target's turn within one slot is neglected).
     For node l at ``p_l`` (units of R2) and the UAV at ``o``:
 
     * ``p_l`` (2) and ``p_l - o`` (2);
@@ -61,10 +63,12 @@ def node_features(obs: np.ndarray, lattice: np.ndarray, n_uavs: int, r2: float, 
     * per teammate j, ``min(|p_l - o_j| R2 / (2 d_safe1), 3)``: how close the node is to where j is now (eq. 2).
     """
     obs = np.asarray(obs, np.float32)
-    own = obs[..., 0:2]
-    disp = obs[..., 8:10] * (v_max * delta / r2)
+    # The fields read here come before the maps, so the maps' size (0 here) does not move them.
+    field = field_slices(n_uavs, map_size=0)
+    own = obs[..., field["offset"]]
+    disp = obs[..., field["target_displacement"]] * (v_max * delta / r2)
     o = own - disp
-    mates = obs[..., 11:11 + 2 * (n_uavs - 1)].reshape(*obs.shape[:-1], n_uavs - 1, 2) - disp[..., None, :]
+    mates = obs[..., field["teammates"]].reshape(*obs.shape[:-1], n_uavs - 1, 2) - disp[..., None, :]
     p = (np.asarray(lattice, np.float32) / r2)                          # (L, 2)
     shape = (*obs.shape[:-1], len(p))
     rel = p - o[..., None, :]                                          # (..., L, 2)
