@@ -71,7 +71,9 @@ class PenaltyWeights(dict):
             self[key] = value
 
     def setdefault(self, key, default=None):
-        return self[key] if key in self else self.__setitem__(key, default)
+        if key not in self:
+            self[key] = default              # every term is present: an absent key is unknown, and raises here
+        return self[key]
 
     def _fixed_keys(self, *args, **kwargs):
         raise TypeError(f"penalties keep one weight per term {list(PENALTIES)}: set a weight to 0.0 to turn a term "
