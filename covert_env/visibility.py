@@ -58,13 +58,11 @@ __all__ = [
     "face_offsets",
     "face_values",
     "line_of_sight",
-    "line_of_sight_cfg",
     "line_of_sight_rows",
     "visible_zone_cfg",
     "passes_near",
     "shadow_h_min",
     "shadow_polygons",
-    "shadow_polygons_cfg",
     "shadow_union",
     "shadow_union_cfg",
     "terrain_arrays",
@@ -648,11 +646,6 @@ def grown(arr: np.ndarray, shape: tuple, fill) -> np.ndarray:
     return out
 
 
-def line_of_sight_cfg(terrain: Terrain, uav_xy, target_xyz, config) -> np.ndarray:
-    """:func:`line_of_sight` at ``config.altitude``."""
-    return line_of_sight(terrain, uav_xy, config.altitude, target_xyz)
-
-
 # ----------------------------------------------------------------------------- shadows
 def shadow_h_min(terrain: Terrain, target_xyz, altitude: float, radius: float) -> np.ndarray:
     """(M,) automatic truncation heights ``h_min_m = z_q + (h - z_q) rho_min_m / R`` (module docstring).
@@ -755,18 +748,9 @@ def shadow_union(terrain: Terrain, target_xyz, altitude: float, radius: float, h
     return shapely.union_all(polys)
 
 
-def _radius_cfg(config) -> float:
-    return config.r2 + config.shadow_margin
-
-
-def shadow_polygons_cfg(terrain: Terrain, target_xyz, config) -> list[Polygon]:
-    """:func:`shadow_polygons` with the config's altitude, ``h_min`` and radius ``r2 + shadow_margin``."""
-    return shadow_polygons(terrain, target_xyz, config.altitude, _radius_cfg(config), config.h_min)
-
-
 def shadow_union_cfg(terrain: Terrain, target_xyz, config):
     """:func:`shadow_union` with the config's altitude, ``h_min`` and radius ``r2 + shadow_margin``."""
-    return shadow_union(terrain, target_xyz, config.altitude, _radius_cfg(config), config.h_min)
+    return shadow_union(terrain, target_xyz, config.altitude, config.r2 + config.shadow_margin, config.h_min)
 
 
 def visible_zone_cfg(terrain, target_xyz, phi: float, config, *, uncertain: bool = True,

@@ -26,8 +26,9 @@ Lattice. The planner's nodes and the environment's waypoint actions are one fixe
 the target's frame (x forward along phi, y to the left), spacing ``step``, covering the sector's bounding
 box. The offsets never depend on q or phi; membership in the zone (and later visibility) is a mask.
 
-Every function takes plain numbers; the ``*_cfg`` variants read them from a :class:`~covert_env.Config`
-(``r1``, ``r2``, ``mu``, ``r_u``, ``grid_step``, ``altitude``, ``h_min``, ``shadow_margin``).
+The functions take plain numbers, except :func:`feasible_zone_cfg`, :func:`lattice_offsets_cfg` and
+:func:`zone_lattice`, which read them from a :class:`~covert_env.Config` (``r1``, ``r2``, ``mu``, ``r_u``,
+``grid_step``).
 """
 
 from __future__ import annotations
@@ -53,15 +54,12 @@ __all__ = [
     "feasible_zone",
     "feasible_zone_cfg",
     "grid_nodes",
-    "grid_nodes_cfg",
     "in_feasible_zone",
-    "in_feasible_zone_cfg",
     "lattice_offsets",
     "lattice_offsets_cfg",
     "to_world",
     "visible_zone",
     "zone_distance",
-    "zone_distance_cfg",
     "zone_mask", "zone_lattice", "lattice_size", "spread_nodes", "zone_capacity"]
 
 ARC_RESOLUTION = math.radians(0.25)
@@ -168,11 +166,6 @@ def in_feasible_zone(xy, q_xy, phi, r1: float, r2: float, mu: float, r_u: float 
     return (rho >= r1 + r_u) & (rho <= r2 - r_u) & (mu / 2.0 - np.abs(th) >= gap)
 
 
-def in_feasible_zone_cfg(xy, q_xy, phi, config, *, uncertain: bool = True) -> np.ndarray:
-    """:func:`in_feasible_zone` with ``config``'s r1, r2, mu and (if ``uncertain``) r_u."""
-    return in_feasible_zone(xy, q_xy, phi, config.r1, config.r2, config.mu, config.r_u if uncertain else 0.0)
-
-
 def zone_distance(xy, q_xy, phi, r1: float, r2: float, mu: float) -> np.ndarray:
     """Signed distance (m) from points to the boundary of the uneroded zone (eq. 4); negative inside.
 
@@ -197,11 +190,6 @@ def zone_distance(xy, q_xy, phi, r1: float, r2: float, mu: float) -> np.ndarray:
     dist = np.minimum(d_arc, d_seg)
     inside = within & (rho >= r1) & (rho <= r2)
     return np.where(inside, -dist, dist)
-
-
-def zone_distance_cfg(xy, q_xy, phi, config) -> np.ndarray:
-    """:func:`zone_distance` with ``config``'s r1, r2 and mu."""
-    return zone_distance(xy, q_xy, phi, config.r1, config.r2, config.mu)
 
 
 # ----------------------------------------------------------------------------- visible zone (eq. 10)
@@ -328,12 +316,6 @@ def zone_lattice(config) -> np.ndarray:
     """
     off = lattice_offsets_cfg(config)
     return off[zone_mask(off, config.r1, config.r2, config.mu, config.r_u)]
-
-
-def grid_nodes_cfg(q_xy, phi: float, config, *, uncertain: bool = True) -> np.ndarray:
-    """:func:`grid_nodes` with ``config``'s grid_step, r1, r2, mu and (if ``uncertain``) r_u."""
-    return grid_nodes(q_xy, phi, config.grid_step, config.r1, config.r2, config.mu,
-                      config.r_u if uncertain else 0.0)
 
 
 # ----------------------------------------------------------------------------- start placement

@@ -12,7 +12,7 @@ from covert_env.road import Road, TargetTrack
 from covert_env.scenario import PAPER_UAV_STARTS, Scenario
 from covert_env.terrain import Terrain
 from covert_env.visibility import line_of_sight
-from covert_env.zone import grid_nodes_cfg, in_feasible_zone
+from covert_env.zone import grid_nodes, in_feasible_zone
 
 PAPER_XY = np.array([[40.0, 10.0], [60.0, 0.0], [50.0, -10.0]])
 PAPER_THETA = np.array([2 * math.pi, math.pi, math.pi / 2])
@@ -163,7 +163,7 @@ def test_starts_keep_clear_of_tall_tops(seed):
 
     s = Scenario.random(seed, c)
     q0, phi0 = s.track.position(0), float(s.track.heading(0))
-    assert (clearance(grid_nodes_cfg(q0[:2], phi0, c)) < c.d_safe2).any()
+    assert (clearance(grid_nodes(q0[:2], phi0, c.grid_step, c.r1, c.r2, c.mu, c.r_u)) < c.d_safe2).any()
     env = covert_env.vector_env(num_envs=8, config=c, random_starts=True)
     env.reset(seed=seed, options={"scene_seed": seed})
     for xy in [s.uav_xy, *env.uav_xy]:
