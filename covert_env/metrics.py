@@ -66,8 +66,8 @@ class SlotQuantities:
 def terrain_clearance(xy: np.ndarray, altitude: float, terrain) -> np.ndarray:
     """(..., 2) -> (...) distance from (x, y, h) to the nearest polytope highest point (eq. 3).
 
-    ``terrain``: a :class:`Terrain`, or a :class:`~covert_env.visibility.TerrainStack` (one terrain per
-    row of the leading axis)."""
+    ``terrain``: a :class:`Terrain`, or one terrain per row of the leading axis (its ``highest_points``
+    (N, M, 3), padded with inf: the vector env's copies)."""
     top = terrain.highest_points                                # (M, 3), or (N, M, 3) for a stack
     if top.shape[-2] == 0:
         return np.full(xy.shape[:-1], np.inf)
@@ -108,9 +108,9 @@ def moves_quantities(start_xy, end_xy, target_start, phi_start, target_end, phi_
         path_xy: (*B, U, P, 2) samples along each move; path_length: (*B, U).
         target_path_xyz: (*B, P, 3) the target at the same instants, or None to skip LoS along the path
             (``los_path`` is then NaN).
-        terrain: a :class:`Terrain` for every move, or a batch terrain with one terrain per move (B = (N,)):
-            a :class:`~covert_env.visibility.TerrainStack` or any object with its ``line_of_sight`` method and
-            ``highest_points`` array (the vector env's scene pool).
+        terrain: a :class:`Terrain` for every move, or one terrain per move (B = (N,), the vector env's copies): an
+            object with ``line_of_sight(uav_xy, altitude, target_xyz)`` for one target per move and
+            ``highest_points`` (N, M, 3); ``target_path_xyz`` must then be None.
     """
     c = config
     alpha_prev = uav_target_angle(start_xy, target_start[..., None, :2], phi_start[..., None])

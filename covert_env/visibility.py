@@ -53,7 +53,6 @@ __all__ = [
     "TerrainArrays",
     "TerrainRows",
     "grown",
-    "TerrainStack",
     "clip_segments",
     "face_offsets",
     "face_values",
@@ -418,66 +417,6 @@ def _los_general(arr: TerrainArrays, u: np.ndarray, t: np.ndarray, tol: float) -
     out = np.ones(len(u), dtype=bool)
     out[k[blocked]] = False
     return out
-
-
-class TerrainStack:
-    """One terrain per row of a batch, for one vectorised LoS call over several terrains (rows of one shape).
-
-    Row ``j`` of the leading axis of every array passed to :meth:`line_of_sight` is checked against
-    ``terrains[j]`` only, with the same result as :func:`line_of_sight` on that row (bit for bit: rows of
-    few points are clipped together with the same face values, larger rows go through it row by row).
-    The polytopes are stacked into padded (N, M_max, F_max) arrays: extra faces are the always-true row
-    ``0.x - 1 <= 0`` and extra polytopes are empty (a row ``0.x + 1 <= 0``), so padding never blocks.
-
-    Attributes:
-        terrains: the terrains, one per row.
-        highest_points: (N, M_max, 3) each terrain's polytope top points, padded with inf (eq. 3).
-    """
-
-    def __init__(self, terrains):
-        self.terrains = tuple(terrains)
-        arrs = [terrain_arrays(t) for t in self.terrains]
-        n = len(arrs)
-        m = max((a.hs.shape[0] for a in arrs), default=0)
-        f = max((a.hs.shape[1] for a in arrs), default=1)
-        hs = np.zeros((n, m, f, 4))
-        hs[..., 3] = -1.0
-        hs[:, :, 0, 3] = 1.0                                   # empty until a real polytope is written
-        top = np.full((n, m, 3), np.inf)
-        for j, (a, t) in enumerate(zip(arrs, self.terrains, strict=True)):
-            hs[j, :a.hs.shape[0], :a.hs.shape[1]] = a.hs
-            top[j, :len(t)] = t.highest_points
-        self._m, self._f = m, f
-        self._faces = np.ascontiguousarray(hs.transpose(3, 2, 0, 1)[:, :, :, None])        # (4, F, N, 1, M)
-        self.highest_points = top
-
-    def __len__(self) -> int:
-        return len(self.terrains)
-
-    def line_of_sight(self, uav_xy, altitude, target_xyz, *, tol: float = LOS_TOLERANCE) -> np.ndarray:
-        """:func:`line_of_sight` per row: ``uav_xy`` (N, ..., 2) and ``target_xyz`` (N, ..., 3) broadcastable,
-        ``altitude`` a scalar; row j against ``terrains[j]``. Returns bool (N, ...)."""
-        uav_xy = np.asarray(uav_xy, dtype=float)
-        target = np.asarray(target_xyz, dtype=float)
-        n = len(self.terrains)
-        if len(uav_xy) != n or len(target) != n:
-            raise ValueError(f"TerrainStack.line_of_sight: {n} terrains but leading axes "
-                             f"{len(uav_xy)} (uav_xy) and {len(target)} (target_xyz)")
-        shape = np.broadcast_shapes(uav_xy.shape[:-1], target.shape[:-1])
-        k = math.prod(shape[1:])
-        # Few pairs: every pair clipped, as line_of_sight clips them; more, row by row through
-        # line_of_sight's broad phases (the same face values: the results are identical either way).
-        if k * self._m > _BRUTE_PAIRS:
-            return np.stack([line_of_sight(t, uav_xy[j], altitude, target[j], tol=tol)
-                             for j, t in enumerate(self.terrains)]).reshape(shape)
-        if self._m == 0:
-            return np.ones(shape, dtype=bool)
-        u = np.broadcast_to(uav_xy, shape + (2,)).reshape(n, k, 1, 2)
-        t = np.broadcast_to(target, shape + (3,)).reshape(n, k, 1, 3)
-        nx, ny, nz, d = self._faces                                       # (F, N, 1, M) each
-        start = face_values(nx, ny, face_offsets(nz, d, float(altitude), tol), u[..., 0], u[..., 1])
-        end = face_values(nx, ny, face_offsets(nz, d, t[..., 2], tol), t[..., 0], t[..., 1])
-        return ~clip_segments(start, end).any(axis=-1).reshape(shape)
 
 
 class TerrainRows:

@@ -14,7 +14,6 @@ from shapely.geometry import Point, Polygon
 from covert_env.config import Config
 from covert_env.terrain import Polytope, Terrain
 from covert_env.visibility import (
-    TerrainStack,
     line_of_sight,
     line_of_sight_rows,
     shadow_h_min,
@@ -334,36 +333,6 @@ def test_small_input_path_equals_broad_phase_paths():
 
 
 # ----------------------------------------------------------------------------- one terrain per row
-@settings(max_examples=25, deadline=None)
-@given(seed=st.integers(0, 2**31 - 1), n_points=st.sampled_from([1, 3, 30, 200]))
-def test_terrain_stack_equals_line_of_sight_per_terrain(seed, n_points):
-    """Row j of a TerrainStack sees exactly what line_of_sight sees on terrain j: terrains of different
-    sizes (padding must never block), an empty one, per-point targets, and enough points for the per-row
-    fallback."""
-    rng = np.random.default_rng(seed)
-    terrains = [random_terrain(rng, n) for n in (int(rng.integers(1, 17)), 0, int(rng.integers(4, 9)))]
-    stack = TerrainStack(terrains)
-    targets = np.stack([random_target(rng) for _ in terrains])
-    xy = np.stack([disk_points(rng, q, n_points) for q in targets])
-    got = stack.line_of_sight(xy, H, targets[:, None, :])
-    want = np.stack([line_of_sight(t, xy[j], H, targets[j]) for j, t in enumerate(terrains)])
-    np.testing.assert_array_equal(got, want)
-    assert got[1].all()                                                   # the empty terrain
-    # Per-point targets (the path check of the engine) and the highest points (eq. 3), padded with inf.
-    per_point = targets[:, None, :] + rng.uniform(-1, 1, (len(terrains), n_points, 3)) * [1, 1, 0]
-    np.testing.assert_array_equal(stack.line_of_sight(xy, H, per_point),
-                                  np.stack([line_of_sight(t, xy[j], H, per_point[j]) for j, t in enumerate(terrains)]))
-    for j, t in enumerate(terrains):
-        np.testing.assert_array_equal(stack.highest_points[j, :len(t)], t.highest_points)
-        assert np.isinf(stack.highest_points[j, len(t):]).all()
-
-
-def test_terrain_stack_rejects_a_wrong_leading_axis():
-    stack = TerrainStack([Terrain([box(10, 20, -5, 5, 40)])] * 2)
-    with pytest.raises(ValueError, match="2 terrains"):
-        stack.line_of_sight(np.zeros((3, 4, 2)), H, np.zeros((3, 1, 3)))
-
-
 @settings(max_examples=30, deadline=None)
 @given(seed=st.integers(0, 2**31 - 1), altitude=st.sampled_from([H, 40.0, 2.0]))
 def test_line_of_sight_rows_equals_line_of_sight_per_row(seed, altitude):
@@ -404,20 +373,6 @@ def _grazing_segments(rng, key, terrain, n):
     return p0 + ts[:, :1] * tang, np.column_stack([p0 + ts[:, 1:] * tang, np.full(n, 1.5)])
 
 
-def test_terrain_stack_equals_line_of_sight_on_grazing_segments():
-    """Segments lying (to rounding) in a shrunk side face of a rotated box: where line_of_sight takes its
-    broad-phase path (40 points x 20 polytopes > the brute-force size), the stack must not clip with
-    another formula, or the rounding of the face value decides differently (it did, on ~12 % of these)."""
-    rng = np.random.default_rng(1)
-    for _ in range(40):
-        key = _rotated_box(rng.uniform(-50, 50), rng.uniform(-50, 50), rng.uniform(0, 2 * math.pi), 6, 4, 40)
-        terrain = Terrain([key] + [_rotated_box(2000 + 40 * i, 900, 0.3, 5, 5, 30) for i in range(19)])
-        xy, tgt = _grazing_segments(rng, key, terrain, 40)
-        want = line_of_sight(terrain, xy, H, tgt)
-        got = TerrainStack([terrain, terrain]).line_of_sight(np.stack([xy, xy]), H, np.stack([tgt, tgt]))
-        np.testing.assert_array_equal(got, np.stack([want, want]))
-
-
 def test_terrain_rows_equal_line_of_sight_per_copy_also_on_grazing_segments():
     """TerrainRows (the vector env's batched LoS, one terrain per row, copies pointing at rows) clips with the
     same face values as line_of_sight, so it decides exactly alike, also segments lying (to rounding) in a shrunk
@@ -447,7 +402,8 @@ def test_terrain_rows_equal_line_of_sight_per_copy_also_on_grazing_segments():
 
 def test_terrain_rows_overwritten_rows_see_their_new_terrain():
     """Rows of a TerrainRows are overwritten as scenes enter and leave the vector env's pool (and grow to more
-    polytopes and faces): each LoS call sees every row's current terrain, as line_of_sight does."""
+    polytopes and faces): each LoS call sees every row's current terrain, as line_of_sight does, and each row's
+    polytope tops (eq. 3) are its terrain's, padded with inf."""
     from covert_env.visibility import TerrainRows
 
     rng = np.random.default_rng(0)
@@ -461,6 +417,9 @@ def test_terrain_rows_overwritten_rows_see_their_new_terrain():
         xy = q[:, None, :2] + rng.uniform(-200, 200, (20, 4, 2))
         want = np.stack([line_of_sight(current[w], xy[j], H, q[j]) for j, w in enumerate(which)])
         np.testing.assert_array_equal(rows.line_of_sight(which, xy, H, q), want, err_msg=f"step {step}")
+        for w, t in current.items():
+            np.testing.assert_array_equal(rows.top[w, :len(t)], t.highest_points)
+            assert np.isinf(rows.top[w, len(t):]).all()
     assert len(rows) <= 16
 
 

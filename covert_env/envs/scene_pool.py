@@ -175,13 +175,22 @@ class ScenePool:
 
     def terrain_clearance(self, rows: np.ndarray, xy: np.ndarray, altitude: float) -> np.ndarray:
         """(B, U) distance from (x, y, h) to the nearest polytope top of each copy's scene (eq. 3; inf if none)."""
-        return terrain_clearance(xy, altitude, _Tops(self.top[rows]))
+        return terrain_clearance(xy, altitude, self.copy_terrains(rows))
+
+    def copy_terrains(self, rows: np.ndarray) -> _CopyTerrains:
+        """The terrain of each copy, copy b flying scene row ``rows[b]``: what
+        :func:`~covert_env.metrics.moves_quantities` and :func:`~covert_env.metrics.terrain_clearance` read."""
+        return _CopyTerrains(self, rows)
 
 
-class _Tops:
-    """Polytope tops of a batch of copies, as :func:`~covert_env.metrics.terrain_clearance` reads a terrain stack."""
+class _CopyTerrains:
+    """Each copy's terrain (copy b on scene row ``rows[b]``): its polytope tops (B, M, 3) and its line of sight."""
 
-    __slots__ = ("highest_points",)
+    def __init__(self, pool: ScenePool, rows: np.ndarray):
+        self._pool, self._rows = pool, rows
+        self.highest_points = pool.top[rows]
 
-    def __init__(self, top: np.ndarray):
-        self.highest_points = top
+    def line_of_sight(self, uav_xy, altitude, target_xyz) -> np.ndarray:
+        """(B, U) clear LoS (eq. 6) from ``uav_xy`` (B, U, 2) to one target per copy, ``target_xyz`` (B, 1, 3) or
+        (B, 3)."""
+        return self._pool.line_of_sight(self._rows, uav_xy, altitude, target_xyz.reshape(len(self._rows), 3))

@@ -332,7 +332,7 @@ class CovertSensingVectorEnv:
             flagged |= fallback
         end = path[..., -1, :].copy()
         quant = moves_quantities(xy0, end, pool.q[rows, k], pool.phi[rows, k], q1, phi1, path, v * c.delta,
-                                 None, _CopyTerrains(pool, rows), c)
+                                 None, pool.copy_terrains(rows), c)
         costs = batch.constraint_costs(quant, c)
         terms = batch.reward_terms(quant, costs, c, self.reward_scale, self.penalties)
         rewards = terms.sum(axis=0)
@@ -547,17 +547,6 @@ class CovertSensingVectorEnv:
         pool, rows, k1 = self._pool, self._rows, self._k + 1
         self._masks = batch.action_masks(self._xy, self._theta, pool.q[rows, k1, :2], pool.phi[rows, k1],
                                          self.lattice, pool.lattice_ok[rows, k1], self._reach)
-
-
-class _CopyTerrains:
-    """Each copy's terrain for one step, as :func:`~covert_env.metrics.moves_quantities` asks a batch terrain."""
-
-    def __init__(self, pool: ScenePool, rows: np.ndarray):
-        self._pool, self._rows = pool, rows
-        self.highest_points = pool.top[rows]
-
-    def line_of_sight(self, uav_xy, altitude, target_xyz) -> np.ndarray:
-        return self._pool.line_of_sight(self._rows, uav_xy, altitude, target_xyz.reshape(len(self._rows), 3))
 
 
 def _step_infos(k, quant, flagged, speed, terms, costs) -> dict[str, np.ndarray]:
