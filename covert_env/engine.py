@@ -35,6 +35,9 @@ __all__ = ["Engine", "MAX_PATH_SAMPLES"]
 class Engine:
     """Advance a :class:`Scenario` slot by slot and record the episode.
 
+    What the planner, the renderer and the policies read of it (``k``, ``uav_xy``, ``predict``, ``trajectory``,
+    ...) is :class:`~covert_env.roles.EngineView`, which a vector env's copy plays too.
+
     Args:
         scenario: the world and the start poses (a :class:`Scenario`; TypeError otherwise).
         path_samples: samples per slot along each path (endpoints included), used for LoS and

@@ -19,6 +19,7 @@ import numpy as np
 
 from covert_env.config import Config
 from covert_env.cost import disguise, stage_cost, uav_target_angle, uav_target_distance
+from covert_env.roles import PolytopeTops, TerrainPerCopy
 from covert_env.separation import nearest_teammate, team_separation
 from covert_env.terrain import Terrain
 from covert_env.trajectory import Trajectory
@@ -63,11 +64,11 @@ class SlotQuantities:
     terrain_clearance: np.ndarray
 
 
-def terrain_clearance(xy: np.ndarray, altitude: float, terrain) -> np.ndarray:
+def terrain_clearance(xy: np.ndarray, altitude: float, terrain: PolytopeTops) -> np.ndarray:
     """(..., 2) -> (...) distance from (x, y, h) to the nearest polytope highest point (eq. 3).
 
-    ``terrain``: a :class:`Terrain`, or one terrain per row of the leading axis (its ``highest_points``
-    (N, M, 3), padded with inf: the vector env's copies)."""
+    ``terrain``: a :class:`Terrain`, or one terrain per row of the leading axis (``highest_points`` (N, M, 3),
+    e.g. a :class:`~covert_env.roles.TerrainPerCopy`: the vector env's copies)."""
     top = terrain.highest_points                                # (M, 3), or (N, M, 3) for a stack
     if top.shape[-2] == 0:
         return np.full(xy.shape[:-1], np.inf)
@@ -97,7 +98,7 @@ def slot_quantities(traj: Trajectory, terrain: Terrain, config: Config, *, path_
 
 
 def moves_quantities(start_xy, end_xy, target_start, phi_start, target_end, phi_end, path_xy, path_length,
-                     target_path_xyz, terrain, config: Config) -> SlotQuantities:
+                     target_path_xyz, terrain: Terrain | TerrainPerCopy, config: Config) -> SlotQuantities:
     """:class:`SlotQuantities` of a batch of one-slot moves: the one function behind
     :func:`slot_quantities` (B = the T slots of an episode) and the engine's per-step quantities
     (B = the copies of :class:`covert_env.envs.vector.CovertSensingVectorEnv`; 1 for an engine).
@@ -108,9 +109,9 @@ def moves_quantities(start_xy, end_xy, target_start, phi_start, target_end, phi_
         path_xy: (*B, U, P, 2) samples along each move; path_length: (*B, U).
         target_path_xyz: (*B, P, 3) the target at the same instants, or None to skip LoS along the path
             (``los_path`` is then NaN).
-        terrain: a :class:`Terrain` for every move, or one terrain per move (B = (N,), the vector env's copies): an
-            object with ``line_of_sight(uav_xy, altitude, target_xyz)`` for one target per move and
-            ``highest_points`` (N, M, 3); ``target_path_xyz`` must then be None.
+        terrain: a :class:`Terrain` for every move, or a :class:`~covert_env.roles.TerrainPerCopy`, one terrain per
+            move (B = (N,), the vector env's copies), whose line of sight takes one target per move:
+            ``target_path_xyz`` must then be None.
     """
     c = config
     alpha_prev = uav_target_angle(start_xy, target_start[..., None, :2], phi_start[..., None])

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from covert_env.roles import EngineView
 from covert_env.scenario import Scenario
 from covert_env.visibility import line_of_sight, shadow_polygons
 from covert_env.zone import feasible_zone, visible_zone
@@ -194,7 +195,7 @@ def scene_figure(scenario: Scenario, k: int = 0, uav_xy=None, trails=None):
 
 
 class EpisodeRenderer:
-    """Draws frames of a running :class:`~covert_env.engine.Engine` (top view with trails, or 3D).
+    """Draws frames of a running episode, an :class:`~covert_env.roles.EngineView` (top view with trails, or 3D).
 
     ``human=False`` renders off-screen with the Agg canvas and returns uint8 H x W x 3 frames;
     ``human=True`` opens a matplotlib window lazily and updates it.
@@ -222,7 +223,7 @@ class EpisodeRenderer:
                 FigureCanvasAgg(self._fig)
         return self._fig
 
-    def draw(self, scenario: Scenario, engine) -> np.ndarray:
+    def draw(self, scenario: Scenario, engine: EngineView) -> np.ndarray:
         """Draw the engine's current slot; returns the frame as uint8 (H, W, 3)."""
         fig = self._figure()
         fig.clf()

@@ -10,6 +10,7 @@ import numpy as np
 from baselines.dp.plan import TeamPlan
 from baselines.dp.planner import DPPlanner
 from baselines.dp.safety import secure_first_moves
+from covert_env.roles import EngineView
 from covert_env.separation import separation
 
 __all__ = ["Conflict", "DPTeamPlanner", "WORK_COUNTERS"]
@@ -133,8 +134,9 @@ class DPTeamPlanner:
                     avoid[s_, o, t] = pts
         return avoid
 
-    def plan_engine(self, engine) -> TeamPlan:
-        """:meth:`plan` for the current state of a :class:`covert_env.engine.Engine` (its track's predictions)."""
+    def plan_engine(self, engine: EngineView) -> TeamPlan:
+        """:meth:`plan` for the current state of an engine (:class:`covert_env.engine.Engine`, or a vector env's
+        copy: any :class:`covert_env.roles.EngineView`), from its track's predictions."""
         q_pred, phi_pred = engine.predict()
         tq = np.vstack([engine.target_xyz[None], q_pred])
         tp = np.concatenate([[engine.target_phi], phi_pred])

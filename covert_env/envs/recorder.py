@@ -56,9 +56,10 @@ class EpisodeRecorder:
 class CopyView:
     """Copy ``i`` of a :class:`~covert_env.envs.vector.CovertSensingVectorEnv`, read as an engine (read-only).
 
-    The attributes the planners and the harness use on :class:`~covert_env.engine.Engine`: ``k``, ``uav_xy``,
+    An :class:`~covert_env.roles.EngineView`, as :class:`~covert_env.engine.Engine` is: ``k``, ``uav_xy``,
     ``uav_theta``, ``positions`` (every slot so far), ``target_xyz``, ``target_phi``, ``predict``, ``track``,
-    ``terrain``, ``config``, ``path_samples``, ``done`` and ``trajectory()`` (needs ``record=True``).
+    ``terrain``, ``config``, ``path_samples``, ``done`` and ``trajectory()`` (``positions`` and ``trajectory()``
+    need ``record=True``).
     """
 
     def __init__(self, venv, i: int):
