@@ -218,8 +218,10 @@ class Engine:
         k, tr = self.k, self.track
         q, phi = tr.positions[k - 1:k + 1], tr.headings[k - 1:k + 1]
         target_path = tr.position_between(k - 1, self._fractions)[None] if self.path_los else None
-        return moves_quantities(self._xy[-2][None], self._xy[-1][None], q[0], phi[0], q[1], phi[1],
-                                self._path[-1][None], self._length[-1][None], target_path, self.terrain, self.config)
+        return moves_quantities(self._xy[-2][None], self._xy[-1][None], target_start=q[0], phi_start=phi[0],
+                                target_end=q[1], phi_end=phi[1], path_xy=self._path[-1][None],
+                                path_length=self._length[-1][None], target_path_xyz=target_path,
+                                terrain=self.terrain, config=self.config)
 
     @property
     def positions(self) -> np.ndarray:

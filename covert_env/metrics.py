@@ -92,12 +92,14 @@ def slot_quantities(traj: Trajectory, terrain: Terrain, config: Config, *, path_
     ``path_los=False`` skips LoS along the path (``los_path`` is then NaN): environments use it for
     their per-step rewards, which do not need it; episode metrics always compute it.
     """
-    return moves_quantities(traj.uav_xy[:-1], traj.uav_xy[1:], traj.target_xyz[:-1], traj.target_phi[:-1],
-                            traj.target_xyz[1:], traj.target_phi[1:], traj.path_xy, traj.path_length,
-                            traj.target_path_xyz if path_los else None, terrain, config)
+    return moves_quantities(traj.uav_xy[:-1], traj.uav_xy[1:],
+                            target_start=traj.target_xyz[:-1], phi_start=traj.target_phi[:-1],
+                            target_end=traj.target_xyz[1:], phi_end=traj.target_phi[1:],
+                            path_xy=traj.path_xy, path_length=traj.path_length,
+                            target_path_xyz=traj.target_path_xyz if path_los else None, terrain=terrain, config=config)
 
 
-def moves_quantities(start_xy, end_xy, target_start, phi_start, target_end, phi_end, path_xy, path_length,
+def moves_quantities(start_xy, end_xy, *, target_start, phi_start, target_end, phi_end, path_xy, path_length,
                      target_path_xyz, terrain: Terrain | TerrainPerCopy, config: Config) -> SlotQuantities:
     """:class:`SlotQuantities` of a batch of one-slot moves: the one function behind
     :func:`slot_quantities` (B = the T slots of an episode) and the engine's per-step quantities

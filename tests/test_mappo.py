@@ -11,6 +11,7 @@ from _extras import needs
 torch = needs("torch")
 
 from training import mappo  # noqa: E402
+from training.mappo_networks import Actor  # noqa: E402
 from training.pretrained import N_OWN_FEATURES, NumpyActor, load_learned, node_features  # noqa: E402
 
 TINY = ["--num-envs", "2", "--num-steps", "8", "--num-minibatches", "2", "--update-epochs", "1", "--hidden", "16",
@@ -31,14 +32,13 @@ def _curve(run):
 @pytest.mark.parametrize("head", ["node", "flat", "gaussian"])
 def test_numpy_actor_equals_torch_actor(head):
     torch.manual_seed(0)
-    Actor, _ = mappo._nets()
     u, d, lat = 3, 143, np.random.default_rng(0).uniform(-100, 30, (40, 2))
     n_act = len(lat) if head != "gaussian" else 2
-    actor = Actor(d, n_act, head, 16, 8, N_OWN_FEATURES + u - 1, -0.5)
+    actor = Actor(d, n_act, head=head, hidden=16, node_hidden=8, n_feat=N_OWN_FEATURES + u - 1, log_std_init=-0.5)
     for p in actor.parameters():                     # away from the tiny initial output layer
         torch.nn.init.normal_(p, std=0.5)
     obs = np.random.default_rng(1).normal(size=(5, d)).astype(np.float32)
-    feats = node_features(obs, lat, u, 100.0, 50.0, 1.0, 5.0)
+    feats = node_features(obs, lat, u, r2=100.0, v_max=50.0, delta=1.0, d_safe1=5.0)
     assert feats.shape == (5, len(lat), N_OWN_FEATURES + u - 1) and np.isfinite(feats).all()
     mask = np.ones((5, n_act), bool)
     mask[:, ::3] = False

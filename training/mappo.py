@@ -7,8 +7,9 @@
     python -m training.evaluate --policies dp random@waypoint mappo:runs/<run>
     tensorboard --logdir runs
 
-Read top to bottom: arguments, networks, the rollout (same-step autoreset, truncation bootstrap, episode
-statistics), GAE, the PPO update, checkpoints. Nothing here is pickled: checkpoints are ``.npz`` + JSON.
+Read top to bottom: arguments; the agents (the networks of :mod:`training.mappo_networks` read and written as numpy
+rows); the rollout (same-step autoreset, truncation bootstrap, episode statistics); GAE; the PPO update; logs and
+checkpoints; ``train``, which runs them in that order. Nothing here is pickled: checkpoints are ``.npz`` + JSON.
 
 * **Actor** (parameter-shared, every UAV of every copy): an MLP on the agent's own observation. Waypoint mode:
   a masked categorical over the lattice nodes (masked nodes get -inf), by default scoring each node from its
@@ -48,12 +49,20 @@ from pathlib import Path
 
 import numpy as np
 
+import covert_env
 from covert_env.envs.batch import COSTS
 from training.budget import expected_steps
 from training.common import parse_args, resumed_args, run_name, save_run, setup_torch
 from training.pretrained import N_OWN_FEATURES, node_features
 from training.recipes import MAPPO_RECIPES
 from training.shield import SeparationShield
+
+try:                            # importing this file (--help, its arguments and recipes) needs no torch; train() does
+    import torch
+except ModuleNotFoundError:
+    torch = None
+else:
+    from training.mappo_networks import Actor, Critic, masked_categorical
 
 
 @dataclass
@@ -156,72 +165,6 @@ def check_args(args: Args) -> None:
                          f"minibatches or a larger batch")
 
 
-# ---------------------------------------------------------------------------------------------- networks
-def _nets():
-    """The torch modules (defined on first use so that importing this file does not need torch)."""
-    import torch
-    from torch import nn
-
-    def layer(i, o, std=2 ** 0.5, bias=True):
-        lin = nn.Linear(i, o, bias=bias)
-        nn.init.orthogonal_(lin.weight, std)
-        if bias:
-            nn.init.zeros_(lin.bias)
-        return lin
-
-    class Actor(nn.Module):
-        """Parameter names match :class:`training.pretrained.NumpyActor`."""
-
-        def __init__(self, obs_dim, n_actions, head, hidden, node_hidden, n_feat, log_std_init):
-            super().__init__()
-            self.head = head
-            self.trunk = nn.Sequential(layer(obs_dim, hidden), nn.Tanh(), layer(hidden, hidden), nn.Tanh())
-            if head == "node":
-                self.node_obs = layer(hidden, node_hidden)
-                self.node_feat = layer(n_feat, node_hidden, bias=False)
-                self.node_out = layer(node_hidden, 1, std=0.01)
-            elif head == "flat":
-                self.flat = layer(hidden, n_actions, std=0.01)
-            else:
-                self.mean = layer(hidden, n_actions, std=0.01)
-                self.log_std = nn.Parameter(torch.full((n_actions,), float(log_std_init)))
-
-        def logits(self, obs, feats=None, mask=None):
-            """Node logits (waypoint heads); with ``mask``, the node head scores only the allowed nodes (about
-            two in five: the same values at a fraction of the cost) and the others get -1e8."""
-            h = self.trunk(obs)
-            if self.head != "node":
-                return self.flat(h)
-            if mask is None:
-                z = torch.relu(self.node_obs(h)[:, None, :] + self.node_feat(feats))
-                return self.node_out(z)[..., 0]
-            rows, nodes = mask.nonzero(as_tuple=True)
-            z = torch.relu(self.node_obs(h)[rows] + self.node_feat(feats[rows, nodes]))
-            return torch.full(mask.shape, -1e8).index_put((rows, nodes), self.node_out(z)[:, 0])
-
-        def dist(self, obs, feats=None, mask=None):
-            if self.head == "gaussian":
-                mean = self.mean(self.trunk(obs))
-                return torch.distributions.Normal(mean, self.log_std.exp().expand_as(mean))
-            return masked_categorical(self.logits(obs, feats, mask), mask)
-
-    def masked_categorical(logits, mask):
-        return torch.distributions.Categorical(logits=torch.where(mask, logits, torch.tensor(-1e8)))
-
-    Actor.masked_categorical = staticmethod(masked_categorical)
-
-    class Critic(nn.Module):
-        def __init__(self, in_dim, hidden):
-            super().__init__()
-            self.net = nn.Sequential(layer(in_dim, hidden), nn.Tanh(), layer(hidden, hidden), nn.Tanh(),
-                                     layer(hidden, 1, std=1.0))
-
-        def forward(self, x):
-            return self.net(x)[..., 0]
-
-    return Actor, Critic
-
-
 class RunningNorm:
     """Running mean and variance of value targets (parallel-variance merge of batches), for ``--value-norm``."""
 
@@ -237,6 +180,302 @@ class RunningNorm:
     @property
     def std(self) -> float:
         return float(np.sqrt(self.var) + 1e-8)
+
+
+# ---------------------------------------------------------------------------------------------- agents
+@dataclass(frozen=True)
+class Sizes:
+    """The shapes of a run."""
+
+    B: int                    # env copies
+    U: int                    # UAVs per copy
+    T: int                    # rollout steps per copy and update
+    obs: int                  # observation width
+    state: int                # centralised state width
+    critic_in: int            # the critic's input width (state + agent one-hot, or the observation)
+    actions: int              # lattice nodes (waypoint mode) or the unicycle's 2 controls
+    feats: int                # the node head's features per node
+    waypoint: bool            # the action mode
+    head: str                 # "node", "flat" or "gaussian" (the unicycle mode)
+
+
+def sizes_of(args: Args, env) -> Sizes:
+    waypoint = args.action_mode == "waypoint"
+    obs, state, u = env.single_observation_space.shape[0], env.single_state_space.shape[0], args.n_uavs
+    return Sizes(B=args.num_envs, U=u, T=args.num_steps, obs=obs, state=state,
+                 critic_in=state + u if args.algo == "mappo" else obs, actions=len(env.lattice) if waypoint else 2,
+                 feats=N_OWN_FEATURES + u - 1, waypoint=waypoint, head=args.head if waypoint else "gaussian")
+
+
+def make_networks(args: Args, s: Sizes):
+    """The shared actor, the critic and one Adam over both (created in this order: torch's seeded draws)."""
+    actor = Actor(s.obs + (s.U if args.agent_id else 0), s.actions, head=s.head, hidden=args.hidden,
+                  node_hidden=args.node_hidden, n_feat=s.feats, log_std_init=args.log_std_init)
+    critic = Critic(s.critic_in, args.hidden)
+    optim = torch.optim.Adam([*actor.parameters(), *critic.parameters()], lr=args.learning_rate, eps=1e-5)
+    return actor, critic, optim
+
+
+def gumbel_pick(logits: np.ndarray):
+    """The shield's ``pick(k, mask)`` in training: the node of UAV ``k[b]`` of each copy b, sampled from its
+    ``logits`` (B, U, L) under ``mask`` by the Gumbel-max trick (numpy's global generator, seeded by --seed)."""
+    copies = np.arange(len(logits))
+
+    def pick(k, m):
+        g = -np.log(-np.log(np.random.random(m.shape)))
+        return np.argmax(np.where(m, logits[copies, k] + g, -np.inf), axis=1)
+
+    return pick
+
+
+class Agents:
+    """The team as the rollout and the update see it: numpy observations in, the actor's and the critic's input
+    rows, sampled actions (through the shield) and values (in return units) out."""
+
+    def __init__(self, args: Args, sizes: Sizes, env, actor, critic, vnorm: RunningNorm, shield):
+        self.args, self.sizes, self.env = args, sizes, env
+        self.actor, self.critic, self.vnorm, self.shield = actor, critic, vnorm, shield
+        self.eye = np.eye(sizes.U, dtype=np.float32)
+
+    def node_feats(self, flat_obs: np.ndarray):
+        """The node head's inputs (rows, L, feats); None for the other heads."""
+        if self.sizes.head != "node":
+            return None
+        c = self.env.config
+        return torch.from_numpy(node_features(flat_obs, self.env.lattice, self.sizes.U, r2=c.r2, v_max=c.v_max,
+                                              delta=c.delta, d_safe1=c.d_safe1))
+
+    def actor_in(self, flat_obs: np.ndarray):
+        """The actor's input rows: observations (agent-minor rows, as (..., U, D) flattened) and, with
+        --agent-id, the one-hot of each row's agent."""
+        if self.args.agent_id:
+            flat_obs = np.concatenate([flat_obs, self.eye[np.arange(len(flat_obs)) % self.sizes.U]], 1)
+        return torch.from_numpy(np.ascontiguousarray(flat_obs, dtype=np.float32))
+
+    def critic_in(self, obs: np.ndarray, state: np.ndarray) -> np.ndarray:
+        """(..., U, critic_in) from observations (..., U, D) and states (..., S)."""
+        if self.args.algo == "ippo":
+            return obs
+        u, lead = self.sizes.U, state.shape[:-1]
+        st = np.broadcast_to(state[..., None, :], (*lead, u, self.sizes.state))
+        return np.concatenate([st, np.broadcast_to(self.eye, (*lead, u, u))], axis=-1)
+
+    def value(self, obs: np.ndarray, state: np.ndarray) -> np.ndarray:
+        """V (..., U) of every agent, de-normalised with --value-norm."""
+        with torch.no_grad():
+            v = self.critic(torch.from_numpy(self.critic_in(obs, state).astype(np.float32))).numpy()
+        return v * self.vnorm.std + self.vnorm.mean if self.args.value_norm else v
+
+    def act(self, obs: np.ndarray, masks: np.ndarray):
+        """Every agent's action from observations (B, U, D) under the env's masks (B, U, L).
+
+        Returns ``(actions, log_probs, masks, feats)``: actions and their log-probabilities per row (B * U), the
+        masks they were sampled under (the shield's, PPO's ratios need them) and the node features (or None).
+        """
+        s = self.sizes
+        rows = s.B * s.U
+        flat_obs = obs.reshape(rows, s.obs)
+        with torch.no_grad():
+            feats = self.node_feats(flat_obs)
+            if self.shield is not None:
+                # The team chooses one UAV after another (training.shield), sampling each UAV's node by the
+                # Gumbel-max trick under its shielded mask.
+                logits = self.actor.logits(self.actor_in(flat_obs), feats, torch.from_numpy(masks.reshape(rows, -1)))
+                a_np, masks = self.shield.choose(masks, self.env.waypoint_paths,
+                                                 gumbel_pick(logits.numpy().reshape(s.B, s.U, -1)))
+                d = masked_categorical(logits, torch.from_numpy(masks.reshape(rows, -1)))
+                a = torch.from_numpy(a_np.reshape(rows))
+            else:
+                d = self.actor.dist(self.actor_in(flat_obs), feats,
+                                    torch.from_numpy(masks.reshape(rows, -1)) if s.waypoint else None)
+                a = d.sample()
+            logp = d.log_prob(a) if s.waypoint else d.log_prob(a).sum(-1)
+        return a, logp, masks, feats
+
+
+# ---------------------------------------------------------------------------------------------- rollout
+COST_KEYS = tuple(f"cost_{name}" for name in COSTS)      # the env's constraint costs, by name
+SEPARATION = COSTS.index("separation")
+
+
+class Rollout:
+    """Rollout storage: (T, B, U, ...) numpy arrays, flattened to agent-samples for the update."""
+
+    def __init__(self, s: Sizes):
+        T, B, U = s.T, s.B, s.U
+        self.obs = np.zeros((T, B, U, s.obs), np.float32)
+        self.state = np.zeros((T, B, s.state), np.float32)
+        self.mask = np.ones((T, B, U, s.actions if s.waypoint else 1), bool)
+        self.act = np.zeros((T, B, U) if s.waypoint else (T, B, U, 2), np.int64 if s.waypoint else np.float32)
+        self.logp, self.value = np.zeros((T, B, U), np.float32), np.zeros((T, B, U), np.float32)
+        self.reward, self.done = np.zeros((T, B, U), np.float32), np.zeros((T, B), np.float32)
+        self.separation = np.zeros((T, B, U), np.float32)
+        # The node head's inputs, kept from the rollout for the update (they do not depend on the parameters).
+        self.feats = torch.zeros((T, B * U, s.actions, s.feats) if s.head == "node" else (T, 0))
+
+
+class Episodes:
+    """Running sums of every copy's episode (reward, disguise, constraint costs) and the finished episodes' means
+    since they were last taken."""
+
+    def __init__(self, s: Sizes):
+        self.ret, self.kappa = np.zeros((s.B, s.U)), np.zeros((s.B, s.U))
+        self.cost = np.zeros((len(COST_KEYS), s.B, s.U))
+        self.recent: list[dict] = []
+
+    def add(self, rew: np.ndarray, costs: np.ndarray, kappa: np.ndarray, done: np.ndarray, infos: dict) -> None:
+        """One step's rewards, costs (C, B, U) and disguise (B, U); ``done`` (B,) copies end their episodes."""
+        self.ret += rew
+        self.cost += costs
+        self.kappa += kappa
+        for b in np.flatnonzero(done):
+            slots = max(infos["final_info"]["slot"][b, 0], 1)
+            self.recent.append({"reward": float(self.ret[b].mean()), "kappa": float(self.kappa[b].mean() / slots),
+                                **{k: float(self.cost[i, b].mean()) for i, k in enumerate(COST_KEYS)}})
+        self.ret[done], self.kappa[done], self.cost[:, done] = 0.0, 0.0, 0.0
+
+    def take_means(self) -> dict:
+        """The means over the episodes finished since the last call (at least one)."""
+        means = {k: float(np.mean([e[k] for e in self.recent])) for k in self.recent[0]}
+        self.recent = []
+        return means
+
+
+def collect_rollout(agents: Agents, buf: Rollout, episodes: Episodes, obs, state, *, lam: float):
+    """T steps of every copy into ``buf``; returns the observation and state to continue from."""
+    args, s, env = agents.args, agents.sizes, agents.env
+    for t in range(s.T):
+        buf.obs[t], buf.state[t] = obs, state
+        if s.waypoint:
+            buf.mask[t] = env.action_masks().astype(bool)
+        a, logp, buf.mask[t], feats = agents.act(obs, buf.mask[t])
+        if s.head == "node":
+            buf.feats[t] = feats
+        buf.value[t] = agents.value(obs, state)
+        buf.act[t] = a.numpy().reshape(buf.act.shape[1:])
+        buf.logp[t] = logp.numpy().reshape(s.B, s.U)
+        obs, rew, term, trunc, infos = env.step(buf.act[t])
+        state = env.state()
+        done = term[:, 0] | trunc[:, 0]
+        # An ended copy's infos are its next episode's first ones; its last slot's are in final_info.
+        last = infos["final_info"] if done.any() else infos
+        step_costs = np.stack([np.where(done[:, None], last[k], infos[k]) for k in COST_KEYS])
+        episodes.add(rew, step_costs, np.where(done[:, None], last["kappa"], infos["kappa"]), done, infos)
+        r = rew - lam * step_costs[SEPARATION] if args.lagrangian else rew.copy()
+        cut = trunc[:, 0] & ~term[:, 0]
+        if cut.any() and env.episode_length < env.config.n_slots:
+            ended = np.flatnonzero(cut)        # time limit before the route's end: bootstrap V(final)
+            r[ended] += args.gamma * agents.value(infos["final_obs"][ended], infos["final_state"][ended])
+        buf.reward[t], buf.done[t], buf.separation[t] = r, done, step_costs[SEPARATION]
+    return obs, state
+
+
+# ---------------------------------------------------------------------------------------------- GAE
+def advantages(buf: Rollout, next_value: np.ndarray, gamma: float, gae_lambda: float):
+    """GAE(gamma, lambda) of the rollout, with no bootstrap across a done: ``(advantages, returns)`` (T, B, U)."""
+    T = len(buf.reward)
+    adv = np.zeros(buf.reward.shape, np.float32)
+    last_gae = np.zeros(buf.reward.shape[1:], np.float32)
+    for t in reversed(range(T)):
+        nv = next_value if t == T - 1 else buf.value[t + 1]
+        nonterminal = 1.0 - buf.done[t][:, None]
+        delta = buf.reward[t] + gamma * nv * nonterminal - buf.value[t]
+        last_gae = delta + gamma * gae_lambda * nonterminal * last_gae
+        adv[t] = last_gae
+    return adv, adv + buf.value
+
+
+# ---------------------------------------------------------------------------------------------- PPO update
+def ppo_update(agents: Agents, optim, buf: Rollout, adv: np.ndarray, returns: np.ndarray):
+    """``update_epochs`` epochs of clipped PPO over minibatches of agent-samples.
+
+    Returns the last minibatch's losses (``policy_loss``, ``value_loss``, ``entropy``, ``approx_kl``) and every
+    minibatch's clip fraction.
+    """
+    args, s, actor, critic, vnorm = agents.args, agents.sizes, agents.actor, agents.critic, agents.vnorm
+    N = s.T * s.B * s.U
+    f_x = agents.actor_in(buf.obs.reshape(N, s.obs))
+    f_feats = buf.feats.reshape(N, s.actions, s.feats) if s.head == "node" else None
+    f_cin = agents.critic_in(buf.obs, buf.state).reshape(N, s.critic_in).astype(np.float32)
+    f_mask = buf.mask.reshape(N, -1)
+    f_act = buf.act.reshape(N, *buf.act.shape[3:])
+    f_logp, f_adv, f_ret = buf.logp.reshape(N), adv.reshape(N), returns.reshape(N)
+    f_ret_n = (f_ret - vnorm.mean) / vnorm.std if args.value_norm else f_ret
+    mb = max(N // args.num_minibatches, 1)
+    clipfracs, losses = [], {}
+    for _ in range(args.update_epochs):
+        perm = np.random.permutation(N)
+        for start in range(0, N, mb):
+            idx = perm[start:start + mb]
+            d = actor.dist(f_x[idx], None if f_feats is None else f_feats[idx],
+                           torch.from_numpy(f_mask[idx]) if s.waypoint else None)
+            a = torch.from_numpy(f_act[idx])
+            new_logp = d.log_prob(a) if s.waypoint else d.log_prob(a).sum(-1)
+            entropy = d.entropy() if s.waypoint else d.entropy().sum(-1)
+            ratio = (new_logp - torch.from_numpy(f_logp[idx])).exp()
+            mb_adv = torch.from_numpy(f_adv[idx])
+            mb_adv = (mb_adv - mb_adv.mean()) / (mb_adv.std() + 1e-8)
+            pg_loss = torch.max(-mb_adv * ratio, -mb_adv * ratio.clamp(1 - args.clip_coef, 1 + args.clip_coef)).mean()
+            v = critic(torch.from_numpy(f_cin[idx]))
+            v_loss = 0.5 * ((v - torch.from_numpy(f_ret_n[idx].astype(np.float32))) ** 2).mean()
+            loss = pg_loss - args.ent_coef * entropy.mean() + args.vf_coef * v_loss
+            optim.zero_grad()
+            loss.backward()
+            torch.nn.utils.clip_grad_norm_([*actor.parameters(), *critic.parameters()], args.max_grad_norm)
+            optim.step()
+            clipfracs.append(float(((ratio - 1.0).abs() > args.clip_coef).float().mean()))
+            losses = {"policy_loss": pg_loss.item(), "value_loss": v_loss.item(), "entropy": entropy.mean().item(),
+                      "approx_kl": ((ratio - 1) - ratio.log()).mean().item()}
+    return losses, clipfracs
+
+
+# ---------------------------------------------------------------------------------------------- progress and logs
+@dataclass
+class Progress:
+    """How far the run is (saved with every checkpoint): env steps, PPO updates, training wall time, and the
+    Lagrange multiplier of the separation cost."""
+
+    global_step: int = 0
+    updates: int = 0
+    wall_seconds: float = 0.0
+    lam: float = 0.0
+
+    def meta(self, vnorm: RunningNorm, card: dict) -> dict:
+        """A checkpoint's JSON (and the final model.json): the progress, the value statistics and the card."""
+        return {"global_step": self.global_step, "updates": self.updates, "wall_seconds": self.wall_seconds,
+                "lam": self.lam, "vnorm": [vnorm.mean, vnorm.var, vnorm.count], **card}
+
+
+def model_card(args: Args, s: Sizes, env, env_kwargs: dict, shield) -> dict:
+    """What an actor needs besides its weights: its spec, the env it was trained on, the shield it acted under."""
+    actor_spec = dict(head=s.head, hidden=args.hidden, node_hidden=args.node_hidden, n_feat=s.feats, obs_dim=s.obs,
+                      n_actions=s.actions, agent_id=args.agent_id)
+    return {"algorithm": args.algo, "actor": actor_spec, "env_kwargs": env_kwargs, "env_id": env.metadata["name"],
+            "separation_shield": None if shield is None else shield.min_distance,
+            "shield_end_margin": None if shield is None else shield.end_margin,
+            "covert_env_version": covert_env.__version__ if hasattr(covert_env, "__version__") else None}
+
+
+def log_update(writer, curve, bar, prog: Progress, *, losses: dict, clipfracs: list, shield,
+               episodes: Episodes) -> None:
+    """The update's losses and charts to TensorBoard; the finished episodes' means to TensorBoard, curve.jsonl
+    and the progress bar."""
+    step = prog.global_step
+    for k, v in losses.items():
+        writer.add_scalar(f"losses/{k}", v, step)
+    writer.add_scalar("losses/clipfrac", float(np.mean(clipfracs)), step)
+    writer.add_scalar("charts/sps", step / max(prog.wall_seconds, 1e-9), step)
+    writer.add_scalar("charts/lambda_separation", prog.lam, step)
+    if shield is not None:
+        writer.add_scalar("charts/shield_fallbacks", shield.fallbacks / max(shield.choices, 1), step)
+    if episodes.recent:
+        n_episodes, means = len(episodes.recent), episodes.take_means()
+        for k, v in means.items():
+            writer.add_scalar(f"episode/{k}", v, step)
+        curve.write(json.dumps({"env_steps": step, "wall_seconds": round(prog.wall_seconds, 1),
+                                "episodes": n_episodes, **means, **losses, "lambda": prog.lam}) + "\n")
+        curve.flush()
+        bar.set_postfix(reward=f"{means['reward']:.1f}", sep=f"{means['cost_separation']:.1f}", refresh=False)
 
 
 # ---------------------------------------------------------------------------------------------- checkpoints
@@ -256,8 +495,6 @@ def save_checkpoint(path: Path, actor, critic, optim, extra: dict) -> None:
 
 
 def load_checkpoint(path: Path, actor, critic, optim) -> dict:
-    import torch
-
     with np.load(path, allow_pickle=False) as data:
         actor.load_state_dict({k[6:]: torch.from_numpy(data[k]) for k in data.files if k.startswith("actor.")})
         critic.load_state_dict({k[7:]: torch.from_numpy(data[k]) for k in data.files if k.startswith("critic.")})
@@ -275,15 +512,26 @@ def latest_checkpoint(run_dir: Path) -> Path | None:
     return found[-1] if found else None
 
 
+def resume(run_dir: Path, actor, critic, optim, vnorm: RunningNorm) -> Progress:
+    """The newest checkpoint of ``run_dir`` loaded into the networks, Adam and the value statistics; its progress
+    (a fresh one where the run has no checkpoint)."""
+    ckpt = latest_checkpoint(run_dir)
+    if ckpt is None:
+        return Progress()
+    meta = load_checkpoint(ckpt, actor, critic, optim)
+    vnorm.mean, vnorm.var, vnorm.count = meta["vnorm"]
+    print(f"resumed from {ckpt} at {meta['global_step']} env steps", flush=True)
+    return Progress(global_step=meta["global_step"], updates=meta["updates"], wall_seconds=meta["wall_seconds"],
+                    lam=meta["lam"])
+
+
 # ---------------------------------------------------------------------------------------------- training
 def train(args: Args) -> Path:
+    """Train a team (module docstring) and save its run folder; returns the folder."""
     check_args(args)
     setup_torch(args.torch_threads)
-    import torch
     from torch.utils.tensorboard import SummaryWriter
     from tqdm.auto import tqdm
-
-    import covert_env
 
     if args.resume:
         run_dir = Path(args.resume)
@@ -292,241 +540,67 @@ def train(args: Args) -> Path:
         run_dir = Path(args.runs_dir) / (args.run_name or run_name(args.env_id, args.algo, args.seed))
     np.random.seed(args.seed)
     torch.manual_seed(args.seed)
-    ekw = dict(n_uavs=args.n_uavs, action_mode=args.action_mode, max_cycles=args.max_cycles,
-               scene_pool=args.scene_pool)
-    env = covert_env.vector_env(num_envs=args.num_envs, **ekw)
-    B, U, T, c = args.num_envs, args.n_uavs, args.num_steps, env.config
-    waypoint = args.action_mode == "waypoint"
-    obs_dim = env.single_observation_space.shape[0]
-    state_dim = env.single_state_space.shape[0]
-    n_act = len(env.lattice) if waypoint else 2
-    head = (args.head if waypoint else "gaussian")
-    n_feat = N_OWN_FEATURES + U - 1
-    actor_spec = dict(head=head, hidden=args.hidden, node_hidden=args.node_hidden, n_feat=n_feat, obs_dim=obs_dim,
-                      n_actions=n_act, agent_id=args.agent_id)
-    shield = (SeparationShield(c.d_safe1 + args.shield_margin, args.shield_end_margin)
-              if waypoint and args.separation_shield else None)
-    Actor, Critic = _nets()
-    actor = Actor(obs_dim + (U if args.agent_id else 0), n_act, head, args.hidden, args.node_hidden, n_feat,
-                  args.log_std_init)
-    critic_in = state_dim + U if args.algo == "mappo" else obs_dim
-    critic = Critic(critic_in, args.hidden)
-    optim = torch.optim.Adam([*actor.parameters(), *critic.parameters()], lr=args.learning_rate, eps=1e-5)
-    vnorm, lam = RunningNorm(), 0.0
-    global_step, updates, wall0 = 0, 0, 0.0
-    ckpt = latest_checkpoint(run_dir) if args.resume else None
-    if ckpt is not None:
-        meta = load_checkpoint(ckpt, actor, critic, optim)
-        global_step, updates, wall0, lam = meta["global_step"], meta["updates"], meta["wall_seconds"], meta["lam"]
-        vnorm.mean, vnorm.var, vnorm.count = meta["vnorm"]
-        print(f"resumed from {ckpt} at {global_step} env steps", flush=True)
-    card = {"algorithm": args.algo, "actor": actor_spec, "env_kwargs": ekw, "env_id": env.metadata["name"],
-            "separation_shield": None if shield is None else shield.min_distance,
-            "shield_end_margin": None if shield is None else shield.end_margin,
-            "covert_env_version": covert_env.__version__ if hasattr(covert_env, "__version__") else None}
+    env_kwargs = dict(n_uavs=args.n_uavs, action_mode=args.action_mode, max_cycles=args.max_cycles,
+                      scene_pool=args.scene_pool)
+    env = covert_env.vector_env(num_envs=args.num_envs, **env_kwargs)
+    s = sizes_of(args, env)
+    shield = (SeparationShield(env.config.d_safe1 + args.shield_margin, args.shield_end_margin)
+              if s.waypoint and args.separation_shield else None)
+    actor, critic, optim = make_networks(args, s)
+    vnorm, prog = RunningNorm(), Progress()
+    if args.resume:
+        prog = resume(run_dir, actor, critic, optim, vnorm)
+    card = model_card(args, s, env, env_kwargs, shield)
     save_run(run_dir, args, {"card": card})
     writer = SummaryWriter(str(run_dir / "tb"))
     curve = open(run_dir / "curve.jsonl", "a")
+    agents = Agents(args, s, env, actor, critic, vnorm, shield)
+    buf, episodes = Rollout(s), Episodes(s)
 
-    def feats_of(obs_np):
-        return torch.from_numpy(node_features(obs_np, env.lattice, U, c.r2, c.v_max, c.delta, c.d_safe1)) \
-            if head == "node" else None
-
-    eye = np.eye(U, dtype=np.float32)
-    copies = np.arange(B)
-
-    def actor_in(flat_obs):
-        """The actor's input rows: observations (agent-minor rows, as (..., U, D) flattened) and, with
-        --agent-id, the one-hot of each row's agent."""
-        x = np.concatenate([flat_obs, eye[np.arange(len(flat_obs)) % U]], 1) if args.agent_id else flat_obs
-        return torch.from_numpy(np.ascontiguousarray(x, dtype=np.float32))
-
-    def critic_input(obs_np, state_np):
-        """(..., U, critic_in) from observations (..., U, D) and states (..., S)."""
-        if args.algo == "ippo":
-            return obs_np
-        st = np.broadcast_to(state_np[..., None, :], (*state_np.shape[:-1], U, state_dim))
-        return np.concatenate([st, np.broadcast_to(eye, (*state_np.shape[:-1], U, U))], axis=-1)
-
-    def value_of(obs_np, state_np):
-        with torch.no_grad():
-            v = critic(torch.from_numpy(critic_input(obs_np, state_np).astype(np.float32))).numpy()
-        return v * vnorm.std + vnorm.mean if args.value_norm else v
-
-    # Rollout storage: (T, B, U, ...) numpy arrays, flattened to agent-samples for the update.
-    obs_buf = np.zeros((T, B, U, obs_dim), np.float32)
-    state_buf = np.zeros((T, B, state_dim), np.float32)
-    mask_buf = np.ones((T, B, U, n_act if waypoint else 1), bool)
-    act_buf = np.zeros((T, B, U) if waypoint else (T, B, U, 2), np.int64 if waypoint else np.float32)
-    logp_buf, val_buf = np.zeros((T, B, U), np.float32), np.zeros((T, B, U), np.float32)
-    rew_buf, done_buf = np.zeros((T, B, U), np.float32), np.zeros((T, B), np.float32)
-    sep_buf = np.zeros((T, B, U), np.float32)
-    # The node head's inputs, kept from the rollout for the update (they do not depend on the parameters).
-    feats_buf = torch.zeros((T, B * U, n_act, n_feat) if head == "node" else (T, 0))
-    cost_keys = tuple(f"cost_{name}" for name in COSTS)              # the env's constraint costs, by name
-    separation = COSTS.index("separation")
-    ep_ret, ep_kappa = np.zeros((B, U)), np.zeros((B, U))
-    ep_cost = np.zeros((len(cost_keys), B, U))
-    recent: list[dict] = []
-
-    obs, _ = env.reset(seed=args.seed + 7919 * updates)      # a resumed run draws fresh episodes
+    obs, _ = env.reset(seed=args.seed + 7919 * prog.updates)      # a resumed run draws fresh episodes
     state = env.state()
-    bar = tqdm(total=args.total_timesteps, initial=global_step, unit="step", disable=not args.progress_bar,
+    bar = tqdm(total=args.total_timesteps, initial=prog.global_step, unit="step", disable=not args.progress_bar,
                mininterval=0.5 if os.isatty(2) else 30.0, smoothing=0.05)
-    t_start, stopped = time.monotonic() - wall0, False
-    t_run, step_run = time.monotonic(), global_step          # this process's rate projects the time budget's end
-    last_ckpt = global_step
-    while global_step < args.total_timesteps:
+    t_start, stopped = time.monotonic() - prog.wall_seconds, False
+    t_run, step_run = time.monotonic(), prog.global_step     # this process's rate projects the time budget's end
+    last_ckpt = prog.global_step
+    while prog.global_step < args.total_timesteps:
         if args.anneal_lr:
-            optim.param_groups[0]["lr"] = args.learning_rate * max(1.0 - global_step / args.total_timesteps, 0.0)
-        # ------------------------------------------------------------------ rollout
-        for t in range(T):
-            obs_buf[t], state_buf[t] = obs, state
-            if waypoint:
-                mask_buf[t] = env.action_masks().astype(bool)
-            with torch.no_grad():
-                flat_obs = obs.reshape(B * U, obs_dim)
-                feats = feats_of(flat_obs)
-                if head == "node":
-                    feats_buf[t] = feats
-                if shield is not None:
-                    # The team chooses one UAV after another (training.shield), sampling each UAV's node by the
-                    # Gumbel-max trick under its shielded mask; those masks are stored for the update.
-                    logits = actor.logits(actor_in(flat_obs), feats, torch.from_numpy(mask_buf[t].reshape(B * U, -1)))
-                    lg = logits.numpy().reshape(B, U, -1)
-
-                    def pick(k, m, lg=lg):
-                        g = -np.log(-np.log(np.random.random(m.shape)))
-                        return np.argmax(np.where(m, lg[copies, k] + g, -np.inf), axis=1)
-
-                    a_np, mask_buf[t] = shield.choose(mask_buf[t], env.waypoint_paths, pick)
-                    d = Actor.masked_categorical(logits, torch.from_numpy(mask_buf[t].reshape(B * U, -1)))
-                    a = torch.from_numpy(a_np.reshape(B * U))
-                else:
-                    d = actor.dist(actor_in(flat_obs), feats,
-                                   torch.from_numpy(mask_buf[t].reshape(B * U, -1)) if waypoint else None)
-                    a = d.sample()
-                logp = d.log_prob(a) if waypoint else d.log_prob(a).sum(-1)
-            val_buf[t] = value_of(obs, state)
-            act_buf[t] = a.numpy().reshape(act_buf.shape[1:])
-            logp_buf[t] = logp.numpy().reshape(B, U)
-            obs, rew, term, trunc, infos = env.step(act_buf[t])
-            state = env.state()
-            done = term[:, 0] | trunc[:, 0]
-            # An ended copy's infos are its next episode's first ones; its last slot's are in final_info.
-            last = infos["final_info"] if done.any() else infos
-            step_costs = np.stack([np.where(done[:, None], last[k], infos[k]) for k in cost_keys])
-            kappa = np.where(done[:, None], last["kappa"], infos["kappa"])
-            ep_ret += rew
-            ep_cost += step_costs
-            ep_kappa += kappa
-            r = rew - lam * step_costs[separation] if args.lagrangian else rew.copy()
-            cut = trunc[:, 0] & ~term[:, 0]
-            if cut.any() and env.episode_length < c.n_slots:
-                ended = np.flatnonzero(cut)        # time limit before the route's end: bootstrap V(final)
-                r[ended] += args.gamma * value_of(infos["final_obs"][ended], infos["final_state"][ended])
-            rew_buf[t], done_buf[t], sep_buf[t] = r, done, step_costs[separation]
-            for b in np.flatnonzero(done):
-                recent.append({"reward": float(ep_ret[b].mean()), "kappa": float(ep_kappa[b].mean() / max(
-                    infos["final_info"]["slot"][b, 0], 1)), **{k: float(ep_cost[i, b].mean())
-                                                               for i, k in enumerate(cost_keys)}})
-            ep_ret[done], ep_kappa[done], ep_cost[:, done] = 0.0, 0.0, 0.0
-            global_step += B
+            optim.param_groups[0]["lr"] = args.learning_rate * max(1.0 - prog.global_step / args.total_timesteps, 0.0)
+        obs, state = collect_rollout(agents, buf, episodes, obs, state, lam=prog.lam)
+        prog.global_step += s.B * s.T
         now = time.monotonic()
-        bar.total = expected_steps(args.total_timesteps, global_step, now - t_start, args.time_budget_minutes,
-                                   (global_step - step_run) / max(now - t_run, 1e-9))
-        bar.update(B * T)
-        # ------------------------------------------------------------------ GAE
-        next_val = value_of(obs, state)
-        adv = np.zeros((T, B, U), np.float32)
-        last_gae = np.zeros((B, U), np.float32)
-        for t in reversed(range(T)):
-            nv = next_val if t == T - 1 else val_buf[t + 1]
-            nonterminal = 1.0 - done_buf[t][:, None]
-            delta = rew_buf[t] + args.gamma * nv * nonterminal - val_buf[t]
-            last_gae = delta + args.gamma * args.gae_lambda * nonterminal * last_gae
-            adv[t] = last_gae
-        returns = adv + val_buf
+        bar.total = expected_steps(args.total_timesteps, prog.global_step, now - t_start, args.time_budget_minutes,
+                                   (prog.global_step - step_run) / max(now - t_run, 1e-9))
+        bar.update(s.B * s.T)
+
+        adv, returns = advantages(buf, agents.value(obs, state), args.gamma, args.gae_lambda)
         if args.value_norm:
             vnorm.update(returns)
-        # ------------------------------------------------------------------ PPO update
-        N = T * B * U
-        f_obs = obs_buf.reshape(N, obs_dim)
-        f_x = actor_in(f_obs)
-        f_feats = feats_buf.reshape(N, n_act, n_feat) if head == "node" else None
-        f_cin = critic_input(obs_buf, state_buf).reshape(N, critic_in).astype(np.float32)
-        f_mask = mask_buf.reshape(N, -1)
-        f_act = act_buf.reshape(N, *act_buf.shape[3:])
-        f_logp, f_adv, f_ret = logp_buf.reshape(N), adv.reshape(N), returns.reshape(N)
-        f_ret_n = (f_ret - vnorm.mean) / vnorm.std if args.value_norm else f_ret
-        mb = max(N // args.num_minibatches, 1)
-        clipfracs, stats = [], {}
-        for _ in range(args.update_epochs):
-            perm = np.random.permutation(N)
-            for s in range(0, N, mb):
-                idx = perm[s:s + mb]
-                d = actor.dist(f_x[idx], None if f_feats is None else f_feats[idx],
-                               torch.from_numpy(f_mask[idx]) if waypoint else None)
-                a = torch.from_numpy(f_act[idx])
-                new_logp = d.log_prob(a) if waypoint else d.log_prob(a).sum(-1)
-                entropy = d.entropy() if waypoint else d.entropy().sum(-1)
-                ratio = (new_logp - torch.from_numpy(f_logp[idx])).exp()
-                mb_adv = torch.from_numpy(f_adv[idx])
-                mb_adv = (mb_adv - mb_adv.mean()) / (mb_adv.std() + 1e-8)
-                pg_loss = torch.max(-mb_adv * ratio,
-                                    -mb_adv * ratio.clamp(1 - args.clip_coef, 1 + args.clip_coef)).mean()
-                v = critic(torch.from_numpy(f_cin[idx]))
-                v_loss = 0.5 * ((v - torch.from_numpy(f_ret_n[idx].astype(np.float32))) ** 2).mean()
-                loss = pg_loss - args.ent_coef * entropy.mean() + args.vf_coef * v_loss
-                optim.zero_grad()
-                loss.backward()
-                torch.nn.utils.clip_grad_norm_([*actor.parameters(), *critic.parameters()], args.max_grad_norm)
-                optim.step()
-                clipfracs.append(float(((ratio - 1.0).abs() > args.clip_coef).float().mean()))
-                stats = {"policy_loss": pg_loss.item(), "value_loss": v_loss.item(), "entropy": entropy.mean().item(),
-                         "approx_kl": ((ratio - 1) - ratio.log()).mean().item()}
-        if not all(np.isfinite(v) for v in stats.values()):
-            raise FloatingPointError(f"non-finite losses at update {updates}: {stats}")
+        losses, clipfracs = ppo_update(agents, optim, buf, adv, returns)
+        if not all(np.isfinite(v) for v in losses.values()):
+            raise FloatingPointError(f"non-finite losses at update {prog.updates}: {losses}")
         if args.lagrangian:                        # dual ascent on the separation constraint (eq. 2)
-            lam = max(0.0, lam + args.lagrange_lr * (float(sep_buf.mean()) - args.cost_limit))
-        updates += 1
-        # ------------------------------------------------------------------ logging and checkpoints
-        wall = time.monotonic() - t_start
-        for k, v in stats.items():
-            writer.add_scalar(f"losses/{k}", v, global_step)
-        writer.add_scalar("losses/clipfrac", float(np.mean(clipfracs)), global_step)
-        writer.add_scalar("charts/sps", global_step / max(wall, 1e-9), global_step)
-        writer.add_scalar("charts/lambda_separation", lam, global_step)
-        if shield is not None:
-            writer.add_scalar("charts/shield_fallbacks", shield.fallbacks / max(shield.choices, 1), global_step)
-        if recent:
-            means = {k: float(np.mean([e[k] for e in recent])) for k in recent[0]}
-            for k, v in means.items():
-                writer.add_scalar(f"episode/{k}", v, global_step)
-            curve.write(json.dumps({"env_steps": global_step, "wall_seconds": round(wall, 1), "episodes": len(recent),
-                                    **means, **stats, "lambda": lam}) + "\n")
-            curve.flush()
-            bar.set_postfix(reward=f"{means['reward']:.1f}", sep=f"{means['cost_separation']:.1f}", refresh=False)
-            recent = []
-        if args.time_budget_minutes > 0 and wall > 60 * args.time_budget_minutes:
-            print(f"time budget of {args.time_budget_minutes:g} min reached at {global_step} env steps: stopping",
-                  flush=True)
+            prog.lam = max(0.0, prog.lam + args.lagrange_lr * (float(buf.separation.mean()) - args.cost_limit))
+        prog.updates += 1
+
+        prog.wall_seconds = time.monotonic() - t_start
+        log_update(writer, curve, bar, prog, losses=losses, clipfracs=clipfracs, shield=shield, episodes=episodes)
+        if args.time_budget_minutes > 0 and prog.wall_seconds > 60 * args.time_budget_minutes:
+            print(f"time budget of {args.time_budget_minutes:g} min reached at {prog.global_step} env steps: "
+                  "stopping", flush=True)
             stopped = True
-        meta = {"global_step": global_step, "updates": updates, "wall_seconds": wall, "lam": lam,
-                "vnorm": [vnorm.mean, vnorm.var, vnorm.count], **card}
-        if args.checkpoint_every and global_step - last_ckpt >= args.checkpoint_every:
-            save_checkpoint(run_dir / "checkpoints" / f"step_{global_step}.npz", actor, critic, optim, meta)
-            last_ckpt = global_step
+        if args.checkpoint_every and prog.global_step - last_ckpt >= args.checkpoint_every:
+            save_checkpoint(run_dir / "checkpoints" / f"step_{prog.global_step}.npz", actor, critic, optim,
+                            prog.meta(vnorm, card))
+            last_ckpt = prog.global_step
         if stopped:
             break
     if stopped:
         bar.total = bar.n                       # the time budget ended the run here
     bar.close()
-    save_checkpoint(run_dir / "checkpoints" / f"step_{global_step}.npz", actor, critic, optim, meta)
-    # The final actor alone, in the format training.pretrained loads (mappo:RUN and the shipped weights).
-    np.savez(run_dir / "model.npz", **{f"actor.{k}": v.detach().numpy() for k, v in actor.state_dict().items()})
-    (run_dir / "model.json").write_text(json.dumps(meta, indent=2))
-    summary = {"env_steps": global_step, "agent_steps": global_step * U, "updates": updates,
+    save_final(run_dir, actor, critic, optim, prog.meta(vnorm, card))
+    summary = {"env_steps": prog.global_step, "agent_steps": prog.global_step * s.U, "updates": prog.updates,
                "train_minutes": round((time.monotonic() - t_start) / 60, 2), "stopped_by_time_budget": stopped}
     (run_dir / "train_summary.json").write_text(json.dumps(summary, indent=2))
     print(f"saved {run_dir / 'model.npz'}: {summary}", flush=True)
@@ -534,6 +608,14 @@ def train(args: Args) -> Path:
     curve.close()
     env.close()
     return run_dir
+
+
+def save_final(run_dir: Path, actor, critic, optim, meta: dict) -> None:
+    """The last checkpoint, and the actor alone in the format training.pretrained loads (``mappo:RUN`` and the
+    shipped weights) with its card."""
+    save_checkpoint(run_dir / "checkpoints" / f"step_{meta['global_step']}.npz", actor, critic, optim, meta)
+    np.savez(run_dir / "model.npz", **{f"actor.{k}": v.detach().numpy() for k, v in actor.state_dict().items()})
+    (run_dir / "model.json").write_text(json.dumps(meta, indent=2))
 
 
 def main(argv: list[str] | None = None) -> Path:

@@ -201,7 +201,8 @@ class DPPlanner:
         any_removed = removed.any()
         penalties = [np.where(removed[:, j], np.inf, base[j]) if any_removed else base[j] for j in range(n)]
         avoid = None if avoid is None else np.asarray(avoid, float).reshape(u, -1, n, np.shape(avoid)[-2], 2)
-        prob = Problem(start, theta0, alpha0, d0, stages, penalties, path, avoid, float(avoid_dist))
+        prob = Problem(start=start, theta=theta0, alpha0=alpha0, d0=d0, stages=stages, penalties=penalties, path=path,
+                       avoid=avoid, avoid_dist=float(avoid_dist))
 
         outcomes, strict = self._strict_outcomes(prob, base, u, n, counts, self._resumed_layers(resume, u))
         todo = [i for i in range(u) if outcomes[i] is None]
@@ -211,10 +212,10 @@ class DPPlanner:
         if todo and self.shadow_aware:
             # Level 2: every zone node, a penalty per node without LoS, earlier stages weigh more.
             idx = np.array(todo)
-            sub = Problem(start[idx], theta0[idx], alpha0[idx], d0[idx], stages,
-                          fallback_penalties(allowed, removed[idx]), path, None if avoid is None else avoid[idx],
-                          float(avoid_dist), path_soft=True)
-            fallback_layers = self.recursion.run(sub, 1, None, None, counts)
+            sub = Problem(start=start[idx], theta=theta0[idx], alpha0=alpha0[idx], d0=d0[idx], stages=stages,
+                          penalties=fallback_penalties(allowed, removed[idx]), path=path,
+                          avoid=None if avoid is None else avoid[idx], avoid_dist=float(avoid_dist), path_soft=True)
+            fallback_layers = self.recursion.run(sub, counts)
             fallback_depth = depths(fallback_layers, len(idx))
             for s, i in enumerate(todo):
                 if fallback_depth[s]:
@@ -249,14 +250,15 @@ class DPPlanner:
         With binned headings, the inherited plan's cost bounds the binned search, and the binned plan is
         kept only where it goes deeper or costs less.
         """
-        layers = self.recursion.run(prob, 1, None, None, counts, prefix)
+        layers = self.recursion.run(prob, counts, prefix=prefix)
         depth = depths(layers, u)
         if self.heading_bins > 1 and depth.any():
             upper_bound = np.array([best_cost(layers, i, depth[i]) if (depth[i] == n and self.prune) else np.inf
                                     for i in range(u)])
             cost_to_go = (self.recursion.cost_to_go_bounds(prob.stages, base) if np.isfinite(upper_bound).any()
                           else None)
-            binned = self.recursion.run(prob, self.heading_bins, upper_bound, cost_to_go, counts)
+            binned = self.recursion.run(prob, counts, bins=self.heading_bins, upper_bound=upper_bound,
+                                        cost_to_go=cost_to_go)
             bdepth = depths(binned, u)
         out: list = [None] * u
         for i in range(u):

@@ -74,13 +74,14 @@ class ForwardRecursion:
                  paths: PathChecker):
         self.config, self.lattice, self.table, self.cache, self.paths = config, lattice, table, cache, paths
 
-    def run(self, prob: Problem, bins: int, upper_bound, cost_to_go, counts: SolveCounts,
+    def run(self, prob: Problem, counts: SolveCounts, *, bins: int = 1, upper_bound=None, cost_to_go=None,
             prefix=None) -> list[Layer]:
         """The non-empty layers of the whole batch.
 
-        ``upper_bound`` (U,) and ``cost_to_go`` (per stage, from :meth:`cost_to_go_bounds`): prune states and
-        transitions that cannot complete into anything cheaper (None: no pruning). ``prefix``: already
-        computed first layers (incremental replanning); the recursion continues after them.
+        ``bins``: heading bins per node (1: the paper's inherited heading). ``upper_bound`` (U,) and
+        ``cost_to_go`` (per stage, from :meth:`cost_to_go_bounds`), given together: prune states and transitions
+        that cannot complete into anything cheaper (None: no pruning). ``prefix``: already computed first layers
+        (incremental replanning); the recursion continues after them.
         """
         n = len(prob.stages)
         if prefix:
@@ -96,8 +97,8 @@ class ForwardRecursion:
                 break
             layers.append(layer)
             if j + 1 < n:
-                layer = self.advance(prob, layer, j + 1, bins, upper_bound,
-                                     None if cost_to_go is None else cost_to_go[j + 1], counts)
+                layer = self.advance(prob, layer, j + 1, counts, bins=bins, upper_bound=upper_bound,
+                                     cost_to_go_j=None if cost_to_go is None else cost_to_go[j + 1])
         return layers
 
     def cost_to_go_bounds(self, stages, penalties) -> list[np.ndarray]:
@@ -116,15 +117,16 @@ class ForwardRecursion:
         uu, cols = np.nonzero(np.isfinite(pen))
         if cols.size == 0:
             return Layer.empty()
-        m, g, extra = solve_transitions(self.config, self.paths, prob, 0, prob.start[uu], prob.theta[uu], uu,
-                                        prob.alpha0[uu], prob.d0[uu], cols, counts)
+        m, g, extra = solve_transitions(self.config, self.paths, prob, 0, start_xy=prob.start[uu],
+                                        theta=prob.theta[uu], uav=uu, alpha_from=prob.alpha0[uu],
+                                        d_from=prob.d0[uu], nodes=cols, counts=counts)
         J = g + pen[uu, cols] + extra
         k = np.isfinite(J)
-        return Layer(uu[k], cols[k], np.asarray(m.heading_after)[k], J[k], np.full(int(k.sum()), -1),
-                     np.asarray(m.v)[k], g[k])
+        return Layer(uav=uu[k], node=cols[k], theta=np.asarray(m.heading_after)[k], J=J[k],
+                     parent=np.full(int(k.sum()), -1), v=np.asarray(m.v)[k], g=g[k])
 
-    def advance(self, prob: Problem, layer: Layer, j: int, bins: int, upper_bound, cost_to_go_j,
-                counts: SolveCounts) -> Layer:
+    def advance(self, prob: Problem, layer: Layer, j: int, counts: SolveCounts, *, bins: int, upper_bound,
+                cost_to_go_j) -> Layer:
         """Eq. 20 from ``layer`` (stage j-1, 0-based) to stage j, exact on the transitions that matter."""
         pair = self.cache.pair(prob.stages[j - 1], prob.stages[j])
         solved = SolvedTransitions(self.config, self.paths, len(self.lattice), prob, layer, j, counts)

@@ -9,7 +9,7 @@ import numpy as np
 
 from baselines.dp.fallback import nearness
 from baselines.dp.path_checks import FALLBACK_PENALTY
-from baselines.dp.plan import flown_paths
+from baselines.dp.plan import DPPlan, flown_paths
 from baselines.dp.transitions import transition_costs
 from covert_env.cost import uav_target_angle, uav_target_distance
 from covert_env.dynamics import solve_manoeuvre
@@ -35,7 +35,7 @@ class _Move(NamedTuple):
     infeasible: bool          # the move leaves the allowed nodes (flagged to the engine)
 
 
-def secure_first_moves(team, plans, xy, th, target_xyz, target_phi, target_path=None) -> list:
+def secure_first_moves(team, plans, *, xy, th, target_xyz, target_phi, target_path=None) -> list:
     """Safety layer for the slot that is flown, after the negotiation left a conflict in it.
 
     Every path here is the one the engine will fly: a plan's first move as :meth:`DPPlan.path_points` gives it
@@ -53,136 +53,172 @@ def secure_first_moves(team, plans, xy, th, target_xyz, target_phi, target_path=
     Cost: at most U orders, each O(U) picks and O(U^2) pair repairs; every UAV's candidate moves are solved
     once (L manoeuvres, or L best efforts). ``team.stats`` counts ``safety_orders`` and ``safety_solves``.
     """
-    pl, c = team.planner, team.config
-    tq = np.asarray(target_xyz, float).reshape(-1, 3)
-    tp = np.asarray(target_phi, float).reshape(-1)
-    st = pl.cache.stage(tq[1], tp[1])
-    allowed_nodes = pl.allowed_nodes(tq[1], tp[1])
-    ctx = pl.paths.context(tq, tp, target_path) if pl.check_path else None
-    clearance = pl.paths.clearance
-    lim = team.separation
-    p = team.path_samples
-    u = len(plans)
-    own = [q.path_points(p)[0][1:] for q in plans]           # sample 0 (the current position) is fixed
-    cands: dict = {}
+    slot = _FirstSlot(team, plans, xy, th, target_xyz, target_phi, target_path)
+    moves = slot.negotiate()
+    return [plan if moves[i] is None else slot.safety_plan(plan, i, moves[i]) for i, plan in enumerate(plans)]
 
-    def candidates(i) -> _Candidates:
-        if i not in cands:
-            team.stats["safety_solves"] += 1
-            m = solve_manoeuvre(xy[i], th[i], st.xy, v_max=c.v_max, w_max=c.w_max, delta=c.delta)
-            ok = np.asarray(m.feasible, bool).copy()
-            if clearance.active:
-                ok &= clearance.clear(st.xy)                          # eq. 3 at the node and along the path
-                ok[ok] = clearance.manoeuvres_clear(m, ok)
-            if not ok.any():
-                cands[i] = best_efforts(i)
-                return cands[i]
-            a0 = uav_target_angle(xy[i], tq[0, :2], tp[0])
-            d0 = uav_target_distance(xy[i], tq[0, :2])
-            g = transition_costs(c, m, ok, a0, d0, st.alpha, st.d)
-            good = allowed_nodes.copy()
-            if ctx is not None and ok.any():
-                clear = np.zeros(len(ok), bool)
-                clear[ok] = pl.paths.keeps_sight(m, ok, ctx, 0, zone=False)
-                good &= clear
-            cands[i] = _Candidates(m.heading_after, m.v, ok, m.points(p)[:, 1:], g, good, False)
-        return cands[i]
 
-    def best_efforts(i) -> _Candidates:
+def _clear_of(pts: np.ndarray, others) -> np.ndarray:
+    """(n,) smallest distance (eq. 2) from candidate paths (n, P-1, 2) to the given settled paths."""
+    others = list(others)
+    if not others:
+        return np.full(len(pts), np.inf)
+    return separation(pts[:, None], np.stack(others)[None]).min(axis=1)
+
+
+class _FirstSlot:
+    """The slot about to be flown: the team's poses, the next slot's lattice nodes, and each UAV's candidate moves
+    to them (solved on first use, once: the orders tried by the negotiation share them)."""
+
+    def __init__(self, team, plans, xy, th, target_xyz, target_phi, target_path):
+        pl = team.planner
+        self.team, self.config, self.paths = team, team.config, pl.paths
+        self.xy, self.th = xy, th
+        self.tq = np.asarray(target_xyz, float).reshape(-1, 3)
+        self.tp = np.asarray(target_phi, float).reshape(-1)
+        self.stage = pl.cache.stage(self.tq[1], self.tp[1])
+        self.allowed_nodes = pl.allowed_nodes(self.tq[1], self.tp[1])
+        self.sight = pl.paths.context(self.tq, self.tp, target_path) if pl.check_path else None
+        self.min_distance = team.separation
+        self.n_samples = team.path_samples
+        self.own = [q.path_points(self.n_samples)[0][1:] for q in plans]   # sample 0 (the current position) is fixed
+        self._candidates: dict[int, _Candidates] = {}
+
+    # ------------------------------------------------------------------------------------- candidate moves
+    def candidates(self, i: int) -> _Candidates:
+        """UAV i's moves to every node: manoeuvres where one is flyable, else the engine's best efforts."""
+        if i not in self._candidates:
+            self.team.stats["safety_solves"] += 1
+            self._candidates[i] = self._manoeuvres(i)
+        return self._candidates[i]
+
+    def _manoeuvres(self, i: int) -> _Candidates:
+        c, st, clearance = self.config, self.stage, self.paths.clearance
+        m = solve_manoeuvre(self.xy[i], self.th[i], st.xy, v_max=c.v_max, w_max=c.w_max, delta=c.delta)
+        ok = np.asarray(m.feasible, bool).copy()
+        if clearance.active:
+            ok &= clearance.clear(st.xy)                          # eq. 3 at the node and along the path
+            ok[ok] = clearance.manoeuvres_clear(m, ok)
+        if not ok.any():
+            return self._best_efforts(i)
+        a0 = uav_target_angle(self.xy[i], self.tq[0, :2], self.tp[0])
+        d0 = uav_target_distance(self.xy[i], self.tq[0, :2])
+        g = transition_costs(c, m, ok, a0, d0, st.alpha, st.d)
+        good = self.allowed_nodes.copy()
+        if self.sight is not None and ok.any():
+            clear = np.zeros(len(ok), bool)
+            clear[ok] = self.paths.keeps_sight(m, ok, self.sight, 0, zone=False)
+            good &= clear
+        return _Candidates(heading=m.heading_after, speed=m.v, flyable=ok, samples=m.points(self.n_samples)[:, 1:],
+                           cost=g, allowed=good, best_effort=False)
+
+    def _best_efforts(self, i: int) -> _Candidates:
+        st = self.stage
         n = len(st.xy)
-        flown = flown_paths(np.broadcast_to(xy[i], st.xy.shape), np.full(n, th[i]), st.xy, c, p)
-        ok = clearance.paths_clear(flown)
+        flown = flown_paths(np.broadcast_to(self.xy[i], st.xy.shape), np.full(n, self.th[i]), st.xy, self.config,
+                            self.n_samples)
+        ok = self.paths.clearance.paths_clear(flown)
         nan = np.full(n, np.nan)
-        return _Candidates(nan, nan, ok, flown[:, 1:], np.where(ok, nearness(c, st, xy[i], allowed_nodes), np.inf),
-                           np.zeros(n, bool), True)
+        return _Candidates(heading=nan, speed=nan, flyable=ok, samples=flown[:, 1:],
+                           cost=np.where(ok, nearness(self.config, st, self.xy[i], self.allowed_nodes), np.inf),
+                           allowed=np.zeros(n, bool), best_effort=True)
 
-    def clear_of(pts, others):
-        """(n,) smallest distance (eq. 2) from candidate paths (n, P-1, 2) to the given settled paths."""
-        others = list(others)
-        if not others:
-            return np.full(len(pts), np.inf)
-        return separation(pts[:, None], np.stack(others)[None]).min(axis=1)
-
-    def pick(i, fixed):
-        _, _, ok, pts, g, allowed, _ = candidates(i)
-        d = np.where(ok, clear_of(pts, fixed.values()), -np.inf)
-        safe = d >= lim
-        if (safe & allowed).any():
-            return _Move(int(np.argmin(np.where(safe & allowed, g, np.inf))), False)
+    # ------------------------------------------------------------------------------------- choosing moves
+    def pick(self, i: int, fixed: dict) -> _Move | None:
+        """UAV i's cheapest move separated from the settled paths ``fixed``: to an allowed node if one is, else
+        to any node (flagged); None if no move is separated."""
+        cand = self.candidates(i)
+        d = np.where(cand.flyable, _clear_of(cand.samples, fixed.values()), -np.inf)
+        safe = d >= self.min_distance
+        if (safe & cand.allowed).any():
+            return _Move(int(np.argmin(np.where(safe & cand.allowed, cand.cost, np.inf))), False)
         if safe.any():
-            return _Move(int(np.argmin(np.where(safe, g, np.inf))), True)
+            return _Move(int(np.argmin(np.where(safe, cand.cost, np.inf))), True)
         return None
 
-    def repair(i, h, fixed):
-        """Re-choose the moves of i and of the settled h together (all pairs of their candidates)."""
+    def repair(self, i: int, h: int, fixed: dict) -> tuple[_Move, _Move] | None:
+        """The moves of i and of the settled h re-chosen together (all pairs of their candidates): h's, then i's."""
+        lim = self.min_distance
         rest = [f for k, f in fixed.items() if k != h]
-        (_, _, ok_i, p_i, g_i, al_i, _), (_, _, ok_h, p_h, g_h, al_h, _) = candidates(i), candidates(h)
-        ci = np.flatnonzero(ok_i & (clear_of(p_i, rest) >= lim))
-        ch = np.flatnonzero(ok_h & (clear_of(p_h, rest) >= lim))
+        cand_i, cand_h = self.candidates(i), self.candidates(h)
+        ci = np.flatnonzero(cand_i.flyable & (_clear_of(cand_i.samples, rest) >= lim))
+        ch = np.flatnonzero(cand_h.flyable & (_clear_of(cand_h.samples, rest) >= lim))
         if ci.size == 0 or ch.size == 0:
             return None
-        d = separation(p_h[ch][:, None], p_i[ci][None])
+        al_h, al_i = cand_h.allowed[ch], cand_i.allowed[ci]
+        d = separation(cand_h.samples[ch][:, None], cand_i.samples[ci][None])
         # Prefer both visible, then the lowest total stage cost.
-        score = g_h[ch][:, None] + g_i[ci][None] + FALLBACK_PENALTY * (
-            (~al_h[ch])[:, None].astype(float) + (~al_i[ci])[None].astype(float))
+        score = cand_h.cost[ch][:, None] + cand_i.cost[ci][None] + FALLBACK_PENALTY * (
+            (~al_h)[:, None].astype(float) + (~al_i)[None].astype(float))
         score = np.where(d >= lim, score, np.inf)
         if not np.isfinite(score).any():
             return None
         a_, b_ = np.unravel_index(int(np.argmin(score)), score.shape)
-        return _Move(int(ch[a_]), bool(not al_h[ch[a_]])), _Move(int(ci[b_]), bool(not al_i[ci[b_]]))
+        return _Move(int(ch[a_]), bool(not al_h[a_])), _Move(int(ci[b_]), bool(not al_i[b_]))
 
-    def settle(order):
-        """Moves per UAV settled in ``order``; and the first UAV left without a separated move (None: clean)."""
+    def most_separated(self, i: int, fixed: dict) -> _Move | None:
+        """UAV i's flyable move farthest from the settled paths (flagged); None if none is flyable."""
+        cand = self.candidates(i)
+        if not cand.flyable.any():
+            return None
+        d = np.where(cand.flyable, _clear_of(cand.samples, fixed.values()), -np.inf)
+        return _Move(int(np.argmax(d)), True)
+
+    # ------------------------------------------------------------------------------------- settling the team
+    def settle(self, order: list[int]) -> tuple[dict, int | None]:
+        """Moves per UAV settled in ``order`` (None: it keeps its plan); and the first UAV left without a
+        separated move (None: clean)."""
         fixed, moves, stuck = {}, {}, None
         for i in order:
-            if clear_of(own[i][None], fixed.values())[0] >= lim:
-                moves[i] = None                               # keeps its plan
-                fixed[i] = own[i]
-                continue
-            mv = pick(i, fixed)
-            if mv is None:
-                for h in reversed(list(fixed)):
-                    both = repair(i, h, fixed)
-                    if both is not None:
-                        moves[h], mv = both
-                        fixed[h] = candidates(h).samples[moves[h].node]
-                        break
-            if mv is None:
-                stuck = i if stuck is None else stuck
-                _, _, ok, pts, _, _, _ = candidates(i)
-                if not ok.any():
-                    moves[i] = None                           # nothing flyable: keep the (fallback) plan
-                    fixed[i] = own[i]
-                    continue
-                d = np.where(ok, clear_of(pts, fixed.values()), -np.inf)
-                mv = _Move(int(np.argmax(d)), True)
+            if _clear_of(self.own[i][None], fixed.values())[0] >= self.min_distance:
+                mv = None
+            else:
+                mv = self.pick(i, fixed)
+                if mv is None:
+                    mv = self._repair_with_a_settled_uav(i, fixed, moves)
+                if mv is None:
+                    stuck = i if stuck is None else stuck
+                    mv = self.most_separated(i, fixed)         # None: nothing flyable, keep the (fallback) plan
             moves[i] = mv
-            fixed[i] = candidates(i).samples[mv.node]
+            fixed[i] = self.own[i] if mv is None else self.candidates(i).samples[mv.node]
         return moves, stuck
 
-    settled: dict = {}
+    def _repair_with_a_settled_uav(self, i: int, fixed: dict, moves: dict) -> _Move | None:
+        """i's move from a joint re-choice with the latest settled UAV that allows one (whose move and path in
+        ``moves`` and ``fixed`` it replaces); None if none does."""
+        for h in reversed(list(fixed)):
+            both = self.repair(i, h, fixed)
+            if both is not None:
+                moves[h], mv = both
+                fixed[h] = self.candidates(h).samples[moves[h].node]
+                return mv
+        return None
 
-    def settle_order(order, rows):
-        team.stats["safety_orders"] += 1
-        seq = order[0].tolist()
-        settled["moves"], stuck = settle(seq)
-        return np.array([u if stuck is None else seq.index(stuck)])
+    def negotiate(self) -> dict:
+        """Moves per UAV in the order that stands after :func:`~covert_env.separation.priority_negotiation`."""
+        settled: dict = {}
+        u = len(self.own)
 
-    priority_negotiation(settle_order, 1, u)
-    out = list(plans)
-    for i, mv in settled["moves"].items():
-        if mv is None:
-            continue
-        node, flag = mv
-        heading, speed, _, _, g, _, best_effort = candidates(i)
-        n = len(out[i].nodes)
+        def settle_order(order, rows):
+            self.team.stats["safety_orders"] += 1
+            seq = order[0].tolist()
+            settled["moves"], stuck = self.settle(seq)
+            return np.array([u if stuck is None else seq.index(stuck)])
+
+        priority_negotiation(settle_order, 1, u)
+        return settled["moves"]
+
+    def safety_plan(self, plan: DPPlan, i: int, move: _Move) -> DPPlan:
+        """``plan`` cut to UAV i's one safety move (``status="safety"``)."""
+        cand = self.candidates(i)
+        node = move.node
+        n = len(plan.nodes)
         nodes = np.full(n, -1, np.int64)
         nodes[0] = node
         wp = np.full((n, 2), np.nan)
-        wp[0] = st.xy[node]
+        wp[0] = self.stage.xy[node]
         head, v, cost = np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan)
-        head[0], v[0] = heading[node], speed[node]
-        cost[0] = np.nan if best_effort else g[node]                  # a best effort has no planned cost
-        out[i] = replace(out[i], nodes=nodes, waypoints=wp, headings=head, speeds=v, stage_costs=cost,
-                         cost=float(cost[0]), depth=1, status="safety", infeasible=flag, layers=None)
-    return out
+        head[0], v[0] = cand.heading[node], cand.speed[node]
+        cost[0] = np.nan if cand.best_effort else cand.cost[node]          # a best effort has no planned cost
+        return replace(plan, nodes=nodes, waypoints=wp, headings=head, speeds=v, stage_costs=cost,
+                       cost=float(cost[0]), depth=1, status="safety", infeasible=move.infeasible, layers=None)

@@ -118,7 +118,8 @@ def batch_layers(per_uav: list[list[Layer]], t0: int) -> list[Layer]:
         for i, lays in enumerate(per_uav):
             lay = lays[j]
             par = lay.parent if j == 0 else lay.parent + offs
-            parts.append(Layer(np.full(lay.n, i), lay.node, lay.theta, lay.J, par, lay.v, lay.g))
+            parts.append(Layer(uav=np.full(lay.n, i), node=lay.node, theta=lay.theta, J=lay.J, parent=par, v=lay.v,
+                               g=lay.g))
             if j:
                 offs += prev_sizes[i]
         out.append(Layer(*(np.concatenate(x) for x in zip(*(q.fields() for q in parts), strict=True))))

@@ -116,7 +116,8 @@ class DPTeamPlanner:
             n_bounded += new[0].n_bounded
             conflicts = self.conflicts(plans)
         if any(c.stage == 0 for c in conflicts):
-            plans = secure_first_moves(self, plans, xy, th, target_xyz, target_phi, target_path)
+            plans = secure_first_moves(self, plans, xy=xy, th=th, target_xyz=target_xyz, target_phi=target_phi,
+                                       target_path=target_path)
             conflicts = self.conflicts(plans)
         return TeamPlan(plans=plans, nodes=np.array([p.nodes[0] for p in plans]),
                         waypoints=np.array([p.waypoints[0] for p in plans]),

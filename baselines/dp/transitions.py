@@ -31,7 +31,7 @@ def transition_costs(config: Config, m: Manoeuvre, ok, alpha_from, d_from, alpha
     return np.where(ok, g, np.inf)
 
 
-def solve_transitions(config: Config, paths: PathChecker, prob: Problem, j: int, start_xy, theta, uav, alpha_from,
+def solve_transitions(config: Config, paths: PathChecker, prob: Problem, j: int, *, start_xy, theta, uav, alpha_from,
                       d_from, nodes, counts: SolveCounts):
     """Exact manoeuvres from poses (``start_xy``, ``theta``) of batch UAVs ``uav`` to ``nodes`` of stage j.
 
@@ -67,8 +67,9 @@ class SolvedTransitions:
         """Solve transitions (row of the layer -> node) exactly, record them, return J + c + penalty."""
         lay, sa = self.layer, self.prob.stages[self.j - 1]
         a = lay.node[rows]
-        m, g, extra = solve_transitions(self.config, self.paths, self.prob, self.j, sa.xy[a], lay.theta[rows],
-                                        lay.uav[rows], sa.alpha[a], sa.d[a], nodes, self.counts)
+        m, g, extra = solve_transitions(self.config, self.paths, self.prob, self.j, start_xy=sa.xy[a],
+                                        theta=lay.theta[rows], uav=lay.uav[rows], alpha_from=sa.alpha[a],
+                                        d_from=sa.d[a], nodes=nodes, counts=self.counts)
         pen = self.prob.penalties[self.j]
         cost = lay.J[rows] + g + pen[lay.uav[rows] if len(pen) > 1 else 0, nodes] + extra
         self.parts.append((rows, nodes, cost, np.asarray(m.heading_after).reshape(-1), np.asarray(m.v).reshape(-1),
@@ -107,4 +108,5 @@ class SolvedTransitions:
         order = np.lexsort((cost, key))
         first = np.concatenate([[True], key[order][1:] != key[order][:-1]])
         w = order[first]
-        return Layer(self.layer.uav[rows[w]], nodes[w], wrap_heading(head[w]), cost[w], rows[w], v[w], g[w])
+        return Layer(uav=self.layer.uav[rows[w]], node=nodes[w], theta=wrap_heading(head[w]), J=cost[w],
+                     parent=rows[w], v=v[w], g=g[w])

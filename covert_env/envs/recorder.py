@@ -32,7 +32,7 @@ class EpisodeRecorder:
         """Copies ``idx`` begin an episode at poses ``xy`` (len(idx), U, 2), ``theta`` (len(idx), U)."""
         self.xy[idx, 0], self.theta[idx, 0] = xy, theta
 
-    def record(self, k: np.ndarray, path, end_theta, v, w, flagged, delta: float) -> None:
+    def record(self, k: np.ndarray, path, *, end_theta, v, w, flagged, delta: float) -> None:
         """Slot ``k`` (B,) -> k + 1 of every copy: path samples (B, U, P, 2), end headings (wrapped), controls v and
         w and the fallback flags (B, U)."""
         b = np.arange(len(k))

@@ -331,15 +331,17 @@ class CovertSensingVectorEnv:
             path, end_theta, v, fallback, w = batch.fly_waypoints(xy0, th0, goals, c, self._times)
             flagged |= fallback
         end = path[..., -1, :].copy()
-        quant = moves_quantities(xy0, end, pool.q[rows, k], pool.phi[rows, k], q1, phi1, path, v * c.delta,
-                                 None, pool.copy_terrains(rows), c)
+        # The per-step rewards need no LoS along the path (target_path_xyz=None: los_path is NaN).
+        quant = moves_quantities(xy0, end, target_start=pool.q[rows, k], phi_start=pool.phi[rows, k],
+                                 target_end=q1, phi_end=phi1, path_xy=path, path_length=v * c.delta,
+                                 target_path_xyz=None, terrain=pool.copy_terrains(rows), config=c)
         costs = batch.constraint_costs(quant, c)
         terms = batch.reward_terms(quant, costs, c, self.reward_scale, self.penalties)
         rewards = terms.sum(axis=0)
         self._k, self._own = k + 1, None
         self._xy, self._theta = end, wrap_heading(end_theta)
         if self._recorder is not None:
-            self._recorder.record(k, path, self._theta, v, w, flagged, c.delta)
+            self._recorder.record(k, path, end_theta=self._theta, v=v, w=w, flagged=flagged, delta=c.delta)
         self._speed, self._los, self._zone = quant.path_length / c.delta, quant.los, quant.zone_distance
         term = (quant.separation_path < c.d_safe1).any(axis=1) & self.terminate_on_collision
         trunc = (self._k >= self.episode_length) & ~term

@@ -45,7 +45,7 @@ MAX_WEIGHTS_BYTES = 256 * 2**20
 N_OWN_FEATURES = 9
 
 
-def node_features(obs: np.ndarray, lattice: np.ndarray, n_uavs: int, r2: float, v_max: float, delta: float,
+def node_features(obs: np.ndarray, lattice: np.ndarray, n_uavs: int, *, r2: float, v_max: float, delta: float,
                   d_safe1: float) -> np.ndarray:
     """Per-node inputs of the actor's waypoint head, ``(..., L, 9 + U - 1)`` float32 from observations ``(..., D)``.
 
@@ -145,8 +145,8 @@ class LearnedPolicy:
             out = {a: act[i] for i, a in enumerate(agents)}
         else:
             c = par.config
-            feats = node_features(obs, par.lattice, len(par.possible_agents), c.r2, c.v_max, c.delta, c.d_safe1) \
-                if self.actor.head == "node" else None
+            feats = node_features(obs, par.lattice, len(par.possible_agents), r2=c.r2, v_max=c.v_max, delta=c.delta,
+                                  d_safe1=c.d_safe1) if self.actor.head == "node" else None
             logits = self.actor.logits(x, feats)
             mask = np.stack([par.action_mask(a) for a in agents]).astype(bool)
             if self.shield_distance is not None:

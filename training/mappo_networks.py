@@ -1,0 +1,83 @@
+"""The torch networks of :mod:`training.mappo`: the shared actor, the critic, the masked categorical.
+
+They live apart from the training script so that importing :mod:`training.mappo` (its ``--help``, its
+arguments and recipes) needs no torch. Learned teams run without torch, in
+:class:`~training.pretrained.NumpyActor`: the same parameter names, the same outputs.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+__all__ = ["Actor", "Critic", "layer", "masked_categorical"]
+
+
+def layer(i: int, o: int, std: float = 2 ** 0.5, bias: bool = True) -> nn.Linear:
+    """A linear layer with orthogonal weights of gain ``std`` and zero bias (CleanRL's ``layer_init``)."""
+    lin = nn.Linear(i, o, bias=bias)
+    nn.init.orthogonal_(lin.weight, std)
+    if bias:
+        nn.init.zeros_(lin.bias)
+    return lin
+
+
+def masked_categorical(logits: torch.Tensor, mask: torch.Tensor) -> torch.distributions.Categorical:
+    """A categorical over the allowed nodes: the masked ones get -1e8 (never sampled, a finite log-probability)."""
+    return torch.distributions.Categorical(logits=torch.where(mask, logits, torch.tensor(-1e8)))
+
+
+class Actor(nn.Module):
+    """The parameter-shared actor: an MLP trunk on the agent's observation and one of three heads.
+
+    ``head="node"`` scores each lattice node from the trunk's output and the node's features
+    (:func:`training.pretrained.node_features`); ``"flat"`` is one logit per node; ``"gaussian"`` is the unicycle
+    mode's Gaussian with a state-independent std. Parameter names match :class:`training.pretrained.NumpyActor`.
+    """
+
+    def __init__(self, obs_dim: int, n_actions: int, *, head: str, hidden: int, node_hidden: int, n_feat: int,
+                 log_std_init: float):
+        super().__init__()
+        self.head = head
+        self.trunk = nn.Sequential(layer(obs_dim, hidden), nn.Tanh(), layer(hidden, hidden), nn.Tanh())
+        if head == "node":
+            self.node_obs = layer(hidden, node_hidden)
+            self.node_feat = layer(n_feat, node_hidden, bias=False)
+            self.node_out = layer(node_hidden, 1, std=0.01)
+        elif head == "flat":
+            self.flat = layer(hidden, n_actions, std=0.01)
+        else:
+            self.mean = layer(hidden, n_actions, std=0.01)
+            self.log_std = nn.Parameter(torch.full((n_actions,), float(log_std_init)))
+
+    def logits(self, obs, feats=None, mask=None):
+        """Node logits (waypoint heads); with ``mask``, the node head scores only the allowed nodes (about
+        two in five: the same values at a fraction of the cost) and the others get -1e8."""
+        h = self.trunk(obs)
+        if self.head != "node":
+            return self.flat(h)
+        if mask is None:
+            z = torch.relu(self.node_obs(h)[:, None, :] + self.node_feat(feats))
+            return self.node_out(z)[..., 0]
+        rows, nodes = mask.nonzero(as_tuple=True)
+        z = torch.relu(self.node_obs(h)[rows] + self.node_feat(feats[rows, nodes]))
+        return torch.full(mask.shape, -1e8).index_put((rows, nodes), self.node_out(z)[:, 0])
+
+    def dist(self, obs, feats=None, mask=None):
+        """The action distribution: a masked categorical over the nodes, or the unicycle's Gaussian."""
+        if self.head == "gaussian":
+            mean = self.mean(self.trunk(obs))
+            return torch.distributions.Normal(mean, self.log_std.exp().expand_as(mean))
+        return masked_categorical(self.logits(obs, feats, mask), mask)
+
+
+class Critic(nn.Module):
+    """A value per input row: an MLP on the centralised state and agent one-hot (MAPPO) or the observation (IPPO)."""
+
+    def __init__(self, in_dim: int, hidden: int):
+        super().__init__()
+        self.net = nn.Sequential(layer(in_dim, hidden), nn.Tanh(), layer(hidden, hidden), nn.Tanh(),
+                                 layer(hidden, 1, std=1.0))
+
+    def forward(self, x):
+        return self.net(x)[..., 0]
