@@ -46,7 +46,7 @@ from shapely.geometry.base import BaseGeometry
 
 from covert_env.angles import wrap_angle
 from covert_env.terrain import Terrain
-from covert_env.zone import ARC_RESOLUTION, feasible_zone_cfg, visible_zone
+from covert_env.zone import ARC_RESOLUTION, feasible_zone_cfg, to_world, visible_zone
 
 __all__ = [
     "LOS_TOLERANCE",
@@ -58,6 +58,7 @@ __all__ = [
     "face_values",
     "line_of_sight",
     "line_of_sight_rows",
+    "visible_nodes",
     "visible_zone_cfg",
     "passes_near",
     "shadow_h_min",
@@ -74,6 +75,19 @@ The segment is clipped against the polytope shrunk by this distance (every face 
 so a segment that only touches a face, an edge or a vertex -- or passes within rounding error of
 one -- is *clear*. 10 nm is far above float64 rounding of plane values for scenes of a few km and far
 below any physical size."""
+
+SAFE_LOS_TOLERANCE = -1e-6
+"""Tolerance (m) of a line of sight promised ahead: the visible lattice nodes (:func:`visible_nodes`, the planner's
+states and the waypoint action mask) and the planner's path checks. Negative: the polytopes are *grown* by 1 µm, so
+a position called visible stays visible when the engine flies to it and rounds it (scored at
+:data:`LOS_TOLERANCE`)."""
+
+
+def _growth(arr: TerrainArrays, tol: float):
+    """How far (m) each of the clip's polytopes reaches beyond the real one: 0 for ``tol >= 0``, else (M,) ``-tol``
+    times :attr:`TerrainArrays.growth_factor`. Every broad phase widens its footprint circles, tops and wedges by it,
+    so it never drops a pair the clip blocks."""
+    return 0.0 if tol >= 0 else -float(tol) * arr.growth_factor
 
 _BRUTE_PAIRS = 480  # (points x polytopes) up to which every pair is clipped without a broad phase
 _CHUNK = 8192  # points per block: bounds the (K, M) and (pairs, F, 4) temporaries to a few MB
@@ -106,6 +120,17 @@ class TerrainArrays:  # noqa: B903
                 self._offsets.clear()
             off = self._offsets[key] = face_offsets(self.faces[2], self.faces[3], key[0], key[1])
         return off
+
+    @cached_property
+    def growth_factor(self) -> np.ndarray:
+        """(M,) ``R / r``: moving every face plane of a polytope out by g keeps it within ``g R / r`` of the polytope
+        (the faces of ``{n.x + d <= g}`` meet beyond g at sharp edges, not on a sphere). With c the mean vertex, r the
+        radius of the ball about c inside the polytope (``min_f -(n_f.c + d_f)``, unit normals) and R the farthest
+        vertex from c, the grown polytope lies inside the polytope scaled by ``1 + g / r`` about c."""
+        c = self.verts.mean(axis=1)                     # padding repeats a vertex: still inside the hull
+        r = -(np.einsum("mfk,mk->mf", self.hs[..., :3], c) + self.hs[..., 3]).max(axis=1)
+        big_r = np.linalg.norm(self.verts - c[:, None], axis=2).max(axis=1)
+        return big_r / np.maximum(r, 1e-12)
 
     @cached_property
     def faces(self) -> np.ndarray:
@@ -325,10 +350,11 @@ def line_of_sight_rows(terrain: Terrain, uav_xy, altitude: float, target_xyz, *,
     if len(terrain) == 0 or out.size == 0:
         return out
     arr = terrain_arrays(terrain)
+    grow = _growth(arr, tol)
     rel = xy - q[:, None, :2]
     reach = np.sqrt((rel ** 2).sum(axis=-1).max(axis=1))                         # (S,)
     gap = np.hypot(arr.centre[:, 0] - q[:, 0, None], arr.centre[:, 1] - q[:, 1, None])   # (S, M)
-    rows, m_idx = np.nonzero(gap <= reach[:, None] + arr.radius + 1e-9)
+    rows, m_idx = np.nonzero(gap <= reach[:, None] + arr.radius + grow + 1e-9)
     if len(rows) == 0:
         return out
     k = (rows[:, None] * n_pts + np.arange(n_pts)).reshape(-1)                  # every point of the row
@@ -338,9 +364,10 @@ def line_of_sight_rows(terrain: Terrain, uav_xy, altitude: float, target_xyz, *,
     p = xy.reshape(-1, 2)[k]
     qk = q[rows].repeat(n_pts, axis=0)
     if altitude > q[:, 2].max():
-        s0 = np.clip((arr.z_max[m] - altitude) / (qk[:, 2] - altitude), 0.0, 1.0)   # UAV -> target, going down
+        grow_m = grow if np.ndim(grow) == 0 else grow[m]
+        s0 = np.clip((arr.z_max[m] + grow_m - altitude) / (qk[:, 2] - altitude), 0.0, 1.0)   # UAV -> q, going down
         near = passes_near(p[:, 0], p[:, 1], qk[:, 0] - p[:, 0], qk[:, 1] - p[:, 1], s0, 1.0,
-                           arr.centre[m, 0], arr.centre[m, 1], arr.radius[m])
+                           arr.centre[m, 0], arr.centre[m, 1], arr.radius[m] + grow_m)
         k, m, p, qk = k[near], m[near], p[near], qk[near]
     nx, ny, nz, d = arr.faces[..., m]                                           # (F, K) each
     start = face_values(nx, ny, face_offsets(nz, d, altitude, tol), p[:, 0], p[:, 1])
@@ -349,6 +376,32 @@ def line_of_sight_rows(terrain: Terrain, uav_xy, altitude: float, target_xyz, *,
     flat = out.reshape(-1)
     flat[k[blocked]] = False
     return out
+
+
+def visible_nodes(terrain: Terrain, offsets, q, phi, altitude: float, *,
+                  tol: float = SAFE_LOS_TOLERANCE) -> np.ndarray:
+    """The visible feasible zone (eq. 10) on the waypoint lattice: which nodes see the target.
+
+    The one rule behind the planner's states and the waypoint action mask. ``offsets`` are the lattice nodes
+    inside the eroded zone (:func:`~covert_env.zone.zone_lattice`): zone membership is decided once in the
+    target's frame, so it does not depend on the rounding of the rotation to the world; visibility is the line
+    of sight (eq. 6) at :data:`SAFE_LOS_TOLERANCE`, which equals "outside every shadow" by the tested invariant.
+
+    Args:
+        terrain: the polytopes.
+        offsets: (L, 2) target-frame offsets of the nodes.
+        q: (3,) the target, or (S, 3) one per slot; phi: its heading(s), () or (S,).
+        altitude: the UAVs' height h.
+        tol: the LoS tolerance (m), see :data:`SAFE_LOS_TOLERANCE`.
+
+    Returns:
+        (L,) bool, or (S, L) for S targets; True = clear line of sight.
+    """
+    q = np.asarray(q, dtype=float)
+    xy = to_world(offsets, q[..., :2], phi)
+    if q.ndim == 1:
+        return line_of_sight(terrain, xy, altitude, q, tol=tol)
+    return line_of_sight_rows(terrain, xy, altitude, q, tol=tol)
 
 
 def _los_brute(arr: TerrainArrays, xy: np.ndarray, alt, t: np.ndarray, tol: float) -> np.ndarray:
@@ -364,6 +417,7 @@ def _los_brute(arr: TerrainArrays, xy: np.ndarray, alt, t: np.ndarray, tol: floa
 
 def _los_single(arr: TerrainArrays, xy: np.ndarray, h: float, q: np.ndarray, tol: float) -> np.ndarray:
     """Fast path: one target, one altitude above it. ``xy`` (K, 2) -> (K,) clear."""
+    grow = _growth(arr, tol)
     rho_min, inside = _plan_distance(arr.plan, q[:2])
     # The wedge of directions from q that meet each footprint, bounded by the directions e_lo, e_hi to
     # its extreme vertices. From outside a convex footprint the wedge is narrower than pi, so offsets
@@ -377,13 +431,18 @@ def _los_single(arr: TerrainArrays, xy: np.ndarray, h: float, q: np.ndarray, tol
     e_lo, e_hi = rel[rows, vb.argmin(axis=1)], rel[rows, vb.argmax(axis=1)]
     e_lo = e_lo / np.maximum(np.linalg.norm(e_lo, axis=1, keepdims=True), 1e-300)   # q on a vertex: 0
     e_hi = e_hi / np.maximum(np.linalg.norm(e_hi, axis=1, keepdims=True), 1e-300)
-    every = inside | (rho_min < 1e-9)                  # q in (or on) the footprint: every direction
+    every = inside | (rho_min < grow + 1e-9)           # q in (or on) the footprint: every direction
     slack = np.where(every, np.inf, 1e-9)              # 1 nm: rounding at the wedge's edges
     # The segment is lower than z_max only within horizontal distance |p - q| * s of the target.
-    s = (arr.z_max - q[2]) / (h - q[2])
+    s = (arr.z_max + grow - q[2]) / (h - q[2])
     dx, dy = xy[:, 0, None] - q[0], xy[:, 1, None] - q[1]
+    dist = np.hypot(dx, dy)
+    if tol < 0:
+        # A point within `grow` of the footprint is seen from q at most asin(grow / rho_min) outside its wedge,
+        # so a cross product with the unit edge, |p - q| sin(angle), exceeds the edge by at most this.
+        slack = slack + dist * (grow / np.maximum(rho_min, 1e-300))
     cand = ((e_lo[:, 0] * dy - e_lo[:, 1] * dx >= -slack) & (dx * e_hi[:, 1] - dy * e_hi[:, 0] >= -slack)
-            & (np.hypot(dx, dy) * s > rho_min - 1e-9))
+            & (dist * s > rho_min - grow - 1e-9))
     k, m = np.nonzero(cand)
     if len(k) == 0:
         return np.ones(len(xy), dtype=bool)
@@ -400,12 +459,13 @@ def _los_single(arr: TerrainArrays, xy: np.ndarray, h: float, q: np.ndarray, tol
 
 def _los_general(arr: TerrainArrays, u: np.ndarray, t: np.ndarray, tol: float) -> np.ndarray:
     """General path: per-point targets and altitudes. ``u``, ``t`` (K, 3) -> (K,) clear."""
-    s0, s1 = _low_part(arr.z_max, u[:, 2, None], t[:, 2, None] - u[:, 2, None])
+    grow = _growth(arr, tol)
+    s0, s1 = _low_part(arr.z_max + grow, u[:, 2, None], t[:, 2, None] - u[:, 2, None])
     # Distance from each footprint circle's centre to the 2-D sub-segment [a, b] (components written
     # out: einsum over a length-2 axis is several times slower on (K, M) arrays).
     ex, ey = t[:, 0, None] - u[:, 0, None], t[:, 1, None] - u[:, 1, None]
     cand = (s1 > s0 - 1e-12) & passes_near(u[:, 0, None], u[:, 1, None], ex, ey, s0, s1,
-                                           arr.centre[:, 0], arr.centre[:, 1], arr.radius)
+                                           arr.centre[:, 0], arr.centre[:, 1], arr.radius + grow)
     k, m = np.nonzero(cand)
     if len(k) == 0:
         return np.ones(len(u), dtype=bool)
@@ -514,7 +574,10 @@ class TerrainRows:
         within reach of the part of the segment lower than the polytope's top, which lies within
         ``|p - q| (z_max - z_q) / (h - z_q)`` of the target (so ``|p - q| >= (g - r) / low``). Both tests are
         conservative (r grown by 1 nm and 1e-9 relative, the bearing by 1e-9 relative): they only drop triples
-        the clip finds clear, so the result is the exact clip's."""
+        the clip finds clear, so the result is the exact clip's. ``tol`` >= 0 only: the circles are not grown."""
+        if tol < 0:
+            raise ValueError(f"TerrainRows.line_of_sight: tol must be >= 0 (its broad phase does not grow the "
+                             f"polytopes), got {tol!r}; use line_of_sight or line_of_sight_rows")
         q = target_xyz
         b_n, u_n = uav_xy.shape[:2]
         n_m = self._circles.shape[3]

@@ -14,6 +14,7 @@ from shapely.geometry import Point, Polygon
 from covert_env.config import Config
 from covert_env.terrain import Polytope, Terrain
 from covert_env.visibility import (
+    SAFE_LOS_TOLERANCE,
     line_of_sight,
     line_of_sight_rows,
     shadow_h_min,
@@ -456,3 +457,26 @@ def test_terrain_rows_broad_phase_keeps_every_blocking_triple_in_degenerate_case
         np.testing.assert_array_equal(got, want, err_msg=f"trial {trial}")
         n_blocked += int((~want).sum())
     assert n_blocked > 50
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), tol=st.sampled_from([SAFE_LOS_TOLERANCE, -0.05, -0.5, -2.0]),
+       altitude=st.sampled_from([H, 40.0]))
+def test_negative_tolerance_broad_phases_equal_the_all_pairs_clip(seed, tol, altitude):
+    """A negative tolerance grows the polytopes (the planner's and the action mask's LoS): every broad phase must
+    grow its circles, tops and wedges with them, or it drops pairs the grown polytope blocks. Each path against
+    the all-pairs clip (5 points per call); a large growth makes a missed widening visible on most seeds."""
+    rng = np.random.default_rng(seed)
+    terrain = random_terrain(rng)
+    q = random_target(rng)
+    pts = disk_points(rng, q, 400, radius=130.0)
+    brute = np.concatenate([line_of_sight(terrain, pts[i:i + 5], altitude, q, tol=tol) for i in range(0, 400, 5)])
+    single = line_of_sight(terrain, pts, altitude, q, tol=tol)
+    general = line_of_sight(terrain, pts, altitude, np.broadcast_to(q, (len(pts), 3)) + 0.0, tol=tol)
+    rows = line_of_sight_rows(terrain, pts.reshape(8, 50, 2), altitude, np.tile(q, (8, 1)), tol=tol).reshape(-1)
+    np.testing.assert_array_equal(single, brute)
+    np.testing.assert_array_equal(general, brute)
+    np.testing.assert_array_equal(rows, brute)
+    # Growing never clears a blocked segment.
+    assert not (brute & ~np.concatenate([line_of_sight(terrain, pts[i:i + 5], altitude, q)
+                                         for i in range(0, 400, 5)])).any()
