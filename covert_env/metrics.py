@@ -27,7 +27,7 @@ from covert_env.visibility import line_of_sight
 from covert_env.zone import zone_distance
 
 __all__ = ["SlotQuantities", "slot_quantities", "moves_quantities", "episode_metrics", "nearest_teammate",
-           "terrain_clearance", "METRIC_DESCRIPTIONS"]
+           "terrain_clearance", "top_clearance", "METRIC_DESCRIPTIONS"]
 
 
 @dataclass
@@ -68,8 +68,16 @@ def terrain_clearance(xy: np.ndarray, altitude: float, terrain: PolytopeTops) ->
     """(..., 2) -> (...) distance from (x, y, h) to the nearest polytope highest point (eq. 3).
 
     ``terrain``: a :class:`Terrain`, or one terrain per row of the leading axis (``highest_points`` (N, M, 3),
-    e.g. a :class:`~covert_env.roles.TerrainPerCopy`: the vector env's copies)."""
-    top = terrain.highest_points                                # (M, 3), or (N, M, 3) for a stack
+    e.g. a :class:`~covert_env.roles.TerrainPerCopy`: the vector env's copies): :func:`top_clearance` of its
+    ``highest_points``."""
+    return top_clearance(xy, altitude, terrain.highest_points)
+
+
+def top_clearance(xy: np.ndarray, altitude: float, top: np.ndarray) -> np.ndarray:
+    """Eq. 3's distance: from UAVs at (x, y, h), xy (..., 2), to the nearest of the points ``top``, (M, 3) or (N, M, 3)
+    with row j of xy's leading axis against tops j only; (...) float, inf if there is none. The one computation
+    behind the metrics, the env's cost, the start sampler and the planner (:mod:`baselines.dp.clearance`)."""
+    top = np.asarray(top, float)
     if top.shape[-2] == 0:
         return np.full(xy.shape[:-1], np.inf)
     if top.ndim == 3:                                            # row j of xy against terrain j only

@@ -15,6 +15,7 @@ from dataclasses import replace
 import numpy as np
 
 from covert_env.dynamics import Manoeuvre
+from covert_env.metrics import top_clearance
 from covert_env.terrain import Terrain
 
 __all__ = ["TerrainClearance", "take_manoeuvres"]
@@ -27,7 +28,9 @@ class TerrainClearance:
         top = np.asarray(terrain.highest_points, float).reshape(-1, 3)
         dz = float(altitude) - top[:, 2]
         tall = dz < d_safe2
-        self.tops = top[tall, :2]                      # (M', 2) plan view of the tops that matter
+        self.altitude = float(altitude)
+        self.tall_tops = top[tall]                      # (M', 3) the tops that matter
+        self.tops = self.tall_tops[:, :2]               # (M', 2) their plan view
         self.dz2 = dz[tall] ** 2                        # (M',) squared vertical gap to the flight plane
         self.d_safe2 = float(d_safe2)
         self.radius = np.sqrt(self.d_safe2 ** 2 - self.dz2)
@@ -41,13 +44,10 @@ class TerrainClearance:
     def distance(self, xy) -> np.ndarray:
         """(...) 3D distance from positions (..., 2) at altitude h to the nearest top that matters (inf if none).
 
-        Computed as the metrics do (:func:`covert_env.metrics.slot_quantities`), so they agree at the boundary.
+        The metrics' computation (:func:`covert_env.metrics.top_clearance`) on these tops, so they agree at the
+        boundary: the other tops are d_safe2 or farther from every position.
         """
-        xy = np.asarray(xy, float)
-        if not self.active:
-            return np.full(xy.shape[:-1], np.inf)
-        d = xy[..., None, :] - self.tops
-        return np.sqrt(d[..., 0] ** 2 + d[..., 1] ** 2 + self.dz2).min(axis=-1)
+        return top_clearance(np.asarray(xy, float), self.altitude, self.tall_tops)
 
     def clear(self, xy) -> np.ndarray:
         """(...) bool: positions (..., 2) at altitude h at least ``d_safe2`` from every top (eq. 3)."""
