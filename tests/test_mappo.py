@@ -103,8 +103,9 @@ def test_bad_choices_are_one_line_errors(capsys):
 
 
 def test_shielded_run_records_the_shield_and_evaluates_with_it(tmp_path, train_extra):
-    """The recipe's shield: on by default in the waypoint mode, written to the card, used by the harness (no
-    separation violation in a slot where it found separated nodes); off in the unicycle mode."""
+    """The recipe's shield: on by default in the waypoint mode, written to the card, used by the harness (a
+    separation violation only in a slot where it found no separated nodes: its fallbacks); off in the unicycle
+    mode."""
     from training.evaluate import evaluate, load_policy
     from training.recipes import MAPPO_RECIPES
 
@@ -114,7 +115,9 @@ def test_shielded_run_records_the_shield_and_evaluates_with_it(tmp_path, train_e
     pol, settings = load_policy(f"mappo:{run}", 3)
     assert pol.shield_distance == 5.0
     row = evaluate(pol, settings, 1, progress=False)[0]
-    assert row["separation_violations"] <= 1.0 and math.isfinite(row["reward"])
+    assert pol.shield.choices > 0 and math.isfinite(row["reward"])
+    # Violating UAV-slots (the row's per-UAV mean times 3 UAVs) <= 3 UAVs x team slots with a fallback.
+    assert row["separation_violations"] <= pol.shield.fallbacks
     flat = mappo.main([*TINY, "--head", "flat", "--total-timesteps", "16", "--runs-dir", str(tmp_path),
                        "--run-name", "flat"])                          # the flat head under the shield too
     assert load_policy(f"mappo:{flat}", 3)[0].shield_distance == 5.0

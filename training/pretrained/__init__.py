@@ -125,6 +125,10 @@ class LearnedPolicy:
         ekw = card["env_kwargs"]
         #: The separation shield's distance (m) if the team was trained with it (:mod:`training.shield`).
         self.shield_distance = card.get("separation_shield")
+        #: The shield the team acts through (None without one); its ``fallbacks`` count the slots where some UAV
+        #: was left with no separated node.
+        self.shield = (None if self.shield_distance is None else
+                       SeparationShield(float(self.shield_distance), float(card.get("shield_end_margin") or 0.0)))
         self.env_settings = {"n_uavs": int(ekw["n_uavs"]), "action_mode": ekw["action_mode"],
                              "map_size": int(ekw.get("map_size", 8))}
 
@@ -149,10 +153,9 @@ class LearnedPolicy:
                                   d_safe1=c.d_safe1) if self.actor.head == "node" else None
             logits = self.actor.logits(x, feats)
             mask = np.stack([par.action_mask(a) for a in agents]).astype(bool)
-            if self.shield_distance is not None:
-                shield = SeparationShield(float(self.shield_distance), float(self.card.get("shield_end_margin") or 0.0))
-                act, _ = shield.choose(mask[None], lambda n: par.waypoint_paths(n[0])[None],
-                                       lambda k, m: np.argmax(np.where(m, logits[k], -np.inf), axis=-1))
+            if self.shield is not None:
+                act, _ = self.shield.choose(mask[None], lambda n: par.waypoint_paths(n[0])[None],
+                                            lambda k, m: np.argmax(np.where(m, logits[k], -np.inf), axis=-1))
                 out = {a: int(act[0, i]) for i, a in enumerate(agents)}
             else:
                 out = {a: int(np.argmax(np.where(mask[i], logits[i], -np.inf))) for i, a in enumerate(agents)}
