@@ -60,7 +60,7 @@ def main(argv=None) -> None:
     modes = ["unicycle", "waypoint"] if args.mode == "both" else [args.mode]
     for mode in modes:
         env = covert_env.parallel_env(n_uavs=3, scenario="paper", action_mode=mode)
-        rows.append((f"covert_sensing_v1 ({mode}, 3 UAVs, 16 polytopes)",
+        rows.append((f"covert_sensing_v2 ({mode}, 3 UAVs, 16 polytopes)",
                      steps_per_second(env, args.seconds, masked=mode == "waypoint")))
     try:
         from mpe2 import simple_spread_v3

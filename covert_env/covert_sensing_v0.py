@@ -13,8 +13,8 @@ V0_RETIRED = (
     "at reset and step (infos[a]['reward_terms'][t] is now infos[a]['reward_' + t]), constraint costs "
     "(infos[a]['cost'], 'cost_los', ...) were added, with dict_obs=True the action mask is only in the observation, "
     "and a waypoint straight behind the UAV turns right (eq. 22 as the paper states). Observations and rewards are "
-    "otherwise unchanged. Use covert_env.covert_sensing_v1 (or covert_env.parallel_env), or "
-    "pip install 'covert_env<0.2' for v0.")
+    "otherwise unchanged. Use covert_env.covert_sensing_v2 (v1 changed again in 0.6.0, see covert_sensing_v1) "
+    "or covert_env.parallel_env, or pip install 'covert_env<0.2' for v0.")
 
 
 def _retired(*args, **kwargs):

@@ -1,5 +1,25 @@
-"""Versioned entry point, PettingZoo/mpe2 style: ``from covert_env import covert_sensing_v1``."""
+"""The retired v1 entry point: importable, but building an env raises an error saying what changed in v2.
 
-from covert_env.envs.covert_sensing import CovertSensingParallelEnv, env, parallel_env, raw_env
+Results of v1 are not silently mixed with v2's: the waypoint action mask changed on the zone's eroded boundary (see
+the Version History of :class:`covert_env.envs.CovertSensingParallelEnv`). ``pip install "covert_env<0.6"`` still
+gives v1.
+"""
 
-__all__ = ["CovertSensingParallelEnv", "env", "parallel_env", "raw_env"]
+from __future__ import annotations
+
+__all__ = ["env", "parallel_env", "raw_env", "V1_RETIRED"]
+
+V1_RETIRED = (
+    "covert_sensing_v1 was replaced by covert_sensing_v2 in covert_env 0.6.0: the waypoint action mask, the "
+    "observation maps and the start sampler read the planner's rule for the visible zone (eq. 10, "
+    "covert_env.visibility.visible_nodes): lattice nodes on the eroded zone's boundary, which v1 dropped by rounding, "
+    "are offered, and line of sight is decided with the polytopes grown by 1 micrometre. Seeded waypoint rollouts can "
+    "differ; rewards and dynamics are unchanged. Use covert_env.covert_sensing_v2 (or covert_env.parallel_env, "
+    "gym.make('covert_env/CovertSensing-v2'), covert_env.vector_env), or pip install 'covert_env<0.6' for v1.")
+
+
+def _retired(*args, **kwargs):
+    raise RuntimeError(V1_RETIRED)
+
+
+env = parallel_env = raw_env = _retired

@@ -13,10 +13,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from covert_env.config import SCENE_ROAD_LEAD_IN, SCENE_ROAD_TAIL, Config, check_coordinates, short_repr
+from covert_env.config import (MAX_N_UAVS, SCENE_ROAD_LEAD_IN, SCENE_ROAD_TAIL, Config, check_coordinates,
+                               short_repr)
 from covert_env.road import Road, TargetTrack
+from covert_env.metrics import terrain_clearance
 from covert_env.terrain import Terrain
-from covert_env.zone import to_world
+from covert_env.visibility import visible_nodes
+from covert_env.zone import SPREAD_MARGIN, spread_nodes, to_world, zone_lattice
 
 __all__ = ["Scenario", "PAPER_UAV_STARTS", "PAPER_SEED", "pick_starts", "sample_starts_on", "start_candidates",
            "valid_start_shapes"]
@@ -205,23 +208,17 @@ def start_candidates(c: Config, terrain: Terrain, track: TargetTrack) -> tuple[n
     """What the start sampler draws from, the same for every draw on a scene (the vector env computes it once per
     scene): the zone lattice at slot 0 (world positions), and the indices of its nodes at least d_safe2 from every
     polytope top (eq. 3) with clear LoS, and without it."""
-    from covert_env.metrics import terrain_clearance
-    from covert_env.visibility import line_of_sight
-    from covert_env.zone import zone_lattice
-
     q0, phi0 = track.position(0), float(track.heading(0))
-    # The same nodes as grid_nodes(...) (one lattice, one rotation), so step 1 is the historical sampler.
-    nodes = to_world(zone_lattice(c), q0[:2], phi0)
+    lattice = zone_lattice(c)
+    nodes = to_world(lattice, q0[:2], phi0)
     clear = terrain_clearance(nodes, c.altitude, terrain) >= c.d_safe2
-    visible = line_of_sight(terrain, nodes, c.altitude, q0)
+    visible = visible_nodes(terrain, lattice, q0, phi0, c.altitude)
     return nodes, np.flatnonzero(visible & clear), np.flatnonzero(~visible & clear)
 
 
 def pick_starts(c: Config, nodes: np.ndarray, visible: np.ndarray, shadowed: np.ndarray, rng: np.random.Generator,
                 u: int, name: str) -> tuple[np.ndarray, np.ndarray]:
     """Steps 1-4 of :meth:`Scenario.sample_starts` on the candidates of :func:`start_candidates`."""
-    from covert_env.zone import SPREAD_MARGIN, spread_nodes, zone_lattice
-
     order = visible[rng.permutation(len(visible))]
     picked = spread_nodes(nodes, order, 2 * c.d_safe1, u)
     if len(picked) < u:
@@ -274,8 +271,6 @@ def _check_config(config, where: str) -> Config:
 
 
 def _check_team(u, where: str) -> None:
-    from covert_env.config import MAX_N_UAVS
-
     if isinstance(u, bool) or not isinstance(u, (int, np.integer)) or not 1 <= u <= MAX_N_UAVS:
         raise ValueError(f"{where}: n_uavs must be an integer >= 1 and <= {MAX_N_UAVS}, got {u!r}")
 

@@ -22,7 +22,7 @@ from pettingzoo.test import (
 )
 
 import covert_env
-from covert_env import covert_sensing_v1
+from covert_env import covert_sensing_v2
 
 MODES = ("unicycle", "waypoint")
 TERMS = ("path", "disguise", "los", "zone", "separation", "terrain")
@@ -109,7 +109,7 @@ def test_costs_are_the_constraint_violations():
 
 
 def test_gymnasium_env_exposes_the_same_infos():
-    genv = gym.make("covert_env/CovertSensing-v1", max_cycles=3)
+    genv = gym.make("covert_env/CovertSensing-v2", max_cycles=3)
     _, info0 = genv.reset(seed=1)
     _, _, _, _, info1 = genv.step(genv.action_space.sample())
     assert _signature(info0) == _signature(info1)
@@ -136,8 +136,8 @@ def test_pettingzoo_battery_dict_obs_default_arguments():
 @pytest.mark.parametrize("u", [1, 3])
 def test_max_cycles_render_and_performance_default_arguments(mode, u):
     # max_cycles_test takes a module exposing env() and parallel_env(); this one fixes the mode and team size.
-    module = SimpleNamespace(env=functools.partial(covert_sensing_v1.env, action_mode=mode, n_uavs=u),
-                             parallel_env=functools.partial(covert_sensing_v1.parallel_env, action_mode=mode, n_uavs=u))
+    module = SimpleNamespace(env=functools.partial(covert_sensing_v2.env, action_mode=mode, n_uavs=u),
+                             parallel_env=functools.partial(covert_sensing_v2.parallel_env, action_mode=mode, n_uavs=u))
     max_cycles_test(module)
     render_test(lambda render_mode=None: covert_env.env(action_mode=mode, n_uavs=u, render_mode=render_mode))
     performance_benchmark(covert_env.env(n_uavs=u, action_mode=mode))
@@ -177,7 +177,7 @@ def test_closed_env_is_collected():
     gc.collect()
     assert ref() is None
 
-    genv = gym.make("covert_env/CovertSensing-v1", max_cycles=2)
+    genv = gym.make("covert_env/CovertSensing-v2", max_cycles=2)
     genv.reset(seed=0)
     genv.step(genv.action_space.sample())
     genv.close()
@@ -283,10 +283,10 @@ def test_bad_waypoint_actions(bad):
 
 
 @pytest.mark.parametrize("env_id, kw, pattern", [
-    ("covert_env/CovertSensing-v1", dict(n_uavs=3), r"flies one UAV, got n_uavs=3.*parallel_env"),
-    ("covert_env/CovertSensing-v1", dict(action_mode="waypoint"), "CovertSensingWaypoint-v1"),
-    ("covert_env/CovertSensingWaypoint-v1", dict(action_mode="unicycle"), "covert_env/CovertSensing-v1"),
-    ("covert_env/CovertSensing-v1", dict(dict_obs=True), "dict_obs=True needs action_mode='waypoint'"),
+    ("covert_env/CovertSensing-v2", dict(n_uavs=3), r"flies one UAV, got n_uavs=3.*parallel_env"),
+    ("covert_env/CovertSensing-v2", dict(action_mode="waypoint"), "CovertSensingWaypoint-v2"),
+    ("covert_env/CovertSensingWaypoint-v2", dict(action_mode="unicycle"), "covert_env/CovertSensing-v2"),
+    ("covert_env/CovertSensing-v2", dict(dict_obs=True), "dict_obs=True needs action_mode='waypoint'"),
 ])
 def test_gymnasium_make_rejects_contradicting_arguments(env_id, kw, pattern):
     with pytest.raises(ValueError, match=pattern):
@@ -298,14 +298,31 @@ def test_gymnasium_make_rejects_contradicting_arguments(env_id, kw, pattern):
 def test_v0_ids_fail_with_a_clear_message():
     from covert_env import covert_sensing_v0
 
-    with pytest.raises(gym.error.DeprecatedEnv, match="CovertSensing-v1"):
+    with pytest.raises(gym.error.DeprecatedEnv, match="CovertSensing-v2"):
         gym.make("covert_env/CovertSensing-v0")
-    with pytest.raises(gym.error.DeprecatedEnv, match="CovertSensingWaypoint-v1"):
+    with pytest.raises(gym.error.DeprecatedEnv, match="CovertSensingWaypoint-v2"):
         gym.make("covert_env/CovertSensingWaypoint-v0")
     for make in (covert_sensing_v0.parallel_env, covert_sensing_v0.env, covert_sensing_v0.raw_env):
-        with pytest.raises(RuntimeError, match=r"replaced by covert_sensing_v1.*reward_"):
+        with pytest.raises(RuntimeError, match=r"replaced by covert_sensing_v1.*reward_.*covert_sensing_v2"):
             make(n_uavs=3)
-    assert covert_env.covert_sensing_v1.parallel_env(n_uavs=2).metadata["name"] == "covert_sensing_v1"
+    assert covert_env.covert_sensing_v2.parallel_env(n_uavs=2).metadata["name"] == "covert_sensing_v2"
+
+
+def test_v1_ids_fail_with_what_changed_in_v2():
+    """v1's waypoint mask differs from v2's on the zone's eroded boundary: every v1 entry point says so."""
+    import pettingzoo
+
+    from covert_env import covert_sensing_v1
+
+    changed = r"replaced by covert_sensing_v2 in covert_env 0\.6\.0: the waypoint action mask.*eq\. 10"
+    for env_id in ("covert_env/CovertSensing-v1", "covert_env/CovertSensingWaypoint-v1"):
+        with pytest.raises(RuntimeError, match=changed):
+            gym.make(env_id)
+    for make in (covert_sensing_v1.parallel_env, covert_sensing_v1.env, covert_sensing_v1.raw_env,
+                 lambda **kw: pettingzoo.make("parallel", "covert_env/CovertSensing-v1", **kw)):
+        with pytest.raises(RuntimeError, match=changed):
+            make(n_uavs=3)
+    assert covert_env.vector_env(num_envs=1).metadata["name"] == "covert_sensing_vector_v2"
 
 
 # ---------------------------------------------------------------------- costs against independent geometry
@@ -399,7 +416,7 @@ def test_max_cycles_attribute_on_aec_and_gymnasium_envs():
         steps += 1
     assert steps == 3 + 1                       # three slots, then the final None step of the one agent
 
-    genv = gym.make("covert_env/CovertSensingWaypoint-v1")
+    genv = gym.make("covert_env/CovertSensingWaypoint-v2")
     with pytest.raises(TypeError, match="max_cycles must be an integer"):
         genv.unwrapped.max_cycles = 2.5
     genv.unwrapped.max_cycles = 2
@@ -424,4 +441,4 @@ def test_action_mask_before_reset_and_nested_waypoint_actions():
 @pytest.mark.parametrize("bad", [True, 1.0, 2, "1"])
 def test_gymnasium_n_uavs_must_be_one(bad):
     with pytest.raises(ValueError, match="flies one UAV"):
-        gym.make("covert_env/CovertSensing-v1", n_uavs=bad)
+        gym.make("covert_env/CovertSensing-v2", n_uavs=bad)

@@ -236,7 +236,7 @@ def test_widened_visibility_covers_every_position_along_the_road():
     """The sampled check (17 samples, polytopes grown by 0.25 m) is a proof, not an estimate: a node it keeps
     sees all 401 road points within the margin (2 cm apart) with the planner's own LoS check; it drops more
     nodes than the prediction-only check somewhere, and with one target and no growth it is line_of_sight."""
-    from baselines.dp.lattice import VISIBILITY_TOL
+    from covert_env.visibility import SAFE_LOS_TOLERANCE as VISIBILITY_TOL
     from baselines.dp.possible_targets import PossibleTargets, clear_to_all
     from covert_env.visibility import line_of_sight
 
@@ -263,7 +263,7 @@ def test_widened_visibility_covers_every_position_along_the_road():
 def test_disk_without_a_road_is_more_cautious_than_the_road_piece():
     """Without a road the possible positions are eq. 5's disk: every node it keeps, the road piece keeps too,
     and it drops some the road piece keeps; its samples stay within the margin plus their covering radius."""
-    from baselines.dp.lattice import VISIBILITY_TOL
+    from covert_env.visibility import SAFE_LOS_TOLERANCE as VISIBILITY_TOL
     from baselines.dp.possible_targets import PossibleTargets
 
     c = Config(prediction_error=BOUND, r_u=BOUND)
@@ -299,7 +299,7 @@ def test_possible_targets_refuse_a_prediction_off_their_road_and_bad_margins():
 
 def test_planner_margin_rule_and_the_paper_setting_unchanged():
     from baselines.dp import DPPlanner
-    from baselines.dp.lattice import VISIBILITY_TOL
+    from covert_env.visibility import SAFE_LOS_TOLERANCE as VISIBILITY_TOL
     from covert_env.visibility import line_of_sight
 
     sc = Scenario.random(1_000_002, Config())

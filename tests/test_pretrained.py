@@ -17,7 +17,7 @@ N_SCENES = 3        # scenes replayed per shipped card (a few seconds each in wa
 def test_shipped_weights_reproduce_their_card(name):
     pol, settings = load_policy(f"pretrained:{name}", 3)
     card = pol.card
-    assert card["commit"] and card["env_id"] == "covert_sensing_vector_v1" and card["training"]["env_steps"] > 0
+    assert card["commit"] and card["env_id"] == "covert_sensing_vector_v2" and card["training"]["env_steps"] > 0
     lo, hi = card["scores"]["reward_iqm_ci95_over_scenes"]
     assert lo <= card["scores"]["reward_iqm"] <= hi
     rows = evaluate(pol, settings, N_SCENES, progress=False)
@@ -42,7 +42,7 @@ def _tiny_run(tmp_path, head="node", mode="waypoint", u=2):
     run = tmp_path / "run"
     run.mkdir()
     np.savez(run / "model.npz", **{f"actor.{k}": v.astype(np.float32) for k, v in params.items()})
-    meta = {"algorithm": "mappo", "env_id": "covert_sensing_vector_v1", "global_step": 16,
+    meta = {"algorithm": "mappo", "env_id": "covert_sensing_vector_v2", "global_step": 16,
             "actor": {"head": head, "hidden": h, "node_hidden": nh, "n_feat": N_OWN_FEATURES + u - 1,
                       "obs_dim": d, "n_actions": n_act},
             "env_kwargs": {"n_uavs": u, "action_mode": mode, "max_cycles": 70, "scene_pool": 10000},
@@ -71,6 +71,32 @@ def test_export_card_round_trip(tmp_path, head, mode):
     rows = evaluate(pol, settings, 2, progress=False)
     assert [r["reward"] for r in rows] == pytest.approx([s["per_scene_reward"][str(r["scene_seed"])] for r in rows])
     assert len(set(s["per_scene_reward"].values())) == 2          # two scenes, two episodes: not a constant
+
+
+def test_rescore_scores_shipped_weights_on_the_current_env(tmp_path):
+    """After an env version bump the shipped weights are scored again: the card names the env it was scored on
+    (the recipe keeps the one it was trained on) and its scenes' rewards are the harness's."""
+    import shutil
+
+    from covert_env.envs.vector import CovertSensingVectorEnv
+    from training.pretrained import PRETRAINED_DIR
+    from training.pretrained.export import main as export_main
+    from training.pretrained.export import rescore
+
+    name = pretrained_names()[0]
+    for ext in (".npz", ".json"):
+        shutil.copy(PRETRAINED_DIR / f"{name}{ext}", tmp_path / f"{name}{ext}")
+    trained_on = json.loads((tmp_path / f"{name}.json").read_text())["recipe"]["env_id"]
+    card = json.loads(rescore(name, 1, tmp_path, progress=False).read_text())
+    assert card["env_id"] == CovertSensingVectorEnv.metadata["name"] and card["recipe"]["env_id"] == trained_on
+    assert card["scores"]["scenes"] == [1_000_000, 1_000_000]
+    pol, settings = load_policy(f"pretrained:{name}", 3)
+    assert card["scores"]["per_scene_reward"]["1000000"] == pytest.approx(evaluate(pol, settings, 1,
+                                                                                   progress=False)[0]["reward"])
+    with pytest.raises(SystemExit):
+        export_main(["--rescore", "nope", "--out-dir", str(tmp_path)])
+    with pytest.raises(SystemExit):
+        export_main([str(tmp_path), "--rescore", name, "--out-dir", str(tmp_path)])
 
 
 def test_bad_learned_specs_are_one_line_errors(tmp_path, capsys):

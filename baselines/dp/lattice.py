@@ -19,20 +19,16 @@ from baselines.dp.table import ManoeuvreBoundsTable
 from covert_env.angles import abs_wrapped
 from covert_env.cost import uav_target_angle, uav_target_distance
 from covert_env.terrain import Terrain
-from covert_env.visibility import line_of_sight
+from covert_env.visibility import SAFE_LOS_TOLERANCE, visible_nodes
 from covert_env.zone import to_world
 
-__all__ = ["Stage", "StageCache", "StagePair", "VISIBILITY_TOL"]
-
-#: Line-of-sight tolerance (m) used for nodes and path samples: polytopes grown by 1 micrometre, so a node
-#: the planner calls visible stays visible under the engine's rounding when it is flown to.
-VISIBILITY_TOL = -1e-6
+__all__ = ["Stage", "StageCache", "StagePair"]
 
 
 class Stage:
     """Lattice nodes at one predicted target pose: world xy, alpha, d (eqs. 12-13) and visibility."""
 
-    __slots__ = ("key", "q", "phi", "xy", "alpha", "d", "_visible")
+    __slots__ = ("key", "q", "phi", "xy", "alpha", "d", "_lattice", "_visible")
 
     def __init__(self, key, q: np.ndarray, phi: float, lattice: np.ndarray):
         self.key = key
@@ -41,10 +37,12 @@ class Stage:
         self.xy = to_world(lattice, q[:2], phi)
         self.alpha = uav_target_angle(self.xy, q[:2], phi)
         self.d = uav_target_distance(self.xy, q[:2])
+        self._lattice = lattice
         self._visible = None
 
     def visible(self, terrain: Terrain, altitude: float, targets: PossibleTargets | None = None) -> np.ndarray:
-        """(L,) LoS clear at this slot (eq. 6); every lattice node is in the eroded zone by construction.
+        """(L,) the visible nodes at this slot (eq. 10, :func:`~covert_env.visibility.visible_nodes`, as the
+        waypoint action mask); every lattice node is in the eroded zone by construction.
 
         ``targets``: None checks the predicted target q only (eq. 10 as the paper states it); otherwise every
         possible true position around q (:class:`PossibleTargets`). A stage belongs to one planner's cache, so
@@ -52,9 +50,9 @@ class Stage:
         """
         if self._visible is None:
             if targets is None:
-                self._visible = line_of_sight(terrain, self.xy, altitude, self.q, tol=VISIBILITY_TOL)
+                self._visible = visible_nodes(terrain, self._lattice, self.q, self.phi, altitude)
             else:
-                self._visible = targets.visible(terrain, self.xy, altitude, self.q, VISIBILITY_TOL)
+                self._visible = targets.visible(terrain, self.xy, altitude, self.q, SAFE_LOS_TOLERANCE)
             self._visible.setflags(write=False)
         return self._visible
 

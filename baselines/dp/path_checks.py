@@ -22,13 +22,12 @@ import numpy as np
 import shapely
 
 from baselines.dp.clearance import TerrainClearance, take_manoeuvres
-from baselines.dp.lattice import VISIBILITY_TOL
 from covert_env.angles import wrap_angle
 from covert_env.config import Config
 from covert_env.dynamics import Manoeuvre, unicycle_step
 from covert_env.separation import separation
 from covert_env.terrain import Terrain
-from covert_env.visibility import line_of_sight, shadow_union_cfg
+from covert_env.visibility import SAFE_LOS_TOLERANCE, line_of_sight, shadow_union_cfg
 from covert_env.zone import in_feasible_zone
 
 __all__ = ["FALLBACK_PENALTY", "PathChecker", "PathContext", "SHADOW_MARGIN", "record_circles", "separated"]
@@ -114,7 +113,7 @@ class PathChecker:
                 if shadow is not None:
                     good[idx] = ~shapely.intersects_xy(shadow, pts[idx, i, 0], pts[idx, i, 1])
             else:
-                good[idx] = line_of_sight(self.terrain, pts[idx, i], c.altitude, tq[i], tol=VISIBILITY_TOL)
+                good[idx] = line_of_sight(self.terrain, pts[idx, i], c.altitude, tq[i], tol=SAFE_LOS_TOLERANCE)
         return good
 
     def shadow(self, q):

@@ -176,6 +176,14 @@ class CovertSensingParallelEnv(ParallelEnv):
 
     ## Version History
 
+    * v2, covert_env 0.6.0: the waypoint action mask, the observation maps and the start sampler read the
+      planner's rule for the visible zone (eq. 10, :func:`covert_env.visibility.visible_nodes`): the lattice's nodes
+      are in the eroded zone by construction (decided in the target frame), so the nodes on its boundary that v1's
+      second, world-frame zone test dropped by rounding are offered (1,000 of 1,777,160 node-slots on held-out scenes
+      1,000,000-1,000,019 and training scenes 0-19), and LoS is decided with the polytopes grown by 1 µm
+      (:data:`~covert_env.visibility.SAFE_LOS_TOLERANCE`) instead of shrunk by 10 nm (no mask, map or start
+      changed on those scenes). Seeded waypoint rollouts can differ from v1; rewards, costs and dynamics are
+      unchanged. ``covert_sensing_v1`` and the v1 ids raise an error that says this.
     * v1, covert_env 0.5.0 (no number of a valid seeded rollout changed): calls out of order raise alike in
       every env kind (``render()`` before ``reset()`` returned None, ``step()`` after ``close()`` went on);
       ``penalties`` items are validated; the AEC env checks an action at its agent's ``step()``; coordinates,
@@ -200,7 +208,7 @@ class CovertSensingParallelEnv(ParallelEnv):
     * v0: initial release.
     """
 
-    metadata = {"name": "covert_sensing_v1", "render_modes": list(RENDER_MODES), "render_fps": 4,
+    metadata = {"name": "covert_sensing_v2", "render_modes": list(RENDER_MODES), "render_fps": 4,
                 "is_parallelizable": True}
 
     def __init__(self, config: Config | dict | None = None, *, n_uavs: int | None = None,

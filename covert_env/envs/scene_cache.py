@@ -14,8 +14,7 @@ import numpy as np
 from covert_env.config import Config
 from covert_env.envs.observation import FIELDS, shared_block_slices
 from covert_env.scenario import Scenario, sample_starts_on
-from covert_env.visibility import line_of_sight_rows
-from covert_env.zone import in_feasible_zone, to_world
+from covert_env.visibility import visible_nodes
 
 __all__ = ["SceneCache", "World"]
 
@@ -48,14 +47,12 @@ class SceneCache:
         self._lattice = lattice
 
     def _maps(self, q: np.ndarray, phi: np.ndarray) -> np.ndarray:
-        """(K, S*S) float32 maps around target poses q (K, 3), phi (K,): 1 where a cell is in the eroded zone
-        with clear LoS."""
+        """(K, S*S) float32 maps around target poses q (K, 3), phi (K,): 1 where a cell is in the visible zone
+        (eq. 10: in the eroded zone, decided in the target frame, with clear LoS as the action mask sees it)."""
         rows = np.zeros((len(q), self._n_cells), np.float32)
         if len(self._map_offsets):
-            cs, sn = np.cos(phi)[:, None], np.sin(phi)[:, None]
-            ox, oy = self._map_offsets[:, 0], self._map_offsets[:, 1]
-            xy = np.stack([q[:, :1] + cs * ox - sn * oy, q[:, 1:2] + sn * ox + cs * oy], axis=-1)
-            rows[:, self._map_in_zone] = line_of_sight_rows(self.parts.terrain, xy, self.parts.config.altitude, q)
+            rows[:, self._map_in_zone] = visible_nodes(self.parts.terrain, self._map_offsets, q, phi,
+                                                       self.parts.config.altitude)
         return rows
 
     def shared_blocks(self) -> np.ndarray:
@@ -83,17 +80,15 @@ class SceneCache:
         return blocks
 
     def lattice_visible(self) -> np.ndarray:
-        """(n + 1, L) bool, row k: the waypoint lattice nodes in the eroded zone with clear LoS at slot k as
-        predicted at slot k - 1 (the action mask of slot k - 1's move; row 0 at slot 0)."""
+        """(n + 1, L) bool, row k: the waypoint lattice nodes (all in the eroded zone) visible (eq. 10,
+        :func:`~covert_env.visibility.visible_nodes`) at slot k as predicted at slot k - 1 (the action mask of slot
+        k - 1's move; row 0 at slot 0)."""
         c, track = self.parts.config, self.parts.track
         q_next, phi_next = track.next_predicted
         q0, phi0 = track.predict(-1, 1)
         q = np.vstack([q0, q_next[:-1]])
         phi = np.concatenate([phi0, phi_next[:-1]])
-        xy = to_world(self._lattice, q[:, :2], phi)                                    # (n + 1, L, 2)
-        ok = in_feasible_zone(xy, q[:, None, :2], phi[:, None], c.r1, c.r2, c.mu, c.r_u)
-        ok &= line_of_sight_rows(self.parts.terrain, xy, c.altitude, q)
-        return ok
+        return visible_nodes(self.parts.terrain, self._lattice, q, phi, c.altitude)
 
     def seeded_scenario(self) -> Scenario:
         """The scene with its own starts: ``Scenario.random(seed)`` exactly (or the given scenario)."""

@@ -1,7 +1,7 @@
 """Gymnasium single-UAV environments, thin wrappers over the PettingZoo env with one agent.
 
-Registered at ``import covert_env`` as ``covert_env/CovertSensing-v1`` (continuous unicycle actions)
-and ``covert_env/CovertSensingWaypoint-v1`` (discrete waypoint actions with ``action_masks()`` for
+Registered at ``import covert_env`` as ``covert_env/CovertSensing-v2`` (continuous unicycle actions)
+and ``covert_env/CovertSensingWaypoint-v2`` (discrete waypoint actions with ``action_masks()`` for
 sb3-contrib's MaskablePPO).
 """
 
@@ -32,7 +32,7 @@ class CovertSensingEnv(gym.Env):
 
     ``Box(-1, 1, (2,), float32)``: (speed, turn rate) scaled to 0 < v <= V_max = 50 m/s and
     |omega| <= W_max = 3 rad/s, integrated exactly over the slot. Out-of-range values are clipped;
-    NaN/inf raise ``ValueError``. (``CovertSensingWaypoint-v1``: ``Discrete(L)`` lattice waypoints.)
+    NaN/inf raise ``ValueError``. (``CovertSensingWaypoint-v2``: ``Discrete(L)`` lattice waypoints.)
 
     ## Observation Space
 
@@ -63,7 +63,7 @@ class CovertSensingEnv(gym.Env):
 
     ## Vectorized Environment
 
-    ``gym.make_vec("covert_env/CovertSensing-v1", num_envs=N)`` gives Gymnasium's ``SyncVectorEnv`` (or, with
+    ``gym.make_vec("covert_env/CovertSensing-v2", num_envs=N)`` gives Gymnasium's ``SyncVectorEnv`` (or, with
     ``vectorization_mode="async"``, ``AsyncVectorEnv``) of N of these envs; it resets an ended env in
     Gymnasium's next-step mode (``AutoresetMode.NEXT_STEP``: the ``step()`` after the end resets it and ignores
     its action). ``covert_env.vector_env(num_envs=N, n_uavs=1)`` is the batched alternative (one process, array
@@ -81,6 +81,14 @@ class CovertSensingEnv(gym.Env):
 
     ## Version History
 
+    * v2, covert_env 0.6.0: the waypoint action mask, the observation maps and the start sampler read the
+      planner's rule for the visible zone (eq. 10, :func:`covert_env.visibility.visible_nodes`): the lattice's nodes
+      are in the eroded zone by construction (decided in the target frame), so the nodes on its boundary that v1's
+      second, world-frame zone test dropped by rounding are offered (1,000 of 1,777,160 node-slots on held-out scenes
+      1,000,000-1,000,019 and training scenes 0-19), and LoS is decided with the polytopes grown by 1 µm
+      (:data:`~covert_env.visibility.SAFE_LOS_TOLERANCE`) instead of shrunk by 10 nm (no mask, map or start
+      changed on those scenes). Seeded waypoint rollouts can differ from v1; rewards, costs and dynamics are
+      unchanged. ``covert_sensing_v1`` and the v1 ids raise an error that says this.
     * v1 (covert_env 0.2.0): infos are flat scalars with the same keys and types at reset and every step
       (``reward_terms[t]`` became ``reward_<t>``); constraint costs ``cost``, ``cost_los``, ``cost_zone``,
       ``cost_separation``, ``cost_terrain``; with ``dict_obs=True`` the action mask is only in the
@@ -105,7 +113,7 @@ class CovertSensingEnv(gym.Env):
         if kwargs.get("action_mode", self._action_mode) != self._action_mode:
             other = "CovertSensingWaypoint" if self._action_mode == "unicycle" else "CovertSensing"
             raise ValueError(f"{type(self).__name__} has action_mode={self._action_mode!r}, got "
-                             f"action_mode={kwargs['action_mode']!r}; use the id covert_env/{other}-v1")
+                             f"action_mode={kwargs['action_mode']!r}; use the id covert_env/{other}-v2")
         kwargs.update(n_uavs=1, action_mode=self._action_mode)
         self.par = CovertSensingParallelEnv(render_mode=render_mode, **kwargs)
         self.render_mode = render_mode

@@ -156,6 +156,8 @@ class CovertSensingVectorEnv:
 
     ## Version History
 
+    * v2, covert_env 0.6.0: the task and numbers of ``covert_sensing_v2`` (the waypoint mask, observation maps
+      and start candidates of eq. 10's one rule, :func:`covert_env.visibility.visible_nodes`).
     * v1: initial release (the task and numbers of ``covert_sensing_v1``). covert_env 0.3.0 added
       ``autoreset_mode``, ``record`` and the copy readers; 0.4.0 added the read-only ``waypoint_paths``; 0.5.0
       checks copy indices (``scene(-1)`` returned the last copy), raises on ``action_masks()`` before ``reset()``
@@ -163,7 +165,7 @@ class CovertSensingVectorEnv:
       unchanged.
     """
 
-    metadata = {"name": "covert_sensing_vector_v1", "autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
+    metadata = {"name": "covert_sensing_vector_v2", "autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
     render_mode = None
 
     def __init__(self, num_envs: int = 1, *, autoreset_mode: AutoresetMode = AutoresetMode.SAME_STEP,

@@ -1,6 +1,7 @@
 """Ship a trained actor: ``NAME.npz`` (actor weights, float32, no pickle) and its model card ``NAME.json``.
 
     python -m training.pretrained.export runs/<mappo-run> --name mappo --episodes 20
+    python -m training.pretrained.export --rescore mappo      # the shipped weights on the current env version
 
 The card holds what a reader needs to trust and reproduce the weights: the algorithm, the run's arguments (the
 recipe) and training summary (env steps, wall time), the repository commit, the env's id and covert_env's
@@ -25,7 +26,7 @@ from training.evaluate import HELD_OUT_OFFSET, evaluate, summarise
 from training.pretrained import PRETRAINED_DIR, load_learned
 from training.stats import iqm, stratified_bootstrap_ci
 
-__all__ = ["export", "main"]
+__all__ = ["export", "main", "rescore"]
 
 
 def _commit() -> str:
@@ -58,39 +59,74 @@ def export(run: Path, name: str, episodes: int = 20, out_dir: Path = PRETRAINED_
             "training": {**summary, "run": run.name, "commit": training_commit or "unknown"}, "note": note}
     card_path = npz.with_suffix(".json")
     card_path.write_text(json.dumps(card, indent=2))          # the loader needs it to score the weights
+    card["scores"] = _scores(npz, name, episodes, progress)
+    card_path.write_text(json.dumps(card, indent=2))
+    return card_path
+
+
+def rescore(name: str, episodes: int | None = None, out_dir: Path = PRETRAINED_DIR, progress: bool = True) -> Path:
+    """Score shipped weights again on the current env version (same held-out scenes; ``episodes`` defaults to the
+    card's count) and rewrite the card's ``scores``, ``env_id``, ``covert_env_version`` and ``commit``; the env id
+    the weights were trained on stays in ``recipe``. Returns the card's path."""
+    from covert_env.envs.vector import CovertSensingVectorEnv
+
+    npz = Path(out_dir) / f"{name}.npz"
+    card_path = npz.with_suffix(".json")
+    card = json.loads(card_path.read_text())
+    first, last = card["scores"]["scenes"]
+    card["scores"] = _scores(npz, name, episodes or last - first + 1, progress)
+    card.update(env_id=CovertSensingVectorEnv.metadata["name"], covert_env_version=covert_env.__version__,
+                commit=_commit())
+    card_path.write_text(json.dumps(card, indent=2))
+    return card_path
+
+
+def _scores(npz: Path, name: str, episodes: int, progress: bool) -> dict:
+    """The card's ``scores``: the harness on held-out scenes 1_000_000 .. + episodes - 1 (module docstring)."""
     pol = load_learned(npz)
     rows = evaluate(pol, pol.env_settings, episodes, HELD_OUT_OFFSET, progress=progress, label=name)
     rewards = np.array([r["reward"] for r in rows])
     point, lo, hi = stratified_bootstrap_ci(rewards[:, None], iqm, reps=5000)
-    card["scores"] = {
+    return {
         "scenes": [HELD_OUT_OFFSET, HELD_OUT_OFFSET + episodes - 1],
         "reward_mean": float(rewards.mean()), "reward_std": float(rewards.std()),
         "reward_iqm": point, "reward_iqm_ci95_over_scenes": [lo, hi],
         "metrics_mean_std": {k: list(v) for k, v in summarise(rows).items() if k != "decision_time_ms"},
         "per_scene_reward": {str(r["scene_seed"]): r["reward"] for r in rows},
     }
-    card_path.write_text(json.dumps(card, indent=2))
-    return card_path
 
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m training.pretrained.export", description=__doc__.split("\n")[0])
-    p.add_argument("run", help="a training.mappo run folder (model.npz, model.json, args.json)")
+    p.add_argument("run", nargs="?", help="a training.mappo run folder (model.npz, model.json, args.json)")
+    p.add_argument("--rescore", metavar="NAME", help="instead: score the shipped NAME.npz in --out-dir again on the "
+                   "current env version and rewrite its card's scores (--episodes: the card's count by default)")
     p.add_argument("--name", default="mappo", help="file stem in training/pretrained/ (pretrained:NAME)")
-    p.add_argument("--episodes", type=int, default=20, help="held-out scenes to score (>= 1)")
+    p.add_argument("--episodes", type=int, default=None, help="held-out scenes to score (>= 1; default 20)")
     p.add_argument("--out-dir", default=str(PRETRAINED_DIR), help="where to write NAME.npz and NAME.json")
     p.add_argument("--training-commit", default="", help="the commit of the code that trained the run")
     p.add_argument("--note", default="", help="what a user should know (e.g. the constraints it violates)")
     a = p.parse_args(argv)
-    if not (Path(a.run) / "model.npz").is_file():
-        p.error(f"{a.run}: no model.npz (not a finished training.mappo run)")
-    if a.episodes < 1:
+    if a.episodes is not None and a.episodes < 1:
         p.error(f"--episodes {a.episodes}: must be >= 1")
-    card = export(Path(a.run), a.name, a.episodes, Path(a.out_dir), training_commit=a.training_commit, note=a.note)
+    if a.rescore is not None:
+        if a.run is not None:
+            p.error("give a run folder or --rescore NAME, not both")
+        stem = Path(a.out_dir) / a.rescore
+        if not stem.with_suffix(".json").is_file() or not stem.with_suffix(".npz").is_file():
+            p.error(f"--rescore {a.rescore}: no {a.rescore}.npz with its card in {a.out_dir}")
+        card = rescore(a.rescore, a.episodes, Path(a.out_dir))
+    else:
+        if a.run is None:
+            p.error("give a training.mappo run folder, or --rescore NAME")
+        if not (Path(a.run) / "model.npz").is_file():
+            p.error(f"{a.run}: no model.npz (not a finished training.mappo run)")
+        card = export(Path(a.run), a.name, a.episodes or 20, Path(a.out_dir), training_commit=a.training_commit,
+                      note=a.note)
     s = json.loads(card.read_text())["scores"]
-    print(f"wrote {card} and {card.with_suffix('.npz')}: reward {s['reward_mean']:.1f} ± {s['reward_std']:.1f}, "
-          f"IQM {s['reward_iqm']:.1f} [{s['reward_iqm_ci95_over_scenes'][0]:.1f}, "
-          f"{s['reward_iqm_ci95_over_scenes'][1]:.1f}]")
+    wrote = card if a.rescore else f"{card} and {card.with_suffix('.npz')}"
+    print(f"wrote {wrote}: reward {s['reward_mean']:.1f} ± {s['reward_std']:.1f}, IQM {s['reward_iqm']:.1f} "
+          f"[{s['reward_iqm_ci95_over_scenes'][0]:.1f}, {s['reward_iqm_ci95_over_scenes'][1]:.1f}]")
     return 0
 
 
