@@ -705,3 +705,19 @@ def test_planner_rejects_bad_arguments():
         pl.plan([0.0, 0.0], 0.0, np.zeros((1, 3)), np.zeros(1))
     with pytest.raises(ValueError, match="finite"):
         pl.plan([np.nan, 0.0], 0.0, np.zeros((6, 3)), np.zeros(6))
+
+
+def test_stage_pair_disguise_is_eq_11_in_float32():
+    """The planner's bounds hold the disguise part of eq. 18 for every node pair, computed in float32 in place (S x
+    S arrays); it must be -lambda times covert_env.cost.disguise (eq. 11's one home) to float32 rounding."""
+    from covert_env.cost import disguise
+
+    sc = Scenario.random(1_000_001)
+    c, track = sc.config, sc.track
+    pl = DPPlanner(c, sc.terrain)
+    a = pl.cache.stage(track.position(3), track.heading(3))
+    b = pl.cache.stage(track.position(4), track.heading(4))
+    _, got = pl.cache.pair(a, b).by_target()                           # [target b, source a]
+    want = -c.lam * disguise(a.alpha[None, :], b.alpha[:, None], a.d[None, :], b.d[:, None], c.eta)
+    assert got.dtype == np.float32 and got.shape == want.shape
+    np.testing.assert_allclose(got, want, rtol=2e-6, atol=2e-3 * c.lam)
