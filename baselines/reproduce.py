@@ -65,6 +65,7 @@ from covert_env.command_line import (
     run_main,
 )
 from covert_env.config import Config
+from covert_env.families import FAMILIES, HELD_OUT_SEEDS, family_config
 from covert_env.metrics import episode_metrics, slot_quantities
 from covert_env.render import (
     TERRAIN_COLOR,
@@ -83,10 +84,10 @@ from covert_env.visibility import line_of_sight
 from covert_env.zone import feasible_zone, to_world, zone_lattice
 
 __all__ = ["HELDOUT_SEED_BASE", "METHODS", "RunSpec", "bootstrap_ci", "figure_slot", "main", "make_scenario",
-           "most_shadowed_scenes", "rollout", "run", "write_gif", "zone_shadow_shares"]
+           "most_shadowed_scenes", "rollout", "run", "run_pairs", "write_gif", "zone_shadow_shares"]
 
 #: Held-out scene seeds are HELDOUT_SEED_BASE + i (outside any training pool of the environments).
-HELDOUT_SEED_BASE = 1_000_000
+HELDOUT_SEED_BASE = HELD_OUT_SEEDS.start
 #: Planner settings of each compared method.
 METHODS = {
     "aware": dict(shadow_aware=True),                      # the paper's method (eq. 10 zone)
@@ -97,7 +98,8 @@ METHODS = {
 
 @dataclass(frozen=True)
 class RunSpec:
-    """One episode: scene kind ("paper" or "random"), scene seed, team size, method (key of METHODS)."""
+    """One episode: scene kind ("paper" or "random"), scene seed, team size, method (key of METHODS); a random
+    scene of scene family ``family`` (:mod:`covert_env.families`; None: the config as given)."""
 
     kind: str
     seed: int
@@ -105,6 +107,7 @@ class RunSpec:
     method: str
     n_slots: int = 70
     heading: str = "inherited"
+    family: str | None = None
 
     @property
     def label(self) -> str:
@@ -112,12 +115,14 @@ class RunSpec:
         return f"{scene}-{self.n_uavs}uav-{self.method}"
 
 
-def make_scenario(kind: str, seed: int, n_uavs: int, config: Config | None = None) -> Scenario:
-    """The scene of a run, built as the environments build it (``config.n_uavs`` = ``n_uavs``)."""
+def make_scenario(kind: str, seed: int, n_uavs: int, config: Config | None = None,
+                  family: str | None = None) -> Scenario:
+    """The scene of a run, built as the environments build it (``config.n_uavs`` = ``n_uavs``): the paper's, or a
+    random one (of scene family ``family`` if given; the paper scene is always the paper's)."""
     cfg = (config or Config()).replace(n_uavs=int(n_uavs))
     if kind == "paper":
         return Scenario.paper(cfg)
-    return Scenario.random(int(seed), cfg)
+    return Scenario.random(int(seed), cfg if family is None else family_config(family, cfg))
 
 
 #: ``--quick``: slots per episode (the paper scene's zone is in shadow at slots 11-15), number of held-out
@@ -132,13 +137,13 @@ def zone_shadow_shares(scenario: Scenario, slots) -> np.ndarray:
 
 
 def most_shadowed_scenes(n: int, n_slots: int, config: Config | None = None, pool: int = QUICK_POOL,
-                         n_uavs: int = 1) -> list[int]:
+                         n_uavs: int = 1, family: str | None = None) -> list[int]:
     """``--quick``'s held-out scenes: the ``n`` seeds among the first ``pool`` held-out scenes whose feasible
     zone is most in shadow, on average over slots 1..``n_slots`` (ties: lower seed). Purely geometric (no
     planner run), so the choice is deterministic and cheap; a zone in shadow is where the shadow-blind planner
     can lose the line of sight. Returned in seed order."""
     config = config or Config()
-    share = [zone_shadow_shares(make_scenario("random", HELDOUT_SEED_BASE + i, n_uavs, config),
+    share = [zone_shadow_shares(make_scenario("random", HELDOUT_SEED_BASE + i, n_uavs, config, family),
                                 range(1, n_slots + 1)).mean() for i in range(pool)]
     best = sorted(range(pool), key=lambda i: (-share[i], i))[:n]
     return sorted(HELDOUT_SEED_BASE + i for i in best)
@@ -161,7 +166,7 @@ def run(spec: RunSpec, config: Config | None = None) -> dict:
     """Run one :class:`RunSpec`; returns per-UAV records and the per-slot series the figures need."""
     # The scene is built for the config's full episode (its road length, hence its terrain, depends on
     # n_slots); a shorter run flies only the first spec.n_slots slots of the same scene.
-    sc = make_scenario(spec.kind, spec.seed, spec.n_uavs, config)
+    sc = make_scenario(spec.kind, spec.seed, spec.n_uavs, config, spec.family)
     t0 = time.perf_counter()
     out = rollout(sc, heading=spec.heading, n_slots=spec.n_slots, **METHODS[spec.method])
     wall = time.perf_counter() - t0
@@ -175,7 +180,7 @@ def run(spec: RunSpec, config: Config | None = None) -> dict:
     for i, m in enumerate(metrics):
         st = out["status"][:, i]
         rec = {"run": spec.label, "scene": "paper" if spec.kind == "paper" else "heldout", "seed": spec.seed,
-               "n_uavs": spec.n_uavs, "method": spec.method, "heading": spec.heading, "uav": i,
+               "family": None if spec.kind == "paper" else spec.family, "n_uavs": spec.n_uavs, "method": spec.method, "heading": spec.heading, "uav": i,
                "slots": int(traj.n_slots)}
         rec.update(m)
         rec.update({
@@ -606,6 +611,10 @@ def _markdown(rows: list[dict], records: list[dict], config: Config, elapsed: fl
         "Methods: `aware` = the paper's method (visible zone, eq. 10); `blind` = the earlier method [1] "
         "(plain feasible zone); `aware-path` = aware + LoS and zone checked along every manoeuvre.",
     ]
+    families = sorted({r["family"] for r in records if r.get("family")})
+    if families:
+        lines.append(f"Held-out scenes of scene family {', '.join(families)} (covert_env.families); the paper scene "
+                     "is the paper's.")
     if quick:
         lines.append(f"QUICK: held-out scenes = those of the first {QUICK_POOL} whose zone is most in shadow over "
                      "the flown slots (`most_shadowed_scenes`), so rates here are NOT representative of random "
@@ -714,6 +723,10 @@ def build_parser(prog: str = "covert-env reproduce") -> argparse.ArgumentParser:
     p.add_argument("--heading", choices=("inherited", "binned"), default="inherited",
                    help="DP heading variant: inherited is the paper's (default: inherited)")
     p.add_argument("--config", default=None, help="a Config JSON file (default: the paper's parameters)")
+    p.add_argument("--family", choices=list(FAMILIES), default=None,
+                   help="scene family (covert_env.families) of the held-out scenes; the paper scene stays the "
+                        "paper's (default: the config's generator fields, which are the paper family's unless "
+                        "--config changes them)")
     p.add_argument("--prediction-study", action="store_true",
                    help="also run baselines/prediction_study.py (prediction error b = 4 m: r_u = 0 vs the eroded "
                         "zone of eq. 5 with and without widened shadows, 3 UAVs; blocked LoS and zone violations "
@@ -726,16 +739,18 @@ def build_parser(prog: str = "covert-env reproduce") -> argparse.ArgumentParser:
     return p
 
 
-def specs_for(scenes, n_slots: int, heading: str = "inherited", path_uavs=(1,)) -> list[RunSpec]:
+def specs_for(scenes, n_slots: int, heading: str = "inherited", path_uavs=(1,),
+              family: str | None = None) -> list[RunSpec]:
     """The runs: paper scene and held-out scenes, 1 and 3 UAVs, aware and blind; aware-path for ``path_uavs``.
 
-    ``scenes``: a number n (seeds HELDOUT_SEED_BASE + 0..n-1) or the held-out seeds themselves."""
+    ``scenes``: a number n (seeds HELDOUT_SEED_BASE + 0..n-1) or the held-out seeds themselves; ``family``: the
+    held-out scenes' scene family."""
     seeds = [HELDOUT_SEED_BASE + i for i in range(scenes)] if isinstance(scenes, int) else list(scenes)
     specs = [RunSpec("paper", 0, u, m, n_slots, heading) for u in (1, 3) for m in ("aware", "blind")]
     for seed in seeds:
         for u in (1, 3):
             for m in ("aware", "blind") + (("aware-path",) if u in path_uavs else ()):
-                specs.append(RunSpec("random", seed, u, m, n_slots, heading))
+                specs.append(RunSpec("random", seed, u, m, n_slots, heading, family))
     return specs
 
 
@@ -761,9 +776,15 @@ def _main(args: argparse.Namespace) -> int:
     out = output_dir(args.out, files=output_files(args))
     t0 = time.perf_counter()
     load0 = os.getloadavg()[0]
-    seeds = most_shadowed_scenes(n_scenes, n_slots, config) if args.quick and n_scenes else n_scenes
+    if args.family is not None:
+        try:
+            family_config(args.family, config)
+        except ValueError as exc:
+            raise UsageError(f"--family {args.family}: {exc}") from None
+    seeds = (most_shadowed_scenes(n_scenes, n_slots, config, family=args.family) if args.quick and n_scenes
+             else n_scenes)
     choose_s = time.perf_counter() - t0
-    specs = specs_for(seeds, n_slots, args.heading, path_uavs=tuple(args.path_uavs))
+    specs = specs_for(seeds, n_slots, args.heading, path_uavs=tuple(args.path_uavs), family=args.family)
     results = _run_all(specs, config, jobs)
     runs_s = time.perf_counter() - t0 - choose_s
     records = [_finite(r) for s in specs for r in results[(s.kind, s.seed, s.n_uavs, s.method)]["records"]]
@@ -798,13 +819,13 @@ def _main(args: argparse.Namespace) -> int:
 def _run_all(specs: list[RunSpec], config: Config, jobs: int) -> dict:
     """Run every spec (``jobs`` spawned worker processes); results keyed by (kind, seed, n_uavs, method)."""
     results = {}
-    for res in _run_pairs([(s, config) for s in specs], jobs):
+    for res in run_pairs([(s, config) for s in specs], jobs):
         s = res["spec"]
         results[(s.kind, s.seed, s.n_uavs, s.method)] = res
     return results
 
 
-def _run_pairs(pairs: list[tuple[RunSpec, Config]], jobs: int) -> list[dict]:
+def run_pairs(pairs: list[tuple[RunSpec, Config]], jobs: int) -> list[dict]:
     """Run (spec, config) pairs in ``jobs`` spawned worker processes; results in the order of ``pairs``."""
     # Longest runs first keeps both workers busy to the end.
     order = sorted(range(len(pairs)), key=lambda i: (-pairs[i][0].n_uavs, pairs[i][0].method != "aware-path"))
@@ -859,7 +880,7 @@ def sensitivity(config: Config, jobs: int = 1, heading: str = "inherited", scene
     distinct = list({json.dumps(cfg.to_dict(), sort_keys=True): cfg for _, _, cfg in variants}.values())
     pairs = [(RunSpec("random", s, 1, m, n_slots, heading), cfg) for cfg in distinct for s in seeds
              for m in ("aware", "blind")]
-    done = _run_pairs(pairs, jobs)
+    done = run_pairs(pairs, jobs)
     by_cfg: dict[str, list[dict]] = {}
     for (_, cfg), res in zip(pairs, done, strict=True):
         by_cfg.setdefault(json.dumps(cfg.to_dict(), sort_keys=True), []).extend(res["records"])

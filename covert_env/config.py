@@ -117,6 +117,9 @@ class Config:
     """(decided) Random footprints lie within this distance (m) of the road centreline (radius
     permitting): buildings close to the road are the ones whose shadows fall on the zone behind the
     target (55-100 m behind it, at most ~40 m to its side)."""
+    road_max_curvature: float = 1 / 120
+    """(decided) Largest curvature (1/m) of a random road (:meth:`Road.random`): 0 is straight, 1/120 (a 120 m
+    turn radius, the default) gentle bends, 1/30 sharp turns; in [0, 0.1] (turn radius >= 10 m)."""
 
     # --- target -----------------------------------------------------------------------------
     target_speed: float = 10.0
@@ -338,7 +341,10 @@ _UPPER = {"v_max": (MAX_SPEED, "m/s"), "target_speed": (MAX_SPEED, "m/s"), "w_ma
           "delta": (MAX_DELTA, "s")}
 _POSITIVE = ("v_max", "w_max", "altitude", "delta", "eta", "lam", "d_safe1", "d_safe2", "r1", "r2",
              "min_height", "min_radius", "max_radius", "target_speed", "grid_step")
-_NON_NEGATIVE = ("r_u", "road_clearance", "road_max_offset", "target_height", "shadow_margin", "prediction_error")
+_NON_NEGATIVE = ("r_u", "road_clearance", "road_max_offset", "road_max_curvature", "target_height", "shadow_margin",
+                 "prediction_error")
+#: Sharpest random road: a 10 m turn radius (a street corner).
+MAX_ROAD_CURVATURE = 0.1
 _OPTIONAL = ("max_height", "h_min")
 #: Integer fields: (lowest, highest) allowed value.
 _INTS = {"horizon": (1, MAX_HORIZON), "n_slots": (1, MAX_N_SLOTS), "n_polytopes": (0, MAX_N_POLYTOPES),
@@ -414,6 +420,9 @@ def _validate(c: Config) -> None:
     if 2 * c.r_u >= c.r2 - c.r1:
         raise ValueError(
             f"Config.r_u must be < (r2 - r1) / 2 = {(c.r2 - c.r1) / 2:g} or the eroded zone is empty, got {c.r_u!r}")
+    if not c.road_max_curvature <= MAX_ROAD_CURVATURE:
+        raise ValueError(f"Config.road_max_curvature must be in [0, {MAX_ROAD_CURVATURE:g}] (1/m: a turn radius of at "
+                         f"least {1 / MAX_ROAD_CURVATURE:g} m), got {c.road_max_curvature!r}")
     if c.prediction_error > c.target_speed * c.delta:
         raise ValueError(f"Config.prediction_error must be in [0, target_speed * delta = {c.target_speed * c.delta:g}] "
                          f"(m; larger speed noise would make the target reverse), got {c.prediction_error!r}")

@@ -110,7 +110,7 @@ class Scenario:
         travel = c.target_speed * c.delta * (c.n_slots + c.horizon + 1)
         road_start = np.asarray(start, float) - _ROAD_LEAD_IN * np.array([math.cos(heading), math.sin(heading)])
         road = Road.random(seed, length=_ROAD_LEAD_IN + travel + SCENE_ROAD_TAIL, start=road_start, heading=heading,
-                           straight_start=_ROAD_LEAD_IN + 30.0)
+                           straight_start=_ROAD_LEAD_IN + 30.0, max_curvature=c.road_max_curvature)
         track = TargetTrack.constant(road, c.target_speed, c.n_slots + c.horizon + 1, delta=c.delta,
                                      z=c.target_height, s0=_ROAD_LEAD_IN)
         if c.prediction_error > 0:

@@ -65,6 +65,7 @@ from covert_env.command_line import (
 )
 from covert_env.envs.covert_sensing import CovertSensingParallelEnv
 from covert_env.envs.vector import MAX_SCENE_SEED
+from covert_env.families import FAMILIES, HELD_OUT_SEEDS
 from training.pretrained import PRETRAINED_DIR, load_learned, pretrained_names
 from training.rllib_ppo import load_policy as load_rllib
 from training.runs import read_run_json, run_env
@@ -73,7 +74,7 @@ from training.trust import require_trust
 
 __all__ = ["main", "load_policy", "evaluate", "split_seeds", "SB3Policy", "COLUMNS", "HELD_OUT_OFFSET"]
 
-HELD_OUT_OFFSET = 1_000_000
+HELD_OUT_OFFSET = HELD_OUT_SEEDS.start
 
 #: (key, header, format) of the leaderboard columns; keys are metric names of covert_env.metrics or "reward".
 COLUMNS = [
@@ -357,8 +358,9 @@ def write_outputs(results: dict[str, dict], out: Path, meta: dict) -> None:
         for name, r in results.items():
             for row in r["rows"]:
                 w.writerow([name] + [row.get(k, "") for k in keys])
+    family = f", family {meta['family']}" if meta.get("family") else ""
     lines = [f"# Leaderboard: {meta['episodes']} held-out scenes (scene seeds {meta['seed_offset']} .. "
-             f"{meta['seed_offset'] + meta['episodes'] - 1}), {meta['n_uavs']} UAV(s)", "",
+             f"{meta['seed_offset'] + meta['episodes'] - 1}{family}), {meta['n_uavs']} UAV(s)", "",
              "Mean ± std over episodes of the team-mean per-UAV metrics (covert_env.metrics.episode_metrics); "
              "episode reward = env default reward, mean over UAVs. Lower is better except reward, disguise and "
              "min separation.", "",
@@ -465,6 +467,8 @@ def build_parser(prog: str = "python -m training.evaluate") -> argparse.Argument
     p.add_argument("--n-uavs", type=positive_int, default=3, help="team size, >= 1")
     p.add_argument("--seed-offset", type=int_range(0, MAX_SCENE_SEED - MAX_SCENES), default=HELD_OUT_OFFSET,
                    help=f"first held-out scene seed, in [0, {MAX_SCENE_SEED - MAX_SCENES}]")
+    p.add_argument("--family", choices=list(FAMILIES), default="paper",
+                   help="scene family (covert_env.families) of the held-out scenes")
     p.add_argument("--out", default="outputs/leaderboard", help="output folder (git-ignored outputs/)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.add_argument("--trust-checkpoint", action="store_true",
@@ -487,11 +491,11 @@ def main(argv: list[str] | None = None, prog: str = "python -m training.evaluate
     return run_main(parser, lambda: _main(args, f"{prog} " + " ".join(argv)))
 
 
-def _check_team(n_uavs: int, seed: int) -> None:
-    """Build the env with ``--n-uavs`` and reset it on the first held-out scene, so that a team size the env
-    rejects (or cannot place) fails with one error line before any evaluation runs."""
+def _check_team(n_uavs: int, seed: int, family: str | None = None) -> None:
+    """Build the env with ``--n-uavs`` (and ``--family``) and reset it on the first held-out scene, so that a team
+    size the env rejects (or cannot place) fails with one error line before any evaluation runs."""
     try:
-        env = CovertSensingParallelEnv(n_uavs=n_uavs)
+        env = CovertSensingParallelEnv(n_uavs=n_uavs, family=family)
     except ValueError as exc:
         raise UsageError(f"--n-uavs {n_uavs}: {exc}") from None
     try:
@@ -536,12 +540,14 @@ def read_cache(path: Path, args: argparse.Namespace) -> list[dict]:
 def _cache_name(spec: str, args: argparse.Namespace) -> str:
     """The cached results of built-in policy ``spec`` inside ``--out``: ``cache/<spec, episodes, seeds, team>.json``."""
     key = f"{spec}__{args.episodes}__{args.seed_offset}__{args.n_uavs}".replace("/", "_").replace("@", "-")
+    if args.family != "paper":                 # the paper family's caches keep their names from before families
+        key += f"__{args.family}"
     return f"cache/{key}.json"
 
 
 def _main(args: argparse.Namespace, command: str) -> int:
 
-    _check_team(args.n_uavs, args.seed_offset)
+    _check_team(args.n_uavs, args.seed_offset, args.family)
     caches = {spec: _cache_name(spec, args) for spec in args.policies if not spec.startswith(LEARNED_PREFIXES)}
     outputs = {"files": (*OUTPUT_FILES, *caches.values()), "folders": ("cache",) if caches else ()}
     output_dir(args.out, create=False, **outputs)
@@ -579,7 +585,8 @@ def _main(args: argparse.Namespace, command: str) -> int:
             for i, (member, _) in enumerate(group):
                 label = name if len(group) == 1 else f"{name} seed run {i + 1}"
                 for row in evaluate(member, settings, args.episodes, args.seed_offset,
-                                    progress=not args.no_progress, label=label):
+                                    env_kwargs={"family": args.family}, progress=not args.no_progress,
+                                    label=label):
                     rows.append({**row, "run": i} if len(group) > 1 else row)
             if builtin:
                 cache.parent.mkdir(parents=True, exist_ok=True)
@@ -591,7 +598,7 @@ def _main(args: argparse.Namespace, command: str) -> int:
               f"{s['occlusion_rate'][0]:.3f}  zone viol. {s['zone_violation_rate'][0]:.3f}  "
               f"({time.perf_counter() - t0:.0f} s)", flush=True)
     write_outputs(results, out, {"episodes": args.episodes, "seed_offset": args.seed_offset, "n_uavs": args.n_uavs,
-                                 "command": command})
+                                 "family": args.family, "command": command})
     (out / "results.json").write_text(json.dumps({n: {"summary": r["summary"], "settings": r["settings"],
                                                       "spec": r["spec"]} for n, r in results.items()}, indent=2))
     print(f"wrote {out / 'leaderboard.md'}, {out / 'leaderboard.csv'}, {out / 'comparison.png'}")

@@ -173,6 +173,9 @@ class CovertSensingParallelEnv(ParallelEnv):
       1_000_000 so that training scenes never include the held-out seeds 1_000_000 + i).
     * ``path_samples``: samples per slot for LoS/separation checks along the path (default 11, in [2, 1000]).
     * ``random_starts``: sample start poses from the env's RNG even for a fixed scenario.
+    * ``family``: a scene family's name (:mod:`covert_env.families`: ``"sparse"``, ``"paper"``, ``"winding"``,
+      ``"dense"``, ``"downtown"``, ``"towers"``), whose generator fields are set on ``config``; with
+      ``scenario="random"`` only. None (default): the config as given (at its defaults, the ``paper`` family).
 
     ## Version History
 
@@ -217,19 +220,22 @@ class CovertSensingParallelEnv(ParallelEnv):
                  dict_obs: bool = False, reward_scale: float = 100.0, los_penalty: float = 1.0,
                  zone_penalty: float = 1.0, separation_penalty: float = 1.0, terrain_penalty: float = 1.0,
                  terminate_on_collision: bool = False, scene_pool: int = 10_000, path_samples: int = 11,
-                 random_starts: bool = False):
+                 random_starts: bool = False, family: str | None = None):
         super().__init__()
         s = EnvSettings(config, n_uavs=n_uavs, scenario=scenario, action_mode=action_mode, max_cycles=max_cycles,
                         render_mode=render_mode, map_size=map_size, dict_obs=dict_obs, reward_scale=reward_scale,
                         los_penalty=los_penalty, zone_penalty=zone_penalty, separation_penalty=separation_penalty,
                         terrain_penalty=terrain_penalty, terminate_on_collision=terminate_on_collision,
-                        scene_pool=scene_pool, path_samples=path_samples, random_starts=random_starts)
+                        scene_pool=scene_pool, path_samples=path_samples, random_starts=random_starts,
+                        family=family)
         # One copy, no automatic reset (PettingZoo's agents leave at the end and reset() starts the next
         # episode), episodes recorded for the metrics.
         self._vec = CovertSensingVectorEnv.from_settings(1, s, autoreset_mode=AutoresetMode.DISABLED, record=True)
         self.config, self.scenario_spec, self.action_mode = s.config, s.scenario, s.action_mode
         self.render_mode, self.map_size, self.dict_obs = s.render_mode, s.map_size, s.dict_obs
         self.scene_pool, self.path_samples, self.random_starts = s.scene_pool, s.path_samples, s.random_starts
+        #: The scene family's name (:mod:`covert_env.families`), or None for the config as given.
+        self.family = s.family
         self.lattice, self.map_offsets, self.layout = s.lattice, s.map_offsets, s.layout
         self.possible_agents = list(s.possible_agents)
         self.agents: list[str] = []

@@ -15,6 +15,7 @@ from covert_env.config import Config
 from covert_env.engine import MAX_PATH_SAMPLES
 from covert_env.envs.arguments import bool_arg, int_arg, number_arg
 from covert_env.envs.observation import ObservationLayout
+from covert_env.families import TRAIN_SEEDS, family_config
 from covert_env.scenario import PAPER_UAV_STARTS, Scenario
 from covert_env.zone import in_feasible_zone, lattice_offsets, zone_lattice
 
@@ -24,7 +25,7 @@ __all__ = ["ACTION_MODES", "EnvSettings", "MAX_PATH_SAMPLES", "MAX_SCENE_POOL", 
 ACTION_MODES = ("unicycle", "waypoint")
 RENDER_MODES = ("human", "rgb_array")
 #: Largest ``scene_pool``: training scene seeds 0 .. scene_pool-1 stay below the held-out seeds 1_000_000 + i.
-MAX_SCENE_POOL = 1_000_000
+MAX_SCENE_POOL = len(TRAIN_SEEDS)
 
 
 #: The reward's penalty terms, the keys of ``penalties``.
@@ -100,7 +101,7 @@ class EnvSettings:
                  dict_obs: bool = False, reward_scale: float = 100.0, los_penalty: float = 1.0,
                  zone_penalty: float = 1.0, separation_penalty: float = 1.0, terrain_penalty: float = 1.0,
                  terminate_on_collision: bool = False, scene_pool: int = 10_000, path_samples: int = 11,
-                 random_starts: bool = False):
+                 random_starts: bool = False, family: str | None = None):
         if isinstance(config, Mapping):
             cfg = Config.from_dict(dict(config))
         elif config is None or isinstance(config, Config):
@@ -110,6 +111,11 @@ class EnvSettings:
                             f"got {type(config).__name__} {config!r}")
         if n_uavs is not None:
             cfg = cfg.replace(n_uavs=int_arg("n_uavs", n_uavs, 1))
+        if family is not None:
+            if not (isinstance(scenario, str) and scenario == "random"):
+                raise ValueError(f"family={family!r} draws random scenes: it needs scenario='random', got "
+                                 f"scenario={scenario if isinstance(scenario, str) else type(scenario).__name__!r}")
+            cfg = family_config(family, cfg)
         if isinstance(scenario, Scenario):
             # A scenario's terrain and track were built and checked under its own config: flying them under
             # another one (altitude, speeds, zone) would mix two worlds, so the two must agree.
@@ -140,6 +146,7 @@ class EnvSettings:
         self.penalties = check_penalties({"los": los_penalty, "zone": zone_penalty, "separation": separation_penalty,
                                           "terrain": terrain_penalty})
         self.config = cfg
+        self.family = family
         self.scenario = scenario
         self.action_mode = action_mode
         self.max_cycles = cfg.n_slots if max_cycles is None else int_arg("max_cycles", max_cycles, 1)
