@@ -80,7 +80,7 @@ from covert_env.render import (
     zones_at,
 )
 from covert_env.scenario import Scenario
-from covert_env.visibility import line_of_sight
+from covert_env.visibility import visible_nodes
 from covert_env.zone import feasible_zone, to_world, zone_lattice
 
 __all__ = ["HELDOUT_SEED_BASE", "METHODS", "RunSpec", "bootstrap_ci", "figure_slot", "main", "make_scenario",
@@ -317,7 +317,7 @@ def _fig_zones(plt, sc: Scenario, aw: dict, bl: dict, u: int, fig_no: int, confi
     q = sc.track.position(k)
     phi = float(sc.track.heading(k))
     nodes = to_world(zone_lattice(config), q[:2], phi)
-    clear = line_of_sight(sc.terrain, nodes, config.altitude, q)
+    clear = visible_nodes(sc.terrain, zone_lattice(config), q, phi, config.altitude)
     center = q[:2] - 0.5 * config.r2 * np.array([math.cos(phi), math.sin(phi)])
     zone, _, vis = zones_at(sc, k)
     fig, axes = plt.subplots(1, 2, figsize=(13, 7.2))

@@ -13,8 +13,9 @@ V1_RETIRED = (
     "covert_sensing_v1 was replaced by covert_sensing_v2 in covert_env 0.6.0: the waypoint action mask, the "
     "observation maps and the start sampler read the planner's rule for the visible zone (eq. 10, "
     "covert_env.visibility.visible_nodes): lattice nodes on the eroded zone's boundary, which v1 dropped by rounding, "
-    "are offered, and line of sight is decided with the polytopes grown by 1 micrometre. Seeded waypoint rollouts can "
-    "differ; rewards and dynamics are unchanged. Use covert_env.covert_sensing_v2 (or covert_env.parallel_env, "
+    "are offered, and line of sight is decided with the polytopes grown by 1 micrometre. Seeded rollouts can differ "
+    "(waypoint masks; in both modes the maps and starts where a sight line grazes a polytope); rewards, costs and "
+    "dynamics are unchanged. Use covert_env.covert_sensing_v2 (or covert_env.parallel_env, "
     "gym.make('covert_env/CovertSensing-v2'), covert_env.vector_env), or pip install 'covert_env<0.6' for v1.")
 
 

@@ -124,11 +124,14 @@ class TerrainArrays:  # noqa: B903
     @cached_property
     def growth_factor(self) -> np.ndarray:
         """(M,) ``R / r``: moving every face plane of a polytope out by g keeps it within ``g R / r`` of the polytope
-        (the faces of ``{n.x + d <= g}`` meet beyond g at sharp edges, not on a sphere). With c the mean vertex, r the
-        radius of the ball about c inside the polytope (``min_f -(n_f.c + d_f)``, unit normals) and R the farthest
-        vertex from c, the grown polytope lies inside the polytope scaled by ``1 + g / r`` about c."""
+        (the faces of ``{n.x + d <= g}`` meet beyond g at sharp edges, not on a sphere). With c the mean of the
+        (padded) vertex list, a point inside the hull, r the radius of the ball about c inside the polytope
+        (``min_f -(n_f.c + d_f)`` over the real faces, unit normals) and R the farthest vertex from c, the grown
+        polytope lies inside the polytope scaled by ``1 + g / r`` about c."""
         c = self.verts.mean(axis=1)                     # padding repeats a vertex: still inside the hull
-        r = -(np.einsum("mfk,mk->mf", self.hs[..., :3], c) + self.hs[..., 3]).max(axis=1)
+        depth = -(np.einsum("mfk,mk->mf", self.hs[..., :3], c) + self.hs[..., 3])
+        real = np.any(self.hs[..., :3] != 0.0, axis=2)  # not the always-true padding rows
+        r = np.where(real, depth, np.inf).min(axis=1)
         big_r = np.linalg.norm(self.verts - c[:, None], axis=2).max(axis=1)
         return big_r / np.maximum(r, 1e-12)
 
@@ -382,10 +385,11 @@ def visible_nodes(terrain: Terrain, offsets, q, phi, altitude: float, *,
                   tol: float = SAFE_LOS_TOLERANCE) -> np.ndarray:
     """The visible feasible zone (eq. 10) on the waypoint lattice: which nodes see the target.
 
-    The one rule behind the planner's states and the waypoint action mask. ``offsets`` are the lattice nodes
-    inside the eroded zone (:func:`~covert_env.zone.zone_lattice`): zone membership is decided once in the
-    target's frame, so it does not depend on the rounding of the rotation to the world; visibility is the line
-    of sight (eq. 6) at :data:`SAFE_LOS_TOLERANCE`, which equals "outside every shadow" by the tested invariant.
+    The one rule behind the planner's states, the waypoint action mask, the observation maps and the start
+    sampler. ``offsets`` are target-frame offsets inside the eroded zone (the lattice's nodes,
+    :func:`~covert_env.zone.zone_lattice`, or the maps' cells): zone membership is decided once in the target's
+    frame, so it does not depend on the rounding of the rotation to the world; visibility is the line of sight
+    (eq. 6) at :data:`SAFE_LOS_TOLERANCE`, which equals "outside every shadow" by the tested invariant.
 
     Args:
         terrain: the polytopes.
@@ -440,7 +444,7 @@ def _los_single(arr: TerrainArrays, xy: np.ndarray, h: float, q: np.ndarray, tol
     if tol < 0:
         # A point within `grow` of the footprint is seen from q at most asin(grow / rho_min) outside its wedge,
         # so a cross product with the unit edge, |p - q| sin(angle), exceeds the edge by at most this.
-        slack = slack + dist * (grow / np.maximum(rho_min, 1e-300))
+        slack = np.where(every, np.inf, slack + dist * (grow / np.maximum(rho_min, 1e-300)))
     cand = ((e_lo[:, 0] * dy - e_lo[:, 1] * dx >= -slack) & (dx * e_hi[:, 1] - dy * e_hi[:, 0] >= -slack)
             & (dist * s > rho_min - grow - 1e-9))
     k, m = np.nonzero(cand)

@@ -270,13 +270,20 @@ def lattice_offsets_cfg(config) -> np.ndarray:
     return lattice_offsets(config.r1, config.r2, config.mu, config.grid_step)
 
 
+#: How far (m) inside the uneroded zone a lattice node must lie: a node on its boundary (possible with r_u = 0) could
+#: be rounded out of the zone when it is rotated to world coordinates, where the zone cost is decided.
+ZONE_MARGIN = 1e-6
+
+
 def zone_mask(offsets, r1: float, r2: float, mu: float, r_u: float = 0.0) -> np.ndarray:
-    """(L,) which target-frame offsets lie in the (eroded) zone.
+    """(L,) which target-frame offsets lie in the (eroded) zone, and at least :data:`ZONE_MARGIN` inside the
+    uneroded one (which only matters for r_u < ZONE_MARGIN).
 
     Decided in the target frame (q = 0, phi = 0), so the mask does not depend on q or phi -- not even
     through rounding of the rotation.
     """
-    return in_feasible_zone(offsets, (0.0, 0.0), 0.0, r1, r2, mu, r_u)
+    inside = in_feasible_zone(offsets, (0.0, 0.0), 0.0, r1, r2, mu, r_u)
+    return inside & (zone_distance(offsets, (0.0, 0.0), 0.0, r1, r2, mu) <= -ZONE_MARGIN)
 
 
 def to_world(offsets, q_xy, phi) -> np.ndarray:

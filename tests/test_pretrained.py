@@ -73,7 +73,7 @@ def test_export_card_round_trip(tmp_path, head, mode):
     assert len(set(s["per_scene_reward"].values())) == 2          # two scenes, two episodes: not a constant
 
 
-def test_rescore_scores_shipped_weights_on_the_current_env(tmp_path):
+def test_rescore_scores_shipped_weights_on_the_current_env(tmp_path, capsys):
     """After an env version bump the shipped weights are scored again: the card names the env it was scored on
     (the recipe keeps the one it was trained on) and its scenes' rewards are the harness's."""
     import shutil
@@ -83,20 +83,31 @@ def test_rescore_scores_shipped_weights_on_the_current_env(tmp_path):
     from training.pretrained.export import main as export_main
     from training.pretrained.export import rescore
 
+    import covert_env
+
     name = pretrained_names()[0]
     for ext in (".npz", ".json"):
         shutil.copy(PRETRAINED_DIR / f"{name}{ext}", tmp_path / f"{name}{ext}")
-    trained_on = json.loads((tmp_path / f"{name}.json").read_text())["recipe"]["env_id"]
+    old = json.loads((tmp_path / f"{name}.json").read_text())
+    old.update(env_id="covert_sensing_vector_v0", covert_env_version="0.0.1", commit="0" * 40)
+    (tmp_path / f"{name}.json").write_text(json.dumps(old))
     card = json.loads(rescore(name, 1, tmp_path, progress=False).read_text())
-    assert card["env_id"] == CovertSensingVectorEnv.metadata["name"] and card["recipe"]["env_id"] == trained_on
+    assert card["env_id"] == CovertSensingVectorEnv.metadata["name"] and card["recipe"] == old["recipe"]
+    assert card["covert_env_version"] == covert_env.__version__ and card["commit"] != "0" * 40
     assert card["scores"]["scenes"] == [1_000_000, 1_000_000]
     pol, settings = load_policy(f"pretrained:{name}", 3)
     assert card["scores"]["per_scene_reward"]["1000000"] == pytest.approx(evaluate(pol, settings, 1,
                                                                                    progress=False)[0]["reward"])
+    for argv, message in ((["--rescore", "nope"], "no nope.npz with its card"),
+                          ([str(tmp_path), "--rescore", name], "not both"),
+                          (["--rescore", name, "--note", "x"], "--note does not go with --rescore")):
+        with pytest.raises(SystemExit):
+            export_main([*argv, "--out-dir", str(tmp_path)])
+        assert message in capsys.readouterr().err
+    (tmp_path / f"{name}.json").write_text(json.dumps({"name": name}))
     with pytest.raises(SystemExit):
-        export_main(["--rescore", "nope", "--out-dir", str(tmp_path)])
-    with pytest.raises(SystemExit):
-        export_main([str(tmp_path), "--rescore", name, "--out-dir", str(tmp_path)])
+        export_main(["--rescore", name, "--out-dir", str(tmp_path)])
+    assert "no scores.scenes" in capsys.readouterr().err
 
 
 def test_bad_learned_specs_are_one_line_errors(tmp_path, capsys):

@@ -4,14 +4,16 @@ its observation maps, the start sampler and the DP planner's states all read it.
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from baselines.dp.planner import DPPlanner
-from covert_env import Config, Scenario, Terrain
+from covert_env import Config, Polytope, Scenario, Terrain
 from covert_env.envs.scene_cache import SceneCache
 from covert_env.envs.settings import EnvSettings
+from covert_env.families import family_config
 from covert_env.scenario import start_candidates
-from covert_env.visibility import SAFE_LOS_TOLERANCE, line_of_sight, visible_nodes
-from covert_env.zone import in_feasible_zone, to_world, zone_lattice
+from covert_env.visibility import LOS_TOLERANCE, line_of_sight, visible_nodes
+from covert_env.zone import in_feasible_zone, to_world, zone_distance, zone_lattice
 
 
 def _cache(sc: Scenario) -> SceneCache:
@@ -32,11 +34,16 @@ def test_env_mask_rows_are_the_planners_visible_nodes():
 
 
 def test_every_lattice_node_is_offered_without_terrain_whatever_the_heading():
-    """The lattice is in the eroded zone by construction (decided in the target frame): no heading may drop a
-    node by the rounding of the rotation to world coordinates (a second, world-frame zone test did, on the
-    eroded boundary), and the start sampler sees the same nodes."""
-    c = Config()
+    """The lattice is in the eroded zone by construction (decided in the target frame): on a scene without
+    polytopes the env offers every node at every slot and the start sampler sees every node, whatever the heading
+    (a second, world-frame zone test dropped nodes on the eroded boundary by rounding)."""
+    c = family_config("winding")                                 # a road that turns: many rotations
     lattice = zone_lattice(c)
+    sc = Scenario.random(1_000_005, c)
+    empty = Scenario(c, Terrain(), sc.track, sc.uav_xy, sc.uav_theta, name="empty")
+    assert _cache(empty).lattice_visible().all()
+    nodes, vis, shadowed = start_candidates(c, Terrain(), sc.track)
+    assert len(vis) == len(nodes) == len(lattice) and len(shadowed) == 0
     rng = np.random.default_rng(0)
     phi = rng.uniform(-np.pi, np.pi, 200)
     q = np.column_stack([rng.uniform(-500, 500, (200, 2)), np.full(200, c.target_height)])
@@ -44,6 +51,32 @@ def test_every_lattice_node_is_offered_without_terrain_whatever_the_heading():
     world = to_world(lattice, q[:, :2], phi)
     dropped = ~in_feasible_zone(world, q[:, None, :2], phi[:, None], c.r1, c.r2, c.mu, c.r_u)
     assert dropped.any()                                         # what the world-frame test would have removed
+    assert np.ptp(sc.track.headings) > 0.5
+
+
+@pytest.mark.parametrize("r_u", [0.0, 2.0])
+def test_no_offered_node_is_outside_the_zone_the_cost_checks(r_u):
+    """With r_u = 0 lattice nodes could lie on the zone's boundary, and the rotation to world coordinates round
+    them out of the zone the cost checks (zone_distance > 0): the lattice keeps ZONE_MARGIN inside it."""
+    c = Config(r_u=r_u)
+    lattice = zone_lattice(c)
+    rng = np.random.default_rng(1)
+    q = rng.uniform(-2000, 2000, (500, 2))
+    phi = rng.uniform(-np.pi, np.pi, 500)
+    assert (zone_distance(to_world(lattice, q, phi), q[:, None], phi[:, None], c.r1, c.r2, c.mu) <= 0).all()
+    assert len(zone_lattice(Config())) == 577                    # the default lattice (the action space) as before
+
+
+def test_the_mask_promises_more_than_scoring_needs():
+    """A sight line lying in a polytope's face plane touches it: clear when scored (touching is clear), but not a
+    visible node: the planner's and the mask's polytopes are grown by SAFE_LOS_TOLERANCE."""
+    box = Polytope(np.array([[10.0, -5.0], [20.0, -5.0], [20.0, 5.0], [10.0, 5.0]]),
+                   np.array([[10.0, -5.0, 40.0], [20.0, -5.0, 40.0], [20.0, 5.0, 40.0], [10.0, 5.0, 40.0]]))
+    terrain = Terrain([box])
+    q = np.array([0.0, 5.0, 1.5])                                 # the segment to (30, 5) runs in the face y = 5
+    assert line_of_sight(terrain, np.array([[30.0, 5.0]]), 80.0, q)[0]
+    assert not visible_nodes(terrain, np.array([[30.0, 0.0]]), q, 0.0, 80.0)[0]
+    assert visible_nodes(terrain, np.array([[30.0, 0.0]]), q, 0.0, 80.0, tol=LOS_TOLERANCE)[0]
 
 
 def test_maps_and_starts_read_the_same_rule():
@@ -61,14 +94,3 @@ def test_maps_and_starts_read_the_same_rule():
     at0 = visible_nodes(sc.terrain, zone_lattice(c), track.position(0), track.heading(0), c.altitude)
     assert set(vis) | set(shadowed) <= set(range(len(nodes)))
     assert at0[vis].all() and not at0[shadowed].any()
-
-
-def test_safe_tolerance_is_stricter_than_scoring():
-    """A node called visible is visible when scored (polytopes grown, not shrunk)."""
-    sc = Scenario.random(1_000_003)
-    c, track = sc.config, sc.track
-    lattice = zone_lattice(c)
-    q, phi = track.positions[:20], track.headings[:20]
-    safe = visible_nodes(sc.terrain, lattice, q, phi, c.altitude)
-    scored = line_of_sight(sc.terrain, to_world(lattice, q[:, :2], phi), c.altitude, q[:, None, :])
-    assert SAFE_LOS_TOLERANCE < 0 and not (safe & ~scored).any()

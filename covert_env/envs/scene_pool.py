@@ -37,7 +37,8 @@ class ScenePool:
     Attributes (rows R, slots T = track slots + 1, polytopes M, faces F, lattice nodes L):
         q (R, T, 3), phi (R, T): the target's track, clamped at its end like ``TargetTrack.position``.
         blocks (R, T, D) float32: the observation's shared block per slot (``SceneCache.shared_blocks``).
-        lattice_ok (R, T, L) bool: lattice nodes in the eroded zone with clear LoS (waypoint mode only).
+        lattice_ok (R, T, L) bool: the visible lattice nodes (eq. 10, :func:`~covert_env.visibility.visible_nodes`;
+            waypoint mode only).
         terrains: the scenes' terrains, row r the scene's (:class:`~covert_env.visibility.TerrainRows`).
         top (R, M, 3): polytope top points (eq. 3), padded with inf; centre (R, M, 2), radius (R, M): footprint
         circles (views of ``terrains``).

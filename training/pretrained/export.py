@@ -30,9 +30,11 @@ __all__ = ["export", "main", "rescore"]
 
 
 def _commit() -> str:
+    """The commit of the code that scores, with ``-dirty`` when the tree has uncommitted changes (then the scores
+    cannot be reproduced from the commit alone); "unknown" outside a git checkout."""
     try:
-        out = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=True,
-                             cwd=Path(__file__).resolve().parent)
+        out = subprocess.run(["git", "describe", "--always", "--abbrev=40", "--dirty"], capture_output=True,
+                             text=True, check=True, cwd=Path(__file__).resolve().parent)
         return out.stdout.strip()
     except (OSError, subprocess.CalledProcessError):
         return "unknown"
@@ -73,7 +75,11 @@ def rescore(name: str, episodes: int | None = None, out_dir: Path = PRETRAINED_D
     npz = Path(out_dir) / f"{name}.npz"
     card_path = npz.with_suffix(".json")
     card = json.loads(card_path.read_text())
-    first, last = card["scores"]["scenes"]
+    try:
+        first, last = card["scores"]["scenes"]
+    except (KeyError, TypeError, ValueError):
+        raise ValueError(f"{card_path}: no scores.scenes [first, last] to score again (not a card this module "
+                         "wrote)") from None
     card["scores"] = _scores(npz, name, episodes or last - first + 1, progress)
     card.update(env_id=CovertSensingVectorEnv.metadata["name"], covert_env_version=covert_env.__version__,
                 commit=_commit())
@@ -112,10 +118,18 @@ def main(argv: list[str] | None = None) -> int:
     if a.rescore is not None:
         if a.run is not None:
             p.error("give a run folder or --rescore NAME, not both")
+        for flag, value in (("--name", a.name != "mappo"), ("--note", a.note), ("--training-commit",
+                                                                               a.training_commit)):
+            if value:
+                p.error(f"{flag} does not go with --rescore (it rewrites only the card's scores, env id, version "
+                        "and commit)")
         stem = Path(a.out_dir) / a.rescore
         if not stem.with_suffix(".json").is_file() or not stem.with_suffix(".npz").is_file():
             p.error(f"--rescore {a.rescore}: no {a.rescore}.npz with its card in {a.out_dir}")
-        card = rescore(a.rescore, a.episodes, Path(a.out_dir))
+        try:
+            card = rescore(a.rescore, a.episodes, Path(a.out_dir))
+        except ValueError as exc:
+            p.error(str(exc))
     else:
         if a.run is None:
             p.error("give a training.mappo run folder, or --rescore NAME")
