@@ -18,10 +18,8 @@ candidates (``scenario.start_candidates``), the terrain's padded arrays (``visib
 whichever piece first needs them: counted inside it too), the pool's terrain rows (``TerrainRows.set_row``), the
 rest of the scene build, and the reset outside it. ``--functions N`` also prints the N functions by own time.
 
-Families come from ``covert_env.families.FAMILIES`` (name -> SceneFamily). A checkout without that module gets two
-stand-ins, Config overrides flown with ``vector_env(num_envs=B, n_uavs=3, config=Config(**overrides))``: "paper"
-(the paper's parameters, random scenes) and "dense" (48 polytopes); the script says so. The command line is
-printed first.
+Families come from ``covert_env.families.FAMILIES``, flown with ``vector_env(num_envs=B, n_uavs=3, family=NAME)``.
+The command line is printed first.
 """
 
 from __future__ import annotations
@@ -36,9 +34,6 @@ from pathlib import Path
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 # This checkout's covert_env, also when another copy is installed.
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-#: Stand-ins until covert_env.families exists: Config overrides per name.
-FALLBACK = [("paper", {}), ("dense", {"n_polytopes": 48})]
 
 #: Pieces of a scene build: (label, file, function); indented ones are inside the piece above.
 PARTS = (
@@ -56,16 +51,9 @@ PARTS = (
 
 def families(names: list[str] | None) -> list[tuple[str, dict]]:
     """(name, vector_env keyword arguments) of the families to measure (all of them without ``names``)."""
-    try:
-        from covert_env.families import FAMILIES
-    except ImportError:
-        from covert_env import Config
+    from covert_env.families import FAMILIES
 
-        print("covert_env.families is not in this checkout: stand-in families (Config overrides) "
-              + ", ".join(f"{n} {o or '(defaults)'}" for n, o in FALLBACK))
-        found = [(name, {"config": Config(**over)}) for name, over in FALLBACK]
-    else:
-        found = [(name, {"family": name}) for name in FAMILIES]
+    found = [(name, {"family": name}) for name in FAMILIES]
     if names:
         known = dict(found)
         missing = [n for n in names if n not in known]
