@@ -2,7 +2,7 @@
 
     python benchmarks/env_throughput.py [--seconds 4] [--episodes 2] [--rounds 2] [--mode unicycle|waypoint|both]
 
-The B = 1 comparison of issue 21. Ours, "default": ``covert_env.parallel_env()`` at its defaults (3 UAVs, a new
+The B = 1 comparison. Ours, "default": ``covert_env.parallel_env()`` at its defaults (3 UAVs, a new
 random training scene per episode, 70-slot episodes); "cached": the same env on the paper scene
 (``scenario="paper"``, 16 polytopes, built once). The peer: mpe2 ``simple_spread_v3`` (N=3, continuous actions)
 with ``max_cycles`` set to our episode length, so both run episodes of the same length. Every env is timed over
@@ -12,7 +12,7 @@ steps) builds only the first, untimed, episode's scene. Continuous actions are d
 figure measures the env, not ``Box.sample()`` (about 40 us per call here, the same for every env); masked discrete
 actions are drawn per step from the current mask (that cost is part of using the env). The envs run ``--rounds``
 times, interleaved, so load from other processes hits them alike; the table gives wall-clock and CPU-time
-env-steps/s and the ratios of the same run (default unicycle / mpe2: issue 21's target >= 1). The command line
+env-steps/s and the ratios of the same run (default unicycle / mpe2: target >= 1). The command line
 is printed first.
 
 mpe2 is optional; it goes in the peers' venv with VMAS (see benchmarks/vector_throughput.py)::
@@ -120,7 +120,7 @@ def main(argv=None) -> None:
         print(f"{name:<22} {wall:>12.0f} {cpu:>12.0f} {n:>11}")
     print(f"\n{'ratio (same run)':<30} {'wall':>6} {'CPU':>6}  target")
     for mode in ("unicycle", "waypoint"):
-        goal = ">= 1" if mode == "unicycle" else ""           # issue 21's target is for the defaults
+        goal = ">= 1" if mode == "unicycle" else ""           # the target is for the defaults
         for num, den, target in ((f"default {mode}", MPE, goal), (f"cached {mode}", MPE, ""),
                                  (f"default {mode}", f"cached {mode}", "")):
             if num in rate and den in rate:

@@ -4,7 +4,7 @@
         [--modes unicycle waypoint] [--scenes default cached] [--no-vmas] [--no-memory] [--profile]
     python benchmarks/vector_throughput.py --rss 1000000 [--rss-size 1024] [--rss-every 100000]
 
-The protocol of issue 21. Ours, "default": ``covert_env.vector_env(num_envs=B, n_uavs=3)`` at its defaults, a new
+The protocol: Ours, "default": ``covert_env.vector_env(num_envs=B, n_uavs=3)`` at its defaults, a new
 random training scene per episode (drawn from 10,000 seeds; the pool keeps B + 32 scenes, so a reset mostly builds
 new ones). "cached": the same env on the paper scene (``scenario="paper"``, 16 polytopes), built once. VMAS:
 ``navigation`` with 3 agents on the CPU, one torch thread, reset (all copies, one call) every 70 steps. Every
@@ -20,7 +20,7 @@ Each configuration runs ``--rounds`` times, interleaved with the others, so load
 them alike; the table gives wall-clock and CPU-time throughput (CPU time is what the process itself used, robust
 to a loaded machine), the resident memory per copy (RSS growth over building and stepping the env through an
 automatic reset, / B, in a fresh interpreter; ``--no-memory`` skips it), then the ratios of the same run:
-default / cached (issue 21's target >= 0.7), default / VMAS (target >= 2), cached / VMAS, waypoint / unicycle.
+default / cached (target >= 0.7), default / VMAS (target >= 2), cached / VMAS, waypoint / unicycle.
 The command line is printed first.
 
 ``--profile`` also profiles one episode of each of our configurations at the largest B: the share of a step each
