@@ -6,6 +6,7 @@
     covert-env scene --paper --slot 0 --out paper.png        # the paper scenario
     covert-env animate                                       # the DP team flying: outputs/dp_team.gif
     covert-env animate --out docs/dp_team.gif                # regenerate the README's animation
+    covert-env scene-set --family downtown --scenes 20 --out downtown20.json   # scenes as data, to share
 
 ``reproduce`` and ``evaluate`` live in ``baselines`` and ``training`` (imported only when called).
 
@@ -41,6 +42,7 @@ from covert_env.command_line import (  # noqa: F401
     run_main,
 )
 from covert_env.config import Config
+from covert_env.families import FAMILIES
 from covert_env.scenario import Scenario
 
 __all__ = ["main", "build_parser"]
@@ -136,7 +138,33 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fps", type=int_range(1, 50), default=6, help="frames per second, in [1, 50] (default: 6)")
     p.add_argument("--config", default=None, help="a Config JSON file (default: the paper's parameters)")
     p.set_defaults(func=_animate, subparser=p)
+    p = sub.add_parser("scene-set", help="write a scene family's held-out scenes to a JSON file (covert_env.scene_set)",
+                       description="Write a scene family's first held-out scenes (or given seeds) to one JSON file: "
+                                   "terrain, road, target track and starts, read back bit for bit by "
+                                   "SceneSet.load and by covert-env evaluate --scene-set.")
+    p.add_argument("--family", choices=list(FAMILIES), default="paper", help="scene family (default: paper)")
+    p.add_argument("--scenes", type=int_range(1, MAX_SCENES), default=20,
+                   help=f"the family's first held-out scenes, in [1, {MAX_SCENES}] (default: 20)")
+    p.add_argument("--seeds", type=non_negative_int, nargs="+", default=None,
+                   help="these scene seeds instead of the first held-out ones")
+    p.add_argument("--n-uavs", type=int_range(1, 64), default=3, help="team size of the starts (default: 3)")
+    p.add_argument("--out", required=True, help="JSON file to write (its folder is created)")
+    p.set_defaults(func=_scene_set, subparser=p)
     return parser
+
+
+def _scene_set(args: argparse.Namespace) -> int:
+    from covert_env.scene_set import SceneSet
+
+    out = output_file(args.out, suffixes=("json",))
+    try:
+        scenes = SceneSet.generate(args.family, args.scenes, seeds=args.seeds, config=Config(n_uavs=args.n_uavs))
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    scenes.save(out)
+    print(f"wrote {out}: {len(scenes)} scenes of family {args.family} (seeds {scenes.seeds[0]} .. "
+          f"{scenes.seeds[-1]}), {out.stat().st_size / 1e6:.1f} MB")
+    return 0
 
 
 _FORWARDED = {"reproduce": "baselines.reproduce", "evaluate": "training.evaluate"}

@@ -45,6 +45,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import csv
+import hashlib
 import json
 import math
 import sys
@@ -66,6 +67,7 @@ from covert_env.command_line import (
 from covert_env.envs.covert_sensing import CovertSensingParallelEnv
 from covert_env.envs.vector import MAX_SCENE_SEED
 from covert_env.families import FAMILIES, HELD_OUT_SEEDS
+from covert_env.scene_set import SceneSet
 from training.pretrained import PRETRAINED_DIR, load_learned, pretrained_names
 from training.rllib_ppo import load_policy as load_rllib
 from training.runs import read_run_json, run_env
@@ -307,12 +309,16 @@ def _team_row(result: dict) -> dict:
 
 
 def evaluate(policy, settings: dict, episodes: int, seed_offset: int = HELD_OUT_OFFSET,
-             env_kwargs: dict | None = None, progress: bool = True, label: str | None = None) -> list[dict]:
-    """Run ``policy`` on held-out scenes ``seed_offset + i`` and return one metrics row per episode."""
+             env_kwargs: dict | None = None, progress: bool = True, label: str | None = None,
+             scenes: SceneSet | None = None) -> list[dict]:
+    """Run ``policy`` on held-out scenes ``seed_offset + i`` (or on the first ``episodes`` scenes of ``scenes``, each
+    reset with its seed, or its index for a hand-made set) and return one metrics row per episode."""
     kw = dict(env_kwargs or {})
     kw.update(n_uavs=settings["n_uavs"], action_mode=settings["action_mode"])
     if "map_size" in settings:
         kw["map_size"] = settings["map_size"]
+    if scenes is not None:
+        return _evaluate_set(policy, kw, scenes, episodes, progress, label)
     env = CovertSensingParallelEnv(**kw)
     rows = []
     it = range(episodes)
@@ -328,6 +334,26 @@ def evaluate(policy, settings: dict, episodes: int, seed_offset: int = HELD_OUT_
         row["scene_seed"] = s
         rows.append(row)
     env.close()
+    return rows
+
+
+def _evaluate_set(policy, kw: dict, scenes: SceneSet, episodes: int, progress: bool, label: str | None) -> list[dict]:
+    """:func:`evaluate` on a scene set: one env per scene (a scene is the env's fixed scenario)."""
+    kw.pop("family", None)
+    rows = []
+    it = range(episodes)
+    if progress:
+        from tqdm.auto import tqdm
+
+        it = tqdm(it, desc=label or getattr(policy, "name", "policy"), leave=False, file=sys.stderr,
+                  mininterval=1.0 if sys.stderr.isatty() else 30.0)
+    for i in it:
+        s = scenes.seeds[i] if scenes.seeds is not None else i
+        env = CovertSensingParallelEnv(scenario=scenes[i], **kw)
+        row = _team_row(run_episode(policy, env, seed=s))
+        row["scene_seed"] = s
+        rows.append(row)
+        env.close()
     return rows
 
 
@@ -359,8 +385,10 @@ def write_outputs(results: dict[str, dict], out: Path, meta: dict) -> None:
             for row in r["rows"]:
                 w.writerow([name] + [row.get(k, "") for k in keys])
     family = f", family {meta['family']}" if meta.get("family") else ""
-    lines = [f"# Leaderboard: {meta['episodes']} held-out scenes (scene seeds {meta['seed_offset']} .. "
-             f"{meta['seed_offset'] + meta['episodes'] - 1}{family}), {meta['n_uavs']} UAV(s)", "",
+    where = (f"scenes of scene set {meta['scene_set']}" if meta.get("scene_set") else
+             f"held-out scenes (scene seeds {meta['seed_offset']} .. {meta['seed_offset'] + meta['episodes'] - 1}"
+             f"{family})")
+    lines = [f"# Leaderboard: {meta['episodes']} {where}, {meta['n_uavs']} UAV(s)", "",
              "Mean ± std over episodes of the team-mean per-UAV metrics (covert_env.metrics.episode_metrics); "
              "episode reward = env default reward, mean over UAVs. Lower is better except reward, disguise and "
              "min separation.", "",
@@ -469,6 +497,10 @@ def build_parser(prog: str = "python -m training.evaluate") -> argparse.Argument
                    help=f"first held-out scene seed, in [0, {MAX_SCENE_SEED - MAX_SCENES}]")
     p.add_argument("--family", choices=list(FAMILIES), default="paper",
                    help="scene family (covert_env.families) of the held-out scenes")
+    p.add_argument("--scene-set", metavar="FILE", default=None,
+                   help="fly the first --episodes scenes of this scene set file (covert_env.scene_set; "
+                        "covert-env scene-set writes one) instead of held-out seeds; not with --family or "
+                        "--seed-offset")
     p.add_argument("--out", default="outputs/leaderboard", help="output folder (git-ignored outputs/)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.add_argument("--trust-checkpoint", action="store_true",
@@ -489,6 +521,25 @@ def main(argv: list[str] | None = None, prog: str = "python -m training.evaluate
     args = parser.parse_args(argv)
     argv = list(argv if argv is not None else sys.argv[1:])
     return run_main(parser, lambda: _main(args, f"{prog} " + " ".join(argv)))
+
+
+def _scene_set(args: argparse.Namespace) -> SceneSet | None:
+    """The ``--scene-set`` file, checked against the other flags (one error line for a bad file or combination)."""
+    if args.scene_set is None:
+        return None
+    if args.family != "paper" or args.seed_offset != HELD_OUT_OFFSET:
+        raise UsageError("--scene-set FILE holds its scenes: --family and --seed-offset do not go with it")
+    try:
+        scenes = SceneSet.load(args.scene_set)
+    except (OSError, ValueError) as exc:
+        raise UsageError(f"--scene-set: {exc}") from None
+    if len(scenes) < args.episodes:
+        raise UsageError(f"--scene-set {args.scene_set} has {len(scenes)} scenes, fewer than --episodes "
+                         f"{args.episodes}; pass --episodes {len(scenes)}")
+    if scenes[0].n_uavs != args.n_uavs:
+        raise UsageError(f"--scene-set {args.scene_set} has starts for {scenes[0].n_uavs} UAV(s), --n-uavs is "
+                         f"{args.n_uavs}; pass --n-uavs {scenes[0].n_uavs}")
+    return scenes
 
 
 def _check_team(n_uavs: int, seed: int, family: str | None = None) -> None:
@@ -542,12 +593,16 @@ def _cache_name(spec: str, args: argparse.Namespace) -> str:
     key = f"{spec}__{args.episodes}__{args.seed_offset}__{args.n_uavs}".replace("/", "_").replace("@", "-")
     if args.family != "paper":                 # the paper family's caches keep their names from before families
         key += f"__{args.family}"
+    if args.scene_set is not None:
+        key += f"__set-{hashlib.sha256(Path(args.scene_set).read_bytes()).hexdigest()[:16]}"
     return f"cache/{key}.json"
 
 
 def _main(args: argparse.Namespace, command: str) -> int:
 
-    _check_team(args.n_uavs, args.seed_offset, args.family)
+    scenes = _scene_set(args)
+    if scenes is None:
+        _check_team(args.n_uavs, args.seed_offset, args.family)
     caches = {spec: _cache_name(spec, args) for spec in args.policies if not spec.startswith(LEARNED_PREFIXES)}
     outputs = {"files": (*OUTPUT_FILES, *caches.values()), "folders": ("cache",) if caches else ()}
     output_dir(args.out, create=False, **outputs)
@@ -586,7 +641,7 @@ def _main(args: argparse.Namespace, command: str) -> int:
                 label = name if len(group) == 1 else f"{name} seed run {i + 1}"
                 for row in evaluate(member, settings, args.episodes, args.seed_offset,
                                     env_kwargs={"family": args.family}, progress=not args.no_progress,
-                                    label=label):
+                                    label=label, scenes=scenes):
                     rows.append({**row, "run": i} if len(group) > 1 else row)
             if builtin:
                 cache.parent.mkdir(parents=True, exist_ok=True)
@@ -598,7 +653,7 @@ def _main(args: argparse.Namespace, command: str) -> int:
               f"{s['occlusion_rate'][0]:.3f}  zone viol. {s['zone_violation_rate'][0]:.3f}  "
               f"({time.perf_counter() - t0:.0f} s)", flush=True)
     write_outputs(results, out, {"episodes": args.episodes, "seed_offset": args.seed_offset, "n_uavs": args.n_uavs,
-                                 "family": args.family, "command": command})
+                                 "family": args.family, "scene_set": args.scene_set, "command": command})
     (out / "results.json").write_text(json.dumps({n: {"summary": r["summary"], "settings": r["settings"],
                                                       "spec": r["spec"]} for n, r in results.items()}, indent=2))
     print(f"wrote {out / 'leaderboard.md'}, {out / 'leaderboard.csv'}, {out / 'comparison.png'}")
