@@ -497,7 +497,7 @@ def build_parser(prog: str = "python -m training.evaluate") -> argparse.Argument
                    help=f"first held-out scene seed, in [0, {MAX_SCENE_SEED - MAX_SCENES}]")
     p.add_argument("--family", choices=list(FAMILIES), default="paper",
                    help="scene family (covert_env.families) of the held-out scenes")
-    p.add_argument("--scene-set", metavar="FILE", default=None,
+    p.add_argument("--scene-set", metavar="FILE", default=argparse.SUPPRESS,            # none: held-out seeds
                    help="fly the first --episodes scenes of this scene set file (covert_env.scene_set; "
                         "covert-env scene-set writes one) instead of held-out seeds; not with --family or "
                         "--seed-offset")
@@ -519,6 +519,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m training.evaluate
 
     parser = build_parser(prog)
     args = parser.parse_args(argv)
+    args.scene_set = getattr(args, "scene_set", None)
     argv = list(argv if argv is not None else sys.argv[1:])
     return run_main(parser, lambda: _main(args, f"{prog} " + " ".join(argv)))
 
