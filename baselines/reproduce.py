@@ -180,7 +180,8 @@ def run(spec: RunSpec, config: Config | None = None) -> dict:
     for i, m in enumerate(metrics):
         st = out["status"][:, i]
         rec = {"run": spec.label, "scene": "paper" if spec.kind == "paper" else "heldout", "seed": spec.seed,
-               "family": None if spec.kind == "paper" else spec.family, "n_uavs": spec.n_uavs, "method": spec.method, "heading": spec.heading, "uav": i,
+               "family": None if spec.kind == "paper" else spec.family, "n_uavs": spec.n_uavs,
+               "method": spec.method, "heading": spec.heading, "uav": i,
                "slots": int(traj.n_slots)}
         rec.update(m)
         rec.update({

@@ -26,7 +26,8 @@ from covert_env import covert_sensing_v0, covert_sensing_v1, covert_sensing_v2  
 from covert_env.envs import env, parallel_env, raw_env, vector_env  # noqa: E402
 
 __all__ = ["Config", "Engine", "Polytope", "Road", "Scenario", "TargetTrack", "Terrain", "Trajectory",
-           "covert_sensing_v0", "covert_sensing_v1", "covert_sensing_v2", "env", "parallel_env", "raw_env", "vector_env"]
+           "covert_sensing_v0", "covert_sensing_v1", "covert_sensing_v2", "env", "parallel_env", "raw_env",
+           "vector_env"]
 
 
 def _register() -> None:

@@ -1,8 +1,8 @@
 """The retired v1 entry point: importable, but building an env raises an error saying what changed in v2.
 
-Results of v1 are not silently mixed with v2's: the waypoint action mask changed on the zone's eroded boundary (see
-the Version History of :class:`covert_env.envs.CovertSensingParallelEnv`). ``pip install "covert_env<0.6"`` still
-gives v1.
+Results of v1 are not silently mixed with v2's: random scenes come from another generator and the waypoint action
+mask changed on the zone's eroded boundary (see the Version History of
+:class:`covert_env.envs.CovertSensingParallelEnv`). ``pip install "covert_env<0.6"`` still gives v1.
 """
 
 from __future__ import annotations
@@ -10,13 +10,15 @@ from __future__ import annotations
 __all__ = ["env", "parallel_env", "raw_env", "V1_RETIRED"]
 
 V1_RETIRED = (
-    "covert_sensing_v1 was replaced by covert_sensing_v2 in covert_env 0.6.0: the waypoint action mask, the "
+    "covert_sensing_v1 was replaced by covert_sensing_v2 in covert_env 0.6.0: random scenes come from a new, batched "
+    "generator (every random scene differs; the paper scene does not), and the waypoint action mask, the "
     "observation maps and the start sampler read the planner's rule for the visible zone (eq. 10, "
-    "covert_env.visibility.visible_nodes): lattice nodes on the eroded zone's boundary, which v1 dropped by rounding, "
-    "are offered, and line of sight is decided with the polytopes grown by 1 micrometre. Seeded rollouts can differ "
-    "(waypoint masks; in both modes the maps and starts where a sight line grazes a polytope); rewards, costs and "
-    "dynamics are unchanged. Use covert_env.covert_sensing_v2 (or covert_env.parallel_env, "
-    "gym.make('covert_env/CovertSensing-v2'), covert_env.vector_env), or pip install 'covert_env<0.6' for v1.")
+    "covert_env.visibility.visible_nodes): lattice nodes on the eroded zone's boundary, which v1 dropped by "
+    "rounding, are offered, and line of sight is decided with the polytopes grown by 1 micrometre. Seeded rollouts "
+    "on random scenes differ; on the paper scene or a given Scenario they can (waypoint masks; in both modes the "
+    "maps and starts where a sight line grazes a polytope); rewards, costs and dynamics are unchanged. Use "
+    "covert_env.covert_sensing_v2 (or covert_env.parallel_env, gym.make('covert_env/CovertSensing-v2'), "
+    "covert_env.vector_env), or pip install 'covert_env<0.6' for v1.")
 
 
 def _retired(*args, **kwargs):

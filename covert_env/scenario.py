@@ -13,11 +13,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from covert_env.config import (MAX_N_UAVS, SCENE_ROAD_LEAD_IN, SCENE_ROAD_TAIL, Config, check_coordinates,
-                               short_repr)
-from covert_env.road import Road, TargetTrack
+from covert_env.config import MAX_N_UAVS, SCENE_ROAD_LEAD_IN, SCENE_ROAD_TAIL, Config, check_coordinates, short_repr
+from covert_env.generation import random_roads, random_terrains
 from covert_env.metrics import terrain_clearance
-from covert_env.terrain import Terrain
+from covert_env.road import Road, TargetTrack
+from covert_env.terrain import Polytope, Terrain
 from covert_env.visibility import visible_nodes
 from covert_env.zone import SPREAD_MARGIN, spread_nodes, to_world, zone_lattice
 
@@ -156,13 +156,11 @@ class Scenario:
 
     @classmethod
     def random_world(cls, seed: int, config: Config) -> tuple[Terrain, TargetTrack, np.random.Generator]:
-        """The terrain and track of :meth:`random` (seed), and the generator positioned to draw its starts.
+        """The terrain and track of :meth:`random` (seed), and the generator to draw its starts from.
 
-        Environments that draw their own starts use this and skip the seeded ones."""
-        rng = np.random.default_rng(seed)
-        road, track = cls._road_and_track(config, rng, noise_seed=seed)
-        terrain = Terrain.random(seed=rng, road=road, config=config)
-        return terrain, track, rng
+        Environments that draw their own starts use this (or :func:`random_worlds` for many) and skip the
+        seeded ones."""
+        return random_worlds([seed], config)[0]
 
     def sample_starts(self, rng: np.random.Generator | int, n_uavs: int | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Random start poses on the waypoint lattice at slot 0. Returns (xy (U, 2), theta (U,)).
@@ -196,6 +194,26 @@ class Scenario:
         u = self.n_uavs if n_uavs is None else n_uavs
         _check_team(u, "Scenario.sample_starts")
         return sample_starts_on(self.config, self.terrain, self.track, rng, u, self.name)
+
+
+def random_worlds(seeds, config: Config) -> list[tuple[Terrain, TargetTrack, np.random.Generator]]:
+    """:meth:`Scenario.random_world` of every seed, drawn as one batch (:mod:`covert_env.generation`): each scene
+    is the same whatever batch it is drawn in."""
+    seeds = [int(s) for s in seeds]
+    c = config
+    roads = random_roads(seeds, c, start=np.asarray(PAPER_TARGET_START, float) - (_ROAD_LEAD_IN, 0.0))
+    batch = random_terrains(seeds, roads, c)
+    out = []
+    for i, seed in enumerate(seeds):
+        polys = tuple(Polytope._prevalidated(batch.base[i, j, :kk], batch.top[i, j, :kk], frustum=True)
+                      for j, kk in enumerate(batch.n_vertices[i].tolist()))
+        road = Road(roads[i])
+        track = TargetTrack.constant(road, c.target_speed, c.n_slots + c.horizon + 1, delta=c.delta,
+                                     z=c.target_height, s0=_ROAD_LEAD_IN)
+        if c.prediction_error > 0:
+            track = track.with_speed_noise(c.prediction_error, _noise_generator(seed))
+        out.append((Terrain._checked(polys), track, np.random.default_rng(seed)))
+    return out
 
 
 def sample_starts_on(c: Config, terrain: Terrain, track: TargetTrack, rng: np.random.Generator, u: int,

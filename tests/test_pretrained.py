@@ -78,12 +78,11 @@ def test_rescore_scores_shipped_weights_on_the_current_env(tmp_path, capsys):
     (the recipe keeps the one it was trained on) and its scenes' rewards are the harness's."""
     import shutil
 
+    import covert_env
     from covert_env.envs.vector import CovertSensingVectorEnv
     from training.pretrained import PRETRAINED_DIR
     from training.pretrained.export import main as export_main
     from training.pretrained.export import rescore
-
-    import covert_env
 
     name = pretrained_names()[0]
     for ext in (".npz", ".json"):

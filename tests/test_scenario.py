@@ -147,11 +147,11 @@ def test_random_starts_visible_and_separated(seed):
     np.testing.assert_allclose(local / c.grid_step, np.round(local / c.grid_step), atol=1e-6)
 
 
-@pytest.mark.parametrize("seed", [41, 106, 196])
+@pytest.mark.parametrize("seed", [4, 12, 21])
 def test_starts_keep_clear_of_tall_tops(seed):
-    """Eq. 3 at the start. With tops up to 79 m (1 m below the flight altitude) some zone nodes of these scenes lie
-    within d_safe2 of a top (a start 4.6 m from one was drawn on scene 106); the starts a scene and the env place
-    never do, and stay d_safe1 apart (eq. 2)."""
+    """Eq. 3 at the start. With tops up to 79 m (1 m below the flight altitude) 25-28 zone nodes of these scenes
+    lie within d_safe2 of a top at slot 0; the starts a scene and the env place never do, and stay d_safe1 apart
+    (eq. 2)."""
     import covert_env
 
     c = Config(max_height=79.0)

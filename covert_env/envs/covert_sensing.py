@@ -179,17 +179,20 @@ class CovertSensingParallelEnv(ParallelEnv):
 
     ## Version History
 
-    * v2, covert_env 0.6.0: the waypoint action mask, the observation maps and the start sampler read the
-      planner's rule for the visible zone (eq. 10, :func:`covert_env.visibility.visible_nodes`): the lattice's nodes
-      are in the eroded zone by construction (decided in the target frame), so the nodes on its boundary that v1's
-      second, world-frame zone test dropped by rounding are offered (1,000 of 1,777,160 node-slots on held-out scenes
-      1,000,000-1,000,019 and training scenes 0-19), and LoS is decided with the polytopes grown by 1 µm
+    * v2, covert_env 0.6.0: random scenes (``scenario="random"``, ``Scenario.random``) are drawn by a batched
+      generator (:mod:`covert_env.generation`: B scenes per array operation, each a function of its seed alone),
+      so every random scene, its starts included, differs from v1's; the paper scene is unchanged. The waypoint
+      action mask, the observation maps and the start sampler read the planner's rule for the visible zone
+      (eq. 10, :func:`covert_env.visibility.visible_nodes`): the lattice's nodes are in the eroded zone by
+      construction (decided in the target frame), so the nodes on its boundary that v1's second, world-frame zone
+      test dropped by rounding are offered (on v1's held-out scenes 1,000,000-1,000,019 and training scenes 0-19:
+      1,000 of 1,777,160 node-slots), and LoS is decided with the polytopes grown by 1 µm
       (:data:`~covert_env.visibility.SAFE_LOS_TOLERANCE`) instead of shrunk by 10 nm (no mask, map or start
-      changed on those scenes). With ``r_u`` below 1 µm the lattice leaves out the nodes on the zone's
-      boundary, which the rotation could round out of the zone (``zone.ZONE_MARGIN``). Seeded rollouts can differ
-      from v1: in waypoint mode through the mask, in both modes through the maps and the starts (none of those
-      changed on the scenes above); rewards, costs and dynamics are unchanged. ``covert_sensing_v1`` and the v1
-      ids raise an error that says this.
+      changed on those scenes). With ``r_u`` below 1 µm the lattice leaves out the nodes on the zone's boundary,
+      which the rotation could round out of the zone (``zone.ZONE_MARGIN``). On a fixed scene (the paper's, a
+      ``Scenario``) seeded rollouts can differ from v1 in waypoint mode through the mask, in both modes through
+      the maps and the starts; rewards, costs and dynamics are unchanged. ``covert_sensing_v1`` and the v1 ids
+      raise an error that says this.
     * v1, covert_env 0.5.0 (no number of a valid seeded rollout changed): calls out of order raise alike in
       every env kind (``render()`` before ``reset()`` returned None, ``step()`` after ``close()`` went on);
       ``penalties`` items are validated; the AEC env checks an action at its agent's ``step()``; coordinates,

@@ -32,11 +32,11 @@ class SceneCache:
     """
 
     def __init__(self, scenario: Scenario | None, map_offsets: np.ndarray, map_in_zone: np.ndarray,
-                 lattice: np.ndarray, *, seed: int | None = None, config: Config | None = None):
+                 lattice: np.ndarray, *, seed: int | None = None, config: Config | None = None, world=None):
         if scenario is None:
-            # A random scene: build the world now, its seeded starts only if a reset asks for them
-            # (training resets draw their own starts).
-            terrain, track, self._rng = Scenario.random_world(seed, config)
+            # A random scene (``world``: its terrain, track and starts generator, if drawn with others in a batch):
+            # its seeded starts only if a reset asks for them (training resets draw their own starts).
+            terrain, track, self._rng = Scenario.random_world(seed, config) if world is None else world
             self.parts = World(config, terrain, track, f"random-{seed}")
         else:
             self.parts = World(scenario.config, scenario.terrain, scenario.track, scenario.name)

@@ -19,7 +19,7 @@ import numpy as np
 from covert_env.envs.observation import shared_block_size
 from covert_env.envs.scene_cache import SceneCache
 from covert_env.metrics import terrain_clearance
-from covert_env.scenario import Scenario, pick_starts, start_candidates
+from covert_env.scenario import Scenario, pick_starts, random_worlds, start_candidates
 from covert_env.visibility import LOS_TOLERANCE, TerrainRows, grown
 
 __all__ = ["ScenePool"]
@@ -51,6 +51,7 @@ class ScenePool:
         self._rows: OrderedDict = OrderedDict()          # key -> row, least recently used first
         self._caches: list[SceneCache | None] = []
         self._start_nodes: list[tuple | None] = []
+        self._worlds: dict = {}                          # seed -> a random scene drawn in a batch, not yet built
         d = shared_block_size(len(map_offsets))
         self.q, self.phi = np.zeros((0, 1, 3)), np.zeros((0, 1))
         self.blocks = np.zeros((0, 1, d), np.float32)
@@ -112,10 +113,14 @@ class ScenePool:
         c = self.config
         xy, theta = np.empty((len(idx), n_uavs, 2)), np.empty((len(idx), n_uavs))
         rows[idx] = -1
+        seeds = [None if scene_seeds is None else int(scene_seeds[n]) for n in range(len(idx))]
+        if self.spec == "random":
+            # Every copy's seed first (from its own generator), then the missing scenes as one batch.
+            seeds = [int(rng.integers(scene_pool)) if s is None else s for s, rng in zip(seeds, rngs, strict=True)]
+            new = list(dict.fromkeys(s for s in seeds if self.key(s) not in self._rows))
+            self._worlds = dict(zip(new, random_worlds(new, c), strict=True)) if new else {}
         for n, (j, rng) in enumerate(zip(idx, rngs, strict=True)):
-            s = None if scene_seeds is None else int(scene_seeds[n])
-            if s is None and self.spec == "random":
-                s = int(rng.integers(scene_pool))
+            s = seeds[n]
             rows[j] = row = self.row(self.key(s), rows)
             if draw_starts:
                 xy[n], theta[n] = pick_starts(c, *self.start_candidates(row), rng, n_uavs, self.cache(row).parts.name)
@@ -138,7 +143,8 @@ class ScenePool:
             sc, seed = Scenario.paper(c), None
         else:
             sc, seed = None, key
-        return SceneCache(sc, self._map_offsets, self._map_in_zone, self.lattice, seed=seed, config=c)
+        world = self._worlds.pop(seed, None) if seed is not None else None
+        return SceneCache(sc, self._map_offsets, self._map_in_zone, self.lattice, seed=seed, config=c, world=world)
 
     def _fill(self, r: int, cache: SceneCache) -> None:
         w, c = cache.parts, self.config

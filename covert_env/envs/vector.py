@@ -156,8 +156,9 @@ class CovertSensingVectorEnv:
 
     ## Version History
 
-    * v2, covert_env 0.6.0: the task and numbers of ``covert_sensing_v2`` (the waypoint mask, observation maps
-      and start candidates of eq. 10's one rule, :func:`covert_env.visibility.visible_nodes`).
+    * v2, covert_env 0.6.0: the task and numbers of ``covert_sensing_v2`` (random scenes from the batched
+      generator, :mod:`covert_env.generation`, drawn for every copy that needs one in one batch; the waypoint
+      mask, observation maps and start candidates of eq. 10's one rule, :func:`covert_env.visibility.visible_nodes`).
     * v1: initial release (the task and numbers of ``covert_sensing_v1``). covert_env 0.3.0 added
       ``autoreset_mode``, ``record`` and the copy readers; 0.4.0 added the read-only ``waypoint_paths``; 0.5.0
       checks copy indices (``scene(-1)`` returned the last copy), raises on ``action_masks()`` before ``reset()``

@@ -1,0 +1,101 @@
+"""Batched scene generation (covert_env.generation): counter-based draws, scenes independent of their batch and
+process, the exact footprint gap, and the generator's invariants on every polytope (against shapely)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import shapely
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from shapely.geometry import LineString, Polygon
+
+from covert_env import Config, Scenario
+from covert_env.families import family_config
+from covert_env.generation import MIN_GAP, polygon_gap, random_roads, random_terrains, uniforms
+from covert_env.scenario import random_worlds
+from covert_env.terrain import Polytope, Terrain
+
+
+def test_uniforms_are_a_function_of_seed_stream_and_index():
+    a = uniforms(np.array([5, 6, 5]), 3, 1000)
+    assert a.shape == (3, 1000) and (a >= 0).all() and (a < 1).all()
+    np.testing.assert_array_equal(a[0], a[2])                               # same seed, same numbers
+    assert not np.array_equal(a[0], a[1]) and not np.array_equal(a[0], uniforms([5], 4, 1000)[0])
+    np.testing.assert_array_equal(uniforms([5], 3, 10)[0], a[0, :10])       # a prefix of the same stream
+    assert abs(a.mean() - 0.5) < 0.02 and abs(a.std() - 12 ** -0.5) < 0.02
+    code = "from covert_env.generation import uniforms; print(uniforms([123456789], 7, 4).tolist())"
+    runs = {subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                           env={**os.environ, "PYTHONHASHSEED": str(h)}).stdout for h in (1, 2)}
+    assert runs == {str(uniforms([123456789], 7, 4).tolist()) + "\n"}
+
+
+def test_a_scene_does_not_depend_on_its_batch():
+    c = family_config("dense")
+    seeds = [7, 1_000_003, 42, 7]
+    batch = random_worlds(seeds, c)
+    for i in (1, 2):
+        alone = random_worlds([seeds[i]], c)[0]
+        assert all(np.array_equal(p.vertices, q.vertices) for p, q in zip(batch[i][0], alone[0], strict=True))
+        np.testing.assert_array_equal(batch[i][1].road.points, alone[1].road.points)
+    assert all(np.array_equal(p.vertices, q.vertices) for p, q in zip(batch[0][0], batch[3][0], strict=True))
+    sc = Scenario.random(42, c)
+    assert all(np.array_equal(p.vertices, q.vertices) for p, q in zip(sc.terrain, batch[2][0], strict=True))
+
+
+def _convex(rng, n, centre, r):
+    ang = np.sort(rng.uniform(0, 2 * np.pi, n))
+    return centre + r * np.column_stack([np.cos(ang), 0.5 * np.sin(ang)])
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), v=st.integers(3, 9))
+def test_polygon_gap_is_shapelys_distance(seed, v):
+    """Padded convex polygons (the last vertex repeated) at every relation: apart, touching-close, overlapping."""
+    rng = np.random.default_rng(seed)
+    n = 40
+    p, q = np.empty((n, v, 2)), np.empty((n, v, 2))
+    for i in range(n):
+        k1, k2 = rng.integers(3, v + 1, 2)
+        a = _convex(rng, k1, rng.uniform(-5, 5, 2), rng.uniform(1, 6))
+        b = _convex(rng, k2, rng.uniform(-15, 15, 2) if i % 2 else rng.uniform(-3, 3, 2), rng.uniform(1, 6))
+        p[i] = np.vstack([a, np.repeat(a[-1:], v - k1, axis=0)])
+        q[i] = np.vstack([b, np.repeat(b[-1:], v - k2, axis=0)])
+    want = shapely.distance(shapely.polygons(p), shapely.polygons(q))
+    np.testing.assert_allclose(polygon_gap(p, q), want, atol=1e-9)
+    assert (want == 0).any() and (want > 0).any()
+
+
+@pytest.mark.parametrize("name", ["paper", "downtown", "towers"])
+def test_generated_polytopes_keep_the_invariants(name):
+    """Every polytope valid for the full Polytope validator (convex CCW base, top inside it), footprints MIN_GAP
+    apart, circumcircles road_clearance from the road, tops in [min_height, max_polytope_height]."""
+    c = family_config(name)
+    seeds = np.arange(1_000_000, 1_000_012)
+    roads = random_roads(seeds, c)
+    batch = random_terrains(seeds, roads, c)
+    for i in range(len(seeds)):
+        polys = [Polytope(batch.base[i, j, :kk], batch.top[i, j, :kk])                # the full validator
+                 for j, kk in enumerate(batch.n_vertices[i])]
+        Terrain(polys).validate(c.altitude)
+        fps = [Polygon(p.base) for p in polys]
+        gaps = shapely.distance(np.array(fps)[:, None], np.array(fps)[None])
+        np.fill_diagonal(gaps, np.inf)
+        assert gaps.min() >= MIN_GAP - 1e-9
+        road = LineString(roads[i])
+        d = shapely.distance(shapely.points(batch.centre[i]), road)
+        assert (d >= batch.radius[i] + c.road_clearance - 1e-9).all()
+        assert max(np.linalg.norm(p.base - ctr, axis=1).max() - r for p, ctr, r in
+                   zip(polys, batch.centre[i], batch.radius[i], strict=True)) <= 1e-9
+        z = np.concatenate([p.top[:, 2] for p in polys])
+        assert z.min() >= c.min_height - 1e-9 and z.max() <= c.max_polytope_height + 1e-9
+
+
+def test_a_scene_that_cannot_be_filled_is_named():
+    c = Config(n_polytopes=150)
+    with pytest.raises(ValueError, match=r"random scenes \[3\]: could not place all 150 polytopes"):
+        Scenario.random(3, c)
