@@ -11,12 +11,12 @@ scenes actually built). Scenes/s is scenes built per second of that reset, which
 and writes the first observations. A B = 2 reset of each family first warms the code paths.
 
 Then a cProfile (CPU time) of one reset at ``--profile-size`` per family: the share of the reset in the pieces of a
-scene build (cumulative time of each function): the terrain generator (``Terrain.random``), the road and the
-target's track (``Scenario._road_and_track``), the observation's per-slot maps (``SceneCache.shared_blocks``, of
-which ``SceneCache._maps``), the lattice visibility (``SceneCache.lattice_visible``, waypoint mode), the start
-candidates (``scenario.start_candidates``), the terrain's padded arrays (``visibility._build_arrays``, built by
-whichever piece first needs them: counted inside it too), the pool's terrain rows (``TerrainRows.set_row``), the
-rest of the scene build, and the reset outside it. ``--functions N`` also prints the N functions by own time.
+scene build (cumulative time of each function): the batch of new scenes (``scenario.random_worlds``: the batched
+generator's terrains and roads, then the scene objects and their line-of-sight arrays), the observation's per-slot
+maps (``SceneCache.shared_blocks``, of which ``SceneCache._maps``), the lattice visibility
+(``SceneCache.lattice_visible``, waypoint mode), the start candidates (``scenario.start_candidates``), the terrain's
+padded arrays where they are built polytope by polytope (``visibility._build_arrays``: the paper scene), the pool's
+terrain rows (``TerrainRows.set_row``), the rest of the scene build, and the reset outside it. ``--functions N`` also prints the N functions by own time.
 
 Families come from ``covert_env.families.FAMILIES``, flown with ``vector_env(num_envs=B, n_uavs=3, family=NAME)``.
 The command line is printed first.
@@ -37,8 +37,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 #: Pieces of a scene build: (label, file, function); indented ones are inside the piece above.
 PARTS = (
-    ("terrain generation (Terrain.random)", "terrain.py", "random"),
-    ("road and track (Scenario._road_and_track)", "scenario.py", "_road_and_track"),
+    ("random scenes drawn in one batch (scenario.random_worlds)", "scenario.py", "random_worlds"),
+    ("  terrain generation (generation.random_terrains)", "generation.py", "random_terrains"),
+    ("  roads (generation.random_roads)", "generation.py", "random_roads"),
     ("observation maps (SceneCache.shared_blocks)", "scene_cache.py", "shared_blocks"),
     ("  per-slot maps (SceneCache._maps)", "scene_cache.py", "_maps"),
     ("lattice visibility (SceneCache.lattice_visible)", "scene_cache.py", "lattice_visible"),
@@ -102,7 +103,7 @@ def profile_reset(name: str, b: int, mode: str, kwargs: dict, functions: int) ->
         return sum(ct for (f, _, fn), (_, _, _, ct, _) in stats.stats.items() if fn == func and f.endswith(file))
 
     reset = cum("vector.py", "reset")
-    scenes = cum("scene_pool.py", "_build") + cum("scene_pool.py", "_fill")
+    scenes = cum("scene_pool.py", "_build") + cum("scene_pool.py", "_fill") + cum("scenario.py", "random_worlds")
     n = max(built[0], 1)
     print(f"\nprofile: {name}, reset at B = {b} ({mode}), {built[0]} scenes built: {1e3 * reset / n:.2f} ms CPU per "
           f"scene (cProfile adds overhead, most to the many small calls of the generator), per scene and share:")

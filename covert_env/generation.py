@@ -22,7 +22,8 @@ import numpy as np
 
 from covert_env.config import SCENE_ROAD_LEAD_IN, SCENE_ROAD_TAIL, Config
 
-__all__ = ["MIN_GAP", "ROAD_STEP", "TerrainBatch", "polygon_gap", "random_roads", "random_terrains", "uniforms"]
+__all__ = ["MIN_GAP", "ROAD_STEP", "TerrainBatch", "frustum_faces", "polygon_gap", "random_roads", "random_terrains",
+           "uniforms"]
 
 #: Smallest gap (m) between two footprints (streets between buildings).
 MIN_GAP = 2.0
@@ -210,6 +211,34 @@ def _tops(base: np.ndarray, u: np.ndarray, zmin: float, zmax: float) -> np.ndarr
     z = np.clip(lam * (top_z / lam.max(1))[:, None], zmin, zmax)
     xy = base + lam[..., None] * (c[:, None] - base)
     return np.concatenate([xy, z[..., None]], axis=-1)
+
+
+def frustum_faces(base: np.ndarray, top: np.ndarray, k: np.ndarray) -> np.ndarray:
+    """(N, V + 2, 4) the faces ``[nx, ny, nz, d]`` (unit outward normals, ``n.x + d <= 0`` inside) of frustums with
+    padded bases (N, V, 2) and tops (N, V, 3), ``k`` (N,) real vertices: the base (z = 0), the planar top and one
+    planar side per base edge, in the order of ``Polytope.halfspaces`` for a frustum; the rest padded with the
+    always-true row ``[0, 0, 0, -1]``."""
+    n, v = base.shape[:2]
+    j = np.arange(v)
+    real = j[None] < k[:, None]
+    nj = np.where(j[None] + 1 < k[:, None], j[None] + 1, 0)                         # edge j ends at vertex j + 1
+    rows = np.arange(n)[:, None]
+    b1, t1 = base[rows, nj], top[rows, nj]
+    out = np.zeros((n, v + 2, 4))
+    out[:, 0, 2] = -1.0                                                              # the base, z = 0
+    top_n = np.stack([((top[..., 1] * t1[..., 2] - top[..., 2] * t1[..., 1]) * real).sum(1),      # Newell's
+                      ((top[..., 2] * t1[..., 0] - top[..., 0] * t1[..., 2]) * real).sum(1),      # normal
+                      ((top[..., 0] * t1[..., 1] - top[..., 1] * t1[..., 0]) * real).sum(1)], axis=-1)
+    out[:, 1, :3] = top_n / np.sqrt((top_n ** 2).sum(axis=1))[:, None]
+    out[:, 1, 3] = -(out[:, 1, :3] * ((top * real[..., None]).sum(1) / k[:, None])).sum(1)
+    e = b1 - base                                                                    # base edge j (z = 0)
+    w = top - np.concatenate([base, np.zeros((n, v, 1))], axis=-1)                   # base vertex j -> top vertex j
+    side = np.stack([e[..., 1] * w[..., 2], -e[..., 0] * w[..., 2], e[..., 0] * w[..., 1] - e[..., 1] * w[..., 0]],
+                    axis=-1)                                                         # e x w: outward (CCW base)
+    side /= np.maximum(np.sqrt((side ** 2).sum(axis=-1)), 1e-300)[..., None]
+    out[:, 2:, :3] = np.where(real[..., None], side, 0.0)
+    out[:, 2:, 3] = np.where(real, -(side[..., 0] * base[..., 0] + side[..., 1] * base[..., 1]), -1.0)
+    return out
 
 
 # ----------------------------------------------------------------------------- terrains

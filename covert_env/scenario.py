@@ -14,11 +14,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from covert_env.config import MAX_N_UAVS, SCENE_ROAD_LEAD_IN, SCENE_ROAD_TAIL, Config, check_coordinates, short_repr
-from covert_env.generation import random_roads, random_terrains
+from covert_env.generation import frustum_faces, random_roads, random_terrains
 from covert_env.metrics import terrain_clearance
 from covert_env.road import Road, TargetTrack
 from covert_env.terrain import Polytope, Terrain
-from covert_env.visibility import visible_nodes
+from covert_env.visibility import TerrainArrays, register_terrain_arrays, visible_nodes
 from covert_env.zone import SPREAD_MARGIN, spread_nodes, to_world, zone_lattice
 
 __all__ = ["Scenario", "PAPER_UAV_STARTS", "PAPER_SEED", "pick_starts", "sample_starts_on", "start_candidates",
@@ -203,16 +203,30 @@ def random_worlds(seeds, config: Config) -> list[tuple[Terrain, TargetTrack, np.
     c = config
     roads = random_roads(seeds, c, start=np.asarray(PAPER_TARGET_START, float) - (_ROAD_LEAD_IN, 0.0))
     batch = random_terrains(seeds, roads, c)
+    # The line-of-sight arrays of every scene at once (terrain_arrays would build them polytope by polytope).
+    base, top, k = batch.base, batch.top, batch.n_vertices
+    n, m, v = base.shape[:3]
+    faces = frustum_faces(base.reshape(-1, v, 2), top.reshape(-1, v, 3), k.reshape(-1)).reshape(n, m, v + 2, 4)
+    real = np.arange(v) < k[..., None]
+    centre = (base * real[..., None]).sum(2) / np.maximum(k, 1)[..., None]
+    radius = np.sqrt(((base - centre[:, :, None]) ** 2).sum(-1)).max(2, initial=0.0)
+    verts = np.concatenate([np.concatenate([base, np.zeros((n, m, v, 1))], axis=-1), top], axis=2)
+    pair_i, pair_j = np.triu_indices(2 * v, k=1)
     out = []
     for i, seed in enumerate(seeds):
-        polys = tuple(Polytope._prevalidated(batch.base[i, j, :kk], batch.top[i, j, :kk], frustum=True)
-                      for j, kk in enumerate(batch.n_vertices[i].tolist()))
+        f, b_i, t_i = faces[i].copy(), base[i].copy(), top[i].copy()       # a scene keeps no batch array alive
+        polys = tuple(Polytope._prevalidated(b_i[j, :kk], t_i[j, :kk], frustum=True, halfspaces=f[j, :kk + 2])
+                      for j, kk in enumerate(k[i].tolist()))
+        terrain = Terrain._checked(polys)
+        if m:
+            register_terrain_arrays(terrain, TerrainArrays(f, t_i[..., 2].max(1), b_i, centre[i].copy(),
+                                                           radius[i].copy(), verts[i].copy(), pair_i, pair_j))
         road = Road(roads[i])
         track = TargetTrack.constant(road, c.target_speed, c.n_slots + c.horizon + 1, delta=c.delta,
                                      z=c.target_height, s0=_ROAD_LEAD_IN)
         if c.prediction_error > 0:
             track = track.with_speed_noise(c.prediction_error, _noise_generator(seed))
-        out.append((Terrain._checked(polys), track, np.random.default_rng(seed)))
+        out.append((terrain, track, np.random.default_rng(seed)))
     return out
 
 

@@ -243,14 +243,15 @@ class Polytope:
 
     @classmethod
     def _prevalidated(cls, base: np.ndarray, top: np.ndarray, footprint: Polygon | None = None, *,
-                      frustum: bool = False) -> Polytope:
+                      frustum: bool = False, halfspaces: np.ndarray | None = None) -> Polytope:
         """A polytope from arrays that are valid by construction (the random generator's), skipping the
         checks of ``__post_init__`` (~0.2 ms each, most of a scene's build time). ``base`` must already be
         counter-clockwise; tests run every generated polytope through the full validator.
 
         ``frustum=True`` promises a planar top whose side quads ``base[j], base[j+1], top[j+1], top[j]`` are
         planar (a pyramid cut by a plane, see :func:`_random_top`): the faces are then written down
-        directly instead of by a convex hull (tests compare them with the hull's, within 1e-8)."""
+        directly instead of by a convex hull (tests compare them with the hull's, within 1e-8), or taken from
+        ``halfspaces`` when the caller computed them (the batched generator)."""
         obj = object.__new__(cls)
         b, t = np.array(base, dtype=float), np.array(top, dtype=float)
         b.setflags(write=False)
@@ -260,7 +261,7 @@ class Polytope:
         if footprint is not None:
             obj.__dict__["footprint"] = footprint      # the cached_property's slot
         if frustum:
-            obj.__dict__["halfspaces"] = _frustum_halfspaces(b, t)
+            obj.__dict__["halfspaces"] = _frustum_halfspaces(b, t) if halfspaces is None else halfspaces
             obj.__dict__["plan_view"] = b               # the top is cut from a pyramid over the base
         return obj
 

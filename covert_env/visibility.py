@@ -154,6 +154,12 @@ def terrain_arrays(terrain: Terrain) -> TerrainArrays:
     return arr
 
 
+def register_terrain_arrays(terrain: Terrain, arrays: TerrainArrays) -> None:
+    """Give :func:`terrain_arrays` the arrays of ``terrain`` built elsewhere (the batched generator builds them for
+    many scenes at once); they must describe the same polytopes."""
+    _CACHE[terrain] = arrays
+
+
 def _build_arrays(terrain: Terrain) -> TerrainArrays:
     m = len(terrain)
     if m == 0:

@@ -65,6 +65,7 @@ def test_polygon_gap_is_shapelys_distance(seed, v):
         b = _convex(rng, k2, rng.uniform(-15, 15, 2) if i % 2 else rng.uniform(-3, 3, 2), rng.uniform(1, 6))
         p[i] = np.vstack([a, np.repeat(a[-1:], v - k1, axis=0)])
         q[i] = np.vstack([b, np.repeat(b[-1:], v - k2, axis=0)])
+    q[0] = p[0] + 0.1                                                    # an overlapping pair, always
     want = shapely.distance(shapely.polygons(p), shapely.polygons(q))
     np.testing.assert_allclose(polygon_gap(p, q), want, atol=1e-9)
     assert (want == 0).any() and (want > 0).any()
@@ -99,3 +100,25 @@ def test_a_scene_that_cannot_be_filled_is_named():
     c = Config(n_polytopes=150)
     with pytest.raises(ValueError, match=r"random scenes \[3\]: could not place all 150 polytopes"):
         Scenario.random(3, c)
+
+
+def test_batched_faces_and_line_of_sight_arrays_describe_the_polytopes():
+    """The faces the batch computes equal each polytope's convex hull's (1e-8), and the line-of-sight arrays it
+    registers for a scene decide every sight line as arrays rebuilt from the polytopes do."""
+    from covert_env.visibility import line_of_sight
+
+    c = family_config("downtown")
+    terrain, track, _ = random_worlds([1_000_004], c)[0]
+    for p in list(terrain)[:12]:
+        hull = Polytope(p.base, p.top).halfspaces                  # from a convex hull, not the closed form
+        mine = p.halfspaces
+        assert len(hull) == len(mine)
+        assert all(np.abs(mine - h).max(axis=1).min() < 1e-8 for h in hull)
+    rebuilt = Terrain(list(terrain))                                # a new object: arrays built polytope by polytope
+    rng = np.random.default_rng(0)
+    q = track.positions[rng.integers(0, 70, 400)]
+    xy = q[:, :2] + rng.uniform(-110, 110, (400, 2))
+    for tol in (1e-8, -1e-6):
+        np.testing.assert_array_equal(line_of_sight(terrain, xy, c.altitude, q, tol=tol),
+                                      line_of_sight(rebuilt, xy, c.altitude, q, tol=tol))
+    assert not line_of_sight(terrain, xy, c.altitude, q).all()
