@@ -16,7 +16,8 @@ generator's terrains and roads, then the scene objects and their line-of-sight a
 maps (``SceneCache.shared_blocks``, of which ``SceneCache._maps``), the lattice visibility
 (``SceneCache.lattice_visible``, waypoint mode), the start candidates (``scenario.start_candidates``), the terrain's
 padded arrays where they are built polytope by polytope (``visibility._build_arrays``: the paper scene), the pool's
-terrain rows (``TerrainRows.set_row``), the rest of the scene build, and the reset outside it. ``--functions N`` also prints the N functions by own time.
+terrain rows (``TerrainRows.set_row``), the rest of the scene build, and the reset outside it. ``--functions N``
+also prints the N functions by own time.
 
 Families come from ``covert_env.families.FAMILIES``, flown with ``vector_env(num_envs=B, n_uavs=3, family=NAME)``.
 The command line is printed first.
