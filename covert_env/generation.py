@@ -25,7 +25,8 @@ from covert_env.config import SCENE_ROAD_LEAD_IN, SCENE_ROAD_TAIL, Config
 __all__ = ["MIN_GAP", "ROAD_STEP", "TerrainBatch", "frustum_faces", "polygon_gap", "random_roads", "random_terrains",
            "uniforms"]
 
-#: Smallest gap (m) between two footprints (streets between buildings).
+#: (decided) Smallest gap (m) between two footprints (streets between buildings); these rules are shared by the
+#: sequential generator (``Terrain.random``).
 MIN_GAP = 2.0
 #: Spacing (m) of a random road's points.
 ROAD_STEP = 2.0

@@ -33,6 +33,7 @@ from scipy.spatial import ConvexHull
 from shapely.geometry import LinearRing, Polygon
 
 from covert_env.config import MAX_N_POLYTOPES, Config, check_coordinates, read_json, short_repr
+from covert_env.generation import BUILDING_SHRINK, HILL_FRACTION, HILL_SHRINK, HILL_TILT, MIN_GAP
 from covert_env.road import Road
 
 __all__ = ["Polytope", "Terrain"]
@@ -349,13 +350,9 @@ class Polytope:
 
 
 # ---------------------------------------------------------------------------------- random generator
-_MIN_GAP = 2.0
-"""(decided) Minimum gap (m) between two random footprints (a street between buildings)."""
-_HILL_FRACTION = 0.4
-"""(decided) Share of random polytopes that are slanted "hills"; the rest are flat-topped buildings."""
-_BUILDING_SHRINK = (0.8, 0.95)
-_HILL_SHRINK = (0.35, 0.75)
-_HILL_TILT = (0.3, 0.8)
+# The generators' shared rules (one home: covert_env.generation).
+_MIN_GAP, _HILL_FRACTION = MIN_GAP, HILL_FRACTION
+_BUILDING_SHRINK, _HILL_SHRINK, _HILL_TILT = BUILDING_SHRINK, HILL_SHRINK, HILL_TILT
 _MAX_TRIES = 400
 
 

@@ -321,13 +321,7 @@ def evaluate(policy, settings: dict, episodes: int, seed_offset: int = HELD_OUT_
         return _evaluate_set(policy, kw, scenes, episodes, progress, label)
     env = CovertSensingParallelEnv(**kw)
     rows = []
-    it = range(episodes)
-    if progress:
-        from tqdm.auto import tqdm
-
-        it = tqdm(it, desc=label or getattr(policy, "name", "policy"), leave=False, file=sys.stderr,
-                  mininterval=1.0 if sys.stderr.isatty() else 30.0)
-    for i in it:
+    for i in _episodes(episodes, progress, label or getattr(policy, "name", "policy")):
         s = seed_offset + i
         res = run_episode(policy, env, seed=s, options={"scene_seed": s})
         row = _team_row(res)
@@ -337,17 +331,21 @@ def evaluate(policy, settings: dict, episodes: int, seed_offset: int = HELD_OUT_
     return rows
 
 
+def _episodes(episodes: int, progress: bool, label: str):
+    """``range(episodes)``, with a progress bar on stderr named ``label`` if asked."""
+    if not progress:
+        return range(episodes)
+    from tqdm.auto import tqdm
+
+    return tqdm(range(episodes), desc=label, leave=False, file=sys.stderr,
+                mininterval=1.0 if sys.stderr.isatty() else 30.0)
+
+
 def _evaluate_set(policy, kw: dict, scenes: SceneSet, episodes: int, progress: bool, label: str | None) -> list[dict]:
     """:func:`evaluate` on a scene set: one env per scene (a scene is the env's fixed scenario)."""
     kw.pop("family", None)
     rows = []
-    it = range(episodes)
-    if progress:
-        from tqdm.auto import tqdm
-
-        it = tqdm(it, desc=label or getattr(policy, "name", "policy"), leave=False, file=sys.stderr,
-                  mininterval=1.0 if sys.stderr.isatty() else 30.0)
-    for i in it:
+    for i in _episodes(episodes, progress, label or getattr(policy, "name", "policy")):
         s = scenes.seeds[i] if scenes.seeds is not None else i
         env = CovertSensingParallelEnv(scenario=scenes[i], **kw)
         row = _team_row(run_episode(policy, env, seed=s))
