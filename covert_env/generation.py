@@ -126,7 +126,8 @@ def _road_clear(centres: np.ndarray, scene: np.ndarray, idx: np.ndarray, roads: 
     a = roads[scene[:, None], win]
     ok = _segment_distance(centres[:, None], a, roads[scene[:, None], win + 1]).min(axis=1) >= need
     coarse_i = np.arange(0, roads.shape[1], COARSE)
-    far = (coarse_i[None] < lo[:, None] - COARSE) | (coarse_i[None] > lo[:, None] + 2 * WINDOW + 1 + COARSE)
+    # A road point outside the window lies within COARSE / 2 points of a coarse point that is not deep inside it.
+    far = (coarse_i[None] < lo[:, None] + COARSE) | (coarse_i[None] > lo[:, None] + 2 * WINDOW + 1 - COARSE)
     d2 = np.where(far, ((roads[scene[:, None], coarse_i] - centres[:, None]) ** 2).sum(-1), np.inf).min(axis=1)
     unsure = np.flatnonzero(ok & (d2 < (need + COARSE * ROAD_STEP / 2) ** 2))
     for part in np.array_split(unsure, max(1, len(unsure) // 256)):                  # a few MB per chunk

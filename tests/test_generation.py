@@ -122,3 +122,23 @@ def test_batched_faces_and_line_of_sight_arrays_describe_the_polytopes():
         np.testing.assert_array_equal(line_of_sight(terrain, xy, c.altitude, q, tol=tol),
                                       line_of_sight(rebuilt, xy, c.altitude, q, tol=tol))
     assert not line_of_sight(terrain, xy, c.altitude, q).all()
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 10**6), curvature=st.sampled_from([0.0, 1 / 120, 1 / 30, 0.1]))
+def test_road_clearance_test_equals_the_exact_distance(seed, curvature):
+    """The windowed and coarse road test decides as the distance to every segment does, also where a sharply
+    turning road comes back near a proposal (far along the road, outside its window)."""
+    from covert_env.generation import ROAD_STEP, _road_clear, _segment_distance
+
+    c = Config(road_max_curvature=curvature)
+    roads = random_roads([seed, seed + 1], c)
+    rng = np.random.default_rng(seed)
+    n = 600
+    scene = rng.integers(0, 2, n)
+    idx = rng.integers(0, roads.shape[1] - 1, n)
+    centres = roads[scene, idx] + rng.uniform(-60, 60, (n, 2))
+    need = rng.uniform(5, 45, n)
+    exact = _segment_distance(centres[:, None], roads[scene, :-1], roads[scene, 1:]).min(axis=1) >= need
+    np.testing.assert_array_equal(_road_clear(centres, scene, idx, roads, need), exact)
+    assert ROAD_STEP > 0 and exact.any() and not exact.all()
