@@ -139,7 +139,9 @@ class Scenario:
     def random(cls, seed: int, config: Config | None = None, n_uavs: int | None = None) -> Scenario:
         """A random scene: road, terrain and UAV starts drawn from ``seed``.
 
-        Starts are distinct grid nodes of the eroded zone at slot 0 with clear LoS, at least
+        Road and terrain come from the batched generator (:mod:`covert_env.generation`), the starts from
+        ``np.random.default_rng(seed)``: a scene is the same whether drawn alone or with others (the environments
+        draw the scenes a reset needs in one batch, :func:`random_worlds`). Starts are distinct grid nodes of the eroded zone at slot 0 with clear LoS, at least
         ``2 d_safe1`` apart, with headings drawn uniformly (with the fallbacks of :meth:`sample_starts`
         when shadows leave too little room).
 
