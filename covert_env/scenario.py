@@ -141,9 +141,9 @@ class Scenario:
 
         Road and terrain come from the batched generator (:mod:`covert_env.generation`), the starts from
         ``np.random.default_rng(seed)``: a scene is the same whether drawn alone or with others (the environments
-        draw the scenes a reset needs in one batch, :func:`random_worlds`). Starts are distinct grid nodes of the eroded zone at slot 0 with clear LoS, at least
-        ``2 d_safe1`` apart, with headings drawn uniformly (with the fallbacks of :meth:`sample_starts`
-        when shadows leave too little room).
+        draw the scenes a reset needs in one batch, :func:`random_worlds`). Starts are distinct grid nodes of the
+        eroded zone at slot 0 with clear LoS, at least ``2 d_safe1`` apart, with headings drawn uniformly (with the
+        fallbacks of :meth:`sample_starts` when shadows leave too little room).
 
         ``seed`` is an integer >= 0 (a numpy integer too); ``config`` a :class:`Config` or None (a dict
         is refused: build it with ``Config.from_dict``, which names unknown fields).
