@@ -81,20 +81,9 @@ class CovertSensingEnv(gym.Env):
 
     ## Version History
 
-    * v2, covert_env 0.6.0: random scenes (``scenario="random"``, ``Scenario.random``) are drawn by a batched
-      generator (:mod:`covert_env.generation`: B scenes per array operation, each a function of its seed alone),
-      so every random scene, its starts included, differs from v1's; the paper scene is unchanged. The waypoint
-      action mask, the observation maps and the start sampler read the planner's rule for the visible zone
-      (eq. 10, :func:`covert_env.visibility.visible_nodes`): the lattice's nodes are in the eroded zone by
-      construction (decided in the target frame), so the nodes on its boundary that v1's second, world-frame zone
-      test dropped by rounding are offered (on v1's held-out scenes 1,000,000-1,000,019 and training scenes 0-19:
-      1,000 of 1,777,160 node-slots), and LoS is decided with the polytopes grown by 1 µm
-      (:data:`~covert_env.visibility.SAFE_LOS_TOLERANCE`) instead of shrunk by 10 nm (no mask, map or start
-      changed on those scenes). With ``r_u`` below 1 µm the lattice leaves out the nodes on the zone's boundary,
-      which the rotation could round out of the zone (``zone.ZONE_MARGIN``). On a fixed scene (the paper's, a
-      ``Scenario``) seeded rollouts can differ from v1 in waypoint mode through the mask, in both modes through
-      the maps and the starts; rewards, costs and dynamics are unchanged. ``covert_sensing_v1`` and the v1 ids
-      raise an error that says this.
+    * v2, covert_env 0.6.0: random scenes from the batched generator and the waypoint mask of eq. 10's one rule,
+      as in the PettingZoo env this one wraps (its Version History,
+      :class:`~covert_env.envs.covert_sensing.CovertSensingParallelEnv`, says what changed and how much).
     * v1 (covert_env 0.2.0): infos are flat scalars with the same keys and types at reset and every step
       (``reward_terms[t]`` became ``reward_<t>``); constraint costs ``cost``, ``cost_los``, ``cost_zone``,
       ``cost_separation``, ``cost_terrain``; with ``dict_obs=True`` the action mask is only in the
