@@ -56,9 +56,11 @@ __all__ = [
     "clip_segments",
     "face_offsets",
     "face_values",
+    "growth_factors",
     "line_of_sight",
     "line_of_sight_rows",
     "visible_nodes",
+    "visible_nodes_rows",
     "visible_zone_cfg",
     "passes_near",
     "shadow_h_min",
@@ -128,12 +130,7 @@ class TerrainArrays:  # noqa: B903
         (padded) vertex list, a point inside the hull, r the radius of the ball about c inside the polytope
         (``min_f -(n_f.c + d_f)`` over the real faces, unit normals) and R the farthest vertex from c, the grown
         polytope lies inside the polytope scaled by ``1 + g / r`` about c."""
-        c = self.verts.mean(axis=1)                     # padding repeats a vertex: still inside the hull
-        depth = -(np.einsum("mfk,mk->mf", self.hs[..., :3], c) + self.hs[..., 3])
-        real = np.any(self.hs[..., :3] != 0.0, axis=2)  # not the always-true padding rows
-        r = np.where(real, depth, np.inf).min(axis=1)
-        big_r = np.linalg.norm(self.verts - c[:, None], axis=2).max(axis=1)
-        return big_r / np.maximum(r, 1e-12)
+        return growth_factors(self.hs, self.verts)
 
     @cached_property
     def faces(self) -> np.ndarray:
@@ -141,6 +138,17 @@ class TerrainArrays:  # noqa: B903
         :func:`clip_segments`, which reduces over the faces along the first axis)."""
         return np.ascontiguousarray(self.hs.transpose(2, 1, 0))
 
+
+
+def growth_factors(hs: np.ndarray, verts: np.ndarray) -> np.ndarray:
+    """(..., M) :attr:`TerrainArrays.growth_factor` of polytopes with half-spaces ``hs`` (..., M, F, 4) and padded
+    vertices ``verts`` (..., M, W, 3) (the batched generator's many scenes at once)."""
+    c = verts.mean(axis=-2)                             # padding repeats a vertex: still inside the hull
+    depth = -((hs[..., :3] * c[..., None, :]).sum(-1) + hs[..., 3])
+    real = np.any(hs[..., :3] != 0.0, axis=-1)          # not the always-true padding rows
+    r = np.where(real, depth, np.inf).min(axis=-1)
+    big_r = np.sqrt(((verts - c[..., None, :]) ** 2).sum(-1)).max(axis=-1)
+    return big_r / np.maximum(r, 1e-12)
 
 _CACHE: weakref.WeakKeyDictionary[Terrain, TerrainArrays] = weakref.WeakKeyDictionary()
 
@@ -500,6 +508,7 @@ class TerrainRows:
     Attributes (rows R, polytopes M, faces F):
         faces (4, F, R, M): the columns n_x, n_y, n_z, d of each polytope's half-spaces, faces first.
         cx, cy, radius, z_max (R, M): plan-view enclosing circles and heights; valid (R, M): real polytopes.
+        growth (R, M): :func:`growth_factors` (how far a negative tolerance grows each polytope, per metre).
         top (R, M, 3): polytope top points (eq. 3), padded with inf.
     """
 
@@ -507,6 +516,7 @@ class TerrainRows:
         self.capacity = capacity
         self.faces = np.zeros((4, 1, 0, 0))
         self.cx, self.cy, self.radius, self.z_max = (np.zeros((0, 0)) for _ in range(4))
+        self.growth = np.zeros((0, 0))
         self.valid = np.zeros((0, 0), bool)
         self.top = np.zeros((0, 0, 3))
         # The line of sight's inputs, packed so that a step gathers each in one call: (4, R, 1, M) the circle's
@@ -532,10 +542,19 @@ class TerrainRows:
     def set_row(self, r: int, terrain: Terrain) -> None:
         """Write ``terrain`` into row r (growing the arrays as needed)."""
         arr = terrain_arrays(terrain)
-        m, f = arr.hs.shape[:2]
+        self.set_rows(np.array([r]), arr.hs[None], arr.centre[None], arr.radius[None], arr.z_max[None],
+                      np.asarray(terrain.highest_points, float).reshape(1, -1, 3), arr.growth_factor[None])
+
+    def set_rows(self, rows: np.ndarray, hs: np.ndarray, centre: np.ndarray, radius: np.ndarray, z_max: np.ndarray,
+                 top: np.ndarray, growth: np.ndarray) -> None:
+        """Write N terrains of M polytopes each into ``rows`` (N,) (growing the arrays as needed): half-spaces ``hs``
+        (N, M, F, 4), footprint circles ``centre`` (N, M, 2) and ``radius`` (N, M), heights ``z_max`` (N, M), tops
+        ``top`` (N, M, 3) (eq. 3) and :func:`growth_factors` ``growth`` (N, M), as in :class:`TerrainArrays`."""
+        rows = np.asarray(rows, dtype=np.intp)
+        m, f = hs.shape[1:3]
         n = len(self)
-        if r >= n:                                          # grow geometrically: amortised O(1) per row
-            n = max(r + 1, min(2 * n, self.capacity))
+        if rows.max(initial=-1) >= n:                       # grow geometrically: amortised O(1) per row
+            n = max(int(rows.max()) + 1, min(2 * n, self.capacity))
         mm, ff = max(m, self.valid.shape[1]), max(f, self.faces.shape[1])
         pad = np.zeros((4, 1, 1))
         pad[3] = -1.0                                       # 0.x - 1 <= 0: always true
@@ -553,23 +572,30 @@ class TerrainRows:
             self._circles = circles
         self.cx, self.cy = grown(self.cx, (n, mm), 0.0), grown(self.cy, (n, mm), 0.0)
         self.radius, self.z_max = grown(self.radius, (n, mm), 0.0), grown(self.z_max, (n, mm), 0.0)
+        self.growth = grown(self.growth, (n, mm), 0.0)
         self.valid = grown(self.valid, (n, mm), False)
         self.top = grown(self.top, (n, mm, 3), np.inf)
-        self.faces[:, :, r] = pad
-        self.faces[3, 0, r, m:] = 1.0
-        self.faces[:, :f, r, :m] = arr.faces
-        self.cx[r], self.cy[r], self.radius[r], self.z_max[r], self.valid[r], self.top[r] = 0, 0, 0, 0, False, np.inf
-        self.cx[r, :m], self.cy[r, :m] = arr.centre[:, 0], arr.centre[:, 1]
-        self.radius[r, :m], self.z_max[r, :m], self.valid[r, :m] = arr.radius, arr.z_max, True
-        self.top[r, :m] = terrain.highest_points
+        block = np.empty((4, ff, len(rows), mm))
+        block[...] = pad[..., None]
+        block[3, 0, :, m:] = 1.0
+        block[:, :f, :, :m] = hs.transpose(3, 2, 0, 1)
+        self.faces[:, :, rows] = block
+        for a in (self.cx, self.cy, self.radius, self.z_max, self.growth):
+            a[rows] = 0.0
+        self.valid[rows], self.top[rows] = False, np.inf
+        self.cx[rows, :m], self.cy[rows, :m] = centre[..., 0], centre[..., 1]
+        self.radius[rows, :m], self.z_max[rows, :m], self.valid[rows, :m] = radius, z_max, True
+        self.growth[rows, :m], self.top[rows, :m] = growth, top
         # r' = (r + 1 nm)(1 + 1e-9): the circle grown by rounding slack (the broad phase must never drop a triple
         # the exact clip would block). No polytope: z_max = -inf, beyond every reach (and empty if kept anyway).
-        self._circles[:, r, 0] = np.array([0.0, 0.0, -np.inf, 0.0])[:, None]
-        self._circles[:, r, 0, :m] = arr.centre[:, 0], arr.centre[:, 1], arr.z_max, (arr.radius + 1e-9) * (1.0 + 1e-9)
-        for tol, table in self._tables.items():             # the kept tables: row r only
-            row = table.reshape(4, ff, n, mm)[:, :, r]
-            row[...] = self.faces[:, :, r]
-            row[3] += tol
+        circles = np.zeros((4, len(rows), 1, mm))
+        circles[2] = -np.inf
+        circles[:, :, 0, :m] = centre[..., 0], centre[..., 1], z_max, (radius + 1e-9) * (1.0 + 1e-9)
+        self._circles[:, rows] = circles
+        for tol, table in self._tables.items():             # the kept tables: these rows only
+            view = table.reshape(4, ff, n, mm)
+            view[:, :, rows] = block
+            view[3, :, rows] += tol
 
     def line_of_sight(self, rows: np.ndarray, uav_xy: np.ndarray, altitude: float, target_xyz: np.ndarray,
                       *, tol: float = LOS_TOLERANCE) -> np.ndarray:
@@ -647,6 +673,88 @@ class TerrainRows:
         blocked = clip_segments(val[:, 0], val[:, 1])
         out.reshape(-1)[bu[blocked]] = False
         return out
+
+
+def visible_nodes_rows(terrains: TerrainRows, rows, offsets, q, phi, altitude: float, *,
+                       tol: float = SAFE_LOS_TOLERANCE) -> np.ndarray:
+    """:func:`visible_nodes` of N scenes at T target poses each, scene n the terrain in row ``rows[n]`` of
+    ``terrains``: the vector env's scene pool computes the maps, start candidates and lattice visibility of every
+    scene a reset builds in one call.
+
+    The same decisions as :func:`visible_nodes` scene by scene: the same points (:func:`~covert_env.zone.to_world`)
+    and the same clip on the same face values (:func:`face_values`, :func:`clip_segments`); the broad phases only
+    drop pairs the clip finds clear. A (scene, slot, polytope) triple is kept when the polytope's footprint circle
+    (grown with a negative ``tol``) comes within reach of the part of a segment lower than its top (within
+    ``|p - q| (z_max - z_q) / (h - z_q)`` of the target q, |p - q| at most the slot's farthest node); then every
+    node of a kept triple whose segment's low part passes near the circle (:func:`passes_near`) is clipped.
+
+    Args:
+        terrains: the scenes' terrains; rows: (N,) their rows.
+        offsets: (L, 2) target-frame offsets of the nodes (inside the eroded zone).
+        q: (N, T, 3) target positions; phi: (N, T) headings; altitude: the UAVs' height h (above every q).
+        tol: the LoS tolerance (m), see :data:`SAFE_LOS_TOLERANCE`.
+
+    Returns:
+        (N, T, L) bool, True = clear line of sight.
+    """
+    rows = np.asarray(rows, dtype=np.intp)
+    q, phi, off = np.asarray(q, float), np.asarray(phi, float), np.asarray(offsets, float)
+    n_s, n_t = q.shape[:2]
+    out = np.ones((n_s, n_t, len(off)), dtype=bool)
+    if out.size == 0 or terrains.valid.shape[1] == 0:
+        return out
+    if not float(altitude) > q[..., 2].max():
+        raise ValueError(f"visible_nodes_rows: the altitude ({float(altitude):g} m) must be above every target")
+    chunk = max(1, (1 << 19) // (n_t * len(off)))       # scenes per block: a few MB per (nodes x 2) array
+    for a in range(0, n_s, chunk):
+        _visible_block(terrains, rows[a:a + chunk], off, q[a:a + chunk], phi[a:a + chunk], float(altitude), tol,
+                       out[a:a + chunk])
+    return out
+
+
+def _visible_block(terrains: TerrainRows, rows, off, q, phi, h: float, tol: float, out: np.ndarray) -> None:
+    """:func:`visible_nodes_rows` on a block of scenes, writing ``out`` (n, T, L). The broad phase is
+    :meth:`TerrainRows.line_of_sight`'s (a footprint circle's cone seen from the target, and the reach of the
+    segment's part lower than the top), with the circles grown by a negative ``tol``."""
+    xy = to_world(off, q[..., :2], phi)                                         # (n, T, L, 2)
+    ex, ey = xy[..., 0] - q[..., 0, None], xy[..., 1] - q[..., 1, None]         # (n, T, L) each
+    dist = np.sqrt(ex * ex + ey * ey)
+    scale = (1.0 + 1e-9) / np.maximum(dist, 1e-300)
+    ex, ey = ex * scale, ey * scale                                             # unit bearings, 1e-9 slack
+    grow = terrains.growth[rows] * -tol if tol < 0 else np.zeros(terrains.growth[rows].shape)
+    cx, cy, rad, z_max = (a[rows][:, None] for a in (terrains.cx, terrains.cy, terrains.radius, terrains.z_max))
+    grow = grow[:, None]                                                        # (n, 1, M) each
+    # Per (scene, slot, polytope): the circle relative to q, grown by rounding slack; e = g - r' (<= 0: q inside),
+    # the cone's threshold sqrt(g^2 - r'^2) and the reach d_min = e / low.
+    rx, ry = cx - q[..., 0, None], cy - q[..., 1, None]                         # (n, T, M)
+    r = (rad + grow + 1e-9) * (1.0 + 1e-9)
+    g = np.sqrt(rx * rx + ry * ry)
+    e = g - r
+    thr = np.where(e > 0.0, np.sqrt(np.maximum((g + r) * e, 0.0)), -np.inf)
+    low = np.maximum((z_max + grow - q[..., 2, None]) / (h - q[..., 2, None]), 1e-200)
+    d_min = e / low
+    near = d_min <= dist.max(axis=-1)[..., None]
+    near &= terrains.valid[rows][:, None]
+    i_s, i_t, i_m = np.nonzero(near)
+    if len(i_s) == 0:
+        return
+    # Per (triple, node): the node's bearing inside the cone and its segment long enough to reach the footprint.
+    hit = ex[i_s, i_t] * rx[i_s, i_t, i_m, None]
+    hit += ey[i_s, i_t] * ry[i_s, i_t, i_m, None]
+    hit = hit >= thr[i_s, i_t, i_m, None]
+    hit &= dist[i_s, i_t] >= d_min[i_s, i_t, i_m, None]
+    k, node = np.nonzero(hit)
+    if len(k) == 0:
+        return
+    n_m = terrains.valid.shape[1]
+    nx, ny, nz, dt = terrains._clip_table(tol).take(rows[i_s[k]] * n_m + i_m[k], axis=2)     # (F, K) each
+    pk, qq = xy[i_s[k], i_t[k], node], q[i_s[k], i_t[k]]
+    start = face_values(nx, ny, nz * h + dt, pk[:, 0], pk[:, 1])
+    off_q = nz * qq[:, 2]
+    off_q += dt
+    end = face_values(nx, ny, off_q, qq[:, 0], qq[:, 1])
+    blocked = clip_segments(start, end)
+    out[i_s[k[blocked]], i_t[k[blocked]], node[blocked]] = False
 
 
 def grown(arr: np.ndarray, shape: tuple, fill) -> np.ndarray:

@@ -14,6 +14,7 @@ from shapely.geometry import Point, Polygon
 from covert_env.config import Config
 from covert_env.terrain import Polytope, Terrain
 from covert_env.visibility import (
+    LOS_TOLERANCE,
     SAFE_LOS_TOLERANCE,
     line_of_sight,
     line_of_sight_rows,
@@ -480,3 +481,53 @@ def test_negative_tolerance_broad_phases_equal_the_all_pairs_clip(seed, tol, alt
     # Growing never clears a blocked segment.
     assert not (brute & ~np.concatenate([line_of_sight(terrain, pts[i:i + 5], altitude, q)
                                          for i in range(0, 400, 5)])).any()
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), tol=st.sampled_from([SAFE_LOS_TOLERANCE, LOS_TOLERANCE, -0.05, -0.5, -2.0]))
+def test_visible_nodes_rows_equal_visible_nodes_per_scene(seed, tol):
+    """The scene pool's batched eq. 10 (many scenes and slots per call) decides every node as visible_nodes does
+    scene by scene, on rows of different polytope counts (padding), rows overwritten by smaller terrains, targets
+    inside a footprint's circle, and grown polytopes (a broad phase that forgot the growth drops blocked nodes)."""
+    from covert_env.visibility import TerrainRows, terrain_arrays, visible_nodes, visible_nodes_rows
+    from covert_env.zone import zone_lattice
+
+    rng = np.random.default_rng(seed)
+    c = Config()
+    lattice = zone_lattice(c)[rng.permutation(len(zone_lattice(c)))[:120]]
+    terrains = [random_terrain(rng, int(rng.integers(1, 17))) for _ in range(4)]
+    rows = TerrainRows(capacity=8)
+    rows.set_row(5, random_terrain(rng, 16))                        # overwritten below by a smaller terrain
+    where = np.array([5, 0, 3, 1])
+    for r, t in zip(where, terrains, strict=True):
+        rows.set_row(int(r), t)
+    q = np.stack([[random_target(rng) for _ in range(6)] for _ in terrains])      # (4, 6, 3)
+    arr = terrain_arrays(terrains[0])
+    q[0, 0, :2] = arr.centre[0] + 0.3 * arr.radius[0]                # inside a footprint's circle
+    phi = rng.uniform(-np.pi, np.pi, (4, 6))
+    got = visible_nodes_rows(rows, where, lattice, q, phi, H, tol=tol)
+    want = np.stack([visible_nodes(t, lattice, q[n], phi[n], H, tol=tol) for n, t in enumerate(terrains)])
+    np.testing.assert_array_equal(got, want)
+    assert got.shape == (4, 6, len(lattice))
+
+
+def test_visible_nodes_rows_on_generated_scenes_blocks_and_equals_visible_nodes():
+    """On the batched generator's scenes of the most shadowed family, over whole tracks: the same decisions as
+    visible_nodes scene by scene, and shadows occur (the comparison is not all-clear)."""
+    from covert_env.families import family_config
+    from covert_env.scenario import random_worlds
+    from covert_env.visibility import TerrainRows, visible_nodes, visible_nodes_rows
+    from covert_env.zone import zone_lattice
+
+    c = family_config("downtown")
+    worlds = random_worlds(range(10, 16), c)
+    rows = TerrainRows(capacity=8)
+    for r, (terrain, _, _) in enumerate(worlds):
+        rows.set_row(r, terrain)
+    lattice = zone_lattice(c)[::4]
+    q = np.stack([track.positions[:40] for _, track, _ in worlds])
+    phi = np.stack([track.headings[:40] for _, track, _ in worlds])
+    got = visible_nodes_rows(rows, np.arange(6), lattice, q, phi, c.altitude)
+    want = np.stack([visible_nodes(t, lattice, q[n], phi[n], c.altitude) for n, (t, _, _) in enumerate(worlds)])
+    np.testing.assert_array_equal(got, want)
+    assert 0.05 < (~got).mean() < 0.5
