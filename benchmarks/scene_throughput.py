@@ -11,12 +11,13 @@ scenes actually built). Scenes/s is scenes built per second of that reset, which
 and writes the first observations. A B = 2 reset of each family first warms the code paths.
 
 Then a cProfile (CPU time) of one reset at ``--profile-size`` per family: the share of the reset in the pieces of a
-scene build (cumulative time of each function): the batch of new scenes (``scenario.random_worlds``: the batched
-generator's terrains and roads, then the scene objects and their line-of-sight arrays), the observation's per-slot
-maps (``SceneCache.shared_blocks``, of which ``SceneCache._maps``), the lattice visibility
-(``SceneCache.lattice_visible``, waypoint mode), the start candidates (``scenario.start_candidates``), the terrain's
-padded arrays where they are built polytope by polytope (``visibility._build_arrays``: the paper scene), the pool's
-terrain rows (``TerrainRows.set_row``), the rest of the scene build, and the reset outside it. ``--functions N``
+scene build (cumulative time of each function): the new scenes as arrays (``SceneBatch.random``: the batched
+generator's terrains and roads, their faces, circles and growth factors, and their tracks), the pool's terrain rows
+(``TerrainRows.set_rows``), the observation's shared blocks with their per-slot maps (``ScenePool._blocks``), the
+lattice visibility (``ScenePool._lattice_visible``, waypoint mode), the start candidates
+(``ScenePool._write_starts``), the terrain's padded arrays where they are built polytope by polytope
+(``visibility._build_arrays``: the paper scene), all the line of sight (``visible_nodes_rows``), the rest of the
+scene build, and the reset outside it. ``--functions N``
 also prints the N functions by own time.
 
 Families come from ``covert_env.families.FAMILIES``, flown with ``vector_env(num_envs=B, n_uavs=3, family=NAME)``.
@@ -38,16 +39,17 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 #: Pieces of a scene build: (label, file, function); indented ones are inside the piece above.
 PARTS = (
-    ("random scenes drawn in one batch (scenario.random_worlds)", "scenario.py", "random_worlds"),
+    ("new scenes as arrays (SceneBatch.random)", "scene_cache.py", "random"),
     ("  terrain generation (generation.random_terrains)", "generation.py", "random_terrains"),
     ("  roads (generation.random_roads)", "generation.py", "random_roads"),
-    ("observation maps (SceneCache.shared_blocks)", "scene_cache.py", "shared_blocks"),
-    ("  per-slot maps (SceneCache._maps)", "scene_cache.py", "_maps"),
-    ("lattice visibility (SceneCache.lattice_visible)", "scene_cache.py", "lattice_visible"),
-    ("start candidates (start_candidates)", "scenario.py", "start_candidates"),
-    ("pool terrain rows (TerrainRows.set_row)", "visibility.py", "set_row"),
+    ("  faces, circles, growth (SceneArrays.__init__)", "scenario.py", "__init__"),
+    ("  tracks (SceneArrays.tracks)", "scenario.py", "tracks"),
+    ("pool terrain rows (TerrainRows.set_rows)", "visibility.py", "set_rows"),
+    ("observation blocks (ScenePool._blocks)", "scene_pool.py", "_blocks"),
+    ("lattice visibility (ScenePool._lattice_visible)", "scene_pool.py", "_lattice_visible"),
+    ("start candidates (ScenePool._write_starts)", "scene_pool.py", "_write_starts"),
     ("terrain arrays (_build_arrays), inside the first piece using them", "visibility.py", "_build_arrays"),
-    ("line of sight, all pieces (visible_nodes)", "visibility.py", "visible_nodes"),
+    ("line of sight, all pieces (visible_nodes_rows)", "visibility.py", "visible_nodes_rows"),
 )
 
 
@@ -71,13 +73,13 @@ def make_env(b: int, mode: str, kwargs: dict):
 
     env = covert_env.vector_env(num_envs=b, n_uavs=3, action_mode=mode, **kwargs)
     built, pool = [0], env._pool
-    build = pool._build
+    fill = pool._fill
 
-    def counted(key):
-        built[0] += 1
-        return build(key)
+    def counted(rows, batch):
+        built[0] += len(rows)
+        return fill(rows, batch)
 
-    pool._build = counted
+    pool._fill = counted
     return env, built
 
 
@@ -104,7 +106,7 @@ def profile_reset(name: str, b: int, mode: str, kwargs: dict, functions: int) ->
         return sum(ct for (f, _, fn), (_, _, _, ct, _) in stats.stats.items() if fn == func and f.endswith(file))
 
     reset = cum("vector.py", "reset")
-    scenes = cum("scene_pool.py", "_build") + cum("scene_pool.py", "_fill") + cum("scenario.py", "random_worlds")
+    scenes = cum("scene_pool.py", "_batch") + cum("scene_pool.py", "_fill")
     n = max(built[0], 1)
     print(f"\nprofile: {name}, reset at B = {b} ({mode}), {built[0]} scenes built: {1e3 * reset / n:.2f} ms CPU per "
           f"scene (cProfile adds overhead, most to the many small calls of the generator), per scene and share:")

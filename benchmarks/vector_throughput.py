@@ -79,13 +79,13 @@ class Ours:
         assert self.env.episode_length == EPISODE
         # Counts the scenes built, to show that the timed episodes build theirs (a benchmark may read the pool).
         self.built, pool = 0, self.env._pool
-        build = pool._build
+        fill = pool._fill
 
-        def counted(key):
-            self.built += 1
-            return build(key)
+        def counted(rows, batch):
+            self.built += len(rows)
+            return fill(rows, batch)
 
-        pool._build = counted
+        pool._fill = counted
         self.env.reset(seed=0)
         rng = np.random.default_rng(0)
         if mode == "unicycle":
@@ -178,7 +178,7 @@ PARTS = (
     ("  table lookups (ReachTable._lookup)", "reach.py", "_lookup"),
     ("solve_manoeuvre, all calls", "dynamics.py", "solve_manoeuvre"),
     ("automatic resets (_reset_copies)", "vector.py", "_reset_copies"),
-    ("  new scenes (ScenePool._build + _fill)", "scene_pool.py", "_build"),
+    ("  new scenes (ScenePool.rows_of)", "scene_pool.py", "rows_of"),
 )
 
 
@@ -203,7 +203,7 @@ def profile_step(b: int, mode: str, scene: str = "cached", steps: int = EPISODE)
     print(f"\nprofile: {steps} steps at B = {b}, {scene} {mode}: {1e3 * step / steps:.2f} ms CPU per batched step "
           f"(cProfile adds overhead), of which")
     for label, file, func in PARTS:
-        ct = cum(file, func) + (cum(file, "_fill") if func == "_build" else 0.0)
+        ct = cum(file, func)
         if ct:
             print(f"  {1e3 * ct / steps:7.2f} ms  {100 * ct / step:5.1f} %  {label}")
     print("functions by own time:")

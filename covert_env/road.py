@@ -21,7 +21,8 @@ from shapely.geometry import LineString
 
 from covert_env.config import MAX_HORIZON, MAX_N_SLOTS, MAX_ROUTE, MAX_SPEED, check_coordinates, short_repr
 
-__all__ = ["Road", "TargetTrack", "speed_noise_offsets"]
+__all__ = ["Road", "TargetTrack", "arc_lengths", "cumulative_lengths", "headings_along", "points_along",
+           "speed_noise_offsets"]
 
 
 _MAX_POINTS = 1_000_000
@@ -80,6 +81,56 @@ def _generator(seed, where: str) -> np.random.Generator:
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{where}: seed must be None, an integer >= 0 or a numpy Generator, got {short_repr(seed)} "
                          f"({exc})") from None
+
+
+def cumulative_lengths(points: np.ndarray) -> np.ndarray:
+    """(..., K) arc length at each vertex of polylines ``points`` (..., K, 2) (many roads at once)."""
+    step = np.linalg.norm(np.diff(points, axis=-2), axis=-1)
+    return np.concatenate([np.zeros(step.shape[:-1] + (1,)), np.cumsum(step, axis=-1)], axis=-1)
+
+
+def _segment_at(cumulative: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The segment index of arc lengths ``s`` (clamped to the road) and the clamped ``s``: one road (K,) and any
+    ``s``, or N roads (N, K) and ``s`` (N, ...) (numpy's searchsorted per row, as a count: the same index)."""
+    cl = cumulative
+    if cl.ndim == 1:
+        s = np.clip(s, 0.0, cl[-1])
+        return np.clip(np.searchsorted(cl, s, side="right") - 1, 0, len(cl) - 2), s
+    s = np.clip(s, 0.0, cl[:, -1].reshape((-1,) + (1,) * (s.ndim - 1)))
+    flat = s.reshape(len(cl), -1)
+    i = (cl[:, None, :] <= flat[..., None]).sum(axis=-1) - 1
+    return np.clip(i, 0, cl.shape[-1] - 2).reshape(s.shape), s
+
+
+def _gather(a: np.ndarray, i: np.ndarray, batched: bool) -> np.ndarray:
+    """``a[i]`` for one road (``a`` (K, ...)), or row by row for N roads (``a`` (N, K, ...), ``i`` (N, ...))."""
+    if not batched:
+        return a[i]
+    flat = i.reshape(len(a), -1).reshape((len(a), -1) + (1,) * (a.ndim - 2))
+    return np.take_along_axis(a, flat, axis=1).reshape(i.shape + a.shape[2:])
+
+
+def points_along(points: np.ndarray, cumulative: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """Positions (..., 2) at arc lengths ``s`` (clamped) along a road (:meth:`Road.point_at`), or along N roads
+    ``points`` (N, K, 2) with ``cumulative`` (N, K) and ``s`` (N, ...) (the scene pool's tracks)."""
+    i, s = _segment_at(cumulative, s)
+    many = cumulative.ndim == 2
+    lo, hi = _gather(cumulative, i, many), _gather(cumulative, i + 1, many)
+    t = ((s - lo) / (hi - lo))[..., None]
+    return _gather(points, i, many) * (1 - t) + _gather(points, i + 1, many) * t
+
+
+def headings_along(points: np.ndarray, cumulative: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """Headings (rad, the tangent) at arc lengths ``s`` along one road or N roads, as :func:`points_along`."""
+    i, _ = _segment_at(cumulative, s)
+    many = cumulative.ndim == 2
+    d = _gather(points, i + 1, many) - _gather(points, i, many)
+    return np.arctan2(d[..., 1], d[..., 0])
+
+
+def arc_lengths(speeds: np.ndarray, delta: float, s0: float) -> np.ndarray:
+    """(n + 1,) the target's arc length at slots 0..n driving ``speeds`` (n,) from ``s0`` (:attr:`TargetTrack.arc`)."""
+    return s0 + np.concatenate([[0.0], np.cumsum(speeds * delta)])
 
 
 @dataclass(frozen=True, eq=False)
@@ -166,7 +217,7 @@ class Road:
     @cached_property
     def cumulative_length(self) -> np.ndarray:
         """(K,) arc length at each vertex."""
-        return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(self.points, axis=0), axis=1))])
+        return cumulative_lengths(self.points)
 
     @property
     def length(self) -> float:
@@ -178,19 +229,11 @@ class Road:
 
     def point_at(self, s) -> np.ndarray:
         """Position(s) at arc length ``s`` (clamped to [0, length]); shape (..., 2)."""
-        s = np.clip(_arc_lengths(s, "Road.point_at"), 0.0, self.length)
-        cl = self.cumulative_length
-        i = np.clip(np.searchsorted(cl, s, side="right") - 1, 0, len(cl) - 2)
-        t = ((s - cl[i]) / (cl[i + 1] - cl[i]))[..., None]
-        return self.points[i] * (1 - t) + self.points[i + 1] * t
+        return points_along(self.points, self.cumulative_length, _arc_lengths(s, "Road.point_at"))
 
     def heading_at(self, s) -> np.ndarray:
         """Heading(s) phi (rad, the road tangent) at arc length ``s``."""
-        s = np.clip(_arc_lengths(s, "Road.heading_at"), 0.0, self.length)
-        cl = self.cumulative_length
-        i = np.clip(np.searchsorted(cl, s, side="right") - 1, 0, len(cl) - 2)
-        d = self.points[i + 1] - self.points[i]
-        return np.arctan2(d[..., 1], d[..., 0])
+        return headings_along(self.points, self.cumulative_length, _arc_lengths(s, "Road.heading_at"))
 
     def pose_at(self, s: float) -> tuple[np.ndarray, float]:
         """``(point_at(s), heading_at(s))`` for one float ``s`` with one lookup (the terrain generator's
@@ -318,7 +361,7 @@ class TargetTrack:
     @cached_property
     def arc(self) -> np.ndarray:
         """(n + 1,) arc length at slots 0..n."""
-        return self.s0 + np.concatenate([[0.0], np.cumsum(self.speeds * self.delta)])
+        return arc_lengths(self.speeds, self.delta, self.s0)
 
     @property
     def n_slots(self) -> int:

@@ -16,13 +16,14 @@ import numpy as np
 from covert_env.config import MAX_N_UAVS, SCENE_ROAD_LEAD_IN, SCENE_ROAD_TAIL, Config, check_coordinates, short_repr
 from covert_env.generation import frustum_faces, random_roads, random_terrains
 from covert_env.metrics import terrain_clearance
-from covert_env.road import Road, TargetTrack
+from covert_env.road import Road, TargetTrack, arc_lengths, cumulative_lengths, headings_along, points_along
+from covert_env.separation import separation
 from covert_env.terrain import Polytope, Terrain
-from covert_env.visibility import TerrainArrays, register_terrain_arrays, visible_nodes
+from covert_env.visibility import TerrainArrays, growth_factors, register_terrain_arrays, visible_nodes
 from covert_env.zone import SPREAD_MARGIN, spread_nodes, to_world, zone_lattice
 
-__all__ = ["Scenario", "PAPER_UAV_STARTS", "PAPER_SEED", "pick_starts", "sample_starts_on", "start_candidates",
-           "valid_start_shapes"]
+__all__ = ["Scenario", "PAPER_UAV_STARTS", "PAPER_SEED", "SceneArrays", "pick_starts", "pick_starts_many",
+           "random_scene_arrays", "random_worlds", "sample_starts_on", "start_candidates", "valid_start_shapes"]
 
 #: The paper's UAV starts (x, y, heading), §3.1-3.2.
 PAPER_UAV_STARTS = np.array([[40.0, 10.0, 2 * math.pi], [60.0, 0.0, math.pi], [50.0, -10.0, math.pi / 2]])
@@ -198,38 +199,80 @@ class Scenario:
         return sample_starts_on(self.config, self.terrain, self.track, rng, u, self.name)
 
 
-def random_worlds(seeds, config: Config) -> list[tuple[Terrain, TargetTrack, np.random.Generator]]:
-    """:meth:`Scenario.random_world` of every seed, drawn as one batch (:mod:`covert_env.generation`): each scene
-    is the same whatever batch it is drawn in."""
-    seeds = [int(s) for s in seeds]
-    c = config
-    roads = random_roads(seeds, c, start=np.asarray(PAPER_TARGET_START, float) - (_ROAD_LEAD_IN, 0.0))
-    batch = random_terrains(seeds, roads, c)
-    # The line-of-sight arrays of every scene at once (terrain_arrays would build them polytope by polytope).
-    base, top, k = batch.base, batch.top, batch.n_vertices
-    n, m, v = base.shape[:3]
-    faces = frustum_faces(base.reshape(-1, v, 2), top.reshape(-1, v, 3), k.reshape(-1)).reshape(n, m, v + 2, 4)
-    real = np.arange(v) < k[..., None]
-    centre = (base * real[..., None]).sum(2) / np.maximum(k, 1)[..., None]
-    radius = np.sqrt(((base - centre[:, :, None]) ** 2).sum(-1)).max(2, initial=0.0)
-    verts = np.concatenate([np.concatenate([base, np.zeros((n, m, v, 1))], axis=-1), top], axis=2)
-    pair_i, pair_j = np.triu_indices(2 * v, k=1)
-    out = []
-    for i, seed in enumerate(seeds):
-        f, b_i, t_i = faces[i].copy(), base[i].copy(), top[i].copy()       # a scene keeps no batch array alive
+class SceneArrays:
+    """N random scenes as padded arrays (:func:`random_scene_arrays`), before any scene object is built.
+
+    Attributes (scenes N, polytopes M, vertices V):
+        seeds (N,); roads (N, P, 2): the road points; base (N, M, V, 2), top (N, M, V, 3), n_vertices (N, M): the
+        polytopes (:class:`~covert_env.generation.TerrainBatch`); hs (N, M, V + 2, 4): their half-spaces; centre
+        (N, M, 2), radius (N, M): footprint circles; verts (N, M, 2 V, 3): base and top vertices; z_max (N, M);
+        highest (N, M, 3): each polytope's highest top vertex (eq. 3, the first on ties); growth (N, M):
+        :func:`~covert_env.visibility.growth_factors`.
+    """
+
+    def __init__(self, seeds, roads, batch, config: Config):
+        base, top, k = batch.base, batch.top, batch.n_vertices
+        n, m, v = base.shape[:3]
+        self.seeds, self.roads, self.config = list(seeds), roads, config
+        self.base, self.top, self.n_vertices = base, top, k
+        self.hs = frustum_faces(base.reshape(-1, v, 2), top.reshape(-1, v, 3), k.reshape(-1)).reshape(n, m, v + 2, 4)
+        real = np.arange(v) < k[..., None]
+        self.centre = (base * real[..., None]).sum(2) / np.maximum(k, 1)[..., None]
+        self.radius = np.sqrt(((base - self.centre[:, :, None]) ** 2).sum(-1)).max(2, initial=0.0)
+        self.verts = np.concatenate([np.concatenate([base, np.zeros((n, m, v, 1))], axis=-1), top], axis=2)
+        self.z_max = top[..., 2].max(2, initial=-np.inf)
+        self.highest = np.take_along_axis(top, top[..., 2].argmax(2)[..., None, None], axis=2)[:, :, 0]
+        self.growth = growth_factors(self.hs, self.verts)
+
+    def __len__(self) -> int:
+        return len(self.seeds)
+
+    def tracks(self) -> tuple[np.ndarray, np.ndarray]:
+        """The targets' true positions (N, n + 1, 3) and headings (N, n + 1) at slots 0..n of the scenes' tracks
+        (``TargetTrack.positions`` and ``headings`` of :func:`random_worlds`' tracks, bit for bit), for tracks
+        without prediction error."""
+        c = self.config
+        if c.prediction_error > 0:
+            raise ValueError("SceneArrays.tracks: a track with prediction error is drawn per scene (random_worlds)")
+        arc = arc_lengths(np.full(c.n_slots + c.horizon + 1, float(c.target_speed)), c.delta, _ROAD_LEAD_IN)
+        s = np.broadcast_to(arc, (len(self), len(arc)))
+        cl = cumulative_lengths(self.roads)
+        xy = points_along(self.roads, cl, s)
+        q = np.concatenate([xy, np.full(xy.shape[:-1] + (1,), c.target_height)], axis=-1)
+        return q, headings_along(self.roads, cl, s)
+
+    def world(self, i: int) -> tuple[Terrain, TargetTrack, np.random.Generator]:
+        """Scene i's objects: :meth:`Scenario.random_world` of its seed."""
+        c, seed, k = self.config, self.seeds[i], self.n_vertices[i]
+        f, b_i, t_i = self.hs[i].copy(), self.base[i].copy(), self.top[i].copy()     # no batch array kept alive
         polys = tuple(Polytope._prevalidated(b_i[j, :kk], t_i[j, :kk], frustum=True, halfspaces=f[j, :kk + 2])
-                      for j, kk in enumerate(k[i].tolist()))
+                      for j, kk in enumerate(k.tolist()))
         terrain = Terrain._checked(polys)
-        if m:
-            register_terrain_arrays(terrain, TerrainArrays(f, t_i[..., 2].max(1), b_i, centre[i].copy(),
-                                                           radius[i].copy(), verts[i].copy(), pair_i, pair_j))
-        road = Road(roads[i])
-        track = TargetTrack.constant(road, c.target_speed, c.n_slots + c.horizon + 1, delta=c.delta,
+        if len(polys):
+            v2 = self.verts.shape[2]
+            pair_i, pair_j = np.triu_indices(v2, k=1)
+            register_terrain_arrays(terrain, TerrainArrays(f, t_i[..., 2].max(1), b_i, self.centre[i].copy(),
+                                                           self.radius[i].copy(), self.verts[i].copy(), pair_i,
+                                                           pair_j))
+        track = TargetTrack.constant(Road(self.roads[i]), c.target_speed, c.n_slots + c.horizon + 1, delta=c.delta,
                                      z=c.target_height, s0=_ROAD_LEAD_IN)
         if c.prediction_error > 0:
             track = track.with_speed_noise(c.prediction_error, _noise_generator(seed))
-        out.append((terrain, track, np.random.default_rng(seed)))
-    return out
+        return terrain, track, np.random.default_rng(seed)
+
+
+def random_scene_arrays(seeds, config: Config) -> SceneArrays:
+    """The roads and terrains of the random scenes ``seeds`` as arrays, drawn as one batch
+    (:mod:`covert_env.generation`): each scene is the same whatever batch it is drawn in."""
+    seeds = [int(s) for s in seeds]
+    roads = random_roads(seeds, config, start=np.asarray(PAPER_TARGET_START, float) - (_ROAD_LEAD_IN, 0.0))
+    return SceneArrays(seeds, roads, random_terrains(seeds, roads, config), config)
+
+
+def random_worlds(seeds, config: Config) -> list[tuple[Terrain, TargetTrack, np.random.Generator]]:
+    """:meth:`Scenario.random_world` of every seed, drawn as one batch (:func:`random_scene_arrays`)."""
+    arrays = random_scene_arrays(seeds, config)
+    return [arrays.world(i) for i in range(len(arrays))]
 
 
 def sample_starts_on(c: Config, terrain: Terrain, track: TargetTrack, rng: np.random.Generator, u: int,
@@ -253,24 +296,58 @@ def start_candidates(c: Config, terrain: Terrain, track: TargetTrack) -> tuple[n
 def pick_starts(c: Config, nodes: np.ndarray, visible: np.ndarray, shadowed: np.ndarray, rng: np.random.Generator,
                 u: int, name: str) -> tuple[np.ndarray, np.ndarray]:
     """Steps 1-4 of :meth:`Scenario.sample_starts` on the candidates of :func:`start_candidates`."""
-    order = visible[rng.permutation(len(visible))]
+    xy, theta = pick_starts_many(c, nodes[None], [visible], [shadowed], [rng], u, [name])
+    return xy[0], theta[0]
+
+
+def pick_starts_many(c: Config, nodes: np.ndarray, visible: list, shadowed: list, rngs: list, u: int,
+                     names: list) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`pick_starts` of B copies, each with its own generator: ``nodes`` (B, L, 2), and per copy the indices
+    of its ``visible`` and ``shadowed`` candidates. Step 1's greedy pick (:func:`~covert_env.zone.spread_nodes`) runs
+    for all copies at once, with the same picks; a copy that needs the fallbacks takes them alone. Returns (B, U, 2)
+    positions and (B, U) headings."""
+    b = len(rngs)
+    orders = [vis[rng.permutation(len(vis))] for vis, rng in zip(visible, rngs, strict=True)]
+    lens = np.array([len(o) for o in orders], dtype=np.intp)
+    idx = np.zeros((b, max(int(lens.max(initial=0)), 1)), dtype=np.intp)
+    valid = np.arange(idx.shape[1]) < lens[:, None]
+    idx[valid] = np.concatenate(orders) if b else []
+    rows = np.arange(b)
+    cand = nodes[rows[:, None], idx]                                        # (B, m, 2)
+    picked, alive = np.full((b, u), -1, dtype=np.intp), valid
+    for j in range(u):
+        first = alive.argmax(axis=1)
+        has = alive[rows, first]
+        picked[has, j] = idx[has, first[has]]
+        # Eq. 2 between each copy's pick and its candidates, as spread_nodes computes it.
+        alive = alive & (separation(cand[:, :, None], cand[rows, first][:, None, None]) >= 2 * c.d_safe1)
+    xy, theta = np.empty((b, u, 2)), np.empty((b, u))
+    for n in range(b):                                   # each copy's own draws, in its generator's order
+        pick = picked[n]
+        if pick[-1] < 0:
+            pick = _fallback_starts(c, nodes[n], orders[n], visible[n], shadowed[n], rngs[n], u, names[n])
+        xy[n], theta[n] = nodes[n][pick], rngs[n].uniform(0, 2 * math.pi, u)
+    return xy, theta
+
+
+def _fallback_starts(c: Config, nodes: np.ndarray, order: np.ndarray, visible: np.ndarray, shadowed: np.ndarray,
+                     rng: np.random.Generator, u: int, name: str) -> np.ndarray:
+    """Steps 2-4 of :meth:`Scenario.sample_starts`, when step 1 (``order``: the visible nodes in random order)
+    found fewer than ``u`` starts: the picked indices."""
+    order = np.concatenate([order, shadowed[rng.permutation(len(shadowed))]])
     picked = spread_nodes(nodes, order, 2 * c.d_safe1, u)
     if len(picked) < u:
-        order = np.concatenate([order, shadowed[rng.permutation(len(shadowed))]])
-        picked = spread_nodes(nodes, order, 2 * c.d_safe1, u)
-        if len(picked) < u:
-            picked = spread_nodes(nodes, order, c.d_safe1, u)
-        if len(picked) < u:
-            # Decided on the target-frame offsets, exactly as Config's check, with its margin (the lattice's
-            # order; eq. 3 can only remove nodes near a top within d_safe2 of the flight altitude).
-            picked = spread_nodes(zone_lattice(c), np.union1d(visible, shadowed), c.d_safe1 * (1.0 + SPREAD_MARGIN),
-                                  u)
-        if len(picked) < u:
-            raise ValueError(f"Scenario {name}: the eroded zone has room for only {len(picked)} starts "
-                             f"d_safe1={c.d_safe1:g} m apart, asked for n_uavs={u} (the config's n_uavs="
-                             f"{c.n_uavs} fit); use fewer UAVs or a smaller d_safe1 (starts also keep "
-                             f"d_safe2={c.d_safe2:g} m from every polytope top, eq. 3)")
-    return nodes[picked], rng.uniform(0, 2 * math.pi, u)
+        picked = spread_nodes(nodes, order, c.d_safe1, u)
+    if len(picked) < u:
+        # Decided on the target-frame offsets, exactly as Config's check, with its margin (the lattice's
+        # order; eq. 3 can only remove nodes near a top within d_safe2 of the flight altitude).
+        picked = spread_nodes(zone_lattice(c), np.union1d(visible, shadowed), c.d_safe1 * (1.0 + SPREAD_MARGIN), u)
+    if len(picked) < u:
+        raise ValueError(f"Scenario {name}: the eroded zone has room for only {len(picked)} starts "
+                         f"d_safe1={c.d_safe1:g} m apart, asked for n_uavs={u} (the config's n_uavs="
+                         f"{c.n_uavs} fit); use fewer UAVs or a smaller d_safe1 (starts also keep "
+                         f"d_safe2={c.d_safe2:g} m from every polytope top, eq. 3)")
+    return picked
 
 
 def _noise_generator(seed) -> np.random.Generator:

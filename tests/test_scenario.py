@@ -211,3 +211,43 @@ def test_scenario_normalises_start_arrays():
     s = Scenario(c, Terrain(), _track(20), [1.0, 2.0], 0.5)
     assert s.uav_xy.shape == (1, 2) and s.uav_theta.shape == (1,)
     assert s.n_uavs == 1
+
+
+def _pick_one_by_one(c, nodes, visible, shadowed, rng, u):
+    """The start rule written sequentially (steps 1-4 of Scenario.sample_starts, one copy at a time)."""
+    from covert_env.zone import SPREAD_MARGIN, spread_nodes, zone_lattice
+
+    order = visible[rng.permutation(len(visible))]
+    picked = spread_nodes(nodes, order, 2 * c.d_safe1, u)
+    if len(picked) < u:
+        order = np.concatenate([order, shadowed[rng.permutation(len(shadowed))]])
+        picked = spread_nodes(nodes, order, 2 * c.d_safe1, u)
+        if len(picked) < u:
+            picked = spread_nodes(nodes, order, c.d_safe1, u)
+        if len(picked) < u:
+            picked = spread_nodes(zone_lattice(c), np.union1d(visible, shadowed), c.d_safe1 * (1 + SPREAD_MARGIN), u)
+    return nodes[picked], rng.uniform(0, 2 * np.pi, u)
+
+
+def test_starts_of_many_copies_are_each_copys_sequential_picks():
+    """pick_starts_many (the vector env's reset: step 1 for every copy at once) gives each copy the starts of the
+    sequential rule with its own generator, also for copies whose visible nodes are too few or none (the fallbacks),
+    and leaves each generator where the sequential rule leaves it."""
+    from covert_env.scenario import pick_starts_many, start_candidates
+
+    c = Config()
+    worlds = [Scenario.random_world(s, c) for s in range(8)]
+    cands = [start_candidates(c, t, tr) for t, tr, _ in worlds]
+    nodes = np.stack([n for n, _, _ in cands])
+    vis, sh = [v for _, v, _ in cands], [s for _, _, s in cands]
+    vis[1], sh[1] = vis[1][:2], np.concatenate([sh[1], vis[1][2:]])        # too few visible: fallback 2
+    vis[2], sh[2] = vis[2][:0], np.concatenate([sh[2], vis[2]])            # none visible
+    vis[3] = vis[3][:40]                                                    # few, close together
+    for u in (1, 3, 5):
+        got = pick_starts_many(c, nodes, vis, sh, [np.random.default_rng(n) for n in range(8)], u, ["x"] * 8)
+        for n in range(8):
+            rng = np.random.default_rng(n)
+            xy, th = _pick_one_by_one(c, nodes[n], vis[n], sh[n], rng, u)
+            np.testing.assert_array_equal(got[0][n], xy)
+            np.testing.assert_array_equal(got[1][n], th)
+    assert got[0].shape == (8, 5, 2)

@@ -8,7 +8,8 @@ import pytest
 
 from baselines.dp.planner import DPPlanner
 from covert_env import Config, Polytope, Scenario, Terrain
-from covert_env.envs.scene_cache import SceneCache
+from covert_env.envs.observation import shared_block_slices
+from covert_env.envs.scene_pool import ScenePool
 from covert_env.envs.settings import EnvSettings
 from covert_env.families import family_config
 from covert_env.scenario import start_candidates
@@ -16,9 +17,16 @@ from covert_env.visibility import LOS_TOLERANCE, line_of_sight, visible_nodes
 from covert_env.zone import in_feasible_zone, to_world, zone_distance, zone_lattice
 
 
-def _cache(sc: Scenario) -> SceneCache:
+def _pool(sc: Scenario) -> tuple[ScenePool, int]:
+    """A waypoint env's scene pool holding the scene ``sc``, and its row."""
     s = EnvSettings(sc.config, action_mode="waypoint")
-    return SceneCache(sc, s.map_offsets, s.map_in_zone, s.lattice, config=sc.config)
+    pool = ScenePool(sc, sc.config, s.lattice, s.map_offsets, s.map_in_zone, waypoint=True, capacity=1)
+    return pool, pool.row(pool.key(None), np.zeros(0, int))
+
+
+def _lattice_visible(sc: Scenario) -> np.ndarray:
+    pool, row = _pool(sc)
+    return pool.lattice_ok[row]
 
 
 def test_env_mask_rows_are_the_planners_visible_nodes():
@@ -26,7 +34,7 @@ def test_env_mask_rows_are_the_planners_visible_nodes():
     visibility is the DP planner's node visibility, node for node."""
     sc = Scenario.random(1_000_003)
     c, track = sc.config, sc.track
-    rows = _cache(sc).lattice_visible()
+    rows = _lattice_visible(sc)
     planner = DPPlanner(c, sc.terrain)
     for k in range(1, track.n_slots + 1):
         np.testing.assert_array_equal(rows[k], planner.visible_nodes(track.position(k), track.heading(k)))
@@ -41,7 +49,7 @@ def test_every_lattice_node_is_offered_without_terrain_whatever_the_heading():
     lattice = zone_lattice(c)
     sc = Scenario.random(1_000_005, c)
     empty = Scenario(c, Terrain(), sc.track, sc.uav_xy, sc.uav_theta, name="empty")
-    assert _cache(empty).lattice_visible().all()
+    assert _lattice_visible(empty).all()
     nodes, vis, shadowed = start_candidates(c, Terrain(), sc.track)
     assert len(vis) == len(nodes) == len(lattice) and len(shadowed) == 0
     rng = np.random.default_rng(0)
@@ -84,12 +92,18 @@ def test_maps_and_starts_read_the_same_rule():
     sc = Scenario.random(1_000_007)
     c, track = sc.config, sc.track
     s = EnvSettings(c, action_mode="waypoint")
-    q, phi = track.positions[:3], track.headings[:3]
-    cache = _cache(sc)
-    maps = cache._maps(q, phi)
+    q, phi = track.positions, track.headings
+    pool, row = _pool(sc)
+    at = shared_block_slices(len(s.map_offsets))
+    maps = pool.blocks[row][:, at["map_now"]]
     want = visible_nodes(sc.terrain, s.map_offsets[s.map_in_zone], q, phi, c.altitude)
     np.testing.assert_array_equal(maps[:, s.map_in_zone], want.astype(np.float32))
     assert not maps[:, ~s.map_in_zone].any()
+    assert 0 < maps[:, s.map_in_zone].mean() < 1
+    nxt = np.minimum(np.arange(len(q)) + 1, len(q) - 1)
+    np.testing.assert_array_equal(pool.blocks[row][:, at["map_next"]], maps[nxt])
+    np.testing.assert_array_equal(pool.start_visible[row], visible_nodes(sc.terrain, zone_lattice(c), q[0], phi[0],
+                                                                         c.altitude))
     nodes, vis, shadowed = start_candidates(c, sc.terrain, track)
     at0 = visible_nodes(sc.terrain, zone_lattice(c), track.position(0), track.heading(0), c.altitude)
     assert set(vis) | set(shadowed) <= set(range(len(nodes)))

@@ -1,94 +1,131 @@
-"""What a scene gives every agent, reset and copy: per-slot maps, shared observation blocks and lattice visibility.
+"""What scenes give every agent, reset and copy, for many scenes at once: the target's track per slot, the
+observation's shared blocks with their visibility maps, the lattice's visibility and the start candidates.
 
-A :class:`SceneCache` holds one scene (terrain and target track; the starts only when asked) and computes, lazily
-and vectorised over slots, everything of an observation that does not depend on the UAVs. The vector env's
-:class:`~covert_env.envs.scene_pool.ScenePool` stacks them into arrays.
+A :class:`SceneBatch` holds N scenes as arrays (terrain arrays and tracks: the batched generator's random scenes,
+or one given scenario); the vector env's :class:`~covert_env.envs.scene_pool.ScenePool` writes them into its rows
+and computes their per-slot quantities with one batched line-of-sight call each
+(:func:`~covert_env.visibility.visible_nodes_rows`). A :class:`SceneCache` builds one scene's objects (terrain,
+track, seeded starts) only when asked for them (``VectorEnv.scene``, ``scenario``).
 """
 
 from __future__ import annotations
 
 import copy
+from functools import cached_property
 
 import numpy as np
 
 from covert_env.config import Config
 from covert_env.envs.observation import FIELDS, shared_block_slices
-from covert_env.scenario import Scenario, sample_starts_on
-from covert_env.visibility import visible_nodes
+from covert_env.metrics import top_clearance
+from covert_env.scenario import Scenario, random_scene_arrays, sample_starts_on
+from covert_env.visibility import terrain_arrays
+from covert_env.zone import to_world
 
-__all__ = ["SceneCache", "World"]
+__all__ = ["SceneBatch", "SceneCache", "World", "shared_blocks", "start_nodes"]
 
 #: The target-displacement field of the observation layout (its bounds clip the shared block).
 DISPLACEMENT = next(f for f in FIELDS if f.name == "target_displacement")
 
 
-class SceneCache:
-    """Per-scene, per-slot results that do not depend on the UAVs (shared by all copies and resets).
+class SceneBatch:
+    """N scenes of M polytopes each, as arrays (slots T = the track's n + 1).
 
-    The observation maps' cells are fixed in the target's frame, so which cells lie in the eroded zone is one mask
-    for every slot; only their line of sight changes. Everything is computed for all slots of the track at once,
-    one vectorised line-of-sight call with a target per slot (a new scene costs a few ms, a few tens of ms with
-    the waypoint lattice).
+    Attributes:
+        keys: the scenes' pool keys; config.
+        hs (N, M, F, 4), centre (N, M, 2), radius (N, M), z_max (N, M), top (N, M, 3), growth (N, M): the terrains
+            (:meth:`TerrainRows.set_rows <covert_env.visibility.TerrainRows.set_rows>`).
+        q (N, T, 3), phi (N, T): the target's true track; q_next (N, T, 3), phi_next (N, T): slot k + 1 as predicted
+            at slot k (row n: the track's end), as ``TargetTrack.next_predicted``; exact: the prediction is the truth.
+        scenario: the given scenario (N = 1), or None for random scenes.
     """
 
-    def __init__(self, scenario: Scenario | None, map_offsets: np.ndarray, map_in_zone: np.ndarray,
-                 lattice: np.ndarray, *, seed: int | None = None, config: Config | None = None, world=None):
-        if scenario is None:
-            # A random scene (``world``: its terrain, track and starts generator, if drawn with others in a batch):
-            # its seeded starts only if a reset asks for them (training resets draw their own starts).
-            terrain, track, self._rng = Scenario.random_world(seed, config) if world is None else world
-            self.parts = World(config, terrain, track, f"random-{seed}")
-        else:
-            self.parts = World(scenario.config, scenario.terrain, scenario.track, scenario.name)
-        self._seeded = scenario
-        self._map_offsets = map_offsets[map_in_zone]
-        self._map_in_zone = map_in_zone
-        self._n_cells = len(map_offsets)
-        self._lattice = lattice
+    def __init__(self, keys, config: Config, terrain: tuple, track: tuple, exact: bool, scenario=None):
+        self.keys, self.config, self.exact, self.scenario = list(keys), config, exact, scenario
+        self.hs, self.centre, self.radius, self.z_max, self.top, self.growth = terrain
+        self.q, self.phi, self.q_next, self.phi_next = track
 
-    def _maps(self, q: np.ndarray, phi: np.ndarray) -> np.ndarray:
-        """(K, S*S) float32 maps around target poses q (K, 3), phi (K,): 1 where a cell is in the visible zone
-        (eq. 10: in the eroded zone, decided in the target frame, with clear LoS as the action mask sees it)."""
-        rows = np.zeros((len(q), self._n_cells), np.float32)
-        if len(self._map_offsets):
-            rows[:, self._map_in_zone] = visible_nodes(self.parts.terrain, self._map_offsets, q, phi,
-                                                       self.parts.config.altitude)
-        return rows
+    def __len__(self) -> int:
+        return len(self.keys)
 
-    def shared_blocks(self) -> np.ndarray:
-        """(n + 1, D) float32, row k the observation's shared block at slot k of the track (n = its last slot): the
-        target's displacement to k + 1 as predicted at k, in the target's frame at k; 0 for the time remaining
-        (the env writes it); the maps at k and at the predicted k + 1 (:mod:`covert_env.envs.observation`)."""
-        track, c = self.parts.track, self.parts.config
-        n = track.n_slots
-        q, phi = track.positions[:n + 1], track.headings[:n + 1]
-        maps = self._maps(q, phi)
-        # Slot k+1 as predicted at slot k (the truth when the config has no prediction error; slot n: n itself).
-        q_next, phi_next = track.next_predicted
-        dx, dy = q_next[:, 0] - q[:, 0], q_next[:, 1] - q[:, 1]
-        cs, sn = np.cos(phi), np.sin(phi)
-        scale = c.v_max * c.delta
-        at = shared_block_slices(self._n_cells)
-        blocks = np.zeros((n + 1, at["map_next"].stop), np.float32)
-        lo, hi = DISPLACEMENT.low, DISPLACEMENT.high
-        disp = blocks[:, at["target_displacement"]]
-        disp[:, 0] = np.clip((cs * dx + sn * dy) / scale, lo, hi)
-        disp[:, 1] = np.clip((cs * dy - sn * dx) / scale, lo, hi)
-        blocks[:, at["map_now"]] = maps
-        blocks[:, at["map_next"]] = (maps[np.minimum(np.arange(n + 1) + 1, n)] if track.exact
-                                     else self._maps(q_next, phi_next))
-        return blocks
+    @classmethod
+    def random(cls, seeds, config: Config) -> SceneBatch:
+        """The random scenes ``seeds`` (:func:`~covert_env.scenario.random_scene_arrays`, one batch). Without
+        prediction error the tracks are computed for all scenes at once; with it, each track draws its own speed
+        noise from its scene's seed (a generator per scene, so a loop over the scenes)."""
+        a = random_scene_arrays(seeds, config)
+        terrain = (a.hs, a.centre, a.radius, a.z_max, a.highest, a.growth)
+        if config.prediction_error == 0:
+            q, phi = a.tracks()
+            nxt = np.minimum(np.arange(q.shape[1]) + 1, q.shape[1] - 1)
+            return cls(a.seeds, config, terrain, (q, phi, q[:, nxt], phi[:, nxt]), exact=True)
+        tracks = [a.world(i)[1] for i in range(len(a))]
+        parts = [np.stack(x) for x in zip(*((t.positions, t.headings) + t.next_predicted for t in tracks),
+                                          strict=True)]
+        return cls(a.seeds, config, terrain, tuple(parts), exact=False)
 
-    def lattice_visible(self) -> np.ndarray:
-        """(n + 1, L) bool, row k: the waypoint lattice nodes (all in the eroded zone) visible (eq. 10,
-        :func:`~covert_env.visibility.visible_nodes`) at slot k as predicted at slot k - 1 (the action mask of slot
-        k - 1's move; row 0 at slot 0)."""
-        c, track = self.parts.config, self.parts.track
-        q_next, phi_next = track.next_predicted
-        q0, phi0 = track.predict(-1, 1)
-        q = np.vstack([q0, q_next[:-1]])
-        phi = np.concatenate([phi0, phi_next[:-1]])
-        return visible_nodes(self.parts.terrain, self._lattice, q, phi, c.altitude)
+    @classmethod
+    def of(cls, key, scenario: Scenario) -> SceneBatch:
+        """One given scenario (its terrain's arrays and its track)."""
+        arr, track = terrain_arrays(scenario.terrain), scenario.track
+        tops = np.asarray(scenario.terrain.highest_points, float).reshape(-1, 3)
+        terrain = tuple(x[None] for x in (arr.hs, arr.centre, arr.radius, arr.z_max, tops, arr.growth_factor))
+        parts = tuple(np.asarray(x)[None] for x in (track.positions, track.headings) + track.next_predicted)
+        return cls([key], scenario.config, terrain, parts, exact=track.exact, scenario=scenario)
+
+
+def shared_blocks(config: Config, batch: SceneBatch, maps: np.ndarray, maps_next: np.ndarray) -> np.ndarray:
+    """(N, T, D) float32, row k of scene n the observation's shared block at slot k: the target's displacement to
+    k + 1 as predicted at k, in the target's frame at k; 0 for the time remaining (the env writes it); the maps
+    ``maps`` at k and ``maps_next`` at the predicted k + 1, (N, T, S*S) each (:mod:`covert_env.envs.observation`)."""
+    q, phi = batch.q, batch.phi
+    dx, dy = batch.q_next[..., 0] - q[..., 0], batch.q_next[..., 1] - q[..., 1]
+    cs, sn = np.cos(phi), np.sin(phi)
+    scale = config.v_max * config.delta
+    at = shared_block_slices(maps.shape[-1])
+    blocks = np.zeros(q.shape[:2] + (at["map_next"].stop,), np.float32)
+    lo, hi = DISPLACEMENT.low, DISPLACEMENT.high
+    disp = blocks[..., at["target_displacement"]]
+    disp[..., 0] = np.clip((cs * dx + sn * dy) / scale, lo, hi)
+    disp[..., 1] = np.clip((cs * dy - sn * dx) / scale, lo, hi)
+    blocks[..., at["map_now"]] = maps
+    blocks[..., at["map_next"]] = maps_next
+    return blocks
+
+
+def start_nodes(config: Config, lattice: np.ndarray, q0: np.ndarray, phi0: np.ndarray,
+                top: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The zone lattice at slot 0 of N scenes, (N, L, 2) world positions, and which nodes are at least d_safe2 from
+    every polytope top ``top`` (N, M, 3) (eq. 3), (N, L): with the nodes' visibility, what
+    :func:`~covert_env.scenario.start_candidates` gives per scene."""
+    nodes = to_world(lattice, q0[:, :2], phi0)
+    clear = np.ones(nodes.shape[:2], dtype=bool)
+    # Only a top within d_safe2 (+ 1 µm, above rounding) below the flight plane can be that close; the others are
+    # left out as inf, which changes no decision (both sides are >= d_safe2 then).
+    low = config.altitude - top[..., 2] <= config.d_safe2 + 1e-6
+    scenes = np.flatnonzero(low.any(axis=1))
+    if len(scenes):
+        near = np.where(low[scenes, :, None], top[scenes], np.inf)
+        clear[scenes] = top_clearance(nodes[scenes], config.altitude, near) >= config.d_safe2
+    return nodes, clear
+
+
+class SceneCache:
+    """One scene's objects, built on first use: ``parts`` (:class:`World`) and its seeded starts.
+
+    A random scene is rebuilt from its seed (:meth:`Scenario.random_world`: the same scene as in any batch), so
+    the pool keeps no scene object for the many scenes nobody asks about."""
+
+    def __init__(self, config: Config, *, seed: int | None = None, scenario: Scenario | None = None):
+        self._config, self._seed, self._seeded, self._rng = config, seed, scenario, None
+
+    @cached_property
+    def parts(self) -> World:
+        if self._seeded is not None:
+            sc = self._seeded
+            return World(sc.config, sc.terrain, sc.track, sc.name)
+        terrain, track, self._rng = Scenario.random_world(self._seed, self._config)
+        return World(self._config, terrain, track, f"random-{self._seed}")
 
     def seeded_scenario(self) -> Scenario:
         """The scene with its own starts: ``Scenario.random(seed)`` exactly (or the given scenario)."""

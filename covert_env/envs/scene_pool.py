@@ -1,13 +1,15 @@
 """Scenes shared by the copies of a vector env, as padded arrays with one row per scene.
 
 Everything that depends only on the scene and the slot (the target's track, the observation's shared block with
-its visibility maps, which lattice nodes are visible, the start nodes) is computed once when a scene enters the
-pool, by :class:`~covert_env.envs.scene_cache.SceneCache` (so every copy and reset sees
-the same numbers), and stacked into arrays ``(R, ...)``. A copy of the vector env only holds its row index: every
+its visibility maps, which lattice nodes are visible, the start candidates) is computed when scenes enter the
+pool, for all the scenes a reset needs at once (:class:`~covert_env.envs.scene_cache.SceneBatch`, one batched
+line-of-sight call per quantity, :func:`~covert_env.visibility.visible_nodes_rows`), and stored in arrays
+``(R, ...)``: every copy and reset sees the same numbers. A copy of the vector env only holds its row index: every
 per-step quantity is a gather ``array[rows, slots]``, one array operation for the whole batch.
 
 The terrains are rows of a :class:`~covert_env.visibility.TerrainRows` (padded half-spaces, footprint circles and
-tops per row), whose batched line of sight clips with the same routine as every other LoS path.
+tops per row), whose batched line of sight clips with the same routine as every other LoS path. Scene objects
+(terrain, track) are built only when asked for (:meth:`ScenePool.cache`).
 """
 
 from __future__ import annotations
@@ -17,10 +19,11 @@ from collections import OrderedDict
 import numpy as np
 
 from covert_env.envs.observation import shared_block_size
-from covert_env.envs.scene_cache import SceneCache
+from covert_env.envs.scene_cache import SceneBatch, SceneCache, shared_blocks, start_nodes
 from covert_env.metrics import terrain_clearance
-from covert_env.scenario import Scenario, pick_starts, random_worlds, start_candidates
-from covert_env.visibility import LOS_TOLERANCE, TerrainRows, grown
+from covert_env.scenario import Scenario, pick_starts_many
+from covert_env.visibility import LOS_TOLERANCE, TerrainRows, grown, visible_nodes_rows
+from covert_env.zone import zone_lattice
 
 __all__ = ["ScenePool"]
 
@@ -36,9 +39,12 @@ class ScenePool:
 
     Attributes (rows R, slots T = track slots + 1, polytopes M, faces F, lattice nodes L):
         q (R, T, 3), phi (R, T): the target's track, clamped at its end like ``TargetTrack.position``.
-        blocks (R, T, D) float32: the observation's shared block per slot (``SceneCache.shared_blocks``).
-        lattice_ok (R, T, L) bool: the visible lattice nodes (eq. 10, :func:`~covert_env.visibility.visible_nodes`;
-            waypoint mode only).
+        blocks (R, T, D) float32: the observation's shared block per slot
+            (:func:`~covert_env.envs.scene_cache.shared_blocks`).
+        lattice_ok (R, T, L) bool: row k, the lattice nodes visible at slot k as predicted at slot k - 1 (eq. 10,
+            :func:`~covert_env.visibility.visible_nodes`; the action mask of slot k - 1's move; waypoint mode only).
+        start_xy (R, L0, 2), start_visible (R, L0), start_clear (R, L0): the zone lattice at slot 0, its nodes'
+            visibility and clearance of the tops (eq. 3): what the starts are drawn from.
         terrains: the scenes' terrains, row r the scene's (:class:`~covert_env.visibility.TerrainRows`).
         top (R, M, 3): polytope top points (eq. 3), padded with inf; centre (R, M, 2), radius (R, M): footprint
         circles (views of ``terrains``).
@@ -46,16 +52,19 @@ class ScenePool:
 
     def __init__(self, spec, config, lattice, map_offsets, map_in_zone, *, waypoint: bool, capacity: int):
         self.spec, self.config, self.lattice = spec, config, lattice
-        self._map_offsets, self._map_in_zone = map_offsets, map_in_zone
+        self._map_cells, self._map_in_zone = map_offsets[map_in_zone], map_in_zone
         self.waypoint, self.capacity = waypoint, capacity
+        self._start_lattice = zone_lattice(config)
         self._rows: OrderedDict = OrderedDict()          # key -> row, least recently used first
         self._caches: list[SceneCache | None] = []
-        self._start_nodes: list[tuple | None] = []
-        self._worlds: dict = {}                          # seed -> a random scene drawn in a batch, not yet built
+        self._names: list[str] = []                      # per row, for error messages
         d = shared_block_size(len(map_offsets))
         self.q, self.phi = np.zeros((0, 1, 3)), np.zeros((0, 1))
         self.blocks = np.zeros((0, 1, d), np.float32)
         self.lattice_ok = np.zeros((0, 1, len(lattice)), bool)
+        n0 = len(self._start_lattice)
+        self.start_xy, self.start_visible = np.zeros((0, n0, 2)), np.zeros((0, n0), bool)
+        self.start_clear = np.zeros((0, n0), bool)
         self.terrains = TerrainRows(capacity)
 
     def __len__(self) -> int:
@@ -79,24 +88,44 @@ class ScenePool:
             return ("scenario", id(self.spec))
         return "paper" if self.spec == "paper" else int(scene_seed)
 
+    def rows_of(self, keys: list, in_use: np.ndarray) -> np.ndarray:
+        """The rows of the scenes ``keys``, the missing ones built as one batch; ``in_use``: rows copies fly now
+        (never replaced, nor are the rows of ``keys``)."""
+        out = np.empty(len(keys), dtype=np.intp)
+        missing: dict = {}
+        for n, key in enumerate(keys):
+            if key in self._rows:
+                self._rows.move_to_end(key)
+                out[n] = self._rows[key]
+            else:
+                missing.setdefault(key, []).append(n)
+        if not missing:
+            return out
+        hits = [n for n, key in enumerate(keys) if key not in missing]
+        busy = set(np.asarray(in_use).tolist()) | set(out[hits].tolist())
+        free = iter(range(len(self._rows), self.capacity))
+        stale = (k for k, r in list(self._rows.items()) if r not in busy)
+        rows = []
+        for _ in missing:
+            r = next(free, None)
+            if r is None:
+                old = next(stale, None)
+                if old is None:
+                    raise RuntimeError("ScenePool: every row is in use; raise the capacity")
+                r = self._rows.pop(old)
+            rows.append(r)
+        self._fill(np.array(rows, dtype=np.intp), self._batch(list(missing)))
+        for (key, ns), r in zip(missing.items(), rows, strict=True):
+            self._rows[key] = r
+            out[ns] = r
+        return out
+
     def row(self, key, in_use: np.ndarray) -> int:
-        """The row of the scene ``key``, built if needed; ``in_use``: rows copies fly now (never replaced)."""
-        if key in self._rows:
-            self._rows.move_to_end(key)
-            return self._rows[key]
-        if len(self._rows) < self.capacity:
-            r = len(self._rows)
-        else:
-            busy = set(np.asarray(in_use).tolist())
-            old = next((k for k, r in self._rows.items() if r not in busy), None)
-            if old is None:
-                raise RuntimeError("ScenePool: every row is in use; raise the capacity")
-            r = self._rows.pop(old)
-        self._fill(r, self._build(key))
-        self._rows[key] = r
-        return r
+        """The row of the scene ``key``, built if needed (:meth:`rows_of` of one key)."""
+        return int(self.rows_of([key], in_use)[0])
 
     def cache(self, row: int) -> SceneCache:
+        """The scene objects of ``row`` (built on first use)."""
         return self._caches[row]
 
     def draw_episodes(self, rows: np.ndarray, idx: np.ndarray, rngs, scene_seeds, scene_pool: int, draw_starts: bool,
@@ -107,70 +136,105 @@ class ScenePool:
         first, so a pool of B scenes works). A copy's scene is ``scene_seeds[n]`` or, for ``scenario="random"``,
         a seed drawn from its generator in ``range(scene_pool)``; its starts are drawn from the generator
         (``draw_starts``, :func:`~covert_env.scenario.pick_starts`) or the scene's own seeded ones. Returns the
-        starts ``(len(idx), U, 2)`` and headings ``(len(idx), U)``. Drawing is the one per-copy step of a reset
-        (a few µs per copy, once per episode): every copy has its own generator.
+        starts ``(len(idx), U, 2)`` and headings ``(len(idx), U)``. The missing scenes are built as one batch;
+        drawing is the one per-copy step of a reset (a few µs per copy, once per episode): every copy has its own
+        generator.
         """
         c = self.config
         xy, theta = np.empty((len(idx), n_uavs, 2)), np.empty((len(idx), n_uavs))
         rows[idx] = -1
         seeds = [None if scene_seeds is None else int(scene_seeds[n]) for n in range(len(idx))]
         if self.spec == "random":
-            # Every copy's seed first (from its own generator), then the missing scenes as one batch.
             seeds = [int(rng.integers(scene_pool)) if s is None else s for s, rng in zip(seeds, rngs, strict=True)]
-            new = list(dict.fromkeys(s for s in seeds if self.key(s) not in self._rows))
-            self._worlds = dict(zip(new, random_worlds(new, c), strict=True)) if new else {}
-        for n, (j, rng) in enumerate(zip(idx, rngs, strict=True)):
-            s = seeds[n]
-            rows[j] = row = self.row(self.key(s), rows)
-            if draw_starts:
-                xy[n], theta[n] = pick_starts(c, *self.start_candidates(row), rng, n_uavs, self.cache(row).parts.name)
-            else:
-                sc = self.cache(row).seeded_scenario()
-                xy[n], theta[n] = sc.uav_xy, sc.uav_theta
+        rows[idx] = got = self.rows_of([self.key(s) for s in seeds], rows)
+        if draw_starts:
+            usable = self.start_clear[got]
+            vis = self.start_visible[got] & usable
+            return pick_starts_many(c, self.start_xy[got], [np.flatnonzero(v) for v in vis],
+                                    [np.flatnonzero(v) for v in usable & ~vis], rngs, n_uavs,
+                                    [self._names[r] for r in got.tolist()])
+        for n, row in enumerate(got.tolist()):
+            sc = self.cache(row).seeded_scenario()
+            xy[n], theta[n] = sc.uav_xy, sc.uav_theta
         return xy, theta
 
     def start_candidates(self, row: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """What ``Scenario.sample_starts`` draws the scene's starts from (``scenario.start_candidates``): the
-        zone lattice at slot 0 and its nodes clear of the tops (eq. 3) with and without LoS, computed once per
-        scene."""
-        return self._start_nodes[row]
+        zone lattice at slot 0 and its nodes clear of the tops (eq. 3) with and without LoS."""
+        vis, clear = self.start_visible[row], self.start_clear[row]
+        return self.start_xy[row], np.flatnonzero(vis & clear), np.flatnonzero(~vis & clear)
 
-    def _build(self, key) -> SceneCache:
+    def _batch(self, keys: list) -> SceneBatch:
         c = self.config
         if isinstance(self.spec, Scenario):
-            sc, seed = self.spec, None
-        elif self.spec == "paper":
-            sc, seed = Scenario.paper(c), None
-        else:
-            sc, seed = None, key
-        world = self._worlds.pop(seed, None) if seed is not None else None
-        return SceneCache(sc, self._map_offsets, self._map_in_zone, self.lattice, seed=seed, config=c, world=world)
+            return SceneBatch.of(keys[0], self.spec)
+        if self.spec == "paper":
+            return SceneBatch.of(keys[0], Scenario.paper(c))
+        return SceneBatch.random(keys, c)
 
-    def _fill(self, r: int, cache: SceneCache) -> None:
-        w, c = cache.parts, self.config
-        n_t = w.track.n_slots + 1
-        rows = max(r + 1, len(self.q))
+    def _fill(self, rows: np.ndarray, batch: SceneBatch) -> None:
+        """Write the scenes of ``batch`` into ``rows``, with their per-slot quantities (one batched call each)."""
+        c = self.config
+        n_t = batch.q.shape[1]
+        n = max(int(rows.max()) + 1, len(self.q))
         t = max(n_t, self.q.shape[1])
-        if rows > len(self.q):                              # grow geometrically: amortised O(1) per scene
-            rows = max(rows, min(2 * len(self.q), self.capacity))
-        self.q = grown(self.q, (rows, t, 3), 0.0)
-        self.phi = grown(self.phi, (rows, t), 0.0)
-        self.blocks = grown(self.blocks, (rows, t, self.blocks.shape[2]), 0.0)
+        if n > len(self.q):                                 # grow geometrically: amortised O(1) per scene
+            n = max(n, min(2 * len(self.q), self.capacity))
+        self.q = grown(self.q, (n, t, 3), 0.0)
+        self.phi = grown(self.phi, (n, t), 0.0)
+        self.blocks = grown(self.blocks, (n, t, self.blocks.shape[2]), 0.0)
         if self.waypoint:
-            self.lattice_ok = grown(self.lattice_ok, (rows, t, len(self.lattice)), False)
-        while len(self._caches) < rows:
+            self.lattice_ok = grown(self.lattice_ok, (n, t, len(self.lattice)), False)
+        self.start_xy = grown(self.start_xy, (n,) + self.start_xy.shape[1:], 0.0)
+        self.start_visible = grown(self.start_visible, (n,) + self.start_visible.shape[1:], False)
+        self.start_clear = grown(self.start_clear, (n,) + self.start_clear.shape[1:], False)
+        while len(self._caches) < n:
             self._caches.append(None)
-            self._start_nodes.append(None)
+            self._names.append("")
 
+        self.terrains.set_rows(rows, batch.hs, batch.centre, batch.radius, batch.z_max, batch.top, batch.growth)
         ks = np.minimum(np.arange(t), n_t - 1)             # clamped at the track's end
-        self.q[r] = w.track.positions[ks]
-        self.phi[r] = w.track.headings[ks]
-        self.blocks[r] = cache.shared_blocks()[ks]
+        self.q[rows], self.phi[rows] = batch.q[:, ks], batch.phi[:, ks]
+        self.blocks[rows] = self._blocks(rows, batch)[:, ks]
         if self.waypoint:
-            self.lattice_ok[r] = cache.lattice_visible()[ks]
-        self.terrains.set_row(r, w.terrain)
-        self._start_nodes[r] = start_candidates(c, w.terrain, w.track)
-        self._caches[r] = cache
+            self.lattice_ok[rows] = self._lattice_visible(rows, batch)[:, ks]
+        self._write_starts(rows, batch)
+        for key, r in zip(batch.keys, rows.tolist(), strict=True):
+            sc = batch.scenario
+            self._caches[r] = SceneCache(c, seed=None if sc else key, scenario=sc)
+            self._names[r] = sc.name if sc else f"random-{key}"
+
+    def _blocks(self, rows: np.ndarray, batch: SceneBatch) -> np.ndarray:
+        """(N, T, D) the shared blocks of the scenes just written into ``rows``: their maps at every slot and at
+        the predicted next one (the next slot's maps when the prediction is the truth)."""
+        c, in_zone = self.config, self._map_in_zone
+        maps = np.zeros(batch.q.shape[:2] + (len(in_zone),), np.float32)
+        maps[..., in_zone] = visible_nodes_rows(self.terrains, rows, self._map_cells, batch.q, batch.phi, c.altitude)
+        if batch.exact:
+            maps_next = maps[:, np.minimum(np.arange(maps.shape[1]) + 1, maps.shape[1] - 1)]
+        else:
+            maps_next = np.zeros_like(maps)
+            maps_next[..., in_zone] = visible_nodes_rows(self.terrains, rows, self._map_cells, batch.q_next,
+                                                         batch.phi_next, c.altitude)
+        return shared_blocks(c, batch, maps, maps_next)
+
+    def _lattice_visible(self, rows: np.ndarray, batch: SceneBatch) -> np.ndarray:
+        """(N, T, L) row k: the lattice nodes visible at slot k as predicted at k - 1 (row 0: slot 0; no mask reads
+        it)."""
+        q = np.concatenate([batch.q[:, :1], batch.q_next[:, :-1]], axis=1)
+        phi = np.concatenate([batch.phi[:, :1], batch.phi_next[:, :-1]], axis=1)
+        return visible_nodes_rows(self.terrains, rows, self.lattice, q, phi, self.config.altitude)
+
+    def _write_starts(self, rows: np.ndarray, batch: SceneBatch) -> None:
+        """The start candidates of the scenes just written into ``rows`` (:func:`start_nodes` and their LoS)."""
+        c = self.config
+        self.start_xy[rows], self.start_clear[rows] = start_nodes(c, self._start_lattice, batch.q[:, 0],
+                                                                  batch.phi[:, 0], batch.top)
+        if self.waypoint and batch.exact:                   # the same nodes and targets: the same decisions
+            self.start_visible[rows] = self.lattice_ok[rows, 0]
+        else:
+            self.start_visible[rows] = visible_nodes_rows(self.terrains, rows, self._start_lattice, batch.q[:, :1],
+                                                          batch.phi[:, :1], c.altitude)[:, 0]
 
     # ------------------------------------------------------------------ geometry
     def line_of_sight(self, rows: np.ndarray, uav_xy: np.ndarray, altitude: float, target_xyz: np.ndarray,
