@@ -98,8 +98,22 @@ def _segment_at(cumulative: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.n
         return np.clip(np.searchsorted(cl, s, side="right") - 1, 0, len(cl) - 2), s
     s = np.clip(s, 0.0, cl[:, -1].reshape((-1,) + (1,) * (s.ndim - 1)))
     flat = s.reshape(len(cl), -1)
-    i = (cl[:, None, :] <= flat[..., None]).sum(axis=-1) - 1
-    return np.clip(i, 0, cl.shape[-1] - 2).reshape(s.shape), s
+    # A guess from the mean vertex spacing, moved until cl[i] <= s < cl[i + 1] (the last index with cl <= s, as
+    # searchsorted finds it): a few passes on roads of near-uniform spacing (the generator's), at most K on any.
+    last = cl.shape[-1] - 1
+    step = np.maximum(cl[:, -1:] / max(last, 1), 1e-300)
+    i = np.clip((flat / step).astype(np.intp), 0, last)
+    while True:
+        high = np.take_along_axis(cl, i, axis=1) > flat
+        if not high.any():
+            break
+        i -= high
+    while True:
+        low = (i < last) & (np.take_along_axis(cl, np.minimum(i + 1, last), axis=1) <= flat)
+        if not low.any():
+            break
+        i += low
+    return np.clip(i, 0, last - 1).reshape(s.shape), s
 
 
 def _gather(a: np.ndarray, i: np.ndarray, batched: bool) -> np.ndarray:

@@ -288,3 +288,28 @@ def test_pose_at_matches_point_and_heading():
         p, h = road.pose_at(s)
         np.testing.assert_array_equal(p, road.point_at(s))
         assert h == float(road.heading_at(s))
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), n_roads=st.integers(1, 4), n_points=st.integers(2, 40),
+       uneven=st.booleans())
+def test_many_roads_at_once_equal_each_road(seed, n_roads, n_points, uneven):
+    """points_along / headings_along on N roads at once (the scene pool's tracks) give each road's Road.point_at and
+    heading_at bit for bit, on roads of uneven spacing (the batched segment search starts from a guess and must
+    still find searchsorted's segment), at vertices, at both ends and beyond them (clamped)."""
+    from covert_env.road import cumulative_lengths, headings_along, points_along
+
+    rng = np.random.default_rng(seed)
+    steps = rng.exponential(3.0, (n_roads, n_points - 1, 2)) + 1e-3
+    if uneven:
+        steps[:, : (n_points - 1) // 2] *= 50.0
+    pts = np.concatenate([np.zeros((n_roads, 1, 2)), np.cumsum(steps, axis=1)], axis=1)
+    cl = cumulative_lengths(pts)
+    s = rng.uniform(-5.0, cl[:, -1].max() + 5.0, (n_roads, 3, 4))
+    s[:, 0, :3] = cl[:, [0, min(2, n_points - 1), -1]]
+    got_xy, got_phi = points_along(pts, cl, s), headings_along(pts, cl, s)
+    for n in range(n_roads):
+        road = Road(pts[n])
+        np.testing.assert_array_equal(cl[n], road.cumulative_length)
+        np.testing.assert_array_equal(got_xy[n], road.point_at(s[n]))
+        np.testing.assert_array_equal(got_phi[n], road.heading_at(s[n]))
