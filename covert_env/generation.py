@@ -1,6 +1,7 @@
 """Batched scene generation: the roads and terrains of B random scenes, each step one array operation.
 
-``random_worlds(seeds, config)`` draws B scenes at once: roads as (B, P, 2) arrays, polytopes as padded
+``random_roads`` and ``random_terrains`` draw B scenes at once (through ``scenario.random_scene_arrays`` and
+``scenario.random_worlds``): roads as (B, P, 2) arrays, polytopes as padded
 (B, M, V, ...) arrays placed by rejection in rounds (every unplaced polytope of every scene proposes a placement
 per round; a proposal is kept when it is clear of the road and of every placed polytope and of the proposals that
 come before it), tops and faces in closed form. No Python loop runs over scenes, polytopes or vertices; the rounds

@@ -57,7 +57,7 @@ class CovertSensingVectorEnv:
     separation along the path, cost, rewards, constraint costs, observations, masks): no Python loop runs over
     copies, UAVs, lattice nodes or polytopes. Scenes come from a pool shared by all copies
     (:class:`~covert_env.envs.scene_pool.ScenePool`): what depends only on the scene and the slot is computed
-    once per scene.
+    once per scene, for all the new scenes of a reset as one batch of array operations.
 
     Copy ``i`` flies exactly what the parallel env flies for the same scene, starts and actions (tested, see
     Seeding): observations, rewards, costs and infos are bit-identical. (The parallel env is this env with B = 1;
