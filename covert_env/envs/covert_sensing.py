@@ -176,6 +176,9 @@ class CovertSensingParallelEnv(ParallelEnv):
     * ``family``: a scene family's name (:mod:`covert_env.families`: ``"sparse"``, ``"paper"``, ``"winding"``,
       ``"dense"``, ``"downtown"``, ``"towers"``), whose generator fields are set on ``config``; with
       ``scenario="random"`` only. None (default): the config as given (at its defaults, the ``paper`` family).
+    * ``task``: a task of the suite (:mod:`covert_env.tasks`, e.g. ``"downtown-3uav"``,
+      ``"paper-3uav-deviating"``): its family, team size and target behaviour set on ``config``;
+      ``family`` and ``n_uavs``, if given too, must agree with it.
 
     ## Version History
 
@@ -226,14 +229,14 @@ class CovertSensingParallelEnv(ParallelEnv):
                  dict_obs: bool = False, reward_scale: float = 100.0, los_penalty: float = 1.0,
                  zone_penalty: float = 1.0, separation_penalty: float = 1.0, terrain_penalty: float = 1.0,
                  terminate_on_collision: bool = False, scene_pool: int = 10_000, path_samples: int = 11,
-                 random_starts: bool = False, family: str | None = None):
+                 random_starts: bool = False, family: str | None = None, task: str | None = None):
         super().__init__()
         s = EnvSettings(config, n_uavs=n_uavs, scenario=scenario, action_mode=action_mode, max_cycles=max_cycles,
                         render_mode=render_mode, map_size=map_size, dict_obs=dict_obs, reward_scale=reward_scale,
                         los_penalty=los_penalty, zone_penalty=zone_penalty, separation_penalty=separation_penalty,
                         terrain_penalty=terrain_penalty, terminate_on_collision=terminate_on_collision,
                         scene_pool=scene_pool, path_samples=path_samples, random_starts=random_starts,
-                        family=family)
+                        family=family, task=task)
         # One copy, no automatic reset (PettingZoo's agents leave at the end and reset() starts the next
         # episode), episodes recorded for the metrics.
         self._vec = CovertSensingVectorEnv.from_settings(1, s, autoreset_mode=AutoresetMode.DISABLED, record=True)
@@ -242,6 +245,8 @@ class CovertSensingParallelEnv(ParallelEnv):
         self.scene_pool, self.path_samples, self.random_starts = s.scene_pool, s.path_samples, s.random_starts
         #: The scene family's name (:mod:`covert_env.families`), or None for the config as given.
         self.family = s.family
+        #: The suite task's name (:mod:`covert_env.tasks`), or None.
+        self.task = s.task
         self.lattice, self.map_offsets, self.layout = s.lattice, s.map_offsets, s.layout
         self.possible_agents = list(s.possible_agents)
         self.agents: list[str] = []

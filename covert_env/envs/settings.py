@@ -16,6 +16,7 @@ from covert_env.engine import MAX_PATH_SAMPLES
 from covert_env.envs.arguments import bool_arg, int_arg, number_arg
 from covert_env.envs.observation import ObservationLayout
 from covert_env.families import TRAIN_SEEDS, family_config
+from covert_env.tasks import get_task
 from covert_env.scenario import PAPER_UAV_STARTS, Scenario
 from covert_env.zone import in_feasible_zone, lattice_offsets, zone_lattice
 
@@ -101,7 +102,7 @@ class EnvSettings:
                  dict_obs: bool = False, reward_scale: float = 100.0, los_penalty: float = 1.0,
                  zone_penalty: float = 1.0, separation_penalty: float = 1.0, terrain_penalty: float = 1.0,
                  terminate_on_collision: bool = False, scene_pool: int = 10_000, path_samples: int = 11,
-                 random_starts: bool = False, family: str | None = None):
+                 random_starts: bool = False, family: str | None = None, task: str | None = None):
         if isinstance(config, Mapping):
             cfg = Config.from_dict(dict(config))
         elif config is None or isinstance(config, Config):
@@ -111,6 +112,15 @@ class EnvSettings:
                             f"got {type(config).__name__} {config!r}")
         if n_uavs is not None:
             cfg = cfg.replace(n_uavs=int_arg("n_uavs", n_uavs, 1))
+        if task is not None:
+            t = get_task(task)
+            if family is not None and family != t.family:
+                raise ValueError(f"task={t.name!r} flies the {t.family!r} family, got family={family!r}; pass one")
+            if n_uavs is not None and cfg.n_uavs != t.n_uavs:
+                raise ValueError(f"task={t.name!r} flies {t.n_uavs} UAV(s), got n_uavs={cfg.n_uavs}; pass one")
+            if not (isinstance(scenario, str) and scenario == "random"):
+                raise ValueError(f"task={t.name!r} draws random scenes: it needs scenario='random'")
+            cfg, family, task = t.config(cfg), None, t.name
         if family is not None:
             if not (isinstance(scenario, str) and scenario == "random"):
                 raise ValueError(f"family={family!r} draws random scenes: it needs scenario='random', got "
@@ -146,7 +156,8 @@ class EnvSettings:
         self.penalties = check_penalties({"los": los_penalty, "zone": zone_penalty, "separation": separation_penalty,
                                           "terrain": terrain_penalty})
         self.config = cfg
-        self.family = family
+        self.family = family if task is None else get_task(task).family
+        self.task = task
         self.scenario = scenario
         self.action_mode = action_mode
         self.max_cycles = cfg.n_slots if max_cycles is None else int_arg("max_cycles", max_cycles, 1)

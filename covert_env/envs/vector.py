@@ -197,6 +197,7 @@ class CovertSensingVectorEnv:
         self.config, self.action_mode, self.dict_obs = s.config, s.action_mode, s.dict_obs
         self.scenario_spec, self.random_starts = s.scenario, s.random_starts
         self.scene_pool, self.path_samples, self.family = s.scene_pool, s.path_samples, s.family
+        self.task = s.task
         self._reward_scale, self._penalties = s.reward_scale, check_penalties(s.penalties)
         self._terminate, self.max_cycles = s.terminate_on_collision, s.max_cycles
         self.lattice, self.possible_agents, self.layout = s.lattice, list(s.possible_agents), s.layout

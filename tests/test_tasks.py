@@ -1,0 +1,78 @@
+"""The task suite (covert_env.tasks): names, configs, fixed scenes, and every env kind built from a task."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import covert_env
+from covert_env import Config
+from covert_env.families import FAMILIES, HELD_OUT_SEEDS, TRAIN_SEEDS, family_config
+from covert_env.tasks import DEFAULT_TASKS, DEVIATION, TASKS, TEAM_SIZES, TEST_SCENES, get_task, resolve_tasks
+
+
+def test_every_family_team_size_and_target_is_a_task_with_its_config():
+    assert len(TASKS) == len(FAMILIES) * len(TEAM_SIZES) * 2
+    for name, t in TASKS.items():
+        c = t.config()
+        assert name == f"{t.family}-{t.n_uavs}uav" + ("-deviating" if t.target == "deviating" else "")
+        assert c.n_uavs == t.n_uavs
+        fam = family_config(t.family)
+        assert all(getattr(c, k) == getattr(fam, k) for k in FAMILIES[t.family].fields)
+        want = (DEVIATION, DEVIATION) if t.target == "deviating" else (0.0, Config().r_u)
+        assert (c.prediction_error, c.r_u) == want
+        assert t.test_seeds == range(HELD_OUT_SEEDS.start, HELD_OUT_SEEDS.start + TEST_SCENES)
+        assert t.train_seeds == TRAIN_SEEDS and not set(t.test_seeds) & set(range(0, 10_000))
+    assert set(DEFAULT_TASKS) <= set(TASKS)
+
+
+@pytest.mark.parametrize("name", list(TASKS))
+def test_every_task_resets_on_its_first_test_scene_and_a_training_scene(name):
+    """Each task's team fits its scenes (starts placed) on a held-out and a training scene, in both action modes."""
+    t = get_task(name)
+    venv = covert_env.vector_env(num_envs=2, task=name, action_mode="waypoint")
+    obs, _ = venv.reset(seed=0, options={"scene_seed": [t.test_seeds[0], t.train_seeds[5]]})
+    assert obs.shape[:2] == (2, t.n_uavs) and np.isfinite(obs).all()
+    assert venv.config == t.config() and venv.task == name and venv.family == t.family
+
+
+def test_a_task_is_its_family_team_and_target_bit_for_bit():
+    """task="downtown-3uav-deviating" flies exactly the env built from its parts."""
+    t = get_task("downtown-3uav-deviating")
+    a = covert_env.parallel_env(task=t.name)
+    b = covert_env.parallel_env(family="downtown", n_uavs=3, config=Config(prediction_error=DEVIATION, r_u=DEVIATION))
+    for env in (a, b):
+        env.reset(seed=3, options={"scene_seed": 1_000_004})
+    rng = np.random.default_rng(0)
+    for _ in range(10):
+        act = {u: rng.uniform(-1, 1, 2).astype(np.float32) for u in a.agents}
+        oa, ra = a.step(act)[:2]
+        ob, rb = b.step(act)[:2]
+        for u in act:
+            np.testing.assert_array_equal(oa[u], ob[u])
+            assert ra[u] == rb[u]
+
+
+def test_task_conflicts_and_bad_names_are_clear_errors():
+    with pytest.raises(ValueError, match="flies 3 UAV"):
+        covert_env.parallel_env(task="paper-3uav", n_uavs=1)
+    with pytest.raises(ValueError, match="'paper' family, got family='dense'"):
+        covert_env.parallel_env(task="paper-3uav", family="dense")
+    with pytest.raises(ValueError, match="needs scenario='random'"):
+        covert_env.parallel_env(task="paper-1uav", scenario="paper")
+    with pytest.raises(ValueError, match="config sets"):
+        covert_env.parallel_env(task="paper-3uav-deviating", config=Config(prediction_error=1.0, r_u=1.0))
+    for bad in ("paper", "paper-2uav", "Paper-3uav", 3, None):
+        with pytest.raises(ValueError, match=r"task must be a task name .* got"):
+            get_task(bad)
+    with pytest.raises(ValueError, match="flies 3 UAV"):
+        gym.make("covert_env/CovertSensing-v2", task="towers-3uav")
+    assert gym.make("covert_env/CovertSensing-v2", task="towers-1uav").reset(seed=0)[0].shape == (139,)
+
+
+def test_resolve_tasks_expands_groups_in_order_without_repeats():
+    assert [t.name for t in resolve_tasks(["default"])] == list(DEFAULT_TASKS)
+    assert [t.name for t in resolve_tasks(["towers-1uav", "default", "paper-3uav"])] == ["towers-1uav",
+                                                                                          *DEFAULT_TASKS]
+    assert len(resolve_tasks(["all", "default"])) == len(TASKS)
