@@ -16,8 +16,8 @@ from covert_env.engine import MAX_PATH_SAMPLES
 from covert_env.envs.arguments import bool_arg, int_arg, number_arg
 from covert_env.envs.observation import ObservationLayout
 from covert_env.families import TRAIN_SEEDS, family_config
-from covert_env.tasks import get_task
 from covert_env.scenario import PAPER_UAV_STARTS, Scenario
+from covert_env.tasks import get_task
 from covert_env.zone import in_feasible_zone, lattice_offsets, zone_lattice
 
 __all__ = ["ACTION_MODES", "EnvSettings", "MAX_PATH_SAMPLES", "MAX_SCENE_POOL", "PENALTIES", "RENDER_MODES",
