@@ -18,7 +18,23 @@ Policies:
 * :class:`DPPolicy` -- the paper's DP planner (:mod:`baselines.dp`), shadow-aware or shadow-blind, with
   the team negotiation. In waypoint mode its action is the planned node, exactly the move the planner
   makes (the env's lattice is the planner's node set), so an env rollout equals
-  :func:`baselines.rollout.rollout` for the same scene. In unicycle mode see :func:`arc_action`.
+  :func:`baselines.rollout.rollout` for the same scene. In unicycle mode see :func:`arc_action`. Its variants
+  by name (:data:`POLICIES`), what each guarantees and what it costs per decision (one team replan; the
+  benchmark's ``decision_time_ms`` column measures it):
+
+  ==============  ===========================================================================================
+  ``dp``          the paper's method: waypoints in the visible zone (eq. 10) at slot times, headings inherited
+                  along the DP (§2.4). LoS and the zone hold at every slot time (to the predicted target; a
+                  best-effort fallback when no node qualifies); between slots nothing is checked.
+  ``dp-path``     ``dp`` with ``check_path=True``: a move is kept only if LoS and the zone hold at samples
+                  along the manoeuvre, so the target is also seen between slot times (up to the samples'
+                  spacing). 2-3.5 times ``dp``'s time (a 3-UAV episode on a paper and a downtown scene).
+  ``dp-blind``    the shadow-blind predecessor [1]: the feasible zone (eq. 5) without shadows; no LoS
+                  guarantee at all. About ``dp``'s time.
+  ``dp-binned``   ``dp`` with 16 heading bins per node instead of one inherited heading: the DP's optimum over
+                  headings (``python -m benchmarks.dp --optimality`` measures how often the inherited heading
+                  misses it). 2.5-3 times ``dp``'s time.
+  ==============  ===========================================================================================
 * :class:`RandomPolicy` -- uniform over the allowed waypoints (the action mask), or uniform in the box.
 * :class:`HoldZoneCentrePolicy` -- heads for the centre of the feasible zone behind the target, every slot:
   covert-naive (no disguise) but always in the zone when it can be reached.
@@ -220,13 +236,15 @@ POLICIES = {
     "dp": lambda **kw: DPPolicy(**kw),
     "dp-blind": lambda **kw: DPPolicy(shadow_aware=False, **kw),
     "dp-binned": lambda **kw: DPPolicy(heading="binned", **kw),
+    "dp-path": lambda **kw: DPPolicy(check_path=True, **kw),
     "random": lambda **kw: RandomPolicy(**kw),
     "hold-centre": lambda **kw: HoldZoneCentrePolicy(**kw),
 }
 
 
 def make_policy(name: str, **kwargs) -> Policy:
-    """A policy by name: one of :data:`POLICIES` (``dp``, ``dp-blind``, ``dp-binned``, ``random``, ``hold-centre``)."""
+    """A policy by name: one of :data:`POLICIES` (``dp``, ``dp-path``, ``dp-blind``, ``dp-binned``, ``random``,
+    ``hold-centre``)."""
     if name not in POLICIES:
         raise ValueError(f"unknown policy {name!r}; choose one of {sorted(POLICIES)}")
     return POLICIES[name](**kwargs)

@@ -2,13 +2,14 @@
 
     covert-env reproduce --out outputs/reproduce            # the paper's experiments with the DP planner
     covert-env evaluate --help                               # score policies on held-out scenes
+    covert-env benchmark --help                              # the task suite's protocol
     covert-env scene --seed 3 --slot 10 --out scene.png     # a picture of one slot (3D + top view)
     covert-env scene --paper --slot 0 --out paper.png        # the paper scenario
     covert-env animate                                       # the DP team flying: outputs/dp_team.gif
     covert-env animate --out docs/dp_team.gif                # regenerate the README's animation
     covert-env scene-set --family downtown --scenes 20 --out downtown20.json   # scenes as data, to share
 
-``reproduce`` and ``evaluate`` live in ``baselines`` and ``training`` (imported only when called).
+``reproduce``, ``evaluate`` and ``benchmark`` live in ``baselines`` and ``training`` (imported only when called).
 
 Mistakes in the command line or in the files it names (a missing or invalid ``--config``, or one that is not a
 regular file; an unknown policy; an ``--out`` that is a file where a folder is expected, or that cannot be written,
@@ -103,6 +104,8 @@ def build_parser() -> argparse.ArgumentParser:
                                      "write figures and metrics (see: covert-env reproduce --help)")
     sub.add_parser("evaluate", help="score policies on held-out scenes and write a leaderboard "
                                     "(see: covert-env evaluate --help)")
+    sub.add_parser("benchmark", help="the task suite's protocol: every task x policy x scene, normalised scores, "
+                                     "IQM with intervals, profiles (see: covert-env benchmark --help)")
     p = sub.add_parser("scene", help="draw terrain, road, target, zone, shadows and visible zone at one slot",
                        description="Draw terrain, road, target, zone, shadows and visible zone at one slot.")
     p.add_argument("--seed", type=non_negative_int, default=0,
@@ -167,7 +170,7 @@ def _scene_set(args: argparse.Namespace) -> int:
     return 0
 
 
-_FORWARDED = {"reproduce": "baselines.reproduce", "evaluate": "training.evaluate"}
+_FORWARDED = {"reproduce": "baselines.reproduce", "evaluate": "training.evaluate", "benchmark": "training.benchmark"}
 
 
 def main(argv: list[str] | None = None) -> int:
