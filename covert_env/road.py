@@ -91,7 +91,7 @@ def cumulative_lengths(points: np.ndarray) -> np.ndarray:
 
 def _segment_at(cumulative: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The segment index of arc lengths ``s`` (clamped to the road) and the clamped ``s``: one road (K,) and any
-    ``s``, or N roads (N, K) and ``s`` (N, ...) (numpy's searchsorted per row, as a count: the same index)."""
+    ``s``, or N roads (N, K) and ``s`` (N, ...) (a guess from the mean spacing, walked to searchsorted's index)."""
     cl = cumulative
     if cl.ndim == 1:
         s = np.clip(s, 0.0, cl[-1])

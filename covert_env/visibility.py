@@ -501,9 +501,10 @@ class TerrainRows:
     """Terrains as rows of padded arrays (one terrain per row), for line of sight of a batch of copies, copy b
     against the terrain in row ``rows[b]`` (the vector env's scene pool keeps one row per scene).
 
-    Rows are written by :meth:`set_row`; the arrays grow (geometrically, up to ``capacity`` rows) to the largest
-    polytope and face counts seen. Extra faces are the always-true row ``0.x - 1 <= 0`` and extra polytopes are
-    empty (a row ``0.x + 1 <= 0``) and marked invalid, so padding never blocks.
+    Rows are written by :meth:`set_rows` (many at once) or :meth:`set_row`; the arrays grow (geometrically, up to
+    ``capacity`` rows) to the largest polytope and face counts seen. Extra faces are the always-true row
+    ``0.x - 1 <= 0`` and extra polytopes are empty (a row ``0.x + 1 <= 0``) and marked invalid, so padding never
+    blocks.
 
     Attributes (rows R, polytopes M, faces F):
         faces (4, F, R, M): the columns n_x, n_y, n_z, d of each polytope's half-spaces, faces first.
@@ -705,7 +706,9 @@ def visible_nodes_rows(terrains: TerrainRows, rows, offsets, q, phi, altitude: f
         return out
     if not float(altitude) > q[..., 2].max():
         raise ValueError(f"visible_nodes_rows: the altitude ({float(altitude):g} m) must be above every target")
-    chunk = max(1, (1 << 19) // (n_t * len(off)))       # scenes per block: a few MB per (nodes x 2) array
+    # Scenes per block: at most 2^21 (node, polytope) pairs, so the broad phase's (kept triple x node) arrays stay
+    # within ~16 MB each whatever the terrain's polytope count.
+    chunk = max(1, (1 << 21) // (n_t * len(off) * max(terrains.valid.shape[1], 1)))
     for a in range(0, n_s, chunk):
         _visible_block(terrains, rows[a:a + chunk], off, q[a:a + chunk], phi[a:a + chunk], float(altitude), tol,
                        out[a:a + chunk])

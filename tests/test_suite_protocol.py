@@ -6,6 +6,7 @@ import json
 
 import numpy as np
 import pytest
+from _extras import needs
 from scipy.stats import trim_mean
 
 from training.benchmark import REFERENCE, aggregate, main, marl_eval, normalised_scores, run_cells
@@ -85,3 +86,17 @@ def test_command_line_errors_name_the_flag(capsys):
             main(argv + ["--out", "/tmp/never_written_suite"])
         assert e.value.code == 2
         assert msg in capsys.readouterr().err
+
+
+def test_ray_and_local_runs_give_the_same_rows():
+    """On a local Ray instance (the rllib extra, CI's Ray venv) the cells give the rows of a local run."""
+    ray = needs("ray")
+    cells = [("paper-1uav", REFERENCE, 0), ("sparse-1uav", "hold-centre", 0)]
+    local = run_cells(cells, 2, jobs=1, progress=False)
+    try:
+        remote = run_cells(cells, 2, progress=False, ray_address="local")
+    finally:
+        ray.shutdown()
+    for r in (*local, *remote):
+        r.pop("decision_time_ms")
+    assert remote == local and len(local) == 4

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 import covert_env
+from covert_env import Config
 from covert_env.envs.vector import INFO_KEYS
 from covert_env.scenario import Scenario
 
@@ -387,3 +388,20 @@ def test_refused_resets_leave_the_batch_usable_and_settings_are_checked():
     big = covert_env.parallel_env(scenario="paper")
     big.reset(seed=2 ** 64 + 3)                         # Gymnasium's seeding takes any int >= 0
     assert not hasattr(covert_env.parallel_env(), "scenario")
+
+
+def test_a_scene_that_fails_to_build_leaves_the_pool_and_the_other_copies_as_they_were():
+    """A reset whose new scene cannot be built raises, and the pool keeps every scene it had: the copy still flying
+    its scene keeps it (a row taken for the failed scene before the build would later be handed to another scene
+    while that copy still flies it)."""
+    c = Config(n_polytopes=60)                                      # seed 7: the generator cannot place them all
+    venv = covert_env.vector_env(num_envs=2, config=c, scene_cache_size=2)
+    venv.reset(seed=0, options={"scene_seed": [0, 1]})
+    with pytest.raises(ValueError, match="could not place all 60 polytopes"):
+        venv.reset(options={"scene_seed": [7, 1], "reset_mask": [True, False]})
+    venv.reset(options={"scene_seed": [2, 1], "reset_mask": [True, False]})
+    assert [venv.scenario(i).name for i in range(2)] == ["random-2", "random-1"]
+    fresh = covert_env.vector_env(num_envs=2, config=c)
+    fresh.reset(seed=0, options={"scene_seed": [2, 1]})
+    obs = venv.step(np.zeros((2, 3, 2)))[0]
+    np.testing.assert_array_equal(obs, fresh.step(np.zeros((2, 3, 2)))[0])

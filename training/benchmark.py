@@ -30,8 +30,9 @@ The protocol, fixed so that two users' runs compare (defaults: :data:`DEFAULT_PO
   layout: environment, task, algorithm, ``run_i``, one evaluation step with per-scene lists and
   ``absolute_metrics``). Per-task leaderboards: ``tasks/<task>/leaderboard.md`` (the harness's tables).
 
-Cells run in a local process pool (``--jobs``, default every CPU); each cell's result depends on its cell alone,
-so any number of workers gives the same files (tested).
+Cells run in a local process pool (``--jobs``, default every CPU), or on a Ray cluster with ``--ray-address``
+(``local`` starts one here; Ray is the ``rllib`` extra); each cell's result depends on its cell alone, so any number
+of workers, and Ray, give the same rows (tested).
 """
 
 from __future__ import annotations
@@ -79,13 +80,23 @@ def _run_cell(task: str, spec: str, run: int, scenes: int, trust: bool) -> list[
 
 
 def run_cells(cells: list[tuple[str, str, int]], scenes: int, *, jobs: int = 1, trust: bool = False,
-              progress: bool = True) -> list[dict]:
-    """Rows of every (task, spec, run) cell group, in the order of ``cells`` whatever the number of ``jobs``
-    (processes; 1 runs in this process)."""
+              progress: bool = True, ray_address: str | None = None) -> list[dict]:
+    """Rows of every (task, spec, run) cell group, in the order of ``cells`` whatever runs them: this process
+    (``jobs`` = 1), a local pool of ``jobs`` processes, or a Ray cluster at ``ray_address`` (``"local"`` starts one
+    on this machine; Ray is the ``rllib`` extra)."""
     args = [(task, spec, run, scenes, trust) for task, spec, run in cells]
     bar = _bar(len(args), progress)
     out: list[list[dict]] = []
-    if jobs == 1:
+    if ray_address is not None:
+        import ray
+
+        ray.init(address=ray_address, include_dashboard=False, log_to_driver=False, ignore_reinit_error=True)
+        remote = ray.remote(_run_cell)
+        refs = [remote.remote(*a) for a in args]
+        for ref in refs:
+            out.append(ray.get(ref))
+            bar.update()
+    elif jobs == 1:
         for a in args:
             out.append(_run_cell(*a))
             bar.update()
@@ -221,7 +232,7 @@ def write_suite(out: Path, rows: list[dict], ref: dict, agg: dict, meta: dict, s
                          + " |")
     for p, tasks in skipped.items():
         lines.append(f"\n{p} acts for another team size: not scored on {', '.join(tasks)}.")
-    lines += ["", f"Wall time: {meta['seconds']:.0f} s with {meta['jobs']} worker(s).",
+    lines += ["", f"Wall time: {meta['seconds']:.0f} s ({meta['jobs']} worker(s)).",
               f"Command: `{meta['command']}`", ""]
     (out / "suite.md").write_text("\n".join(lines))
     keys = ["task", "policy", "run", "action_mode", "scene_seed", "score", *(k for k, _, _ in COLUMNS)]
@@ -300,6 +311,9 @@ def build_parser(prog: str = "python -m training.benchmark") -> argparse.Argumen
     p.add_argument("--scenes", type=int_range(1, min(TEST_SCENES, MAX_SCENES)), default=DEFAULT_SCENES,
                    help=f"test scenes per task, in [1, {TEST_SCENES}] (the first of each task's held-out scenes)")
     p.add_argument("--jobs", type=positive_int, default=os.cpu_count() or 1, help="worker processes, >= 1")
+    p.add_argument("--ray-address", metavar="ADDRESS", default=None,
+                   help="run the cells on the Ray cluster at ADDRESS instead of a local pool ('local' starts one on "
+                        "this machine; pip install -e \".[rllib]\"); the results are the same")
     p.add_argument("--out", default="outputs/suite", help="output folder (git-ignored outputs/)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--trust-checkpoint", action="store_true",
@@ -339,10 +353,17 @@ def _main(args: argparse.Namespace, command: str) -> int:
     out = output_dir(args.out, files=("suite.md", "cells.csv", "results.json", "marl_eval.json",
                                       "performance_profile.png", "improvement.png"), folders=("tasks",))
     t0 = time.perf_counter()
-    rows = run_cells(cells, args.scenes, jobs=args.jobs, trust=args.trust_checkpoint, progress=not args.no_progress)
+    if args.ray_address is not None:
+        try:
+            import ray  # noqa: F401
+        except ModuleNotFoundError:
+            raise UsageError("--ray-address needs ray, which is not installed: pip install -e \".[rllib]\"") from None
+    rows = run_cells(cells, args.scenes, jobs=args.jobs, trust=args.trust_checkpoint, progress=not args.no_progress,
+                     ray_address=args.ray_address)
     scored, ref = normalised_scores(rows)
     agg = aggregate(scored, specs)
-    meta = {"scenes": args.scenes, "jobs": args.jobs, "seconds": time.perf_counter() - t0, "command": command,
+    workers = args.jobs if args.ray_address is None else f"Ray at {args.ray_address}"
+    meta = {"scenes": args.scenes, "jobs": workers, "seconds": time.perf_counter() - t0, "command": command,
             "tasks": [t.name for t in tasks], "policies": specs}
     write_suite(out, scored, ref, agg, meta, skipped)
     for p, a in agg["policies"].items():

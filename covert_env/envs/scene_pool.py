@@ -101,20 +101,19 @@ class ScenePool:
                 missing.setdefault(key, []).append(n)
         if not missing:
             return out
+        # Rows first: unused ones in order, then those of the least recently used scenes no copy flies (nor a copy of
+        # this call). Nothing leaves the pool before the new scenes are built: a scene that fails to build leaves
+        # the pool as it was.
         hits = [n for n, key in enumerate(keys) if key not in missing]
         busy = set(np.asarray(in_use).tolist()) | set(out[hits].tolist())
-        free = iter(range(len(self._rows), self.capacity))
-        stale = (k for k, r in list(self._rows.items()) if r not in busy)
-        rows = []
-        for _ in missing:
-            r = next(free, None)
-            if r is None:
-                old = next(stale, None)
-                if old is None:
-                    raise RuntimeError("ScenePool: every row is in use; raise the capacity")
-                r = self._rows.pop(old)
-            rows.append(r)
-        self._fill(np.array(rows, dtype=np.intp), self._batch(list(missing)))
+        taken = np.fromiter(self._rows.values(), dtype=np.intp, count=len(self._rows))
+        free = np.setdiff1d(np.arange(self.capacity), taken)[:len(missing)].tolist()
+        stale = [k for k, r in self._rows.items() if r not in busy][:len(missing) - len(free)]
+        if len(free) + len(stale) < len(missing):
+            raise RuntimeError("ScenePool: every row is in use; raise the capacity")
+        batch = self._batch(list(missing))
+        rows = free + [self._rows.pop(k) for k in stale]
+        self._fill(np.array(rows, dtype=np.intp), batch)
         for (key, ns), r in zip(missing.items(), rows, strict=True):
             self._rows[key] = r
             out[ns] = r
@@ -135,34 +134,31 @@ class ScenePool:
         ``rows`` (B,): every copy's scene row, updated in place for ``idx`` (their old scenes may leave the pool
         first, so a pool of B scenes works). A copy's scene is ``scene_seeds[n]`` or, for ``scenario="random"``,
         a seed drawn from its generator in ``range(scene_pool)``; its starts are drawn from the generator
-        (``draw_starts``, :func:`~covert_env.scenario.pick_starts`) or the scene's own seeded ones. Returns the
-        starts ``(len(idx), U, 2)`` and headings ``(len(idx), U)``. The missing scenes are built as one batch;
+        (``draw_starts``) or the scene's own seeded ones (a new generator of its seed, as ``Scenario.random``),
+        both by :func:`~covert_env.scenario.pick_starts_many` on the pool's start candidates. Returns the starts
+        ``(len(idx), U, 2)`` and headings ``(len(idx), U)``. The missing scenes are built as one batch;
         drawing is the one per-copy step of a reset (a few µs per copy, once per episode): every copy has its own
         generator.
         """
-        c = self.config
-        xy, theta = np.empty((len(idx), n_uavs, 2)), np.empty((len(idx), n_uavs))
+        if len(idx) == 0:
+            return np.zeros((0, n_uavs, 2)), np.zeros((0, n_uavs))
         rows[idx] = -1
         seeds = [None if scene_seeds is None else int(scene_seeds[n]) for n in range(len(idx))]
         if self.spec == "random":
             seeds = [int(rng.integers(scene_pool)) if s is None else s for s, rng in zip(seeds, rngs, strict=True)]
         rows[idx] = got = self.rows_of([self.key(s) for s in seeds], rows)
-        if draw_starts:
-            usable = self.start_clear[got]
-            vis = self.start_visible[got] & usable
-            return pick_starts_many(c, self.start_xy[got], [np.flatnonzero(v) for v in vis],
-                                    [np.flatnonzero(v) for v in usable & ~vis], rngs, n_uavs,
-                                    [self._names[r] for r in got.tolist()])
-        for n, row in enumerate(got.tolist()):
-            sc = self.cache(row).seeded_scenario()
-            xy[n], theta[n] = sc.uav_xy, sc.uav_theta
-        return xy, theta
-
-    def start_candidates(self, row: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """What ``Scenario.sample_starts`` draws the scene's starts from (``scenario.start_candidates``): the
-        zone lattice at slot 0 and its nodes clear of the tops (eq. 3) with and without LoS."""
-        vis, clear = self.start_visible[row], self.start_clear[row]
-        return self.start_xy[row], np.flatnonzero(vis & clear), np.flatnonzero(~vis & clear)
+        if not draw_starts and self.spec == "random":
+            # Each scene's own starts (Scenario.random(seed)): the start rule with a new generator of its seed.
+            rngs = [np.random.default_rng(s) for s in seeds]
+        elif not draw_starts:
+            sc = self.cache(int(got[0])).seeded_scenario()            # a fixed scenario: its starts
+            return np.broadcast_to(sc.uav_xy, (len(idx), n_uavs, 2)).copy(), \
+                np.broadcast_to(sc.uav_theta, (len(idx), n_uavs)).copy()
+        usable = self.start_clear[got]
+        vis = self.start_visible[got] & usable
+        return pick_starts_many(self.config, self.start_xy[got], [np.flatnonzero(v) for v in vis],
+                                [np.flatnonzero(v) for v in usable & ~vis], rngs, n_uavs,
+                                [self._names[r] for r in got.tolist()])
 
     def _batch(self, keys: list) -> SceneBatch:
         c = self.config
@@ -201,8 +197,8 @@ class ScenePool:
         self._write_starts(rows, batch)
         for key, r in zip(batch.keys, rows.tolist(), strict=True):
             sc = batch.scenario
-            self._caches[r] = SceneCache(c, seed=None if sc else key, scenario=sc)
-            self._names[r] = sc.name if sc else f"random-{key}"
+            self._caches[r] = SceneCache(c, seed=None if sc is not None else key, scenario=sc)
+            self._names[r] = sc.name if sc is not None else f"random-{key}"
 
     def _blocks(self, rows: np.ndarray, batch: SceneBatch) -> np.ndarray:
         """(N, T, D) the shared blocks of the scenes just written into ``rows``: their maps at every slot and at
@@ -230,7 +226,8 @@ class ScenePool:
         c = self.config
         self.start_xy[rows], self.start_clear[rows] = start_nodes(c, self._start_lattice, batch.q[:, 0],
                                                                   batch.phi[:, 0], batch.top)
-        if self.waypoint and batch.exact:                   # the same nodes and targets: the same decisions
+        if self.waypoint and batch.exact and np.array_equal(self.lattice, self._start_lattice):
+            # The same nodes and targets: the same decisions.
             self.start_visible[rows] = self.lattice_ok[rows, 0]
         else:
             self.start_visible[rows] = visible_nodes_rows(self.terrains, rows, self._start_lattice, batch.q[:, :1],

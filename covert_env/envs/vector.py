@@ -137,8 +137,9 @@ class CovertSensingVectorEnv:
     ## Arguments
 
     ``num_envs`` (B, in ``[1, MAX_NUM_ENVS]``) and the parallel env's keyword arguments (``render_mode`` must
-    be None). ``scenario="random"`` builds a scene the first time a copy draws its seed (about 10 ms, 50 ms in
-    waypoint mode); the pool keeps ``scene_cache_size`` scenes (default ``B + 32``, at least B): with
+    be None). ``scenario="random"`` builds a scene the first time a copy draws its seed, all the scenes a reset needs
+    as one batch (about 1 ms each at large B, several ms in waypoint mode, more for the dense families); the pool
+    keeps ``scene_cache_size`` scenes (default ``B + 32``, at least B): with
     ``scene_pool <= scene_cache_size`` every training scene is built once (about 40 kB each, 80 kB in waypoint
     mode), otherwise a scene is rebuilt whenever it is drawn again after leaving the cache.
     ``autoreset_mode``: ``AutoresetMode.SAME_STEP`` (default) or ``AutoresetMode.DISABLED`` (see Autoreset).
