@@ -4,7 +4,7 @@ A task is what a benchmark row is measured on: a scene family (:mod:`covert_env.
 the target drives. Pass its name wherever an env is made, or to the suite protocol::
 
     covert_env.parallel_env(task="downtown-3uav")            # PettingZoo; also env(), vector_env(), gym.make
-    covert-env benchmark --tasks default --policies dp dp-blind random --out outputs/suite
+    covert-env benchmark --tasks core --policies dp dp-blind random --out outputs/suite
 
 Names are ``{family}-{U}uav`` (nominal target) or ``{family}-{U}uav-deviating``. Every task trains on the family's
 training scenes (:data:`~covert_env.families.TRAIN_SEEDS`) and is scored on its first :data:`TEST_SCENES`
@@ -116,11 +116,11 @@ def get_task(name) -> Task:
 
 
 def resolve_tasks(names) -> list[Task]:
-    """Tasks from names, ``"default"`` (:data:`DEFAULT_TASKS`) or ``"all"`` (every task), in the order given,
+    """Tasks from names, ``"core"`` (:data:`DEFAULT_TASKS`) or ``"all"`` (every task), in the order given,
     without repeats."""
     out: dict[str, Task] = {}
     for name in names:
-        group = DEFAULT_TASKS if name == "default" else tuple(TASKS) if name == "all" else (name,)
+        group = DEFAULT_TASKS if name == "core" else tuple(TASKS) if name == "all" else (name,)
         for n in group:
             out.setdefault(n, get_task(n))
     return list(out.values())

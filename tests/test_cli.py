@@ -368,15 +368,17 @@ def _option_blocks(help_text: str) -> dict[str, str]:
 
 def _parsers():
     from baselines.reproduce import build_parser as reproduce_parser
+    from training.benchmark import build_parser as benchmark_parser
     from training.evaluate import build_parser as evaluate_parser
 
     yield "scene", build_parser()._subparsers._group_actions[0].choices["scene"]
     yield "animate", build_parser()._subparsers._group_actions[0].choices["animate"]
     yield "reproduce", reproduce_parser()
     yield "evaluate", evaluate_parser()
+    yield "benchmark", benchmark_parser()
 
 
-@pytest.mark.parametrize("name", ["scene", "animate", "reproduce", "evaluate"])
+@pytest.mark.parametrize("name", ["scene", "animate", "reproduce", "evaluate", "benchmark"])
 def test_cli_help_prints_each_default_once(name):
     parser = dict(_parsers())[name]
     blocks = _option_blocks(parser.format_help())

@@ -277,6 +277,16 @@ def test_benchmarl_task_config():
     assert task.group_map(env) == {"uav": ["uav_0"]} and task.max_steps(env) == 20
     assert env._env.penalties["los"] == 2.0
     assert CovertSensingTask.WAYPOINT.get_task(config={"max_cycles": 1000}).max_steps(env) == 70   # the route
+    suite = CovertSensingTask.WAYPOINT.get_task(config={"suite_task": "downtown-6uav"})
+    env = suite.get_env_fun(num_envs=1, continuous_actions=False, seed=0, device="cpu")()
+    assert suite.group_map(env) == {"uav": [f"uav_{i}" for i in range(6)]}
+    assert env._env.task == "downtown-6uav" and env._env.config.n_polytopes == 56
+    dense = CovertSensingTask.UNICYCLE.get_task(config={"family": "dense", "n_uavs": 1})
+    env = dense.get_env_fun(num_envs=1, continuous_actions=True, seed=0, device="cpu")()
+    assert env._env.family == "dense" and suite.group_map(env) == {"uav": ["uav_0"]}
+    with pytest.raises(ValueError, match="flies 3 UAV"):
+        CovertSensingTask.UNICYCLE.get_task(config={"suite_task": "paper-3uav", "n_uavs": 1}).get_env_fun(
+            1, True, 0, "cpu")()
     with pytest.raises(ValueError, match="unknown fields.*'n_uav'"):
         CovertSensingTask.UNICYCLE.get_task(config={"n_uav": 3}).get_env_fun(1, True, 0, "cpu")
     with pytest.raises(ValueError, match="env_kwargs may not set.*action_mode"):

@@ -72,7 +72,27 @@ def test_task_conflicts_and_bad_names_are_clear_errors():
 
 
 def test_resolve_tasks_expands_groups_in_order_without_repeats():
-    assert [t.name for t in resolve_tasks(["default"])] == list(DEFAULT_TASKS)
-    assert [t.name for t in resolve_tasks(["towers-1uav", "default", "paper-3uav"])] == ["towers-1uav",
+    assert [t.name for t in resolve_tasks(["core"])] == list(DEFAULT_TASKS)
+    assert [t.name for t in resolve_tasks(["towers-1uav", "core", "paper-3uav"])] == ["towers-1uav",
                                                                                           *DEFAULT_TASKS]
-    assert len(resolve_tasks(["all", "default"])) == len(TASKS)
+    assert len(resolve_tasks(["all", "core"])) == len(TASKS)
+
+
+def test_the_harness_flies_a_task_on_its_held_out_scenes(tmp_path, capsys):
+    """covert-env evaluate --task: the task's family, team and target on its test scenes; conflicting flags are one
+    usage error each."""
+    from training.evaluate import main
+
+    out = tmp_path / "lb"
+    assert main(["--task", "towers-1uav-deviating", "--policies", "hold-centre", "--episodes", "2", "--out", str(out),
+                 "--no-progress"]) == 0
+    text = (out / "leaderboard.md").read_text()
+    assert "task towers-1uav-deviating" in text and "1 UAV(s)" in text
+    rows = (out / "episodes.csv").read_text().splitlines()
+    assert [r.split(",")[1] for r in rows[1:]] == ["1000000", "1000001"]
+    for argv, msg in ((["--task", "paper-3uav", "--family", "dense"], "leave out --family"),
+                      (["--task", "paper-1uav", "--n-uavs", "6"], "flies 1 UAV"),
+                      (["--task", "paper-9uav"], "--task: task must be")):
+        with pytest.raises(SystemExit) as e:
+            main(argv + ["--out", str(out)])
+        assert e.value.code == 2 and msg in capsys.readouterr().err

@@ -1,10 +1,10 @@
 """The suite protocol: every (task, policy, run, scene) cell, per-task leaderboards, one aggregate with intervals.
 
-    covert-env benchmark                                         # the default tasks, planners and random
+    covert-env benchmark                                         # the core tasks, the planners and random
     covert-env benchmark --tasks paper-3uav downtown-3uav --policies dp dp-path random@waypoint --scenes 3
-    covert-env benchmark --tasks default --policies dp random@waypoint pretrained:mappo --out outputs/suite
+    covert-env benchmark --tasks core --policies dp random@waypoint pretrained:mappo --out outputs/suite
 
-Tasks are names of :mod:`covert_env.tasks` (``default``: :data:`~covert_env.tasks.DEFAULT_TASKS`, ``all``: every
+Tasks are names of :mod:`covert_env.tasks` (``core``: :data:`~covert_env.tasks.DEFAULT_TASKS`, ``all``: every
 task); policies are the harness's specs (:mod:`training.evaluate`: ``dp``, ``dp-path``, ``dp-blind``,
 ``dp-binned``, ``random``, ``hold-centre``, ``pretrained:NAME``, ``mappo:``/``sb3:``/``rllib:`` paths, seed groups
 ``PREFIX:PATH1,PATH2`` whose members are the runs). A learned policy acts for one team size: it is scored on the
@@ -51,7 +51,7 @@ from pathlib import Path
 import numpy as np
 
 from covert_env.command_line import MAX_SCENES, UsageError, int_range, output_dir, positive_int, run_main
-from covert_env.tasks import SUITE_VERSION, TASKS, TEST_SCENES, get_task, resolve_tasks
+from covert_env.tasks import DEFAULT_TASKS, SUITE_VERSION, TASKS, TEST_SCENES, get_task, resolve_tasks
 from training.evaluate import COLUMNS, LEARNED_PREFIXES, evaluate, load_policy, split_seeds, summarise, write_outputs
 from training.stats import iqm, mean, probability_of_improvement, stratified_bootstrap_ci
 
@@ -304,14 +304,15 @@ def _figures(out: Path, rows: list[dict], agg: dict) -> None:
 def build_parser(prog: str = "python -m training.benchmark") -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n")[0],
                                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    p.add_argument("--tasks", nargs="+", default=["default"],
-                   help=f"task names of covert_env.tasks, 'default' or 'all' ({len(TASKS)} tasks)")
+    p.add_argument("--tasks", nargs="+", default=["core"],
+                   help=f"task names of covert_env.tasks, or the groups 'core' (the protocol's {len(DEFAULT_TASKS)} "
+                        f"tasks) and 'all' ({len(TASKS)})")
     p.add_argument("--policies", nargs="+", default=list(DEFAULT_POLICIES),
                    help=f"policy specs (as covert-env evaluate); at least one dp* planner; {REFERENCE} is always run")
     p.add_argument("--scenes", type=int_range(1, min(TEST_SCENES, MAX_SCENES)), default=DEFAULT_SCENES,
                    help=f"test scenes per task, in [1, {TEST_SCENES}] (the first of each task's held-out scenes)")
     p.add_argument("--jobs", type=positive_int, default=os.cpu_count() or 1, help="worker processes, >= 1")
-    p.add_argument("--ray-address", metavar="ADDRESS", default=None,
+    p.add_argument("--ray-address", metavar="ADDRESS", default=argparse.SUPPRESS,     # none: a local pool
                    help="run the cells on the Ray cluster at ADDRESS instead of a local pool ('local' starts one on "
                         "this machine; pip install -e \".[rllib]\"); the results are the same")
     p.add_argument("--out", default="outputs/suite", help="output folder (git-ignored outputs/)")
@@ -325,6 +326,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m training.benchmar
     """The protocol's command line (``covert-env benchmark``); bad arguments exit with status 2 and one line."""
     parser = build_parser(prog)
     args = parser.parse_args(argv)
+    args.ray_address = getattr(args, "ray_address", None)
     argv = list(argv if argv is not None else sys.argv[1:])
     return run_main(parser, lambda: _main(args, f"{prog} " + " ".join(argv)))
 

@@ -68,6 +68,7 @@ from covert_env.envs.covert_sensing import CovertSensingParallelEnv
 from covert_env.envs.vector import MAX_SCENE_SEED
 from covert_env.families import FAMILIES, HELD_OUT_SEEDS
 from covert_env.scene_set import SceneSet
+from covert_env.tasks import get_task
 from training.pretrained import PRETRAINED_DIR, load_learned, pretrained_names
 from training.rllib_ppo import load_policy as load_rllib
 from training.runs import read_run_json, run_env
@@ -382,7 +383,8 @@ def write_outputs(results: dict[str, dict], out: Path, meta: dict) -> None:
         for name, r in results.items():
             for row in r["rows"]:
                 w.writerow([name] + [row.get(k, "") for k in keys])
-    family = f", family {meta['family']}" if meta.get("family") else ""
+    family = (f", task {meta['task']}" if meta.get("task") else
+              f", family {meta['family']}" if meta.get("family") else "")
     where = (f"scenes of scene set {meta['scene_set']}" if meta.get("scene_set") else
              f"held-out scenes (scene seeds {meta['seed_offset']} .. {meta['seed_offset'] + meta['episodes'] - 1}"
              f"{family})")
@@ -495,6 +497,9 @@ def build_parser(prog: str = "python -m training.evaluate") -> argparse.Argument
                    help=f"first held-out scene seed, in [0, {MAX_SCENE_SEED - MAX_SCENES}]")
     p.add_argument("--family", choices=list(FAMILIES), default="paper",
                    help="scene family (covert_env.families) of the held-out scenes")
+    p.add_argument("--task", metavar="NAME", default=argparse.SUPPRESS,                # none: --family
+                   help="a task of the suite (covert_env.tasks, e.g. downtown-3uav-deviating): its family, team and "
+                        "target; not with --family, and --n-uavs must agree")
     p.add_argument("--scene-set", metavar="FILE", default=argparse.SUPPRESS,            # none: held-out seeds
                    help="fly the first --episodes scenes of this scene set file (covert_env.scene_set; "
                         "covert-env scene-set writes one) instead of held-out seeds; not with --family or "
@@ -518,6 +523,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m training.evaluate
     parser = build_parser(prog)
     args = parser.parse_args(argv)
     args.scene_set = getattr(args, "scene_set", None)
+    args.task = getattr(args, "task", None)
     argv = list(argv if argv is not None else sys.argv[1:])
     return run_main(parser, lambda: _main(args, f"{prog} " + " ".join(argv)))
 
@@ -541,11 +547,30 @@ def _scene_set(args: argparse.Namespace) -> SceneSet | None:
     return scenes
 
 
-def _check_team(n_uavs: int, seed: int, family: str | None = None) -> None:
-    """Build the env with ``--n-uavs`` (and ``--family``) and reset it on the first held-out scene, so that a team
-    size the env rejects (or cannot place) fails with one error line before any evaluation runs."""
+def _task_flags(args: argparse.Namespace) -> dict:
+    """The env keywords of ``--task`` or ``--family``; ``--task`` sets ``args.family`` and ``args.n_uavs`` (a
+    different ``--family`` or ``--n-uavs`` is a usage error)."""
+    if args.task is None:
+        return {"family": args.family}
+    if args.scene_set is not None:
+        raise UsageError("--task flies the task's held-out scenes, --scene-set a file's: pass one")
     try:
-        env = CovertSensingParallelEnv(n_uavs=n_uavs, family=family)
+        task = get_task(args.task)
+    except ValueError as exc:
+        raise UsageError(f"--task: {exc}") from None
+    if args.family != "paper":
+        raise UsageError(f"--task {task.name} sets the family ({task.family}): leave out --family")
+    if args.n_uavs not in (3, task.n_uavs):
+        raise UsageError(f"--task {task.name} flies {task.n_uavs} UAV(s), --n-uavs is {args.n_uavs}; leave it out")
+    args.family, args.n_uavs = task.family, task.n_uavs
+    return {"task": task.name}
+
+
+def _check_team(n_uavs: int, seed: int, env_kwargs: dict) -> None:
+    """Build the env with ``--n-uavs`` (and ``--family`` or ``--task``) and reset it on the first held-out scene, so
+    that a team size the env rejects (or cannot place) fails with one error line before any evaluation runs."""
+    try:
+        env = CovertSensingParallelEnv(n_uavs=n_uavs, **env_kwargs)
     except ValueError as exc:
         raise UsageError(f"--n-uavs {n_uavs}: {exc}") from None
     try:
@@ -590,7 +615,9 @@ def read_cache(path: Path, args: argparse.Namespace) -> list[dict]:
 def _cache_name(spec: str, args: argparse.Namespace) -> str:
     """The cached results of built-in policy ``spec`` inside ``--out``: ``cache/<spec, episodes, seeds, team>.json``."""
     key = f"{spec}__{args.episodes}__{args.seed_offset}__{args.n_uavs}".replace("/", "_").replace("@", "-")
-    if args.family != "paper":                 # the paper family's caches keep their names from before families
+    if args.task is not None:
+        key += f"__{args.task}"
+    elif args.family != "paper":               # the paper family's caches keep their names from before families
         key += f"__{args.family}"
     if args.scene_set is not None:
         key += f"__set-{hashlib.sha256(Path(args.scene_set).read_bytes()).hexdigest()[:16]}"
@@ -599,9 +626,10 @@ def _cache_name(spec: str, args: argparse.Namespace) -> str:
 
 def _main(args: argparse.Namespace, command: str) -> int:
 
+    env_kwargs = _task_flags(args)
     scenes = _scene_set(args)
     if scenes is None:
-        _check_team(args.n_uavs, args.seed_offset, args.family)
+        _check_team(args.n_uavs, args.seed_offset, env_kwargs)
     caches = {spec: _cache_name(spec, args) for spec in args.policies if not spec.startswith(LEARNED_PREFIXES)}
     outputs = {"files": (*OUTPUT_FILES, *caches.values()), "folders": ("cache",) if caches else ()}
     output_dir(args.out, create=False, **outputs)
@@ -639,7 +667,7 @@ def _main(args: argparse.Namespace, command: str) -> int:
             for i, (member, _) in enumerate(group):
                 label = name if len(group) == 1 else f"{name} seed run {i + 1}"
                 for row in evaluate(member, settings, args.episodes, args.seed_offset,
-                                    env_kwargs={"family": args.family}, progress=not args.no_progress,
+                                    env_kwargs=env_kwargs, progress=not args.no_progress,
                                     label=label, scenes=scenes):
                     rows.append({**row, "run": i} if len(group) > 1 else row)
             if builtin:
@@ -652,7 +680,8 @@ def _main(args: argparse.Namespace, command: str) -> int:
               f"{s['occlusion_rate'][0]:.3f}  zone viol. {s['zone_violation_rate'][0]:.3f}  "
               f"({time.perf_counter() - t0:.0f} s)", flush=True)
     write_outputs(results, out, {"episodes": args.episodes, "seed_offset": args.seed_offset, "n_uavs": args.n_uavs,
-                                 "family": args.family, "scene_set": args.scene_set, "command": command})
+                                 "family": args.family, "task": args.task, "scene_set": args.scene_set,
+                                 "command": command})
     (out / "results.json").write_text(json.dumps({n: {"summary": r["summary"], "settings": r["settings"],
                                                       "spec": r["spec"]} for n, r in results.items()}, indent=2))
     print(f"wrote {out / 'leaderboard.md'}, {out / 'leaderboard.csv'}, {out / 'comparison.png'}")

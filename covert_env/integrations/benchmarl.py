@@ -29,12 +29,15 @@ Every flat per-agent info of the env (``reward_*``, ``cost``, ``cost_*``, ``los`
 under ``("uav", "info")`` and BenchMARL logs its mean per iteration (``collection/uav/info/cost``, ...).
 
 The default task config is :class:`TaskConfig` (shipped in Python, not in BenchMARL's yaml folder);
-``get_task(config={...})`` overrides fields, e.g. ``{"n_uavs": 1, "max_cycles": 40}``.
+``get_task(config={...})`` overrides fields, e.g. ``{"n_uavs": 1, "max_cycles": 40}``, or picks a task of the
+suite, ``{"suite_task": "downtown-3uav"}`` (:mod:`covert_env.tasks`: family, team and target).
 ``CovertSensingTask.UNICYCLE.get_from_yaml(path)`` reads a yaml file with the same fields.
 :func:`register` also makes the tasks known to BenchMARL's hydra runner as ``task=covert_sensing/unicycle``
 and ``task=covert_sensing/waypoint``; this module runs it::
 
     python -m covert_env.integrations.benchmarl algorithm=mappo task=covert_sensing/waypoint task.n_uavs=3
+    python -m covert_env.integrations.benchmarl algorithm=mappo task=covert_sensing/waypoint \
+        task.suite_task=downtown-3uav
 
 Requires ``benchmarl`` (``pip install "covert_env[benchmarl]"``); this module is not imported by
 ``import covert_env``.
@@ -60,15 +63,20 @@ __all__ = ["CovertSensingClass", "CovertSensingTask", "TaskConfig", "register"]
 #: Name of the environment in BenchMARL's sense (its logs and output folders use it).
 ENV_NAME = "covert_sensing"
 #: Keywords the task sets itself: they are not allowed in ``env_kwargs``.
-_TASK_SET = ("action_mode", "dict_obs", "render_mode", "n_uavs", "scenario", "max_cycles", "map_size", "config")
+_TASK_SET = ("action_mode", "dict_obs", "render_mode", "n_uavs", "scenario", "max_cycles", "map_size", "config",
+             "family", "task")
 
 
 @dataclass
 class TaskConfig:
     """Default config of both tasks (every field is a keyword of ``covert_env.parallel_env``)."""
 
-    #: team size U
-    n_uavs: int = 3
+    #: team size U; ``None``: the config's (3 UAVs by default) or the suite task's
+    n_uavs: int | None = None
+    #: a task of the suite (:mod:`covert_env.tasks`, e.g. ``"downtown-3uav"``): its family, team and target
+    suite_task: str | None = None
+    #: a scene family (:mod:`covert_env.families`, e.g. ``"dense"``) when no ``suite_task`` is given
+    family: str | None = None
     #: ``"random"`` (a training scene per reset) or ``"paper"``
     scenario: str = "random"
     #: bound on the episode length in slots; ``None``: the route's length ``config.n_slots`` (70)
@@ -100,8 +108,12 @@ class CovertSensingClass(TaskClass):
         if clash:
             raise ValueError(f"covert_sensing task config: env_kwargs may not set {clash} "
                              "(they are task fields or set by the task)")
-        if cfg["max_cycles"] is None:
-            del cfg["max_cycles"]
+        for key in ("max_cycles", "n_uavs", "family"):
+            if cfg[key] is None:
+                del cfg[key]
+        suite_task = cfg.pop("suite_task")
+        if suite_task is not None:
+            cfg["task"] = suite_task
         waypoint = self.name.upper() == "WAYPOINT"
         # dict_obs=False: the mask comes through infos[agent]["action_mask"], which TorchRL's PettingZooWrapper
         # moves to ("uav", "action_mask"); the observation stays one flat tensor for BenchMARL's models.
