@@ -38,6 +38,8 @@ class SlotQuantities:
         los: LoS clear at the end of the slot (p[k+1] to q[k+1]), eq. 6.
         los_path: LoS clear at every sample along the slot's path (against the target at the same instant);
             NaN when not computed (``path_los=False``).
+        blocked_path_share: the share of the slot's path samples (after its start, which the previous slot
+            counts) whose LoS to the target at the same instant is blocked, in [0, 1]; NaN when not computed.
         in_zone: p[k+1] inside the feasible zone Phi(q[k+1]) of eq. 4 (not eroded: the true target).
         zone_distance: signed distance (m) from p[k+1] to that zone's boundary, negative inside.
         alpha, d: UAV-target angle and distance at the end of the slot, eqs. 12-13.
@@ -52,6 +54,7 @@ class SlotQuantities:
 
     los: np.ndarray
     los_path: np.ndarray
+    blocked_path_share: np.ndarray
     in_zone: np.ndarray
     zone_distance: np.ndarray
     alpha: np.ndarray
@@ -141,16 +144,17 @@ def moves_quantities(start_xy, end_xy, *, target_start, phi_start, target_end, p
         # slot has its own target). Sample 0 is the previous slot's end, checked there; the last
         # sample is this slot's end, so the slot-time LoS comes with it.
         clear = los_fn(path_xy[..., 1:, :], c.altitude, target_path_xyz[..., None, 1:, :])
-        los, los_path = clear[..., -1], clear.all(axis=-1)
+        los, los_path, blocked = clear[..., -1], clear.all(axis=-1), 1.0 - clear.mean(axis=-1)
     else:
         los = los_fn(end_xy, c.altitude, target_end[..., None, :])
         los_path = np.full(los.shape, np.nan)
+        blocked = np.full(los.shape, np.nan)
 
     # Like LoS: sample 0 is the previous slot's end (counted there), so each instant counts once.
     sep_path = team_separation(path_xy[..., 1:, :])
     sep = team_separation(path_xy[..., -1:, :])
     clearance = terrain_clearance(end_xy, c.altitude, terrain)
-    return SlotQuantities(los=los, los_path=los_path, in_zone=zd <= 0.0, zone_distance=zd,
+    return SlotQuantities(los=los, los_path=los_path, blocked_path_share=blocked, in_zone=zd <= 0.0, zone_distance=zd,
                           alpha=alpha, d=d,
                           kappa=kappa, g=g, path_length=np.asarray(path_length, float),
                           separation=sep, separation_path=sep_path, terrain_clearance=clearance)
@@ -159,6 +163,8 @@ def moves_quantities(start_xy, end_xy, *, target_start, phi_start, target_end, p
 METRIC_DESCRIPTIONS = {
     "occlusion_rate": "fraction of slots whose end position has blocked LoS (the paper's I_LoS = 1)",
     "occlusion_rate_path": "fraction of slots with blocked LoS somewhere along the flown path",
+    "blocked_path_share": "share of the flown path with blocked LoS (per slot, the share of its path samples whose "
+                          "LoS to the target at the same instant is blocked; mean over slots)",
     "zone_violation_rate": "fraction of slots ending outside the feasible zone Phi(q) (eq. 4)",
     "mean_disguise": "mean kappa per slot (eq. 11); higher is better disguised",
     "path_length": "total distance flown (m), the paper's energy proxy (eq. 15)",
@@ -188,6 +194,7 @@ def episode_metrics(traj: Trajectory, terrain: Terrain, config: Config,
         out.append({
             "occlusion_rate": float(1.0 - q.los[:, i].mean()),
             "occlusion_rate_path": float(1.0 - q.los_path[:, i].mean()),
+            "blocked_path_share": float(q.blocked_path_share[:, i].mean()),
             "zone_violation_rate": float(1.0 - q.in_zone[:, i].mean()),
             "mean_disguise": float(q.kappa[:, i].mean()),
             "path_length": float(q.path_length[:, i].sum()),

@@ -303,3 +303,32 @@ def test_engine_last_quantities_is_the_last_row_of_the_full_evaluation():
     m = episode_metrics(e.trajectory(), scenario.terrain, c)
     assert [x["speed_violations"] for x in m] == [0, 0, 0]
     assert [x["objective"] for x in m] == pytest.approx(full.g.sum(axis=0).tolist(), rel=1e-12)
+
+
+def test_blocked_path_share_against_a_dense_resampling_of_the_flown_path():
+    """The share of each slot's path with blocked LoS: equal to a per-sample loop of line_of_sight at the recorded
+    samples, in [0, 1], positive exactly where los_path is False; and the DP team's episode sampled at 11 and at
+    201 points per slot (the same flight: the planner does not read the samples) gives nearly the same share."""
+    from baselines.policies import make_policy, run_episode
+    from covert_env.envs.covert_sensing import CovertSensingParallelEnv
+    from covert_env.metrics import slot_quantities
+    from covert_env.visibility import line_of_sight
+
+    shares = {}
+    for samples in (11, 201):
+        env = CovertSensingParallelEnv(family="downtown", action_mode="waypoint", path_samples=samples)
+        run_episode(make_policy("dp"), env, seed=1_000_002, options={"scene_seed": 1_000_002})
+        traj, terrain, c = env.engine.trajectory(), env.scenario.terrain, env.config
+        q = slot_quantities(traj, terrain, c)
+        shares[samples] = q.blocked_path_share
+        assert ((q.blocked_path_share > 0) == ~q.los_path.astype(bool)).all()
+        assert (0 <= q.blocked_path_share).all() and (q.blocked_path_share <= 1).all()
+        if samples == 11:
+            for t in range(0, traj.n_slots, 7):
+                for u in range(traj.n_uavs):
+                    clear = [line_of_sight(terrain, traj.path_xy[t, u, j], c.altitude, traj.target_path_xyz[t, j])
+                             for j in range(1, samples)]
+                    assert q.blocked_path_share[t, u] == pytest.approx(1.0 - np.mean(clear), abs=1e-12)
+    assert shares[201].mean() > 0.01                         # downtown: the DP team loses LoS between slots
+    assert abs(shares[11].mean() - shares[201].mean()) < 0.02
+    assert np.abs(shares[11] - shares[201]).max() < 0.25

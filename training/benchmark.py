@@ -65,7 +65,8 @@ REFERENCE = "random@waypoint"
 """The policy whose mean reward is a task's score 0 (masked-random waypoints)."""
 #: The constraint rates reported beside every score (keys of covert_env.metrics.episode_metrics).
 CONSTRAINTS = (("zone_violation_rate", "zone viol."), ("occlusion_rate", "blocked LoS, slots"),
-               ("occlusion_rate_path", "blocked LoS, path"), ("separation_violations", "sep. viol./UAV"),
+               ("occlusion_rate_path", "blocked LoS, path"), ("blocked_path_share", "path share blocked"),
+               ("separation_violations", "sep. viol./UAV"),
                ("terrain_violations", "terrain viol./UAV"), ("min_separation", "min sep. (m)"))
 
 

@@ -84,6 +84,7 @@ COLUMNS = [
     ("reward", "episode reward", "{:.1f}"),
     ("occlusion_rate", "blocked LoS at slots", "{:.3f}"),
     ("occlusion_rate_path", "blocked LoS along path", "{:.3f}"),
+    ("blocked_path_share", "share of path with blocked LoS", "{:.3f}"),
     ("zone_violation_rate", "zone violations", "{:.3f}"),
     ("mean_disguise", "disguise kappa", "{:.1f}"),
     ("path_length", "path length (m)", "{:.0f}"),
