@@ -16,7 +16,9 @@ V1_RETIRED = (
     "covert_env.visibility.visible_nodes): lattice nodes on the eroded zone's boundary, which v1 dropped by "
     "rounding, are offered, and line of sight is decided with the polytopes grown by 1 micrometre. Seeded rollouts "
     "on random scenes differ; on the paper scene or a given Scenario they can (waypoint masks; in both modes the "
-    "maps and starts where a sight line grazes a polytope); rewards, costs and dynamics are unchanged. Use "
+    "maps and starts where a sight line grazes a polytope); rewards and costs are unchanged, and so are the "
+    "dynamics except that, with a prediction error, a waypoint node is placed about the target's predicted next "
+    "pose (v1: its true one). Use "
     "covert_env.covert_sensing_v2 (or covert_env.parallel_env, gym.make('covert_env/CovertSensing-v2'), "
     "covert_env.vector_env), or pip install 'covert_env<0.6' for v1.")
 

@@ -24,14 +24,17 @@ from covert_env.zone import to_world
 CFG = Config(n_slots=8)
 
 
-def test_dp_policy_through_the_waypoint_env_reproduces_the_reproduce_trajectory():
-    """Same scene, same planner: the PettingZoo rollout and `covert-env reproduce`'s rollout coincide."""
-    ref = rollout(make_scenario("paper", 0, 3, CFG))["trajectory"]
-    env = covert_env.parallel_env(config=CFG, n_uavs=3, scenario="paper", action_mode="waypoint")
+@pytest.mark.parametrize("cfg", [CFG, CFG.replace(prediction_error=4.0, r_u=4.0)], ids=["exact", "deviating"])
+def test_dp_policy_through_the_waypoint_env_reproduces_the_reproduce_trajectory(cfg):
+    """Same scene, same planner: the PettingZoo rollout and `covert-env reproduce`'s rollout coincide, also when the
+    target deviates from its prediction (the env's waypoints are about the predicted next pose, as the planner's;
+    about the true one they were up to 50 m off)."""
+    ref = rollout(make_scenario("paper", 0, 3, cfg))["trajectory"]
+    env = covert_env.parallel_env(config=cfg, n_uavs=3, scenario="paper", action_mode="waypoint")
     res = run_episode(DPPolicy(), env, seed=0)
     np.testing.assert_array_equal(res["trajectory"].uav_xy, ref.uav_xy)
     np.testing.assert_array_equal(res["trajectory"].uav_theta, ref.uav_theta)
-    assert res["steps"] == CFG.n_slots
+    assert res["steps"] == cfg.n_slots
 
 
 def test_dp_policy_through_the_gymnasium_waypoint_env_on_a_heldout_scene():

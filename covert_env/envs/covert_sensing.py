@@ -194,8 +194,11 @@ class CovertSensingParallelEnv(ParallelEnv):
       changed on those scenes). With ``r_u`` below 1 µm the lattice leaves out the nodes on the zone's boundary,
       which the rotation could round out of the zone (``zone.ZONE_MARGIN``). On a fixed scene (the paper's, a
       ``Scenario``) seeded rollouts can differ from v1 in waypoint mode through the mask, in both modes through
-      the maps and the starts; rewards, costs and dynamics are unchanged. ``covert_sensing_v1`` and the v1 ids
-      raise an error that says this.
+      the maps and the starts; rewards, costs and dynamics are unchanged. With a prediction error
+      (``config.prediction_error`` > 0), a waypoint action's node and the action mask are about the target's next
+      pose as predicted now (docs/decisions.md#prediction-error, and where the DP planner plans them); v1 placed
+      the node about the true next pose, which no policy sees when it acts (the DP team's waypoints then landed up
+      to 50 m from its plan). ``covert_sensing_v1`` and the v1 ids raise an error that says this.
     * v1, covert_env 0.5.0 (no number of a valid seeded rollout changed): calls out of order raise alike in
       every env kind (``render()`` before ``reset()`` returned None, ``step()`` after ``close()`` went on);
       ``penalties`` items are validated; the AEC env checks an action at its agent's ``step()``; coordinates,

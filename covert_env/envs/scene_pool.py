@@ -39,6 +39,9 @@ class ScenePool:
 
     Attributes (rows R, slots T = track slots + 1, polytopes M, faces F, lattice nodes L):
         q (R, T, 3), phi (R, T): the target's track, clamped at its end like ``TargetTrack.position``.
+        q_next (R, T, 3), phi_next (R, T): row k, the target's pose at slot k + 1 as predicted at slot k
+            (``TargetTrack.next_predicted``; ``q[:, k + 1]`` when the prediction is the truth): the waypoint
+            actions' and masks' frame.
         blocks (R, T, D) float32: the observation's shared block per slot
             (:func:`~covert_env.envs.scene_cache.shared_blocks`).
         lattice_ok (R, T, L) bool: row k, the lattice nodes visible at slot k as predicted at slot k - 1 (eq. 10,
@@ -60,6 +63,7 @@ class ScenePool:
         self._names: list[str] = []                      # per row, for error messages
         d = shared_block_size(len(map_offsets))
         self.q, self.phi = np.zeros((0, 1, 3)), np.zeros((0, 1))
+        self.q_next, self.phi_next = np.zeros((0, 1, 3)), np.zeros((0, 1))
         self.blocks = np.zeros((0, 1, d), np.float32)
         self.lattice_ok = np.zeros((0, 1, len(lattice)), bool)
         n0 = len(self._start_lattice)
@@ -178,6 +182,8 @@ class ScenePool:
             n = max(n, min(2 * len(self.q), self.capacity))
         self.q = grown(self.q, (n, t, 3), 0.0)
         self.phi = grown(self.phi, (n, t), 0.0)
+        self.q_next = grown(self.q_next, (n, t, 3), 0.0)
+        self.phi_next = grown(self.phi_next, (n, t), 0.0)
         self.blocks = grown(self.blocks, (n, t, self.blocks.shape[2]), 0.0)
         if self.waypoint:
             self.lattice_ok = grown(self.lattice_ok, (n, t, len(self.lattice)), False)
@@ -191,6 +197,7 @@ class ScenePool:
         self.terrains.set_rows(rows, batch.hs, batch.centre, batch.radius, batch.z_max, batch.top, batch.growth)
         ks = np.minimum(np.arange(t), n_t - 1)             # clamped at the track's end
         self.q[rows], self.phi[rows] = batch.q[:, ks], batch.phi[:, ks]
+        self.q_next[rows], self.phi_next[rows] = batch.q_next[:, ks], batch.phi_next[:, ks]
         self.blocks[rows] = self._blocks(rows, batch)[:, ks]
         if self.waypoint:
             self.lattice_ok[rows] = self._lattice_visible(rows, batch)[:, ks]

@@ -332,7 +332,8 @@ class CovertSensingVectorEnv:
             idx = batch.waypoint_actions(actions, (self.num_envs, len(self.possible_agents)), len(self.lattice),
                                          self.possible_agents)
             flagged = np.take_along_axis(self._masks, idx[..., None], axis=-1)[..., 0] == 0
-            goals = batch.to_world_batch(self.lattice[idx], q1[:, :2], phi1)
+            # The nodes are about the target's next pose as predicted now (what the mask and the planner use).
+            goals = batch.to_world_batch(self.lattice[idx], pool.q_next[rows, k, :2], pool.phi_next[rows, k])
             path, end_theta, v, fallback, w = batch.fly_waypoints(xy0, th0, goals, c, self._times)
             flagged |= fallback
         end = path[..., -1, :].copy()
@@ -453,11 +454,11 @@ class CovertSensingVectorEnv:
         if nodes.size and (nodes.min() < -1 or nodes.max() >= len(self.lattice)):
             raise ValueError(f"waypoint_paths(): node indices must be in [0, {len(self.lattice) - 1}] (or -1 for "
                              f"none), got [{nodes.min()}, {nodes.max()}]")
-        pool, rows, k1 = self._pool, self._rows, self._k + 1
+        pool, rows, k = self._pool, self._rows, self._k
         ci, ui, mi = np.nonzero(nodes >= 0)                       # only the real (copy, UAV, node) triples
         out = np.full((*nodes.shape, self.path_samples, 2), np.nan)
-        goals = batch.to_world_batch(self.lattice[nodes[ci, ui, mi]][:, None], pool.q[rows[ci], k1[ci], :2],
-                                     pool.phi[rows[ci], k1[ci]])
+        goals = batch.to_world_batch(self.lattice[nodes[ci, ui, mi]][:, None], pool.q_next[rows[ci], k[ci], :2],
+                                     pool.phi_next[rows[ci], k[ci]])
         out[ci, ui, mi] = batch.fly_waypoints(self._xy[ci, ui][:, None], self._theta[ci, ui][:, None], goals,
                                               self.config, self._times)[0][:, 0]
         return out
@@ -551,9 +552,9 @@ class CovertSensingVectorEnv:
     def _update_masks(self) -> None:
         if self.action_mode != "waypoint":
             return
-        pool, rows, k1 = self._pool, self._rows, self._k + 1
-        self._masks = batch.action_masks(self._xy, self._theta, pool.q[rows, k1, :2], pool.phi[rows, k1],
-                                         self.lattice, pool.lattice_ok[rows, k1], self._reach)
+        pool, rows, k = self._pool, self._rows, self._k
+        self._masks = batch.action_masks(self._xy, self._theta, pool.q_next[rows, k, :2], pool.phi_next[rows, k],
+                                         self.lattice, pool.lattice_ok[rows, k + 1], self._reach)
 
 
 def _step_infos(k, quant, flagged, speed, terms, costs) -> dict[str, np.ndarray]:
