@@ -7,7 +7,6 @@ import json
 import numpy as np
 import pytest
 from _extras import needs
-from scipy.stats import trim_mean
 
 from training.benchmark import REFERENCE, aggregate, main, marl_eval, normalised_scores, run_cells
 from training.evaluate import COLUMNS
@@ -40,6 +39,8 @@ def test_normalised_score_is_zero_for_random_and_one_for_the_best_planner():
 
 def test_aggregate_uses_rliable_definitions_on_fixed_numbers():
     """IQM over tasks x scenes is scipy's trim_mean of all scores; P(X > Y) is the per-task Mann-Whitney mean."""
+    from scipy.stats import trim_mean  # imported here: scipy.stats touches torch, which test_extras hides
+
     rng = np.random.default_rng(0)
     table = {t: {REFERENCE: [0.0] * 8, "dp": list(100 + rng.normal(0, 10, 8)), "x": list(100 + rng.normal(0, 30, 8))}
              for t in ("a", "b", "c")}
