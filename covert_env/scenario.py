@@ -243,7 +243,7 @@ class SceneArrays:
 
     def world(self, i: int) -> tuple[Terrain, TargetTrack, np.random.Generator]:
         """Scene i's objects: :meth:`Scenario.random_world` of its seed."""
-        c, seed, k = self.config, self.seeds[i], self.n_vertices[i]
+        seed, k = self.seeds[i], self.n_vertices[i]
         f, b_i, t_i = self.hs[i].copy(), self.base[i].copy(), self.top[i].copy()     # no batch array kept alive
         polys = tuple(Polytope._prevalidated(b_i[j, :kk], t_i[j, :kk], frustum=True, halfspaces=f[j, :kk + 2])
                       for j, kk in enumerate(k.tolist()))
@@ -254,11 +254,16 @@ class SceneArrays:
             register_terrain_arrays(terrain, TerrainArrays(f, t_i[..., 2].max(1), b_i, self.centre[i].copy(),
                                                            self.radius[i].copy(), self.verts[i].copy(), pair_i,
                                                            pair_j))
+        return terrain, self.track(i), np.random.default_rng(seed)
+
+    def track(self, i: int) -> TargetTrack:
+        """Scene i's target track (with its speed noise under a prediction error, drawn from the scene's seed)."""
+        c = self.config
         track = TargetTrack.constant(Road(self.roads[i]), c.target_speed, c.n_slots + c.horizon + 1, delta=c.delta,
                                      z=c.target_height, s0=_ROAD_LEAD_IN)
         if c.prediction_error > 0:
-            track = track.with_speed_noise(c.prediction_error, _noise_generator(seed))
-        return terrain, track, np.random.default_rng(seed)
+            track = track.with_speed_noise(c.prediction_error, _noise_generator(self.seeds[i]))
+        return track
 
 
 def random_scene_arrays(seeds, config: Config) -> SceneArrays:

@@ -59,7 +59,7 @@ class SceneBatch:
             q, phi = a.tracks()
             nxt = np.minimum(np.arange(q.shape[1]) + 1, q.shape[1] - 1)
             return cls(a.seeds, config, terrain, (q, phi, q[:, nxt], phi[:, nxt]), exact=True)
-        tracks = [a.world(i)[1] for i in range(len(a))]
+        tracks = [a.track(i) for i in range(len(a))]
         parts = [np.stack(x) for x in zip(*((t.positions, t.headings) + t.next_predicted for t in tracks),
                                           strict=True)]
         return cls(a.seeds, config, terrain, tuple(parts), exact=False)
