@@ -82,7 +82,9 @@ def test_command_line_errors_name_the_flag(capsys):
     for argv, msg in ((["--tasks", "nowhere-3uav"], "--tasks: task must be"),
                       (["--policies", "random"], "include at least one dp planner"),
                       (["--policies", "dp", "nope"], "--policies: unknown policy"),
-                      (["--scenes", "0"], "--scenes")):
+                      (["--scenes", "0"], "--scenes"),
+                      (["--tasks", "paper-1uav", "--policies", "dp", "pretrained:mappo"],
+                       "pretrained:mappo acts for another team size than every task")):
         with pytest.raises(SystemExit) as e:
             main(argv + ["--out", "/tmp/never_written_suite"])
         assert e.value.code == 2

@@ -353,6 +353,9 @@ def _main(args: argparse.Namespace, command: str) -> int:
                     continue
                 raise UsageError(f"--policies: {exc}") from None
             cells += [(t.name, spec, run) for run in range(len(settings))]
+        if spec in skipped and len(skipped[spec]) == len(tasks):
+            raise UsageError(f"--policies: {spec} acts for another team size than every task of --tasks "
+                             f"({', '.join(t.name for t in tasks)}); add a task of its team size")
     out = output_dir(args.out, files=("suite.md", "cells.csv", "results.json", "marl_eval.json",
                                       "performance_profile.png", "improvement.png"), folders=("tasks",))
     t0 = time.perf_counter()
