@@ -6,8 +6,8 @@ Every policy has a ``name`` and two methods::
     actions = policy.act(observations, env)
 
 ``env`` is either the PettingZoo :class:`~covert_env.envs.covert_sensing.CovertSensingParallelEnv` or one
-of the Gymnasium single-UAV envs (``gym.make("covert_env/CovertSensing-v2")`` or
-``"covert_env/CovertSensingWaypoint-v2"``, wrapped or not; the parallel env inside is
+of the Gymnasium single-UAV envs (``gym.make("covert_env/CovertSensing-v3")`` or
+``"covert_env/CovertSensingWaypoint-v3"``, wrapped or not; the parallel env inside is
 ``env.unwrapped.par``). For the parallel env ``act`` returns ``{agent: action}``; for a Gymnasium env it
 returns the single agent's action. Policies read the world from the env's public attributes
 (``engine``, ``scenario``, ``config``, ``lattice``, ``action_mask``) as a planner with full knowledge

@@ -9,7 +9,7 @@ Uneven Terrain", Remote Sensing 16(22):4273, 2024. The environments are thin ada
     venv = covert_env.vector_env(num_envs=256, n_uavs=3)         # 256 copies, batch-first arrays
     aec = covert_env.env(n_uavs=3)                               # PettingZoo AEC
     import gymnasium as gym
-    genv = gym.make("covert_env/CovertSensing-v2")               # Gymnasium, one UAV
+    genv = gym.make("covert_env/CovertSensing-v3")               # Gymnasium, one UAV
 """
 
 from covert_env.config import Config
@@ -19,36 +19,41 @@ from covert_env.scenario import Scenario
 from covert_env.terrain import Polytope, Terrain
 from covert_env.trajectory import Trajectory
 
-__version__ = "0.6.0"
+__version__ = "0.7.0"
 
 # Environments are imported after the model: the model modules never import them.
-from covert_env import covert_sensing_v0, covert_sensing_v1, covert_sensing_v2  # noqa: E402
+from covert_env import covert_sensing_v0, covert_sensing_v1, covert_sensing_v2, covert_sensing_v3  # noqa: E402
 from covert_env.envs import env, parallel_env, raw_env, vector_env  # noqa: E402
 
 __all__ = ["Config", "Engine", "Polytope", "Road", "Scenario", "TargetTrack", "Terrain", "Trajectory",
-           "covert_sensing_v0", "covert_sensing_v1", "covert_sensing_v2", "env", "parallel_env", "raw_env",
+           "covert_sensing_v0", "covert_sensing_v1", "covert_sensing_v2", "covert_sensing_v3", "env", "parallel_env",
+           "raw_env",
            "vector_env"]
 
 
 def _register() -> None:
     """Register the Gymnasium ids (Gymnasium 1.x has no plugin entry point) and PettingZoo ids.
 
-    v2 is the env; the v1 ids are registered to raise :data:`~covert_env.covert_sensing_v1.V1_RETIRED` (what changed),
-    and v0 is not registered: ``gym.make("covert_env/CovertSensing-v0")`` raises Gymnasium's own ``DeprecatedEnv``
-    ("... is deprecated. Please use `covert_env/CovertSensing-v2` instead.")."""
+    v3 is the env; the v1 and v2 ids are registered to raise what changed (``covert_sensing_v1.V1_RETIRED``,
+    ``covert_sensing_v2.V2_RETIRED``), and v0 is not registered:
+    ``gym.make("covert_env/CovertSensing-v0")`` raises Gymnasium's own ``DeprecatedEnv`` ("... is deprecated. Please
+    use `covert_env/CovertSensing-v3` instead.")."""
     import gymnasium
 
-    retired = "covert_env.covert_sensing_v1:parallel_env"
-    for env_id, entry in (("covert_env/CovertSensing-v2", "covert_env.envs.single:CovertSensingEnv"),
-                          ("covert_env/CovertSensingWaypoint-v2", "covert_env.envs.single:CovertSensingWaypointEnv"),
-                          ("covert_env/CovertSensing-v1", retired), ("covert_env/CovertSensingWaypoint-v1", retired)):
-        if env_id not in gymnasium.registry:
-            gymnasium.register(id=env_id, entry_point=entry)
+    ids = {"v3": ("covert_env.envs.single:CovertSensingEnv", "covert_env.envs.single:CovertSensingWaypointEnv")}
+    for version in ("v2", "v1"):
+        ids[version] = (f"covert_env.covert_sensing_{version}:parallel_env",) * 2
+    for version, (unicycle, waypoint) in ids.items():
+        for env_id, entry in ((f"covert_env/CovertSensing-{version}", unicycle),
+                              (f"covert_env/CovertSensingWaypoint-{version}", waypoint)):
+            if env_id not in gymnasium.registry:
+                gymnasium.register(id=env_id, entry_point=entry)
     try:
         from pettingzoo import aec_registry, parallel_registry, register
     except ImportError:  # older PettingZoo without a registry
         return
-    for version, module in (("v2", "covert_env.envs.covert_sensing"), ("v1", "covert_env.covert_sensing_v1")):
+    for version, module in (("v3", "covert_env.envs.covert_sensing"), ("v2", "covert_env.covert_sensing_v2"),
+                            ("v1", "covert_env.covert_sensing_v1")):
         if f"covert_env/CovertSensing-{version}" not in parallel_registry:
             register("parallel", f"covert_env/CovertSensing-{version}", f"{module}:parallel_env")
         if f"covert_env/CovertSensing-{version}" not in aec_registry:

@@ -22,7 +22,7 @@ from shapely.geometry import LineString
 from covert_env.config import MAX_HORIZON, MAX_N_SLOTS, MAX_ROUTE, MAX_SPEED, check_coordinates, short_repr
 
 __all__ = ["Road", "TargetTrack", "arc_lengths", "cumulative_lengths", "headings_along", "points_along",
-           "speed_noise_offsets"]
+           "points_along_rows", "segments_at", "speed_noise_offsets"]
 
 
 _MAX_POINTS = 1_000_000
@@ -116,6 +116,12 @@ def _segment_at(cumulative: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.n
     return np.clip(i, 0, last - 1).reshape(s.shape), s
 
 
+def segments_at(cumulative: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """The segment index (..., int) of arc lengths ``s`` (clamped to the road) along one road (K,) or N roads
+    (N, K) with ``s`` (N, ...): the segment :func:`points_along` interpolates on."""
+    return _segment_at(cumulative, s)[0]
+
+
 def _gather(a: np.ndarray, i: np.ndarray, batched: bool) -> np.ndarray:
     """``a[i]`` for one road (``a`` (K, ...)), or row by row for N roads (``a`` (N, K, ...), ``i`` (N, ...))."""
     if not batched:
@@ -132,6 +138,37 @@ def points_along(points: np.ndarray, cumulative: np.ndarray, s: np.ndarray) -> n
     lo, hi = _gather(cumulative, i, many), _gather(cumulative, i + 1, many)
     t = ((s - lo) / (hi - lo))[..., None]
     return _gather(points, i, many) * (1 - t) + _gather(points, i + 1, many) * t
+
+
+def points_along_rows(points: np.ndarray, cumulative: np.ndarray, last: np.ndarray, rows: np.ndarray,
+                      s: np.ndarray, guess: np.ndarray) -> np.ndarray:
+    """Positions (B, S, 2) at arc lengths ``s`` (B, S) along road ``rows[b]`` of padded road rows ``points``
+    (R, K, 2), ``cumulative`` (R, K), whose last vertex is ``last[r]``: :meth:`Road.point_at` of each row's road,
+    bit for bit (the same clamp, segment and interpolation), without gathering whole roads (the vector env's target
+    between slot times). ``guess`` (B, 1) or (B, S): a segment index to walk from, e.g. the segment of the slot's
+    start; the walk takes a few passes when the guess is a few vertices off."""
+    k = cumulative.shape[1]
+    end = last[rows][:, None]
+    base = (rows * k)[:, None]
+    cl = cumulative.reshape(-1)
+    s = np.minimum(np.maximum(s, 0.0), cl[base + end])
+    i = np.broadcast_to(np.minimum(np.maximum(guess, 0), end), s.shape).copy()
+    # The last index with cl <= s (searchsorted's, as _segment_at finds it), then one short of the road's end.
+    while True:
+        high = cl[base + i] > s
+        if not high.any():
+            break
+        i -= high
+    while True:
+        low = (i < end) & (cl[base + np.minimum(i + 1, end)] <= s)
+        if not low.any():
+            break
+        i += low
+    i = np.minimum(np.maximum(i, 0), end - 1) + base
+    lo, hi = cl[i], cl[i + 1]
+    t = ((s - lo) / (hi - lo))[..., None]
+    p = points.reshape(-1, 2)
+    return p[i] * (1 - t) + p[i + 1] * t
 
 
 def headings_along(points: np.ndarray, cumulative: np.ndarray, s: np.ndarray) -> np.ndarray:

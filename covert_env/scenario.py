@@ -231,15 +231,20 @@ class SceneArrays:
         """The targets' true positions (N, n + 1, 3) and headings (N, n + 1) at slots 0..n of the scenes' tracks
         (``TargetTrack.positions`` and ``headings`` of :func:`random_worlds`' tracks, bit for bit), for tracks
         without prediction error."""
-        c = self.config
-        if c.prediction_error > 0:
+        if self.config.prediction_error > 0:
             raise ValueError("SceneArrays.tracks: a track with prediction error is drawn per scene (random_worlds)")
-        arc = arc_lengths(np.full(c.n_slots + c.horizon + 1, float(c.target_speed)), c.delta, _ROAD_LEAD_IN)
+        arc = self.nominal_arc()
         s = np.broadcast_to(arc, (len(self), len(arc)))
         cl = cumulative_lengths(self.roads)
         xy = points_along(self.roads, cl, s)
-        q = np.concatenate([xy, np.full(xy.shape[:-1] + (1,), c.target_height)], axis=-1)
+        q = np.concatenate([xy, np.full(xy.shape[:-1] + (1,), self.config.target_height)], axis=-1)
         return q, headings_along(self.roads, cl, s)
+
+    def nominal_arc(self) -> np.ndarray:
+        """(n + 1,) the arc length at slots 0..n of every scene's track driven at the nominal speed
+        (``TargetTrack.arc`` of a track without prediction error)."""
+        c = self.config
+        return arc_lengths(np.full(c.n_slots + c.horizon + 1, float(c.target_speed)), c.delta, _ROAD_LEAD_IN)
 
     def world(self, i: int) -> tuple[Terrain, TargetTrack, np.random.Generator]:
         """Scene i's objects: :meth:`Scenario.random_world` of its seed."""

@@ -22,11 +22,11 @@ from pettingzoo.test import (
 )
 
 import covert_env
-from covert_env import covert_sensing_v2
+from covert_env import covert_sensing_v3
 
 MODES = ("unicycle", "waypoint")
-TERMS = ("path", "disguise", "los", "zone", "separation", "terrain")
-COSTS = ("los", "zone", "separation", "terrain")
+TERMS = ("path", "disguise", "los", "los_path", "zone", "separation", "terrain")
+COSTS = ("los", "los_path", "zone", "separation", "terrain")
 
 
 def _actions(env, obs, infos):
@@ -87,8 +87,8 @@ def test_costs_are_the_constraint_violations():
     paper = covert_env.Scenario.paper()
     starts = covert_env.Scenario(paper.config, paper.terrain, paper.track, [[50.0, 0.0], [50.5, 0.0], [300.0, 300.0]],
                                  [0.0, 0.0, 0.0])
-    env = covert_env.parallel_env(scenario=starts, los_penalty=0.0, zone_penalty=0.0, separation_penalty=0.0,
-                                  terrain_penalty=0.0)
+    env = covert_env.parallel_env(scenario=starts, los_penalty=0.0, los_path_penalty=0.0, zone_penalty=0.0,
+                                  separation_penalty=0.0, terrain_penalty=0.0)
     env.reset(seed=0)
     seen = {c: 0.0 for c in COSTS}
     for _ in range(6):
@@ -97,6 +97,7 @@ def test_costs_are_the_constraint_violations():
             info = infos[a]
             c = env.config
             assert info["cost_los"] == float(not info["los"])
+            assert 0.0 <= info["cost_los_path"] <= 1.0 and (info["cost_los_path"] == 0.0) == info["los_path"]
             assert info["cost_zone"] == float(not info["in_zone"])
             assert info["cost_separation"] == float(info["separation"] < c.d_safe1)
             assert info["cost_terrain"] == float(info["terrain_clearance"] < c.d_safe2)
@@ -109,7 +110,7 @@ def test_costs_are_the_constraint_violations():
 
 
 def test_gymnasium_env_exposes_the_same_infos():
-    genv = gym.make("covert_env/CovertSensing-v2", max_cycles=3)
+    genv = gym.make("covert_env/CovertSensing-v3", max_cycles=3)
     _, info0 = genv.reset(seed=1)
     _, _, _, _, info1 = genv.step(genv.action_space.sample())
     assert _signature(info0) == _signature(info1)
@@ -136,8 +137,8 @@ def test_pettingzoo_battery_dict_obs_default_arguments():
 @pytest.mark.parametrize("u", [1, 3])
 def test_max_cycles_render_and_performance_default_arguments(mode, u):
     # max_cycles_test takes a module exposing env() and parallel_env(); this one fixes the mode and team size.
-    module = SimpleNamespace(env=functools.partial(covert_sensing_v2.env, action_mode=mode, n_uavs=u),
-                             parallel_env=functools.partial(covert_sensing_v2.parallel_env, action_mode=mode, n_uavs=u))
+    module = SimpleNamespace(env=functools.partial(covert_sensing_v3.env, action_mode=mode, n_uavs=u),
+                             parallel_env=functools.partial(covert_sensing_v3.parallel_env, action_mode=mode, n_uavs=u))
     max_cycles_test(module)
     render_test(lambda render_mode=None: covert_env.env(action_mode=mode, n_uavs=u, render_mode=render_mode))
     performance_benchmark(covert_env.env(n_uavs=u, action_mode=mode))
@@ -177,7 +178,7 @@ def test_closed_env_is_collected():
     gc.collect()
     assert ref() is None
 
-    genv = gym.make("covert_env/CovertSensing-v2", max_cycles=2)
+    genv = gym.make("covert_env/CovertSensing-v3", max_cycles=2)
     genv.reset(seed=0)
     genv.step(genv.action_space.sample())
     genv.close()
@@ -283,10 +284,10 @@ def test_bad_waypoint_actions(bad):
 
 
 @pytest.mark.parametrize("env_id, kw, pattern", [
-    ("covert_env/CovertSensing-v2", dict(n_uavs=3), r"flies one UAV, got n_uavs=3.*parallel_env"),
-    ("covert_env/CovertSensing-v2", dict(action_mode="waypoint"), "CovertSensingWaypoint-v2"),
-    ("covert_env/CovertSensingWaypoint-v2", dict(action_mode="unicycle"), "covert_env/CovertSensing-v2"),
-    ("covert_env/CovertSensing-v2", dict(dict_obs=True), "dict_obs=True needs action_mode='waypoint'"),
+    ("covert_env/CovertSensing-v3", dict(n_uavs=3), r"flies one UAV, got n_uavs=3.*parallel_env"),
+    ("covert_env/CovertSensing-v3", dict(action_mode="waypoint"), "CovertSensingWaypoint-v3"),
+    ("covert_env/CovertSensingWaypoint-v3", dict(action_mode="unicycle"), "covert_env/CovertSensing-v3"),
+    ("covert_env/CovertSensing-v3", dict(dict_obs=True), "dict_obs=True needs action_mode='waypoint'"),
 ])
 def test_gymnasium_make_rejects_contradicting_arguments(env_id, kw, pattern):
     with pytest.raises(ValueError, match=pattern):
@@ -298,14 +299,14 @@ def test_gymnasium_make_rejects_contradicting_arguments(env_id, kw, pattern):
 def test_v0_ids_fail_with_a_clear_message():
     from covert_env import covert_sensing_v0
 
-    with pytest.raises(gym.error.DeprecatedEnv, match="CovertSensing-v2"):
+    with pytest.raises(gym.error.DeprecatedEnv, match="CovertSensing-v3"):
         gym.make("covert_env/CovertSensing-v0")
-    with pytest.raises(gym.error.DeprecatedEnv, match="CovertSensingWaypoint-v2"):
+    with pytest.raises(gym.error.DeprecatedEnv, match="CovertSensingWaypoint-v3"):
         gym.make("covert_env/CovertSensingWaypoint-v0")
     for make in (covert_sensing_v0.parallel_env, covert_sensing_v0.env, covert_sensing_v0.raw_env):
-        with pytest.raises(RuntimeError, match=r"replaced by covert_sensing_v1.*reward_.*covert_sensing_v2"):
+        with pytest.raises(RuntimeError, match=r"replaced by covert_sensing_v1.*reward_.*covert_sensing_v3"):
             make(n_uavs=3)
-    assert covert_env.covert_sensing_v2.parallel_env(n_uavs=2).metadata["name"] == "covert_sensing_v2"
+    assert covert_env.covert_sensing_v3.parallel_env(n_uavs=2).metadata["name"] == "covert_sensing_v3"
 
 
 def test_v1_ids_fail_with_what_changed_in_v2():
@@ -322,7 +323,24 @@ def test_v1_ids_fail_with_what_changed_in_v2():
                  lambda **kw: pettingzoo.make("parallel", "covert_env/CovertSensing-v1", **kw)):
         with pytest.raises(RuntimeError, match=changed):
             make(n_uavs=3)
-    assert covert_env.vector_env(num_envs=1).metadata["name"] == "covert_sensing_vector_v2"
+    assert covert_env.vector_env(num_envs=1).metadata["name"] == "covert_sensing_vector_v3"
+
+
+def test_v2_ids_fail_with_what_changed_in_v3():
+    """v3's reward counts LoS lost along the path: every v2 entry point says so, and how to get v2's rewards."""
+    import pettingzoo
+
+    from covert_env import covert_sensing_v2
+
+    changed = (r"replaced by covert_sensing_v3 in covert_env 0\.7\.0: line of sight lost between slot times"
+               r".*los_path_penalty=0")
+    for env_id in ("covert_env/CovertSensing-v2", "covert_env/CovertSensingWaypoint-v2"):
+        with pytest.raises(RuntimeError, match=changed):
+            gym.make(env_id)
+    for make in (covert_sensing_v2.parallel_env, covert_sensing_v2.env, covert_sensing_v2.raw_env,
+                 lambda **kw: pettingzoo.make("parallel", "covert_env/CovertSensing-v2", **kw)):
+        with pytest.raises(RuntimeError, match=changed):
+            make(n_uavs=3)
 
 
 # ---------------------------------------------------------------------- costs against independent geometry
@@ -416,7 +434,7 @@ def test_max_cycles_attribute_on_aec_and_gymnasium_envs():
         steps += 1
     assert steps == 3 + 1                       # three slots, then the final None step of the one agent
 
-    genv = gym.make("covert_env/CovertSensingWaypoint-v2")
+    genv = gym.make("covert_env/CovertSensingWaypoint-v3")
     with pytest.raises(TypeError, match="max_cycles must be an integer"):
         genv.unwrapped.max_cycles = 2.5
     genv.unwrapped.max_cycles = 2
@@ -441,4 +459,55 @@ def test_action_mask_before_reset_and_nested_waypoint_actions():
 @pytest.mark.parametrize("bad", [True, 1.0, 2, "1"])
 def test_gymnasium_n_uavs_must_be_one(bad):
     with pytest.raises(ValueError, match="flies one UAV"):
-        gym.make("covert_env/CovertSensing-v2", n_uavs=bad)
+        gym.make("covert_env/CovertSensing-v3", n_uavs=bad)
+
+
+# ---------------------------------------------------------------------- LoS along the path
+@pytest.mark.parametrize("kw", [dict(family="downtown"), dict(scenario="paper", random_starts=True),
+                                dict(family="dense", config=dict(prediction_error=3.0, r_u=3.0))])
+def test_path_los_cost_is_the_episode_metric(kw):
+    """cost_los_path and los_path of every step are the episode metrics' blocked_path_share and los_path of the
+    recorded flight (tests/test_metrics.py checks those against a dense resampling of the path), the reward's
+    los_path term is -los_path_penalty times the cost, and the target between slot times is the track's."""
+    from covert_env.metrics import slot_quantities
+
+    env = covert_env.parallel_env(n_uavs=3, action_mode="waypoint", los_path_penalty=2.5, **kw)
+    _, infos = env.reset(seed=4)
+    rng = np.random.default_rng(0)
+    cost, clear = [], []
+    while env.agents:
+        acts = {a: int(np.argmax(infos[a]["action_mask"] * (1 + rng.random(len(infos[a]["action_mask"])))))
+                for a in env.agents}
+        _, rew, _, _, infos = env.step(acts)
+        cost.append([infos[a]["cost_los_path"] for a in env.possible_agents])
+        clear.append([infos[a]["los_path"] for a in env.possible_agents])
+        for a in env.possible_agents:
+            assert infos[a]["reward_los_path"] == -2.5 * infos[a]["cost_los_path"]
+            assert rew[a] == pytest.approx(sum(infos[a][f"reward_{t}"] for t in TERMS), abs=1e-12)
+    q = slot_quantities(env.engine.trajectory(), env.engine.terrain, env.config)
+    np.testing.assert_array_equal(np.array(cost), q.blocked_path_share)
+    np.testing.assert_array_equal(np.array(clear), q.los_path)
+    if "family" in kw:
+        assert q.blocked_path_share.mean() > 0.005            # random waypoints do lose LoS between slots here
+    vec, f = env._vec, np.linspace(0.0, 1.0, env.path_samples)
+    got = vec._pool.target_between(vec._rows, np.array([5]), f)
+    np.testing.assert_array_equal(got[0], env.engine.track.position_between(5, f))
+
+
+def test_no_path_penalty_gives_the_slot_time_rewards():
+    """los_path_penalty=0: the reward is the sum of the other terms, bit for bit (v2's rewards)."""
+    a = covert_env.vector_env(num_envs=4, n_uavs=3, family="downtown", los_path_penalty=0.0)
+    b = covert_env.vector_env(num_envs=4, n_uavs=3, family="downtown")
+    a.reset(seed=2)
+    b.reset(seed=2)
+    rng = np.random.default_rng(1)
+    lost = 0.0
+    for _ in range(30):
+        act = rng.uniform(-1, 1, a.action_space.shape)
+        _, ra, _, _, ia = a.step(act)
+        _, rb, _, _, ib = b.step(act)
+        assert (ia["reward_los_path"] == 0).all()
+        others = np.stack([ib[f"reward_{t}"] for t in TERMS if t != "los_path"])
+        np.testing.assert_array_equal(ra, others.sum(axis=0))
+        lost += ib["cost_los_path"].sum()
+    assert lost > 0

@@ -313,3 +313,34 @@ def test_many_roads_at_once_equal_each_road(seed, n_roads, n_points, uneven):
         np.testing.assert_array_equal(cl[n], road.cumulative_length)
         np.testing.assert_array_equal(got_xy[n], road.point_at(s[n]))
         np.testing.assert_array_equal(got_phi[n], road.heading_at(s[n]))
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), n_roads=st.integers(1, 4), n_points=st.integers(2, 40),
+       uneven=st.booleans(), guess_off=st.integers(-50, 50))
+def test_points_along_padded_rows_equal_each_road(seed, n_roads, n_points, uneven, guess_off):
+    """points_along_rows (the vector env's target between slot times: roads as padded rows of different lengths,
+    copies gathering their row) gives each road's Road.point_at bit for bit, from any starting guess, at vertices,
+    at both ends and beyond them (clamped to the row's own road, not the padding)."""
+    from covert_env.road import cumulative_lengths, points_along_rows, segments_at
+
+    rng = np.random.default_rng(seed)
+    lengths = rng.integers(2, n_points + 1, n_roads)
+    lengths[0] = n_points
+    pts = np.full((n_roads, n_points, 2), 7.0)                      # padding: any value
+    cl = np.full((n_roads, n_points), 1e9)
+    for n, k in enumerate(lengths):
+        steps = rng.exponential(3.0, (k - 1, 2)) + 1e-3
+        if uneven:
+            steps[: (k - 1) // 2] *= 50.0
+        pts[n, :k] = np.concatenate([np.zeros((1, 2)), np.cumsum(steps, axis=0)])
+        cl[n, :k] = cumulative_lengths(pts[n, :k])
+    rows = rng.integers(0, n_roads, 6)
+    ends = cl[rows, lengths[rows] - 1]
+    s = rng.uniform(-5.0, 1.0, (6, 5)) * (ends[:, None] + 5.0)
+    s[:, 0], s[:, 1] = ends, cl[rows, np.minimum(1, lengths[rows] - 1)]
+    # From the true segment of the first sample, moved by guess_off (clamped to the row's road by the function).
+    true = np.array([segments_at(cl[r, :lengths[r]], s[b, :1]) for b, r in enumerate(rows)])
+    got = points_along_rows(pts, cl, lengths - 1, rows, s, true + guess_off)
+    for b, r in enumerate(rows):
+        np.testing.assert_array_equal(got[b], Road(pts[r, :lengths[r]]).point_at(s[b]))

@@ -251,7 +251,7 @@ def test_reward_fn_shaping():
     _, rew, _, infos = venv.step(np.ones((3, 2), np.float32))
     for r, info in zip(rew, infos, strict=True):
         t = {k: v for k, v in info.items() if k.startswith("reward_")}
-        assert len(t) == 6
+        assert len(t) == 7
         expect = sum(t.values()) - (0.0 if info["in_zone"] else t["reward_disguise"])
         assert r == pytest.approx(expect, abs=1e-5) and "env_reward" in info
 

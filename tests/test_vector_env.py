@@ -142,7 +142,7 @@ def test_shapes_dtypes_and_spaces(mode, dict_obs):
         assert list(infos)[:len(INFO_KEYS)] == list(INFO_KEYS)
         for key in INFO_KEYS:
             assert infos[key].shape == (b, u), key
-            kind = "i" if key == "slot" else "b" if key in ("los", "in_zone", "infeasible") else "f"
+            kind = "i" if key == "slot" else "b" if key in ("los", "los_path", "in_zone", "infeasible") else "f"
             assert infos[key].dtype.kind == kind, key
         state = venv.state()
         assert state.shape == (b, venv.single_state_space.shape[0]) and state in venv.state_space

@@ -20,9 +20,10 @@ from covert_env.flight import fly_turn_straight, waypoint_controls
 #: Smallest commanded speed as a fraction of V_max: the unicycle needs v > 0 (eq. 1).
 MIN_SPEED_FRACTION = 0.01
 #: The reward's terms; ``infos[agent]["reward_<term>"]`` holds each (the parallel env's Rewards section).
-REWARD_TERMS = ("path", "disguise", "los", "zone", "separation", "terrain")
-#: The constraints of the paper's problem (§2.4); ``infos[agent]["cost_<name>"]`` is 1.0 where the slot violated one.
-COSTS = ("los", "zone", "separation", "terrain")
+REWARD_TERMS = ("path", "disguise", "los", "los_path", "zone", "separation", "terrain")
+#: The constraint costs, ``infos[agent]["cost_<name>"]``: the paper's constraints (§2.4), 1.0 where the slot violated
+#: one, and ``los_path``, the share of the slot's flown path with LoS blocked, in [0, 1].
+COSTS = ("los", "los_path", "zone", "separation", "terrain")
 
 __all__ = ["COSTS", "MIN_SPEED_FRACTION", "OFFSET_CLIP", "REWARD_TERMS", "action_masks", "constraint_costs",
            "fly_waypoints", "own_features", "reward_terms", "to_world_batch",
@@ -114,18 +115,19 @@ def action_masks(xy, theta, q_xy, phi, lattice, visible, table) -> np.ndarray:
 
 
 def constraint_costs(quant, c) -> np.ndarray:
-    """(4, B, U) float 0/1 violations in the order of ``COSTS``: LoS, zone, separation,
-    terrain (its Constraint Costs table)."""
+    """(5, B, U) float costs in the order of ``COSTS`` (the parallel env's Constraint Costs table): 0/1 violations
+    of LoS at the slot's end, the zone, separation and terrain, and the share of the path with LoS blocked."""
     costs = np.empty((len(COSTS),) + quant.los.shape)
     np.logical_not(quant.los, out=costs[0])
-    np.logical_not(quant.in_zone, out=costs[1])
-    np.less(quant.separation_path, c.d_safe1, out=costs[2])
-    np.less(quant.terrain_clearance, c.d_safe2, out=costs[3])
+    costs[1] = quant.blocked_path_share
+    np.logical_not(quant.in_zone, out=costs[2])
+    np.less(quant.separation_path, c.d_safe1, out=costs[3])
+    np.less(quant.terrain_clearance, c.d_safe2, out=costs[4])
     return costs
 
 
 def reward_terms(quant, costs, c, scale, p: dict) -> np.ndarray:
-    """(6, B, U) reward terms in the order of ``REWARD_TERMS`` (the parallel env's Rewards section); ``scale`` and
+    """(7, B, U) reward terms in the order of ``REWARD_TERMS`` (the parallel env's Rewards section); ``scale`` and
     the penalties ``p`` are numbers, or (B, 1) arrays when copies have their own."""
     outside = np.maximum(quant.zone_distance, 0.0) / (c.r2 - c.r1)
     cols = np.empty((len(REWARD_TERMS),) + outside.shape)
@@ -133,11 +135,12 @@ def reward_terms(quant, costs, c, scale, p: dict) -> np.ndarray:
     np.multiply(quant.kappa, c.lam, out=cols[1])
     cols[1] /= scale
     np.multiply(costs[0], -p["los"], out=cols[2])
-    cols[3] = np.minimum(outside, 2.0) + 1.0
-    cols[3] *= costs[1]
-    cols[3] *= -p["zone"]
-    np.multiply(costs[2], -p["separation"], out=cols[4])
-    np.multiply(costs[3], -p["terrain"], out=cols[5])
+    np.multiply(costs[1], -p["los_path"], out=cols[3])
+    cols[4] = np.minimum(outside, 2.0) + 1.0
+    cols[4] *= costs[2]
+    cols[4] *= -p["zone"]
+    np.multiply(costs[3], -p["separation"], out=cols[5])
+    np.multiply(costs[4], -p["terrain"], out=cols[6])
     return cols
 
 

@@ -90,6 +90,8 @@ class CovertSensingParallelEnv(ParallelEnv):
     * ``path``: ``-v delta / reward_scale`` (energy, eq. 15);
     * ``disguise``: ``+lambda kappa / reward_scale`` (eq. 11);
     * ``los``: ``-los_penalty`` if LoS to the target is blocked at the end of the slot;
+    * ``los_path``: ``-los_path_penalty`` times the share of the slot's flown path with LoS to the target blocked
+      (``cost_los_path``: the video lost between slot times);
     * ``zone``: ``-zone_penalty * (1 + min(outside distance / (R2 - R1), 2))`` if outside the zone;
     * ``separation``: ``-separation_penalty`` if closer than d_safe1 to a teammate at any sample of the slot;
     * ``terrain``: ``-terrain_penalty`` if closer than d_safe2 to a polytope's highest point.
@@ -97,21 +99,25 @@ class CovertSensingParallelEnv(ParallelEnv):
     ## Constraint Costs
 
     For constrained (safe) RL, e.g. Lagrangian methods, ``infos[agent]`` carries the violations of the
-    paper's constraints (§2.4) in the slot just flown, each 0.0 or 1.0, and their sum ``cost``; they do not
-    depend on the penalty weights (set the penalties to 0 to train on the stage cost alone):
+    paper's constraints (§2.4) in the slot just flown, each 0.0 or 1.0, the share of the flown path with LoS
+    blocked, in [0, 1], and their sum ``cost``; they do not depend on the penalty weights (set the penalties to 0 to
+    train on the stage cost alone):
 
     | key | constraint violated |
     |---|---|
     | ``cost_los`` | LoS to the (true) target blocked at the end of the slot (eq. 6; outside eq. 10's zone) |
+    | ``cost_los_path`` | the share of the slot's ``path_samples`` after its start (its end included) whose LoS to |
+    | | the target at the same instant is blocked (eq. 6 between slot times; the metric ``blocked_path_share``) |
     | ``cost_zone`` | outside the feasible flight zone of the true target at the end of the slot (eq. 4, not eroded: |
     | | eq. 5's erosion by r_u is the planner's margin that guarantees eq. 4) |
     | ``cost_separation`` | closer than d_safe1 to a teammate at any of the ``path_samples`` of the slot (eq. 2) |
     | ``cost_terrain`` | closer than d_safe2 to a polytope's highest point at the end of the slot (eq. 3) |
 
     LoS, zone and terrain are checked at slot times, as the paper's constraints are stated on the slot
-    positions; separation, which the engine samples anyway, along the path. (Terrain generated with the
-    default ``max_height`` keeps every top at least d_safe2 below the UAVs, so ``cost_terrain`` fires only on
-    terrain given by the user, e.g. a tall pole.)
+    positions; separation and ``cost_los_path`` along the path: the paper films the target continuously, and a
+    team that keeps LoS at slot times can lose it in between (docs/decisions.md#line-of-sight-along-the-path).
+    (Terrain generated with the default ``max_height`` keeps every top at least d_safe2 below the UAVs, so
+    ``cost_terrain`` fires only on terrain given by the user, e.g. a tall pole.)
 
     ## Infos
 
@@ -122,6 +128,7 @@ class CovertSensingParallelEnv(ParallelEnv):
     |---|---|---|
     | ``slot`` | int | slot k reached |
     | ``los``, ``in_zone`` | bool | LoS clear / inside the zone at slot k |
+    | ``los_path`` | bool | LoS clear at every path sample of the slot (at reset: ``los``) |
     | ``infeasible`` | bool | the waypoint was masked out or unreachable (see Action Space) |
     | ``kappa``, ``g``, ``v`` | float | disguise (eq. 11), stage cost (eq. 18), speed of the slot |
     | ``separation`` | float | nearest teammate along the slot (m; inf with one UAV) |
@@ -167,11 +174,13 @@ class CovertSensingParallelEnv(ParallelEnv):
     * ``render_mode``: ``None``, ``"human"`` or ``"rgb_array"``.
     * ``map_size``: side S of the observation maps (default 8).
     * ``dict_obs``: Dict observations carrying the action mask (waypoint mode only; Tianshou needs it).
-    * ``reward_scale``, ``los_penalty``, ``zone_penalty``, ``separation_penalty``, ``terrain_penalty``.
+    * ``reward_scale``, ``los_penalty``, ``los_path_penalty``, ``zone_penalty``, ``separation_penalty``,
+      ``terrain_penalty`` (each in [0, 1e6]; default 1.0).
     * ``terminate_on_collision``: end the episode when separation < d_safe1.
     * ``scene_pool``: number of training scene seeds for ``scenario="random"`` (default 10000, at most
       1_000_000 so that training scenes never include the held-out seeds 1_000_000 + i).
-    * ``path_samples``: samples per slot for LoS/separation checks along the path (default 11, in [2, 1000]).
+    * ``path_samples``: samples per slot for LoS/separation checks along the path (default 11, in [2, 1000]; each
+      sample is a line-of-sight test per UAV and step).
     * ``random_starts``: sample start poses from the env's RNG even for a fixed scenario.
     * ``family``: a scene family's name (:mod:`covert_env.families`: ``"sparse"``, ``"paper"``, ``"winding"``,
       ``"dense"``, ``"downtown"``, ``"towers"``), whose generator fields are set on ``config``; with
@@ -182,6 +191,12 @@ class CovertSensingParallelEnv(ParallelEnv):
 
     ## Version History
 
+    * v3, covert_env 0.7.0: LoS lost between slot times counts. The reward has a term ``los_path``
+      (``-los_path_penalty`` times the share of the slot's flown path with LoS blocked, weight 1.0 by default), the
+      infos a cost ``cost_los_path`` (that share, also summed into ``cost``) and a flag ``los_path``; ``penalties``
+      has the key ``los_path``. Observations, dynamics, scenes and the other terms and costs are unchanged bit for
+      bit: with ``los_path_penalty=0`` a seeded rollout's observations and rewards are v2's. ``covert_sensing_v2``
+      and the v2 ids raise an error that says this.
     * v2, covert_env 0.6.0: random scenes (``scenario="random"``, ``Scenario.random``) are drawn by a batched
       generator (:mod:`covert_env.generation`: B scenes per array operation, each a function of its seed alone),
       so every random scene, its starts included, differs from v1's; the paper scene is unchanged. The waypoint
@@ -223,21 +238,23 @@ class CovertSensingParallelEnv(ParallelEnv):
     * v0: initial release.
     """
 
-    metadata = {"name": "covert_sensing_v2", "render_modes": list(RENDER_MODES), "render_fps": 4,
+    metadata = {"name": "covert_sensing_v3", "render_modes": list(RENDER_MODES), "render_fps": 4,
                 "is_parallelizable": True}
 
     def __init__(self, config: Config | dict | None = None, *, n_uavs: int | None = None,
                  scenario: str | Scenario = "random", action_mode: str = "unicycle",
                  max_cycles: int | None = None, render_mode: str | None = None, map_size: int = 8,
                  dict_obs: bool = False, reward_scale: float = 100.0, los_penalty: float = 1.0,
-                 zone_penalty: float = 1.0, separation_penalty: float = 1.0, terrain_penalty: float = 1.0,
+                 los_path_penalty: float = 1.0, zone_penalty: float = 1.0, separation_penalty: float = 1.0,
+                 terrain_penalty: float = 1.0,
                  terminate_on_collision: bool = False, scene_pool: int = 10_000, path_samples: int = 11,
                  random_starts: bool = False, family: str | None = None, task: str | None = None):
         super().__init__()
         s = EnvSettings(config, n_uavs=n_uavs, scenario=scenario, action_mode=action_mode, max_cycles=max_cycles,
                         render_mode=render_mode, map_size=map_size, dict_obs=dict_obs, reward_scale=reward_scale,
-                        los_penalty=los_penalty, zone_penalty=zone_penalty, separation_penalty=separation_penalty,
-                        terrain_penalty=terrain_penalty, terminate_on_collision=terminate_on_collision,
+                        los_penalty=los_penalty, los_path_penalty=los_path_penalty, zone_penalty=zone_penalty,
+                        separation_penalty=separation_penalty, terrain_penalty=terrain_penalty,
+                        terminate_on_collision=terminate_on_collision,
                         scene_pool=scene_pool, path_samples=path_samples, random_starts=random_starts,
                         family=family, task=task)
         # One copy, no automatic reset (PettingZoo's agents leave at the end and reset() starts the next

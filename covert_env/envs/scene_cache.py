@@ -18,6 +18,7 @@ import numpy as np
 from covert_env.config import Config
 from covert_env.envs.observation import FIELDS, shared_block_slices
 from covert_env.metrics import top_clearance
+from covert_env.road import cumulative_lengths
 from covert_env.scenario import Scenario, random_scene_arrays, sample_starts_on
 from covert_env.visibility import terrain_arrays
 from covert_env.zone import to_world
@@ -37,13 +38,18 @@ class SceneBatch:
             (:meth:`TerrainRows.set_rows <covert_env.visibility.TerrainRows.set_rows>`).
         q (N, T, 3), phi (N, T): the target's true track; q_next (N, T, 3), phi_next (N, T): slot k + 1 as predicted
             at slot k (row n: the track's end), as ``TargetTrack.next_predicted``; exact: the prediction is the truth.
+        roads (N, K, 2), road_lengths (N, K): the roads' vertices and their arc lengths (``Road.cumulative_length``),
+            every road K vertices here; arc (N, T): the target's arc length at each slot (``TargetTrack.arc``);
+            z (N,): the filmed point's height. The target between slot times, as ``TargetTrack.position_between``.
         scenario: the given scenario (N = 1), or None for random scenes.
     """
 
-    def __init__(self, keys, config: Config, terrain: tuple, track: tuple, exact: bool, scenario=None):
+    def __init__(self, keys, config: Config, terrain: tuple, track: tuple, route: tuple, exact: bool,
+                 scenario=None):
         self.keys, self.config, self.exact, self.scenario = list(keys), config, exact, scenario
         self.hs, self.centre, self.radius, self.z_max, self.top, self.growth = terrain
         self.q, self.phi, self.q_next, self.phi_next = track
+        self.roads, self.road_lengths, self.arc, self.z = route
 
     def __len__(self) -> int:
         return len(self.keys)
@@ -55,14 +61,18 @@ class SceneBatch:
         noise from its scene's seed (a generator per scene, so a loop over the scenes)."""
         a = random_scene_arrays(seeds, config)
         terrain = (a.hs, a.centre, a.radius, a.z_max, a.highest, a.growth)
+        n, z = len(a), np.full(len(a), float(config.target_height))
         if config.prediction_error == 0:
             q, phi = a.tracks()
             nxt = np.minimum(np.arange(q.shape[1]) + 1, q.shape[1] - 1)
-            return cls(a.seeds, config, terrain, (q, phi, q[:, nxt], phi[:, nxt]), exact=True)
-        tracks = [a.track(i) for i in range(len(a))]
+            arc = np.broadcast_to(a.nominal_arc(), (n, q.shape[1]))
+            route = (a.roads, cumulative_lengths(a.roads), arc, z)
+            return cls(a.seeds, config, terrain, (q, phi, q[:, nxt], phi[:, nxt]), route, exact=True)
+        tracks = [a.track(i) for i in range(n)]
         parts = [np.stack(x) for x in zip(*((t.positions, t.headings) + t.next_predicted for t in tracks),
                                           strict=True)]
-        return cls(a.seeds, config, terrain, tuple(parts), exact=False)
+        route = (a.roads, np.stack([t.road.cumulative_length for t in tracks]), np.stack([t.arc for t in tracks]), z)
+        return cls(a.seeds, config, terrain, tuple(parts), route, exact=False)
 
     @classmethod
     def of(cls, key, scenario: Scenario) -> SceneBatch:
@@ -71,7 +81,8 @@ class SceneBatch:
         tops = np.asarray(scenario.terrain.highest_points, float).reshape(-1, 3)
         terrain = tuple(x[None] for x in (arr.hs, arr.centre, arr.radius, arr.z_max, tops, arr.growth_factor))
         parts = tuple(np.asarray(x)[None] for x in (track.positions, track.headings) + track.next_predicted)
-        return cls([key], scenario.config, terrain, parts, exact=track.exact, scenario=scenario)
+        route = (track.road.points[None], track.road.cumulative_length[None], track.arc[None], np.array([track.z]))
+        return cls([key], scenario.config, terrain, parts, route, exact=track.exact, scenario=scenario)
 
 
 def shared_blocks(config: Config, batch: SceneBatch, maps: np.ndarray, maps_next: np.ndarray) -> np.ndarray:

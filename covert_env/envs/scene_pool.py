@@ -21,6 +21,7 @@ import numpy as np
 from covert_env.envs.observation import shared_block_size
 from covert_env.envs.scene_cache import SceneBatch, SceneCache, shared_blocks, start_nodes
 from covert_env.metrics import terrain_clearance
+from covert_env.road import points_along_rows, segments_at
 from covert_env.scenario import Scenario, pick_starts_many
 from covert_env.visibility import LOS_TOLERANCE, TerrainRows, grown, visible_nodes_rows
 from covert_env.zone import zone_lattice
@@ -48,6 +49,10 @@ class ScenePool:
             :func:`~covert_env.visibility.visible_nodes`; the action mask of slot k - 1's move; waypoint mode only).
         start_xy (R, L0, 2), start_visible (R, L0), start_clear (R, L0): the zone lattice at slot 0, its nodes'
             visibility and clearance of the tops (eq. 3): what the starts are drawn from.
+        roads (R, K, 2), road_lengths (R, K), road_last (R,): each scene's road (padded; its last vertex
+            ``road_last``) and the arc length at each vertex; arc (R, T), arc_segment (R, T): the target's arc
+            length at each slot and the road segment it lies on; target_z (R,): the filmed point's height. What
+            :meth:`target_between` reads.
         terrains: the scenes' terrains, row r the scene's (:class:`~covert_env.visibility.TerrainRows`).
         top (R, M, 3): polytope top points (eq. 3), padded with inf; centre (R, M, 2), radius (R, M): footprint
         circles (views of ``terrains``).
@@ -69,6 +74,9 @@ class ScenePool:
         n0 = len(self._start_lattice)
         self.start_xy, self.start_visible = np.zeros((0, n0, 2)), np.zeros((0, n0), bool)
         self.start_clear = np.zeros((0, n0), bool)
+        self.roads, self.road_lengths = np.zeros((0, 2, 2)), np.zeros((0, 2))
+        self.road_last, self.target_z = np.zeros(0, np.intp), np.zeros(0)
+        self.arc, self.arc_segment = np.zeros((0, 1)), np.zeros((0, 1), np.intp)
         self.terrains = TerrainRows(capacity)
 
     def __len__(self) -> int:
@@ -190,6 +198,11 @@ class ScenePool:
         self.start_xy = grown(self.start_xy, (n,) + self.start_xy.shape[1:], 0.0)
         self.start_visible = grown(self.start_visible, (n,) + self.start_visible.shape[1:], False)
         self.start_clear = grown(self.start_clear, (n,) + self.start_clear.shape[1:], False)
+        k_road = max(batch.roads.shape[1], self.roads.shape[1])
+        self.roads = grown(self.roads, (n, k_road, 2), 0.0)
+        self.road_lengths = grown(self.road_lengths, (n, k_road), 0.0)
+        self.road_last, self.target_z = grown(self.road_last, (n,), 0), grown(self.target_z, (n,), 0.0)
+        self.arc, self.arc_segment = grown(self.arc, (n, t), 0.0), grown(self.arc_segment, (n, t), 0)
         while len(self._caches) < n:
             self._caches.append(None)
             self._names.append("")
@@ -198,6 +211,11 @@ class ScenePool:
         ks = np.minimum(np.arange(t), n_t - 1)             # clamped at the track's end
         self.q[rows], self.phi[rows] = batch.q[:, ks], batch.phi[:, ks]
         self.q_next[rows], self.phi_next[rows] = batch.q_next[:, ks], batch.phi_next[:, ks]
+        k_road = batch.roads.shape[1]
+        self.roads[rows, :k_road], self.road_lengths[rows, :k_road] = batch.roads, batch.road_lengths
+        self.road_last[rows], self.target_z[rows] = k_road - 1, batch.z
+        self.arc[rows] = batch.arc[:, ks]
+        self.arc_segment[rows] = segments_at(batch.road_lengths, batch.arc)[:, ks]
         self.blocks[rows] = self._blocks(rows, batch)[:, ks]
         if self.waypoint:
             self.lattice_ok[rows] = self._lattice_visible(rows, batch)[:, ks]
@@ -247,6 +265,25 @@ class ScenePool:
         b against the terrain of scene row ``rows[b]``; (B, U) bool (:meth:`TerrainRows.line_of_sight
         <covert_env.visibility.TerrainRows.line_of_sight>`)."""
         return self.terrains.line_of_sight(rows, uav_xy, altitude, target_xyz, tol=tol)
+
+    def target_between(self, rows: np.ndarray, k: np.ndarray, fractions: np.ndarray) -> np.ndarray:
+        """(B, F, 3) the target of copy b (scene row ``rows[b]``) at times (k[b] + f) delta within slot k[b], for the
+        ``fractions`` f (F,) in [0, 1]: ``TargetTrack.position_between`` of the scene's track, bit for bit."""
+        a0, a1 = self.arc[rows, k], self.arc[rows, k + 1]
+        s = a0[:, None] + fractions * (a1 - a0)[:, None]
+        xy = points_along_rows(self.roads, self.road_lengths, self.road_last, rows, s, self.arc_segment[rows, k, None])
+        return np.concatenate([xy, np.broadcast_to(self.target_z[rows, None, None], s.shape + (1,))], axis=-1)
+
+    def path_line_of_sight(self, rows: np.ndarray, k: np.ndarray, path_xy: np.ndarray, altitude: float,
+                           fractions: np.ndarray) -> np.ndarray:
+        """(B, U, F) clear LoS (eq. 6) from the path samples ``path_xy`` (B, U, F, 2) of slot k[b] to the target at
+        the same instants (``fractions`` (F,) of the slot), copy b against its own scene: one batched call over
+        copies x samples (the samples act as copies)."""
+        b, u, f = path_xy.shape[:3]
+        target = self.target_between(rows, k, fractions).reshape(b * f, 3)
+        xy = path_xy.transpose(0, 2, 1, 3).reshape(b * f, u, 2)
+        clear = self.line_of_sight(np.repeat(rows, f), xy, altitude, target)
+        return clear.reshape(b, f, u).transpose(0, 2, 1)
 
     def terrain_clearance(self, rows: np.ndarray, xy: np.ndarray, altitude: float) -> np.ndarray:
         """(B, U) distance from (x, y, h) to the nearest polytope top of each copy's scene (eq. 3; inf if none)."""

@@ -30,7 +30,7 @@ MAX_SCENE_POOL = len(TRAIN_SEEDS)
 
 
 #: The reward's penalty terms, the keys of ``penalties``.
-PENALTIES = ("los", "zone", "separation", "terrain")
+PENALTIES = ("los", "los_path", "zone", "separation", "terrain")
 
 
 def check_reward_scale(value) -> float:
@@ -55,7 +55,8 @@ def _penalty(key, value) -> float:
 
 
 class PenaltyWeights(dict):
-    """The penalty weights by term (``los``, ``zone``, ``separation``, ``terrain``), each a finite number >= 0.
+    """The penalty weights by term (``los``, ``los_path``, ``zone``, ``separation``, ``terrain``), each a finite
+    number >= 0.
 
     A dict that checks what is written into it: ``penalties["los"] = 2.0`` is validated as the constructor
     arguments are (a NaN, a negative weight or an unknown term raise), and no term can be removed (set it to 0.0)."""
@@ -100,6 +101,7 @@ class EnvSettings:
                  scenario: str | Scenario = "random", action_mode: str = "unicycle",
                  max_cycles: int | None = None, render_mode: str | None = None, map_size: int = 8,
                  dict_obs: bool = False, reward_scale: float = 100.0, los_penalty: float = 1.0,
+                 los_path_penalty: float = 1.0,
                  zone_penalty: float = 1.0, separation_penalty: float = 1.0, terrain_penalty: float = 1.0,
                  terminate_on_collision: bool = False, scene_pool: int = 10_000, path_samples: int = 11,
                  random_starts: bool = False, family: str | None = None, task: str | None = None):
@@ -153,8 +155,8 @@ class EnvSettings:
         self.scene_pool = int_arg("scene_pool", scene_pool, 1, MAX_SCENE_POOL)
         self.path_samples = int_arg("path_samples", path_samples, 2, MAX_PATH_SAMPLES)
         self.reward_scale = check_reward_scale(reward_scale)
-        self.penalties = check_penalties({"los": los_penalty, "zone": zone_penalty, "separation": separation_penalty,
-                                          "terrain": terrain_penalty})
+        self.penalties = check_penalties({"los": los_penalty, "los_path": los_path_penalty, "zone": zone_penalty,
+                                          "separation": separation_penalty, "terrain": terrain_penalty})
         self.config = cfg
         self.family = family if task is None else get_task(task).family
         self.task = task

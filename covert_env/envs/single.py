@@ -1,7 +1,7 @@
 """Gymnasium single-UAV environments, thin wrappers over the PettingZoo env with one agent.
 
-Registered at ``import covert_env`` as ``covert_env/CovertSensing-v2`` (continuous unicycle actions)
-and ``covert_env/CovertSensingWaypoint-v2`` (discrete waypoint actions with ``action_masks()`` for
+Registered at ``import covert_env`` as ``covert_env/CovertSensing-v3`` (continuous unicycle actions)
+and ``covert_env/CovertSensingWaypoint-v3`` (discrete waypoint actions with ``action_masks()`` for
 sb3-contrib's MaskablePPO).
 """
 
@@ -44,8 +44,9 @@ class CovertSensingEnv(gym.Env):
 
     ## Rewards
 
-    ``-g / reward_scale`` (eq. 18: path length minus lambda times disguise) minus penalties for lost LoS,
-    leaving the zone and terrain clearance; ``info["reward_path"]`` .. ``info["reward_terrain"]`` itemise them.
+    ``-g / reward_scale`` (eq. 18: path length minus lambda times disguise) minus penalties for lost LoS (at the
+    slot's end, and the share of its flown path with LoS blocked), leaving the zone and terrain clearance;
+    ``info["reward_path"]`` .. ``info["reward_terrain"]`` itemise them.
     ``info["cost"]`` and ``info["cost_los"]`` .. ``info["cost_terrain"]`` are the constraint violations of the
     slot, for constrained RL. The infos are flat, with the same keys at reset and every step (the parallel
     env's Infos and Constraint Costs tables).
@@ -63,7 +64,7 @@ class CovertSensingEnv(gym.Env):
 
     ## Vectorized Environment
 
-    ``gym.make_vec("covert_env/CovertSensing-v2", num_envs=N)`` gives Gymnasium's ``SyncVectorEnv`` (or, with
+    ``gym.make_vec("covert_env/CovertSensing-v3", num_envs=N)`` gives Gymnasium's ``SyncVectorEnv`` (or, with
     ``vectorization_mode="async"``, ``AsyncVectorEnv``) of N of these envs; it resets an ended env in
     Gymnasium's next-step mode (``AutoresetMode.NEXT_STEP``: the ``step()`` after the end resets it and ignores
     its action). ``covert_env.vector_env(num_envs=N, n_uavs=1)`` is the batched alternative (one process, array
@@ -81,6 +82,8 @@ class CovertSensingEnv(gym.Env):
 
     ## Version History
 
+    * v3, covert_env 0.7.0: LoS lost along the flown path counts (``reward_los_path``, ``cost_los_path``,
+      ``los_path``), as in the PettingZoo env this one wraps (its Version History says what changed).
     * v2, covert_env 0.6.0: random scenes from the batched generator and the waypoint mask of eq. 10's one rule,
       as in the PettingZoo env this one wraps (its Version History,
       :class:`~covert_env.envs.covert_sensing.CovertSensingParallelEnv`, says what changed and how much).
@@ -108,7 +111,7 @@ class CovertSensingEnv(gym.Env):
         if kwargs.get("action_mode", self._action_mode) != self._action_mode:
             other = "CovertSensingWaypoint" if self._action_mode == "unicycle" else "CovertSensing"
             raise ValueError(f"{type(self).__name__} has action_mode={self._action_mode!r}, got "
-                             f"action_mode={kwargs['action_mode']!r}; use the id covert_env/{other}-v2")
+                             f"action_mode={kwargs['action_mode']!r}; use the id covert_env/{other}-v3")
         kwargs.update(n_uavs=1, action_mode=self._action_mode)
         self.par = CovertSensingParallelEnv(render_mode=render_mode, **kwargs)
         self.render_mode = render_mode

@@ -24,8 +24,8 @@ from covert_env.separation import nearest_teammate
 from covert_env.trajectory import Trajectory
 from covert_env.zone import zone_distance
 
-__all__ = ["AUTORESET_MODES", "CovertSensingVectorEnv", "vector_env", "INFO_KEYS", "INFO_DTYPES", "MAX_NUM_ENVS",
-           "MAX_SCENE_SEED"]
+__all__ = ["AUTORESET_MODES", "CovertSensingVectorEnv", "vector_env", "INFO_BOOLS", "INFO_KEYS", "INFO_DTYPES",
+           "MAX_NUM_ENVS", "MAX_SCENE_SEED"]
 
 #: Largest scene seed: scenes are keyed by int64 in the scene pool.
 MAX_SCENE_SEED = 2**63 - 1
@@ -37,11 +37,13 @@ MAX_SCENE_CACHE = 1 << 16
 INFO_FLOATS = (("kappa", "g", "v", "separation", "terrain_clearance") + tuple(f"reward_{t}" for t in batch.REWARD_TERMS)
                + ("cost",) + tuple(f"cost_{n}" for n in batch.COSTS))
 #: Infos keys in their order (the parallel env's per-agent keys, without the action mask: see ``action_masks``).
-INFO_KEYS = ("slot", "los", "in_zone", "infeasible") + INFO_FLOATS
+INFO_KEYS = ("slot", "los", "los_path", "in_zone", "infeasible") + INFO_FLOATS
+#: Bool infos (the parallel env's Infos table).
+INFO_BOOLS = ("los", "los_path", "in_zone", "infeasible")
 #: What ``autoreset_mode`` accepts: Gymnasium's same-step mode, or none (copies that ended wait for a reset).
 AUTORESET_MODES = (AutoresetMode.SAME_STEP, AutoresetMode.DISABLED)
 #: The infos' dtypes, for frameworks that declare them before the first step (the TorchRL env's specs).
-INFO_DTYPES = {key: np.dtype(np.int64) if key == "slot" else np.dtype(bool) if key in ("los", "in_zone", "infeasible")
+INFO_DTYPES = {key: np.dtype(np.int64) if key == "slot" else np.dtype(bool) if key in INFO_BOOLS
                else np.dtype(np.float64) for key in INFO_KEYS}
 
 
@@ -157,6 +159,9 @@ class CovertSensingVectorEnv:
 
     ## Version History
 
+    * v3, covert_env 0.7.0: the task and numbers of ``covert_sensing_v3`` (LoS along the flown path in the reward,
+      ``reward_los_path``, and the infos, ``cost_los_path`` and ``los_path``, computed for every copy and path sample
+      in one batched line-of-sight call).
     * v2, covert_env 0.6.0: the task and numbers of ``covert_sensing_v2`` (random scenes from the batched
       generator, :mod:`covert_env.generation`, drawn for every copy that needs one in one batch; the waypoint
       mask, observation maps and start candidates of eq. 10's one rule, :func:`covert_env.visibility.visible_nodes`).
@@ -167,7 +172,7 @@ class CovertSensingVectorEnv:
       unchanged.
     """
 
-    metadata = {"name": "covert_sensing_vector_v2", "autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
+    metadata = {"name": "covert_sensing_vector_v3", "autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
     render_mode = None
 
     def __init__(self, num_envs: int = 1, *, autoreset_mode: AutoresetMode = AutoresetMode.SAME_STEP,
@@ -211,6 +216,7 @@ class CovertSensingVectorEnv:
         self._pool = ScenePool(s.scenario, c, self.lattice, s.map_offsets, s.map_in_zone,
                                waypoint=self.action_mode == "waypoint", capacity=cache_size)
         self._times = np.linspace(0.0, 1.0, self.path_samples) * c.delta      # the engine's sample times
+        self._fractions = np.linspace(0.0, 1.0, self.path_samples)[1:]        # of the slot, after its start
         self._rngs: list[np.random.Generator] | None = None
         self.copy_seeds: np.ndarray | None = None
         self._rows = np.full(b, -1)
@@ -337,10 +343,13 @@ class CovertSensingVectorEnv:
             path, end_theta, v, fallback, w = batch.fly_waypoints(xy0, th0, goals, c, self._times)
             flagged |= fallback
         end = path[..., -1, :].copy()
-        # The per-step rewards need no LoS along the path (target_path_xyz=None: los_path is NaN).
+        # LoS at the slot's end against q[k+1]; along the path (its samples after the start, which the previous
+        # slot counted) against the target at the same instants, as the episode metrics count it.
         quant = moves_quantities(xy0, end, target_start=pool.q[rows, k], phi_start=pool.phi[rows, k],
                                  target_end=q1, phi_end=phi1, path_xy=path, path_length=v * c.delta,
                                  target_path_xyz=None, terrain=pool.copy_terrains(rows), config=c)
+        clear = pool.path_line_of_sight(rows, k, path[..., 1:, :], c.altitude, self._fractions)
+        quant.los_path, quant.blocked_path_share = clear.all(axis=-1), 1.0 - clear.mean(axis=-1)
         costs = batch.constraint_costs(quant, c)
         terms = batch.reward_terms(quant, costs, c, self.reward_scale, self.penalties)
         rewards = terms.sum(axis=0)
@@ -515,7 +524,8 @@ class CovertSensingVectorEnv:
         separation and clearance (the parallel env's reset infos)."""
         u, xy = len(self.possible_agents), self._xy[idx]
         out = {key: np.zeros((len(idx), u)) for key in INFO_KEYS}
-        out.update(slot=np.zeros((len(idx), u), np.int64), los=self._los[idx].copy(), in_zone=self._zone[idx] <= 0,
+        out.update(slot=np.zeros((len(idx), u), np.int64), los=self._los[idx].copy(), los_path=self._los[idx].copy(),
+                   in_zone=self._zone[idx] <= 0,
                    infeasible=np.zeros((len(idx), u), bool), separation=nearest_teammate(xy),
                    terrain_clearance=self._pool.terrain_clearance(self._rows[idx], xy, self.config.altitude))
         return {key: out[key] for key in INFO_KEYS}
@@ -559,7 +569,8 @@ class CovertSensingVectorEnv:
 
 def _step_infos(k, quant, flagged, speed, terms, costs) -> dict[str, np.ndarray]:
     """The infos of a step, ``(B, U)`` arrays in ``INFO_KEYS`` order (the parallel env's Infos table)."""
-    infos = {"slot": np.repeat(k[:, None], flagged.shape[1], axis=1), "los": quant.los, "in_zone": quant.in_zone,
+    infos = {"slot": np.repeat(k[:, None], flagged.shape[1], axis=1), "los": quant.los, "los_path": quant.los_path,
+             "in_zone": quant.in_zone,
              "infeasible": flagged, "kappa": quant.kappa, "g": quant.g, "v": speed,
              "separation": quant.separation_path, "terrain_clearance": quant.terrain_clearance}
     infos.update(zip((f"reward_{t}" for t in batch.REWARD_TERMS), terms, strict=True))
