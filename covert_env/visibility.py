@@ -675,6 +675,110 @@ class TerrainRows:
         out.reshape(-1)[bu[blocked]] = False
         return out
 
+    def line_of_sight_paths(self, rows: np.ndarray, uav_xy: np.ndarray, altitude: float, target_xyz: np.ndarray,
+                            *, tol: float = LOS_TOLERANCE) -> np.ndarray:
+        """Clear LoS (eq. 6) along paths: UAV samples ``uav_xy`` (B, U, S, 2) at ``altitude`` against the target at
+        the same instants, ``target_xyz`` (B, S, 3), copy b against the terrain of row ``rows[b]``; (B, U, S) bool,
+        :meth:`line_of_sight` of every sample (the same clip on the same face values, tested).
+
+        The broad phase runs once per slot before the per-sample one: a (copy, UAV, polytope) triple is kept when
+        the farthest sample's distance to its target, times the polytope's ``low`` ratio, reaches the circle from
+        the nearest the target comes to it (``g0 - travel - r'``, g0 from the first target sample, travel the
+        target's farthest sample from it): every (sample, polytope) pair :meth:`line_of_sight` keeps is in a kept
+        triple, so this only saves work. The kept triples' samples then pass :meth:`line_of_sight`'s cone and
+        reach tests and the exact clip."""
+        if tol < 0:
+            raise ValueError(f"TerrainRows.line_of_sight_paths: tol must be >= 0, got {tol!r}")
+        b_n, u_n, s_n = uav_xy.shape[:3]
+        n_m = self._circles.shape[3]
+        out = np.ones((b_n, u_n, s_n), dtype=bool)
+        q = target_xyz
+        # Per (copy, UAV, sample): the UAV minus its target, and their distance.
+        rx = uav_xy[..., 0] - q[:, None, :, 0]
+        ry = uav_xy[..., 1] - q[:, None, :, 1]
+        dist = np.sqrt(rx * rx + ry * ry)                                               # (B, U, S)
+        # Per (copy, polytope): the circle relative to the first target sample, the target's travel, the ratio
+        # low = (z_max - z_q) / (h - z_q) at its largest over the samples' heights (it is monotone in z_q).
+        circles = self._circles.take(rows, axis=1)[:, :, 0]                             # (4, B, M)
+        cx, cy, z_top, r = circles
+        gx, gy = cx - q[:, :1, 0], cy - q[:, :1, 1]
+        g0 = np.sqrt(gx * gx + gy * gy)
+        dq = q[:, :, :2] - q[:, :1, :2]
+        travel = np.sqrt((dq * dq).sum(-1)).max(axis=1)                                # (B,)
+        z_lo, z_hi = q[:, :, 2].min(axis=1)[:, None], q[:, :, 2].max(axis=1)[:, None]
+        if min(altitude - z_hi.max(initial=-np.inf), 1.0) <= 0.0:
+            return np.stack([self.line_of_sight(rows, uav_xy[:, :, j], altitude, q[:, j], tol=tol)
+                             for j in range(s_n)], axis=-1)                            # not in flight: no shortcut
+        with np.errstate(invalid="ignore"):                                            # -inf - -inf: no polytope
+            low = np.maximum((z_top - z_lo) / (altitude - z_lo), (z_top - z_hi) / (altitude - z_hi))
+        gap = g0 - travel[:, None] - r                                                  # (B, M)
+        gap -= 1e-9 * (g0 + travel[:, None] + r + 1.0)                                  # rounding slack
+        reach = dist.max(axis=2)[:, :, None] * np.maximum(low, 0.0)[:, None, :]        # (B, U, M)
+        keep = (reach >= gap[:, None, :]) & (z_top > -np.inf)[:, None, :]
+        keep &= _in_slot_cone(rx, ry, gx, gy, g0, r + travel[:, None])
+        flat = np.flatnonzero(keep)
+        if len(flat) == 0:
+            return out
+        bu, m = flat // n_m, flat % n_m
+        b = bu // u_n
+        # The kept triples' samples: line_of_sight's per-sample tests, then its clip.
+        pb = np.repeat(b, s_n)
+        pbu = np.repeat(bu, s_n)
+        pm = np.repeat(m, s_n)
+        ps = np.tile(np.arange(s_n), len(flat))
+        samples = pbu * s_n + ps
+        px, py = uav_xy.reshape(-1, 2)[samples].T
+        qx, qy, qz = q.reshape(-1, 3)[pb * s_n + ps].T
+        keep_s = _kept_by_cone_and_reach(px, py, qx, qy, qz, cx[pb, pm], cy[pb, pm], z_top[pb, pm], r[pb, pm],
+                                         altitude)
+        samples, pb, pm = samples[keep_s], pb[keep_s], pm[keep_s]
+        if len(samples) == 0:
+            return out
+        x = np.stack([px[keep_s], qx[keep_s]])
+        y = np.stack([py[keep_s], qy[keep_s]])
+        z = np.stack([np.full(len(samples), float(altitude)), qz[keep_s]])
+        idx = rows.take(pb) * n_m + pm
+        nx, ny, nz, dt = self._clip_table(tol).take(idx, axis=2)[:, :, None]
+        off = nz * z
+        off += dt
+        blocked = clip_segments(*face_values(nx, ny, off, x, y).transpose(1, 0, 2))
+        out.reshape(-1)[samples[blocked]] = False
+        return out
+
+
+def _in_slot_cone(rx, ry, gx, gy, g0, radius) -> np.ndarray:
+    """(B, U, M): some sample's sight direction (rx, ry) (B, U, S) (UAV minus its target) points from the first
+    target sample into the cone of the circle (centre offset (gx, gy), distance g0, ``radius``) (B, M). With the
+    circle grown by the target's travel, every sample whose ray from its own target meets the ungrown circle is in
+    it (the ray translated to the first sample meets the grown circle): a conservative cone test for a slot.
+    Bearings are compared on an interval relative to the first sample's, with 1e-6 rad of slack."""
+    theta = np.arctan2(ry, rx)
+    rel = np.remainder(theta - theta[..., :1] + np.pi, 2 * np.pi) - np.pi               # (B, U, S) in [-pi, pi)
+    lo, hi = rel.min(axis=2)[..., None] - 1e-6, rel.max(axis=2)[..., None] + 1e-6       # (B, U, 1)
+    inside = g0 <= radius                                                               # (B, M)
+    half = np.arcsin(np.minimum(radius / np.maximum(g0, 1e-300), 1.0)) + 1e-6
+    centre = np.arctan2(gy, gx)[:, None, :] - theta[:, :, :1]                           # (B, U, M)
+    centre = np.remainder(centre + np.pi, 2 * np.pi) - np.pi
+    keep = inside[:, None, :] | ((centre + half[:, None, :] >= lo) & (centre - half[:, None, :] <= hi))
+    # The cone's interval may wrap around +-pi: its shifted copies.
+    keep |= (centre + 2 * np.pi - half[:, None, :] <= hi) | (centre - 2 * np.pi + half[:, None, :] >= lo)
+    return keep
+
+def _kept_by_cone_and_reach(px, py, qx, qy, qz, cx, cy, z_top, r, altitude: float) -> np.ndarray:
+    """:meth:`TerrainRows.line_of_sight`'s broad phase for K (UAV, target, polytope) triples given flat (K,): the
+    circle (centre c, radius r' with slack) in the UAV's bearing cone from the target, and within reach of the part
+    of the sight line lower than the polytope's top; False only where the exact clip finds the line clear."""
+    ex, ey = px - qx, py - qy
+    dist = np.sqrt(ex * ex + ey * ey)
+    scale = (1.0 + 1e-9) / np.maximum(dist, 1e-300)
+    gx, gy = cx - qx, cy - qy
+    g = np.sqrt(gx * gx + gy * gy)
+    e = g - r
+    thr = np.full(len(e), -np.inf)
+    outside = e > 0.0
+    thr[outside] = np.sqrt((g[outside] + r[outside]) * e[outside])
+    low = np.maximum((z_top - qz) / (altitude - qz), 1e-200)
+    return ((ex * gx + ey * gy) * scale >= thr) & (dist >= e / low)
 
 def visible_nodes_rows(terrains: TerrainRows, rows, offsets, q, phi, altitude: float, *,
                        tol: float = SAFE_LOS_TOLERANCE) -> np.ndarray:

@@ -277,13 +277,10 @@ class ScenePool:
     def path_line_of_sight(self, rows: np.ndarray, k: np.ndarray, path_xy: np.ndarray, altitude: float,
                            fractions: np.ndarray) -> np.ndarray:
         """(B, U, F) clear LoS (eq. 6) from the path samples ``path_xy`` (B, U, F, 2) of slot k[b] to the target at
-        the same instants (``fractions`` (F,) of the slot), copy b against its own scene: one batched call over
-        copies x samples (the samples act as copies)."""
-        b, u, f = path_xy.shape[:3]
-        target = self.target_between(rows, k, fractions).reshape(b * f, 3)
-        xy = path_xy.transpose(0, 2, 1, 3).reshape(b * f, u, 2)
-        clear = self.line_of_sight(np.repeat(rows, f), xy, altitude, target)
-        return clear.reshape(b, f, u).transpose(0, 2, 1)
+        the same instants (``fractions`` (F,) of the slot), copy b against its own scene: one batched call
+        (:meth:`TerrainRows.line_of_sight_paths <covert_env.visibility.TerrainRows.line_of_sight_paths>`)."""
+        target = self.target_between(rows, k, fractions)
+        return self.terrains.line_of_sight_paths(rows, path_xy, altitude, target)
 
     def terrain_clearance(self, rows: np.ndarray, xy: np.ndarray, altitude: float) -> np.ndarray:
         """(B, U) distance from (x, y, h) to the nearest polytope top of each copy's scene (eq. 3; inf if none)."""
