@@ -511,3 +511,56 @@ def test_no_path_penalty_gives_the_slot_time_rewards():
         np.testing.assert_array_equal(ra, others.sum(axis=0))
         lost += ib["cost_los_path"].sum()
     assert lost > 0
+
+
+# ---------------------------------------------------------------------- action mask modes
+def test_kinematic_mask_is_the_reachable_set_and_contains_the_visible_mask():
+    """mask_mode="kinematic" allows every node reachable in one slot (the reachability table's answer), a superset
+    of the default visible-zone mask that adds shadowed nodes on a shadowed family; the rest of a rollout (flight,
+    rewards, costs) does not depend on the mask, and a shadowed node chosen through it is not flagged."""
+    from covert_env.envs import batch
+
+    kw = dict(num_envs=6, n_uavs=3, action_mode="waypoint", family="downtown")
+    vis, kin = covert_env.vector_env(**kw), covert_env.vector_env(mask_mode="kinematic", **kw)
+    vis.reset(seed=3)
+    kin.reset(seed=3)
+    rng = np.random.default_rng(0)
+    extra = 0
+    for _ in range(20):
+        mv, mk = vis.action_masks(), kin.action_masks()
+        pool, rows, k = kin._pool, kin._rows, kin._k
+        reach = kin._reach.reachable(kin._xy, kin._theta, pool.q_next[rows, k, :2], pool.phi_next[rows, k],
+                                     kin.lattice)
+        rows_any = reach.any(axis=-1)
+        np.testing.assert_array_equal(mk[rows_any].astype(bool), reach[rows_any])
+        assert (mv <= mk).all()
+        extra += int((mk > mv).sum())
+        act = np.argmax(mk * (1 + rng.random(mk.shape)), axis=-1)           # kinematic choices, maybe shadowed
+        _, rv, _, _, iv = vis.step(act)
+        _, rk, _, _, ik = kin.step(act)
+        np.testing.assert_array_equal(rv, rk)
+        shadowed = (np.take_along_axis(mv, act[..., None], -1)[..., 0] == 0) & \
+            (np.take_along_axis(mk, act[..., None], -1)[..., 0] == 1)
+        assert iv["infeasible"][shadowed].all() and not ik["infeasible"][shadowed].any()
+    assert extra > 0
+    assert batch.action_masks.__doc__ and "kinematic" in batch.action_masks.__doc__
+
+
+@pytest.mark.parametrize("kw, pattern", [
+    (dict(mask_mode="kin"), r"mask_mode must be one of \('visible', 'kinematic'\), got 'kin'"),
+    (dict(mask_mode=None), r"mask_mode must be one of"),
+    (dict(mask_mode="kinematic"), r"mask_mode='kinematic' needs action_mode='waypoint'"),
+])
+def test_mask_mode_errors_name_the_value(kw, pattern):
+    with pytest.raises(ValueError, match=pattern):
+        covert_env.parallel_env(**kw)
+
+
+def test_kinematic_mask_passes_pettingzoo_and_gymnasium_checks():
+    from gymnasium.utils.env_checker import check_env
+    from pettingzoo.test import parallel_api_test
+
+    parallel_api_test(covert_env.parallel_env(action_mode="waypoint", mask_mode="kinematic", max_cycles=5))
+    env = gym.make("covert_env/CovertSensingWaypoint-v3", mask_mode="kinematic", max_cycles=5)
+    check_env(env.unwrapped)
+    assert env.unwrapped.par.mask_mode == "kinematic"

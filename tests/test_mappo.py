@@ -71,7 +71,8 @@ def test_smoke_run_checkpoint_resume(tmp_path, algo, mode, train_extra):
     final = np.load(run / "model.npz")
     assert any(not np.array_equal(first[k], final[k]) for k in final.files)      # the updates changed the actor
     pol = load_learned(run)
-    assert pol.env_settings == {"n_uavs": 3, "action_mode": mode, "map_size": 8}
+    assert pol.env_settings == {"n_uavs": 3, "action_mode": mode, "map_size": 8,
+                                **({"mask_mode": "visible"} if mode == "waypoint" else {})}
     # Resume: continues at 48 steps with the saved settings, not the command line's (except the budget).
     mappo.main(["--resume", str(run), "--total-timesteps", "80", "--progress-bar", "false", "--hidden", "64"])
     meta = json.loads((run / "model.json").read_text())
@@ -193,3 +194,17 @@ def test_progress_bar_ends_where_the_run_stops(tmp_path, monkeypatch, train_extr
         budget_s = 60 * float(budget)
         assert seen and all(t < 10_000_000 for t, _ in seen), seen
         assert all(0.3 * budget_s <= end <= 3 * budget_s for _, end in seen), (budget_s, seen)
+
+
+def test_kinematic_mask_run_records_its_mask(tmp_path, train_extra):
+    """--mask-mode kinematic trains on the reachable-only mask and the run's card says so: the loaded policy
+    evaluates with the mask it was trained with; the unicycle mode has no mask to choose."""
+    run = mappo.main([*TINY, "--mask-mode", "kinematic", "--total-timesteps", "16", "--runs-dir", str(tmp_path),
+                      "--run-name", "k"])
+    assert json.loads((run / "model.json").read_text())["env_kwargs"]["mask_mode"] == "kinematic"
+    assert load_learned(run).env_settings["mask_mode"] == "kinematic"
+    with pytest.raises(ValueError, match=r"--mask-mode 'kinematic' needs --action-mode waypoint"):
+        mappo.main([*TINY, "--mask-mode", "kinematic", "--action-mode", "unicycle", "--total-timesteps", "16",
+                    "--runs-dir", str(tmp_path), "--run-name", "u"])
+    with pytest.raises(ValueError, match=r"--mask-mode 'nope': must be one of \('visible', 'kinematic'\)"):
+        mappo.check_args(mappo.Args(mask_mode="nope"))

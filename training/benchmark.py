@@ -77,7 +77,9 @@ def _run_cell(task: str, spec: str, run: int, scenes: int, trust: bool) -> list[
     member = split_seeds(spec)[run]
     pol, settings = load_policy(member, t.n_uavs, trust_checkpoint=trust)
     rows = evaluate(pol, settings, scenes, t.test_seeds.start, env_kwargs={"task": task}, progress=False)
-    return [{"task": task, "policy": spec, "run": run, "action_mode": settings["action_mode"], **row} for row in rows]
+    mask = settings.get("mask_mode", "visible") if settings["action_mode"] == "waypoint" else "none"
+    return [{"task": task, "policy": spec, "run": run, "action_mode": settings["action_mode"], "mask_mode": mask,
+             **row} for row in rows]
 
 
 def run_cells(cells: list[tuple[str, str, int]], scenes: int, *, jobs: int = 1, trust: bool = False,
@@ -207,13 +209,16 @@ def write_suite(out: Path, rows: list[dict], ref: dict, agg: dict, meta: dict, s
              "mean), so 0 is masked-random waypoints and 1 the best planner of this run on that task. IQM and mean "
              "over tasks x runs x scenes with 95 % stratified-bootstrap intervals (strata: tasks). Constraint rates "
              "are means over the policy's cells (per UAV); min sep. is the smallest over its cells with a "
-             "teammate.", "",
-             "| policy | tasks | score IQM [95 % CI] | score mean [95 % CI] | "
+             "teammate. Action mask: the env's waypoint mask a policy acted with ('visible': reachable nodes of the "
+             "visible zone; 'kinematic': reachable nodes only; the planners choose among their own visible-zone nodes "
+             "and ignore it).", "",
+             "| policy | action mask | tasks | score IQM [95 % CI] | score mean [95 % CI] | "
              + " | ".join(h for _, h in CONSTRAINTS) + " |",
-             "|---|---|---|---|" + "---|" * len(CONSTRAINTS)]
+             "|---|---|---|---|---|" + "---|" * len(CONSTRAINTS)]
     for p in pols:
         a = agg["policies"][p]
-        lines.append(f"| {p} | {len(a['tasks'])} | {_fmt(a['iqm'])} | {_fmt(a['mean'])} | "
+        masks = ", ".join(sorted({r.get("mask_mode", "visible") for r in rows if r["policy"] == p}))
+        lines.append(f"| {p} | {masks} | {len(a['tasks'])} | {_fmt(a['iqm'])} | {_fmt(a['mean'])} | "
                      + " | ".join(f"{a[k]:.3f}" if k != "min_separation" else f"{a[k]:.1f}" for k, _ in CONSTRAINTS)
                      + " |")
     lines += ["", "Mean normalised score per task (random's and the best planner's mean rewards in brackets):", "",
@@ -236,7 +241,7 @@ def write_suite(out: Path, rows: list[dict], ref: dict, agg: dict, meta: dict, s
     lines += ["", f"Wall time: {meta['seconds']:.0f} s ({meta['jobs']} worker(s)).",
               f"Command: `{meta['command']}`", ""]
     (out / "suite.md").write_text("\n".join(lines))
-    keys = ["task", "policy", "run", "action_mode", "scene_seed", "score", *(k for k, _, _ in COLUMNS)]
+    keys = ["task", "policy", "run", "action_mode", "mask_mode", "scene_seed", "score", *(k for k, _, _ in COLUMNS)]
     with open(out / "cells.csv", "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(keys)
@@ -256,7 +261,8 @@ def _task_leaderboard(folder: Path, task, rows: list[dict], meta: dict) -> None:
     for p in dict.fromkeys(r["policy"] for r in rows):
         mine = [r for r in rows if r["policy"] == p]
         results[p] = {"rows": mine, "summary": summarise(mine), "spec": p, "runs": 1 + max(r["run"] for r in mine),
-                      "settings": {"action_mode": mine[0]["action_mode"], "n_uavs": task.n_uavs}}
+                      "settings": {"action_mode": mine[0]["action_mode"], "mask_mode": mine[0].get("mask_mode"),
+                                   "n_uavs": task.n_uavs}}
     write_outputs(results, folder, {"episodes": meta["scenes"], "seed_offset": task.test_seeds.start,
                                     "n_uavs": task.n_uavs, "family": task.family, "scene_set": None,
                                     "command": meta["command"]})

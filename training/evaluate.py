@@ -317,8 +317,9 @@ def evaluate(policy, settings: dict, episodes: int, seed_offset: int = HELD_OUT_
     reset with its seed, or its index for a hand-made set) and return one metrics row per episode."""
     kw = dict(env_kwargs or {})
     kw.update(n_uavs=settings["n_uavs"], action_mode=settings["action_mode"])
-    if "map_size" in settings:
-        kw["map_size"] = settings["map_size"]
+    for key in ("map_size", "mask_mode"):
+        if key in settings:
+            kw[key] = settings[key]
     if scenes is not None:
         return _evaluate_set(policy, kw, scenes, episodes, progress, label)
     env = CovertSensingParallelEnv(**kw)

@@ -79,6 +79,9 @@ class Args:
     """env copies stepped as one batch"""
     action_mode: str = "waypoint"
     """'waypoint' (masked categorical over the lattice) or 'unicycle' (Gaussian, clipped)"""
+    mask_mode: str = "visible"
+    """waypoint action mask: 'visible' (reachable nodes of the visible zone) or 'kinematic' (reachable nodes only:
+    the team must learn the shadows from its observations and the LoS costs)"""
     head: str = "node"
     """waypoint actor head: 'node' (score each node from its geometry) or 'flat' (one logit per node)"""
     max_cycles: int = 70
@@ -154,7 +157,7 @@ class Args:
 def check_args(args: Args) -> None:
     """The choice fields (the numeric ones are range-checked by the CLI)."""
     for name, allowed in (("algo", ("mappo", "ippo")), ("action_mode", ("waypoint", "unicycle")),
-                          ("head", ("node", "flat"))):
+                          ("head", ("node", "flat")), ("mask_mode", ("visible", "kinematic"))):
         if getattr(args, name) not in allowed:
             raise ValueError(f"--{name.replace('_', '-')} {getattr(args, name)!r}: must be one of {allowed}")
     rows = args.num_envs * args.num_steps * args.n_uavs
@@ -542,6 +545,10 @@ def train(args: Args) -> Path:
     torch.manual_seed(args.seed)
     env_kwargs = dict(n_uavs=args.n_uavs, action_mode=args.action_mode, max_cycles=args.max_cycles,
                       scene_pool=args.scene_pool)
+    if args.mask_mode != "visible":
+        if args.action_mode != "waypoint":
+            raise ValueError(f"--mask-mode {args.mask_mode!r} needs --action-mode waypoint")
+        env_kwargs["mask_mode"] = args.mask_mode
     env = covert_env.vector_env(num_envs=args.num_envs, **env_kwargs)
     s = sizes_of(args, env)
     shield = (SeparationShield(env.config.d_safe1 + args.shield_margin, args.shield_end_margin)

@@ -103,10 +103,14 @@ def to_world_batch(offsets, q_xy, phi) -> np.ndarray:
 def action_masks(xy, theta, q_xy, phi, lattice, visible, table) -> np.ndarray:
     """Waypoint masks (B, U, L) int8: the ``lattice`` nodes (L, 2) placed at the targets q_xy (B, 2), phi (B,) of
     slot k+1, reachable in one slot from the poses (B, U) (``table``: the config's
-    :class:`~covert_env.reach.ReachTable`, exactly ``solve_manoeuvre``'s answer) and ``visible`` (B, L) there;
-    where no node qualifies the reachable ones, and where none is reachable all."""
+    :class:`~covert_env.reach.ReachTable`, exactly ``solve_manoeuvre``'s answer) and ``visible`` (B, L) there
+    (None: reachable only, the kinematic mask); where no node qualifies the reachable ones, and where none is
+    reachable all."""
     reach = table.reachable(xy, theta, q_xy, phi, lattice)
-    mask = reach & visible[:, None, :]
+    if visible is None:
+        mask = reach.copy()
+    else:
+        mask = reach & visible[:, None, :]
     empty = ~mask.any(axis=-1)
     if empty.any():                                   # rare: fix those rows only
         rows = reach[empty]

@@ -61,13 +61,15 @@ class CovertSensingParallelEnv(ParallelEnv):
     q[k+1], phi[k+1]. The env flies the turn-then-straight manoeuvre (eqs. 22-29) to it. The planner
     of ``baselines.dp`` uses the same lattice, so it acts exactly through this env.
     The action mask (int8, length L, 1 = allowed) marks nodes that are reachable in one slot and in
-    the visible zone (eq. 10) at k+1. It lives in one place per setting: ``infos[agent]["action_mask"]``
-    by default, or, with ``dict_obs=True``, the observation ``{"observation": ..., "action_mask": ...}``
-    (and then not in the infos); ``env.action_mask(agent)`` returns it in both. If no node qualifies,
-    reachable nodes are unmasked, and if none is reachable every node is, so a masked sampler always has a
-    choice. A masked-out but reachable node is flown exactly and flagged ``infos[agent]["infeasible"]``;
-    an unreachable one is flown as a best effort (the admissible constant (v, omega) ending closest to it,
-    see :mod:`covert_env.engine`) and flagged too.
+    the visible zone (eq. 10) at k+1 (``mask_mode="visible"``, the default), or, with ``mask_mode="kinematic"``,
+    every node reachable in one slot: shadowed nodes are then the policy's to avoid, from the observation's maps
+    and the LoS costs (docs/decisions.md#action-mask-modes). It lives in one place per setting:
+    ``infos[agent]["action_mask"]`` by default, or, with ``dict_obs=True``, the observation
+    ``{"observation": ..., "action_mask": ...}`` (and then not in the infos); ``env.action_mask(agent)`` returns it
+    in both. If no node qualifies, reachable nodes are unmasked, and if none is reachable every node is, so a
+    masked sampler always has a choice. A masked-out but reachable node is flown exactly and flagged
+    ``infos[agent]["infeasible"]``; an unreachable one is flown as a best effort (the admissible constant
+    (v, omega) ending closest to it, see :mod:`covert_env.engine`) and flagged too.
 
     ## Observation Space
 
@@ -174,6 +176,8 @@ class CovertSensingParallelEnv(ParallelEnv):
     * ``render_mode``: ``None``, ``"human"`` or ``"rgb_array"``.
     * ``map_size``: side S of the observation maps (default 8).
     * ``dict_obs``: Dict observations carrying the action mask (waypoint mode only; Tianshou needs it).
+    * ``mask_mode``: ``"visible"`` (default: reachable nodes of the visible zone) or ``"kinematic"`` (reachable
+      nodes only); waypoint mode only.
     * ``reward_scale``, ``los_penalty``, ``los_path_penalty``, ``zone_penalty``, ``separation_penalty``,
       ``terrain_penalty`` (each in [0, 1e6]; default 1.0).
     * ``terminate_on_collision``: end the episode when separation < d_safe1.
@@ -194,7 +198,8 @@ class CovertSensingParallelEnv(ParallelEnv):
     * v3, covert_env 0.7.0: LoS lost between slot times counts. The reward has a term ``los_path``
       (``-los_path_penalty`` times the share of the slot's flown path with LoS blocked, weight 1.0 by default), the
       infos a cost ``cost_los_path`` (that share, also summed into ``cost``) and a flag ``los_path``; ``penalties``
-      has the key ``los_path``. Observations, dynamics, scenes and the other terms and costs are unchanged bit for
+      has the key ``los_path``. A new argument, ``mask_mode="kinematic"``, masks by reachability only (the default
+      mask is unchanged). Observations, dynamics, scenes and the other terms and costs are unchanged bit for
       bit: with ``los_path_penalty=0`` a seeded rollout's observations and rewards are v2's. ``covert_sensing_v2``
       and the v2 ids raise an error that says this.
     * v2, covert_env 0.6.0: random scenes (``scenario="random"``, ``Scenario.random``) are drawn by a batched
@@ -248,7 +253,8 @@ class CovertSensingParallelEnv(ParallelEnv):
                  los_path_penalty: float = 1.0, zone_penalty: float = 1.0, separation_penalty: float = 1.0,
                  terrain_penalty: float = 1.0,
                  terminate_on_collision: bool = False, scene_pool: int = 10_000, path_samples: int = 11,
-                 random_starts: bool = False, family: str | None = None, task: str | None = None):
+                 random_starts: bool = False, family: str | None = None, task: str | None = None,
+                 mask_mode: str = "visible"):
         super().__init__()
         s = EnvSettings(config, n_uavs=n_uavs, scenario=scenario, action_mode=action_mode, max_cycles=max_cycles,
                         render_mode=render_mode, map_size=map_size, dict_obs=dict_obs, reward_scale=reward_scale,
@@ -256,7 +262,7 @@ class CovertSensingParallelEnv(ParallelEnv):
                         separation_penalty=separation_penalty, terrain_penalty=terrain_penalty,
                         terminate_on_collision=terminate_on_collision,
                         scene_pool=scene_pool, path_samples=path_samples, random_starts=random_starts,
-                        family=family, task=task)
+                        family=family, task=task, mask_mode=mask_mode)
         # One copy, no automatic reset (PettingZoo's agents leave at the end and reset() starts the next
         # episode), episodes recorded for the metrics.
         self._vec = CovertSensingVectorEnv.from_settings(1, s, autoreset_mode=AutoresetMode.DISABLED, record=True)
@@ -267,6 +273,8 @@ class CovertSensingParallelEnv(ParallelEnv):
         self.family = s.family
         #: The suite task's name (:mod:`covert_env.tasks`), or None.
         self.task = s.task
+        #: What the waypoint action mask allows: ``"visible"`` or ``"kinematic"`` (see Action Space).
+        self.mask_mode = s.mask_mode
         self.lattice, self.map_offsets, self.layout = s.lattice, s.map_offsets, s.layout
         self.possible_agents = list(s.possible_agents)
         self.agents: list[str] = []

@@ -20,10 +20,12 @@ from covert_env.scenario import PAPER_UAV_STARTS, Scenario
 from covert_env.tasks import get_task
 from covert_env.zone import in_feasible_zone, lattice_offsets, zone_lattice
 
-__all__ = ["ACTION_MODES", "EnvSettings", "MAX_PATH_SAMPLES", "MAX_SCENE_POOL", "PENALTIES", "RENDER_MODES",
-           "PenaltyWeights", "check_penalties", "check_reward_scale"]
+__all__ = ["ACTION_MODES", "EnvSettings", "MASK_MODES", "MAX_PATH_SAMPLES", "MAX_SCENE_POOL", "PENALTIES",
+           "RENDER_MODES", "PenaltyWeights", "check_penalties", "check_reward_scale"]
 
 ACTION_MODES = ("unicycle", "waypoint")
+#: What the waypoint action mask allows: reachable nodes of the visible zone (eq. 10), or every reachable node.
+MASK_MODES = ("visible", "kinematic")
 RENDER_MODES = ("human", "rgb_array")
 #: Largest ``scene_pool``: training scene seeds 0 .. scene_pool-1 stay below the held-out seeds 1_000_000 + i.
 MAX_SCENE_POOL = len(TRAIN_SEEDS)
@@ -104,7 +106,8 @@ class EnvSettings:
                  los_path_penalty: float = 1.0,
                  zone_penalty: float = 1.0, separation_penalty: float = 1.0, terrain_penalty: float = 1.0,
                  terminate_on_collision: bool = False, scene_pool: int = 10_000, path_samples: int = 11,
-                 random_starts: bool = False, family: str | None = None, task: str | None = None):
+                 random_starts: bool = False, family: str | None = None, task: str | None = None,
+                 mask_mode: str = "visible"):
         if isinstance(config, Mapping):
             cfg = Config.from_dict(dict(config))
         elif config is None or isinstance(config, Config):
@@ -150,6 +153,11 @@ class EnvSettings:
             raise ValueError(f"render_mode must be None or one of {list(RENDER_MODES)}, got {render_mode!r}")
         if bool_arg("dict_obs", dict_obs) and action_mode != "waypoint":
             raise ValueError("dict_obs=True needs action_mode='waypoint': the unicycle mode has no action mask")
+        if not isinstance(mask_mode, str) or mask_mode not in MASK_MODES:
+            raise ValueError(f"mask_mode must be one of {MASK_MODES}, got {mask_mode!r}")
+        if mask_mode != "visible" and action_mode != "waypoint":
+            raise ValueError(f"mask_mode={mask_mode!r} needs action_mode='waypoint': the unicycle mode has no "
+                             "action mask")
         self.map_size = int_arg("map_size", map_size, 2, 64)
         # Training scene seeds stay below the held-out ones (1_000_000 + i) that evaluations fly.
         self.scene_pool = int_arg("scene_pool", scene_pool, 1, MAX_SCENE_POOL)
@@ -165,6 +173,7 @@ class EnvSettings:
         self.max_cycles = cfg.n_slots if max_cycles is None else int_arg("max_cycles", max_cycles, 1)
         self.render_mode = render_mode
         self.dict_obs = bool(dict_obs)
+        self.mask_mode = mask_mode
         self.terminate_on_collision = bool_arg("terminate_on_collision", terminate_on_collision)
         self.random_starts = bool_arg("random_starts", random_starts)
 

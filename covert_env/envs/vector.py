@@ -201,6 +201,8 @@ class CovertSensingVectorEnv:
             raise TypeError(f"record must be True or False, got {record!r}")
         self.metadata = dict(type(self).metadata, autoreset_mode=autoreset_mode)
         self.config, self.action_mode, self.dict_obs = s.config, s.action_mode, s.dict_obs
+        #: ``"visible"`` or ``"kinematic"``: what the waypoint action mask allows (the parallel env's Action Space).
+        self.mask_mode = s.mask_mode
         self.scenario_spec, self.random_starts = s.scenario, s.random_starts
         self.scene_pool, self.path_samples, self.family = s.scene_pool, s.path_samples, s.family
         self.task = s.task
@@ -214,7 +216,8 @@ class CovertSensingVectorEnv:
         self.action_space = batch_space(batch_space(self.single_action_space, u), b)
         self.state_space = batch_space(self.single_state_space, b)
         self._pool = ScenePool(s.scenario, c, self.lattice, s.map_offsets, s.map_in_zone,
-                               waypoint=self.action_mode == "waypoint", capacity=cache_size)
+                               waypoint=self.action_mode == "waypoint" and s.mask_mode == "visible",
+                               capacity=cache_size)
         self._times = np.linspace(0.0, 1.0, self.path_samples) * c.delta      # the engine's sample times
         self._fractions = np.linspace(0.0, 1.0, self.path_samples)[1:]        # of the slot, after its start
         self._rngs: list[np.random.Generator] | None = None
@@ -563,8 +566,9 @@ class CovertSensingVectorEnv:
         if self.action_mode != "waypoint":
             return
         pool, rows, k = self._pool, self._rows, self._k
+        visible = pool.lattice_ok[rows, k + 1] if self.mask_mode == "visible" else None
         self._masks = batch.action_masks(self._xy, self._theta, pool.q_next[rows, k, :2], pool.phi_next[rows, k],
-                                         self.lattice, pool.lattice_ok[rows, k + 1], self._reach)
+                                         self.lattice, visible, self._reach)
 
 
 def _step_infos(k, quant, flagged, speed, terms, costs) -> dict[str, np.ndarray]:

@@ -131,6 +131,9 @@ class LearnedPolicy:
                        SeparationShield(float(self.shield_distance), float(card.get("shield_end_margin") or 0.0)))
         self.env_settings = {"n_uavs": int(ekw["n_uavs"]), "action_mode": ekw["action_mode"],
                              "map_size": int(ekw.get("map_size", 8))}
+        if ekw["action_mode"] == "waypoint":
+            # The mask the team was trained with (cards before mask modes: the visible-zone mask).
+            self.env_settings["mask_mode"] = ekw.get("mask_mode", "visible")
 
     def reset(self, env, seed: int | None = None) -> None:
         pass
