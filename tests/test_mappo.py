@@ -87,7 +87,8 @@ def test_lagrangian_raises_lambda_and_harness_scores_the_run(tmp_path, train_ext
                       "--total-timesteps", "32", "--runs-dir", str(tmp_path), "--run-name", "lag"])
     rows = _curve(run)
     # With a zero limit, lambda rises by the rollout's violation rate: never falls, and the random start collides.
-    lams = [r["lambda"] for r in rows]
+    lams = [r["lambda"]["separation"] for r in rows]
+    assert all(set(r["lambda"]) == {"separation"} for r in rows)
     assert lams == sorted(lams) and lams[-1] > 0
     pol, settings = load_policy(f"mappo:{run}", 2)
     assert settings["action_mode"] == "waypoint" and settings["n_uavs"] == 2 and pol.actor.spec["agent_id"]
@@ -208,3 +209,36 @@ def test_kinematic_mask_run_records_its_mask(tmp_path, train_extra):
                     "--runs-dir", str(tmp_path), "--run-name", "u"])
     with pytest.raises(ValueError, match=r"--mask-mode 'nope': must be one of \('visible', 'kinematic'\)"):
         mappo.check_args(mappo.Args(mask_mode="nope"))
+
+
+def test_constraints_parse_and_their_errors_name_the_item():
+    args = mappo.Args(constraints=" zone=0.01, los_path=0 ", lagrangian=True, cost_limit=0.007)
+    assert mappo.constraint_limits(args) == {"los_path": 0.0, "zone": 0.01, "separation": 0.007}   # COSTS order
+    assert mappo.constraint_limits(mappo.Args()) == {}
+    for bad, pattern in (("zone", r"'zone' must be NAME=LIMIT"), ("speed=0.1", r"'speed=0.1' must be NAME=LIMIT"),
+                         ("zone=2", r"limit of zone must be a number in \[0, 1\].*got '2'"),
+                         ("zone=nan", r"limit of zone must be a number"), ("zone=x", r"got 'x'"),
+                         ("zone=0.1,zone=0.2", r"zone is given twice")):
+        with pytest.raises(ValueError, match=pattern):
+            mappo.check_args(mappo.Args(constraints=bad))
+    with pytest.raises(ValueError, match=r"--lagrangian constrains separation"):
+        mappo.check_args(mappo.Args(constraints="separation=0.1", lagrangian=True))
+
+
+def test_constraint_multipliers_rise_with_their_costs_and_resume(tmp_path, train_extra):
+    """Each constrained cost gets its own multiplier: with limits of 0, a random team's zone and LoS-path costs are
+    above them, so dual ascent raises both; the multipliers are saved with the checkpoints and resumed, and a
+    checkpoint of the single-multiplier format (a float: separation's) still resumes."""
+    run = mappo.main([*TINY, "--constraints", "zone=0,los_path=0", "--total-timesteps", "48", "--lagrange-lr", "1.0",
+                      "--runs-dir", str(tmp_path), "--run-name", "c", "--checkpoint-every", "16"])
+    rows = _curve(run)
+    assert set(rows[-1]["lambda"]) == {"los_path", "zone"}
+    assert rows[-1]["lambda"]["zone"] > 0 and rows[-1]["lambda"]["los_path"] > 0
+    meta = json.loads((run / "model.json").read_text())
+    assert meta["lam"] == rows[-1]["lambda"]
+    ckpt = sorted((run / "checkpoints").glob("step_*.json"))[-1]
+    old = json.loads(ckpt.read_text())
+    old["lam"] = 0.25
+    ckpt.write_text(json.dumps(old))
+    mappo.main(["--resume", str(run), "--total-timesteps", "64", "--progress-bar", "false"])
+    assert set(_curve(run)[-1]["lambda"]) == {"los_path", "zone"}

@@ -31,9 +31,10 @@ checkpoints; ``train``, which runs them in that order. Nothing here is pickled: 
   final observation/state is added as ``gamma V(final)`` to the last reward (the time limit is not part of the
   task). At the route's end (the default 70 slots) there are no more slots: the episode truly ends, V = 0.
 * **Reward**: the env's default reward (eq. 18 / reward_scale plus unit penalties); the constraint costs
-  ``cost_*`` of the infos are logged per episode. ``--lagrangian`` subtracts ``lambda * cost_separation``
-  (eq. 2) from the training reward, lambda >= 0 raised by dual ascent while the rollout's separation-violation
-  rate exceeds ``--cost-limit`` (slots per UAV and slot).
+  ``cost_*`` of the infos are logged per episode. Constrained RL, one Lagrange multiplier per constraint:
+  ``--constraints zone=0.01,los_path=0.005`` subtracts ``lambda_c * cost_c`` from the training reward for each
+  named env cost c (``covert_env.envs.batch.COSTS``), lambda_c >= 0 raised by dual ascent while the rollout's mean
+  cost per UAV and slot exceeds its limit; ``--lagrangian`` adds ``separation=--cost-limit`` (eq. 2).
 
 Env steps count copy-slots (one step of one env copy, all its UAVs); agent-steps are ``n_uavs`` times more.
 """
@@ -41,10 +42,11 @@ Env steps count copy-slots (one step of one env copy, all its UAVs); agent-steps
 from __future__ import annotations
 
 import json
+import math
 import os
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -126,7 +128,12 @@ class Args:
     """append a one-hot of the agent's index to the actor's input: with one shared actor, two UAVs at the same spot
     see the same observation and pick the same move, so they can never part"""
     lagrangian: bool = False
-    """subtract lambda * cost_separation from the training reward, lambda by dual ascent"""
+    """subtract lambda * cost_separation from the training reward, lambda by dual ascent (--constraints
+    separation=--cost-limit)"""
+    constraints: str = ""
+    """constrained RL on the env's costs: comma-separated NAME=LIMIT (NAME in los, los_path, zone, separation,
+    terrain; LIMIT the allowed mean cost per UAV and slot, in [0, 1]), e.g. 'zone=0.01,los_path=0.005'; each gets
+    its own Lagrange multiplier"""
     separation_shield: bool = True
     """waypoint mode: the UAVs choose one after another and none may choose a node whose path comes closer than
     d_safe1 + shield_margin to a teammate's chosen path (training.shield); in training and evaluation alike.
@@ -138,7 +145,7 @@ class Args:
     cost_limit: float = 0.007
     """allowed separation-violation rate per UAV and slot (0.5 of 70 slots) for --lagrangian"""
     lagrange_lr: float = 1.0
-    """dual ascent step of lambda per update (times the rollout's violation rate minus cost_limit)"""
+    """dual ascent step of every lambda per update (times the rollout's mean cost minus its limit)"""
     checkpoint_every: int = 200_000
     """save a checkpoint every this many env steps (0: only at the end)"""
     runs_dir: str = "runs"
@@ -160,6 +167,7 @@ def check_args(args: Args) -> None:
                           ("head", ("node", "flat")), ("mask_mode", ("visible", "kinematic"))):
         if getattr(args, name) not in allowed:
             raise ValueError(f"--{name.replace('_', '-')} {getattr(args, name)!r}: must be one of {allowed}")
+    constraint_limits(args)
     rows = args.num_envs * args.num_steps * args.n_uavs
     if rows < 2 * args.num_minibatches:
         # A minibatch of one row has no advantage spread to normalise by: its update would be NaN.
@@ -200,6 +208,7 @@ class Sizes:
     feats: int                # the node head's features per node
     waypoint: bool            # the action mode
     head: str                 # "node", "flat" or "gaussian" (the unicycle mode)
+    constrained: dict         # {cost name: limit} of the Lagrangian constraints, in the env's COSTS order
 
 
 def sizes_of(args: Args, env) -> Sizes:
@@ -207,7 +216,8 @@ def sizes_of(args: Args, env) -> Sizes:
     obs, state, u = env.single_observation_space.shape[0], env.single_state_space.shape[0], args.n_uavs
     return Sizes(B=args.num_envs, U=u, T=args.num_steps, obs=obs, state=state,
                  critic_in=state + u if args.algo == "mappo" else obs, actions=len(env.lattice) if waypoint else 2,
-                 feats=N_OWN_FEATURES + u - 1, waypoint=waypoint, head=args.head if waypoint else "gaussian")
+                 feats=N_OWN_FEATURES + u - 1, waypoint=waypoint, head=args.head if waypoint else "gaussian",
+                 constrained=constraint_limits(args))
 
 
 def make_networks(args: Args, s: Sizes):
@@ -296,9 +306,35 @@ class Agents:
         return a, logp, masks, feats
 
 
+def constraint_limits(args: Args) -> dict[str, float]:
+    """The constrained costs and their limits, {name: limit} in the env's COSTS order: ``--constraints``, and
+    separation at ``--cost-limit`` with ``--lagrangian`` (a ValueError names a bad item)."""
+    limits: dict[str, float] = {}
+    for item in filter(None, (x.strip() for x in args.constraints.split(","))):
+        name, sep, value = item.partition("=")
+        name = name.strip()
+        if not sep or name not in COSTS:
+            raise ValueError(f"--constraints {args.constraints!r}: {item!r} must be NAME=LIMIT with NAME one of "
+                             f"{COSTS}")
+        try:
+            limit = float(value)
+        except ValueError:
+            limit = math.nan
+        if not 0.0 <= limit <= 1.0:
+            raise ValueError(f"--constraints {args.constraints!r}: the limit of {name} must be a number in [0, 1] "
+                             f"(mean cost per UAV and slot), got {value.strip()!r}")
+        if name in limits:
+            raise ValueError(f"--constraints {args.constraints!r}: {name} is given twice")
+        limits[name] = limit
+    if args.lagrangian:
+        if "separation" in limits:
+            raise ValueError("--lagrangian constrains separation at --cost-limit; --constraints names it too")
+        limits["separation"] = args.cost_limit
+    return {name: limits[name] for name in COSTS if name in limits}
+
+
 # ---------------------------------------------------------------------------------------------- rollout
 COST_KEYS = tuple(f"cost_{name}" for name in COSTS)      # the env's constraint costs, by name
-SEPARATION = COSTS.index("separation")
 
 
 class Rollout:
@@ -312,7 +348,7 @@ class Rollout:
         self.act = np.zeros((T, B, U) if s.waypoint else (T, B, U, 2), np.int64 if s.waypoint else np.float32)
         self.logp, self.value = np.zeros((T, B, U), np.float32), np.zeros((T, B, U), np.float32)
         self.reward, self.done = np.zeros((T, B, U), np.float32), np.zeros((T, B), np.float32)
-        self.separation = np.zeros((T, B, U), np.float32)
+        self.costs = np.zeros((T, len(s.constrained), B, U), np.float32)     # the constrained costs, in order
         # The node head's inputs, kept from the rollout for the update (they do not depend on the parameters).
         self.feats = torch.zeros((T, B * U, s.actions, s.feats) if s.head == "node" else (T, 0))
 
@@ -344,9 +380,12 @@ class Episodes:
         return means
 
 
-def collect_rollout(agents: Agents, buf: Rollout, episodes: Episodes, obs, state, *, lam: float):
-    """T steps of every copy into ``buf``; returns the observation and state to continue from."""
+def collect_rollout(agents: Agents, buf: Rollout, episodes: Episodes, obs, state, *, lam: dict[str, float]):
+    """T steps of every copy into ``buf`` (the training reward minus ``lam[c] * cost_c`` of each constrained cost);
+    returns the observation and state to continue from."""
     args, s, env = agents.args, agents.sizes, agents.env
+    which = [COSTS.index(c) for c in s.constrained]
+    weights = np.array([lam[c] for c in s.constrained], np.float64)[:, None, None]
     for t in range(s.T):
         buf.obs[t], buf.state[t] = obs, state
         if s.waypoint:
@@ -364,12 +403,13 @@ def collect_rollout(agents: Agents, buf: Rollout, episodes: Episodes, obs, state
         last = infos["final_info"] if done.any() else infos
         step_costs = np.stack([np.where(done[:, None], last[k], infos[k]) for k in COST_KEYS])
         episodes.add(rew, step_costs, np.where(done[:, None], last["kappa"], infos["kappa"]), done, infos)
-        r = rew - lam * step_costs[SEPARATION] if args.lagrangian else rew.copy()
+        kept = step_costs[which]
+        r = rew - (weights * kept).sum(axis=0) if which else rew.copy()
         cut = trunc[:, 0] & ~term[:, 0]
         if cut.any() and env.episode_length < env.config.n_slots:
             ended = np.flatnonzero(cut)        # time limit before the route's end: bootstrap V(final)
             r[ended] += args.gamma * agents.value(infos["final_obs"][ended], infos["final_state"][ended])
-        buf.reward[t], buf.done[t], buf.separation[t] = r, done, step_costs[SEPARATION]
+        buf.reward[t], buf.done[t], buf.costs[t] = r, done, kept
     return obs, state
 
 
@@ -436,12 +476,12 @@ def ppo_update(agents: Agents, optim, buf: Rollout, adv: np.ndarray, returns: np
 @dataclass
 class Progress:
     """How far the run is (saved with every checkpoint): env steps, PPO updates, training wall time, and the
-    Lagrange multiplier of the separation cost."""
+    Lagrange multiplier of each constrained cost."""
 
     global_step: int = 0
     updates: int = 0
     wall_seconds: float = 0.0
-    lam: float = 0.0
+    lam: dict[str, float] = field(default_factory=dict)
 
     def meta(self, vnorm: RunningNorm, card: dict) -> dict:
         """A checkpoint's JSON (and the final model.json): the progress, the value statistics and the card."""
@@ -468,7 +508,8 @@ def log_update(writer, curve, bar, prog: Progress, *, losses: dict, clipfracs: l
         writer.add_scalar(f"losses/{k}", v, step)
     writer.add_scalar("losses/clipfrac", float(np.mean(clipfracs)), step)
     writer.add_scalar("charts/sps", step / max(prog.wall_seconds, 1e-9), step)
-    writer.add_scalar("charts/lambda_separation", prog.lam, step)
+    for name, value in prog.lam.items():
+        writer.add_scalar(f"charts/lambda_{name}", value, step)
     if shield is not None:
         writer.add_scalar("charts/shield_fallbacks", shield.fallbacks / max(shield.choices, 1), step)
     if episodes.recent:
@@ -524,8 +565,11 @@ def resume(run_dir: Path, actor, critic, optim, vnorm: RunningNorm) -> Progress:
     meta = load_checkpoint(ckpt, actor, critic, optim)
     vnorm.mean, vnorm.var, vnorm.count = meta["vnorm"]
     print(f"resumed from {ckpt} at {meta['global_step']} env steps", flush=True)
+    lam = meta["lam"]
+    if not isinstance(lam, dict):                 # runs before per-constraint multipliers: separation's
+        lam = {"separation": float(lam)} if lam else {}
     return Progress(global_step=meta["global_step"], updates=meta["updates"], wall_seconds=meta["wall_seconds"],
-                    lam=meta["lam"])
+                    lam=lam)
 
 
 # ---------------------------------------------------------------------------------------------- training
@@ -557,6 +601,7 @@ def train(args: Args) -> Path:
     vnorm, prog = RunningNorm(), Progress()
     if args.resume:
         prog = resume(run_dir, actor, critic, optim, vnorm)
+    prog.lam = {name: prog.lam.get(name, 0.0) for name in s.constrained}
     card = model_card(args, s, env, env_kwargs, shield)
     save_run(run_dir, args, {"card": card})
     writer = SummaryWriter(str(run_dir / "tb"))
@@ -587,8 +632,8 @@ def train(args: Args) -> Path:
         losses, clipfracs = ppo_update(agents, optim, buf, adv, returns)
         if not all(np.isfinite(v) for v in losses.values()):
             raise FloatingPointError(f"non-finite losses at update {prog.updates}: {losses}")
-        if args.lagrangian:                        # dual ascent on the separation constraint (eq. 2)
-            prog.lam = max(0.0, prog.lam + args.lagrange_lr * (float(buf.separation.mean()) - args.cost_limit))
+        for j, (name, limit) in enumerate(s.constrained.items()):       # dual ascent, one multiplier each
+            prog.lam[name] = max(0.0, prog.lam[name] + args.lagrange_lr * (float(buf.costs[:, j].mean()) - limit))
         prog.updates += 1
 
         prog.wall_seconds = time.monotonic() - t_start
