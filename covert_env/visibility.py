@@ -692,6 +692,8 @@ class TerrainRows:
         b_n, u_n, s_n = uav_xy.shape[:3]
         n_m = self._circles.shape[3]
         out = np.ones((b_n, u_n, s_n), dtype=bool)
+        if out.size == 0:
+            return out
         q = target_xyz
         # Per (copy, UAV, sample): the UAV minus its target, and their distance.
         rx = uav_xy[..., 0] - q[:, None, :, 0]

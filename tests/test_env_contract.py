@@ -315,7 +315,9 @@ def test_v1_ids_fail_with_what_changed_in_v2():
 
     from covert_env import covert_sensing_v1
 
-    changed = r"replaced by covert_sensing_v2 in covert_env 0\.6\.0: random scenes come from a new.*eq\. 10"
+    changed = (r"replaced by covert_sensing_v2 in covert_env 0\.6\.0: random scenes come from a new.*eq\. 10.*"
+               r"Use covert_env\.covert_sensing_v3 \(or covert_env\.parallel_env, "
+               r"gym\.make\('covert_env/CovertSensing-v3'\)")
     for env_id in ("covert_env/CovertSensing-v1", "covert_env/CovertSensingWaypoint-v1"):
         with pytest.raises(RuntimeError, match=changed):
             gym.make(env_id)

@@ -468,7 +468,7 @@ def test_terrain_rows_paths_equal_line_of_sight_at_every_sample(seed, samples, t
     samples) decides every sample as line_of_sight_rows' per-sample call, also where its slot tests degenerate:
     UAV paths circling the target (bearings around +-pi), passing right above it, a target inside a footprint,
     a target whose height varies, copies whose target is above the UAV plane (the per-sample fallback), rows of
-    fewer polytopes and an empty row. Blocked samples must occur."""
+    fewer polytopes and an empty row (the next test checks that such paths do get blocked); no samples at all."""
     from covert_env.visibility import TerrainRows, terrain_arrays
 
     rng = np.random.default_rng(seed)
@@ -502,6 +502,7 @@ def test_terrain_rows_paths_equal_line_of_sight_at_every_sample(seed, samples, t
                     for j in range(samples)]).reshape(b, samples)
     np.testing.assert_array_equal(got[:, 1], ref)
     assert rows.line_of_sight_paths(np.array([1]), np.zeros((1, 2, 3, 2)), H, np.zeros((1, 3, 3))).all()
+    assert rows.line_of_sight_paths(which, xy[:, :, :0], alt, target[:, :0]).shape == (b, u, 0)
 
 
 def test_terrain_rows_paths_block_somewhere():

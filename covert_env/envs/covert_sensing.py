@@ -178,8 +178,9 @@ class CovertSensingParallelEnv(ParallelEnv):
     * ``dict_obs``: Dict observations carrying the action mask (waypoint mode only; Tianshou needs it).
     * ``mask_mode``: ``"visible"`` (default: reachable nodes of the visible zone) or ``"kinematic"`` (reachable
       nodes only); waypoint mode only.
-    * ``reward_scale``, ``los_penalty``, ``los_path_penalty``, ``zone_penalty``, ``separation_penalty``,
-      ``terrain_penalty`` (each in [0, 1e6]; default 1.0).
+    * ``reward_scale``: the stage cost's divisor (default 100, in [1e-6, 1e12]).
+    * ``los_penalty``, ``los_path_penalty``, ``zone_penalty``, ``separation_penalty``, ``terrain_penalty``: the
+      penalty weights (each in [0, 1e6]; default 1.0).
     * ``terminate_on_collision``: end the episode when separation < d_safe1.
     * ``scene_pool``: number of training scene seeds for ``scenario="random"`` (default 10000, at most
       1_000_000 so that training scenes never include the held-out seeds 1_000_000 + i).

@@ -32,7 +32,7 @@ class CovertSensingEnv(gym.Env):
 
     ``Box(-1, 1, (2,), float32)``: (speed, turn rate) scaled to 0 < v <= V_max = 50 m/s and
     |omega| <= W_max = 3 rad/s, integrated exactly over the slot. Out-of-range values are clipped;
-    NaN/inf raise ``ValueError``. (``CovertSensingWaypoint-v2``: ``Discrete(L)`` lattice waypoints.)
+    NaN/inf raise ``ValueError``. (``CovertSensingWaypoint-v3``: ``Discrete(L)`` lattice waypoints.)
 
     ## Observation Space
 
