@@ -26,9 +26,10 @@ ROOT = Path(__file__).resolve().parents[1]
 FRAMEWORKS = {"sb3": "sb3_contrib", "rllib": "ray.rllib", "torchrl": "torchrl", "benchmarl": "benchmarl",
               "tianshou": "tianshou"}
 #: The env's per-agent infos (besides the waypoint mask), the same at reset and every step.
-INFO_KEYS = {"slot", "reward_path", "reward_disguise", "reward_los", "reward_zone", "reward_separation",
-             "reward_terrain", "cost", "cost_los", "cost_zone", "cost_separation", "cost_terrain", "los", "in_zone",
-             "infeasible", "kappa", "g", "v", "separation", "terrain_clearance"}
+INFO_KEYS = {"slot", "reward_path", "reward_disguise", "reward_los", "reward_los_path", "reward_zone",
+             "reward_separation", "reward_terrain", "cost", "cost_los", "cost_los_path", "cost_zone", "cost_separation",
+             "cost_terrain", "los", "los_path", "in_zone", "infeasible", "kappa", "g", "v", "separation",
+             "terrain_clearance"}
 _SNIPPET = re.compile(r"^```python framework=(\w+)\n(.*?)^```", re.S | re.M)
 
 
@@ -192,9 +193,12 @@ def test_torchrl_check_env_specs_and_rollout(mode, dict_obs):
     info = td["next", "uav", "info"]
     assert set(info.keys()) == INFO_KEYS
     assert set(td["uav", "info"].keys()) == INFO_KEYS               # from reset: the same keys
-    assert torch.equal(info["cost"], info["cost_los"] + info["cost_zone"] + info["cost_separation"]
-                       + info["cost_terrain"])
+    # The infos arrive as float32 tensors: the share cost_los_path is rounded on its own and in the sum.
+    assert torch.allclose(info["cost"], info["cost_los"] + info["cost_los_path"] + info["cost_zone"]
+                          + info["cost_separation"] + info["cost_terrain"], atol=1e-6)
     assert torch.equal(info["cost_los"], 1 - info["los"]) and torch.equal(info["cost_zone"], 1 - info["in_zone"])
+    assert ((info["cost_los_path"] >= 0) & (info["cost_los_path"] <= 1)).all()
+    assert torch.equal(info["cost_los_path"] == 0, info["los_path"].bool())
     assert info["slot"][:69, 0].tolist() == list(range(1, 70))
     terms = sum(info[k] for k in INFO_KEYS if k.startswith("reward_"))
     assert torch.allclose(terms, td["next", "uav", "reward"].squeeze(-1), atol=1e-5)
