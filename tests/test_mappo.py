@@ -10,9 +10,10 @@ from _extras import needs
 
 torch = needs("torch")
 
+from covert_env.envs.observation import field_slices  # noqa: E402
 from training import mappo  # noqa: E402
 from training.mappo_networks import Actor  # noqa: E402
-from training.pretrained import N_OWN_FEATURES, NumpyActor, load_learned, node_features  # noqa: E402
+from training.pretrained import N_MAP_FEATURES, N_OWN_FEATURES, NumpyActor, load_learned, node_features  # noqa: E402
 
 TINY = ["--num-envs", "2", "--num-steps", "8", "--num-minibatches", "2", "--update-epochs", "1", "--hidden", "16",
         "--node-hidden", "8", "--max-cycles", "5", "--checkpoint-every", "16", "--progress-bar", "false"]
@@ -242,3 +243,55 @@ def test_constraint_multipliers_rise_with_their_costs_and_resume(tmp_path, train
     ckpt.write_text(json.dumps(old))
     mappo.main(["--resume", str(run), "--total-timesteps", "64", "--progress-bar", "false"])
     assert set(_curve(run)[-1]["lambda"]) == {"los_path", "zone"}
+
+
+def test_numpy_actor_with_the_map_features_equals_torch_actor():
+    """The node head with ``node_map``: two more features per node, the same outputs in numpy and torch."""
+    torch.manual_seed(0)
+    u, s = 3, 6
+    lat = np.random.default_rng(0).uniform(-100, 30, (40, 2))
+    cells = np.array([(x, y) for y in np.linspace(50, -50, s) for x in np.linspace(-110, 40, s)])
+    d = field_slices(u, s)["map_next"].stop
+    n_feat = N_OWN_FEATURES + u - 1 + N_MAP_FEATURES
+    actor = Actor(d, len(lat), head="node", hidden=16, node_hidden=8, n_feat=n_feat, log_std_init=-0.5)
+    for p in actor.parameters():
+        torch.nn.init.normal_(p, std=0.5)
+    obs = np.random.default_rng(1).integers(0, 2, (5, d)).astype(np.float32)
+    feats = node_features(obs, lat, u, r2=100.0, v_max=50.0, delta=1.0, d_safe1=5.0, map_offsets=cells)
+    assert feats.shape == (5, len(lat), n_feat) and set(np.unique(feats[..., -2:])) <= {0.0, 1.0}
+    np.testing.assert_array_equal(feats[..., :-2], node_features(obs, lat, u, r2=100.0, v_max=50.0, delta=1.0,
+                                                                 d_safe1=5.0))
+    mask = np.ones((5, len(lat)), bool)
+    with torch.no_grad():
+        dist = actor.dist(torch.from_numpy(obs), torch.from_numpy(feats), torch.from_numpy(mask))
+    np_actor = NumpyActor({k: v.numpy() for k, v in actor.state_dict().items()}, {"head": "node", "node_map": True})
+    ref = torch.log_softmax(torch.from_numpy(np_actor.logits(obs, feats)), -1).numpy()
+    np.testing.assert_allclose(ref, dist.logits.numpy(), rtol=1e-4, atol=1e-4)
+
+
+def test_task_mix_and_map_features_run_and_card(tmp_path, train_extra):
+    """--tasks trains on several tasks' scenes at once (a nominal and a deviating one: two lattices) and --node-map
+    adds the map features; the card records both and the loaded policy plays either task; bad values are errors
+    that name them."""
+    run = mappo.main([*TINY, "--tasks", "downtown-3uav,paper-3uav-deviating", "--node-map", "--map-size", "6",
+                      "--mask-mode", "kinematic", "--total-timesteps", "16", "--runs-dir", str(tmp_path),
+                      "--run-name", "t"])
+    card = json.loads((run / "model.json").read_text())
+    assert card["train_tasks"] == ["downtown-3uav", "paper-3uav-deviating"]
+    assert card["actor"]["node_map"] is True and card["actor"]["n_feat"] == N_OWN_FEATURES + 2 + N_MAP_FEATURES
+    assert card["env_kwargs"]["map_size"] == 6
+    pol = load_learned(run)
+    assert pol.env_settings == {"n_uavs": 3, "action_mode": "waypoint", "map_size": 6, "mask_mode": "kinematic"}
+    for value, pattern in (("yes", r"actor.node_map must be true or false, got 'yes'"),
+                           (False, r"node_feat.weight has shape \(8, 13\), expected \(8, 11\)")):
+        card["actor"]["node_map"] = value
+        (run / "model.json").write_text(json.dumps(card))
+        with pytest.raises(ValueError, match=pattern):
+            load_learned(run)
+    for bad, pattern in ((dict(tasks="paper-3uav,nope"), r"unknown task 'nope'"),
+                         (dict(tasks="paper-1uav"), r"paper-1uav has 1 UAVs, --n-uavs is 3"),
+                         (dict(tasks="paper-3uav,paper-3uav"), r"named twice"),
+                         (dict(tasks="paper-3uav,dense-3uav,towers-3uav", num_envs=16), r"multiple of the 3"),
+                         (dict(node_map=True, head="flat"), r"--node-map needs --head node")):
+        with pytest.raises(ValueError, match=pattern):
+            mappo.check_args(mappo.Args(**bad))

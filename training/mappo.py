@@ -53,11 +53,13 @@ import numpy as np
 
 import covert_env
 from covert_env.envs.batch import COSTS
+from covert_env.tasks import TASKS
 from training.budget import expected_steps
 from training.common import parse_args, resumed_args, run_name, save_run, setup_torch
-from training.pretrained import N_OWN_FEATURES, node_features
+from training.pretrained import N_MAP_FEATURES, N_OWN_FEATURES, node_features
 from training.recipes import MAPPO_RECIPES
 from training.shield import SeparationShield
+from training.task_mix import make_training_env
 
 try:                            # importing this file (--help, its arguments and recipes) needs no torch; train() does
     import torch
@@ -86,6 +88,15 @@ class Args:
     the team must learn the shadows from its observations and the LoS costs)"""
     head: str = "node"
     """waypoint actor head: 'node' (score each node from its geometry) or 'flat' (one logit per node)"""
+    node_map: bool = False
+    """node head: also read the observation's map_next under each node and under the move's midpoint
+    (training.pretrained.node_features), so that the head sees the shadows where it scores the nodes"""
+    map_size: int = 8
+    """side S of the observation's two S x S visibility maps (the env's map_size, 2..64)"""
+    tasks: str = ""
+    """train on these suite tasks' training scenes at once (comma-separated, e.g. 'sparse-3uav,paper-3uav'; each
+    gets num_envs / its count copies; they must share one lattice: not nominal and deviating together); empty:
+    random scenes of the paper family (scene_pool)"""
     max_cycles: int = 70
     """episode length in slots (70 = the whole route)"""
     scene_pool: int = 10_000
@@ -168,12 +179,32 @@ def check_args(args: Args) -> None:
         if getattr(args, name) not in allowed:
             raise ValueError(f"--{name.replace('_', '-')} {getattr(args, name)!r}: must be one of {allowed}")
     constraint_limits(args)
+    tasks = task_list(args)
+    if tasks and args.num_envs % len(tasks):
+        raise ValueError(f"--num-envs {args.num_envs}: must be a multiple of the {len(tasks)} --tasks (each task gets "
+                         "as many copies)")
+    if args.node_map and args.head != "node":
+        raise ValueError(f"--node-map needs --head node, got --head {args.head!r}")
     rows = args.num_envs * args.num_steps * args.n_uavs
     if rows < 2 * args.num_minibatches:
         # A minibatch of one row has no advantage spread to normalise by: its update would be NaN.
         raise ValueError(f"--num-minibatches {args.num_minibatches}: a batch of num_envs * num_steps * n_uavs = "
                          f"{rows} rows gives minibatches of fewer than 2 rows; use at most {max(rows // 2, 1)} "
                          f"minibatches or a larger batch")
+
+
+def task_list(args: Args) -> list[str]:
+    """The ``--tasks`` names, checked against the suite (a ValueError names an unknown one or a team size that
+    differs from --n-uavs)."""
+    names = [t.strip() for t in args.tasks.split(",") if t.strip()]
+    for t in names:
+        if t not in TASKS:
+            raise ValueError(f"--tasks {args.tasks!r}: unknown task {t!r}; the suite's are {sorted(TASKS)}")
+        if TASKS[t].n_uavs != args.n_uavs:
+            raise ValueError(f"--tasks {args.tasks!r}: {t} has {TASKS[t].n_uavs} UAVs, --n-uavs is {args.n_uavs}")
+    if len(set(names)) != len(names):
+        raise ValueError(f"--tasks {args.tasks!r}: a task is named twice")
+    return names
 
 
 class RunningNorm:
@@ -216,7 +247,8 @@ def sizes_of(args: Args, env) -> Sizes:
     obs, state, u = env.single_observation_space.shape[0], env.single_state_space.shape[0], args.n_uavs
     return Sizes(B=args.num_envs, U=u, T=args.num_steps, obs=obs, state=state,
                  critic_in=state + u if args.algo == "mappo" else obs, actions=len(env.lattice) if waypoint else 2,
-                 feats=N_OWN_FEATURES + u - 1, waypoint=waypoint, head=args.head if waypoint else "gaussian",
+                 feats=N_OWN_FEATURES + u - 1 + (N_MAP_FEATURES if args.node_map else 0), waypoint=waypoint,
+                 head=args.head if waypoint else "gaussian",
                  constrained=constraint_limits(args))
 
 
@@ -256,7 +288,8 @@ class Agents:
             return None
         c = self.env.config
         return torch.from_numpy(node_features(flat_obs, self.env.lattice, self.sizes.U, r2=c.r2, v_max=c.v_max,
-                                              delta=c.delta, d_safe1=c.d_safe1))
+                                              delta=c.delta, d_safe1=c.d_safe1,
+                                              map_offsets=self.env.map_offsets if self.args.node_map else None))
 
     def actor_in(self, flat_obs: np.ndarray):
         """The actor's input rows: observations (agent-minor rows, as (..., U, D) flattened) and, with
@@ -492,10 +525,11 @@ class Progress:
 def model_card(args: Args, s: Sizes, env, env_kwargs: dict, shield) -> dict:
     """What an actor needs besides its weights: its spec, the env it was trained on, the shield it acted under."""
     actor_spec = dict(head=s.head, hidden=args.hidden, node_hidden=args.node_hidden, n_feat=s.feats, obs_dim=s.obs,
-                      n_actions=s.actions, agent_id=args.agent_id)
+                      n_actions=s.actions, agent_id=args.agent_id, node_map=args.node_map)
     return {"algorithm": args.algo, "actor": actor_spec, "env_kwargs": env_kwargs, "env_id": env.metadata["name"],
             "separation_shield": None if shield is None else shield.min_distance,
             "shield_end_margin": None if shield is None else shield.end_margin,
+            "train_tasks": task_list(args) or None,
             "covert_env_version": covert_env.__version__ if hasattr(covert_env, "__version__") else None}
 
 
@@ -589,11 +623,15 @@ def train(args: Args) -> Path:
     torch.manual_seed(args.seed)
     env_kwargs = dict(n_uavs=args.n_uavs, action_mode=args.action_mode, max_cycles=args.max_cycles,
                       scene_pool=args.scene_pool)
+    if args.map_size != 8:
+        env_kwargs["map_size"] = args.map_size
     if args.mask_mode != "visible":
         if args.action_mode != "waypoint":
             raise ValueError(f"--mask-mode {args.mask_mode!r} needs --action-mode waypoint")
         env_kwargs["mask_mode"] = args.mask_mode
-    env = covert_env.vector_env(num_envs=args.num_envs, **env_kwargs)
+    tasks = task_list(args)
+    env = make_training_env(tasks, args.num_envs, **({k: v for k, v in env_kwargs.items()
+                                                       if k not in ("n_uavs", "scene_pool")} if tasks else env_kwargs))
     s = sizes_of(args, env)
     shield = (SeparationShield(env.config.d_safe1 + args.shield_margin, args.shield_end_margin)
               if s.waypoint and args.separation_shield else None)

@@ -209,6 +209,8 @@ class CovertSensingVectorEnv:
         self._reward_scale, self._penalties = s.reward_scale, check_penalties(s.penalties)
         self._terminate, self.max_cycles = s.terminate_on_collision, s.max_cycles
         self.lattice, self.possible_agents, self.layout = s.lattice, list(s.possible_agents), s.layout
+        #: The observation maps' side S and their cells' centres (S * S, 2), target frame, row-major with +y on top.
+        self.map_size, self.map_offsets = s.map_size, s.map_offsets
         self.single_observation_space, self.single_action_space = s.observation_space, s.action_space
         self.single_state_space = s.state_space
         b, u, c = self.num_envs, len(self.possible_agents), self.config

@@ -35,19 +35,22 @@ from covert_env.envs.observation import field_slices
 from training.runs import read_run_json, run_env
 from training.shield import SeparationShield
 
-__all__ = ["node_features", "NumpyActor", "LearnedPolicy", "load_learned", "check_weights", "PRETRAINED_DIR",
-           "pretrained_names", "N_OWN_FEATURES"]
+__all__ = ["node_features", "map_at", "NumpyActor", "LearnedPolicy", "load_learned", "check_weights", "PRETRAINED_DIR",
+           "pretrained_names", "N_OWN_FEATURES", "N_MAP_FEATURES"]
 
 PRETRAINED_DIR = Path(__file__).resolve().parent
 #: The largest weights file :func:`load_learned` unpacks (bytes of arrays): the shipped actor holds well under 1 MB.
 MAX_WEIGHTS_BYTES = 256 * 2**20
 #: Features per (agent, node) besides the U - 1 teammate distances (see :func:`node_features`).
 N_OWN_FEATURES = 9
+#: The map features :func:`node_features` adds with ``map_offsets`` (the actor's ``node_map``).
+N_MAP_FEATURES = 2
 
 
 def node_features(obs: np.ndarray, lattice: np.ndarray, n_uavs: int, *, r2: float, v_max: float, delta: float,
-                  d_safe1: float) -> np.ndarray:
-    """Per-node inputs of the actor's waypoint head, ``(..., L, 9 + U - 1)`` float32 from observations ``(..., D)``.
+                  d_safe1: float, map_offsets: np.ndarray | None = None) -> np.ndarray:
+    """Per-node inputs of the actor's waypoint head, ``(..., L, 9 + U - 1)`` float32 from observations ``(..., D)``
+    (``(..., L, 11 + U - 1)`` with ``map_offsets``).
 
     Everything is read from the agent's own observation (no extra information): its offset from the target
     (field ``offset``, in units of R2), the target's displacement to the next slot (``target_displacement``, in units
@@ -60,7 +63,12 @@ def node_features(obs: np.ndarray, lattice: np.ndarray, n_uavs: int, *, r2: floa
     * ``|p_l - o| R2 / (V_max delta)``: the fraction of a slot's maximal path (energy, eq. 15);
     * the bearing and range changes the move makes, ``wrap(alpha_l - alpha_o) / pi`` and ``|p_l| - |o|``, and their
       absolute values: the disguise kappa of eq. 11 is ``eta |d alpha| + |d d|``;
-    * per teammate j, ``min(|p_l - o_j| R2 / (2 d_safe1), 3)``: how close the node is to where j is now (eq. 2).
+    * per teammate j, ``min(|p_l - o_j| R2 / (2 d_safe1), 3)``: how close the node is to where j is now (eq. 2);
+    * with ``map_offsets`` (the env's map cell centres, ``(S * S, 2)`` m, row-major with +y on top): the observation's
+      ``map_next`` (1 where the cell is in the eroded zone with clear LoS at slot k+1) read at the node and at the
+      midpoint of the move, each at the nearest cell (0 outside the map). The shadows are in the observation's
+      maps; these two inputs put them under the node the head scores, so that a team whose mask allows shadowed
+      nodes (``mask_mode="kinematic"``) can learn to avoid them (docs/decisions.md, "Action mask modes").
     """
     obs = np.asarray(obs, np.float32)
     # The fields read here come before the maps, so the maps' size (0 here) does not move them.
@@ -80,7 +88,28 @@ def node_features(obs: np.ndarray, lattice: np.ndarray, n_uavs: int, *, r2: floa
     if n_uavs > 1:
         gap = p[:, None, :] - mates[..., None, :, :]                   # (..., L, U-1, 2)
         feats.append(np.minimum(np.sqrt((gap ** 2).sum(-1)) * (r2 / (2 * d_safe1)), 3.0))
+    if map_offsets is not None:
+        cells = np.asarray(map_offsets, np.float64) / r2                  # (S * S, 2), units of R2
+        size = int(round(np.sqrt(len(cells))))
+        grid = obs[..., field_slices(n_uavs, size)["map_next"]]           # (..., S * S)
+        feats.append(map_at(grid, cells, p)[..., None])
+        feats.append(map_at(grid, cells, 0.5 * (p + o[..., None, :]))[..., None])
     return np.concatenate(feats, axis=-1).astype(np.float32)
+
+
+def map_at(grid: np.ndarray, cells: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Values of S x S maps ``grid`` ``(..., S * S)`` (row-major, +y on top, cell centres ``cells`` ``(S * S, 2)``)
+    at the nearest cell of each of ``points`` ``(..., L, 2)`` (the same units as ``cells``), 0 outside the map:
+    ``(..., L)``."""
+    size = int(round(np.sqrt(len(cells))))
+    x0, y_top = cells[0]
+    dx, dy = cells[1, 0] - cells[0, 0], cells[0, 1] - cells[size, 1]  # cell sides (> 0)
+    col = np.floor((points[..., 0] - x0) / dx + 0.5).astype(np.int64)
+    row = np.floor((y_top - points[..., 1]) / dy + 0.5).astype(np.int64)
+    inside = (col >= 0) & (col < size) & (row >= 0) & (row < size)
+    idx = np.where(inside, row * size + col, 0)
+    idx = np.broadcast_to(idx, (*grid.shape[:-1], idx.shape[-1]))
+    return np.where(inside, np.take_along_axis(grid, idx, axis=-1), 0.0)
 
 
 class NumpyActor:
@@ -153,7 +182,9 @@ class LearnedPolicy:
         else:
             c = par.config
             feats = node_features(obs, par.lattice, len(par.possible_agents), r2=c.r2, v_max=c.v_max, delta=c.delta,
-                                  d_safe1=c.d_safe1) if self.actor.head == "node" else None
+                                  d_safe1=c.d_safe1,
+                                  map_offsets=par.map_offsets if self.actor.spec.get("node_map") else None
+                                  ) if self.actor.head == "node" else None
             logits = self.actor.logits(x, feats)
             mask = np.stack([par.action_mask(a) for a in agents]).astype(bool)
             if self.shield is not None:
@@ -188,6 +219,8 @@ def load_learned(path: str | Path) -> LearnedPolicy:
         if not isinstance(spec, dict) or spec.get("head") not in ("node", "flat", "gaussian") \
                 or not isinstance(ekw, dict) or ekw.get("action_mode") not in ("unicycle", "waypoint"):
             raise KeyError("actor.head / env_kwargs.action_mode")
+        if not isinstance(spec.get("node_map", False), bool):
+            raise KeyError(f"actor.node_map must be true or false, got {spec['node_map']!r}")
     except (KeyError, TypeError) as exc:
         raise ValueError(f"{card_path}: not a model card of training.mappo ({exc})") from None
     for key, lo in (("separation_shield", 0.0), ("shield_end_margin", 0.0)):
@@ -246,10 +279,11 @@ def check_weights(params: dict[str, np.ndarray], spec: dict, *, obs_dim: int, n_
         need(f"trunk.{i}.bias", (w.shape[0],), f"trunk.{i}.weight has {w.shape[0]} outputs")
         width, why = w.shape[0], f"trunk.{i} has {w.shape[0]} outputs"
     if spec["head"] == "node":
-        n_feat = N_OWN_FEATURES + n_uavs - 1
+        n_feat = N_OWN_FEATURES + n_uavs - 1 + (N_MAP_FEATURES if spec.get("node_map") else 0)
         h = need("node_obs.weight", (None, width), why).shape[0]
         need("node_obs.bias", (h,), f"node_obs.weight has {h} outputs")
-        need("node_feat.weight", (h, n_feat), f"{n_feat} node features for {n_uavs} UAVs, node_obs has {h} outputs")
+        need("node_feat.weight", (h, n_feat), f"{n_feat} node features for {n_uavs} UAVs"
+             + (" with the map's" if spec.get("node_map") else "") + f", node_obs has {h} outputs")
         need("node_out.weight", (1, h), f"node_obs has {h} outputs")
         need("node_out.bias", (1,), "one logit per node")
     else:

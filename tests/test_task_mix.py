@@ -1,0 +1,131 @@
+"""training.task_mix (several tasks' vector envs as one batch) and the node head's map features
+(training.pretrained.map_at / node_features with map_offsets)."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import covert_env
+from training.pretrained import map_at, node_features
+from training.task_mix import TaskMix, make_training_env
+
+
+def _grid(size, lo=(-120.0, -60.0), hi=(40.0, 60.0)):
+    """Cell centres of an S x S map as the env lays them out: row-major, +y on top."""
+    gx = lo[0] + (np.arange(size) + 0.5) * (hi[0] - lo[0]) / size
+    gy = lo[1] + (np.arange(size) + 0.5) * (hi[1] - lo[1]) / size
+    return np.array([(x, y) for y in gy[::-1] for x in gx])
+
+
+@settings(max_examples=60, deadline=None)
+@given(size=st.integers(2, 12), seed=st.integers(0, 2**31 - 1))
+def test_map_at_reads_the_nearest_cell_and_zero_outside(size, seed):
+    """map_at equals a brute-force nearest-cell lookup for points inside the map, and is 0 beyond its edge."""
+    rng = np.random.default_rng(seed)
+    cells = _grid(size)
+    grid = rng.integers(0, 2, (3, size * size)).astype(np.float32)
+    half = np.array([(cells[1, 0] - cells[0, 0]) / 2, (cells[0, 1] - cells[size, 1]) / 2])
+    lo, hi = cells.min(0) - half, cells.max(0) + half
+    pts = rng.uniform(lo - 30, hi + 30, (3, 50, 2))
+    got = map_at(grid, cells, pts)
+    nearest = np.argmin(((pts[:, :, None] - cells) ** 2).sum(-1), axis=-1)
+    inside = np.all((pts > lo + 1e-9) & (pts < hi - 1e-9), axis=-1)
+    want = np.take_along_axis(grid, nearest, axis=1)
+    # Away from the cell borders (ties), nearest-cell and map_at agree; outside the map it is 0.
+    d = np.sort(((pts[:, :, None] - cells) ** 2).sum(-1), axis=-1)
+    clear = d[..., 1] - d[..., 0] > 1e-6
+    np.testing.assert_array_equal(got[inside & clear], want[inside & clear])
+    outside = np.any((pts < lo - 1e-9) | (pts > hi + 1e-9), axis=-1)
+    assert (got[outside] == 0).all()
+    np.testing.assert_array_equal(map_at(grid, cells, cells[None]), grid)          # each centre reads its cell
+
+
+def test_map_feature_agrees_with_the_visible_nodes():
+    """The map feature at a node is the observation's map_next there: with a 16 x 16 map it agrees with the env's
+    visible-zone nodes (the visible mask) on nearly every reachable node of a shadowed family, far above what a
+    wrong frame would give (on downtown, 18 % of the reachable nodes are shadowed or outside the eroded zone)."""
+    kw = dict(num_envs=8, n_uavs=3, action_mode="waypoint", map_size=16, task="downtown-3uav")
+    vis = covert_env.vector_env(mask_mode="visible", **kw)
+    kin = covert_env.vector_env(mask_mode="kinematic", **kw)
+    vis.reset(seed=1)
+    obs, _ = kin.reset(seed=1)
+    rng = np.random.default_rng(0)
+    c = kin.config
+    agree, hidden = [], []
+    for _ in range(10):
+        mv, mk = vis.action_masks().astype(bool), kin.action_masks().astype(bool)
+        f = node_features(obs.reshape(-1, obs.shape[-1]), kin.lattice, 3, r2=c.r2, v_max=c.v_max, delta=c.delta,
+                          d_safe1=c.d_safe1, map_offsets=kin.map_offsets).reshape(*mk.shape, -1)[..., -2]
+        sel = mk & ~mk.all(-1, keepdims=True)
+        agree.append(((f > 0.5) == mv)[sel].mean())
+        hidden.append((~mv)[sel].mean())
+        act = np.array([[rng.choice(np.flatnonzero(mv[b, u])) for u in range(3)] for b in range(8)])
+        vis.step(act)
+        obs, *_ = kin.step(act)
+    assert np.mean(hidden) > 0.1
+    assert np.mean(agree) > 0.9
+
+
+def test_mix_rows_are_the_tasks_envs():
+    """A mix of two tasks steps exactly as the two tasks' envs would, each on its rows (seed + i per task)."""
+    tasks = ["paper-3uav", "towers-3uav"]
+    mix = TaskMix(tasks, 4, action_mode="waypoint", max_cycles=3)
+    solo = [covert_env.vector_env(num_envs=2, task=t, action_mode="waypoint", max_cycles=3) for t in tasks]
+    obs, _ = mix.reset(seed=5)
+    ref = [e.reset(seed=5 + i)[0] for i, e in enumerate(solo)]
+    np.testing.assert_array_equal(obs, np.concatenate(ref))
+    rng = np.random.default_rng(0)
+    for _ in range(3):
+        m = mix.action_masks().astype(bool)
+        np.testing.assert_array_equal(m, np.concatenate([e.action_masks() for e in solo]).astype(bool))
+        act = np.array([[rng.choice(np.flatnonzero(m[b, u])) for u in range(3)] for b in range(4)])
+        np.testing.assert_array_equal(mix.waypoint_paths(act[..., None]),
+                                      np.concatenate([e.waypoint_paths(a[..., None])
+                                                      for e, a in zip(solo, np.split(act, 2), strict=True)]))
+        got = mix.step(act)
+        want = [e.step(a) for e, a in zip(solo, np.split(act, 2), strict=True)]
+        for j in range(4):
+            np.testing.assert_array_equal(got[j], np.concatenate([w[j] for w in want]))
+        np.testing.assert_array_equal(got[4]["cost_los_path"], np.concatenate([w[4]["cost_los_path"] for w in want]))
+        np.testing.assert_array_equal(mix.state(), np.concatenate([e.state() for e in solo]))
+    assert "final_info" in got[4]                                          # the route's 3 slots ended
+    np.testing.assert_array_equal(got[4]["final_state"], np.concatenate([w[4]["final_state"] for w in want]))
+    np.testing.assert_array_equal(got[4]["final_info"]["reward_zone"],
+                                  np.concatenate([w[4]["final_info"]["reward_zone"] for w in want]))
+
+
+def test_mix_of_two_lattices_maps_the_nodes():
+    """A nominal and a deviating task: the mix acts on the larger lattice; the deviating copies' masks allow only
+    its nodes, and a union index flies the deviating env's node at the same place."""
+    mix = TaskMix(["paper-3uav", "paper-3uav-deviating"], 2, action_mode="waypoint", mask_mode="kinematic")
+    dev = covert_env.vector_env(num_envs=1, task="paper-3uav-deviating", action_mode="waypoint",
+                                mask_mode="kinematic")
+    mix.reset(seed=3)
+    dev.reset(seed=4)
+    assert mix.lattice.shape == (577, 2) and dev.lattice.shape == (483, 2)
+    at = np.abs(dev.lattice[:, None] - mix.lattice[None]).sum(-1).argmin(1)
+    m = mix.action_masks()
+    np.testing.assert_array_equal(m[1][:, at], dev.action_masks()[0])
+    assert m[1].sum() == dev.action_masks().sum()                          # nothing at nodes it does not have
+    rng = np.random.default_rng(1)
+    act = np.array([[rng.choice(np.flatnonzero(m[b, u])) for u in range(3)] for b in range(2)])
+    own = np.array([[np.flatnonzero(at == act[1, u])[0] for u in range(3)]])
+    np.testing.assert_array_equal(mix.waypoint_paths(act[..., None])[1], dev.waypoint_paths(own[..., None])[0])
+    np.testing.assert_array_equal(mix.step(act)[1][1], dev.step(own)[1][0])
+    bad = act.copy()
+    bad[1, 0] = np.setdiff1d(np.arange(577), at)[0]
+    with pytest.raises(ValueError, match="a node the copy's task does not have"):
+        mix.step(bad)
+
+
+def test_mix_errors_name_the_problem():
+    with pytest.raises(ValueError, match="distinct task names"):
+        TaskMix(["paper-3uav", "paper-3uav"], 2)
+    with pytest.raises(ValueError, match="multiple of the 2 tasks"):
+        TaskMix(["paper-3uav", "dense-3uav"], 3)
+    with pytest.raises(ValueError, match="n_uavs is set by each task"):
+        TaskMix(["paper-3uav", "dense-3uav"], 2, n_uavs=3)
+    with pytest.raises(ValueError, match="'paper-6uav' differs from 'paper-3uav' in its team size"):
+        TaskMix(["paper-3uav", "paper-6uav"], 2)
+    assert isinstance(make_training_env(["paper-3uav"], 2), covert_env.envs.vector.CovertSensingVectorEnv)
