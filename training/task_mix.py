@@ -19,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 import covert_env
+from covert_env.envs.batch import fly_to_goals
 
 __all__ = ["TaskMix", "make_training_env"]
 
@@ -67,12 +68,17 @@ class TaskMix:
                                ("observation width", e.single_observation_space.shape,
                                 first.single_observation_space.shape),
                                ("state width", e.single_state_space.shape, first.single_state_space.shape),
-                               ("action mode", e.action_mode, first.action_mode)):
+                               ("action mode", e.action_mode, first.action_mode),
+                               ("flight (V_max, W_max, delta, path samples)",
+                                (e.config.v_max, e.config.w_max, e.config.delta, e.path_samples),
+                                (first.config.v_max, first.config.w_max, first.config.delta, first.path_samples))):
                 if a != b:
                     raise ValueError(f"task {t!r} differs from {tasks[0]!r} in its {what} ({a} against {b}): a "
                                      "task mix needs one team size, observation and action mode")
         self.num_envs = num_envs
         self.config, self.map_offsets = first.config, first.map_offsets
+        self.path_samples = first.path_samples
+        self._times = np.linspace(0.0, 1.0, self.path_samples) * self.config.delta      # the envs' sample times
         self.waypoint = first.action_mode == "waypoint"
         if self.waypoint:
             biggest = max(range(len(tasks)), key=lambda i: len(self.envs[i].lattice))
@@ -136,22 +142,22 @@ class TaskMix:
         return np.concatenate(out)
 
     def waypoint_paths(self, nodes) -> np.ndarray:
-        """The tasks' ``waypoint_paths`` for nodes of the mix's lattice (-1: none)."""
-        out = []
-        for e, inv, n in zip(self.envs, self._from_mix, self._split(nodes), strict=True):
-            n = np.where(n >= 0, inv[np.maximum(n, 0)], -1)
-            # A task may have fewer nodes than the mix's M per UAV: its real ones packed to the front, flown,
-            # and put back in place (NaN paths where -1, as the env gives them).
-            real = n >= 0
-            width = max(int(real.sum(axis=2).max()), 1)
-            cols = np.argsort(~real, axis=2, kind="stable")[..., :width]
-            packed = np.take_along_axis(n, cols, axis=2)
-            got = e.waypoint_paths(packed)                                     # (b, U, width, P, 2)
-            full = np.full((*n.shape, *got.shape[3:]), np.nan)
-            b, u, j = np.nonzero(packed >= 0)
-            full[b, u, cols[b, u, j]] = got[b, u, j]
-            out.append(full)
-        return np.concatenate(out)
+        """The tasks' ``waypoint_paths`` for nodes ``(B, U, M)`` of the mix's lattice (-1: none): each task places
+        its nodes (``waypoint_goals``), and every copy's paths are flown in one batch (the tasks fly alike: the same
+        V_max, W_max, delta and sample times, checked at construction)."""
+        goals = np.concatenate([e.waypoint_goals(np.where(n >= 0, inv[np.maximum(n, 0)], -1))
+                                for e, inv, n in zip(self.envs, self._from_mix, self._split(nodes), strict=True)])
+        return fly_to_goals(self.uav_xy, self.uav_theta, goals, self.config, self._times)
+
+    @property
+    def uav_xy(self) -> np.ndarray:
+        """(B, U, 2) the UAVs' positions."""
+        return np.concatenate([e.uav_xy for e in self.envs])
+
+    @property
+    def uav_theta(self) -> np.ndarray:
+        """(B, U) the UAVs' headings."""
+        return np.concatenate([e.uav_theta for e in self.envs])
 
     def close(self) -> None:
         for e in self.envs:

@@ -90,6 +90,16 @@ def fly_waypoints(xy, theta, goals, c, times):
     return path, end_theta, v, fallback.reshape(shape), w
 
 
+def fly_to_goals(xy, theta, goals, c, times) -> np.ndarray:
+    """Path samples ``(B, U, M, P, 2)`` of the UAVs at poses xy (B, U, 2), theta (B, U) flown to each of their
+    ``goals`` ``(B, U, M, 2)`` by :func:`fly_waypoints`; NaN where a goal is NaN (no node: nothing is flown)."""
+    ci, ui, mi = np.nonzero(~np.isnan(goals[..., 0]))             # only the real (copy, UAV, goal) triples
+    out = np.full((*goals.shape[:3], len(times), 2), np.nan)
+    out[ci, ui, mi] = fly_waypoints(xy[ci, ui][:, None], theta[ci, ui][:, None], goals[ci, ui, mi][:, None], c,
+                                    times)[0][:, 0]
+    return out
+
+
 def to_world_batch(offsets, q_xy, phi) -> np.ndarray:
     """World positions of target-frame ``offsets`` (B, ..., 2) for targets q_xy (B, 2), phi (B,): q + R(phi) o
     (the same arithmetic as :func:`covert_env.zone.to_world`, one target per copy)."""

@@ -454,27 +454,31 @@ class CovertSensingVectorEnv:
 
         A read-only query (the state does not change), for policies that plan with the model: the separation
         shield of ``training.shield`` tests these paths against eq. 2. Waypoint mode, after ``reset()``."""
+        goals = self.waypoint_goals(nodes)
+        if goals.shape[2] > len(self.lattice):
+            raise ValueError(f"waypoint_paths(): at most {len(self.lattice)} nodes per UAV (the lattice's), got "
+                             f"M = {goals.shape[2]}")
+        return batch.fly_to_goals(self._xy, self._theta, goals, self.config, self._times)
+
+    def waypoint_goals(self, nodes) -> np.ndarray:
+        """Where lattice ``nodes`` ``(B, U, M)`` lie at slot k+1: ``(B, U, M, 2)`` (world frame, m), the waypoints
+        those actions fly to; NaN where the index is -1 (no node). Read-only; waypoint mode, after ``reset()``."""
         if self.action_mode != "waypoint":
-            raise RuntimeError("waypoint_paths() is for action_mode='waypoint'")
+            raise RuntimeError("waypoint_paths() and waypoint_goals() are for action_mode='waypoint'")
         self.require_running("waypoint_paths()")
         nodes = np.asarray(nodes)
         b, u = self.num_envs, len(self.possible_agents)
         if nodes.ndim != 3 or nodes.shape[:2] != (b, u) or not np.issubdtype(nodes.dtype, np.integer):
             raise ValueError(f"waypoint_paths(): nodes must be integer indices of shape ({b}, {u}, M), got "
                              f"{nodes.dtype} {nodes.shape}")
-        if nodes.shape[2] > len(self.lattice):
-            raise ValueError(f"waypoint_paths(): at most {len(self.lattice)} nodes per UAV (the lattice's), got "
-                             f"M = {nodes.shape[2]}")
         if nodes.size and (nodes.min() < -1 or nodes.max() >= len(self.lattice)):
             raise ValueError(f"waypoint_paths(): node indices must be in [0, {len(self.lattice) - 1}] (or -1 for "
                              f"none), got [{nodes.min()}, {nodes.max()}]")
         pool, rows, k = self._pool, self._rows, self._k
         ci, ui, mi = np.nonzero(nodes >= 0)                       # only the real (copy, UAV, node) triples
-        out = np.full((*nodes.shape, self.path_samples, 2), np.nan)
-        goals = batch.to_world_batch(self.lattice[nodes[ci, ui, mi]][:, None], pool.q_next[rows[ci], k[ci], :2],
-                                     pool.phi_next[rows[ci], k[ci]])
-        out[ci, ui, mi] = batch.fly_waypoints(self._xy[ci, ui][:, None], self._theta[ci, ui][:, None], goals,
-                                              self.config, self._times)[0][:, 0]
+        out = np.full((*nodes.shape, 2), np.nan)
+        out[ci, ui, mi] = batch.to_world_batch(self.lattice[nodes[ci, ui, mi]][:, None],
+                                               pool.q_next[rows[ci], k[ci], :2], pool.phi_next[rows[ci], k[ci]])[:, 0]
         return out
 
     def state(self) -> np.ndarray:
