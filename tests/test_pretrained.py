@@ -206,3 +206,39 @@ def test_weights_beyond_the_size_cap_are_refused_before_unpacking(tmp_path, monk
                                          r"1000 a weights file may hold"):
         load_policy(f"mappo:{run}", 2)
     assert calls == []
+
+
+def test_card_states_the_constraint_rates_and_the_suite_rows(tmp_path, capsys):
+    """The card's ``constraints`` are its scored scenes' mean rates; ``--suite`` adds the weights' rows of a suite's
+    cells.csv per task (its run of a seed group), with the smallest separation of any scene."""
+    from training.pretrained.export import main as export_main
+    from training.pretrained.export import suite_rows
+
+    cells = tmp_path / "cells.csv"
+    head = ("task,policy,run,action_mode,mask_mode,scene_seed,score,reward,occlusion_rate,occlusion_rate_path,"
+            "blocked_path_share,zone_violation_rate,mean_disguise,path_length,separation_violations,min_separation,"
+            "terrain_violations,decision_time_ms")
+    lines = [head]
+    for run, (a, b) in enumerate(((0.5, 0.7), (0.9, 0.1))):
+        for scene, x in ((1_000_000, a), (1_000_001, b)):
+            lines.append(f"paper-2uav,mappo:x,{run},waypoint,kinematic,{scene},{x},{100 * x},0.1,0.2,0.05,{x / 10},"
+                         f"30,2000,0.5,{5 + 10 * x},0,1")
+    lines.append("paper-2uav,dp,0,waypoint,,1000000,1,200,0,0,0,0,38,2900,0,6,0,20")
+    cells.write_text("\n".join(lines) + "\n")
+    got = suite_rows(cells, "mappo:x", 1)["tasks"]["paper-2uav"]
+    assert got["scenes"] == [1_000_000, 1_000_001] and got["mask_mode"] == "kinematic"
+    assert got["score"] == pytest.approx(0.5) and got["zone_violation_rate"] == pytest.approx(0.05)
+    assert got["min_separation"] == pytest.approx(6.0)                       # the smaller of 14 and 6
+    with pytest.raises(ValueError, match="no rows of policy 'mappo:y'"):
+        suite_rows(cells, "mappo:y")
+    run = _tiny_run(tmp_path)
+    export_main([str(run), "--name", "tiny", "--episodes", "1", "--out-dir", str(tmp_path / "shipped"),
+                 "--suite", str(cells), "--suite-policy", "mappo:x", "--suite-run", "0"])
+    card = json.loads((tmp_path / "shipped" / "tiny.json").read_text())
+    m = card["scores"]["metrics_mean_std"]
+    assert card["constraints"]["zone_violation_rate"] == m["zone_violation_rate"][0]
+    assert card["constraints"]["blocked_los_rate_along_path"] == m["occlusion_rate_path"][0]
+    assert card["suite"]["tasks"]["paper-2uav"]["score"] == pytest.approx(0.6)
+    with pytest.raises(SystemExit):
+        export_main([str(run), "--out-dir", str(tmp_path / "shipped"), "--suite", str(cells)])
+    assert "--suite needs --suite-policy" in capsys.readouterr().err

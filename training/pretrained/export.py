@@ -2,6 +2,7 @@
 
     python -m training.pretrained.export runs/<mappo-run> --name mappo --episodes 20
     python -m training.pretrained.export --rescore mappo      # the shipped weights on the current env version
+    python -m training.pretrained.export runs/<run> --suite outputs/suite/cells.csv --suite-policy SPEC --suite-run 0
 
 The card holds what a reader needs to trust and reproduce the weights: the algorithm, the run's arguments (the
 recipe) and training summary (env steps, wall time), the repository commit, the env's id and covert_env's
@@ -9,11 +10,17 @@ version, and the scores of the harness (:mod:`training.evaluate`, env default re
 1_000_000 .. 1_000_000 + episodes - 1: mean ± std over scenes, IQM with a 95 % bootstrap interval over scenes
 (:mod:`training.stats`; one training seed, so the scenes are the resampled runs), the paper's metrics, and the
 reward of each scene (``tests/test_pretrained.py`` replays the first few and compares).
+
+``constraints`` states each constraint's rate on those scenes (the paper's constraints: the zone, eq. 4; LoS at
+slot times, eq. 6, and along the flown path; separation, eq. 2; terrain, eq. 3). With ``--suite``, ``suite`` adds
+the suite protocol's rows of the weights (``covert-env benchmark``'s ``cells.csv``: the policy spec and, for a seed
+group, the run that these weights are): per task, the normalised score and the same rates, over its test scenes.
 """
 
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 import subprocess
 import sys
@@ -22,11 +29,12 @@ from pathlib import Path
 import numpy as np
 
 import covert_env
+from training.benchmark import CONSTRAINTS
 from training.evaluate import HELD_OUT_OFFSET, evaluate, summarise
 from training.pretrained import PRETRAINED_DIR, load_learned
 from training.stats import iqm, stratified_bootstrap_ci
 
-__all__ = ["export", "main", "rescore"]
+__all__ = ["export", "main", "rescore", "suite_rows"]
 
 
 def _commit() -> str:
@@ -41,7 +49,7 @@ def _commit() -> str:
 
 
 def export(run: Path, name: str, episodes: int = 20, out_dir: Path = PRETRAINED_DIR, progress: bool = True,
-           training_commit: str = "", note: str = "") -> Path:
+           training_commit: str = "", note: str = "", suite: dict | None = None) -> Path:
     """Write ``out_dir/NAME.npz`` and ``out_dir/NAME.json`` from a :mod:`training.mappo` run folder; returns the
     card's path."""
     run = Path(run)
@@ -62,8 +70,39 @@ def export(run: Path, name: str, episodes: int = 20, out_dir: Path = PRETRAINED_
     card_path = npz.with_suffix(".json")
     card_path.write_text(json.dumps(card, indent=2))          # the loader needs it to score the weights
     card["scores"] = _scores(npz, name, episodes, progress)
+    card["constraints"] = _constraints(card["scores"])
+    if suite is not None:
+        card["suite"] = suite
     card_path.write_text(json.dumps(card, indent=2))
     return card_path
+
+
+def _constraints(scores: dict) -> dict:
+    """Each constraint's rate (mean over the scored scenes) from the card's scores, named for a reader."""
+    m = {k: v[0] for k, v in scores["metrics_mean_std"].items()}
+    return {"zone_violation_rate": m["zone_violation_rate"], "blocked_los_rate_slot_times": m["occlusion_rate"],
+            "blocked_los_rate_along_path": m["occlusion_rate_path"], "blocked_path_share": m["blocked_path_share"],
+            "separation_violation_slots_per_uav": m["separation_violations"],
+            "min_separation_m": m["min_separation"], "terrain_violation_slots_per_uav": m["terrain_violations"]}
+
+
+def suite_rows(cells: Path, policy: str, run: int | None = None) -> dict:
+    """The card's ``suite``: the rows of ``policy`` (its ``run`` of a seed group, or all) in a suite's
+    ``cells.csv``, per task: scenes, the mean normalised score and reward, each constraint's mean rate, and the
+    smallest separation of any scene.
+    A ValueError names the file when it has no such rows."""
+    with open(cells, newline="") as f:
+        rows = [r for r in csv.DictReader(f) if r["policy"] == policy and (run is None or int(r["run"]) == run)]
+    if not rows:
+        raise ValueError(f"{cells}: no rows of policy {policy!r}" + ("" if run is None else f" run {run}"))
+    tasks: dict[str, dict] = {}
+    for t in dict.fromkeys(r["task"] for r in rows):
+        mine = [r for r in rows if r["task"] == t]
+        tasks[t] = {"scenes": [int(r["scene_seed"]) for r in mine], "mask_mode": mine[0].get("mask_mode"),
+                    **{k: float(np.mean([float(r[k]) for r in mine]))
+                       for k in ("score", "reward", *(c for c, _ in CONSTRAINTS))},
+                    "min_separation": float(min(float(r["min_separation"]) for r in mine))}
+    return {"cells": str(cells), "policy": policy, "run": run, "tasks": tasks}
 
 
 def rescore(name: str, episodes: int | None = None, out_dir: Path = PRETRAINED_DIR, progress: bool = True) -> Path:
@@ -81,6 +120,7 @@ def rescore(name: str, episodes: int | None = None, out_dir: Path = PRETRAINED_D
         raise ValueError(f"{card_path}: no scores.scenes [first, last] to score again (not a card this module "
                          "wrote)") from None
     card["scores"] = _scores(npz, name, episodes or last - first + 1, progress)
+    card["constraints"] = _constraints(card["scores"])
     card.update(env_id=CovertSensingVectorEnv.metadata["name"], covert_env_version=covert_env.__version__,
                 commit=_commit())
     card_path.write_text(json.dumps(card, indent=2))
@@ -112,6 +152,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out-dir", default=str(PRETRAINED_DIR), help="where to write NAME.npz and NAME.json")
     p.add_argument("--training-commit", default="", help="the commit of the code that trained the run")
     p.add_argument("--note", default="", help="what a user should know (e.g. the constraints it violates)")
+    p.add_argument("--suite", metavar="CELLS_CSV", help="a suite's cells.csv (covert-env benchmark) holding rows of "
+                   "these weights: their per-task scores and constraint rates go into the card")
+    p.add_argument("--suite-policy", metavar="SPEC", help="the weights' policy spec in --suite (e.g. "
+                   "mappo:runs/a,runs/b)")
+    p.add_argument("--suite-run", type=int, default=None, help="which run of a seed group the weights are (>= 0)")
     a = p.parse_args(argv)
     if a.episodes is not None and a.episodes < 1:
         p.error(f"--episodes {a.episodes}: must be >= 1")
@@ -135,8 +180,18 @@ def main(argv: list[str] | None = None) -> int:
             p.error("give a training.mappo run folder, or --rescore NAME")
         if not (Path(a.run) / "model.npz").is_file():
             p.error(f"{a.run}: no model.npz (not a finished training.mappo run)")
+        suite = None
+        if a.suite is not None:
+            if not a.suite_policy:
+                p.error("--suite needs --suite-policy (the weights' spec in that cells.csv)")
+            if a.suite_run is not None and a.suite_run < 0:
+                p.error(f"--suite-run {a.suite_run}: must be >= 0")
+            try:
+                suite = suite_rows(Path(a.suite), a.suite_policy, a.suite_run)
+            except (OSError, KeyError, ValueError) as exc:
+                p.error(f"--suite {a.suite}: {exc}")
         card = export(Path(a.run), a.name, a.episodes or 20, Path(a.out_dir), training_commit=a.training_commit,
-                      note=a.note)
+                      note=a.note, suite=suite)
     s = json.loads(card.read_text())["scores"]
     wrote = card if a.rescore else f"{card} and {card.with_suffix('.npz')}"
     print(f"wrote {wrote}: reward {s['reward_mean']:.1f} ± {s['reward_std']:.1f}, IQM {s['reward_iqm']:.1f} "
