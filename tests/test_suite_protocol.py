@@ -103,3 +103,26 @@ def test_ray_and_local_runs_give_the_same_rows():
     for r in (*local, *remote):
         r.pop("decision_time_ms")
     assert remote == local and len(local) == 4
+
+
+def test_task_table_per_task_intervals_and_improvement_over_the_best_planner():
+    """benchmarks/task_table.py: per task, the best planner is the dp* policy with the highest mean score, and a
+    policy that beats it on every scene has P(> best planner) = 1 and an IQM above it."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parent.parent / "benchmarks" / "task_table.py"
+    spec = importlib.util.spec_from_file_location("task_table", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    rows = []
+    for scene in range(4):
+        for policy, score in (("dp", 0.9 + 0.01 * scene), ("dp-binned", 1.0), ("mappo:x", 1.1 + 0.01 * scene)):
+            rows.append({"task": "t", "policy": policy, "score": score, "zone_violation_rate": 0.01 * scene,
+                         "occlusion_rate": 0, "occlusion_rate_path": 0, "blocked_path_share": 0,
+                         "separation_violations": 0, "min_separation": 5 + scene})
+    text = mod.task_tables(rows, ["dp", "dp-binned", "mappo:x"])
+    assert "(best planner: dp-binned)" in text
+    line = next(x for x in text.splitlines() if x.startswith("| mappo:x"))
+    assert line.endswith("| 5.0 | 1.00 |") and "| 0.015 |" in line          # zone mean, min sep., P(> best)
+    assert next(x for x in text.splitlines() if x.startswith("| dp |")).endswith("| 0.00 |")
