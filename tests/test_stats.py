@@ -101,3 +101,27 @@ def test_learning_curve_band_and_figure(tmp_path):
             f'"cost_separation": {c}}}\n' for i, c in enumerate((2.0, 0.3))))
     assert main([str(tmp_path / "s0"), str(tmp_path / "s1"), "--out", str(tmp_path / "c2.png")]) == 0
     assert matplotlib.image.imread(tmp_path / "c2.png").shape[0] > 1.5 * one_row
+
+
+def test_learning_curves_draw_a_row_per_constrained_cost(tmp_path):
+    """A run trained with --constraints gets one row per constrained cost, its limit per episode from args.json."""
+    import json
+
+    import matplotlib.image
+
+    from training.curves import constraint_levels, main
+
+    run = tmp_path / "r"
+    run.mkdir()
+    (run / "curve.jsonl").write_text("".join(
+        f'{{"env_steps": {1024 * (i + 1)}, "wall_seconds": {10.0 * (i + 1)}, "reward": 1.0, "cost_los": 2.0, '
+        f'"cost_zone": 1.0, "cost_separation": 0.1}}\n' for i in range(3)))
+    (run / "args.json").write_text(json.dumps({"constraints": "zone=0.01, los=0.005", "lagrangian": True,
+                                               "cost_limit": 0.007, "max_cycles": 70}))
+    assert constraint_levels(run) == pytest.approx({"cost_los": 0.35, "cost_zone": 0.7, "cost_separation": 0.49})
+    assert main([str(run), "--out", str(tmp_path / "c.png")]) == 0
+    (run / "args.json").write_text(json.dumps({"constraints": "", "max_cycles": 70}))
+    assert constraint_levels(run) == {}
+    assert main([str(run), "--out", str(tmp_path / "c2.png")]) == 0                # reward + separation rows
+    assert matplotlib.image.imread(tmp_path / "c.png").shape[0] > 1.7 * matplotlib.image.imread(
+        tmp_path / "c2.png").shape[0]

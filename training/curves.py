@@ -2,6 +2,8 @@
 
 A second row draws the separation constraint the same way: slots per UAV and episode closer than d_safe1
 (``cost_separation``, eq. 2), with the target level (``--separation-target``, default 0.5) as a dashed line.
+Runs trained with ``--constraints`` get one row per constrained cost instead (per UAV and episode), each with its
+limit (the run's per-slot limit times the episode's slots) as the dashed line.
 
     python -m training.curves runs/<seed0> runs/<seed1> runs/<seed2> --dp 240.4 --out outputs/curves.png
 
@@ -24,13 +26,35 @@ import numpy as np
 __all__ = ["load_curve", "band", "main"]
 
 
+COSTS = ("cost_los", "cost_los_path", "cost_zone", "cost_separation", "cost_terrain")
+LABELS = {"cost_los": "blocked LoS at slot ends", "cost_los_path": "blocked share of the path",
+          "cost_zone": "zone violations", "cost_separation": "separation violations",
+          "cost_terrain": "terrain violations"}
+
+
 def load_curve(run: Path) -> dict[str, np.ndarray]:
-    """``env_steps``, ``wall_seconds``, ``reward`` and ``cost_separation`` arrays of a run's ``curve.jsonl``."""
+    """``env_steps``, ``wall_seconds``, ``reward`` and the ``cost_*`` arrays of a run's ``curve.jsonl``."""
     rows = [json.loads(line) for line in (Path(run) / "curve.jsonl").read_text().splitlines() if line.strip()]
     if not rows:
         raise ValueError(f"{run}/curve.jsonl has no rows")
     return {k: np.array([r.get(k, np.nan) for r in rows], float)
-            for k in ("env_steps", "wall_seconds", "reward", "cost_separation")}
+            for k in ("env_steps", "wall_seconds", "reward", *COSTS)}
+
+
+def constraint_levels(run: Path) -> dict[str, float]:
+    """``{cost key: limit per UAV and episode}`` of a run's ``--constraints`` (``args.json``; empty without)."""
+    path = Path(run) / "args.json"
+    if not path.is_file():
+        return {}
+    args = json.loads(path.read_text())
+    slots = float(args.get("max_cycles", 70))
+    limits = {}
+    for item in filter(None, (x.strip() for x in str(args.get("constraints", "")).split(","))):
+        name, _, value = item.partition("=")
+        limits[f"cost_{name.strip()}"] = float(value) * slots
+    if args.get("lagrangian"):
+        limits["cost_separation"] = float(args.get("cost_limit", 0.007)) * slots
+    return {k: limits[k] for k in COSTS if k in limits}
 
 
 def band(xs: list[np.ndarray], ys: list[np.ndarray], points: int = 200, reps: int = 1000,
@@ -63,7 +87,12 @@ def main(argv: list[str] | None = None) -> int:
 
     curves = [load_curve(Path(r)) for r in a.runs]
     metrics = [("reward", "training episode reward\n(mean over UAVs)", a.dp, "DP planner (held-out scenes)")]
-    if all(np.isfinite(c["cost_separation"]).all() for c in curves):
+    limits = constraint_levels(Path(a.runs[0]))
+    if set(limits) - {"cost_separation"}:              # --constraints: a row per constrained cost
+        for key, level in limits.items():
+            if all(np.isfinite(c[key]).all() for c in curves):
+                metrics.append((key, f"{LABELS[key]}\n(per UAV and episode)", level, f"limit ({level:.3g})"))
+    elif all(np.isfinite(c["cost_separation"]).all() for c in curves):
         metrics.append(("cost_separation", "separation violations\n(slots per UAV and episode)",
                         a.separation_target, f"target ({a.separation_target:g})"))
     fig, axes = plt.subplots(len(metrics), 2, figsize=(11, 3.6 * len(metrics)), sharey="row", squeeze=False)
