@@ -33,10 +33,12 @@ def task_tables(rows: list[dict], policies: list[str]) -> str:
     out = []
     for task in dict.fromkeys(r["task"] for r in rows):
         mine = [r for r in rows if r["task"] == task]
-        scores = {p: np.array([float(r["score"]) for r in mine if r["policy"] == p]) for p in policies}
-        scores = {p: s for p, s in scores.items() if len(s)}
-        planners = [p for p in scores if p.startswith("dp")]
+        everyone = list(dict.fromkeys(r["policy"] for r in mine))
+        scores = {p: np.array([float(r["score"]) for r in mine if r["policy"] == p]) for p in everyone}
+        planners = [p for p in everyone if p.startswith("dp")]           # of the whole run, shown or not
         best = max(planners, key=lambda p: scores[p].mean()) if planners else None
+        best_scores = scores.get(best)
+        scores = {p: scores[p] for p in policies if p in scores}
         out += [f"### {task} (best planner: {best})", "",
                 "| policy | score IQM [95 % CI] | " + " | ".join(h for _, h in RATES)
                 + " | min sep. (m) | P(> best planner) |", "|---" * (len(RATES) + 4) + "|"]
@@ -45,7 +47,7 @@ def task_tables(rows: list[dict], policies: list[str]) -> str:
             rates = [np.mean([float(r[k]) for r in mine if r["policy"] == p]) for k, _ in RATES]
             sep = min(float(r["min_separation"]) for r in mine if r["policy"] == p)
             poi = ("-" if best is None or p == best
-                   else f"{probability_of_improvement(s[:, None], scores[best][:, None]):.2f}")
+                   else f"{probability_of_improvement(s[:, None], best_scores[:, None]):.2f}")
             out.append(f"| {p} | {point:.3f} [{lo:.3f}, {hi:.3f}] | " + " | ".join(f"{v:.3f}" for v in rates)
                        + f" | {sep:.1f} | {poi} |")
         out.append("")

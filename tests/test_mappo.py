@@ -271,8 +271,8 @@ def test_numpy_actor_with_the_map_features_equals_torch_actor():
 
 def test_task_mix_and_map_features_run_and_card(tmp_path, train_extra):
     """--tasks trains on several tasks' scenes at once (a nominal and a deviating one: two lattices) and --node-map
-    adds the map features; the card records both and the loaded policy plays either task; bad values are errors
-    that name them."""
+    adds the map features; the card records both and the loaded policy acts with them; bad values are errors that
+    name them."""
     run = mappo.main([*TINY, "--tasks", "downtown-3uav,paper-3uav-deviating", "--node-map", "--map-size", "6",
                       "--mask-mode", "kinematic", "--total-timesteps", "16", "--runs-dir", str(tmp_path),
                       "--run-name", "t"])
@@ -292,6 +292,9 @@ def test_task_mix_and_map_features_run_and_card(tmp_path, train_extra):
                          (dict(tasks="paper-1uav"), r"paper-1uav has 1 UAVs, --n-uavs is 3"),
                          (dict(tasks="paper-3uav,paper-3uav"), r"named twice"),
                          (dict(tasks="paper-3uav,dense-3uav,towers-3uav", num_envs=16), r"multiple of the 3"),
-                         (dict(node_map=True, head="flat"), r"--node-map needs --head node")):
+                         (dict(node_map=True, head="flat"), r"--node-map needs --action-mode waypoint and --head "
+                                                            r"node, got --action-mode 'waypoint' --head 'flat'"),
+                         (dict(node_map=True, action_mode="unicycle"), r"got --action-mode 'unicycle'"),
+                         (dict(tasks="paper-3uav", scene_pool=50), r"--scene-pool 50 does not go with --tasks")):
         with pytest.raises(ValueError, match=pattern):
             mappo.check_args(mappo.Args(**bad))

@@ -242,3 +242,9 @@ def test_card_states_the_constraint_rates_and_the_suite_rows(tmp_path, capsys):
     with pytest.raises(SystemExit):
         export_main([str(run), "--out-dir", str(tmp_path / "shipped"), "--suite", str(cells)])
     assert "--suite needs --suite-policy" in capsys.readouterr().err
+    assert card["env_id"] == "covert_sensing_vector_v3" and card["train_tasks"] is None
+    for argv, message in (([str(run), "--suite-policy", "mappo:x"], "--suite-policy and --suite-run need --suite"),
+                          (["--rescore", "tiny", "--suite", str(cells)], "--suite does not go with --rescore")):
+        with pytest.raises(SystemExit):
+            export_main([*argv, "--out-dir", str(tmp_path / "shipped")])
+        assert message in capsys.readouterr().err

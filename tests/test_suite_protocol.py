@@ -126,3 +126,5 @@ def test_task_table_per_task_intervals_and_improvement_over_the_best_planner():
     line = next(x for x in text.splitlines() if x.startswith("| mappo:x"))
     assert line.endswith("| 5.0 | 1.00 |") and "| 0.015 |" in line          # zone mean, min sep., P(> best)
     assert next(x for x in text.splitlines() if x.startswith("| dp |")).endswith("| 0.00 |")
+    # The best planner is the run's, shown or not.
+    assert "(best planner: dp-binned)" in mod.task_tables(rows, ["dp", "mappo:x"])

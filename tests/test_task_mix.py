@@ -115,8 +115,16 @@ def test_mix_of_two_lattices_maps_the_nodes():
     np.testing.assert_array_equal(mix.step(act)[1][1], dev.step(own)[1][0])
     bad = act.copy()
     bad[1, 0] = np.setdiff1d(np.arange(577), at)[0]
-    with pytest.raises(ValueError, match="a node the copy's task does not have"):
+    with pytest.raises(ValueError, match=rf"task 'paper-3uav-deviating' has no node {bad[1, 0]} \(copy 0 of the "
+                                         r"task, UAV 0\)"):
         mix.step(bad)
+    for wrong, pattern in ((act.astype(float), r"integer indices of shape \(2, 3\), got float64"),
+                           (act[:1], r"shape \(2, 3\), got int64 \(1, 3\)"),
+                           (act + 577, r"node indices must be in \[0, 576\]")):
+        with pytest.raises(ValueError, match=pattern):
+            mix.step(wrong)
+    with pytest.raises(ValueError, match=r"TaskMix.waypoint_paths\(\): node indices must be in \[-1, 576\]"):
+        mix.waypoint_paths(np.full((2, 3, 1), -2))
 
 
 def test_mix_errors_name_the_problem():
@@ -128,4 +136,6 @@ def test_mix_errors_name_the_problem():
         TaskMix(["paper-3uav", "dense-3uav"], 2, n_uavs=3)
     with pytest.raises(ValueError, match="'paper-6uav' differs from 'paper-3uav' in its team size"):
         TaskMix(["paper-3uav", "paper-6uav"], 2)
+    with pytest.raises(ValueError, match="dict_obs=True is not supported"):
+        TaskMix(["paper-3uav", "dense-3uav"], 2, dict_obs=True)
     assert isinstance(make_training_env(["paper-3uav"], 2), covert_env.envs.vector.CovertSensingVectorEnv)

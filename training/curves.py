@@ -23,10 +23,12 @@ from pathlib import Path
 
 import numpy as np
 
+from covert_env.envs.batch import COSTS as ENV_COSTS
+
 __all__ = ["load_curve", "band", "main"]
 
 
-COSTS = ("cost_los", "cost_los_path", "cost_zone", "cost_separation", "cost_terrain")
+COSTS = tuple(f"cost_{name}" for name in ENV_COSTS)
 LABELS = {"cost_los": "blocked LoS at slot ends", "cost_los_path": "blocked share of the path",
           "cost_zone": "zone violations", "cost_separation": "separation violations",
           "cost_terrain": "terrain violations"}

@@ -95,8 +95,9 @@ class Args:
     """side S of the observation's two S x S visibility maps (the env's map_size, 2..64)"""
     tasks: str = ""
     """train on these suite tasks' training scenes at once (comma-separated, e.g. 'sparse-3uav,paper-3uav'; each
-    gets num_envs / its count copies; they must share one lattice: not nominal and deviating together); empty:
-    random scenes of the paper family (scene_pool)"""
+    gets num_envs / its count copies; training.task_mix: the mix acts on the largest lattice, which must hold every
+    other task's nodes, as a nominal lattice holds its deviating task's); empty: random scenes of the paper family
+    (scene_pool)"""
     max_cycles: int = 70
     """episode length in slots (70 = the whole route)"""
     scene_pool: int = 10_000
@@ -183,8 +184,12 @@ def check_args(args: Args) -> None:
     if tasks and args.num_envs % len(tasks):
         raise ValueError(f"--num-envs {args.num_envs}: must be a multiple of the {len(tasks)} --tasks (each task gets "
                          "as many copies)")
-    if args.node_map and args.head != "node":
-        raise ValueError(f"--node-map needs --head node, got --head {args.head!r}")
+    if args.node_map and (args.head != "node" or args.action_mode != "waypoint"):
+        raise ValueError(f"--node-map needs --action-mode waypoint and --head node, got --action-mode "
+                         f"{args.action_mode!r} --head {args.head!r}")
+    if tasks and args.scene_pool != Args.scene_pool:
+        raise ValueError(f"--scene-pool {args.scene_pool} does not go with --tasks: each task draws its own "
+                         "training scenes")
     rows = args.num_envs * args.num_steps * args.n_uavs
     if rows < 2 * args.num_minibatches:
         # A minibatch of one row has no advantage spread to normalise by: its update would be NaN.

@@ -57,6 +57,8 @@ class TaskMix:
         for key in ("task", "n_uavs", "scene_pool"):
             if key in kwargs:
                 raise ValueError(f"TaskMix: {key} is set by each task, not passed ({key}={kwargs[key]!r})")
+        if kwargs.get("dict_obs"):
+            raise ValueError("TaskMix: dict_obs=True is not supported (the mix joins flat observation arrays)")
         if num_envs % len(tasks):
             raise ValueError(f"num_envs {num_envs} must be a multiple of the {len(tasks)} tasks (each gets as many "
                              "copies)")
@@ -71,10 +73,15 @@ class TaskMix:
                                ("action mode", e.action_mode, first.action_mode),
                                ("flight (V_max, W_max, delta, path samples)",
                                 (e.config.v_max, e.config.w_max, e.config.delta, e.path_samples),
-                                (first.config.v_max, first.config.w_max, first.config.delta, first.path_samples))):
+                                (first.config.v_max, first.config.w_max, first.config.delta, first.path_samples)),
+                               # What the trainer reads from the mix's config and maps (node features, episodes).
+                               ("R2, d_safe1 and slots", (e.config.r2, e.config.d_safe1, e.config.n_slots),
+                                (first.config.r2, first.config.d_safe1, first.config.n_slots)),
+                               ("map cells", e.map_offsets.tobytes(), first.map_offsets.tobytes())):
                 if a != b:
-                    raise ValueError(f"task {t!r} differs from {tasks[0]!r} in its {what} ({a} against {b}): a "
-                                     "task mix needs one team size, observation and action mode")
+                    shown = "they differ" if isinstance(a, bytes) else f"{a} against {b}"
+                    raise ValueError(f"task {t!r} differs from {tasks[0]!r} in its {what} ({shown}): a task mix "
+                                     "needs one team size, observation, action mode and flight")
         self.num_envs = num_envs
         self.config, self.map_offsets = first.config, first.map_offsets
         self.path_samples = first.path_samples
@@ -100,7 +107,7 @@ class TaskMix:
         self.possible_agents = first.possible_agents
         self.single_observation_space, self.single_state_space = (first.single_observation_space,
                                                                   first.single_state_space)
-        self.metadata = dict(first.metadata, name=f"{first.metadata['name']}[{'+'.join(tasks)}]")
+        self.metadata = dict(first.metadata)            # the env's id: the tasks are in ``tasks`` (and the card)
 
     @property
     def episode_length(self) -> int:
@@ -114,12 +121,31 @@ class TaskMix:
         out = [e.reset(seed=None if seed is None else seed + i) for i, e in enumerate(self.envs)]
         return np.concatenate([o for o, _ in out]), _concat_infos([i for _, i in out], [o for o, _ in out], [])
 
+    def _nodes(self, what: str, nodes, extra: int) -> np.ndarray:
+        """Node indices ``(B, U, ...)`` of the mix's lattice checked: shape, integer type, range (-1 allowed in
+        ``waypoint_paths``: no node); a ValueError names ``what``."""
+        nodes = np.asarray(nodes)
+        b, u = self.num_envs, len(self.possible_agents)
+        lo = -1 if extra else 0
+        if nodes.ndim != 2 + extra or nodes.shape[:2] != (b, u) or not np.issubdtype(nodes.dtype, np.integer):
+            raise ValueError(f"TaskMix.{what}: nodes must be integer indices of shape ({b}, {u}"
+                             + (", M)" if extra else ")") + f", got {nodes.dtype} {nodes.shape}")
+        if nodes.size and (nodes.min() < lo or nodes.max() >= len(self.lattice)):
+            raise ValueError(f"TaskMix.{what}: node indices must be in [{lo}, {len(self.lattice) - 1}], got "
+                             f"[{nodes.min()}, {nodes.max()}]")
+        return nodes
+
     def step(self, actions):
+        if self.waypoint:
+            actions = self._nodes("step()", actions, 0)
         parts = self._split(actions)
         if self.waypoint:
             parts = [inv[a] for inv, a in zip(self._from_mix, parts, strict=True)]
-            if any((a < 0).any() for a in parts):
-                raise ValueError("TaskMix.step: a node the copy's task does not have (its mask never allows one)")
+            for t, a, n in zip(self.tasks, parts, self._split(actions), strict=True):
+                if (a < 0).any():
+                    c, i = np.argwhere(a < 0)[0]
+                    raise ValueError(f"TaskMix.step(): task {t!r} has no node {n[c, i]} (copy {c} of the task, UAV "
+                                     f"{i}); its masks never allow one")
         results = [e.step(a) for e, a in zip(self.envs, parts, strict=True)]
         obs, rew, term, trunc = (np.concatenate([r[j] for r in results]) for j in range(4))
         infos = _concat_infos([r[4] for r in results], [r[0] for r in results],
@@ -145,6 +171,7 @@ class TaskMix:
         """The tasks' ``waypoint_paths`` for nodes ``(B, U, M)`` of the mix's lattice (-1: none): each task places
         its nodes (``waypoint_goals``), and every copy's paths are flown in one batch (the tasks fly alike: the same
         V_max, W_max, delta and sample times, checked at construction)."""
+        nodes = self._nodes("waypoint_paths()", nodes, 1)
         goals = np.concatenate([e.waypoint_goals(np.where(n >= 0, inv[np.maximum(n, 0)], -1))
                                 for e, inv, n in zip(self.envs, self._from_mix, self._split(nodes), strict=True)])
         return fly_to_goals(self.uav_xy, self.uav_theta, goals, self.config, self._times)

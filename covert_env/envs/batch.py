@@ -26,6 +26,7 @@ REWARD_TERMS = ("path", "disguise", "los", "los_path", "zone", "separation", "te
 COSTS = ("los", "los_path", "zone", "separation", "terrain")
 
 __all__ = ["COSTS", "MIN_SPEED_FRACTION", "OFFSET_CLIP", "REWARD_TERMS", "action_masks", "constraint_costs",
+           "fly_to_goals",
            "fly_waypoints", "own_features", "reward_terms", "to_world_batch",
            "unicycle_actions", "unicycle_controls", "waypoint_actions"]
 

@@ -454,26 +454,33 @@ class CovertSensingVectorEnv:
 
         A read-only query (the state does not change), for policies that plan with the model: the separation
         shield of ``training.shield`` tests these paths against eq. 2. Waypoint mode, after ``reset()``."""
-        goals = self.waypoint_goals(nodes)
-        if goals.shape[2] > len(self.lattice):
+        nodes = self._checked_nodes("waypoint_paths()", nodes)
+        if nodes.shape[2] > len(self.lattice):
             raise ValueError(f"waypoint_paths(): at most {len(self.lattice)} nodes per UAV (the lattice's), got "
-                             f"M = {goals.shape[2]}")
-        return batch.fly_to_goals(self._xy, self._theta, goals, self.config, self._times)
+                             f"M = {nodes.shape[2]}")
+        return batch.fly_to_goals(self._xy, self._theta, self._goals(nodes), self.config, self._times)
 
     def waypoint_goals(self, nodes) -> np.ndarray:
         """Where lattice ``nodes`` ``(B, U, M)`` lie at slot k+1: ``(B, U, M, 2)`` (world frame, m), the waypoints
         those actions fly to; NaN where the index is -1 (no node). Read-only; waypoint mode, after ``reset()``."""
+        return self._goals(self._checked_nodes("waypoint_goals()", nodes))
+
+    def _checked_nodes(self, what: str, nodes) -> np.ndarray:
+        """Node indices ``(B, U, M)`` (-1: none) checked for ``what``: waypoint mode, running, shape, type, range."""
         if self.action_mode != "waypoint":
-            raise RuntimeError("waypoint_paths() and waypoint_goals() are for action_mode='waypoint'")
-        self.require_running("waypoint_paths()")
+            raise RuntimeError(f"{what} is for action_mode='waypoint'")
+        self.require_running(what)
         nodes = np.asarray(nodes)
         b, u = self.num_envs, len(self.possible_agents)
         if nodes.ndim != 3 or nodes.shape[:2] != (b, u) or not np.issubdtype(nodes.dtype, np.integer):
-            raise ValueError(f"waypoint_paths(): nodes must be integer indices of shape ({b}, {u}, M), got "
+            raise ValueError(f"{what}: nodes must be integer indices of shape ({b}, {u}, M), got "
                              f"{nodes.dtype} {nodes.shape}")
         if nodes.size and (nodes.min() < -1 or nodes.max() >= len(self.lattice)):
-            raise ValueError(f"waypoint_paths(): node indices must be in [0, {len(self.lattice) - 1}] (or -1 for "
+            raise ValueError(f"{what}: node indices must be in [0, {len(self.lattice) - 1}] (or -1 for "
                              f"none), got [{nodes.min()}, {nodes.max()}]")
+        return nodes
+
+    def _goals(self, nodes: np.ndarray) -> np.ndarray:
         pool, rows, k = self._pool, self._rows, self._k
         ci, ui, mi = np.nonzero(nodes >= 0)                       # only the real (copy, UAV, node) triples
         out = np.full((*nodes.shape, 2), np.nan)

@@ -66,7 +66,8 @@ def node_features(obs: np.ndarray, lattice: np.ndarray, n_uavs: int, *, r2: floa
     * per teammate j, ``min(|p_l - o_j| R2 / (2 d_safe1), 3)``: how close the node is to where j is now (eq. 2);
     * with ``map_offsets`` (the env's map cell centres, ``(S * S, 2)`` m, row-major with +y on top): the observation's
       ``map_next`` (1 where the cell is in the eroded zone with clear LoS at slot k+1) read at the node and at the
-      midpoint of the move, each at the nearest cell (0 outside the map). The shadows are in the observation's
+      midpoint of the move (with ``o`` moved as above: off by the target's turn in the slot, up to about 6 m on
+      the winding family), each at the nearest cell (0 outside the map). The shadows are in the observation's
       maps; these two inputs put them under the node the head scores, so that a team whose mask allows shadowed
       nodes (``mask_mode="kinematic"``) can learn to avoid them (docs/decisions.md, "Action mask modes").
     """
@@ -219,10 +220,10 @@ def load_learned(path: str | Path) -> LearnedPolicy:
         if not isinstance(spec, dict) or spec.get("head") not in ("node", "flat", "gaussian") \
                 or not isinstance(ekw, dict) or ekw.get("action_mode") not in ("unicycle", "waypoint"):
             raise KeyError("actor.head / env_kwargs.action_mode")
-        if not isinstance(spec.get("node_map", False), bool):
-            raise KeyError(f"actor.node_map must be true or false, got {spec['node_map']!r}")
     except (KeyError, TypeError) as exc:
         raise ValueError(f"{card_path}: not a model card of training.mappo ({exc})") from None
+    if not isinstance(spec.get("node_map", False), bool):
+        raise ValueError(f"{card_path}: actor.node_map must be true or false, got {spec['node_map']!r}")
     for key, lo in (("separation_shield", 0.0), ("shield_end_margin", 0.0)):
         v = card.get(key)
         if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v)

@@ -61,8 +61,12 @@ def export(run: Path, name: str, episodes: int = 20, out_dir: Path = PRETRAINED_
     out_dir.mkdir(parents=True, exist_ok=True)
     npz = out_dir / f"{name}.npz"
     np.savez_compressed(npz, **weights)
+    from covert_env.envs.vector import CovertSensingVectorEnv
+
+    # env_id: the env the scores below are measured on (the env it was trained on is the recipe's env_id).
     card = {"name": name, "algorithm": meta["algorithm"], "actor": meta["actor"], "env_kwargs": meta["env_kwargs"],
-            "env_id": meta["env_id"], "separation_shield": meta.get("separation_shield"),
+            "train_tasks": meta.get("train_tasks"), "env_id": CovertSensingVectorEnv.metadata["name"],
+            "separation_shield": meta.get("separation_shield"),
             "shield_end_margin": meta.get("shield_end_margin"),
             "covert_env_version": covert_env.__version__, "commit": _commit(),
             "recipe": {k: v for k, v in args.items() if k not in ("card", "resume", "runs_dir")},
@@ -107,8 +111,9 @@ def suite_rows(cells: Path, policy: str, run: int | None = None) -> dict:
 
 def rescore(name: str, episodes: int | None = None, out_dir: Path = PRETRAINED_DIR, progress: bool = True) -> Path:
     """Score shipped weights again on the current env version (same held-out scenes; ``episodes`` defaults to the
-    card's count) and rewrite the card's ``scores``, ``env_id``, ``covert_env_version`` and ``commit``; the env id
-    the weights were trained on stays in ``recipe``. Returns the card's path."""
+    card's count) and rewrite the card's ``scores``, ``constraints``, ``env_id``, ``covert_env_version`` and
+    ``commit`` (a ``suite`` block, measured on an older version, is dropped); the env id the weights were trained
+    on stays in ``recipe``. Returns the card's path."""
     from covert_env.envs.vector import CovertSensingVectorEnv
 
     npz = Path(out_dir) / f"{name}.npz"
@@ -121,6 +126,7 @@ def rescore(name: str, episodes: int | None = None, out_dir: Path = PRETRAINED_D
                          "wrote)") from None
     card["scores"] = _scores(npz, name, episodes or last - first + 1, progress)
     card["constraints"] = _constraints(card["scores"])
+    card.pop("suite", None)
     card.update(env_id=CovertSensingVectorEnv.metadata["name"], covert_env_version=covert_env.__version__,
                 commit=_commit())
     card_path.write_text(json.dumps(card, indent=2))
@@ -164,10 +170,12 @@ def main(argv: list[str] | None = None) -> int:
         if a.run is not None:
             p.error("give a run folder or --rescore NAME, not both")
         for flag, value in (("--name", a.name != "mappo"), ("--note", a.note), ("--training-commit",
-                                                                               a.training_commit)):
+                                                                               a.training_commit),
+                            ("--suite", a.suite), ("--suite-policy", a.suite_policy),
+                            ("--suite-run", a.suite_run is not None)):
             if value:
-                p.error(f"{flag} does not go with --rescore (it rewrites only the card's scores, env id, version "
-                        "and commit)")
+                p.error(f"{flag} does not go with --rescore (it rewrites only the card's scores, constraints, env "
+                        "id, version and commit)")
         stem = Path(a.out_dir) / a.rescore
         if not stem.with_suffix(".json").is_file() or not stem.with_suffix(".npz").is_file():
             p.error(f"--rescore {a.rescore}: no {a.rescore}.npz with its card in {a.out_dir}")
@@ -181,6 +189,8 @@ def main(argv: list[str] | None = None) -> int:
         if not (Path(a.run) / "model.npz").is_file():
             p.error(f"{a.run}: no model.npz (not a finished training.mappo run)")
         suite = None
+        if a.suite is None and (a.suite_policy or a.suite_run is not None):
+            p.error("--suite-policy and --suite-run need --suite (a suite's cells.csv)")
         if a.suite is not None:
             if not a.suite_policy:
                 p.error("--suite needs --suite-policy (the weights' spec in that cells.csv)")
