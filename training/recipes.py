@@ -69,7 +69,7 @@ RECIPES: dict[str, dict] = {
 #: ``3uav-suite``: the team of the task suite. It trains on the training scenes of the suite's eight 3-UAV core
 #: tasks at once (two copies each, training.task_mix), with the kinematic mask (every reachable node: the team
 #: must learn the shadows), the node head reading the 16 x 16 visibility map under each node (without it the
-#: LoS cost did not fall in a 12-minute pilot; with it, it fell by two thirds), a Lagrange multiplier per
+#: LoS cost did not fall in a 5-minute pilot; with it, it fell by two thirds), a Lagrange multiplier per
 #: constraint (LoS at slot times, LoS along the path, the zone, separation) with a dual step of 2, and the
 #: shield; 55 minutes of wall clock (three seeds at once on 2 cores). Limits the team cannot reach make their
 #: multipliers grow without end: with 0.005 / 0.02 / 0.003 and a dual step of 5 the multipliers passed 16 in
