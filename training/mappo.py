@@ -17,6 +17,11 @@ checkpoints; ``train``, which runs them in that order. Nothing here is pickled: 
   ``--head flat`` is one logit per node). Unicycle mode: a Gaussian with a state-independent std; actions are
   **clipped** to [-1, 1] by the env (no tanh squashing; the log-probability is that of the unclipped sample,
   as in CleanRL's continuous PPO).
+* **Map under each node** (``--node-map``): the node head also reads the observation's ``map_next`` under each
+  node and the move's midpoint, so that a team acting with ``--mask-mode kinematic`` sees the shadows where it
+  scores the nodes (docs/decisions.md, "Learned teams across the suite").
+* **Tasks** (``--tasks a,b,...``): the copies are split evenly over suite tasks and draw from each task's training
+  scenes (:mod:`training.task_mix`); without it, random scenes of the paper family.
 * **Separation shield** (waypoint mode, ``--separation-shield``, on by default): the UAVs of a copy choose one
   after another, and a UAV may not choose a node whose path comes closer than d_safe1 to a teammate's chosen
   path (:mod:`training.shield`; the env's ``waypoint_paths`` flies the candidates). The shielded masks are
