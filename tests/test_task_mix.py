@@ -136,6 +136,10 @@ def test_mix_errors_name_the_problem():
         TaskMix(["paper-3uav", "dense-3uav"], 2, n_uavs=3)
     with pytest.raises(ValueError, match="'paper-6uav' differs from 'paper-3uav' in its team size"):
         TaskMix(["paper-3uav", "paper-6uav"], 2)
+    with pytest.raises(RuntimeError, match=r"waypoint_paths\(\) is for action_mode='waypoint'"):
+        uni = TaskMix(["paper-3uav", "dense-3uav"], 2)
+        uni.reset(seed=0)
+        uni.waypoint_paths(np.zeros((2, 3, 1), int))
     with pytest.raises(ValueError, match="dict_obs=True is not supported"):
         TaskMix(["paper-3uav", "dense-3uav"], 2, dict_obs=True)
     assert isinstance(make_training_env(["paper-3uav"], 2), covert_env.envs.vector.CovertSensingVectorEnv)

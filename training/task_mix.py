@@ -124,6 +124,8 @@ class TaskMix:
     def _nodes(self, what: str, nodes, extra: int) -> np.ndarray:
         """Node indices ``(B, U, ...)`` of the mix's lattice checked: shape, integer type, range (-1 allowed in
         ``waypoint_paths``: no node); a ValueError names ``what``."""
+        if not self.waypoint:
+            raise RuntimeError(f"TaskMix.{what} is for action_mode='waypoint'")
         nodes = np.asarray(nodes)
         b, u = self.num_envs, len(self.possible_agents)
         lo = -1 if extra else 0

@@ -69,7 +69,8 @@ def node_features(obs: np.ndarray, lattice: np.ndarray, n_uavs: int, *, r2: floa
       midpoint of the move (with ``o`` moved as above: off by the target's turn in the slot, up to about 6 m on
       the winding family), each at the nearest cell (0 outside the map). The shadows are in the observation's
       maps; these two inputs put them under the node the head scores, so that a team whose mask allows shadowed
-      nodes (``mask_mode="kinematic"``) can learn to avoid them (docs/decisions.md, "Action mask modes").
+      nodes (``mask_mode="kinematic"``) can learn to avoid them (docs/decisions.md, "Learned teams across the
+      suite").
     """
     obs = np.asarray(obs, np.float32)
     # The fields read here come before the maps, so the maps' size (0 here) does not move them.
