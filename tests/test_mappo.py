@@ -298,3 +298,52 @@ def test_task_mix_and_map_features_run_and_card(tmp_path, train_extra):
                          (dict(tasks="paper-3uav", scene_pool=50), r"--scene-pool 50 does not go with --tasks")):
         with pytest.raises(ValueError, match=pattern):
             mappo.check_args(mappo.Args(**bad))
+
+
+def test_init_actor_starts_as_the_loaded_team_and_warmup_keeps_it(tmp_path, train_extra):
+    """--init-actor pretrained:mappo into an actor with --node-map: the map's columns start at zero, so every node
+    scores as under the shipped weights; during --actor-warmup-updates only the critic learns (the actor saved
+    after two warm-up updates is the shipped one); after them the actor moves. --lambda-max bounds every
+    multiplier."""
+    shipped = load_learned("training/pretrained/mappo.npz")
+    common = [*TINY, "--hidden", "128", "--node-hidden", "32", "--init-actor", "pretrained:mappo", "--node-map",
+              "--mask-mode", "kinematic", "--constraints", "zone=0,los=0", "--lagrange-lr", "5", "--lambda-max",
+              "0.3", "--runs-dir", str(tmp_path)]
+    run = mappo.main([*common, "--actor-warmup-updates", "2", "--total-timesteps", "32", "--run-name", "w"])
+    saved = np.load(run / "model.npz")
+    for k, v in shipped.actor.p.items():
+        got = saved[f"actor.{k}"]
+        if k == "node_feat.weight":
+            assert got.shape == (v.shape[0], v.shape[1] + N_MAP_FEATURES) and not got[:, v.shape[1]:].any()
+            got = got[:, :v.shape[1]]
+        np.testing.assert_array_equal(got, v.astype(np.float32), err_msg=k)
+    lam = _curve(run)[-1]["lambda"]
+    assert set(lam) == {"los", "zone"} and max(lam.values()) <= 0.3
+    moved = mappo.main([*common, "--actor-warmup-updates", "1", "--total-timesteps", "32", "--run-name", "m"])
+    assert not np.array_equal(np.load(moved / "model.npz")["actor.node_out.weight"],
+                              shipped.actor.p["node_out.weight"].astype(np.float32))
+    # The loaded policy with zero map columns acts as the shipped one on the same observations.
+    obs = np.random.default_rng(0).normal(size=(4, 143)).astype(np.float32)
+    lat = np.random.default_rng(1).uniform(-100, 30, (30, 2))
+    feats = node_features(obs, lat, 3, r2=100.0, v_max=50.0, delta=1.0, d_safe1=5.0)
+    cells = np.array([(x, y) for y in np.linspace(50, -50, 8) for x in np.linspace(-110, 40, 8)])
+    feats_map = node_features(obs, lat, 3, r2=100.0, v_max=50.0, delta=1.0, d_safe1=5.0, map_offsets=cells)
+    np.testing.assert_allclose(load_learned(run).actor.logits(obs, feats_map), shipped.actor.logits(obs, feats),
+                               rtol=1e-5, atol=1e-5)
+
+
+def test_init_actor_and_lambda_max_errors_name_the_value(tmp_path, train_extra):
+    for bad, pattern in ((dict(init_actor="pretrained:nope"), r"--init-actor pretrained:nope: no shipped weights "
+                                                               r"'nope'; the shipped are \['mappo'\]"),
+                         (dict(init_actor=str(tmp_path / "none.npz")), r"no such file or folder"),
+                         (dict(actor_warmup_updates=3), r"--actor-warmup-updates 3: needs --init-actor"),
+                         (dict(lambda_max=2.0), r"--lambda-max 2: bounds the Lagrange multipliers, but no "
+                                                r"constraint is set")):
+        with pytest.raises(ValueError, match=pattern):
+            mappo.check_args(mappo.Args(**bad))
+    with pytest.raises(ValueError, match=r"--init-actor pretrained:mappo: actor.trunk.0.weight has shape \(128, "
+                                         r"143\), this actor's is \(16, 143\)"):
+        mappo.main([*TINY, "--init-actor", "pretrained:mappo", "--total-timesteps", "16", "--runs-dir",
+                    str(tmp_path), "--run-name", "x"])
+    with pytest.raises(SystemExit):
+        mappo.main(["--lambda-max", "-1"])

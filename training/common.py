@@ -111,7 +111,8 @@ def _ranges() -> dict[str, tuple]:
         "num_steps": int_range(2), "num_minibatches": positive_int, "update_epochs": positive_int,
         "clip_coef": positive, "hidden": int_range(1, 65_536), "node_hidden": int_range(1, 65_536),
         "cost_limit": non_negative, "lagrange_lr": non_negative, "shield_margin": non_negative,
-        "shield_end_margin": non_negative, "map_size": int_range(2, 64),
+        "shield_end_margin": non_negative, "map_size": int_range(2, 64), "lambda_max": non_negative,
+        "actor_warmup_updates": non_negative_int,
     }
 
 

@@ -39,7 +39,10 @@ checkpoints; ``train``, which runs them in that order. Nothing here is pickled: 
   ``cost_*`` of the infos are logged per episode. Constrained RL, one Lagrange multiplier per constraint:
   ``--constraints zone=0.01,los_path=0.005`` subtracts ``lambda_c * cost_c`` from the training reward for each
   named env cost c (``covert_env.envs.batch.COSTS``), lambda_c >= 0 raised by dual ascent while the rollout's mean
-  cost per UAV and slot exceeds its limit; ``--lagrangian`` adds ``separation=--cost-limit`` (eq. 2).
+  cost per UAV and slot exceeds its limit; ``--lagrangian`` adds ``separation=--cost-limit`` (eq. 2);
+  ``--lambda-max`` bounds every multiplier.
+* **Warm start** (``--init-actor pretrained:NAME``): the actor starts from trained weights (with ``--node-map``
+  added, its map inputs start at zero), and ``--actor-warmup-updates`` lets the fresh critic learn first.
 
 Env steps count copy-slots (one step of one env copy, all its UAVs); agent-steps are ``n_uavs`` times more.
 """
@@ -61,7 +64,14 @@ from covert_env.envs.batch import COSTS
 from covert_env.tasks import TASKS
 from training.budget import expected_steps
 from training.common import parse_args, resumed_args, run_name, save_run, setup_torch
-from training.pretrained import N_MAP_FEATURES, N_OWN_FEATURES, node_features
+from training.pretrained import (
+    N_MAP_FEATURES,
+    N_OWN_FEATURES,
+    PRETRAINED_DIR,
+    load_learned,
+    node_features,
+    pretrained_names,
+)
 from training.recipes import MAPPO_RECIPES
 from training.shield import SeparationShield
 from training.task_mix import make_training_env
@@ -163,6 +173,17 @@ class Args:
     """allowed separation-violation rate per UAV and slot (0.5 of 70 slots) for --lagrangian"""
     lagrange_lr: float = 1.0
     """dual ascent step of every lambda per update (times the rollout's mean cost minus its limit)"""
+    lambda_max: float = 0.0
+    """upper bound of every Lagrange multiplier (0: none). A limit the team does not reach raises its multiplier
+    without end, until the costs drown the reward and the team learns to keep still; a bound makes such a
+    constraint a fixed penalty instead (OmniSafe's lagrangian_upper_bound)"""
+    init_actor: str = ""
+    """start the actor from these weights: pretrained:NAME, a training.mappo run folder or a weights .npz with
+    its card (training.pretrained.load_learned); the architecture must match. Loaded into an actor with
+    --node-map from weights without it, the map inputs start at zero: the team starts as the loaded one"""
+    actor_warmup_updates: int = 0
+    """the first this many PPO updates train the critic only (with --init-actor: a fresh critic's advantages would
+    otherwise move the loaded actor at random)"""
     checkpoint_every: int = 200_000
     """save a checkpoint every this many env steps (0: only at the end)"""
     runs_dir: str = "runs"
@@ -192,6 +213,20 @@ def check_args(args: Args) -> None:
     if args.node_map and (args.head != "node" or args.action_mode != "waypoint"):
         raise ValueError(f"--node-map needs --action-mode waypoint and --head node, got --action-mode "
                          f"{args.action_mode!r} --head {args.head!r}")
+    if args.init_actor.startswith("pretrained:"):
+        name = args.init_actor.removeprefix("pretrained:")
+        if not (PRETRAINED_DIR / f"{name}.npz").is_file():
+            raise ValueError(f"--init-actor {args.init_actor}: no shipped weights {name!r}; the shipped are "
+                             f"{pretrained_names()}")
+    elif args.init_actor and not Path(args.init_actor).exists():
+        raise ValueError(f"--init-actor {args.init_actor}: no such file or folder (pretrained:NAME, a run folder "
+                         "or a weights .npz)")
+    if args.actor_warmup_updates and not args.init_actor:
+        raise ValueError(f"--actor-warmup-updates {args.actor_warmup_updates}: needs --init-actor (a fresh actor "
+                         "has nothing to keep)")
+    if args.lambda_max and not constraint_limits(args):
+        raise ValueError(f"--lambda-max {args.lambda_max:g}: bounds the Lagrange multipliers, but no constraint is "
+                         "set (--constraints or --lagrangian)")
     if tasks and args.scene_pool != Args.scene_pool:
         raise ValueError(f"--scene-pool {args.scene_pool} does not go with --tasks: each task draws its own "
                          "training scenes")
@@ -269,6 +304,37 @@ def make_networks(args: Args, s: Sizes):
     critic = Critic(s.critic_in, args.hidden)
     optim = torch.optim.Adam([*actor.parameters(), *critic.parameters()], lr=args.learning_rate, eps=1e-5)
     return actor, critic, optim
+
+
+def load_initial_actor(actor, spec: str, node_map: bool) -> None:
+    """``--init-actor``: copy the weights of ``spec`` (``pretrained:NAME``, a run folder or a weights ``.npz``,
+    checked by :func:`training.pretrained.load_learned`) into ``actor``. Every parameter must have the loaded
+    one's shape, except that an actor with ``node_map`` takes weights without it: the map's columns of
+    ``node_feat.weight`` (the last :data:`~training.pretrained.N_MAP_FEATURES` features) start at zero, so the
+    new actor scores every node as the loaded one does. A ``ValueError`` names the parameter and both shapes."""
+    path = PRETRAINED_DIR / f"{spec.removeprefix('pretrained:')}.npz" if spec.startswith("pretrained:") else spec
+    try:
+        loaded = load_learned(path)
+    except Exception as exc:        # the loader's UsageError/ValueError name the file and field
+        raise ValueError(f"--init-actor {spec}: {exc}") from None
+    params = loaded.actor.p
+    own = actor.state_dict()
+    if set(params) != set(own):
+        raise ValueError(f"--init-actor {spec}: its parameters {sorted(params)} are not this actor's {sorted(own)} "
+                         "(--head, --action-mode and the trunk's depth must match)")
+    widen = node_map and not loaded.actor.spec.get("node_map", False)
+    new = {}
+    for key, target in own.items():
+        value = torch.from_numpy(params[key].astype(np.float32))
+        if widen and key == "node_feat.weight" and value.shape[1] + N_MAP_FEATURES == target.shape[1] \
+                and value.shape[0] == target.shape[0]:
+            value = torch.cat([value, torch.zeros(value.shape[0], N_MAP_FEATURES)], dim=1)
+        if tuple(value.shape) != tuple(target.shape):
+            raise ValueError(f"--init-actor {spec}: actor.{key} has shape {tuple(params[key].shape)}, this actor's "
+                             f"is {tuple(target.shape)} (--hidden, --node-hidden, --agent-id, --n-uavs and "
+                             "--map-size must match the loaded card's)")
+        new[key] = value
+    actor.load_state_dict(new)
 
 
 def gumbel_pick(logits: np.ndarray):
@@ -472,8 +538,9 @@ def advantages(buf: Rollout, next_value: np.ndarray, gamma: float, gae_lambda: f
 
 
 # ---------------------------------------------------------------------------------------------- PPO update
-def ppo_update(agents: Agents, optim, buf: Rollout, adv: np.ndarray, returns: np.ndarray):
-    """``update_epochs`` epochs of clipped PPO over minibatches of agent-samples.
+def ppo_update(agents: Agents, optim, buf: Rollout, adv: np.ndarray, returns: np.ndarray, train_actor: bool = True):
+    """``update_epochs`` epochs of clipped PPO over minibatches of agent-samples (the critic's loss alone without
+    ``train_actor``).
 
     Returns the last minibatch's losses (``policy_loss``, ``value_loss``, ``entropy``, ``approx_kl``) and every
     minibatch's clip fraction.
@@ -504,7 +571,7 @@ def ppo_update(agents: Agents, optim, buf: Rollout, adv: np.ndarray, returns: np
             pg_loss = torch.max(-mb_adv * ratio, -mb_adv * ratio.clamp(1 - args.clip_coef, 1 + args.clip_coef)).mean()
             v = critic(torch.from_numpy(f_cin[idx]))
             v_loss = 0.5 * ((v - torch.from_numpy(f_ret_n[idx].astype(np.float32))) ** 2).mean()
-            loss = pg_loss - args.ent_coef * entropy.mean() + args.vf_coef * v_loss
+            loss = (pg_loss - args.ent_coef * entropy.mean() if train_actor else 0.0) + args.vf_coef * v_loss
             optim.zero_grad()
             loss.backward()
             torch.nn.utils.clip_grad_norm_([*actor.parameters(), *critic.parameters()], args.max_grad_norm)
@@ -649,6 +716,8 @@ def train(args: Args) -> Path:
     vnorm, prog = RunningNorm(), Progress()
     if args.resume:
         prog = resume(run_dir, actor, critic, optim, vnorm)
+    elif args.init_actor:
+        load_initial_actor(actor, args.init_actor, args.node_map)
     prog.lam = {name: prog.lam.get(name, 0.0) for name in s.constrained}
     card = model_card(args, s, env, env_kwargs, shield)
     save_run(run_dir, args, {"card": card})
@@ -677,11 +746,14 @@ def train(args: Args) -> Path:
         adv, returns = advantages(buf, agents.value(obs, state), args.gamma, args.gae_lambda)
         if args.value_norm:
             vnorm.update(returns)
-        losses, clipfracs = ppo_update(agents, optim, buf, adv, returns)
+        losses, clipfracs = ppo_update(agents, optim, buf, adv, returns,
+                                       train_actor=prog.updates >= args.actor_warmup_updates)
         if not all(np.isfinite(v) for v in losses.values()):
             raise FloatingPointError(f"non-finite losses at update {prog.updates}: {losses}")
         for j, (name, limit) in enumerate(s.constrained.items()):       # dual ascent, one multiplier each
             prog.lam[name] = max(0.0, prog.lam[name] + args.lagrange_lr * (float(buf.costs[:, j].mean()) - limit))
+            if args.lambda_max:
+                prog.lam[name] = min(prog.lam[name], args.lambda_max)
         prog.updates += 1
 
         prog.wall_seconds = time.monotonic() - t_start
