@@ -347,3 +347,30 @@ def test_init_actor_and_lambda_max_errors_name_the_value(tmp_path, train_extra):
                     str(tmp_path), "--run-name", "x"])
     with pytest.raises(SystemExit):
         mappo.main(["--lambda-max", "-1"])
+
+
+def test_viability_shield_run_records_it_and_the_policy_uses_it(tmp_path, train_extra):
+    """--viability-shield: the card says so, the loaded policy acts through it (its shield tests the chosen nodes
+    with the env's waypoint_onward), and it needs the separation shield in the waypoint mode."""
+    run = mappo.main([*TINY, "--viability-shield", "--mask-mode", "kinematic", "--total-timesteps", "16",
+                      "--runs-dir", str(tmp_path), "--run-name", "v"])
+    card = json.loads((run / "model.json").read_text())
+    assert card["viability_shield"] is True
+    pol = load_learned(run)
+    assert pol.viability
+    import covert_env
+    par = covert_env.parallel_env(n_uavs=3, action_mode="waypoint", mask_mode="kinematic")
+    obs, _ = par.reset(seed=0)
+    calls = []
+    real = par.waypoint_onward
+    par.waypoint_onward = lambda nodes: calls.append(1) or real(nodes)
+    pol.act(obs, par)
+    assert calls
+    card["viability_shield"] = "yes"
+    (run / "model.json").write_text(json.dumps(card))
+    with pytest.raises(ValueError, match=r"viability_shield must be true or false, got 'yes'"):
+        load_learned(run)
+    for bad in (dict(viability_shield=True, separation_shield=False),
+                dict(viability_shield=True, action_mode="unicycle")):
+        with pytest.raises(ValueError, match=r"--viability-shield acts inside the separation shield"):
+            mappo.check_args(mappo.Args(**bad))

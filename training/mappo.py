@@ -165,6 +165,10 @@ class Args:
     """waypoint mode: the UAVs choose one after another and none may choose a node whose path comes closer than
     d_safe1 + shield_margin to a teammate's chosen path (training.shield); in training and evaluation alike.
     The unicycle mode has no shield"""
+    viability_shield: bool = False
+    """waypoint mode, with the separation shield: a UAV also avoids a node from which it could reach no lattice
+    node next slot (it would leave the zone): the chosen node is tested with the env's waypoint_onward and, if a
+    dead end, removed and chosen again (training.shield); in training and evaluation alike"""
     shield_margin: float = 0.0
     """extra distance (m) the shield keeps beyond d_safe1 along the paths"""
     shield_end_margin: float = 10.0
@@ -221,6 +225,10 @@ def check_args(args: Args) -> None:
     elif args.init_actor and not Path(args.init_actor).exists():
         raise ValueError(f"--init-actor {args.init_actor}: no such file or folder (pretrained:NAME, a run folder "
                          "or a weights .npz)")
+    if args.viability_shield and not (args.separation_shield and args.action_mode == "waypoint"):
+        raise ValueError("--viability-shield acts inside the separation shield: it needs --action-mode waypoint and "
+                         f"--separation-shield true, got --action-mode {args.action_mode!r} --separation-shield "
+                         f"{str(args.separation_shield).lower()}")
     if args.actor_warmup_updates and not args.init_actor:
         raise ValueError(f"--actor-warmup-updates {args.actor_warmup_updates}: needs --init-actor (a fresh actor "
                          "has nothing to keep)")
@@ -404,7 +412,8 @@ class Agents:
                 # Gumbel-max trick under its shielded mask.
                 logits = self.actor.logits(self.actor_in(flat_obs), feats, torch.from_numpy(masks.reshape(rows, -1)))
                 a_np, masks = self.shield.choose(masks, self.env.waypoint_paths,
-                                                 gumbel_pick(logits.numpy().reshape(s.B, s.U, -1)))
+                                                 gumbel_pick(logits.numpy().reshape(s.B, s.U, -1)),
+                                                 self.env.waypoint_onward if self.args.viability_shield else None)
                 d = masked_categorical(logits, torch.from_numpy(masks.reshape(rows, -1)))
                 a = torch.from_numpy(a_np.reshape(rows))
             else:
@@ -606,6 +615,7 @@ def model_card(args: Args, s: Sizes, env, env_kwargs: dict, shield) -> dict:
     return {"algorithm": args.algo, "actor": actor_spec, "env_kwargs": env_kwargs, "env_id": env.metadata["name"],
             "separation_shield": None if shield is None else shield.min_distance,
             "shield_end_margin": None if shield is None else shield.end_margin,
+            "viability_shield": bool(shield is not None and args.viability_shield),
             "train_tasks": task_list(args) or None,
             "covert_env_version": covert_env.__version__ if hasattr(covert_env, "__version__") else None}
 
@@ -623,6 +633,7 @@ def log_update(writer, curve, bar, prog: Progress, *, losses: dict, clipfracs: l
         writer.add_scalar(f"charts/lambda_{name}", value, step)
     if shield is not None:
         writer.add_scalar("charts/shield_fallbacks", shield.fallbacks / max(shield.choices, 1), step)
+        writer.add_scalar("charts/shield_dead_ends", shield.dead_ends / max(shield.choices, 1), step)
     if episodes.recent:
         n_episodes, means = len(episodes.recent), episodes.take_means()
         for k, v in means.items():

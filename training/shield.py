@@ -30,6 +30,14 @@ probability ratios are taken under the masks the actions were sampled with); the
   paths come least close (the shield never leaves a UAV without an action); such team choices are counted in
   ``fallbacks``.
 
+With ``onward`` (the viability rule, the env's ``waypoint_onward``), a UAV also avoids a node from which it could
+reach no lattice node in the next slot: from there it would leave the zone. Its chosen node is tested; if it is
+such a dead end, all its allowed nodes are tested, the dead ends leave its mask and it chooses again (if every
+node is a dead end, its choice stands; counted in ``dead_ends``). The action is then a sample of the stored
+mask's distribution, as PPO needs. Testing only the chosen node first keeps the cost low: about one in twenty
+first choices is a dead end, and testing every candidate of every UAV costs about as much as the rest of a
+training step.
+
 All copies of a batch go through it at once; the loops are over the UAVs of a team and over the tries, because
 the choices are sequential by design (a UAV needs the paths of the UAVs before it).
 """
@@ -65,6 +73,9 @@ class SeparationShield:
         #: Team choices (one per copy and slot) where some UAV was left without a separated node after every
         #: try, and all team choices, since construction.
         self.fallbacks, self.choices = 0, 0
+        #: UAV choices where every allowed node was a dead end under the viability rule, since construction
+        #: (counted in every pass of the priority negotiation).
+        self.dead_ends = 0
 
     def restrict(self, mask: np.ndarray, nodes: np.ndarray, paths: np.ndarray, chosen_paths: np.ndarray
                  ) -> tuple[np.ndarray, np.ndarray]:
@@ -98,7 +109,30 @@ class SeparationShield:
         ``(B, M)``."""
         return separation(paths[:, :, None, -1:], chosen_paths[:, None, :, -1:]).min(axis=2)
 
-    def _pass(self, masks, nodes, paths, free, order, paths_to, pick):
+    def _viable(self, a, k, sm, rows, onward, pick):
+        """The viability rule for the UAVs ``k`` of ``rows`` (B,): where the chosen node ``a`` is a dead end
+        (``onward`` finds no node reachable from it next slot), every node of the UAV's mask ``sm`` is tested, the
+        dead ends are removed from ``sm`` (in place) and the UAV chooses again. Returns the actions; a row whose
+        every node is a dead end keeps its choice and its mask."""
+        dead = rows & (onward(k, np.where(rows, a, -1)[:, None])[:, 0] == 0)
+        if not dead.any():
+            return a
+        counts = np.where(dead, sm.sum(axis=1), 0)
+        m = int(counts.max())
+        cand = np.argsort(~sm, axis=1, kind="stable")[:, :m]
+        cand = np.where(np.arange(m) < counts[:, None], cand, -1)              # (B, m): the dead rows' nodes
+        ok = onward(k, cand) > 0
+        viable = np.zeros_like(sm)
+        r, j = np.nonzero(ok)
+        viable[r, cand[r, j]] = True
+        some = dead & viable.any(axis=1)
+        self.dead_ends += int((dead & ~some).sum())
+        if some.any():
+            sm[some] = viable[some]
+            a = np.where(some, pick(k, sm), a)
+        return a
+
+    def _pass(self, masks, nodes, paths, free, order, paths_to, pick, onward=None):
         """One sequential choice in the per-copy UAV ``order`` ``(B, U)``: actions, shielded masks, and per copy
         the first position whose UAV had no separated node (U if none)."""
         B, U, _ = masks.shape
@@ -114,6 +148,8 @@ class SeparationShield:
             fk = free[copies, k]
             sm[fk], empty[fk] = masks[copies, k][fk], False
             a = pick(k, sm)
+            if onward is not None and not fk.all():
+                a = self._viable(a, k, sm, ~fk, onward, pick)
             slot = np.argmax(nodes[copies, k] == a[:, None], axis=1)           # a is one of the candidates
             path = paths[copies, k, slot]
             if fk.any():
@@ -156,7 +192,8 @@ class SeparationShield:
         return a, path, pending
 
     def choose(self, masks: np.ndarray, paths_to: Callable[[np.ndarray], np.ndarray],
-               pick: Callable[[np.ndarray, np.ndarray], np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+               pick: Callable[[np.ndarray, np.ndarray], np.ndarray],
+               onward: Callable[[np.ndarray], np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Choose the team's nodes, UAV 0 first, then again with a blocked UAV first where one was blocked.
 
         Args:
@@ -165,6 +202,9 @@ class SeparationShield:
                 (the env's ``waypoint_paths``).
             pick: ``pick(k (B,), mask (B, L)) -> (B,)``: the node of UAV ``k[b]`` of copy b under the shielded
                 mask (sampling in training, the most likely node in evaluation).
+            onward: the viability rule, or None: ``onward(nodes (B, U, 1)) -> (B, U, 1)`` how many nodes each UAV
+                could reach next slot after flying to ``nodes`` (-1 stands for no node; the env's
+                ``waypoint_onward``).
 
         Returns:
             ``(actions (B, U) int64, shielded masks (B, U, L) bool)``.
@@ -180,9 +220,19 @@ class SeparationShield:
         nodes = np.where(np.arange(m) < counts[..., None], first, -1)
         paths = paths_to(nodes)
         actions, shielded = np.zeros((B, U), np.int64), np.empty_like(masks)
+        copies = np.arange(B)
+
+        def test(k, cand):
+            """(B, m) onward counts of UAV k[b]'s nodes cand[b] (-1: none, not tested)."""
+            nodes = np.full((B, U, cand.shape[1]), -1)
+            nodes[copies, k] = cand
+            return onward(nodes)[copies, k]
+
+        if onward is None:
+            test = None
 
         def settle(order, rows):
-            a, s, failed_at = self._pass(masks, nodes, paths, free, order, paths_to, pick)
+            a, s, failed_at = self._pass(masks, nodes, paths, free, order, paths_to, pick, test)
             actions[rows], shielded[rows] = a[rows], s[rows]
             return failed_at
 

@@ -178,6 +178,13 @@ class TaskMix:
                                 for e, inv, n in zip(self.envs, self._from_mix, self._split(nodes), strict=True)])
         return fly_to_goals(self.uav_xy, self.uav_theta, goals, self.config, self._times)
 
+    def waypoint_onward(self, nodes) -> np.ndarray:
+        """The tasks' ``waypoint_onward`` for nodes ``(B, U, M)`` of the mix's lattice (-1: none): each task counts
+        the nodes of its own lattice."""
+        nodes = self._nodes("waypoint_onward()", nodes, 1)
+        return np.concatenate([e.waypoint_onward(np.where(n >= 0, inv[np.maximum(n, 0)], -1))
+                               for e, inv, n in zip(self.envs, self._from_mix, self._split(nodes), strict=True)])
+
     @property
     def uav_xy(self) -> np.ndarray:
         """(B, U, 2) the UAVs' positions."""

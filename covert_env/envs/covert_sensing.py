@@ -465,6 +465,12 @@ class CovertSensingParallelEnv(ParallelEnv):
         Read-only; waypoint mode, after ``reset()`` (:meth:`CovertSensingVectorEnv.waypoint_paths`)."""
         return self._vec.waypoint_paths(np.asarray(nodes)[None])[0]
 
+    def waypoint_onward(self, nodes) -> np.ndarray:
+        """How many lattice nodes each UAV could reach in the next slot after flying to lattice ``nodes``
+        ``(U, M)`` in this one: ``(U, M)`` int64, -1 for an index of -1. Read-only; waypoint mode, after
+        ``reset()`` (:meth:`CovertSensingVectorEnv.waypoint_onward`)."""
+        return self._vec.waypoint_onward(np.asarray(nodes)[None])[0]
+
     def state(self) -> np.ndarray:
         """Global state for centralised critics (see the class docstring)."""
         return self._vec.state()[0]

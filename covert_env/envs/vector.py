@@ -465,6 +465,35 @@ class CovertSensingVectorEnv:
         those actions fly to; NaN where the index is -1 (no node). Read-only; waypoint mode, after ``reset()``."""
         return self._goals(self._checked_nodes("waypoint_goals()", nodes))
 
+    def waypoint_onward(self, nodes) -> np.ndarray:
+        """How many lattice nodes each UAV could reach in the next slot after flying to lattice ``nodes``
+        ``(B, U, M)`` in this one: ``(B, U, M)`` int64, -1 where the index is -1 (no node).
+
+        The flight ends where and with the heading ``step`` flies it; the next slot's nodes are placed at the
+        target two slots ahead, its pose predicted for slot k+1 driven on for one more slot with the same
+        displacement and turn (a constant-speed, constant-curvature guess: the env keeps one slot of prediction);
+        reachability is :class:`~covert_env.reach.ReachTable`'s (the kinematic mask's). A count of 0 means the UAV
+        will reach no node next slot and leave the zone: a policy can avoid that one slot ahead
+        (``training.shield``). Read-only; waypoint mode, after ``reset()``."""
+        nodes = self._checked_nodes("waypoint_onward()", nodes)
+        out = np.full(nodes.shape, -1, np.int64)
+        ci, ui, mi = np.nonzero(nodes >= 0)
+        if len(ci) == 0:
+            return out
+        c, pool, rows, k = self.config, self._pool, self._rows, self._k
+        goals = self._goals(nodes)[ci, ui, mi][:, None]
+        path, end_theta = batch.fly_waypoints(self._xy[ci, ui][:, None], self._theta[ci, ui][:, None], goals, c,
+                                              np.array([0.0, c.delta]))[:2]
+        q0, q1 = pool.q[rows, k, :2], pool.q_next[rows, k, :2]
+        turn = pool.phi_next[rows, k] - pool.phi[rows, k]
+        d = q1 - q0
+        q2 = q1 + np.stack([np.cos(turn) * d[:, 0] - np.sin(turn) * d[:, 1],
+                            np.sin(turn) * d[:, 0] + np.cos(turn) * d[:, 1]], axis=-1)
+        phi2 = pool.phi_next[rows, k] + turn
+        reach = self._reach.reachable(path[:, :, -1], end_theta, q2[ci], phi2[ci], self.lattice)     # (N, 1, L)
+        out[ci, ui, mi] = reach[:, 0].sum(axis=-1)
+        return out
+
     def _checked_nodes(self, what: str, nodes) -> np.ndarray:
         """Node indices ``(B, U, M)`` (-1: none) checked for ``what``: waypoint mode, running, shape, type, range."""
         if self.action_mode != "waypoint":

@@ -160,6 +160,8 @@ class LearnedPolicy:
         #: was left with no separated node.
         self.shield = (None if self.shield_distance is None else
                        SeparationShield(float(self.shield_distance), float(card.get("shield_end_margin") or 0.0)))
+        #: The viability rule of the shield (a UAV avoids nodes from which it could reach no node next slot).
+        self.viability = bool(card.get("viability_shield", False)) and self.shield is not None
         self.env_settings = {"n_uavs": int(ekw["n_uavs"]), "action_mode": ekw["action_mode"],
                              "map_size": int(ekw.get("map_size", 8))}
         if ekw["action_mode"] == "waypoint":
@@ -191,7 +193,8 @@ class LearnedPolicy:
             mask = np.stack([par.action_mask(a) for a in agents]).astype(bool)
             if self.shield is not None:
                 act, _ = self.shield.choose(mask[None], lambda n: par.waypoint_paths(n[0])[None],
-                                            lambda k, m: np.argmax(np.where(m, logits[k], -np.inf), axis=-1))
+                                            lambda k, m: np.argmax(np.where(m, logits[k], -np.inf), axis=-1),
+                                            (lambda n: par.waypoint_onward(n[0])[None]) if self.viability else None)
                 out = {a: int(act[0, i]) for i, a in enumerate(agents)}
             else:
                 out = {a: int(np.argmax(np.where(mask[i], logits[i], -np.inf))) for i, a in enumerate(agents)}
@@ -225,6 +228,8 @@ def load_learned(path: str | Path) -> LearnedPolicy:
         raise ValueError(f"{card_path}: not a model card of training.mappo ({exc})") from None
     if not isinstance(spec.get("node_map", False), bool):
         raise ValueError(f"{card_path}: actor.node_map must be true or false, got {spec['node_map']!r}")
+    if not isinstance(card.get("viability_shield", False), bool):
+        raise ValueError(f"{card_path}: viability_shield must be true or false, got {card['viability_shield']!r}")
     for key, lo in (("separation_shield", 0.0), ("shield_end_margin", 0.0)):
         v = card.get(key)
         if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v)
