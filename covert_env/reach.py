@@ -137,11 +137,13 @@ class ReachTable:
         return self._flat[ia * nb + ib]
 
     def reachable(self, xy: np.ndarray, theta: np.ndarray, q_xy: np.ndarray, phi: np.ndarray,
-                  offsets: np.ndarray) -> np.ndarray:
+                  offsets: np.ndarray, exact: bool = True) -> np.ndarray:
         """(B, U, L) bool: ``solve_manoeuvre(xy[b, u], theta[b, u], goal[b, l], ...).feasible`` for poses ``xy``
         (B, U, 2), ``theta`` (B, U) and the goals ``to_world(offsets, q_xy[b], phi[b])`` (offsets (L, 2), targets
         q_xy (B, 2), phi (B,)): table lookups, then the exact solver on the points in boundary cells (their goals
         computed exactly as :func:`~covert_env.zone.to_world` does, the only goals ever built in float64).
+        ``exact=False`` skips the solver: points in boundary cells count as unreachable (a subset, within a cell
+        of the exact set).
 
         The lookup works in float32 table units (cells): with ``o`` a node's offset in the target frame, its
         position in the frame of a UAV at (p, theta) is ``(q - p) . e_theta + R(phi - theta) o``, one affine map of
@@ -171,6 +173,8 @@ class ReachTable:
         for s0 in range(0, len(flat_lab), rows):
             flat_lab[s0:s0 + rows] = self._lookup(coef[2 * s0:2 * (s0 + rows)] @ nodes)
         out = lab == FEASIBLE
+        if not exact:
+            return out
         flat = np.flatnonzero(lab == BOUNDARY)
         if len(flat):
             bi, rest = np.divmod(flat, lab.shape[1] * lab.shape[2])

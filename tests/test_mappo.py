@@ -351,7 +351,7 @@ def test_init_actor_and_lambda_max_errors_name_the_value(tmp_path, train_extra):
 
 def test_viability_shield_run_records_it_and_the_policy_uses_it(tmp_path, train_extra):
     """--viability-shield: the card says so, the loaded policy acts through it (its shield tests the chosen nodes
-    with the env's waypoint_onward), and it needs the separation shield in the waypoint mode."""
+    with the env's onward_reach), and it needs the separation shield in the waypoint mode."""
     run = mappo.main([*TINY, "--viability-shield", "--mask-mode", "kinematic", "--total-timesteps", "16",
                       "--runs-dir", str(tmp_path), "--run-name", "v"])
     card = json.loads((run / "model.json").read_text())
@@ -362,8 +362,8 @@ def test_viability_shield_run_records_it_and_the_policy_uses_it(tmp_path, train_
     par = covert_env.parallel_env(n_uavs=3, action_mode="waypoint", mask_mode="kinematic")
     obs, _ = par.reset(seed=0)
     calls = []
-    real = par.waypoint_onward
-    par.waypoint_onward = lambda nodes: calls.append(1) or real(nodes)
+    real = par.onward_reach
+    par.onward_reach = lambda xy, theta: calls.append(1) or real(xy, theta)
     pol.act(obs, par)
     assert calls
     card["viability_shield"] = "yes"

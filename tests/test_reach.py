@@ -51,6 +51,23 @@ def test_table_equals_solve_manoeuvre_on_the_lattice():
                           _exact(xy, theta, q, phi, lattice, (c.v_max, c.w_max, c.delta)))
 
 
+def test_without_the_solver_reachable_is_a_subset_within_the_boundary_cells():
+    """``exact=False`` (no manoeuvre solver): every point it calls reachable is, and it misses only points the
+    exact answer had to solve (the boundary cells), a small share of the reachable ones."""
+    c = Config()
+    lattice, table = zone_lattice(c), reach_table(c.v_max, c.w_max, c.delta)
+    rng = np.random.default_rng(3)
+    b = 200
+    q, phi = rng.uniform(-500, 500, (b, 2)), rng.uniform(0, 2 * np.pi, b)
+    nodes = np.stack([to_world(lattice, q[j], phi[j]) for j in range(b)])
+    xy = nodes[np.arange(b)[:, None], rng.integers(0, len(lattice), (b, 3))] + rng.normal(0, 15, (b, 3, 2))
+    theta = rng.uniform(0, 2 * np.pi, (b, 3))
+    exact = table.reachable(xy, theta, q, phi, lattice)
+    certain = table.reachable(xy, theta, q, phi, lattice, exact=False)
+    assert certain.dtype == bool and not (certain & ~exact).any()
+    assert 0 < (exact & ~certain).sum() < 0.2 * exact.sum()
+
+
 def test_labels_are_mostly_certain_and_far_points_infeasible():
     table = reach_table(50.0, 3.0, 1.0)
     labels = table.labels

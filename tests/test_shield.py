@@ -6,7 +6,7 @@
   the first unless the choice is counted as a fallback (free UAVs, with all-ones masks, choose by rejection).
 * In the env: a team choosing random nodes under the shield has no separation violation in a slot without a
   fallback; without it, the same team collides.
-* ``waypoint_onward`` predicts the slots where a UAV will reach no node, and the viability rule avoids dead ends
+* ``onward_reach`` predicts the slots where a UAV will reach no node, and the viability rule avoids dead ends
   (synthetic: the invariants above with a dead-end set; in the env: fewer zone violations for the same team).
 """
 
@@ -17,7 +17,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import covert_env
-from training.shield import SeparationShield
+from training.shield import SeparationShield, end_poses
 
 DISABLED = gymnasium.vector.AutoresetMode.DISABLED
 
@@ -200,11 +200,11 @@ def test_end_margin_prefers_roomy_ends_but_never_empties_the_mask():
         SeparationShield(5.0, end_margin=-1.0)
 
 
-def test_waypoint_onward_predicts_when_no_node_is_reachable():
-    """After a flight to a node with an onward count of 0 the next slot's kinematic mask reaches no node (the env
-    then allows all), and after one with a count > 0 it reaches some, in at least 98 % of UAV-slots of random
-    teams on a nominal and a deviating task (the target two slots ahead is extrapolated); -1 is no node; the query
-    changes nothing."""
+def test_onward_reach_predicts_when_no_node_is_reachable():
+    """At the end of a flight to a node whose onward count is 0, the next slot's kinematic mask reaches no node
+    (the env then allows all), and after one with a count > 0 it reaches some, in at least 98 % of UAV-slots of
+    random teams on nominal and deviating tasks (the target two slots ahead is extrapolated); NaN poses count -1;
+    the query changes nothing; bad shapes and modes are errors that name the query."""
     for task in ("winding-3uav", "paper-3uav-deviating"):
         env = covert_env.vector_env(num_envs=6, task=task, action_mode="waypoint", mask_mode="kinematic",
                                     autoreset_mode=DISABLED)
@@ -213,45 +213,65 @@ def test_waypoint_onward_predicts_when_no_node_is_reachable():
         agree = n = dead = 0
         for _ in range(40):
             a = _random_allowed(env.action_masks(), rng)
+            xy, theta = end_poses(env.waypoint_paths(np.stack([a, np.full_like(a, -1)], axis=2)))
             before = env.uav_xy.copy()
-            on = env.waypoint_onward(np.stack([a, np.full_like(a, -1)], axis=2))
+            on = env.onward_reach(xy, theta)
             assert on.dtype == np.int64 and (on[..., 1] == -1).all() and (on[..., 0] >= 0).all()
             np.testing.assert_array_equal(env.uav_xy, before)
             env.step(a)
+            np.testing.assert_array_equal(env.uav_xy, xy[..., 0, :])                  # the paths end there
             none = env.action_masks().astype(bool).all(axis=2)          # no node reachable: all allowed
             agree += int(((on[..., 0] == 0) == none).sum())
             n, dead = n + none.size, dead + int(none.sum())
         assert dead > 0 and agree >= 0.98 * n, (task, agree, n, dead)
-    with pytest.raises(ValueError, match="waypoint_onward"):
-        env.waypoint_onward(np.zeros((6, 3), int))
+    with pytest.raises(ValueError, match=r"onward_reach\(\): xy must have shape \(6, 3, M, 2\)"):
+        env.onward_reach(np.zeros((6, 3, 2)), np.zeros((6, 3)))
+    uni = covert_env.vector_env(num_envs=2, n_uavs=2, action_mode="unicycle")
+    uni.reset(seed=0)
+    with pytest.raises(RuntimeError, match=r"onward_reach\(\) is for action_mode='waypoint'"):
+        uni.onward_reach(np.zeros((2, 2, 1, 2)), np.zeros((2, 2, 1)))
     par = covert_env.parallel_env(n_uavs=2, action_mode="waypoint")
     par.reset(seed=3)
-    assert par.waypoint_onward(np.array([[0, -1], [1, 2]])).shape == (2, 2)
+    xy, theta = end_poses(par.waypoint_paths(np.array([[0, 4], [1, 2]])))
+    assert par.onward_reach(xy, theta).shape == (2, 2)
+
+
+def test_end_poses_of_a_straight_and_a_turning_path():
+    t = np.linspace(0.0, 1.0, 11)
+    straight = np.stack([3 * t, 4 * t], axis=-1)
+    arc = np.stack([np.cos(t * np.pi / 2), np.sin(t * np.pi / 2)], axis=-1)      # a quarter circle, to (0, 1)
+    xy, theta = end_poses(np.stack([straight, arc]))
+    np.testing.assert_allclose(xy, [[3, 4], [0, 1]], atol=1e-12)
+    assert theta[0] == pytest.approx(np.arctan2(4, 3))
+    assert theta[1] == pytest.approx(np.pi, abs=np.pi / 40 + 1e-9)     # tangent pi, off by half the last step's turn
 
 
 @settings(max_examples=40, deadline=None)
 @given(seed=st.integers(0, 2 ** 31 - 1), b=st.integers(1, 4), u=st.integers(1, 3), n=st.integers(2, 10))
 def test_viability_rule_avoids_dead_ends_where_it_can(seed, b, u, n):
-    """With a synthetic onward (a random set of dead-end nodes per UAV) and no separation constraint: every choice
-    lies in its shielded mask, which lies in the env's; a UAV chooses a dead end only when every node its mask
-    allows is one (counted in dead_ends); without the rule its choices are those of the plain shield."""
+    """With a synthetic onward (a random set of dead-end nodes per UAV, told apart by where their paths end) and no
+    separation conflict: every choice lies in its shielded mask, which lies in the env's; a UAV chooses a dead
+    end only when every node its mask allows is one (counted in dead_ends); a UAV whose choice without the rule
+    was no dead end chooses the same node."""
     rng = np.random.default_rng(seed)
     masks = rng.random((b, u, n)) < 0.7
     masks[..., 0] |= ~masks.any(axis=-1)
-    masks[0, 0] = True                                       # at least one non-free UAV needs more than one node
+    masks[0, 0] = True                                       # at least one non-free UAV with several nodes
     masks[0, 0, -1] = False
     deadly = rng.random((b, u, n)) < 0.5
-    far = np.arange(b * u * n, dtype=float).reshape(b, u, n, 1, 1) * 1000.0
-    table = np.broadcast_to(far, (b, u, n, 3, 2))            # every path far from every other: no conflict
+    ident = np.arange(b * u * n, dtype=float).reshape(b, u, n)
+    table = np.zeros((b, u, n, 3, 2))
+    table[..., 0] = ident[..., None] * 1000.0                # every path far from every other; x tells its node
+    table[..., 1] = np.linspace(0.0, 1.0, 3)
 
     def paths_to(nodes):
         out = table[np.arange(b)[:, None, None], np.arange(u)[None, :, None], nodes].copy()
         out[nodes < 0] = np.nan
         return out
 
-    def onward(nodes):
-        out = np.where(deadly[np.arange(b)[:, None, None], np.arange(u)[None, :, None], nodes], 0, 7)
-        return np.where(nodes < 0, -1, out)
+    def onward(xy, theta):
+        which = np.nan_to_num(xy[..., 0] / 1000.0, nan=0).round().astype(int)
+        return np.where(np.isnan(xy[..., 0]), -1, np.where(deadly.reshape(-1)[which], 0, 7))
 
     scores = rng.random((b, u, n))
 
@@ -260,13 +280,13 @@ def test_viability_rule_avoids_dead_ends_where_it_can(seed, b, u, n):
 
     shield = SeparationShield(5.0)
     a, sm = shield.choose(masks, paths_to, pick, onward)
-    rows = np.arange(b)[:, None]
-    assert sm[rows, np.arange(u), a].all() and not (sm & ~masks).any()
+    rows, uavs = np.arange(b)[:, None], np.arange(u)
+    assert sm[rows, uavs, a].all() and not (sm & ~masks).any()
     free = masks.all(axis=-1)
-    chose_dead = deadly[rows, np.arange(u), a] & ~free
+    chose_dead = deadly[rows, uavs, a] & ~free
     all_dead = ~(masks & ~deadly).any(axis=-1)
     assert not (chose_dead & ~all_dead).any()
     assert shield.dead_ends == int((chose_dead & all_dead).sum())
     plain, _ = SeparationShield(5.0).choose(masks, paths_to, pick)
-    np.testing.assert_array_equal(np.where(free | ~deadly[rows, np.arange(u), plain], plain, -1),
-                                  np.where(free | ~deadly[rows, np.arange(u), plain], a, -1))
+    fine = free | ~deadly[rows, uavs, plain]
+    np.testing.assert_array_equal(a[fine], plain[fine])

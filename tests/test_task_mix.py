@@ -8,6 +8,7 @@ from hypothesis import strategies as st
 
 import covert_env
 from training.pretrained import map_at, node_features
+from training.shield import end_poses
 from training.task_mix import TaskMix, make_training_env
 
 
@@ -83,9 +84,11 @@ def test_mix_rows_are_the_tasks_envs():
         np.testing.assert_array_equal(mix.waypoint_paths(act[..., None]),
                                       np.concatenate([e.waypoint_paths(a[..., None])
                                                       for e, a in zip(solo, np.split(act, 2), strict=True)]))
-        np.testing.assert_array_equal(mix.waypoint_onward(act[..., None]),
-                                      np.concatenate([e.waypoint_onward(a[..., None])
-                                                      for e, a in zip(solo, np.split(act, 2), strict=True)]))
+        ends = end_poses(mix.waypoint_paths(act[..., None]))
+        np.testing.assert_array_equal(mix.onward_reach(*ends),
+                                      np.concatenate([e.onward_reach(x, t) for e, x, t in
+                                                      zip(solo, np.split(ends[0], 2), np.split(ends[1], 2),
+                                                          strict=True)]))
         got = mix.step(act)
         want = [e.step(a) for e, a in zip(solo, np.split(act, 2), strict=True)]
         for j in range(4):
@@ -115,7 +118,10 @@ def test_mix_of_two_lattices_maps_the_nodes():
     act = np.array([[rng.choice(np.flatnonzero(m[b, u])) for u in range(3)] for b in range(2)])
     own = np.array([[np.flatnonzero(at == act[1, u])[0] for u in range(3)]])
     np.testing.assert_array_equal(mix.waypoint_paths(act[..., None])[1], dev.waypoint_paths(own[..., None])[0])
-    np.testing.assert_array_equal(mix.waypoint_onward(act[..., None])[1], dev.waypoint_onward(own[..., None])[0])
+    np.testing.assert_array_equal(mix.onward_reach(*end_poses(mix.waypoint_paths(act[..., None])))[1],
+                                  dev.onward_reach(*end_poses(dev.waypoint_paths(own[..., None])))[0])
+    with pytest.raises(ValueError, match=r"TaskMix.onward_reach\(\): xy must have shape \(2, 3, M, 2\)"):
+        mix.onward_reach(np.zeros((2, 3, 2)), np.zeros((2, 3)))
     np.testing.assert_array_equal(mix.step(act)[1][1], dev.step(own)[1][0])
     bad = act.copy()
     bad[1, 0] = np.setdiff1d(np.arange(577), at)[0]

@@ -167,8 +167,9 @@ class Args:
     The unicycle mode has no shield"""
     viability_shield: bool = False
     """waypoint mode, with the separation shield: a UAV also avoids a node from which it could reach no lattice
-    node next slot (it would leave the zone): the chosen node is tested with the env's waypoint_onward and, if a
-    dead end, removed and chosen again (training.shield); in training and evaluation alike"""
+    node next slot (it would leave the zone): the end of the chosen path is tested with the env's onward_reach and,
+    if a dead end, the UAV chooses again among the nodes that are not (training.shield); in training and
+    evaluation alike"""
     shield_margin: float = 0.0
     """extra distance (m) the shield keeps beyond d_safe1 along the paths"""
     shield_end_margin: float = 10.0
@@ -413,7 +414,7 @@ class Agents:
                 logits = self.actor.logits(self.actor_in(flat_obs), feats, torch.from_numpy(masks.reshape(rows, -1)))
                 a_np, masks = self.shield.choose(masks, self.env.waypoint_paths,
                                                  gumbel_pick(logits.numpy().reshape(s.B, s.U, -1)),
-                                                 self.env.waypoint_onward if self.args.viability_shield else None)
+                                                 self.env.onward_reach if self.args.viability_shield else None)
                 d = masked_categorical(logits, torch.from_numpy(masks.reshape(rows, -1)))
                 a = torch.from_numpy(a_np.reshape(rows))
             else:

@@ -30,8 +30,9 @@ probability ratios are taken under the masks the actions were sampled with); the
   paths come least close (the shield never leaves a UAV without an action); such team choices are counted in
   ``fallbacks``.
 
-With ``onward`` (the viability rule, the env's ``waypoint_onward``), a UAV also avoids a node from which it could
-reach no lattice node in the next slot: from there it would leave the zone. Its chosen node is tested; if it is
+With ``onward`` (the viability rule, the env's ``onward_reach``), a UAV also avoids a node from which it could
+reach no lattice node in the next slot: from there it would leave the zone. The end of the path to its chosen
+node (position, and heading along the path's last step) is tested; if it is
 such a dead end, all its allowed nodes are tested, the dead ends leave its mask and it chooses again (if every
 node is a dead end, its choice stands; counted in ``dead_ends``). The action is then a sample of the stored
 mask's distribution, as PPO needs. Testing only the chosen node first keeps the cost low: about one in twenty
@@ -50,7 +51,15 @@ import numpy as np
 
 from covert_env.separation import priority_negotiation, separation
 
-__all__ = ["SeparationShield"]
+__all__ = ["SeparationShield", "end_poses"]
+
+
+def end_poses(paths: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Where paths ``(..., P, 2)`` end: positions ``(..., 2)`` and headings ``(...)`` along their last step (the
+    manoeuvre ends on its straight leg, whose heading this is; a path that turns to its end is off by half the
+    last step's turn)."""
+    d = paths[..., -1, :] - paths[..., -2, :]
+    return paths[..., -1, :], np.arctan2(d[..., 1], d[..., 0])
 
 
 class SeparationShield:
@@ -109,22 +118,23 @@ class SeparationShield:
         ``(B, M)``."""
         return separation(paths[:, :, None, -1:], chosen_paths[:, None, :, -1:]).min(axis=2)
 
-    def _viable(self, a, k, sm, rows, onward, pick):
+    def _viable(self, a, k, sm, rows, nodes_k, paths_k, onward, pick):
         """The viability rule for the UAVs ``k`` of ``rows`` (B,): where the chosen node ``a`` is a dead end
-        (``onward`` finds no node reachable from it next slot), every node of the UAV's mask ``sm`` is tested, the
-        dead ends are removed from ``sm`` (in place) and the UAV chooses again. Returns the actions; a row whose
-        every node is a dead end keeps its choice and its mask."""
-        dead = rows & (onward(k, np.where(rows, a, -1)[:, None])[:, 0] == 0)
+        (``onward`` finds no node reachable from the end of its path next slot), every candidate of the UAV's
+        mask ``sm`` is tested (``nodes_k`` (B, M), -1 padded, and their ``paths_k`` (B, M, P, 2)), the dead ends
+        are removed from ``sm`` (in place) and the UAV chooses again. Returns the actions; a row whose every node
+        is a dead end keeps its choice and its mask."""
+        copies = np.arange(len(a))
+        slot = np.argmax(nodes_k == a[:, None], axis=1)
+        chosen = np.where(rows[:, None, None], paths_k[copies, slot], np.nan)[:, None]            # (B, 1, P, 2)
+        dead = rows & (onward(k, *end_poses(chosen))[:, 0] == 0)
         if not dead.any():
             return a
-        counts = np.where(dead, sm.sum(axis=1), 0)
-        m = int(counts.max())
-        cand = np.argsort(~sm, axis=1, kind="stable")[:, :m]
-        cand = np.where(np.arange(m) < counts[:, None], cand, -1)              # (B, m): the dead rows' nodes
-        ok = onward(k, cand) > 0
+        tested = dead[:, None] & (nodes_k >= 0) & sm[copies[:, None], np.maximum(nodes_k, 0)]          # (B, M)
+        ok = onward(k, *end_poses(np.where(tested[..., None, None], paths_k, np.nan))) > 0
         viable = np.zeros_like(sm)
         r, j = np.nonzero(ok)
-        viable[r, cand[r, j]] = True
+        viable[r, nodes_k[r, j]] = True
         some = dead & viable.any(axis=1)
         self.dead_ends += int((dead & ~some).sum())
         if some.any():
@@ -149,7 +159,7 @@ class SeparationShield:
             sm[fk], empty[fk] = masks[copies, k][fk], False
             a = pick(k, sm)
             if onward is not None and not fk.all():
-                a = self._viable(a, k, sm, ~fk, onward, pick)
+                a = self._viable(a, k, sm, ~fk, nodes[copies, k], paths[copies, k], onward, pick)
             slot = np.argmax(nodes[copies, k] == a[:, None], axis=1)           # a is one of the candidates
             path = paths[copies, k, slot]
             if fk.any():
@@ -193,7 +203,7 @@ class SeparationShield:
 
     def choose(self, masks: np.ndarray, paths_to: Callable[[np.ndarray], np.ndarray],
                pick: Callable[[np.ndarray, np.ndarray], np.ndarray],
-               onward: Callable[[np.ndarray], np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+               onward: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Choose the team's nodes, UAV 0 first, then again with a blocked UAV first where one was blocked.
 
         Args:
@@ -202,9 +212,9 @@ class SeparationShield:
                 (the env's ``waypoint_paths``).
             pick: ``pick(k (B,), mask (B, L)) -> (B,)``: the node of UAV ``k[b]`` of copy b under the shielded
                 mask (sampling in training, the most likely node in evaluation).
-            onward: the viability rule, or None: ``onward(nodes (B, U, 1)) -> (B, U, 1)`` how many nodes each UAV
-                could reach next slot after flying to ``nodes`` (-1 stands for no node; the env's
-                ``waypoint_onward``).
+            onward: the viability rule, or None: ``onward(xy (B, U, M, 2), theta (B, U, M)) -> (B, U, M)`` how many
+                nodes a UAV ending this slot at each pose may reach in the next (-1 where xy is NaN; the env's
+                ``onward_reach``).
 
         Returns:
             ``(actions (B, U) int64, shielded masks (B, U, L) bool)``.
@@ -222,11 +232,12 @@ class SeparationShield:
         actions, shielded = np.zeros((B, U), np.int64), np.empty_like(masks)
         copies = np.arange(B)
 
-        def test(k, cand):
-            """(B, m) onward counts of UAV k[b]'s nodes cand[b] (-1: none, not tested)."""
-            nodes = np.full((B, U, cand.shape[1]), -1)
-            nodes[copies, k] = cand
-            return onward(nodes)[copies, k]
+        def test(k, xy, theta):
+            """(B, m) onward counts of UAV k[b] at the poses xy[b] (m, 2), theta[b] (m,) (NaN: -1, not tested)."""
+            at_xy = np.full((B, U, xy.shape[1], 2), np.nan)
+            at_theta = np.zeros((B, U, xy.shape[1]))
+            at_xy[copies, k], at_theta[copies, k] = xy, theta
+            return onward(at_xy, at_theta)[copies, k]
 
         if onward is None:
             test = None

@@ -178,12 +178,17 @@ class TaskMix:
                                 for e, inv, n in zip(self.envs, self._from_mix, self._split(nodes), strict=True)])
         return fly_to_goals(self.uav_xy, self.uav_theta, goals, self.config, self._times)
 
-    def waypoint_onward(self, nodes) -> np.ndarray:
-        """The tasks' ``waypoint_onward`` for nodes ``(B, U, M)`` of the mix's lattice (-1: none): each task counts
-        the nodes of its own lattice."""
-        nodes = self._nodes("waypoint_onward()", nodes, 1)
-        return np.concatenate([e.waypoint_onward(np.where(n >= 0, inv[np.maximum(n, 0)], -1))
-                               for e, inv, n in zip(self.envs, self._from_mix, self._split(nodes), strict=True)])
+    def onward_reach(self, xy, theta) -> np.ndarray:
+        """The tasks' ``onward_reach`` (each counts the nodes of its own lattice)."""
+        if not self.waypoint:
+            raise RuntimeError("TaskMix.onward_reach() is for action_mode='waypoint'")
+        xy, theta = np.asarray(xy), np.asarray(theta)
+        b, u = self.num_envs, len(self.possible_agents)
+        if xy.ndim != 4 or xy.shape[:2] != (b, u) or xy.shape[3] != 2 or theta.shape != xy.shape[:3]:
+            raise ValueError(f"TaskMix.onward_reach(): xy must have shape ({b}, {u}, M, 2) and theta ({b}, {u}, M), "
+                             f"got {xy.shape} and {theta.shape}")
+        return np.concatenate([e.onward_reach(x, t) for e, x, t in zip(self.envs, self._split(xy), self._split(theta),
+                                                                         strict=True)])
 
     @property
     def uav_xy(self) -> np.ndarray:

@@ -465,11 +465,11 @@ class CovertSensingParallelEnv(ParallelEnv):
         Read-only; waypoint mode, after ``reset()`` (:meth:`CovertSensingVectorEnv.waypoint_paths`)."""
         return self._vec.waypoint_paths(np.asarray(nodes)[None])[0]
 
-    def waypoint_onward(self, nodes) -> np.ndarray:
-        """How many lattice nodes each UAV could reach in the next slot after flying to lattice ``nodes``
-        ``(U, M)`` in this one: ``(U, M)`` int64, -1 for an index of -1. Read-only; waypoint mode, after
-        ``reset()`` (:meth:`CovertSensingVectorEnv.waypoint_onward`)."""
-        return self._vec.waypoint_onward(np.asarray(nodes)[None])[0]
+    def onward_reach(self, xy, theta) -> np.ndarray:
+        """How many lattice nodes UAVs ending this slot at poses ``xy`` ``(U, M, 2)``, ``theta`` ``(U, M)`` may reach
+        in the next slot: ``(U, M)`` int64, -1 where ``xy`` is NaN. Read-only; waypoint mode, after ``reset()``
+        (:meth:`CovertSensingVectorEnv.onward_reach`)."""
+        return self._vec.onward_reach(np.asarray(xy)[None], np.asarray(theta)[None])[0]
 
     def state(self) -> np.ndarray:
         """Global state for centralised critics (see the class docstring)."""

@@ -465,32 +465,40 @@ class CovertSensingVectorEnv:
         those actions fly to; NaN where the index is -1 (no node). Read-only; waypoint mode, after ``reset()``."""
         return self._goals(self._checked_nodes("waypoint_goals()", nodes))
 
-    def waypoint_onward(self, nodes) -> np.ndarray:
-        """How many lattice nodes each UAV could reach in the next slot after flying to lattice ``nodes``
-        ``(B, U, M)`` in this one: ``(B, U, M)`` int64, -1 where the index is -1 (no node).
+    def onward_reach(self, xy, theta) -> np.ndarray:
+        """How many lattice nodes UAVs ending this slot at poses ``xy`` ``(B, U, M, 2)`` (world frame, m), heading
+        ``theta`` ``(B, U, M)``, may reach in the next slot: ``(B, U, M)`` int64, -1 where ``xy`` is NaN.
 
-        The flight ends where and with the heading ``step`` flies it; the next slot's nodes are placed at the
-        target two slots ahead, its pose predicted for slot k+1 driven on for one more slot with the same
-        displacement and turn (a constant-speed, constant-curvature guess: the env keeps one slot of prediction);
-        reachability is :class:`~covert_env.reach.ReachTable`'s (the kinematic mask's). A count of 0 means the UAV
-        will reach no node next slot and leave the zone: a policy can avoid that one slot ahead
-        (``training.shield``). Read-only; waypoint mode, after ``reset()``."""
-        nodes = self._checked_nodes("waypoint_onward()", nodes)
-        out = np.full(nodes.shape, -1, np.int64)
-        ci, ui, mi = np.nonzero(nodes >= 0)
+        The next slot's nodes are placed at the target two slots ahead: its pose predicted for slot k+1, driven on
+        for one more slot with the same displacement and turn (a constant-speed, constant-curvature guess; the env
+        keeps one slot of prediction). Reachability is :class:`~covert_env.reach.ReachTable`'s lookup without the
+        manoeuvre solver: the nodes in its boundary cells count as unreachable, so the count is a lower bound
+        (within a cell of the reach boundary). A UAV with a count of 0 reaches no node next slot, or only nodes
+        at the edge of its reach: it is about to leave the zone. A read-only query (waypoint mode, after
+        ``reset()``) for policies that look one slot ahead: the viability rule of ``training.shield`` tests the
+        ends of its candidate paths (``waypoint_paths``) with it. (Counting the boundary nodes as reachable
+        instead flagged almost no dead end: a UAV just out of reach has nodes in boundary cells.)"""
+        if self.action_mode != "waypoint":
+            raise RuntimeError("onward_reach() is for action_mode='waypoint'")
+        self.require_running("onward_reach()")
+        xy, theta = np.asarray(xy, np.float64), np.asarray(theta, np.float64)
+        b, u = self.num_envs, len(self.possible_agents)
+        if xy.ndim != 4 or xy.shape[:2] != (b, u) or xy.shape[3] != 2 or theta.shape != xy.shape[:3]:
+            raise ValueError(f"onward_reach(): xy must have shape ({b}, {u}, M, 2) and theta ({b}, {u}, M), got "
+                             f"{xy.shape} and {theta.shape}")
+        out = np.full(theta.shape, -1, np.int64)
+        ci, ui, mi = np.nonzero(~np.isnan(xy[..., 0]))
         if len(ci) == 0:
             return out
-        c, pool, rows, k = self.config, self._pool, self._rows, self._k
-        goals = self._goals(nodes)[ci, ui, mi][:, None]
-        path, end_theta = batch.fly_waypoints(self._xy[ci, ui][:, None], self._theta[ci, ui][:, None], goals, c,
-                                              np.array([0.0, c.delta]))[:2]
+        pool, rows, k = self._pool, self._rows, self._k
         q0, q1 = pool.q[rows, k, :2], pool.q_next[rows, k, :2]
         turn = pool.phi_next[rows, k] - pool.phi[rows, k]
         d = q1 - q0
         q2 = q1 + np.stack([np.cos(turn) * d[:, 0] - np.sin(turn) * d[:, 1],
                             np.sin(turn) * d[:, 0] + np.cos(turn) * d[:, 1]], axis=-1)
         phi2 = pool.phi_next[rows, k] + turn
-        reach = self._reach.reachable(path[:, :, -1], end_theta, q2[ci], phi2[ci], self.lattice)     # (N, 1, L)
+        reach = self._reach.reachable(xy[ci, ui, mi][:, None], theta[ci, ui, mi][:, None], q2[ci], phi2[ci],
+                                      self.lattice, exact=False)                                  # (N, 1, L)
         out[ci, ui, mi] = reach[:, 0].sum(axis=-1)
         return out
 

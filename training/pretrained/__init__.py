@@ -194,7 +194,8 @@ class LearnedPolicy:
             if self.shield is not None:
                 act, _ = self.shield.choose(mask[None], lambda n: par.waypoint_paths(n[0])[None],
                                             lambda k, m: np.argmax(np.where(m, logits[k], -np.inf), axis=-1),
-                                            (lambda n: par.waypoint_onward(n[0])[None]) if self.viability else None)
+                                            (lambda xy, th: par.onward_reach(xy[0], th[0])[None]) if self.viability
+                                            else None)
                 out = {a: int(act[0, i]) for i, a in enumerate(agents)}
             else:
                 out = {a: int(np.argmax(np.where(mask[i], logits[i], -np.inf))) for i, a in enumerate(agents)}
