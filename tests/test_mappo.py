@@ -374,3 +374,27 @@ def test_viability_shield_run_records_it_and_the_policy_uses_it(tmp_path, train_
                 dict(viability_shield=True, action_mode="unicycle")):
         with pytest.raises(ValueError, match=r"--viability-shield acts inside the separation shield"):
             mappo.check_args(mappo.Args(**bad))
+
+
+def test_init_temperature_flattens_the_loaded_policy_but_keeps_its_ranking():
+    """--init-temperature T divides the loaded node logits by T: the greedy choice is the shipped one, the
+    distribution is flatter (higher entropy); it needs --init-actor in the waypoint mode."""
+    shipped = load_learned("training/pretrained/mappo.npz")
+    spec = shipped.actor.spec
+    actors = []
+    for t in (1.0, 4.0):
+        a = Actor(spec["obs_dim"], spec["n_actions"], head="node", hidden=spec["hidden"],
+                  node_hidden=spec["node_hidden"], n_feat=spec["n_feat"], log_std_init=-0.5)
+        mappo.load_initial_actor(a, "pretrained:mappo", node_map=False, temperature=t)
+        actors.append(a)
+    obs = np.random.default_rng(0).normal(size=(6, spec["obs_dim"])).astype(np.float32)
+    lat = np.random.default_rng(1).uniform(-100, 30, (40, 2))
+    feats = torch.from_numpy(node_features(obs, lat, 3, r2=100.0, v_max=50.0, delta=1.0, d_safe1=5.0))
+    with torch.no_grad():
+        l1, l4 = (a.logits(torch.from_numpy(obs), feats) for a in actors)
+    np.testing.assert_allclose(l4.numpy(), l1.numpy() / 4.0, rtol=1e-5, atol=1e-6)
+    assert (l4.argmax(1) == l1.argmax(1)).all()
+    ent = [torch.distributions.Categorical(logits=x).entropy().mean().item() for x in (l1, l4)]
+    assert ent[1] > ent[0]
+    with pytest.raises(ValueError, match=r"--init-temperature 4: needs --init-actor"):
+        mappo.check_args(mappo.Args(init_temperature=4.0))

@@ -50,7 +50,7 @@ def _tiny_run(tmp_path, head="node", mode="waypoint", u=2):
             "actor": {"head": head, "hidden": h, "node_hidden": nh, "n_feat": N_OWN_FEATURES + u - 1,
                       "obs_dim": d, "n_actions": n_act},
             "env_kwargs": {"n_uavs": u, "action_mode": mode, "max_cycles": 70, "scene_pool": 10000},
-            "separation_shield": 5.0 if mode == "waypoint" else None}
+            "separation_shield": 5.0 if mode == "waypoint" else None, "viability_shield": mode == "waypoint"}
     (run / "model.json").write_text(json.dumps(meta))
     (run / "args.json").write_text(json.dumps({"algo": "mappo", "seed": 0}))
     (run / "train_summary.json").write_text(json.dumps({"env_steps": 16}))
@@ -72,6 +72,7 @@ def test_export_card_round_trip(tmp_path, head, mode):
     pol, settings = load_policy(f"mappo:{card_path.with_suffix('.npz')}", 2)
     assert settings["action_mode"] == mode
     assert card["separation_shield"] == pol.shield_distance == (5.0 if mode == "waypoint" else None)
+    assert card["viability_shield"] is pol.viability is (mode == "waypoint")
     rows = evaluate(pol, settings, 2, progress=False)
     assert [r["reward"] for r in rows] == pytest.approx([s["per_scene_reward"][str(r["scene_seed"])] for r in rows])
     assert len(set(s["per_scene_reward"].values())) == 2          # two scenes, two episodes: not a constant

@@ -186,6 +186,11 @@ class Args:
     """start the actor from these weights: pretrained:NAME, a training.mappo run folder or a weights .npz with
     its card (training.pretrained.load_learned); the architecture must match. Loaded into an actor with
     --node-map from weights without it, the map inputs start at zero: the team starts as the loaded one"""
+    init_temperature: float = 1.0
+    """with --init-actor (waypoint heads): divide the loaded actor's logits by this. Its greedy choices stay the
+    same, its samples spread: a trained actor's masked policy can be too sharp for policy gradients to move
+    (the gradient of log pi(a) vanishes as pi(a) nears 1; the shipped actor's has about 0.5 nats of entropy with
+    the kinematic mask, 2.2 at a temperature of 4)"""
     actor_warmup_updates: int = 0
     """the first this many PPO updates train the critic only (with --init-actor: a fresh critic's advantages would
     otherwise move the loaded actor at random)"""
@@ -230,6 +235,9 @@ def check_args(args: Args) -> None:
         raise ValueError("--viability-shield acts inside the separation shield: it needs --action-mode waypoint and "
                          f"--separation-shield true, got --action-mode {args.action_mode!r} --separation-shield "
                          f"{str(args.separation_shield).lower()}")
+    if args.init_temperature != 1.0 and not (args.init_actor and args.action_mode == "waypoint"):
+        raise ValueError(f"--init-temperature {args.init_temperature:g}: needs --init-actor and --action-mode "
+                         "waypoint (it scales the loaded actor's node logits)")
     if args.actor_warmup_updates and not args.init_actor:
         raise ValueError(f"--actor-warmup-updates {args.actor_warmup_updates}: needs --init-actor (a fresh actor "
                          "has nothing to keep)")
@@ -315,12 +323,14 @@ def make_networks(args: Args, s: Sizes):
     return actor, critic, optim
 
 
-def load_initial_actor(actor, spec: str, node_map: bool) -> None:
+def load_initial_actor(actor, spec: str, node_map: bool, temperature: float = 1.0) -> None:
     """``--init-actor``: copy the weights of ``spec`` (``pretrained:NAME``, a run folder or a weights ``.npz``,
     checked by :func:`training.pretrained.load_learned`) into ``actor``. Every parameter must have the loaded
     one's shape, except that an actor with ``node_map`` takes weights without it: the map's columns of
     ``node_feat.weight`` (the last :data:`~training.pretrained.N_MAP_FEATURES` features) start at zero, so the
-    new actor scores every node as the loaded one does. A ``ValueError`` names the parameter and both shapes."""
+    new actor scores every node as the loaded one does. The output layer (``node_out`` or ``flat``) is divided by
+    ``temperature``: the same ranking of the nodes, a flatter distribution. A ``ValueError`` names the parameter
+    and both shapes."""
     path = PRETRAINED_DIR / f"{spec.removeprefix('pretrained:')}.npz" if spec.startswith("pretrained:") else spec
     try:
         loaded = load_learned(path)
@@ -342,6 +352,8 @@ def load_initial_actor(actor, spec: str, node_map: bool) -> None:
             raise ValueError(f"--init-actor {spec}: actor.{key} has shape {tuple(params[key].shape)}, this actor's "
                              f"is {tuple(target.shape)} (--hidden, --node-hidden, --agent-id, --n-uavs and "
                              "--map-size must match the loaded card's)")
+        if key.split(".")[0] in ("node_out", "flat"):
+            value = value / temperature
         new[key] = value
     actor.load_state_dict(new)
 
@@ -729,7 +741,7 @@ def train(args: Args) -> Path:
     if args.resume:
         prog = resume(run_dir, actor, critic, optim, vnorm)
     elif args.init_actor:
-        load_initial_actor(actor, args.init_actor, args.node_map)
+        load_initial_actor(actor, args.init_actor, args.node_map, args.init_temperature)
     prog.lam = {name: prog.lam.get(name, 0.0) for name in s.constrained}
     card = model_card(args, s, env, env_kwargs, shield)
     save_run(run_dir, args, {"card": card})

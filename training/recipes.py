@@ -85,7 +85,8 @@ MAPPO_RECIPES: dict[str, dict] = {
     ),
     "3uav-suite-ft": dict(
         algo="mappo", n_uavs=3, num_envs=16, action_mode="waypoint", head="node", node_map=True, map_size=8,
-        mask_mode="kinematic", init_actor="pretrained:mappo", actor_warmup_updates=10, learning_rate=1e-3,
+        mask_mode="kinematic", init_actor="pretrained:mappo", init_temperature=4.0, actor_warmup_updates=10,
+        learning_rate=1e-3,
         time_budget_minutes=30.0, separation_shield=True, viability_shield=True, shield_end_margin=10.0,
         lagrangian=True, constraints="los=0.01,los_path=0.08,zone=0.015", lagrange_lr=1.0, lambda_max=4.0,
         tasks="sparse-3uav,paper-3uav,winding-3uav,dense-3uav,downtown-3uav,towers-3uav,paper-3uav-deviating,"

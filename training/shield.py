@@ -32,12 +32,10 @@ probability ratios are taken under the masks the actions were sampled with); the
 
 With ``onward`` (the viability rule, the env's ``onward_reach``), a UAV also avoids a node from which it could
 reach no lattice node in the next slot: from there it would leave the zone. The end of the path to its chosen
-node (position, and heading along the path's last step) is tested; if it is
-such a dead end, all its allowed nodes are tested, the dead ends leave its mask and it chooses again (if every
-node is a dead end, its choice stands; counted in ``dead_ends``). The action is then a sample of the stored
-mask's distribution, as PPO needs. Testing only the chosen node first keeps the cost low: about one in twenty
-first choices is a dead end, and testing every candidate of every UAV costs about as much as the rest of a
-training step.
+node (position, and heading along the path's last step) is tested. If it is such a dead end, every node of its
+mask is tested, the dead ends leave the mask and the UAV chooses again; if every node is a dead end, its choice
+stands (counted in ``dead_ends``). The action is then a sample of the stored mask's distribution, as PPO needs.
+Only a UAV whose first choice is a dead end pays for testing all its nodes (about 250 with the kinematic mask).
 
 All copies of a batch go through it at once; the loops are over the UAVs of a team and over the tries, because
 the choices are sequential by design (a UAV needs the paths of the UAVs before it).

@@ -68,6 +68,7 @@ def export(run: Path, name: str, episodes: int = 20, out_dir: Path = PRETRAINED_
             "train_tasks": meta.get("train_tasks"), "env_id": CovertSensingVectorEnv.metadata["name"],
             "separation_shield": meta.get("separation_shield"),
             "shield_end_margin": meta.get("shield_end_margin"),
+            "viability_shield": bool(meta.get("viability_shield", False)),
             "covert_env_version": covert_env.__version__, "commit": _commit(),
             "recipe": {k: v for k, v in args.items() if k not in ("card", "resume", "runs_dir")},
             "training": {**summary, "run": run.name, "commit": training_commit or "unknown"}, "note": note}
