@@ -77,8 +77,9 @@ RECIPES: dict[str, dict] = {
 MAPPO_RECIPES: dict[str, dict] = {
     "3uav-suite": dict(
         algo="mappo", n_uavs=3, num_envs=16, action_mode="waypoint", head="node", node_map=True, map_size=16,
-        mask_mode="kinematic", learning_rate=1e-3, time_budget_minutes=55.0, separation_shield=True,
-        shield_end_margin=10.0, lagrangian=True, constraints="los=0.01,los_path=0.03,zone=0.005", lagrange_lr=2.0,
+        mask_mode="kinematic", learning_rate=1e-3, time_budget_minutes=45.0, separation_shield=True,
+        viability_shield=True, shield_end_margin=10.0, lagrangian=True,
+        constraints="los=0.01,los_path=0.08,zone=0.015", lagrange_lr=1.0, lambda_max=4.0,
         tasks="sparse-3uav,paper-3uav,winding-3uav,dense-3uav,downtown-3uav,towers-3uav,paper-3uav-deviating,"
               "downtown-3uav-deviating",
         checkpoint_every=100_000,
