@@ -70,10 +70,12 @@ RECIPES: dict[str, dict] = {
 #: tasks at once (two copies each, training.task_mix), with the kinematic mask (every reachable node: the team
 #: must learn the shadows), the node head reading the 16 x 16 visibility map under each node (without it the
 #: LoS cost did not fall in a 5-minute pilot; with it, it fell by two thirds), a Lagrange multiplier per
-#: constraint (LoS at slot times, LoS along the path, the zone, separation) with a dual step of 2, and the
-#: shield; 55 minutes of wall clock (three seeds at once on 2 cores). Limits the team cannot reach make their
-#: multipliers grow without end: with 0.005 / 0.02 / 0.003 and a dual step of 5 the multipliers passed 16 in
-#: 17 minutes and the team learned to barely move (docs/decisions.md, "Learned teams across the suite").
+#: constraint (LoS at slot times, LoS along the path, the zone, separation) with a dual step of 1 and a bound of
+#: 4, the separation shield and its viability rule (no node from which no node is reachable next slot); 45
+#: minutes of wall clock (three seeds at once on 2 cores). The limits are ones the team can reach: a limit it
+#: cannot reach raises its multiplier without end, and an earlier version of the recipe (limits 0.01 / 0.03 /
+#: 0.005, dual step 2, no bound, no viability rule) learned to barely move (docs/decisions.md, "Learned teams
+#: across the suite").
 MAPPO_RECIPES: dict[str, dict] = {
     "3uav-suite": dict(
         algo="mappo", n_uavs=3, num_envs=16, action_mode="waypoint", head="node", node_map=True, map_size=16,
@@ -83,16 +85,6 @@ MAPPO_RECIPES: dict[str, dict] = {
         tasks="sparse-3uav,paper-3uav,winding-3uav,dense-3uav,downtown-3uav,towers-3uav,paper-3uav-deviating,"
               "downtown-3uav-deviating",
         checkpoint_every=100_000,
-    ),
-    "3uav-suite-ft": dict(
-        algo="mappo", n_uavs=3, num_envs=16, action_mode="waypoint", head="node", node_map=True, map_size=8,
-        mask_mode="kinematic", init_actor="pretrained:mappo", init_temperature=4.0, actor_warmup_updates=10,
-        learning_rate=1e-3,
-        time_budget_minutes=30.0, separation_shield=True, viability_shield=True, shield_end_margin=10.0,
-        lagrangian=True, constraints="los=0.01,los_path=0.08,zone=0.015", lagrange_lr=1.0, lambda_max=4.0,
-        tasks="sparse-3uav,paper-3uav,winding-3uav,dense-3uav,downtown-3uav,towers-3uav,paper-3uav-deviating,"
-              "downtown-3uav-deviating",
-        checkpoint_every=50_000,
     ),
     "3uav-mappo": dict(
         algo="mappo", n_uavs=3, num_envs=16, action_mode="waypoint", head="node", learning_rate=1e-3,
