@@ -196,6 +196,8 @@ class CovertSensingParallelEnv(ParallelEnv):
 
     ## Version History
 
+    * v3, covert_env 0.8.0 (no number changed): ``onward_reach(xy, theta)``, how many nodes UAVs ending this slot
+      at given poses may reach in the next (read-only; the viability rule of ``training.shield``).
     * v3, covert_env 0.7.0: LoS lost between slot times counts. The reward has a term ``los_path``
       (``-los_path_penalty`` times the share of the slot's flown path with LoS blocked, weight 1.0 by default), the
       infos a cost ``cost_los_path`` (that share, also summed into ``cost``) and a flag ``los_path``; ``penalties``

@@ -88,7 +88,8 @@ class CovertSensingVectorEnv:
     comes from :class:`~covert_env.reach.ReachTable` (a table in the UAV's frame; only nodes near its boundary
     are solved), which gives exactly ``solve_manoeuvre``'s answer. ``waypoint_paths(nodes)`` returns the paths
     the UAVs would fly to given nodes in this slot (read-only; what the separation shield of
-    ``training.shield`` tests).
+    ``training.shield`` tests), and ``onward_reach(xy, theta)`` how many nodes a UAV ending the slot at a given
+    pose may reach in the next (its viability rule).
 
     ## Rewards, Terminations, Truncations
 
@@ -159,6 +160,8 @@ class CovertSensingVectorEnv:
 
     ## Version History
 
+    * v3, covert_env 0.8.0 (no number changed): ``onward_reach(xy, theta)``, how many nodes UAVs ending this slot
+      at given poses may reach in the next (read-only; the viability rule of ``training.shield``).
     * v3, covert_env 0.7.0: the task and numbers of ``covert_sensing_v3`` (LoS along the flown path in the reward,
       ``reward_los_path``, and the infos, ``cost_los_path`` and ``los_path``, computed for every copy and path sample
       in one batched line-of-sight call).
