@@ -38,30 +38,30 @@ def test_table_equals_solve_manoeuvre_on_random_poses(limits):
     assert 0.01 < want.mean() < 0.95                       # both outcomes are exercised
 
 
-def test_table_equals_solve_manoeuvre_on_the_lattice():
+def _near_lattice(seed: int, b: int):
+    """``b`` random targets with 3 UAVs each near the default lattice's nodes: (xy, theta, q, phi, lattice,
+    table)."""
     c = Config()
     lattice, table = zone_lattice(c), reach_table(c.v_max, c.w_max, c.delta)
-    rng = np.random.default_rng(2)
-    b = 300
+    rng = np.random.default_rng(seed)
     q, phi = rng.uniform(-500, 500, (b, 2)), rng.uniform(0, 2 * np.pi, b)
     nodes = np.stack([to_world(lattice, q[j], phi[j]) for j in range(b)])
     xy = nodes[np.arange(b)[:, None], rng.integers(0, len(lattice), (b, 3))] + rng.normal(0, 15, (b, 3, 2))
     theta = rng.uniform(0, 2 * np.pi, (b, 3))
+    return xy, theta, q, phi, lattice, table
+
+
+def test_table_equals_solve_manoeuvre_on_the_lattice():
+    c = Config()
+    xy, theta, q, phi, lattice, table = _near_lattice(2, 300)
     assert np.array_equal(table.reachable(xy, theta, q, phi, lattice),
                           _exact(xy, theta, q, phi, lattice, (c.v_max, c.w_max, c.delta)))
 
 
-def test_without_the_solver_reachable_is_a_subset_within_the_boundary_cells():
-    """``exact=False`` (no manoeuvre solver): every point it calls reachable is, and it misses only points the
-    exact answer had to solve (the boundary cells), a small share of the reachable ones."""
-    c = Config()
-    lattice, table = zone_lattice(c), reach_table(c.v_max, c.w_max, c.delta)
-    rng = np.random.default_rng(3)
-    b = 200
-    q, phi = rng.uniform(-500, 500, (b, 2)), rng.uniform(0, 2 * np.pi, b)
-    nodes = np.stack([to_world(lattice, q[j], phi[j]) for j in range(b)])
-    xy = nodes[np.arange(b)[:, None], rng.integers(0, len(lattice), (b, 3))] + rng.normal(0, 15, (b, 3, 2))
-    theta = rng.uniform(0, 2 * np.pi, (b, 3))
+def test_without_the_solver_reachable_is_a_subset():
+    """``exact=False`` (no manoeuvre solver, boundary cells counted unreachable): every point it calls reachable
+    is, and it misses a small share of the reachable ones."""
+    xy, theta, q, phi, lattice, table = _near_lattice(3, 200)
     exact = table.reachable(xy, theta, q, phi, lattice)
     certain = table.reachable(xy, theta, q, phi, lattice, exact=False)
     assert certain.dtype == bool and not (certain & ~exact).any()
