@@ -366,6 +366,11 @@ def test_viability_shield_run_records_it_and_the_policy_uses_it(tmp_path, train_
     par.onward_reach = lambda xy, theta: calls.append(1) or real(xy, theta)
     pol.act(obs, par)
     assert calls
+    card["separation_shield"] = None
+    (run / "model.json").write_text(json.dumps(card))
+    with pytest.raises(ValueError, match=r"viability_shield is a rule of the separation shield, but "
+                                         r"separation_shield is null"):
+        load_learned(run)
     card["viability_shield"] = "yes"
     (run / "model.json").write_text(json.dumps(card))
     with pytest.raises(ValueError, match=r"viability_shield must be true or false, got 'yes'"):

@@ -226,6 +226,14 @@ def test_onward_reach_predicts_when_no_node_is_reachable():
         assert dead > 0 and agree >= 0.98 * n, (task, agree, n, dead)
     with pytest.raises(ValueError, match=r"onward_reach\(\): xy must have shape \(6, 3, M, 2\)"):
         env.onward_reach(np.zeros((6, 3, 2)), np.zeros((6, 3)))
+    with pytest.raises(ValueError, match=r"onward_reach\(\): xy and theta must be real numbers"):
+        env.onward_reach(np.zeros((6, 3, 1, 2)).astype(str), np.zeros((6, 3, 1)))
+    with pytest.raises(ValueError, match=r"must be finite \(NaN marks no pose\), got inf"):
+        env.onward_reach(np.full((6, 3, 1, 2), np.inf), np.zeros((6, 3, 1)))
+    half = xy[..., :1, :].copy()
+    half[..., 1] = np.nan
+    assert (env.onward_reach(half, np.zeros((6, 3, 1))) == -1).all()   # a NaN anywhere in a pose: no pose
+    assert (env.onward_reach(xy[..., :1, :], np.full((6, 3, 1), np.nan)) == -1).all()
     uni = covert_env.vector_env(num_envs=2, n_uavs=2, action_mode="unicycle")
     uni.reset(seed=0)
     with pytest.raises(RuntimeError, match=r"onward_reach\(\) is for action_mode='waypoint'"):
@@ -290,3 +298,34 @@ def test_viability_rule_avoids_dead_ends_where_it_can(seed, b, u, n):
     plain, _ = SeparationShield(5.0).choose(masks, paths_to, pick)
     fine = free | ~deadly[rows, uavs, plain]
     np.testing.assert_array_equal(a[fine], plain[fine])
+
+
+def test_viability_rule_looks_past_the_end_margin_preference():
+    """UAV 1 may end 8 m from UAV 0 (separated, not roomy) or 30 m (roomy, but a dead end): the end margin alone
+    picks the 30 m node; with the viability rule the UAV takes the 8 m node, and no dead end is counted."""
+    p = 5
+    t = np.linspace(0, 1, p)[:, None]
+
+    def straight(a, b):
+        return np.asarray(a, float) + (np.asarray(b, float) - np.asarray(a, float)) * t
+
+    table = np.zeros((1, 2, 3, p, 2))
+    table[0, 0, 0] = straight([0, -50], [0, 0])
+    table[0, 1, 1] = straight([8, -50], [8, 0])
+    table[0, 1, 2] = straight([30, -50], [30, 0])
+
+    def paths_to(nodes):
+        out = table[0][np.arange(2)[:, None], nodes[0]][None].copy()
+        out[nodes < 0] = np.nan
+        return out
+
+    def onward(xy, theta):
+        return np.where(np.isnan(xy[..., 0]), -1, np.where(np.isclose(xy[..., 0], 30.0), 0, 5))
+
+    first = lambda k, m: np.argmax(m, axis=1)            # noqa: E731
+    masks = np.array([[[True, False, False], [False, True, True]]])
+    a, _ = SeparationShield(5.0, end_margin=10.0).choose(masks, paths_to, first)
+    assert a.tolist() == [[0, 2]]
+    shield = SeparationShield(5.0, end_margin=10.0)
+    a, sm = shield.choose(masks, paths_to, first, onward)
+    assert a.tolist() == [[0, 1]] and sm[0, 1].tolist() == [False, True, False] and shield.dead_ends == 0

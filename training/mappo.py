@@ -188,9 +188,8 @@ class Args:
     --node-map from weights without it, the map inputs start at zero: the team starts as the loaded one"""
     init_temperature: float = 1.0
     """with --init-actor (waypoint heads): divide the loaded actor's logits by this. Its greedy choices stay the
-    same, its samples spread: a trained actor's masked policy can be too sharp for policy gradients to move
-    (the gradient of log pi(a) vanishes as pi(a) nears 1; the shipped actor's has about 0.5 nats of entropy with
-    the kinematic mask, 2.2 at a temperature of 4)"""
+    same and its samples spread: a near-greedy policy gives policy gradients almost nothing to move (the gradient
+    of log pi(a) vanishes as pi(a) nears 1)"""
     actor_warmup_updates: int = 0
     """the first this many PPO updates train the critic only (with --init-actor: a fresh critic's advantages would
     otherwise move the loaded actor at random)"""

@@ -72,10 +72,8 @@ RECIPES: dict[str, dict] = {
 #: LoS cost did not fall in a 5-minute pilot; with it, it fell by two thirds), a Lagrange multiplier per
 #: constraint (LoS at slot times, LoS along the path, the zone, separation) with a dual step of 1 and a bound of
 #: 4, the separation shield and its viability rule (no node from which no node is reachable next slot); 45
-#: minutes of wall clock (three seeds at once on 2 cores). The limits are ones the team can reach: a limit it
-#: cannot reach raises its multiplier without end, and an earlier version of the recipe (limits 0.01 / 0.03 /
-#: 0.005, dual step 2, no bound, no viability rule) learned to barely move (docs/decisions.md, "Learned teams
-#: across the suite").
+#: minutes of wall clock (three seeds at once on 2 cores). The bound keeps a limit the team does not reach from
+#: drowning the reward (docs/decisions.md, "Learned teams across the suite").
 MAPPO_RECIPES: dict[str, dict] = {
     "3uav-suite": dict(
         algo="mappo", n_uavs=3, num_envs=16, action_mode="waypoint", head="node", node_map=True, map_size=16,

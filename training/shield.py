@@ -33,9 +33,13 @@ probability ratios are taken under the masks the actions were sampled with); the
 With ``onward`` (the viability rule, the env's ``onward_reach``), a UAV also avoids a node from which it could
 reach no lattice node in the next slot: from there it would leave the zone. The end of the path to its chosen
 node (position, and heading along the path's last step) is tested. If it is such a dead end, every node of its
-mask is tested, the dead ends leave the mask and the UAV chooses again; if every node is a dead end, its choice
-stands (counted in ``dead_ends``). The action is then a sample of the stored mask's distribution, as PPO needs.
-Only a UAV whose first choice is a dead end pays for testing all its nodes (about 250 with the kinematic mask).
+mask (and its separated nodes that the end-margin preference left out) is tested, the dead ends leave the mask
+and the UAV chooses again, among roomy nodes where there are any; if every node is a dead end, its choice stands
+(counted in ``dead_ends``). Only a UAV whose first choice is a dead end pays for testing all its nodes (about 250
+with the kinematic mask). The price is a bias in training: the actions are samples of the policy restricted to
+the viable nodes, but where the first choice was viable the stored mask still holds the dead ends, so PPO takes
+those samples' probabilities under a wider mask than they were drawn from. Storing the exact mask would mean
+testing every node of every UAV in every slot.
 
 All copies of a batch go through it at once; the loops are over the UAVs of a team and over the tries, because
 the choices are sequential by design (a UAV needs the paths of the UAVs before it).
@@ -85,30 +89,37 @@ class SeparationShield:
         self.dead_ends = 0
 
     def restrict(self, mask: np.ndarray, nodes: np.ndarray, paths: np.ndarray, chosen_paths: np.ndarray
-                 ) -> tuple[np.ndarray, np.ndarray]:
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """One UAV per copy: its mask ``(B, L)`` without the nodes whose paths come closer than ``min_distance``
         to the teammates' ``chosen_paths`` ``(B, k, P, 2)``, from its candidate ``nodes`` ``(B, M)`` (the mask's
-        nodes, padded with -1) and their ``paths`` ``(B, M, P, 2)``. Returns the mask and the rows ``(B,)``
-        where no node was left: those keep the nodes whose paths come least close."""
+        nodes, padded with -1) and their ``paths`` ``(B, M, P, 2)``. Returns the mask, the rows ``(B,)`` where no
+        node was left (those keep the nodes whose paths come least close), and the mask before the end-margin
+        preference (every separated node: where the viability rule finds no roomy node, it looks there)."""
         mask = np.asarray(mask, bool)
         empty = np.zeros(len(mask), bool)
         if chosen_paths.shape[1] == 0:
-            return mask, empty
+            return mask, empty, mask
         gap = separation(paths[:, :, None, 1:], chosen_paths[:, None, :, 1:]).min(axis=2)   # (B, M)
         gap[nodes < 0] = -1.0                                                   # padding: never kept
         keep = gap >= self.min_distance
+        separated = keep.copy()
         if self.end_margin > 0:
             roomy = keep & (self._end_gap(paths, chosen_paths) >= self.min_distance + self.end_margin)
             has = roomy.any(axis=1)
             keep[has] = roomy[has]
         empty = ~keep.any(axis=1)
         if empty.any():
-            keep[empty] = gap[empty] >= gap[empty].max(axis=1, keepdims=True)
+            keep[empty] = separated[empty] = gap[empty] >= gap[empty].max(axis=1, keepdims=True)
+        return self._as_mask(mask, nodes, keep), empty, self._as_mask(mask, nodes, separated)
+
+    @staticmethod
+    def _as_mask(mask, nodes, keep):
+        """The ``(B, L)`` mask of the candidate ``nodes`` ``(B, M)`` (-1 padded) that ``keep`` ``(B, M)`` marks."""
         out = np.zeros_like(mask)
         rows = np.broadcast_to(np.arange(len(mask))[:, None], nodes.shape)
-        keep &= nodes >= 0
+        keep = keep & (nodes >= 0)
         out[rows[keep], nodes[keep]] = True
-        return out, empty
+        return out
 
     @staticmethod
     def _end_gap(paths, chosen_paths):
@@ -116,11 +127,12 @@ class SeparationShield:
         ``(B, M)``."""
         return separation(paths[:, :, None, -1:], chosen_paths[:, None, :, -1:]).min(axis=2)
 
-    def _viable(self, a, k, sm, rows, nodes_k, paths_k, onward, pick):
+    def _viable(self, a, k, sm, wide, rows, nodes_k, paths_k, onward, pick):
         """The viability rule for the UAVs ``k`` of ``rows`` (B,): where the chosen node ``a`` is a dead end
         (``onward`` finds no node reachable from the end of its path next slot), every candidate of the UAV's
-        mask ``sm`` is tested (``nodes_k`` (B, M), -1 padded, and their ``paths_k`` (B, M, P, 2)), the dead ends
-        are removed from ``sm`` (in place) and the UAV chooses again. Returns the actions; a row whose every node
+        mask ``sm`` and of ``wide`` (its separated nodes before the end-margin preference) is tested (``nodes_k``
+        (B, M), -1 padded, and their ``paths_k`` (B, M, P, 2)). ``sm`` (in place) becomes its viable nodes, the
+        roomy ones where there are any, and the UAV chooses again. Returns the actions; a row whose every node
         is a dead end keeps its choice and its mask."""
         copies = np.arange(len(a))
         slot = np.argmax(nodes_k == a[:, None], axis=1)
@@ -128,11 +140,14 @@ class SeparationShield:
         dead = rows & (onward(k, *end_poses(chosen))[:, 0] == 0)
         if not dead.any():
             return a
-        tested = dead[:, None] & (nodes_k >= 0) & sm[copies[:, None], np.maximum(nodes_k, 0)]          # (B, M)
+        allowed = sm | wide
+        tested = dead[:, None] & (nodes_k >= 0) & allowed[copies[:, None], np.maximum(nodes_k, 0)]     # (B, M)
         ok = onward(k, *end_poses(np.where(tested[..., None, None], paths_k, np.nan))) > 0
         viable = np.zeros_like(sm)
         r, j = np.nonzero(ok)
         viable[r, nodes_k[r, j]] = True
+        roomy = viable & sm
+        viable = np.where(roomy.any(axis=1, keepdims=True), roomy, viable)
         some = dead & viable.any(axis=1)
         self.dead_ends += int((dead & ~some).sum())
         if some.any():
@@ -152,12 +167,12 @@ class SeparationShield:
         for i in range(U):
             k = order[:, i]
             past = np.stack(chosen, axis=1) if chosen else np.zeros((B, 0, 1, 2))
-            sm, empty = self.restrict(masks[copies, k], nodes[copies, k], paths[copies, k], past)
+            sm, empty, wide = self.restrict(masks[copies, k], nodes[copies, k], paths[copies, k], past)
             fk = free[copies, k]
             sm[fk], empty[fk] = masks[copies, k][fk], False
             a = pick(k, sm)
             if onward is not None and not fk.all():
-                a = self._viable(a, k, sm, ~fk, nodes[copies, k], paths[copies, k], onward, pick)
+                a = self._viable(a, k, sm, wide, ~fk, nodes[copies, k], paths[copies, k], onward, pick)
             slot = np.argmax(nodes[copies, k] == a[:, None], axis=1)           # a is one of the candidates
             path = paths[copies, k, slot]
             if fk.any():

@@ -470,7 +470,7 @@ class CovertSensingVectorEnv:
 
     def onward_reach(self, xy, theta) -> np.ndarray:
         """How many lattice nodes UAVs ending this slot at poses ``xy`` ``(B, U, M, 2)`` (world frame, m), heading
-        ``theta`` ``(B, U, M)``, may reach in the next slot: ``(B, U, M)`` int64, -1 where ``xy`` is NaN.
+        ``theta`` ``(B, U, M)``, may reach in the next slot: ``(B, U, M)`` int64, -1 where the pose holds a NaN.
 
         The next slot's nodes are placed at the target two slots ahead: its pose predicted for slot k+1, driven on
         for one more slot with the same displacement and turn (a constant-speed, constant-curvature guess; the env
@@ -479,18 +479,23 @@ class CovertSensingVectorEnv:
         (within a cell of the reach boundary). A UAV with a count of 0 reaches no node next slot, or only nodes
         at the edge of its reach: it is about to leave the zone. A read-only query (waypoint mode, after
         ``reset()``) for policies that look one slot ahead: the viability rule of ``training.shield`` tests the
-        ends of its candidate paths (``waypoint_paths``) with it. (Counting the boundary nodes as reachable
-        instead flagged almost no dead end: a UAV just out of reach has nodes in boundary cells.)"""
+        ends of its candidate paths (``waypoint_paths``) with it."""
         if self.action_mode != "waypoint":
             raise RuntimeError("onward_reach() is for action_mode='waypoint'")
         self.require_running("onward_reach()")
-        xy, theta = np.asarray(xy, np.float64), np.asarray(theta, np.float64)
+        xy, theta = np.asarray(xy), np.asarray(theta)
         b, u = self.num_envs, len(self.possible_agents)
         if xy.ndim != 4 or xy.shape[:2] != (b, u) or xy.shape[3] != 2 or theta.shape != xy.shape[:3]:
             raise ValueError(f"onward_reach(): xy must have shape ({b}, {u}, M, 2) and theta ({b}, {u}, M), got "
                              f"{xy.shape} and {theta.shape}")
+        if xy.dtype.kind not in "fiu" or theta.dtype.kind not in "fiu":
+            raise ValueError(f"onward_reach(): xy and theta must be real numbers, got dtypes {xy.dtype} and "
+                             f"{theta.dtype}")
+        xy, theta = xy.astype(np.float64), theta.astype(np.float64)
+        if np.isinf(xy).any() or np.isinf(theta).any():
+            raise ValueError("onward_reach(): xy and theta must be finite (NaN marks no pose), got inf")
         out = np.full(theta.shape, -1, np.int64)
-        ci, ui, mi = np.nonzero(~np.isnan(xy[..., 0]))
+        ci, ui, mi = np.nonzero(~(np.isnan(xy).any(axis=-1) | np.isnan(theta)))
         if len(ci) == 0:
             return out
         pool, rows, k = self._pool, self._rows, self._k

@@ -231,6 +231,9 @@ def load_learned(path: str | Path) -> LearnedPolicy:
         raise ValueError(f"{card_path}: actor.node_map must be true or false, got {spec['node_map']!r}")
     if not isinstance(card.get("viability_shield", False), bool):
         raise ValueError(f"{card_path}: viability_shield must be true or false, got {card['viability_shield']!r}")
+    if card.get("viability_shield") and card.get("separation_shield") is None:
+        raise ValueError(f"{card_path}: viability_shield is a rule of the separation shield, but separation_shield "
+                         "is null")
     for key, lo in (("separation_shield", 0.0), ("shield_end_margin", 0.0)):
         v = card.get(key)
         if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v)
