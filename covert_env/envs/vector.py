@@ -501,9 +501,7 @@ class CovertSensingVectorEnv:
         pool, rows, k = self._pool, self._rows, self._k
         q0, q1 = pool.q[rows, k, :2], pool.q_next[rows, k, :2]
         turn = pool.phi_next[rows, k] - pool.phi[rows, k]
-        d = q1 - q0
-        q2 = q1 + np.stack([np.cos(turn) * d[:, 0] - np.sin(turn) * d[:, 1],
-                            np.sin(turn) * d[:, 0] + np.cos(turn) * d[:, 1]], axis=-1)
+        q2 = batch.to_world_batch((q1 - q0)[:, None], q1, turn)[:, 0]          # the displacement, turned, again
         phi2 = pool.phi_next[rows, k] + turn
         reach = self._reach.reachable(xy[ci, ui, mi][:, None], theta[ci, ui, mi][:, None], q2[ci], phi2[ci],
                                       self.lattice, exact=False)                                  # (N, 1, L)
