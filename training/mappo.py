@@ -170,6 +170,12 @@ class Args:
     node next slot (it would leave the zone): the end of the chosen path is tested with the env's onward_reach and,
     if a dead end, the UAV chooses again among the nodes that are not (training.shield); in training and
     evaluation alike"""
+    viability_min_reach: int = 1
+    """with --viability-shield: a node counts as a dead end if fewer lattice nodes than this are reachable from its
+    path's end next slot, where the UAV has a node that reaches this many (1: only nodes that reach none)"""
+    shield_lookahead: bool = False
+    """with the separation shield: a team choice that no UAV order settles is tried once more, each UAV keeping
+    only nodes that leave its later teammates a separated node (training.shield)"""
     shield_margin: float = 0.0
     """extra distance (m) the shield keeps beyond d_safe1 along the paths"""
     shield_end_margin: float = 10.0
@@ -232,6 +238,13 @@ def check_args(args: Args) -> None:
                          "or a weights .npz)")
     if args.viability_shield and not (args.separation_shield and args.action_mode == "waypoint"):
         raise ValueError("--viability-shield acts inside the separation shield: it needs --action-mode waypoint and "
+                         f"--separation-shield true, got --action-mode {args.action_mode!r} --separation-shield "
+                         f"{str(args.separation_shield).lower()}")
+    if args.viability_min_reach != 1 and not args.viability_shield:
+        raise ValueError(f"--viability-min-reach {args.viability_min_reach}: a bar of the viability rule, it needs "
+                         "--viability-shield true")
+    if args.shield_lookahead and not (args.separation_shield and args.action_mode == "waypoint"):
+        raise ValueError("--shield-lookahead acts inside the separation shield: it needs --action-mode waypoint and "
                          f"--separation-shield true, got --action-mode {args.action_mode!r} --separation-shield "
                          f"{str(args.separation_shield).lower()}")
     if args.init_temperature != 1.0 and not (args.init_actor and args.action_mode == "waypoint"):
@@ -628,6 +641,8 @@ def model_card(args: Args, s: Sizes, env, env_kwargs: dict, shield) -> dict:
             "separation_shield": None if shield is None else shield.min_distance,
             "shield_end_margin": None if shield is None else shield.end_margin,
             "viability_shield": bool(shield is not None and args.viability_shield),
+            "viability_min_reach": shield.min_reach if shield is not None and args.viability_shield else None,
+            "shield_lookahead": bool(shield is not None and shield.lookahead),
             "train_tasks": task_list(args) or None,
             "covert_env_version": covert_env.__version__ if hasattr(covert_env, "__version__") else None}
 
@@ -733,7 +748,8 @@ def train(args: Args) -> Path:
     env = make_training_env(tasks, args.num_envs, **({k: v for k, v in env_kwargs.items()
                                                        if k not in ("n_uavs", "scene_pool")} if tasks else env_kwargs))
     s = sizes_of(args, env)
-    shield = (SeparationShield(env.config.d_safe1 + args.shield_margin, args.shield_end_margin)
+    shield = (SeparationShield(env.config.d_safe1 + args.shield_margin, args.shield_end_margin,
+                               lookahead=args.shield_lookahead, min_reach=args.viability_min_reach)
               if s.waypoint and args.separation_shield else None)
     actor, critic, optim = make_networks(args, s)
     vnorm, prog = RunningNorm(), Progress()

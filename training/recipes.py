@@ -71,15 +71,15 @@ RECIPES: dict[str, dict] = {
 #: must learn the shadows), the node head reading the 16 x 16 visibility map under each node (without it the
 #: LoS cost did not fall in a 5-minute pilot; with it, it fell by two thirds), a Lagrange multiplier per
 #: constraint (LoS at slot times, LoS along the path, the zone, separation) with a dual step of 1 and a bound of
-#: 4, the separation shield and its viability rule (no node from which no node is reachable next slot); 45
-#: minutes of wall clock (three seeds at once on 2 cores). The bound keeps a limit the team does not reach from
+#: 4, the separation shield with its look-ahead and its viability rule (no node from which fewer than 10 nodes are
+#: reachable next slot, where another leaves 10); 45 minutes of wall clock (three seeds at once on 2 cores). The bound keeps a limit the team does not reach from
 #: drowning the reward (docs/decisions.md, "Learned teams across the suite").
 MAPPO_RECIPES: dict[str, dict] = {
     "3uav-suite": dict(
         algo="mappo", n_uavs=3, num_envs=16, action_mode="waypoint", head="node", node_map=True, map_size=16,
         mask_mode="kinematic", learning_rate=1e-3, time_budget_minutes=45.0, separation_shield=True,
-        viability_shield=True, shield_end_margin=10.0, lagrangian=True,
-        constraints="los=0.01,los_path=0.08,zone=0.015", lagrange_lr=1.0, lambda_max=4.0,
+        viability_shield=True, viability_min_reach=10, shield_lookahead=True, shield_end_margin=10.0, lagrangian=True,
+        constraints="los=0.01,los_path=0.04,zone=0.015", lagrange_lr=1.0, lambda_max=4.0,
         tasks="sparse-3uav,paper-3uav,winding-3uav,dense-3uav,downtown-3uav,towers-3uav,paper-3uav-deviating,"
               "downtown-3uav-deviating",
         checkpoint_every=100_000,

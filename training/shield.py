@@ -30,6 +30,14 @@ probability ratios are taken under the masks the actions were sampled with); the
   paths come least close (the shield never leaves a UAV without an action); such team choices are counted in
   ``fallbacks``.
 
+With ``lookahead``, a team choice that no order settles is negotiated again with each UAV also looking one
+teammate ahead: it keeps only the nodes that leave every later teammate some node separated
+from its path and from the paths chosen before it (where none does, its choice is unchanged). A UAV's first
+pick is greedy for itself, so two UAVs converging on each other can each, whichever goes first, choose the
+path that cuts off all the other's; the look-ahead is the pairwise test that rules those paths out. It costs
+an (M, M) comparison of candidate paths per UAV pair, paid only by the copies the negotiation left unsettled
+(a few percent of team choices); the result replaces the first negotiation's only where it settles every UAV.
+
 With ``onward`` (the viability rule, the env's ``onward_reach``), a UAV also avoids a node from which it could
 reach no lattice node in the next slot: from there it would leave the zone. The end of the path to its chosen
 node (position, and heading along the path's last step) is tested. If it is such a dead end, every node of its
@@ -72,18 +80,34 @@ class SeparationShield:
             path at a sample time: d_safe1 (a violation is a sample closer than d_safe1), plus a margin if wanted.
         end_margin: where it leaves a node, the UAV's path must also end at least ``min_distance + end_margin``
             (m) from the teammates' ends, so that the next slot starts with room to part (0: no such rule).
+        lookahead: settle the team choices that no order settles once more, each UAV keeping only nodes that
+            leave its later teammates a separated node (see the module docstring).
+        min_reach: the viability rule's bar: a node from whose path's end fewer lattice nodes than this are
+            reachable next slot counts as a dead end where the UAV has a node above the bar (1: only nodes that
+            reach none).
     """
 
-    def __init__(self, min_distance: float, end_margin: float = 0.0):
+    #: Candidate-pair path samples compared at once by the look-ahead (bounds its memory to ~100 MB).
+    LOOKAHEAD_CHUNK = 6_000_000
+
+    def __init__(self, min_distance: float, end_margin: float = 0.0, lookahead: bool = False, min_reach: int = 1):
         for name, v in (("min_distance", min_distance), ("end_margin", end_margin)):
             if not np.isfinite(v) or v < 0:
                 raise ValueError(f"{name} must be a finite number >= 0 (m), got {v!r}")
+        if isinstance(min_reach, bool) or not isinstance(min_reach, (int, np.integer)) or min_reach < 1:
+            raise ValueError(f"min_reach must be an integer >= 1 (lattice nodes), got {min_reach!r}")
+        #: Under the viability rule, a node is a dead end if fewer lattice nodes than this are reachable from its
+        #: path's end next slot (where another node of the UAV leaves that many).
+        self.min_reach = int(min_reach)
         self.min_distance, self.end_margin = float(min_distance), float(end_margin)
+        self.lookahead = bool(lookahead)
         #: How many nodes a free UAV (one that can reach no node) may try before it keeps a close one.
         self.free_tries = 12
         #: Team choices (one per copy and slot) where some UAV was left without a separated node after every
         #: try, and all team choices, since construction.
         self.fallbacks, self.choices = 0, 0
+        #: Team choices the look-ahead settled after the negotiation could not, since construction.
+        self.rescued = 0
         #: UAV choices where every allowed node was a dead end under the viability rule, since construction
         #: (counted in every pass of the priority negotiation).
         self.dead_ends = 0
@@ -137,12 +161,16 @@ class SeparationShield:
         copies = np.arange(len(a))
         slot = np.argmax(nodes_k == a[:, None], axis=1)
         chosen = np.where(rows[:, None, None], paths_k[copies, slot], np.nan)[:, None]            # (B, 1, P, 2)
-        dead = rows & (onward(k, *end_poses(chosen))[:, 0] == 0)
+        count = onward(k, *end_poses(chosen))[:, 0]                                               # -1: not tested
+        dead = rows & (count >= 0) & (count < self.min_reach)
         if not dead.any():
             return a
         allowed = sm | wide
         tested = dead[:, None] & (nodes_k >= 0) & allowed[copies[:, None], np.maximum(nodes_k, 0)]     # (B, M)
-        ok = onward(k, *end_poses(np.where(tested[..., None, None], paths_k, np.nan))) > 0
+        counts = onward(k, *end_poses(np.where(tested[..., None, None], paths_k, np.nan)))             # (B, M)
+        # min_reach onward nodes where some node has them, else as many as the best node has (at least one).
+        need = np.clip(counts.max(axis=1, keepdims=True), 1, self.min_reach)
+        ok = counts >= need
         viable = np.zeros_like(sm)
         r, j = np.nonzero(ok)
         viable[r, nodes_k[r, j]] = True
@@ -155,9 +183,33 @@ class SeparationShield:
             a = np.where(some, pick(k, sm), a)
         return a
 
-    def _pass(self, masks, nodes, paths, free, order, paths_to, pick, onward=None):
+    def _leaves_room(self, rows, paths_k, later, past):
+        """The look-ahead for one UAV in the copies ``rows`` (B,): ``(B, M)`` whether each of its candidate
+        ``paths_k`` (B, M, P, 2) leaves every UAV of ``later`` (a list of (nodes (B, M), paths (B, M, P, 2),
+        free (B,)) of the UAVs after it) a node whose path keeps ``min_distance`` from it and from the ``past``
+        chosen paths (B, k, P, 2). True outside ``rows``."""
+        ok = np.ones(paths_k.shape[:2], bool)
+        r_all = np.nonzero(rows)[0]
+        m, p = paths_k.shape[1], paths_k.shape[2]
+        step = max(1, self.LOOKAHEAD_CHUNK // max(m * m * p, 1))
+        for nodes_j, paths_j, free_j in later:
+            for lo in range(0, len(r_all), step):
+                r = r_all[lo:lo + step]
+                r = r[~free_j[r]]                        # a free UAV chooses by rejection: nothing to leave it
+                if len(r) == 0:
+                    continue
+                room = nodes_j[r] >= 0                                                        # (R, M)
+                if past.shape[1]:
+                    room &= separation(paths_j[r][:, :, None, 1:], past[r][:, None, :, 1:]).min(axis=2) \
+                        >= self.min_distance
+                gap = separation(paths_k[r][:, :, None, 1:], paths_j[r][:, None, :, 1:])       # (R, M, M)
+                ok[r] &= ((gap >= self.min_distance) & room[:, None, :]).any(axis=2)
+        return ok
+
+    def _pass(self, masks, nodes, paths, free, order, paths_to, pick, onward=None, careful=None):
         """One sequential choice in the per-copy UAV ``order`` ``(B, U)``: actions, shielded masks, and per copy
-        the first position whose UAV had no separated node (U if none)."""
+        the first position whose UAV had no separated node (U if none). In the copies ``careful`` (B,) bool, each
+        UAV looks ahead (:meth:`_leaves_room`)."""
         B, U, _ = masks.shape
         copies = np.arange(B)
         actions = np.zeros((B, U), np.int64)
@@ -169,6 +221,14 @@ class SeparationShield:
             past = np.stack(chosen, axis=1) if chosen else np.zeros((B, 0, 1, 2))
             sm, empty, wide = self.restrict(masks[copies, k], nodes[copies, k], paths[copies, k], past)
             fk = free[copies, k]
+            if careful is not None and i < U - 1:
+                later = [(nodes[copies, j], paths[copies, j], free[copies, j]) for j in order[:, i + 1:].T]
+                room = self._as_mask(sm, nodes[copies, k], self._leaves_room(careful & ~fk, paths[copies, k],
+                                                                            later, past))
+                for m_ in (sm, wide):                       # in place; a row with no such node keeps its mask
+                    narrowed = m_ & room
+                    has = narrowed.any(axis=1)
+                    m_[has] = narrowed[has]
             sm[fk], empty[fk] = masks[copies, k][fk], False
             a = pick(k, sm)
             if onward is not None and not fk.all():
@@ -260,6 +320,24 @@ class SeparationShield:
             actions[rows], shielded[rows] = a[rows], s[rows]
             return failed_at
 
-        self.fallbacks += int(priority_negotiation(settle, B, U).sum())
+        unsettled = priority_negotiation(settle, B, U)
+        if self.lookahead and unsettled.any():
+            # The unsettled copies negotiate again, every UAV looking ahead; their results replace the first
+            # negotiation's where every UAV is settled.
+            first = actions.copy(), shielded.copy()
+            careful = unsettled.copy()
+
+            def settle_careful(order, rows):
+                a, s, failed_at = self._pass(masks, nodes, paths, free, order, paths_to, pick, test, careful=careful)
+                rows = rows & careful
+                actions[rows], shielded[rows] = a[rows], s[rows]
+                return failed_at
+
+            still = priority_negotiation(settle_careful, B, U) & careful
+            keep = careful & still
+            actions[keep], shielded[keep] = first[0][keep], first[1][keep]
+            self.rescued += int((careful & ~still).sum())
+            unsettled = still
+        self.fallbacks += int(unsettled.sum())
         self.choices += B
         return actions, shielded

@@ -159,7 +159,9 @@ class LearnedPolicy:
         #: The shield the team acts through (None without one); its ``fallbacks`` count the slots where some UAV
         #: was left with no separated node.
         self.shield = (None if self.shield_distance is None else
-                       SeparationShield(float(self.shield_distance), float(card.get("shield_end_margin") or 0.0)))
+                       SeparationShield(float(self.shield_distance), float(card.get("shield_end_margin") or 0.0),
+                                        lookahead=bool(card.get("shield_lookahead", False)),
+                                        min_reach=int(card.get("viability_min_reach") or 1)))
         #: The viability rule of the shield (a UAV avoids nodes from which it could reach no node next slot).
         self.viability = bool(card.get("viability_shield", False)) and self.shield is not None
         self.env_settings = {"n_uavs": int(ekw["n_uavs"]), "action_mode": ekw["action_mode"],
@@ -231,6 +233,17 @@ def load_learned(path: str | Path) -> LearnedPolicy:
         raise ValueError(f"{card_path}: actor.node_map must be true or false, got {spec['node_map']!r}")
     if not isinstance(card.get("viability_shield", False), bool):
         raise ValueError(f"{card_path}: viability_shield must be true or false, got {card['viability_shield']!r}")
+    if not isinstance(card.get("shield_lookahead", False), bool):
+        raise ValueError(f"{card_path}: shield_lookahead must be true or false, got {card['shield_lookahead']!r}")
+    reach = card.get("viability_min_reach")
+    if reach is not None and (isinstance(reach, bool) or not isinstance(reach, int) or not 1 <= reach <= 100_000):
+        raise ValueError(f"{card_path}: viability_min_reach must be null or an integer in [1, 100000], got {reach!r}")
+    if reach is not None and not card.get("viability_shield"):
+        raise ValueError(f"{card_path}: viability_min_reach is a bar of the viability rule, but viability_shield "
+                         "is false")
+    if card.get("shield_lookahead") and card.get("separation_shield") is None:
+        raise ValueError(f"{card_path}: shield_lookahead is a rule of the separation shield, but separation_shield "
+                         "is null")
     if card.get("viability_shield") and card.get("separation_shield") is None:
         raise ValueError(f"{card_path}: viability_shield is a rule of the separation shield, but separation_shield "
                          "is null")
