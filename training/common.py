@@ -112,7 +112,8 @@ def _ranges() -> dict[str, tuple]:
         "clip_coef": positive, "hidden": int_range(1, 65_536), "node_hidden": int_range(1, 65_536),
         "cost_limit": non_negative, "lagrange_lr": non_negative, "shield_margin": non_negative,
         "shield_end_margin": non_negative, "map_size": int_range(2, 64), "lambda_max": non_negative,
-        "actor_warmup_updates": non_negative_int, "viability_min_reach": int_range(1, 100_000), "init_temperature": float_range(0.01, 100.0),
+        "actor_warmup_updates": non_negative_int, "viability_min_reach": int_range(1, 100_000),
+        "init_temperature": float_range(0.01, 100.0),
     }
 
 

@@ -72,8 +72,9 @@ RECIPES: dict[str, dict] = {
 #: LoS cost did not fall in a 5-minute pilot; with it, it fell by two thirds), a Lagrange multiplier per
 #: constraint (LoS at slot times, LoS along the path, the zone, separation) with a dual step of 1 and a bound of
 #: 4, the separation shield with its look-ahead and its viability rule (no node from which fewer than 10 nodes are
-#: reachable next slot, where another leaves 10); 45 minutes of wall clock (three seeds at once on 2 cores). The bound keeps a limit the team does not reach from
-#: drowning the reward (docs/decisions.md, "Learned teams across the suite").
+#: reachable next slot, where another leaves 10); 45 minutes of wall clock (three seeds at once on 2 cores). The
+#: bound keeps a limit the team does not reach from drowning the reward (docs/decisions.md, "Learned teams across
+#: the suite").
 MAPPO_RECIPES: dict[str, dict] = {
     "3uav-suite": dict(
         algo="mappo", n_uavs=3, num_envs=16, action_mode="waypoint", head="node", node_map=True, map_size=16,
