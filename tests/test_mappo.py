@@ -403,3 +403,41 @@ def test_init_temperature_flattens_the_loaded_policy_but_keeps_its_ranking():
     assert ent[1] > ent[0]
     with pytest.raises(ValueError, match=r"--init-temperature 4: needs --init-actor"):
         mappo.check_args(mappo.Args(init_temperature=4.0))
+
+
+def test_shield_lookahead_and_viability_bar_are_recorded_checked_and_used(tmp_path, train_extra):
+    """--shield-lookahead and --viability-min-reach: the card records them, the loaded policy's shield has them,
+    a card with bad values or without the rule they belong to fails at load, and the flags need their rules."""
+    run = mappo.main([*TINY, "--viability-shield", "--viability-min-reach", "7", "--shield-lookahead",
+                      "--mask-mode", "kinematic", "--total-timesteps", "16", "--runs-dir", str(tmp_path),
+                      "--run-name", "la"])
+    card = json.loads((run / "model.json").read_text())
+    assert card["shield_lookahead"] is True and card["viability_min_reach"] == 7
+    pol = load_learned(run)
+    assert pol.shield.lookahead and pol.shield.min_reach == 7 and pol.viability
+    for key, value, pattern in (
+            ("shield_lookahead", 1, r"shield_lookahead must be true or false, got 1"),
+            ("viability_min_reach", 0, r"viability_min_reach must be null or an integer in \[1, 100000\], got 0"),
+            ("viability_min_reach", 2.5, r"viability_min_reach must be null or an integer in \[1, 100000\], got 2.5"),
+            ("viability_shield", False, r"viability_min_reach is a bar of the viability rule, but viability_shield "
+                                        r"is false")):
+        bad = {**card, key: value}
+        (run / "model.json").write_text(json.dumps(bad))
+        with pytest.raises(ValueError, match=pattern):
+            load_learned(run)
+    (run / "model.json").write_text(json.dumps({**card, "separation_shield": None, "viability_shield": False,
+                                                "viability_min_reach": None}))
+    with pytest.raises(ValueError, match=r"shield_lookahead is a rule of the separation shield, but "
+                                         r"separation_shield is null"):
+        load_learned(run)
+    old = {k: v for k, v in card.items() if k not in ("shield_lookahead", "viability_min_reach")}
+    (run / "model.json").write_text(json.dumps(old))                  # cards before these fields: both off
+    pol = load_learned(run)
+    assert not pol.shield.lookahead and pol.shield.min_reach == 1
+    with pytest.raises(ValueError, match=r"--viability-min-reach 3: a bar of the viability rule, it needs "
+                                         r"--viability-shield true"):
+        mappo.check_args(mappo.Args(viability_min_reach=3))
+    with pytest.raises(ValueError, match=r"--shield-lookahead acts inside the separation shield"):
+        mappo.check_args(mappo.Args(shield_lookahead=True, separation_shield=False))
+    with pytest.raises(SystemExit):
+        mappo.main(["--viability-min-reach", "0"])

@@ -329,3 +329,120 @@ def test_viability_rule_looks_past_the_end_margin_preference():
     shield = SeparationShield(5.0, end_margin=10.0)
     a, sm = shield.choose(masks, paths_to, first, onward)
     assert a.tolist() == [[0, 1]] and sm[0, 1].tolist() == [False, True, False] and shield.dead_ends == 0
+
+
+def _crossing_table():
+    """Two UAVs, two nodes each, 5 synchronous samples, all at the same y: only x matters. Whichever UAV goes
+    first takes its node 0, which cuts off both nodes of the other (A0 meets A1 at sample 1 and B1 at sample 2;
+    A1 meets A0 at sample 1 and B0 at sample 3); B0 and B1 never meet. A third node, far away, is for the masks
+    to leave out (a UAV whose mask allows every node is free: it chooses by rejection)."""
+    y = np.linspace(-50.0, 0.0, 5)
+    xs = {(0, 0): [0, 0, 0, 0, 0], (0, 1): [20, 20, 20, 20, 20],          # A0, B0
+          (1, 0): [50, 0, 10, 20, 50], (1, 1): [50, 50, 0, 50, 50],      # A1, B1
+          (0, 2): [900] * 5, (1, 2): [-900] * 5}
+    table = np.zeros((1, 2, 3, 5, 2))
+    for (u, n), x in xs.items():
+        table[0, u, n, :, 0], table[0, u, n, :, 1] = x, y
+
+    def paths_to(nodes):
+        out = table[0][np.arange(2)[:, None], np.maximum(nodes[0], 0)][None].copy()
+        out[nodes < 0] = np.nan
+        return out
+
+    return table, paths_to
+
+
+def test_lookahead_settles_a_choice_no_order_settles():
+    """Without the look-ahead both orders leave a UAV without a separated node (a fallback: the team flies
+    closer than d_safe1); with it, the first UAV keeps only the node that leaves the other room, and the team
+    choice is settled (counted in ``rescued``), its paths separated at every sample after the first."""
+    table, paths_to = _crossing_table()
+    first = lambda k, m: np.argmax(m, axis=1)            # noqa: E731  (the first allowed node: node 0 if allowed)
+    masks = np.array([[[True, True, False], [True, True, False]]])
+    plain = SeparationShield(5.0)
+    plain.choose(masks, paths_to, first)
+    assert plain.fallbacks == 1 and plain.rescued == 0
+    shield = SeparationShield(5.0, lookahead=True)
+    a, sm = shield.choose(masks, paths_to, first)
+    assert a.tolist() == [[1, 1]] and shield.fallbacks == 0 and shield.rescued == 1
+    assert sm[0, 0].tolist() == [False, True, False]                   # A0 would leave UAV 1 nothing
+    chosen = table[0, [0, 1], a[0]]
+    assert np.linalg.norm(chosen[0, 1:] - chosen[1, 1:], axis=-1).min() >= 5.0
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2 ** 31 - 1), b=st.integers(1, 4), u=st.integers(2, 4), n=st.integers(1, 10),
+       d=st.floats(0.0, 40.0))
+def test_lookahead_keeps_the_invariants_and_never_adds_a_fallback(seed, b, u, n, d):
+    """With deterministic picks, the look-ahead changes only copies the negotiation left unsettled, and leaves no
+    more fallbacks; the invariants of the plain shield hold (choices inside the shielded masks, inside the env's,
+    paths separated unless counted as a fallback)."""
+    rng = np.random.default_rng(seed)
+    pts = rng.uniform(-30, 30, (b, u, n, 2))
+    start = rng.uniform(-30, 30, (b, u, 1, 2))
+    table = start[:, :, :, None] + (pts - start)[:, :, :, None] * np.linspace(0, 1, 5)[:, None]
+    masks = rng.random((b, u, n)) < 0.7
+    masks[..., 0] |= ~masks.any(axis=-1)
+    masks[masks.all(axis=-1) & (n > 1), -1] = False          # no free UAV: every UAV has a mask to narrow
+    scores = rng.random((b, u, n))
+
+    def paths_to(nodes):
+        out = table[np.arange(b)[:, None, None], np.arange(u)[None, :, None], np.maximum(nodes, 0)].copy()
+        out[nodes < 0] = np.nan
+        return out
+
+    def pick(k, m):
+        return np.argmax(np.where(m, scores[np.arange(b), k], -1.0), axis=1)
+
+    plain = SeparationShield(d)
+    a0, _ = plain.choose(masks, paths_to, pick)
+    shield = SeparationShield(d, lookahead=True)
+    a, sm = shield.choose(masks, paths_to, pick)
+    assert shield.fallbacks + shield.rescued == plain.fallbacks and shield.choices == b
+    rows, uavs = np.arange(b)[:, None], np.arange(u)
+    assert sm[rows, uavs, a].all() and not (sm & ~masks).any()
+    chosen = table[rows, uavs, a][:, :, 1:]
+    gap = np.linalg.norm(chosen[:, :, None] - chosen[:, None], axis=-1).min(-1)
+    gap[:, uavs, uavs] = np.inf
+    assert (gap < d).any(axis=(1, 2)).sum() <= shield.fallbacks
+    if plain.fallbacks == 0:
+        np.testing.assert_array_equal(a, a0)
+
+
+def test_viability_bar_prefers_nodes_with_room_next_slot():
+    """Onward counts 3 and 12 (and 0): with min_reach 10 the UAV leaves its first choice (3 onward nodes) for the
+    12 node; with the default bar (1) it keeps it; if no node reaches the bar, the best above 0 is kept and no dead
+    end is counted; if every node reaches 0, the choice stands and is counted."""
+    p = 4
+    table = np.zeros((1, 1, 4, p, 2))                                      # node 3: never allowed (not free)
+    table[0, 0, :, :, 1] = np.linspace(0, 10, p)
+    table[0, 0, :, :, 0] = np.array([0.0, 100.0, 200.0, 300.0])[:, None]  # x tells the node apart
+    counts = {0.0: 3, 100.0: 12, 200.0: 0}
+
+    def paths_to(nodes):
+        out = table[0][np.arange(1)[:, None], np.maximum(nodes[0], 0)][None].copy()
+        out[nodes < 0] = np.nan
+        return out
+
+    def onward(xy, theta):
+        x = xy[..., 0]
+        out = np.full(x.shape, -1)
+        for where, c in counts.items():
+            out[np.isclose(x, where)] = c
+        return out
+
+    first = lambda k, m: np.argmax(m, axis=1)            # noqa: E731
+    masks = np.array([[[True, True, True, False]]])
+    assert SeparationShield(5.0).choose(masks, paths_to, first, onward)[0].tolist() == [[0]]
+    shield = SeparationShield(5.0, min_reach=10)
+    a, sm = shield.choose(masks, paths_to, first, onward)
+    assert a.tolist() == [[1]] and sm[0, 0].tolist() == [False, True, False, False] and shield.dead_ends == 0
+    low = np.array([[[True, False, True, False]]])                                # 3 and 0 left: 3 is the best
+    a, _ = shield.choose(low, paths_to, first, onward)
+    assert a.tolist() == [[0]] and shield.dead_ends == 0
+    dead = np.array([[[False, False, True, False]]])
+    a, _ = shield.choose(dead, paths_to, first, onward)
+    assert a.tolist() == [[2]] and shield.dead_ends == 1
+    for bad in (0, -3, 2.5, True):
+        with pytest.raises(ValueError, match="min_reach must be an integer >= 1"):
+            SeparationShield(5.0, min_reach=bad)
