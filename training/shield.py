@@ -39,7 +39,10 @@ an (M, M) comparison of candidate paths per UAV pair, paid only by the copies th
 (a few percent of team choices); the result replaces the first negotiation's only where it settles every UAV.
 
 With ``onward`` (the viability rule, the env's ``onward_reach``), a UAV also avoids a node from which it could
-reach no lattice node in the next slot: from there it would leave the zone. The end of the path to its chosen
+reach no lattice node in the next slot: from there it would leave the zone. With ``min_reach`` above 1, a node
+from which fewer than ``min_reach`` nodes are reachable counts as a dead end too, where the UAV has a node that
+reaches that many: a UAV left one or two nodes has no room to part from a teammate, and two such UAVs can be
+left the same node. The end of the path to its chosen
 node (position, and heading along the path's last step) is tested. If it is such a dead end, every node of its
 mask (and its separated nodes that the end-margin preference left out) is tested, the dead ends leave the mask
 and the UAV chooses again, among roomy nodes where there are any; if every node is a dead end, its choice stands
@@ -108,8 +111,8 @@ class SeparationShield:
         self.fallbacks, self.choices = 0, 0
         #: Team choices the look-ahead settled after the negotiation could not, since construction.
         self.rescued = 0
-        #: UAV choices where every allowed node was a dead end under the viability rule, since construction
-        #: (counted in every pass of the priority negotiation).
+        #: UAV choices where every allowed node was a dead end under the viability rule, since construction (in
+        #: the team choices that stand, not in the negotiation's discarded passes).
         self.dead_ends = 0
 
     def restrict(self, mask: np.ndarray, nodes: np.ndarray, paths: np.ndarray, chosen_paths: np.ndarray
@@ -157,14 +160,14 @@ class SeparationShield:
         mask ``sm`` and of ``wide`` (its separated nodes before the end-margin preference) is tested (``nodes_k``
         (B, M), -1 padded, and their ``paths_k`` (B, M, P, 2)). ``sm`` (in place) becomes its viable nodes, the
         roomy ones where there are any, and the UAV chooses again. Returns the actions; a row whose every node
-        is a dead end keeps its choice and its mask."""
+        is a dead end keeps its choice and its mask (returned too: ``(B,)`` bool)."""
         copies = np.arange(len(a))
         slot = np.argmax(nodes_k == a[:, None], axis=1)
         chosen = np.where(rows[:, None, None], paths_k[copies, slot], np.nan)[:, None]            # (B, 1, P, 2)
         count = onward(k, *end_poses(chosen))[:, 0]                                               # -1: not tested
         dead = rows & (count >= 0) & (count < self.min_reach)
         if not dead.any():
-            return a
+            return a, dead
         allowed = sm | wide
         tested = dead[:, None] & (nodes_k >= 0) & allowed[copies[:, None], np.maximum(nodes_k, 0)]     # (B, M)
         counts = onward(k, *end_poses(np.where(tested[..., None, None], paths_k, np.nan)))             # (B, M)
@@ -177,11 +180,10 @@ class SeparationShield:
         roomy = viable & sm
         viable = np.where(roomy.any(axis=1, keepdims=True), roomy, viable)
         some = dead & viable.any(axis=1)
-        self.dead_ends += int((dead & ~some).sum())
         if some.any():
             sm[some] = viable[some]
             a = np.where(some, pick(k, sm), a)
-        return a
+        return a, dead & ~some
 
     def _leaves_room(self, rows, paths_k, later, past):
         """The look-ahead for one UAV in the copies ``rows`` (B,): ``(B, M)`` whether each of its candidate
@@ -207,14 +209,16 @@ class SeparationShield:
         return ok
 
     def _pass(self, masks, nodes, paths, free, order, paths_to, pick, onward=None, careful=None):
-        """One sequential choice in the per-copy UAV ``order`` ``(B, U)``: actions, shielded masks, and per copy
-        the first position whose UAV had no separated node (U if none). In the copies ``careful`` (B,) bool, each
+        """One sequential choice in the per-copy UAV ``order`` ``(B, U)``: actions, shielded masks, per copy the
+        first position whose UAV had no separated node (U if none), and per copy the UAVs left only dead ends
+        (the viability rule). In the copies ``careful`` (B,) bool, each
         UAV looks ahead (:meth:`_leaves_room`)."""
         B, U, _ = masks.shape
         copies = np.arange(B)
         actions = np.zeros((B, U), np.int64)
         shielded = np.empty_like(masks)
         failed_at = np.full(B, U)
+        dead_ends = np.zeros(B, np.int64)
         chosen = []
         for i in range(U):
             k = order[:, i]
@@ -232,7 +236,8 @@ class SeparationShield:
             sm[fk], empty[fk] = masks[copies, k][fk], False
             a = pick(k, sm)
             if onward is not None and not fk.all():
-                a = self._viable(a, k, sm, wide, ~fk, nodes[copies, k], paths[copies, k], onward, pick)
+                a, dead = self._viable(a, k, sm, wide, ~fk, nodes[copies, k], paths[copies, k], onward, pick)
+                dead_ends += dead
             slot = np.argmax(nodes[copies, k] == a[:, None], axis=1)           # a is one of the candidates
             path = paths[copies, k, slot]
             if fk.any():
@@ -242,7 +247,7 @@ class SeparationShield:
             shielded[copies, k] = sm
             actions[copies, k] = a
             chosen.append(path)
-        return actions, shielded, failed_at
+        return actions, shielded, failed_at, dead_ends
 
     def _free_choice(self, fk, k, a, path, sm, past, paths_to, pick, U):
         """The choice of the free UAVs (rows ``fk``) by rejection: a node whose path comes too close to a
@@ -303,6 +308,7 @@ class SeparationShield:
         nodes = np.where(np.arange(m) < counts[..., None], first, -1)
         paths = paths_to(nodes)
         actions, shielded = np.zeros((B, U), np.int64), np.empty_like(masks)
+        dead_ends = np.zeros(B, np.int64)
         copies = np.arange(B)
 
         def test(k, xy, theta):
@@ -315,29 +321,25 @@ class SeparationShield:
         if onward is None:
             test = None
 
-        def settle(order, rows):
-            a, s, failed_at = self._pass(masks, nodes, paths, free, order, paths_to, pick, test)
-            actions[rows], shielded[rows] = a[rows], s[rows]
+        def settle(order, rows, careful=None):
+            a, s, failed_at, dead = self._pass(masks, nodes, paths, free, order, paths_to, pick, test, careful)
+            if careful is not None:
+                rows = rows & careful
+            actions[rows], shielded[rows], dead_ends[rows] = a[rows], s[rows], dead[rows]
             return failed_at
 
         unsettled = priority_negotiation(settle, B, U)
         if self.lookahead and unsettled.any():
             # The unsettled copies negotiate again, every UAV looking ahead; their results replace the first
             # negotiation's where every UAV is settled.
-            first = actions.copy(), shielded.copy()
+            first = actions.copy(), shielded.copy(), dead_ends.copy()
             careful = unsettled.copy()
-
-            def settle_careful(order, rows):
-                a, s, failed_at = self._pass(masks, nodes, paths, free, order, paths_to, pick, test, careful=careful)
-                rows = rows & careful
-                actions[rows], shielded[rows] = a[rows], s[rows]
-                return failed_at
-
-            still = priority_negotiation(settle_careful, B, U) & careful
+            still = priority_negotiation(lambda order, rows: settle(order, rows, careful), B, U) & careful
             keep = careful & still
-            actions[keep], shielded[keep] = first[0][keep], first[1][keep]
+            actions[keep], shielded[keep], dead_ends[keep] = first[0][keep], first[1][keep], first[2][keep]
             self.rescued += int((careful & ~still).sum())
             unsettled = still
         self.fallbacks += int(unsettled.sum())
+        self.dead_ends += int(dead_ends.sum())
         self.choices += B
         return actions, shielded
