@@ -371,11 +371,13 @@ def test_lookahead_settles_a_choice_no_order_settles():
 
 
 @settings(max_examples=60, deadline=None)
-@given(seed=st.integers(0, 2 ** 31 - 1), b=st.integers(1, 4), u=st.integers(2, 4), n=st.integers(1, 10),
-       d=st.floats(0.0, 40.0))
-def test_lookahead_keeps_the_invariants_and_never_adds_a_fallback(seed, b, u, n, d):
-    """With deterministic picks, the look-ahead changes only copies the negotiation left unsettled, and leaves no
-    more fallbacks; the invariants of the plain shield hold (choices inside the shielded masks, inside the env's,
+@given(seed=st.integers(0, 2 ** 31 - 1), b=st.integers(1, 4), u=st.integers(2, 4), n=st.integers(2, 10),
+       d=st.floats(0.0, 40.0), end_margin=st.sampled_from([0.0, 10.0]), with_onward=st.booleans())
+def test_lookahead_keeps_the_invariants_and_changes_only_unsettled_copies(seed, b, u, n, d, end_margin,
+                                                                        with_onward):
+    """With deterministic picks (with or without the end margin and a synthetic viability rule): the look-ahead
+    changes only the copies whose plain choice left some UAV too close, and every fallback it leaves is one the
+    plain shield had; the plain shield's invariants hold (choices inside the shielded masks, inside the env's,
     paths separated unless counted as a fallback)."""
     rng = np.random.default_rng(seed)
     pts = rng.uniform(-30, 30, (b, u, n, 2))
@@ -383,36 +385,73 @@ def test_lookahead_keeps_the_invariants_and_never_adds_a_fallback(seed, b, u, n,
     table = start[:, :, :, None] + (pts - start)[:, :, :, None] * np.linspace(0, 1, 5)[:, None]
     masks = rng.random((b, u, n)) < 0.7
     masks[..., 0] |= ~masks.any(axis=-1)
-    masks[masks.all(axis=-1) & (n > 1), -1] = False          # no free UAV: every UAV has a mask to narrow
+    masks[masks.all(axis=-1), -1] = False                    # no free UAV: every UAV has a mask to narrow
     scores = rng.random((b, u, n))
+    reach = rng.integers(0, 3, (b, u, n))
 
     def paths_to(nodes):
         out = table[np.arange(b)[:, None, None], np.arange(u)[None, :, None], np.maximum(nodes, 0)].copy()
         out[nodes < 0] = np.nan
         return out
 
+    def onward(xy, theta):                                   # a node's count, told apart by where its path ends
+        hit = np.isclose(xy[..., None, None, None, :], table[:, :, :, -1][None, None, None]).all(-1)
+        counts = np.where(hit, reach[None, None, None], 0).max(axis=(-3, -2, -1))
+        return np.where(np.isnan(xy[..., 0]), -1, counts)
+
     def pick(k, m):
         return np.argmax(np.where(m, scores[np.arange(b), k], -1.0), axis=1)
 
-    plain = SeparationShield(d)
-    a0, _ = plain.choose(masks, paths_to, pick)
-    shield = SeparationShield(d, lookahead=True)
-    a, sm = shield.choose(masks, paths_to, pick)
-    assert shield.fallbacks + shield.rescued == plain.fallbacks and shield.choices == b
     rows, uavs = np.arange(b)[:, None], np.arange(u)
+
+    def too_close(a):
+        chosen = table[rows, uavs, a][:, :, 1:]
+        gap = np.linalg.norm(chosen[:, :, None] - chosen[:, None], axis=-1).min(-1)
+        gap[:, uavs, uavs] = np.inf
+        return (gap < d).any(axis=(1, 2))
+
+    on = onward if with_onward else None
+    plain = SeparationShield(d, end_margin)
+    a0, _ = plain.choose(masks, paths_to, pick, on)
+    shield = SeparationShield(d, end_margin, lookahead=True)
+    a, sm = shield.choose(masks, paths_to, pick, on)
+    assert shield.fallbacks + shield.rescued == plain.fallbacks and shield.choices == b
     assert sm[rows, uavs, a].all() and not (sm & ~masks).any()
-    chosen = table[rows, uavs, a][:, :, 1:]
-    gap = np.linalg.norm(chosen[:, :, None] - chosen[:, None], axis=-1).min(-1)
-    gap[:, uavs, uavs] = np.inf
-    assert (gap < d).any(axis=(1, 2)).sum() <= shield.fallbacks
-    if plain.fallbacks == 0:
-        np.testing.assert_array_equal(a, a0)
+    assert too_close(a).sum() <= shield.fallbacks
+    unsettled = too_close(a0)
+    np.testing.assert_array_equal(a[~unsettled], a0[~unsettled])
+
+
+def test_lookahead_puts_room_for_teammates_before_the_end_margin():
+    """UAV 1 may end 40 m from UAV 0 (roomy) on a path that cuts off UAV 2's only node, or 8 m from it (cramped)
+    on one that leaves it room: looking ahead, UAV 1 takes the cramped end and the team is settled."""
+    y = np.linspace(-50.0, 0.0, 5)
+    xs = {(0, 0): [0, 0, 0, 0, 0], (1, 0): [40, 40, 40, 40, 40], (1, 1): [40, 20, 20, 20, 8],
+          (2, 0): [60, 60, 40, 60, 60]}
+    table = np.full((1, 3, 3, 5, 2), 900.0)                   # node 2 (and the unused) far away, never allowed
+    table[..., 1] = y
+    for (u, n), x in xs.items():
+        table[0, u, n, :, 0] = x
+    masks = np.array([[[True, False, False], [True, True, False], [True, False, False]]])
+    nodes = np.array([[[0, -1], [0, 1], [0, -1]]])
+    paths = table[0][np.arange(3)[:, None], np.maximum(nodes[0], 0)][None].copy()
+    paths[nodes < 0] = np.nan
+    first = lambda k, m: np.argmax(m, axis=1)            # noqa: E731
+    shield = SeparationShield(5.0, end_margin=10.0, lookahead=True)
+    free = np.zeros((1, 3), bool)
+    order = np.array([[0, 1, 2]])
+    a, sm, failed_at, _ = shield._pass(masks, nodes, paths, free, order, None, first)
+    assert a.tolist() == [[0, 0, 0]] and failed_at.tolist() == [2]       # plain: the roomy end cuts UAV 2 off
+    a, sm, failed_at, _ = shield._pass(masks, nodes, paths, free, order, None, first, careful=np.array([True]))
+    assert a.tolist() == [[0, 1, 0]] and failed_at.tolist() == [3]
+    assert sm[0, 1].tolist() == [False, True, False]
 
 
 def test_viability_bar_prefers_nodes_with_room_next_slot():
     """Onward counts 3 and 12 (and 0): with min_reach 10 the UAV leaves its first choice (3 onward nodes) for the
-    12 node; with the default bar (1) it keeps it; if no node reaches the bar, the best above 0 is kept and no dead
-    end is counted; if every node reaches 0, the choice stands and is counted."""
+    12 node; with the default bar (1) it keeps it; if no node reaches the bar, the bar drops to the best node's
+    count (3 and 5 left: the 5 node) and no dead end is counted; if every node reaches 0, the choice stands and is
+    counted."""
     p = 4
     table = np.zeros((1, 1, 4, p, 2))                                      # node 3: never allowed (not free)
     table[0, 0, :, :, 1] = np.linspace(0, 10, p)
@@ -437,9 +476,11 @@ def test_viability_bar_prefers_nodes_with_room_next_slot():
     shield = SeparationShield(5.0, min_reach=10)
     a, sm = shield.choose(masks, paths_to, first, onward)
     assert a.tolist() == [[1]] and sm[0, 0].tolist() == [False, True, False, False] and shield.dead_ends == 0
-    low = np.array([[[True, False, True, False]]])                                # 3 and 0 left: 3 is the best
+    counts[200.0] = 5
+    low = np.array([[[True, False, True, False]]])              # 3 and 5 left, both below 10: the bar drops to 5
     a, _ = shield.choose(low, paths_to, first, onward)
-    assert a.tolist() == [[0]] and shield.dead_ends == 0
+    assert a.tolist() == [[2]] and shield.dead_ends == 0
+    counts[200.0] = 0
     dead = np.array([[[False, False, True, False]]])
     a, _ = shield.choose(dead, paths_to, first, onward)
     assert a.tolist() == [[2]] and shield.dead_ends == 1

@@ -661,6 +661,7 @@ def log_update(writer, curve, bar, prog: Progress, *, losses: dict, clipfracs: l
     if shield is not None:
         writer.add_scalar("charts/shield_fallbacks", shield.fallbacks / max(shield.choices, 1), step)
         writer.add_scalar("charts/shield_dead_ends", shield.dead_ends / max(shield.choices, 1), step)
+        writer.add_scalar("charts/shield_rescued", shield.rescued / max(shield.choices, 1), step)
     if episodes.recent:
         n_episodes, means = len(episodes.recent), episodes.take_means()
         for k, v in means.items():

@@ -31,26 +31,28 @@ probability ratios are taken under the masks the actions were sampled with); the
   ``fallbacks``.
 
 With ``lookahead``, a team choice that no order settles is negotiated again with each UAV also looking one
-teammate ahead: it keeps only the nodes that leave every later teammate some node separated
-from its path and from the paths chosen before it (where none does, its choice is unchanged). A UAV's first
-pick is greedy for itself, so two UAVs converging on each other can each, whichever goes first, choose the
-path that cuts off all the other's; the look-ahead is the pairwise test that rules those paths out. It costs
-an (M, M) comparison of candidate paths per UAV pair, paid only by the copies the negotiation left unsettled
-(a few percent of team choices); the result replaces the first negotiation's only where it settles every UAV.
+teammate ahead: it keeps only the separated nodes that leave every later teammate some node separated from its
+path and from the paths chosen before it, ahead of the end-margin preference (where no separated node does, or
+the teammate has no room left anyway, its mask is unchanged). A UAV's first pick is greedy for itself, so two
+UAVs converging on each other can each, whichever goes first, choose the path that cuts off all the other's;
+the look-ahead is the pairwise test that rules those paths out. It costs an (M, M) comparison of candidate paths
+per UAV pair, paid only by the copies the negotiation left unsettled (a few percent of team choices), which
+negotiate again as a batch of their own; the result replaces the first negotiation's only where it settles every
+UAV (counted in ``rescued``). Free UAVs do not look ahead (they choose by rejection).
 
-With ``onward`` (the viability rule, the env's ``onward_reach``), a UAV also avoids a node from which it could
-reach no lattice node in the next slot: from there it would leave the zone. With ``min_reach`` above 1, a node
-from which fewer than ``min_reach`` nodes are reachable counts as a dead end too, where the UAV has a node that
-reaches that many: a UAV left one or two nodes has no room to part from a teammate, and two such UAVs can be
-left the same node. The end of the path to its chosen
-node (position, and heading along the path's last step) is tested. If it is such a dead end, every node of its
-mask (and its separated nodes that the end-margin preference left out) is tested, the dead ends leave the mask
-and the UAV chooses again, among roomy nodes where there are any; if every node is a dead end, its choice stands
-(counted in ``dead_ends``). Only a UAV whose first choice is a dead end pays for testing all its nodes (about 250
-with the kinematic mask). The price is a bias in training: the actions are samples of the policy restricted to
-the viable nodes, but where the first choice was viable the stored mask still holds the dead ends, so PPO takes
-those samples' probabilities under a wider mask than they were drawn from. Storing the exact mask would mean
-testing every node of every UAV in every slot.
+With ``onward`` (the viability rule, the env's ``onward_reach``), a UAV also avoids a node from which it could reach
+no lattice node in the next slot: from there it would leave the zone. With ``min_reach`` above 1, a node from which
+fewer than ``min_reach`` nodes are reachable counts as a dead end too, where the UAV has a node that reaches that
+many (where none does, the bar is what its best node reaches): a UAV left one or two nodes has no room to part from
+a teammate, and two such UAVs can be left the same node. The end of the path to its chosen node (position, and
+heading along the path's last step) is tested. If it is below the bar, every node of its mask (and its separated
+nodes that the end-margin preference left out) is tested, the nodes below the bar leave the mask and the UAV chooses
+again, among roomy nodes where there are any (the bar comes before the end margin); if every node reaches none, its
+choice stands (counted in ``dead_ends``). Only a UAV whose first choice is a dead end pays for testing all its nodes
+(about 250 with the kinematic mask). The price is a bias in training: the actions are samples of the policy
+restricted to the viable nodes, but where the first choice was viable the stored mask still holds the dead ends, so
+PPO takes those samples' probabilities under a wider mask than they were drawn from. Storing the exact mask would
+mean testing every node of every UAV in every slot.
 
 All copies of a batch go through it at once; the loops are over the UAVs of a team and over the tries, because
 the choices are sequential by design (a UAV needs the paths of the UAVs before it).
@@ -86,11 +88,11 @@ class SeparationShield:
         lookahead: settle the team choices that no order settles once more, each UAV keeping only nodes that
             leave its later teammates a separated node (see the module docstring).
         min_reach: the viability rule's bar: a node from whose path's end fewer lattice nodes than this are
-            reachable next slot counts as a dead end where the UAV has a node above the bar (1: only nodes that
-            reach none).
+            reachable next slot counts as a dead end where the UAV has a node at or above the bar (elsewhere the
+            bar is what its best node reaches; 1: only nodes that reach none).
     """
 
-    #: Candidate-pair path samples compared at once by the look-ahead (bounds its memory to ~100 MB).
+    #: Candidate-pair path samples compared at once by the look-ahead (its temporaries: about 150 MB).
     LOOKAHEAD_CHUNK = 6_000_000
 
     def __init__(self, min_distance: float, end_margin: float = 0.0, lookahead: bool = False, min_reach: int = 1):
@@ -111,8 +113,8 @@ class SeparationShield:
         self.fallbacks, self.choices = 0, 0
         #: Team choices the look-ahead settled after the negotiation could not, since construction.
         self.rescued = 0
-        #: UAV choices where every allowed node was a dead end under the viability rule, since construction (in
-        #: the team choices that stand, not in the negotiation's discarded passes).
+        #: UAV choices where no allowed node reached any node next slot under the viability rule, since
+        #: construction (in the team choices that stand, not in the negotiation's discarded passes).
         self.dead_ends = 0
 
     def restrict(self, mask: np.ndarray, nodes: np.ndarray, paths: np.ndarray, chosen_paths: np.ndarray
@@ -156,11 +158,12 @@ class SeparationShield:
 
     def _viable(self, a, k, sm, wide, rows, nodes_k, paths_k, onward, pick):
         """The viability rule for the UAVs ``k`` of ``rows`` (B,): where the chosen node ``a`` is a dead end
-        (``onward`` finds no node reachable from the end of its path next slot), every candidate of the UAV's
-        mask ``sm`` and of ``wide`` (its separated nodes before the end-margin preference) is tested (``nodes_k``
-        (B, M), -1 padded, and their ``paths_k`` (B, M, P, 2)). ``sm`` (in place) becomes its viable nodes, the
-        roomy ones where there are any, and the UAV chooses again. Returns the actions; a row whose every node
-        is a dead end keeps its choice and its mask (returned too: ``(B,)`` bool)."""
+        (``onward`` finds fewer than ``min_reach`` nodes reachable from the end of its path next slot), every
+        candidate of the UAV's mask ``sm`` and of ``wide`` (its separated nodes before the end-margin
+        preference) is tested (``nodes_k`` (B, M), -1 padded, and their ``paths_k`` (B, M, P, 2)). ``sm`` (in
+        place) becomes its viable nodes, the roomy ones where there are any, and the UAV chooses again (the
+        bar drops to what the best node reaches where no node reaches it). Returns the actions; a row whose
+        every node reaches none keeps its choice and its mask (returned too: ``(B,)`` bool)."""
         copies = np.arange(len(a))
         slot = np.argmax(nodes_k == a[:, None], axis=1)
         chosen = np.where(rows[:, None, None], paths_k[copies, slot], np.nan)[:, None]            # (B, 1, P, 2)
@@ -191,28 +194,30 @@ class SeparationShield:
         free (B,)) of the UAVs after it) a node whose path keeps ``min_distance`` from it and from the ``past``
         chosen paths (B, k, P, 2). True outside ``rows``."""
         ok = np.ones(paths_k.shape[:2], bool)
-        r_all = np.nonzero(rows)[0]
         m, p = paths_k.shape[1], paths_k.shape[2]
-        step = max(1, self.LOOKAHEAD_CHUNK // max(m * m * p, 1))
+        cols = max(1, self.LOOKAHEAD_CHUNK // max(m * p, 1))    # candidates of k per chunk, for one copy
         for nodes_j, paths_j, free_j in later:
-            for lo in range(0, len(r_all), step):
-                r = r_all[lo:lo + step]
-                r = r[~free_j[r]]                        # a free UAV chooses by rejection: nothing to leave it
-                if len(r) == 0:
-                    continue
-                room = nodes_j[r] >= 0                                                        # (R, M)
-                if past.shape[1]:
-                    room &= separation(paths_j[r][:, :, None, 1:], past[r][:, None, :, 1:]).min(axis=2) \
-                        >= self.min_distance
-                gap = separation(paths_k[r][:, :, None, 1:], paths_j[r][:, None, :, 1:])       # (R, M, M)
-                ok[r] &= ((gap >= self.min_distance) & room[:, None, :]).any(axis=2)
+            r = np.nonzero(rows & ~free_j)[0]          # a free UAV chooses by rejection: nothing to leave it
+            if len(r) == 0:
+                continue
+            room = nodes_j[r] >= 0                                                            # (R, M)
+            if past.shape[1]:
+                room &= separation(paths_j[r][:, :, None, 1:], past[r][:, None, :, 1:]).min(axis=2) \
+                    >= self.min_distance
+            r = r[room.any(axis=1)]                    # a teammate already without room: nothing to keep for it
+            room = room[room.any(axis=1)]
+            per = max(1, cols // m)                    # copies per chunk when a copy's candidates fit at once
+            for lo in range(0, len(r), per):
+                rr, rm = r[lo:lo + per], room[lo:lo + per]
+                for c in range(0, m, cols):
+                    gap = separation(paths_k[rr, c:c + cols, None, 1:], paths_j[rr][:, None, :, 1:])  # (R, C, M)
+                    ok[rr, c:c + cols] &= ((gap >= self.min_distance) & rm[:, None, :]).any(axis=2)
         return ok
 
     def _pass(self, masks, nodes, paths, free, order, paths_to, pick, onward=None, careful=None):
         """One sequential choice in the per-copy UAV ``order`` ``(B, U)``: actions, shielded masks, per copy the
         first position whose UAV had no separated node (U if none), and per copy the UAVs left only dead ends
-        (the viability rule). In the copies ``careful`` (B,) bool, each
-        UAV looks ahead (:meth:`_leaves_room`)."""
+        (the viability rule). In the copies ``careful`` (B,) bool, each UAV looks ahead (:meth:`_leaves_room`)."""
         B, U, _ = masks.shape
         copies = np.arange(B)
         actions = np.zeros((B, U), np.int64)
@@ -229,10 +234,14 @@ class SeparationShield:
                 later = [(nodes[copies, j], paths[copies, j], free[copies, j]) for j in order[:, i + 1:].T]
                 room = self._as_mask(sm, nodes[copies, k], self._leaves_room(careful & ~fk, paths[copies, k],
                                                                             later, past))
-                for m_ in (sm, wide):                       # in place; a row with no such node keeps its mask
-                    narrowed = m_ & room
-                    has = narrowed.any(axis=1)
-                    m_[has] = narrowed[has]
+                # Room for the teammates comes before the end-margin preference: a cramped end that leaves room
+                # beats a roomy one that does not. A row where no separated node leaves room keeps its masks.
+                in_sm, in_wide = sm & room, wide & room
+                has_sm, has_wide = in_sm.any(axis=1), in_wide.any(axis=1)
+                sm[has_sm] = in_sm[has_sm]
+                cramped = has_wide & ~has_sm                   # every roomy end cuts a teammate off
+                sm[cramped] = in_wide[cramped]
+                wide[has_wide] = in_wide[has_wide]
             sm[fk], empty[fk] = masks[copies, k][fk], False
             a = pick(k, sm)
             if onward is not None and not fk.all():
@@ -279,10 +288,58 @@ class SeparationShield:
             a = np.where(pending, pick(k, sm), a)
         return a, path, pending
 
+    def _look_ahead(self, idx, masks, nodes, paths, free, paths_to, pick, test, out):
+        """The copies ``idx`` that no order settled negotiate again, every UAV looking ahead, as a batch of their
+        own (the callbacks still see the whole batch: the other copies ask for no node). Their results replace
+        those in ``out`` (actions, shielded masks, dead ends; in place) where every UAV is settled. Returns the
+        ``(B,)`` copies still unsettled."""
+        B, U, _ = masks.shape
+        copies = np.arange(B)
+
+        def whole(k_sub):
+            k = np.zeros(B, np.int64)
+            k[idx] = k_sub
+            return k
+
+        def pick_sub(k_sub, m_sub):
+            m = masks[copies, 0].copy()                            # the copies not asked: a valid mask
+            m[idx] = m_sub
+            return pick(whole(k_sub), m)[idx]
+
+        def paths_sub(nodes_sub):
+            n = np.full((B, *nodes_sub.shape[1:]), -1)
+            n[idx] = nodes_sub
+            return paths_to(n)[idx]
+
+        def test_sub(k_sub, xy_sub, theta_sub):
+            xy, theta = np.full((B, *xy_sub.shape[1:]), np.nan), np.zeros((B, *theta_sub.shape[1:]))
+            xy[idx], theta[idx] = xy_sub, theta_sub
+            return test(whole(k_sub), xy, theta)[idx]
+
+        sub = masks[idx], nodes[idx], paths[idx], free[idx]
+        careful = np.ones(len(idx), bool)
+        result = {}
+
+        def settle(order, rows):
+            a, s, failed_at, dead = self._pass(*sub, order, paths_sub, pick_sub, test and test_sub, careful)
+            for key, v in (("a", a), ("s", s), ("dead", dead)):
+                result.setdefault(key, v.copy())[rows] = v[rows]
+            return failed_at
+
+        still = priority_negotiation(settle, len(idx), U)
+        fixed = idx[~still]
+        for target, key in zip(out, ("a", "s", "dead"), strict=True):
+            target[fixed] = result[key][~still]
+        self.rescued += len(fixed)
+        unsettled = np.zeros(B, bool)
+        unsettled[idx[still]] = True
+        return unsettled
+
     def choose(self, masks: np.ndarray, paths_to: Callable[[np.ndarray], np.ndarray],
                pick: Callable[[np.ndarray, np.ndarray], np.ndarray],
                onward: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """Choose the team's nodes, UAV 0 first, then again with a blocked UAV first where one was blocked.
+        """Choose the team's nodes, UAV 0 first, then again with a blocked UAV first where one was blocked (and,
+        with ``lookahead``, once more looking ahead where no order settled the team).
 
         Args:
             masks: ``(B, U, L)`` the env's action masks.
@@ -321,24 +378,15 @@ class SeparationShield:
         if onward is None:
             test = None
 
-        def settle(order, rows, careful=None):
-            a, s, failed_at, dead = self._pass(masks, nodes, paths, free, order, paths_to, pick, test, careful)
-            if careful is not None:
-                rows = rows & careful
+        def settle(order, rows):
+            a, s, failed_at, dead = self._pass(masks, nodes, paths, free, order, paths_to, pick, test)
             actions[rows], shielded[rows], dead_ends[rows] = a[rows], s[rows], dead[rows]
             return failed_at
 
         unsettled = priority_negotiation(settle, B, U)
         if self.lookahead and unsettled.any():
-            # The unsettled copies negotiate again, every UAV looking ahead; their results replace the first
-            # negotiation's where every UAV is settled.
-            first = actions.copy(), shielded.copy(), dead_ends.copy()
-            careful = unsettled.copy()
-            still = priority_negotiation(lambda order, rows: settle(order, rows, careful), B, U) & careful
-            keep = careful & still
-            actions[keep], shielded[keep], dead_ends[keep] = first[0][keep], first[1][keep], first[2][keep]
-            self.rescued += int((careful & ~still).sum())
-            unsettled = still
+            unsettled = self._look_ahead(np.nonzero(unsettled)[0], masks, nodes, paths, free, paths_to, pick, test,
+                                         (actions, shielded, dead_ends))
         self.fallbacks += int(unsettled.sum())
         self.dead_ends += int(dead_ends.sum())
         self.choices += B
