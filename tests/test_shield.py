@@ -487,3 +487,28 @@ def test_viability_bar_prefers_nodes_with_room_next_slot():
     for bad in (0, -3, 2.5, True):
         with pytest.raises(ValueError, match="min_reach must be an integer >= 1"):
             SeparationShield(5.0, min_reach=bad)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2 ** 31 - 1), b=st.integers(1, 3), m=st.integers(1, 70), d=st.floats(0.0, 40.0),
+       n_past=st.integers(0, 2))
+def test_lookahead_room_test_matches_the_full_pairwise_comparison(seed, b, m, d, n_past):
+    """The look-ahead's sliced search (a teammate's nodes a strided slice at a time, stopping at the first with
+    room) answers exactly what the full (M, M) comparison of candidate paths answers."""
+    rng = np.random.default_rng(seed)
+    paths_k, paths_j = rng.uniform(-40, 40, (2, b, m, 4, 2))
+    nodes_j = np.where(rng.random((b, m)) < 0.8, np.arange(m), -1)
+    paths_j[nodes_j < 0] = np.nan
+    free_j = rng.random(b) < 0.2
+    past = rng.uniform(-40, 40, (b, n_past, 4, 2))
+    rows, cand = rng.random(b) < 0.8, rng.random((b, m)) < 0.8
+    shield = SeparationShield(d)
+    shield.LOOKAHEAD_SLICE = int(rng.integers(1, 9))
+    got = shield._leaves_room(rows, cand, paths_k, [(nodes_j, paths_j, free_j)], past)
+    gap = np.linalg.norm(paths_k[:, :, None, 1:] - paths_j[:, None, :, 1:], axis=-1).min(-1)     # (b, M, M)
+    room = nodes_j >= 0
+    if n_past:
+        room &= np.linalg.norm(paths_j[:, :, None, 1:] - past[:, None, :, 1:], axis=-1).min(axis=(2, 3)) >= d
+    want = ((gap >= d) & room[:, None, :]).any(axis=2)
+    asked = rows[:, None] & cand & ~free_j[:, None] & room.any(axis=1)[:, None]
+    np.testing.assert_array_equal(got, np.where(asked, want, True))

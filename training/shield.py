@@ -92,8 +92,8 @@ class SeparationShield:
             bar is what its best node reaches; 1: only nodes that reach none).
     """
 
-    #: Candidate-pair path samples compared at once by the look-ahead (its temporaries: about 150 MB).
-    LOOKAHEAD_CHUNK = 6_000_000
+    #: Teammate nodes the look-ahead tries at once per candidate path (a strided slice of the teammate's reach).
+    LOOKAHEAD_SLICE = 32
 
     def __init__(self, min_distance: float, end_margin: float = 0.0, lookahead: bool = False, min_reach: int = 1):
         for name, v in (("min_distance", min_distance), ("end_margin", end_margin)):
@@ -188,14 +188,18 @@ class SeparationShield:
             a = np.where(some, pick(k, sm), a)
         return a, dead & ~some
 
-    def _leaves_room(self, rows, paths_k, later, past):
+    def _leaves_room(self, rows, cand, paths_k, later, past):
         """The look-ahead for one UAV in the copies ``rows`` (B,): ``(B, M)`` whether each of its candidate
-        ``paths_k`` (B, M, P, 2) leaves every UAV of ``later`` (a list of (nodes (B, M), paths (B, M, P, 2),
-        free (B,)) of the UAVs after it) a node whose path keeps ``min_distance`` from it and from the ``past``
-        chosen paths (B, k, P, 2). True outside ``rows``."""
+        ``paths_k`` (B, M, P, 2) marked in ``cand`` (B, M) leaves every UAV of ``later`` (a list of (nodes (B, M),
+        paths (B, M, P, 2), free (B,)) of the UAVs after it) a node whose path keeps ``min_distance`` from it and
+        from the ``past`` chosen paths (B, k, P, 2). True outside ``rows`` and ``cand``.
+
+        A teammate's nodes are tried a strided slice at a time (spread over its reach), and a candidate stops at
+        the first slice that holds a node with room: most candidates stop at the first, so the work is far below
+        the full (M, M) comparison, which only candidates that leave no room pay."""
         ok = np.ones(paths_k.shape[:2], bool)
-        m, p = paths_k.shape[1], paths_k.shape[2]
-        cols = max(1, self.LOOKAHEAD_CHUNK // max(m * p, 1))    # candidates of k per chunk, for one copy
+        m = paths_k.shape[1]
+        n_slices = -(-m // self.LOOKAHEAD_SLICE)
         for nodes_j, paths_j, free_j in later:
             r = np.nonzero(rows & ~free_j)[0]          # a free UAV chooses by rejection: nothing to leave it
             if len(r) == 0:
@@ -204,14 +208,19 @@ class SeparationShield:
             if past.shape[1]:
                 room &= separation(paths_j[r][:, :, None, 1:], past[r][:, None, :, 1:]).min(axis=2) \
                     >= self.min_distance
-            r = r[room.any(axis=1)]                    # a teammate already without room: nothing to keep for it
-            room = room[room.any(axis=1)]
-            per = max(1, cols // m)                    # copies per chunk when a copy's candidates fit at once
-            for lo in range(0, len(r), per):
-                rr, rm = r[lo:lo + per], room[lo:lo + per]
-                for c in range(0, m, cols):
-                    gap = separation(paths_k[rr, c:c + cols, None, 1:], paths_j[rr][:, None, :, 1:])  # (R, C, M)
-                    ok[rr, c:c + cols] &= ((gap >= self.min_distance) & rm[:, None, :]).any(axis=2)
+            keep = room.any(axis=1)                    # a teammate already without room: nothing to keep for it
+            r, room = r[keep], room[keep]
+            pending = cand[r] & ok[r]                                                         # (R, M)
+            found = ~pending
+            for c in range(n_slices):
+                pr, pm = np.nonzero(~found)
+                if len(pr) == 0:
+                    break
+                sl = np.arange(c, m, n_slices)
+                gap = separation(paths_k[r[pr], pm][:, None, 1:], paths_j[r[pr][:, None], sl, 1:])  # (n, S)
+                hit = ((gap >= self.min_distance) & room[pr[:, None], sl]).any(axis=1)
+                found[pr[hit], pm[hit]] = True
+            ok[r] &= found
         return ok
 
     def _pass(self, masks, nodes, paths, free, order, paths_to, pick, onward=None, careful=None):
@@ -232,8 +241,9 @@ class SeparationShield:
             fk = free[copies, k]
             if careful is not None and i < U - 1:
                 later = [(nodes[copies, j], paths[copies, j], free[copies, j]) for j in order[:, i + 1:].T]
-                room = self._as_mask(sm, nodes[copies, k], self._leaves_room(careful & ~fk, paths[copies, k],
-                                                                            later, past))
+                nk = nodes[copies, k]
+                cand = (nk >= 0) & (sm | wide)[copies[:, None], np.maximum(nk, 0)]
+                room = self._as_mask(sm, nk, self._leaves_room(careful & ~fk, cand, paths[copies, k], later, past))
                 # Room for the teammates comes before the end-margin preference: a cramped end that leaves room
                 # beats a roomy one that does not. A row where no separated node leaves room keeps its masks.
                 in_sm, in_wide = sm & room, wide & room
