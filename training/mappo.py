@@ -236,17 +236,14 @@ def check_args(args: Args) -> None:
     elif args.init_actor and not Path(args.init_actor).exists():
         raise ValueError(f"--init-actor {args.init_actor}: no such file or folder (pretrained:NAME, a run folder "
                          "or a weights .npz)")
-    if args.viability_shield and not (args.separation_shield and args.action_mode == "waypoint"):
-        raise ValueError("--viability-shield acts inside the separation shield: it needs --action-mode waypoint and "
-                         f"--separation-shield true, got --action-mode {args.action_mode!r} --separation-shield "
-                         f"{str(args.separation_shield).lower()}")
+    for flag, on in (("--viability-shield", args.viability_shield), ("--shield-lookahead", args.shield_lookahead)):
+        if on and not (args.separation_shield and args.action_mode == "waypoint"):
+            raise ValueError(f"{flag} acts inside the separation shield: it needs --action-mode waypoint and "
+                             f"--separation-shield true, got --action-mode {args.action_mode!r} --separation-shield "
+                             f"{str(args.separation_shield).lower()}")
     if args.viability_min_reach != 1 and not args.viability_shield:
         raise ValueError(f"--viability-min-reach {args.viability_min_reach}: a bar of the viability rule, it needs "
                          "--viability-shield true")
-    if args.shield_lookahead and not (args.separation_shield and args.action_mode == "waypoint"):
-        raise ValueError("--shield-lookahead acts inside the separation shield: it needs --action-mode waypoint and "
-                         f"--separation-shield true, got --action-mode {args.action_mode!r} --separation-shield "
-                         f"{str(args.separation_shield).lower()}")
     if args.init_temperature != 1.0 and not (args.init_actor and args.action_mode == "waypoint"):
         raise ValueError(f"--init-temperature {args.init_temperature:g}: needs --init-actor and --action-mode "
                          "waypoint (it scales the loaded actor's node logits)")
