@@ -17,7 +17,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import covert_env
-from training.shield import SeparationShield, end_poses
+from training.shield import SeparationShield, end_poses, leaves_room
 
 DISABLED = gymnasium.vector.AutoresetMode.DISABLED
 
@@ -502,9 +502,7 @@ def test_lookahead_room_test_matches_the_full_pairwise_comparison(seed, b, m, d,
     free_j = rng.random(b) < 0.2
     past = rng.uniform(-40, 40, (b, n_past, 4, 2))
     rows, cand = rng.random(b) < 0.8, rng.random((b, m)) < 0.8
-    shield = SeparationShield(d)
-    shield.LOOKAHEAD_SLICE = int(rng.integers(1, 9))
-    got = shield._leaves_room(rows, cand, paths_k, [(nodes_j, paths_j, free_j)], past)
+    got = leaves_room(rows, cand, paths_k, [(nodes_j, paths_j, free_j)], past, d, slice_size=int(rng.integers(1, 9)))
     gap = np.linalg.norm(paths_k[:, :, None, 1:] - paths_j[:, None, :, 1:], axis=-1).min(-1)     # (b, M, M)
     room = nodes_j >= 0
     if n_past:

@@ -30,15 +30,16 @@ probability ratios are taken under the masks the actions were sampled with); the
   paths come least close (the shield never leaves a UAV without an action); such team choices are counted in
   ``fallbacks``.
 
-With ``lookahead``, a team choice that no order settles is negotiated again with each UAV also looking one
-teammate ahead: it keeps only the separated nodes that leave every later teammate some node separated from its
-path and from the paths chosen before it, ahead of the end-margin preference (where no separated node does, or
-the teammate has no room left anyway, its mask is unchanged). A UAV's first pick is greedy for itself, so two
-UAVs converging on each other can each, whichever goes first, choose the path that cuts off all the other's;
-the look-ahead is the pairwise test that rules those paths out. It costs an (M, M) comparison of candidate paths
-per UAV pair, paid only by the copies the negotiation left unsettled (a few percent of team choices), which
-negotiate again as a batch of their own; the result replaces the first negotiation's only where it settles every
-UAV (counted in ``rescued``). Free UAVs do not look ahead (they choose by rejection).
+With ``lookahead``, a team choice that no order settles is negotiated again with each UAV also looking one teammate
+ahead: it keeps only the separated nodes that leave every later teammate some node separated from its path and from
+the paths chosen before it, ahead of the end-margin preference (where no separated node does, or the teammate has no
+room left anyway, its mask is unchanged). A UAV's first pick is greedy for itself, so two UAVs converging on each
+other can each, whichever goes first, choose the path that cuts off all the other's; the look-ahead is the pairwise
+test that rules those paths out (:func:`leaves_room`: at most an (M, M) comparison of candidate paths per UAV pair,
+searched a slice of the teammate's nodes at a time). It is paid only by the copies the negotiation left unsettled (a
+few percent of team choices), which negotiate again as a batch of their own; the result replaces the first
+negotiation's only where it settles every UAV (counted in ``rescued``). Free UAVs do not look ahead (they choose by
+rejection).
 
 With ``onward`` (the viability rule, the env's ``onward_reach``), a UAV also avoids a node from which it could reach
 no lattice node in the next slot: from there it would leave the zone. With ``min_reach`` above 1, a node from which
@@ -66,7 +67,10 @@ import numpy as np
 
 from covert_env.separation import priority_negotiation, separation
 
-__all__ = ["SeparationShield", "end_poses"]
+__all__ = ["SeparationShield", "end_poses", "leaves_room"]
+
+#: Teammate nodes the look-ahead tries at once per candidate path (a strided slice of the teammate's reach).
+LOOKAHEAD_SLICE = 32
 
 
 def end_poses(paths: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -75,6 +79,70 @@ def end_poses(paths: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     last step's turn)."""
     d = paths[..., -1, :] - paths[..., -2, :]
     return paths[..., -1, :], np.arctan2(d[..., 1], d[..., 0])
+
+
+def leaves_room(rows: np.ndarray, cand: np.ndarray, paths_k: np.ndarray, later: list, past: np.ndarray,
+                min_distance: float, slice_size: int = LOOKAHEAD_SLICE) -> np.ndarray:
+    """The look-ahead for one UAV in the copies ``rows`` (B,): ``(B, M)`` whether each of its candidate
+    ``paths_k`` (B, M, P, 2) marked in ``cand`` (B, M) leaves every UAV of ``later`` (a list of (nodes (B, M),
+    paths (B, M, P, 2), free (B,)) of the UAVs after it) a node whose path keeps ``min_distance`` from it and from
+    the ``past`` chosen paths (B, k, P, 2). True outside ``rows`` and ``cand``.
+
+    A teammate's nodes are tried ``slice_size`` at a time (a strided slice, spread over its reach), and a
+    candidate stops at the first slice that holds a node with room: most candidates stop at the first, so the work
+    is far below the full (M, M) comparison, which only candidates that leave no room pay."""
+    ok = np.ones(paths_k.shape[:2], bool)
+    m = paths_k.shape[1]
+    n_slices = -(-m // slice_size)
+    for nodes_j, paths_j, free_j in later:
+        r = np.nonzero(rows & ~free_j)[0]              # a free UAV chooses by rejection: nothing to leave it
+        if len(r) == 0:
+            continue
+        room = nodes_j[r] >= 0                                                                # (R, M)
+        if past.shape[1]:
+            room &= separation(paths_j[r][:, :, None, 1:], past[r][:, None, :, 1:]).min(axis=2) >= min_distance
+        keep = room.any(axis=1)                        # a teammate already without room: nothing to keep for it
+        r, room = r[keep], room[keep]
+        found = ~(cand[r] & ok[r])                                                            # (R, M)
+        for c in range(n_slices):
+            pr, pm = np.nonzero(~found)
+            if len(pr) == 0:
+                break
+            sl = np.arange(c, m, n_slices)
+            gap = separation(paths_k[r[pr], pm][:, None, 1:], paths_j[r[pr][:, None], sl, 1:])      # (n, S)
+            hit = ((gap >= min_distance) & room[pr[:, None], sl]).any(axis=1)
+            found[pr[hit], pm[hit]] = True
+        ok[r] &= found
+    return ok
+
+
+def sub_batch(idx: np.ndarray, masks: np.ndarray, pick, paths_to, onward):
+    """The shield's callbacks (``pick``, ``paths_to``, ``onward``: each takes and returns the whole batch of B
+    copies) for the copies ``idx`` alone: the other copies ask for no node (a valid mask to pick under, no node to
+    fly, no pose to test). ``onward`` may be None."""
+    b = len(masks)
+
+    def whole(k_sub):
+        k = np.zeros(b, np.int64)
+        k[idx] = k_sub
+        return k
+
+    def pick_sub(k_sub, m_sub):
+        m = masks[np.arange(b), 0].copy()
+        m[idx] = m_sub
+        return pick(whole(k_sub), m)[idx]
+
+    def paths_sub(nodes_sub):
+        n = np.full((b, *nodes_sub.shape[1:]), -1)
+        n[idx] = nodes_sub
+        return paths_to(n)[idx]
+
+    def onward_sub(k_sub, xy_sub, theta_sub):
+        xy, theta = np.full((b, *xy_sub.shape[1:]), np.nan), np.zeros((b, *theta_sub.shape[1:]))
+        xy[idx], theta[idx] = xy_sub, theta_sub
+        return onward(whole(k_sub), xy, theta)[idx]
+
+    return pick_sub, paths_sub, onward_sub if onward is not None else None
 
 
 class SeparationShield:
@@ -91,9 +159,6 @@ class SeparationShield:
             reachable next slot counts as a dead end where the UAV has a node at or above the bar (elsewhere the
             bar is what its best node reaches; 1: only nodes that reach none).
     """
-
-    #: Teammate nodes the look-ahead tries at once per candidate path (a strided slice of the teammate's reach).
-    LOOKAHEAD_SLICE = 32
 
     def __init__(self, min_distance: float, end_margin: float = 0.0, lookahead: bool = False, min_reach: int = 1):
         for name, v in (("min_distance", min_distance), ("end_margin", end_margin)):
@@ -188,45 +253,10 @@ class SeparationShield:
             a = np.where(some, pick(k, sm), a)
         return a, dead & ~some
 
-    def _leaves_room(self, rows, cand, paths_k, later, past):
-        """The look-ahead for one UAV in the copies ``rows`` (B,): ``(B, M)`` whether each of its candidate
-        ``paths_k`` (B, M, P, 2) marked in ``cand`` (B, M) leaves every UAV of ``later`` (a list of (nodes (B, M),
-        paths (B, M, P, 2), free (B,)) of the UAVs after it) a node whose path keeps ``min_distance`` from it and
-        from the ``past`` chosen paths (B, k, P, 2). True outside ``rows`` and ``cand``.
-
-        A teammate's nodes are tried a strided slice at a time (spread over its reach), and a candidate stops at
-        the first slice that holds a node with room: most candidates stop at the first, so the work is far below
-        the full (M, M) comparison, which only candidates that leave no room pay."""
-        ok = np.ones(paths_k.shape[:2], bool)
-        m = paths_k.shape[1]
-        n_slices = -(-m // self.LOOKAHEAD_SLICE)
-        for nodes_j, paths_j, free_j in later:
-            r = np.nonzero(rows & ~free_j)[0]          # a free UAV chooses by rejection: nothing to leave it
-            if len(r) == 0:
-                continue
-            room = nodes_j[r] >= 0                                                            # (R, M)
-            if past.shape[1]:
-                room &= separation(paths_j[r][:, :, None, 1:], past[r][:, None, :, 1:]).min(axis=2) \
-                    >= self.min_distance
-            keep = room.any(axis=1)                    # a teammate already without room: nothing to keep for it
-            r, room = r[keep], room[keep]
-            pending = cand[r] & ok[r]                                                         # (R, M)
-            found = ~pending
-            for c in range(n_slices):
-                pr, pm = np.nonzero(~found)
-                if len(pr) == 0:
-                    break
-                sl = np.arange(c, m, n_slices)
-                gap = separation(paths_k[r[pr], pm][:, None, 1:], paths_j[r[pr][:, None], sl, 1:])  # (n, S)
-                hit = ((gap >= self.min_distance) & room[pr[:, None], sl]).any(axis=1)
-                found[pr[hit], pm[hit]] = True
-            ok[r] &= found
-        return ok
-
     def _pass(self, masks, nodes, paths, free, order, paths_to, pick, onward=None, careful=None):
         """One sequential choice in the per-copy UAV ``order`` ``(B, U)``: actions, shielded masks, per copy the
         first position whose UAV had no separated node (U if none), and per copy the UAVs left only dead ends
-        (the viability rule). In the copies ``careful`` (B,) bool, each UAV looks ahead (:meth:`_leaves_room`)."""
+        (the viability rule). In the copies ``careful`` (B,) bool, each UAV looks ahead (:func:`leaves_room`)."""
         B, U, _ = masks.shape
         copies = np.arange(B)
         actions = np.zeros((B, U), np.int64)
@@ -243,7 +273,8 @@ class SeparationShield:
                 later = [(nodes[copies, j], paths[copies, j], free[copies, j]) for j in order[:, i + 1:].T]
                 nk = nodes[copies, k]
                 cand = (nk >= 0) & (sm | wide)[copies[:, None], np.maximum(nk, 0)]
-                room = self._as_mask(sm, nk, self._leaves_room(careful & ~fk, cand, paths[copies, k], later, past))
+                room = self._as_mask(sm, nk, leaves_room(careful & ~fk, cand, paths[copies, k], later, past,
+                                                         self.min_distance))
                 # Room for the teammates comes before the end-margin preference: a cramped end that leaves room
                 # beats a roomy one that does not. A row where no separated node leaves room keeps its masks.
                 in_sm, in_wide = sm & room, wide & room
@@ -300,38 +331,16 @@ class SeparationShield:
 
     def _look_ahead(self, idx, masks, nodes, paths, free, paths_to, pick, test, out):
         """The copies ``idx`` that no order settled negotiate again, every UAV looking ahead, as a batch of their
-        own (the callbacks still see the whole batch: the other copies ask for no node). Their results replace
-        those in ``out`` (actions, shielded masks, dead ends; in place) where every UAV is settled. Returns the
-        ``(B,)`` copies still unsettled."""
+        own (:func:`sub_batch`). Their results replace those in ``out`` (actions, shielded masks, dead ends; in
+        place) where every UAV is settled. Returns the ``(B,)`` copies still unsettled."""
         B, U, _ = masks.shape
-        copies = np.arange(B)
-
-        def whole(k_sub):
-            k = np.zeros(B, np.int64)
-            k[idx] = k_sub
-            return k
-
-        def pick_sub(k_sub, m_sub):
-            m = masks[copies, 0].copy()                            # the copies not asked: a valid mask
-            m[idx] = m_sub
-            return pick(whole(k_sub), m)[idx]
-
-        def paths_sub(nodes_sub):
-            n = np.full((B, *nodes_sub.shape[1:]), -1)
-            n[idx] = nodes_sub
-            return paths_to(n)[idx]
-
-        def test_sub(k_sub, xy_sub, theta_sub):
-            xy, theta = np.full((B, *xy_sub.shape[1:]), np.nan), np.zeros((B, *theta_sub.shape[1:]))
-            xy[idx], theta[idx] = xy_sub, theta_sub
-            return test(whole(k_sub), xy, theta)[idx]
-
+        pick_sub, paths_sub, test_sub = sub_batch(idx, masks, pick, paths_to, test)
         sub = masks[idx], nodes[idx], paths[idx], free[idx]
         careful = np.ones(len(idx), bool)
         result = {}
 
         def settle(order, rows):
-            a, s, failed_at, dead = self._pass(*sub, order, paths_sub, pick_sub, test and test_sub, careful)
+            a, s, failed_at, dead = self._pass(*sub, order, paths_sub, pick_sub, test_sub, careful)
             for key, v in (("a", a), ("s", s), ("dead", dead)):
                 result.setdefault(key, v.copy())[rows] = v[rows]
             return failed_at
