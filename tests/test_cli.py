@@ -395,7 +395,7 @@ def test_cli_help_prints_each_default_once(name):
                 assert m.group(1).strip() == shown, (opt, blocks[opt])
 
 
-TRAINING_SCRIPTS = ["ppo_multi", "ppo_single", "sac_single", "maskable_ppo_single", "rllib_ppo", "mappo"]
+TRAINING_SCRIPTS = ["ppo_multi", "ppo_single", "sac_single", "maskable_ppo_single", "rllib_ppo", "mappo", "imitation"]
 
 
 @pytest.mark.parametrize("script", TRAINING_SCRIPTS)

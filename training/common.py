@@ -114,6 +114,10 @@ def _ranges() -> dict[str, tuple]:
         "shield_end_margin": non_negative, "map_size": int_range(2, 64), "lambda_max": non_negative,
         "actor_warmup_updates": non_negative_int, "viability_min_reach": int_range(1, 100_000),
         "init_temperature": float_range(0.01, 100.0),
+        # training.imitation
+        "teacher": ("choices", ("dp", "dp-binned", "dp-path")), "episodes_per_task": int_range(1, 100_000),
+        "val_episodes": int_range(0, 100_000), "dagger_rounds": int_range(0, 100),
+        "dagger_episodes_per_task": int_range(1, 100_000), "epochs": int_range(1, 100_000), "jobs": int_range(1, 256),
     }
 
 

@@ -1,0 +1,342 @@
+"""Behaviour cloning of the DP planner: a learned team's actor that starts where the paper's planner is.
+
+    OMP_NUM_THREADS=1 python -m training.imitation --recipe 3uav-suite --seed 0          # about 20 min on 2 cores
+    python -m training.benchmark --policies dp mappo:runs/<run>                           # score it on the suite
+    OMP_NUM_THREADS=1 python -m training.mappo --recipe 3uav-suite --init-actor runs/<run> # fine-tune it with RL
+
+The planner (``--teacher``, :mod:`baselines.policies`) flies the training scenes of the recipe's tasks
+(``covert_env.tasks.Task.train_seeds``). Every slot, each UAV's observation, its action mask and the planner's node
+are recorded. The actor of the MAPPO recipe (:mod:`training.mappo_networks`, the same architecture, node features
+and card) is then trained to pick the planner's node under the mask: cross-entropy of the masked categorical,
+Adam, minibatches from one task at a time, since the node features depend on the task's lattice. The mask is the
+recipe's (``kinematic`` for ``3uav-suite``: every reachable node), so whatever shadow the actor avoids it read
+from its observation; the planner never picks a shadowed node at a slot time.
+
+**DAgger** (``--dagger-rounds N``, Ross et al. 2011): a cloned actor meets states the planner never visits. Each
+round flies the current actor (through its shield, as the harness does) on fresh training scenes, labels every
+slot with the planner's node from that state, adds the slots to the data and trains again from the union.
+
+The run folder (``runs/<run>``) holds what :mod:`training.mappo` writes: ``model.npz`` and ``model.json`` (the
+card, ``algorithm = "bc-dp"``, the recipe's shield), ``args.json``, ``curve.jsonl`` (per epoch: loss and the
+held-out agreement with the planner) and TensorBoard logs; and ``data.npz``, the recorded slots (numpy arrays,
+no pickle). Held out for validation: the last ``--val-episodes`` episodes of every task and round.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from multiprocessing import get_context
+from pathlib import Path
+
+import numpy as np
+
+import covert_env
+from covert_env.tasks import get_task
+from training.common import parse_args, run_name, save_run, setup_torch
+
+__all__ = ["Args", "teacher_episode", "collect", "train"]
+
+TEACHERS = ("dp", "dp-binned", "dp-path")
+
+
+@dataclass
+class Args:
+    recipe: str = "3uav-suite"
+    """the training.mappo recipe whose actor, tasks, env settings and shield the cloned team takes"""
+    teacher: str = "dp"
+    """the planner cloned: dp (the paper's), dp-binned or dp-path (baselines.policies)"""
+    episodes_per_task: int = 24
+    """planner episodes recorded per task (70 slots each)"""
+    val_episodes: int = 2
+    """of those, per task and round, held out to measure the agreement with the planner"""
+    max_cycles: int = 70
+    """slots per recorded episode (the route's 70; fewer only for smoke tests)"""
+    dagger_rounds: int = 1
+    """rounds in which the cloned team flies and the planner labels its states (0: plain behaviour cloning)"""
+    dagger_episodes_per_task: int = 12
+    """episodes per task and DAgger round"""
+    epochs: int = 12
+    """passes over the data after each collection"""
+    batch_size: int = 256
+    """UAV-slots per minibatch"""
+    learning_rate: float = 1e-3
+    """Adam's step size"""
+    seed: int = 0
+    """seeds torch, the minibatch order, and picks the scenes (seed * 1000 + i of the training scenes)"""
+    jobs: int = 2
+    """processes flying the planner"""
+    run_name: str = ""
+    """run folder name (default {env}__bc-dp__{seed}__{time})"""
+    runs_dir: str = "runs"
+    """where run folders go"""
+    torch_threads: int = 1
+    """torch threads"""
+    progress_bar: bool = True
+    """show progress bars on stderr"""
+
+
+def mappo_args(recipe: str):
+    """The :class:`training.mappo.Args` of a MAPPO recipe: the actor, env and shield the cloned team takes."""
+    from training.mappo import Args as MappoArgs
+    from training.recipes import MAPPO_RECIPES
+
+    if recipe not in MAPPO_RECIPES:
+        raise ValueError(f"--recipe {recipe!r}: not a training.mappo recipe; choose from {sorted(MAPPO_RECIPES)}")
+    return dataclasses.replace(MappoArgs(), **MAPPO_RECIPES[recipe])
+
+
+def env_settings(margs, max_cycles: int = 70) -> dict:
+    """The parallel env's keyword arguments matching the recipe's vector env (what the harness builds)."""
+    return {"action_mode": margs.action_mode, "mask_mode": margs.mask_mode, "map_size": margs.map_size,
+            "max_cycles": max_cycles}
+
+
+def teacher_episode(task: str, seed: int, teacher: str, settings: dict, student: str | None = None) -> dict:
+    """One episode of ``task`` on training scene ``seed``: every live UAV's observation ``obs`` (n, D), action mask
+    ``mask`` (n, L), the planner's node ``label`` (n,) and the UAV's index ``agent`` (n,). The planner flies, or
+    the learned team at ``student`` (a run folder or weights) flies and the planner labels its states."""
+    from baselines.policies import make_policy
+    from training.pretrained import load_learned
+
+    env = covert_env.parallel_env(task=task, **settings)
+    planner = make_policy(teacher)
+    pilot = load_learned(student) if student else planner
+    obs, _ = env.reset(seed=seed, options={"scene_seed": seed})
+    planner.reset(env, seed)
+    rows = {"obs": [], "mask": [], "label": [], "agent": []}
+    while env.agents:
+        label = planner.act(obs, env)
+        acts = label if student is None else pilot.act(obs, env)
+        live = list(env.agents)
+        rows["obs"].append(np.stack([obs[a] for a in live]).astype(np.float32))
+        rows["mask"].append(np.stack([env.action_mask(a) for a in live]).astype(bool))
+        rows["label"].append(np.array([label[a] for a in live], np.int64))
+        rows["agent"].append(np.array([env.possible_agents.index(a) for a in live], np.int64))
+        obs, *_ = env.step(acts)
+    env.close()
+    return {k: np.concatenate(v) for k, v in rows.items()}
+
+
+def collect(tasks: list[str], seeds: list[int], args: Args, settings: dict, student: str | None = None,
+            label: str = "planner") -> list[list[dict]]:
+    """:func:`teacher_episode` for every task and seed, on ``args.jobs`` processes; ``[task][episode]``."""
+    from tqdm.auto import tqdm
+
+    work = [(t, s) for t in tasks for s in seeds]
+    bar = tqdm(total=len(work), desc=label, unit="episode", disable=not args.progress_bar, file=sys.stderr,
+               mininterval=1.0 if sys.stderr.isatty() else 30.0)
+    out = []
+    if args.jobs == 1:
+        for t, s in work:
+            out.append(teacher_episode(t, s, args.teacher, settings, student))
+            bar.update()
+    else:
+        # Spawned workers: a clean interpreter each, whatever the parent imported (torch, threads).
+        with ProcessPoolExecutor(max_workers=args.jobs, mp_context=get_context("spawn")) as pool:
+            futures = [pool.submit(teacher_episode, t, s, args.teacher, settings, student) for t, s in work]
+            for f in futures:
+                out.append(f.result())
+                bar.update()
+    bar.close()
+    return [out[i * len(seeds):(i + 1) * len(seeds)] for i in range(len(tasks))]
+
+
+def join(episodes: list[dict], val: int) -> tuple[dict, dict]:
+    """Training and held-out arrays of one task's episodes (the last ``val`` episodes held out)."""
+    cut = len(episodes) - val
+
+    def cat(eps):
+        if not eps:
+            return None
+        d = {k: np.concatenate([e[k] for e in eps]) for k in episodes[0]}
+        # The planner's best effort when no node qualifies may lie outside the mask (docs/decisions.md,
+        # "Unreachable waypoint best effort"): no masked categorical can pick it, so it teaches nothing.
+        keep = d["mask"][np.arange(len(d["label"])), d["label"]]
+        return {k: v[keep] for k, v in d.items()}
+    return cat(episodes[:cut]), cat(episodes[cut:])
+
+
+class Cloner:
+    """The actor and what it needs to score a task's recorded slots: its lattice, its map cells, the config."""
+
+    def __init__(self, margs, tasks: list[str], settings: dict, actor):
+        from training.pretrained import node_features
+
+        self.margs, self.actor, self.node_features = margs, actor, node_features
+        self.geometry = {}
+        for t in tasks:
+            env = covert_env.parallel_env(task=t, **settings)
+            self.geometry[t] = (env.lattice.copy(), env.map_offsets.copy(), env.config, len(env.possible_agents))
+            env.close()
+
+    def logits(self, task: str, d: dict, idx):
+        import torch
+
+        lattice, offsets, c, u = self.geometry[task]
+        obs = d["obs"][idx]
+        feats = self.node_features(obs, lattice, u, r2=c.r2, v_max=c.v_max, delta=c.delta, d_safe1=c.d_safe1,
+                                   map_offsets=offsets if self.margs.node_map else None)
+        x = np.concatenate([obs, np.eye(u, dtype=np.float32)[d["agent"][idx]]], 1) if self.margs.agent_id else obs
+        mask = torch.from_numpy(d["mask"][idx])
+        return self.actor.logits(torch.from_numpy(x), torch.from_numpy(feats), mask), mask
+
+    def loss(self, task: str, d: dict, idx):
+        """Mean cross-entropy of the masked categorical at the planner's nodes, and how many it ranks first."""
+        import torch
+
+        logits, _ = self.logits(task, d, idx)
+        target = torch.from_numpy(d["label"][idx])
+        ce = torch.nn.functional.cross_entropy(logits, target)
+        return ce, int((logits.argmax(-1) == target).sum())
+
+
+def fit(cloner: Cloner, optim, train_sets: dict, val_sets: dict, args: Args, rng, log) -> dict:
+    """``args.epochs`` passes of minibatches, each from one task, in a shuffled order; the held-out agreement."""
+    import torch
+
+    stats = {}
+    for _ in range(args.epochs):
+        batches = [(t, p[i:i + args.batch_size]) for t, d in train_sets.items()
+                   for p in [rng.permutation(len(d["label"]))] for i in range(0, len(p), args.batch_size)]
+        order = rng.permutation(len(batches))
+        total, n = 0.0, 0
+        for j in order:
+            t, idx = batches[j]
+            ce, _ = cloner.loss(t, train_sets[t], idx)
+            optim.zero_grad()
+            ce.backward()
+            optim.step()
+            total, n = total + ce.item() * len(idx), n + len(idx)
+        with torch.no_grad():
+            hits, seen, vloss = 0, 0, 0.0
+            per_task = {}
+            for t, d in val_sets.items():
+                idx = np.arange(len(d["label"]))
+                ce, h = cloner.loss(t, d, idx)
+                per_task[t] = h / max(len(idx), 1)
+                hits, seen, vloss = hits + h, seen + len(idx), vloss + float(ce) * len(idx)
+        stats = {"train_loss": total / max(n, 1), "val_loss": vloss / max(seen, 1),
+                 "val_agreement": hits / max(seen, 1), "val_agreement_per_task": per_task}
+        log(stats)
+    return stats
+
+
+def train(args: Args) -> Path:
+    """Record the planner, clone it (and run the DAgger rounds); save and return the run folder."""
+    import torch
+    from torch.utils.tensorboard import SummaryWriter
+
+    from training.mappo import make_networks, model_card, sizes_of, task_list
+    from training.shield import SeparationShield
+    from training.task_mix import make_training_env
+
+    check_args(args)
+    setup_torch(args.torch_threads)
+    torch.manual_seed(args.seed)
+    rng = np.random.default_rng(args.seed)
+    margs = dataclasses.replace(mappo_args(args.recipe), seed=args.seed)
+    tasks = task_list(margs) or [get_task("paper-3uav").name]
+    settings = env_settings(margs, args.max_cycles)
+    run_dir = Path(args.runs_dir) / (args.run_name or run_name(margs.env_id, f"bc-{args.teacher}", args.seed))
+    t0 = time.monotonic()
+
+    env_kwargs = dict(n_uavs=margs.n_uavs, action_mode=margs.action_mode, max_cycles=margs.max_cycles,
+                      scene_pool=margs.scene_pool, map_size=margs.map_size, mask_mode=margs.mask_mode)
+    mix = make_training_env(tasks, len(tasks), **{k: v for k, v in env_kwargs.items()
+                                                 if k not in ("n_uavs", "scene_pool")})
+    s = sizes_of(margs, mix)
+    shield = SeparationShield(mix.config.d_safe1 + margs.shield_margin, margs.shield_end_margin,
+                              lookahead=margs.shield_lookahead, min_reach=margs.viability_min_reach) \
+        if margs.separation_shield else None
+    card = model_card(margs, s, mix, env_kwargs, shield)
+    mix.close()
+    card["algorithm"] = f"bc-{args.teacher}"
+    card["imitation"] = {"teacher": args.teacher, "recipe": args.recipe, "dagger_rounds": args.dagger_rounds}
+    actor, _, _ = make_networks(margs, s)
+    optim = torch.optim.Adam(actor.parameters(), lr=args.learning_rate)
+    cloner = Cloner(margs, tasks, settings, actor)
+    save_run(run_dir, args, {"card": card})
+    writer = SummaryWriter(str(run_dir / "tb"))
+    curve = open(run_dir / "curve.jsonl", "a")
+    epoch = 0
+
+    def log(stats):
+        nonlocal epoch
+        epoch += 1
+        for k, v in stats.items():
+            if not isinstance(v, dict):
+                writer.add_scalar(f"imitation/{k}", v, epoch)
+        curve.write(json.dumps({"epoch": epoch, "minutes": round((time.monotonic() - t0) / 60, 2), **stats}) + "\n")
+        curve.flush()
+        if args.progress_bar:
+            print(f"epoch {epoch}: loss {stats['train_loss']:.3f}, held-out loss {stats['val_loss']:.3f}, "
+                  f"agreement {stats['val_agreement']:.3f}", file=sys.stderr, flush=True)
+
+    base = args.seed * 1000
+    rounds = [collect(tasks, list(range(base, base + args.episodes_per_task)), args, settings)]
+    train_sets, val_sets, stats = {}, {}, {}
+    start = base + args.episodes_per_task
+    for r in range(args.dagger_rounds + 1):
+        for t, eps in zip(tasks, rounds[-1], strict=True):
+            tr, va = join(eps, args.val_episodes)
+            train_sets[t] = tr if t not in train_sets else {k: np.concatenate([train_sets[t][k], tr[k]]) for k in tr}
+            if va is not None:
+                val_sets[t] = va if t not in val_sets else {k: np.concatenate([val_sets[t][k], va[k]]) for k in va}
+        stats = fit(cloner, optim, train_sets, val_sets, args, rng, log)
+        save_actor(run_dir, actor, card, stats)
+        if r < args.dagger_rounds:
+            seeds = list(range(start, start + args.dagger_episodes_per_task))
+            start += args.dagger_episodes_per_task
+            rounds.append(collect(tasks, seeds, args, settings, student=str(run_dir), label=f"DAgger {r + 1}"))
+    np.savez_compressed(run_dir / "data.npz", **{f"{t}.{k}": v for t, d in train_sets.items() for k, v in d.items()})
+    summary = {"uav_slots": int(sum(len(d["label"]) for d in train_sets.values())),
+               "held_out_uav_slots": int(sum(len(d["label"]) for d in val_sets.values())),
+               "minutes": round((time.monotonic() - t0) / 60, 2), **{k: v for k, v in stats.items()}}
+    (run_dir / "train_summary.json").write_text(json.dumps(summary, indent=2))
+    print(f"saved {run_dir / 'model.npz'}: {json.dumps(summary)}", flush=True)
+    writer.close()
+    curve.close()
+    return run_dir
+
+
+def save_actor(run_dir: Path, actor, card: dict, stats: dict) -> None:
+    """The actor in the format :mod:`training.pretrained` loads (``mappo:RUN``, ``--init-actor RUN``), its card."""
+    np.savez(run_dir / "model.npz", **{f"actor.{k}": v.detach().numpy() for k, v in actor.state_dict().items()})
+    (run_dir / "model.json").write_text(json.dumps({**card, "imitation_stats": stats}, indent=2))
+
+
+def check_args(args: Args) -> None:
+    """A ValueError naming the flag, its value and what is allowed."""
+    mappo_args(args.recipe)
+    if args.teacher not in TEACHERS:
+        raise ValueError(f"--teacher {args.teacher!r}: choose from {', '.join(TEACHERS)}")
+    for name, lo in (("episodes_per_task", 1), ("val_episodes", 0), ("dagger_rounds", 0),
+                     ("dagger_episodes_per_task", 1), ("max_cycles", 1), ("epochs", 1), ("batch_size", 1), ("jobs", 1)):
+        v = getattr(args, name)
+        if v < lo:
+            raise ValueError(f"--{name.replace('_', '-')} {v}: must be >= {lo}")
+    if args.val_episodes >= min(args.episodes_per_task, args.dagger_episodes_per_task if args.dagger_rounds else
+                                args.episodes_per_task):
+        raise ValueError(f"--val-episodes {args.val_episodes}: must be below --episodes-per-task "
+                         f"({args.episodes_per_task}) and --dagger-episodes-per-task ({args.dagger_episodes_per_task})")
+    if not (args.learning_rate > 0 and np.isfinite(args.learning_rate)):
+        raise ValueError(f"--learning-rate {args.learning_rate}: must be a finite number > 0")
+
+
+def main(argv: list[str] | None = None) -> Path:
+    args = parse_args(Args, argv, description=__doc__.split("\n")[0])
+    try:
+        check_args(args)
+    except ValueError as exc:
+        print(f"python -m training.imitation: error: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
+    return train(args)
+
+
+if __name__ == "__main__":
+    main()
