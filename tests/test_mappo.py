@@ -341,10 +341,27 @@ def test_init_actor_and_lambda_max_errors_name_the_value(tmp_path, train_extra):
                                                 r"constraint is set")):
         with pytest.raises(ValueError, match=pattern):
             mappo.check_args(mappo.Args(**bad))
-    with pytest.raises(ValueError, match=r"--init-actor pretrained:mappo: actor.trunk.0.weight has shape \(128, "
-                                         r"143\), this actor's is \(16, 143\)"):
+    # A card that contradicts the flags is found before any env is built, naming the field and both values.
+    with pytest.raises(SystemExit) as exc:
         mappo.main([*TINY, "--init-actor", "pretrained:mappo", "--total-timesteps", "16", "--runs-dir",
                     str(tmp_path), "--run-name", "x"])
+    assert exc.value.code == 2
+    for flags, pattern in ((dict(hidden=16), r"its card has actor.hidden = 128, this run's --hidden is 16"),
+                           (dict(n_uavs=4), r"env_kwargs.n_uavs = 3, this run's --n-uavs is 4"),
+                           (dict(map_size=16), r"env_kwargs.map_size = 8, this run's --map-size is 16"),
+                           (dict(node_hidden=8), r"actor.node_hidden = 32, this run's --node-hidden is 8")):
+        with pytest.raises(ValueError, match=pattern):
+            mappo.check_args(mappo.Args(action_mode="waypoint", init_actor="pretrained:mappo", **flags))
+    (tmp_path / "w.npz").write_bytes((mappo.PRETRAINED_DIR / "mappo.npz").read_bytes())
+    with pytest.raises(ValueError, match=r"no readable model card at .*w.json"):
+        mappo.check_args(mappo.Args(action_mode="waypoint", init_actor=str(tmp_path / "w.npz")))
+    # The weights themselves are checked on loading: a card that fits the flags but not its weights.
+    card = json.loads((mappo.PRETRAINED_DIR / "mappo.json").read_text())
+    card["actor"].update(hidden=16, node_hidden=8)
+    (tmp_path / "w.json").write_text(json.dumps(card))
+    with pytest.raises(ValueError, match=r"--init-actor .*w.npz: .*trunk"):
+        mappo.main([*TINY, "--init-actor", str(tmp_path / "w.npz"), "--total-timesteps", "16", "--runs-dir",
+                    str(tmp_path), "--run-name", "y"])
     with pytest.raises(SystemExit):
         mappo.main(["--lambda-max", "-1"])
 

@@ -236,6 +236,8 @@ def check_args(args: Args) -> None:
     elif args.init_actor and not Path(args.init_actor).exists():
         raise ValueError(f"--init-actor {args.init_actor}: no such file or folder (pretrained:NAME, a run folder "
                          "or a weights .npz)")
+    if args.init_actor:
+        init_actor_fits(args)
     for flag, on in (("--viability-shield", args.viability_shield), ("--shield-lookahead", args.shield_lookahead)):
         if on and not (args.separation_shield and args.action_mode == "waypoint"):
             raise ValueError(f"{flag} acts inside the separation shield: it needs --action-mode waypoint and "
@@ -262,6 +264,37 @@ def check_args(args: Args) -> None:
         raise ValueError(f"--num-minibatches {args.num_minibatches}: a batch of num_envs * num_steps * n_uavs = "
                          f"{rows} rows gives minibatches of fewer than 2 rows; use at most {max(rows // 2, 1)} "
                          f"minibatches or a larger batch")
+
+
+def init_actor_fits(args: Args) -> None:
+    """``--init-actor``: a ValueError naming the card field whose value this run's flags contradict (the actor's
+    shape and the env it reads), found from the card alone before any env is built. The weights themselves are
+    checked when they are loaded (:func:`load_initial_actor`)."""
+    spec = args.init_actor
+    if spec.startswith("pretrained:"):
+        card_path = PRETRAINED_DIR / f"{spec.removeprefix('pretrained:')}.json"
+    else:
+        path = Path(spec)
+        card_path = path / "model.json" if path.is_dir() else path.with_suffix(".json")
+    try:
+        card = json.loads(card_path.read_text())
+        actor, ekw = dict(card["actor"]), dict(card["env_kwargs"])
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise ValueError(f"--init-actor {spec}: no readable model card at {card_path} ({type(exc).__name__}: "
+                         f"{exc})") from None
+    waypoint = args.action_mode == "waypoint"
+    wanted = [("env_kwargs.action_mode", ekw.get("action_mode"), args.action_mode, "--action-mode"),
+              ("env_kwargs.n_uavs", ekw.get("n_uavs"), args.n_uavs, "--n-uavs"),
+              ("env_kwargs.map_size", ekw.get("map_size", 8), args.map_size, "--map-size"),
+              ("actor.head", actor.get("head"), args.head if waypoint else "gaussian", "--head"),
+              ("actor.hidden", actor.get("hidden"), args.hidden, "--hidden"),
+              ("actor.agent_id", actor.get("agent_id", False), args.agent_id, "--agent-id")]
+    if waypoint and args.head == "node":
+        wanted.append(("actor.node_hidden", actor.get("node_hidden"), args.node_hidden, "--node-hidden"))
+    for field_name, theirs, ours, flag in wanted:
+        if theirs != ours:
+            raise ValueError(f"--init-actor {spec}: its card has {field_name} = {theirs!r}, this run's {flag} is "
+                             f"{ours!r}; the actor must match ({card_path})")
 
 
 def task_list(args: Args) -> list[str]:
