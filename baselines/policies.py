@@ -145,6 +145,8 @@ class DPPolicy(Policy):
         heading: ``"inherited"`` (the paper) or ``"binned"``; heading_bins: B for ``"binned"``.
         check_path: also keep LoS and the zone along every manoeuvre (see :class:`~baselines.dp.DPPlanner`).
         max_rounds, separation_margin: negotiation settings (:class:`~baselines.dp.DPTeamPlanner`).
+        horizon: plan over this many slots, from 1 to the env's ``config.horizon`` (default: all of them, the
+            paper's N). Shorter horizons measure what the look-ahead is worth (``benchmarks/dp_horizon.py``).
 
     Waypoint mode acts with the planned node indices (exact). Unicycle mode flies :func:`arc_action` toward
     the planned first waypoint; read its docstring for what that mapping loses. ``last_plan`` holds the
@@ -152,7 +154,12 @@ class DPPolicy(Policy):
     """
 
     def __init__(self, shadow_aware: bool = True, heading: str = "inherited", heading_bins: int = 16,
-                 check_path: bool = False, max_rounds: int = 5, separation_margin: float = 0.5):
+                 check_path: bool = False, max_rounds: int = 5, separation_margin: float = 0.5,
+                 horizon: int | None = None):
+        if horizon is not None and (isinstance(horizon, bool) or not isinstance(horizon, (int, np.integer))
+                                    or horizon < 1):
+            raise ValueError(f"DPPolicy: horizon must be None or an integer >= 1, got {horizon!r}")
+        self.horizon = None if horizon is None else int(horizon)
         self.kw = dict(shadow_aware=shadow_aware, heading=heading, heading_bins=heading_bins,
                        check_path=check_path)
         self.team_kw = dict(max_rounds=max_rounds, separation_margin=separation_margin)
@@ -160,7 +167,8 @@ class DPPolicy(Policy):
         self.team: DPTeamPlanner | None = None
         self.last_plan: TeamPlan | None = None
         h = "inherited" if heading == "inherited" else f"binned{heading_bins}"
-        self.name = f"dp-{'aware' if shadow_aware else 'blind'}-{h}{'-path' if check_path else ''}"
+        self.name = (f"dp-{'aware' if shadow_aware else 'blind'}-{h}{'-path' if check_path else ''}"
+                     f"{'' if horizon is None else f'-horizon{horizon}'}")
 
     def _team(self, par) -> DPTeamPlanner:
         # One planner per scene: its caches are keyed by the target's poses, which only hold for one terrain.
@@ -180,7 +188,10 @@ class DPPolicy(Policy):
 
     def act_parallel(self, par) -> dict[str, Any]:
         team = self._team(par)
-        plan = team.plan_engine(par.engine)
+        if self.horizon is not None and self.horizon > par.config.horizon:
+            raise ValueError(f"DPPolicy: horizon {self.horizon} is longer than the env's config.horizon "
+                             f"{par.config.horizon} (the target's predictions reach that far)")
+        plan = team.plan_engine(par.engine, self.horizon)
         self.last_plan = plan
         if par.action_mode == "waypoint":
             return {a: int(plan.nodes[i]) for i, a in enumerate(par.possible_agents) if a in par.agents}

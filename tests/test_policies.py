@@ -144,3 +144,50 @@ def test_make_policy_names():
         make_policy("oracle")
     with pytest.raises(TypeError):
         parallel_env_of(object())
+
+
+def test_dp_policy_horizon_plans_over_fewer_slots():
+    """``DPPolicy(horizon=h)`` plans over the first h predicted slots: h = config.horizon is the paper's planner,
+    action for action; h = 1 plans one slot; bad values fail naming the value."""
+    env = covert_env.parallel_env(task="paper-3uav", action_mode="waypoint", max_cycles=3)
+    runs = {}
+    for h in (None, env.config.horizon, 1):
+        pol = DPPolicy(horizon=h)
+        obs, _ = env.reset(seed=2, options={"scene_seed": 2})
+        pol.reset(env, 2)
+        acts = []
+        while env.agents:
+            a = pol.act(obs, env)
+            acts.append([a[k] for k in env.possible_agents])
+            assert len(pol.last_plan.plans[0].nodes) == (h or env.config.horizon)
+            obs, *_ = env.step(a)
+        runs[h] = acts
+    assert runs[None] == runs[env.config.horizon]
+    assert DPPolicy(horizon=1).name.endswith("-horizon1")
+    for bad in (0, True, 2.5):
+        with pytest.raises(ValueError, match=r"horizon must be None or an integer >= 1"):
+            DPPolicy(horizon=bad)
+    pol = DPPolicy(horizon=env.config.horizon + 1)
+    obs, _ = env.reset(seed=2)
+    with pytest.raises(ValueError, match=r"horizon 6 is longer than the env's config.horizon 5"):
+        pol.act(obs, env)
+    env.close()
+
+
+def test_dp_horizon_benchmark_terms_add_up_to_the_reward():
+    """benchmarks/dp_horizon.py's episode: the reward per UAV is the sum of its terms (path cost, disguise bonus,
+    penalties), and the learned team's row runs through the harness's loader."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "dp_horizon.py"
+    spec = importlib.util.spec_from_file_location("dp_horizon", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    row = mod.episode_terms("dp-h2", "paper-3uav", 1_000_000)
+    assert row["reward"] == pytest.approx(sum(row[t] for t in mod.TERMS), abs=1e-6)
+    assert row["disguise"] > 0 > row["path"]
+    learned = mod.episode_terms("pretrained:mappo", "paper-3uav", 1_000_000)
+    assert learned["reward"] == pytest.approx(sum(learned[t] for t in mod.TERMS), abs=1e-6)
+    with pytest.raises(SystemExit):
+        mod.main(["--scenes", "0"])

@@ -135,10 +135,11 @@ class DPTeamPlanner:
                     avoid[s_, o, t] = pts
         return avoid
 
-    def plan_engine(self, engine: EngineView) -> TeamPlan:
+    def plan_engine(self, engine: EngineView, horizon: int | None = None) -> TeamPlan:
         """:meth:`plan` for the current state of an engine (:class:`covert_env.engine.Engine`, or a vector env's
-        copy: any :class:`covert_env.roles.EngineView`), from its track's predictions."""
-        q_pred, phi_pred = engine.predict()
+        copy: any :class:`covert_env.roles.EngineView`), from its track's predictions over ``horizon`` slots
+        (default the config's N)."""
+        q_pred, phi_pred = engine.predict(horizon)
         tq = np.vstack([engine.target_xyz[None], q_pred])
         tp = np.concatenate([[engine.target_phi], phi_pred])
         path = None

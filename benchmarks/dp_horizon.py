@@ -1,0 +1,110 @@
+"""What the planner's look-ahead is worth: the DP team with horizons 1..N beside learned teams, reward by term.
+
+    python benchmarks/dp_horizon.py [--tasks paper-3uav downtown-3uav ...] [--scenes 3] [--horizons 1 2 3 4 5]
+                                    [--learned runs/<run> pretrained:mappo] [--jobs 2]
+
+Each policy flies the first ``--scenes`` held-out scenes of every task (the suite's scenes, seeds
+``Task.test_seeds``). The DP team plans over the first h slots of the target's predictions
+(``DPPolicy(horizon=h)``); h = ``config.horizon`` (5) is the paper's planner. A learned team acts as the harness
+runs it (``training.pretrained.load_learned``, its card's mask and shield). The table gives the mean episode
+reward per UAV and its terms (``infos[agent]["reward_<term>"]``, docs/decisions.md "Environment rewards"): the
+disguise bonus, the path cost and each penalty. A learned team sees the target's displacement to the next slot
+only (the observation's ``target_displacement``), so the horizon at which the planner's reward passes the team's
+says how far ahead the team acts as if it could see.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from multiprocessing import get_context
+
+import numpy as np
+
+import covert_env
+from covert_env.tasks import get_task
+
+TERMS = ("disguise", "path", "los", "los_path", "zone", "separation", "terrain")
+CORE = ("sparse-3uav", "paper-3uav", "winding-3uav", "dense-3uav", "downtown-3uav", "towers-3uav",
+        "paper-3uav-deviating", "downtown-3uav-deviating")
+
+
+def episode_terms(spec: str, task: str, seed: int) -> dict:
+    """One episode's reward per UAV and its terms, summed over slots and averaged over the team."""
+    from baselines.policies import DPPolicy
+    from training.pretrained import load_learned
+
+    if spec.startswith("dp-h"):
+        pol, settings = DPPolicy(horizon=int(spec.removeprefix("dp-h"))), {"action_mode": "waypoint"}
+    else:
+        pol = load_learned(_weights(spec))
+        settings = {k: v for k, v in pol.env_settings.items() if k != "n_uavs"}
+    env = covert_env.parallel_env(task=task, **settings)
+    obs, _ = env.reset(seed=seed, options={"scene_seed": seed})
+    pol.reset(env, seed)
+    n = len(env.possible_agents)
+    out = dict.fromkeys(("reward", *TERMS), 0.0)
+    while env.agents:
+        obs, rew, _, _, infos = env.step(pol.act(obs, env))
+        for a in rew:
+            out["reward"] += rew[a] / n
+            for t in TERMS:
+                out[t] += infos[a][f"reward_{t}"] / n
+    env.close()
+    return out
+
+
+def _weights(spec: str) -> str:
+    """``pretrained:NAME`` to its shipped weights file; a run folder or ``.npz`` as given."""
+    if spec.startswith("pretrained:"):
+        from training.pretrained import PRETRAINED_DIR
+
+        return str(PRETRAINED_DIR / f"{spec.removeprefix('pretrained:')}.npz")
+    return spec
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--tasks", nargs="+", default=list(CORE), help="suite tasks (default: the eight 3-UAV core tasks)")
+    p.add_argument("--scenes", type=int, default=3, help="held-out scenes per task (default 3)")
+    p.add_argument("--horizons", nargs="+", type=int, default=[1, 2, 3, 4, 5], help="DP horizons (1..config.horizon)")
+    p.add_argument("--learned", nargs="*", default=[], help="learned teams: run folders, .npz or pretrained:NAME")
+    p.add_argument("--jobs", type=int, default=2, help="processes (default 2)")
+    a = p.parse_args(argv)
+    for t in a.tasks:
+        try:
+            get_task(t)
+        except (KeyError, ValueError) as exc:
+            p.error(f"--tasks: {exc}")
+    if not 1 <= a.scenes <= 20:
+        p.error(f"--scenes {a.scenes}: must be in [1, 20] (the suite's held-out scenes per task)")
+    if any(h < 1 for h in a.horizons):
+        p.error(f"--horizons {a.horizons}: each must be >= 1")
+    if a.jobs < 1:
+        p.error(f"--jobs {a.jobs}: must be >= 1")
+    specs = [f"dp-h{h}" for h in a.horizons] + list(a.learned)
+    work = [(s, t, get_task(t).test_seeds.start + i) for s in specs for t in a.tasks for i in range(a.scenes)]
+    t0 = time.perf_counter()
+    from tqdm.auto import tqdm
+
+    with ProcessPoolExecutor(max_workers=a.jobs, mp_context=get_context("spawn")) as pool:
+        futures = [pool.submit(episode_terms, *w) for w in work]
+        rows = [f.result() for f in tqdm(futures, desc="episodes", file=sys.stderr, mininterval=5.0)]
+    secs = time.perf_counter() - t0
+    print(f"$ python benchmarks/dp_horizon.py {shlex.join(argv if argv is not None else sys.argv[1:])}")
+    print(f"{len(a.tasks)} tasks x {a.scenes} held-out scenes, {secs:.0f} s on {a.jobs} processes\n")
+    print("| policy | reward per UAV | " + " | ".join(TERMS) + " |")
+    print("|---|---|" + "---|" * len(TERMS))
+    for s in specs:
+        mine = [r for r, w in zip(rows, work, strict=True) if w[0] == s]
+        mean = {k: float(np.mean([r[k] for r in mine])) for k in mine[0]}
+        name = f"DP, horizon {s.removeprefix('dp-h')}" if s.startswith("dp-h") else s
+        print(f"| {name} | {mean['reward']:.1f} | " + " | ".join(f"{mean[t]:.2f}" for t in TERMS) + " |")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
