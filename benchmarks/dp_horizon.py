@@ -1,7 +1,7 @@
 """What the planner's look-ahead is worth: the DP team with horizons 1..N beside learned teams, reward by term.
 
     python benchmarks/dp_horizon.py [--tasks paper-3uav downtown-3uav ...] [--scenes 3] [--horizons 1 2 3 4 5]
-                                    [--learned runs/<run> pretrained:mappo] [--jobs 2]
+                                    [--learned runs/<run> pretrained:mappo] [--jobs 2] [--figure out.png]
 
 Each policy flies the first ``--scenes`` held-out scenes of every task (the suite's scenes, seeds
 ``Task.test_seeds``). The DP team plans over the first h slots of the target's predictions
@@ -73,6 +73,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--horizons", nargs="+", type=int, default=[1, 2, 3, 4, 5], help="DP horizons (1..config.horizon)")
     p.add_argument("--learned", nargs="*", default=[], help="learned teams: run folders, .npz or pretrained:NAME")
     p.add_argument("--jobs", type=int, default=2, help="processes (default 2)")
+    p.add_argument("--figure", default=None, help="also draw the reward against the horizon to this PNG")
     a = p.parse_args(argv)
     for t in a.tasks:
         try:
@@ -98,12 +99,37 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{len(a.tasks)} tasks x {a.scenes} held-out scenes, {secs:.0f} s on {a.jobs} processes\n")
     print("| policy | reward per UAV | " + " | ".join(TERMS) + " |")
     print("|---|---|" + "---|" * len(TERMS))
+    means = {}
     for s in specs:
         mine = [r for r, w in zip(rows, work, strict=True) if w[0] == s]
         mean = {k: float(np.mean([r[k] for r in mine])) for k in mine[0]}
         name = f"DP, horizon {s.removeprefix('dp-h')}" if s.startswith("dp-h") else s
         print(f"| {name} | {mean['reward']:.1f} | " + " | ".join(f"{mean[t]:.2f}" for t in TERMS) + " |")
+        means[s] = mean
+    if a.figure:
+        figure(means, a.horizons, a.figure)
     return 0
+
+
+def figure(means: dict, horizons: list[int], path: str) -> None:
+    """The DP team's reward per UAV against its horizon, the learned teams' as horizontal lines."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.4, 3.6), dpi=110)
+    ax.plot(horizons, [means[f"dp-h{h}"]["reward"] for h in horizons], "o-", color="k", label="DP team")
+    for i, (s, m) in enumerate((s, m) for s, m in means.items() if not s.startswith("dp-h")):
+        ax.axhline(m["reward"], ls="--", color=f"C{i}", label=s)
+    ax.set_xlabel("DP horizon (slots of the target's predictions; the paper: 5)")
+    ax.set_ylabel("episode reward per UAV")
+    ax.set_xticks(horizons)
+    ax.legend(fontsize=7, loc="lower right")
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
 
 
 if __name__ == "__main__":
