@@ -190,7 +190,7 @@ class DPPolicy(Policy):
         team = self._team(par)
         if self.horizon is not None and self.horizon > par.config.horizon:
             raise ValueError(f"DPPolicy: horizon {self.horizon} is longer than the env's config.horizon "
-                             f"{par.config.horizon} (the target's predictions reach that far)")
+                             f"{par.config.horizon} (the route reaches that many slots past the episode's last)")
         plan = team.plan_engine(par.engine, self.horizon)
         self.last_plan = plan
         if par.action_mode == "waypoint":

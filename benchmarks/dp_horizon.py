@@ -21,6 +21,7 @@ import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
 from multiprocessing import get_context
+from pathlib import Path
 
 import numpy as np
 
@@ -82,10 +83,25 @@ def main(argv: list[str] | None = None) -> int:
             p.error(f"--tasks: {exc}")
     if not 1 <= a.scenes <= 20:
         p.error(f"--scenes {a.scenes}: must be in [1, 20] (the suite's held-out scenes per task)")
-    if any(h < 1 for h in a.horizons):
-        p.error(f"--horizons {a.horizons}: each must be >= 1")
+    for t in a.tasks:
+        n = get_task(t).config().horizon
+        if any(not 1 <= h <= n for h in a.horizons):
+            p.error(f"--horizons {a.horizons}: each must be in [1, {n}] (the config.horizon of task {t})")
     if a.jobs < 1:
         p.error(f"--jobs {a.jobs}: must be >= 1")
+    from training.pretrained import load_learned
+
+    for spec in a.learned:                      # a wrong file or team size fails here, before any episode
+        try:
+            team = load_learned(_weights(spec))
+        except ValueError as exc:
+            p.error(f"--learned {spec}: {exc}")
+        for t in a.tasks:
+            if team.env_settings["n_uavs"] != get_task(t).n_uavs:
+                p.error(f"--learned {spec}: a team of {team.env_settings['n_uavs']} UAVs, but task {t} has "
+                        f"{get_task(t).n_uavs}")
+    if a.figure and not Path(a.figure).resolve().parent.is_dir():
+        p.error(f"--figure {a.figure}: no such folder {Path(a.figure).resolve().parent}")
     specs = [f"dp-h{h}" for h in a.horizons] + list(a.learned)
     work = [(s, t, get_task(t).test_seeds.start + i) for s in specs for t in a.tasks for i in range(a.scenes)]
     t0 = time.perf_counter()
@@ -93,7 +109,11 @@ def main(argv: list[str] | None = None) -> int:
 
     with ProcessPoolExecutor(max_workers=a.jobs, mp_context=get_context("spawn")) as pool:
         futures = [pool.submit(episode_terms, *w) for w in work]
-        rows = [f.result() for f in tqdm(futures, desc="episodes", file=sys.stderr, mininterval=5.0)]
+        try:
+            rows = [f.result() for f in tqdm(futures, desc="episodes", file=sys.stderr, mininterval=5.0)]
+        except BaseException:
+            pool.shutdown(cancel_futures=True)          # the first failure ends the run, not the last episode
+            raise
     secs = time.perf_counter() - t0
     print(f"$ python benchmarks/dp_horizon.py {shlex.join(argv if argv is not None else sys.argv[1:])}")
     print(f"{len(a.tasks)} tasks x {a.scenes} held-out scenes, {secs:.0f} s on {a.jobs} processes\n")

@@ -28,6 +28,7 @@ def test_teacher_episode_records_the_planners_nodes():
     env = covert_env.parallel_env(task="paper-3uav", **SETTINGS)
     pol = make_policy("dp")
     obs, _ = env.reset(seed=5, options={"scene_seed": 5})
+    assert np.array_equal(ep["obs"][:3], np.stack([obs[a] for a in env.possible_agents]))   # before the step
     pol.reset(env, 5)
     nodes = []
     while env.agents:
@@ -37,6 +38,19 @@ def test_teacher_episode_records_the_planners_nodes():
     env.close()
     assert ep["label"].tolist() == nodes
     assert ep["mask"][np.arange(12), ep["label"]].all()
+
+
+def test_dagger_episode_flies_the_student_and_labels_with_the_planner():
+    """With a student the learned team flies: its states differ from the planner's after the first slot, and every
+    label is the planner's node from the student's state."""
+    from training.pretrained import PRETRAINED_DIR
+
+    settings = {"action_mode": "waypoint", "mask_mode": "visible", "map_size": 8, "max_cycles": 4}
+    own = imitation.teacher_episode("paper-3uav", 5, "dp", settings)
+    flown = imitation.teacher_episode("paper-3uav", 5, "dp", settings, student=str(PRETRAINED_DIR / "mappo.npz"))
+    assert np.array_equal(own["obs"][:3], flown["obs"][:3])
+    assert not np.array_equal(own["obs"][3:], flown["obs"][3:])
+    assert flown["mask"][np.arange(12), flown["label"]].all()
 
 
 def test_join_holds_out_the_last_episodes_and_drops_labels_outside_the_mask():
@@ -58,6 +72,9 @@ def test_join_holds_out_the_last_episodes_and_drops_labels_outside_the_mask():
     (["--epochs", "0"], "argument --epochs: must be an integer in [1, 100000], got 0"),
     (["--max-cycles", "0"], "argument --max-cycles: must be an integer >= 1, got 0"),
     (["--learning-rate", "nan"], "argument --learning-rate"),
+    (["--seed", "1000"], "--seed 1000: must be below 1000"),
+    (["--episodes-per-task", "900", "--dagger-episodes-per-task", "200"], "at most 1000 scenes per task"),
+    (["--dagger-episodes-per-task", "2"], "--val-episodes 2: must be below --dagger-episodes-per-task (2)"),
 ])
 def test_bad_flags_name_the_flag(flags, match, capsys):
     with pytest.raises(SystemExit) as exc:
@@ -72,6 +89,7 @@ def test_smoke_run_with_a_dagger_round_saves_a_loadable_team(tmp_path):
     run = imitation.main([*SMOKE, "--runs-dir", str(tmp_path), "--run-name", "bc"])
     card = json.loads((run / "model.json").read_text())
     assert card["algorithm"] == "bc-dp" and card["imitation"]["dagger_rounds"] == 1
+    assert card["train_tasks"] == ["paper-3uav"]
     assert card["separation_shield"] == 5.0 and card["env_kwargs"]["action_mode"] == "waypoint"
     curve = [json.loads(line) for line in (run / "curve.jsonl").read_text().splitlines()]
     assert [c["epoch"] for c in curve] == [1, 2]                    # one epoch per collection
@@ -79,7 +97,8 @@ def test_smoke_run_with_a_dagger_round_saves_a_loadable_team(tmp_path):
     # 2 + 2 episodes of 3 slots and 3 UAVs, one episode per collection held out.
     assert summary["uav_slots"] == 18 and summary["held_out_uav_slots"] == 18
     with np.load(run / "data.npz", allow_pickle=False) as data:
-        assert data["paper-3uav.label"].shape == (18,)
+        assert data["train.paper-3uav.label"].shape == (18,) and data["val.paper-3uav.obs"].shape[0] == 18
+    assert summary["dropped_outside_mask"] >= 0 and 0 <= curve[-1]["val_agreement"] <= 1
     team = load_learned(run)
     env = covert_env.parallel_env(task="paper-3uav", **team.env_settings, max_cycles=2)
     obs, _ = env.reset(seed=1)

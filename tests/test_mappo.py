@@ -352,6 +352,12 @@ def test_init_actor_and_lambda_max_errors_name_the_value(tmp_path, train_extra):
                            (dict(node_hidden=8), r"actor.node_hidden = 32, this run's --node-hidden is 8")):
         with pytest.raises(ValueError, match=pattern):
             mappo.check_args(mappo.Args(action_mode="waypoint", init_actor="pretrained:mappo", **flags))
+    card = json.loads((mappo.PRETRAINED_DIR / "mappo.json").read_text())
+    card["actor"]["node_map"] = True
+    (tmp_path / "m.npz").write_bytes((mappo.PRETRAINED_DIR / "mappo.npz").read_bytes())
+    (tmp_path / "m.json").write_text(json.dumps(card))
+    with pytest.raises(ValueError, match=r"actor.node_map = True, this run's --node-map is False"):
+        mappo.check_args(mappo.Args(action_mode="waypoint", init_actor=str(tmp_path / "m.npz")))
     (tmp_path / "w.npz").write_bytes((mappo.PRETRAINED_DIR / "mappo.npz").read_bytes())
     with pytest.raises(ValueError, match=r"no readable model card at .*w.json"):
         mappo.check_args(mappo.Args(action_mode="waypoint", init_actor=str(tmp_path / "w.npz")))

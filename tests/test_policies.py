@@ -171,6 +171,13 @@ def test_dp_policy_horizon_plans_over_fewer_slots():
     obs, _ = env.reset(seed=2)
     with pytest.raises(ValueError, match=r"horizon 6 is longer than the env's config.horizon 5"):
         pol.act(obs, env)
+    team = DPPolicy()._team(env)
+    for bad in (0, 6):
+        with pytest.raises(ValueError, match=r"plan_engine: horizon must be in \[1, config.horizon = 5\]"):
+            team.plan_engine(env.engine, bad)
+    path_team = DPPolicy(check_path=True, horizon=2)              # the path checks follow the shorter prediction
+    path_team.act(obs, env)
+    assert len(path_team.last_plan.plans[0].nodes) == 2
     env.close()
 
 

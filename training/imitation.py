@@ -4,22 +4,27 @@
     python -m training.benchmark --policies dp mappo:runs/<run>                           # score it on the suite
     OMP_NUM_THREADS=1 python -m training.mappo --recipe 3uav-suite --init-actor runs/<run> # fine-tune it with RL
 
-The planner (``--teacher``, :mod:`baselines.policies`) flies the training scenes of the recipe's tasks
-(``covert_env.tasks.Task.train_seeds``). Every slot, each UAV's observation, its action mask and the planner's node
-are recorded. The actor of the MAPPO recipe (:mod:`training.mappo_networks`, the same architecture, node features
-and card) is then trained to pick the planner's node under the mask: cross-entropy of the masked categorical,
-Adam, minibatches from one task at a time, since the node features depend on the task's lattice. The mask is the
-recipe's (``kinematic`` for ``3uav-suite``: every reachable node), so whatever shadow the actor avoids it read
-from its observation; the planner never picks a shadowed node at a slot time.
+The planner (``--teacher``, :mod:`baselines.policies`) flies training scenes of the recipe's tasks (run ``--seed s``
+takes scenes ``s * 1000 + i`` of ``covert_env.tasks.Task.train_seeds``, never a held-out one). Every slot, each
+UAV's observation, its action mask and the planner's node are recorded. The actor of the MAPPO recipe
+(:mod:`training.mappo_networks`, the same architecture, node features and card) is then trained to pick the
+planner's node under the mask: cross-entropy of the masked categorical, Adam, minibatches from one task at a time,
+since the node features depend on the task's lattice. The mask is the recipe's (``kinematic`` for ``3uav-suite``:
+every reachable node), so whatever shadow the actor avoids it read from its observation; the planner never picks a
+shadowed node at a slot time.
 
 **DAgger** (``--dagger-rounds N``, Ross et al. 2011): a cloned actor meets states the planner never visits. Each
 round flies the current actor (through its shield, as the harness does) on fresh training scenes, labels every
 slot with the planner's node from that state, adds the slots to the data and trains again from the union.
 
-The run folder (``runs/<run>``) holds what :mod:`training.mappo` writes: ``model.npz`` and ``model.json`` (the
-card, ``algorithm = "bc-dp"``, the recipe's shield), ``args.json``, ``curve.jsonl`` (per epoch: loss and the
-held-out agreement with the planner) and TensorBoard logs; and ``data.npz``, the recorded slots (numpy arrays,
-no pickle). Held out for validation: the last ``--val-episodes`` episodes of every task and round.
+The run folder (``runs/<run>``) holds the actor as :mod:`training.mappo` saves it, ``model.npz`` and ``model.json``
+(the card: ``algorithm = "bc-dp"``, the recipe's shield, the tasks), and ``args.json``; ``curve.jsonl`` (per
+epoch: the training loss, the held-out loss and how often the actor ranks the planner's node first on the held-out
+slots, overall and per task), TensorBoard logs, ``train_summary.json`` (slots recorded, held out and dropped, the
+last epoch's figures) and ``data.npz``, the recorded slots (``train.<task>.<field>`` and ``val.<task>.<field>``;
+numpy arrays, no pickle). Held out: the last ``--val-episodes`` episodes of every task in every collection, so after
+a DAgger round the held-out slots mix states the planner flew with states the clone flew. Slots where the planner's
+node is outside the mask are dropped and counted.
 """
 
 from __future__ import annotations
@@ -36,12 +41,14 @@ from pathlib import Path
 import numpy as np
 
 import covert_env
+from covert_env.families import TRAIN_SEEDS
 from covert_env.tasks import get_task
-from training.common import parse_args, run_name, save_run, setup_torch
+from training.common import _ranges, parse_args, run_name, save_run, setup_torch
 
 __all__ = ["Args", "teacher_episode", "collect", "train"]
 
-TEACHERS = ("dp", "dp-binned", "dp-path")
+#: Scenes per run seed: run ``--seed s`` records on training scenes ``s * SCENES_PER_SEED + i``.
+SCENES_PER_SEED = 1000
 
 
 @dataclass
@@ -67,7 +74,7 @@ class Args:
     learning_rate: float = 1e-3
     """Adam's step size"""
     seed: int = 0
-    """seeds torch, the minibatch order, and picks the scenes (seed * 1000 + i of the training scenes)"""
+    """seeds torch, the minibatch order, and picks the scenes (seed * 1000 + i of the training scenes, seed < 1000)"""
     jobs: int = 2
     """processes flying the planner"""
     run_name: str = ""
@@ -139,15 +146,20 @@ def collect(tasks: list[str], seeds: list[int], args: Args, settings: dict, stud
         # Spawned workers: a clean interpreter each, whatever the parent imported (torch, threads).
         with ProcessPoolExecutor(max_workers=args.jobs, mp_context=get_context("spawn")) as pool:
             futures = [pool.submit(teacher_episode, t, s, args.teacher, settings, student) for t, s in work]
-            for f in futures:
-                out.append(f.result())
-                bar.update()
+            try:
+                for f in futures:
+                    out.append(f.result())
+                    bar.update()
+            except BaseException:
+                pool.shutdown(cancel_futures=True)      # the first failure ends the collection, not the last episode
+                raise
     bar.close()
     return [out[i * len(seeds):(i + 1) * len(seeds)] for i in range(len(tasks))]
 
 
 def join(episodes: list[dict], val: int) -> tuple[dict, dict]:
-    """Training and held-out arrays of one task's episodes (the last ``val`` episodes held out)."""
+    """Training and held-out arrays of one task's episodes (the last ``val`` episodes held out), without the slots
+    whose label is outside the mask (``None`` for no episodes)."""
     cut = len(episodes) - val
 
     def cat(eps):
@@ -216,12 +228,16 @@ def fit(cloner: Cloner, optim, train_sets: dict, val_sets: dict, args: Args, rng
             hits, seen, vloss = 0, 0, 0.0
             per_task = {}
             for t, d in val_sets.items():
-                idx = np.arange(len(d["label"]))
-                ce, h = cloner.loss(t, d, idx)
-                per_task[t] = h / max(len(idx), 1)
-                hits, seen, vloss = hits + h, seen + len(idx), vloss + float(ce) * len(idx)
-        stats = {"train_loss": total / max(n, 1), "val_loss": vloss / max(seen, 1),
-                 "val_agreement": hits / max(seen, 1), "val_agreement_per_task": per_task}
+                t_hits = 0
+                for i in range(0, len(d["label"]), args.batch_size):
+                    idx = np.arange(i, min(i + args.batch_size, len(d["label"])))
+                    ce, h = cloner.loss(t, d, idx)
+                    t_hits, vloss = t_hits + h, vloss + ce.item() * len(idx)
+                per_task[t] = t_hits / len(d["label"])
+                hits, seen = hits + t_hits, seen + len(d["label"])
+        # Without held-out slots (--val-episodes 0) there is nothing to report: None, not a measured 0.
+        stats = {"train_loss": total / max(n, 1), "val_loss": vloss / seen if seen else None,
+                 "val_agreement": hits / seen if seen else None, "val_agreement_per_task": per_task}
         log(stats)
     return stats
 
@@ -257,46 +273,55 @@ def train(args: Args) -> Path:
     mix.close()
     card["algorithm"] = f"bc-{args.teacher}"
     card["imitation"] = {"teacher": args.teacher, "recipe": args.recipe, "dagger_rounds": args.dagger_rounds}
+    card["train_tasks"] = tasks
     actor, _, _ = make_networks(margs, s)
     optim = torch.optim.Adam(actor.parameters(), lr=args.learning_rate)
     cloner = Cloner(margs, tasks, settings, actor)
     save_run(run_dir, args, {"card": card})
     writer = SummaryWriter(str(run_dir / "tb"))
-    curve = open(run_dir / "curve.jsonl", "a")
+    curve = open(run_dir / "curve.jsonl", "w")
     epoch = 0
 
     def log(stats):
         nonlocal epoch
         epoch += 1
         for k, v in stats.items():
-            if not isinstance(v, dict):
+            if v is not None and not isinstance(v, dict):
                 writer.add_scalar(f"imitation/{k}", v, epoch)
         curve.write(json.dumps({"epoch": epoch, "minutes": round((time.monotonic() - t0) / 60, 2), **stats}) + "\n")
         curve.flush()
         if args.progress_bar:
-            print(f"epoch {epoch}: loss {stats['train_loss']:.3f}, held-out loss {stats['val_loss']:.3f}, "
-                  f"agreement {stats['val_agreement']:.3f}", file=sys.stderr, flush=True)
+            held = "no held-out slots" if stats["val_loss"] is None else \
+                f"held-out loss {stats['val_loss']:.3f}, agreement {stats['val_agreement']:.3f}"
+            print(f"epoch {epoch}: loss {stats['train_loss']:.3f}, {held}", file=sys.stderr, flush=True)
 
-    base = args.seed * 1000
-    rounds = [collect(tasks, list(range(base, base + args.episodes_per_task)), args, settings)]
-    train_sets, val_sets, stats = {}, {}, {}
-    start = base + args.episodes_per_task
+    next_scene = args.seed * SCENES_PER_SEED                     # an index into TRAIN_SEEDS (check_args bounds it)
+
+    def scenes(n: int) -> list[int]:
+        nonlocal next_scene
+        next_scene += n
+        return [TRAIN_SEEDS[i] for i in range(next_scene - n, next_scene)]
+
+    collection = collect(tasks, scenes(args.episodes_per_task), args, settings)
+    train_sets, val_sets, stats, dropped = {}, {}, {}, 0
     for r in range(args.dagger_rounds + 1):
-        for t, eps in zip(tasks, rounds[-1], strict=True):
+        for t, eps in zip(tasks, collection, strict=True):
             tr, va = join(eps, args.val_episodes)
+            dropped += sum(len(e["label"]) for e in eps) - len(tr["label"]) - (0 if va is None else len(va["label"]))
             train_sets[t] = tr if t not in train_sets else {k: np.concatenate([train_sets[t][k], tr[k]]) for k in tr}
             if va is not None:
                 val_sets[t] = va if t not in val_sets else {k: np.concatenate([val_sets[t][k], va[k]]) for k in va}
         stats = fit(cloner, optim, train_sets, val_sets, args, rng, log)
         save_actor(run_dir, actor, card, stats)
         if r < args.dagger_rounds:
-            seeds = list(range(start, start + args.dagger_episodes_per_task))
-            start += args.dagger_episodes_per_task
-            rounds.append(collect(tasks, seeds, args, settings, student=str(run_dir), label=f"DAgger {r + 1}"))
-    np.savez_compressed(run_dir / "data.npz", **{f"{t}.{k}": v for t, d in train_sets.items() for k, v in d.items()})
+            collection = collect(tasks, scenes(args.dagger_episodes_per_task), args, settings, student=str(run_dir),
+                                 label=f"DAgger {r + 1}")
+    np.savez_compressed(run_dir / "data.npz", **{f"{part}.{t}.{k}": v for part, sets in (("train", train_sets),
+                                                                                        ("val", val_sets))
+                                                 for t, d in sets.items() for k, v in d.items()})
     summary = {"uav_slots": int(sum(len(d["label"]) for d in train_sets.values())),
                "held_out_uav_slots": int(sum(len(d["label"]) for d in val_sets.values())),
-               "minutes": round((time.monotonic() - t0) / 60, 2), **{k: v for k, v in stats.items()}}
+               "dropped_outside_mask": int(dropped), "minutes": round((time.monotonic() - t0) / 60, 2), **stats}
     (run_dir / "train_summary.json").write_text(json.dumps(summary, indent=2))
     print(f"saved {run_dir / 'model.npz'}: {json.dumps(summary)}", flush=True)
     writer.close()
@@ -313,17 +338,28 @@ def save_actor(run_dir: Path, actor, card: dict, stats: dict) -> None:
 def check_args(args: Args) -> None:
     """A ValueError naming the flag, its value and what is allowed."""
     mappo_args(args.recipe)
-    if args.teacher not in TEACHERS:
-        raise ValueError(f"--teacher {args.teacher!r}: choose from {', '.join(TEACHERS)}")
+    teachers = _ranges()["teacher"][1]
+    if args.teacher not in teachers:
+        raise ValueError(f"--teacher {args.teacher!r}: choose from {', '.join(teachers)}")
     for name, lo in (("episodes_per_task", 1), ("val_episodes", 0), ("dagger_rounds", 0),
-                     ("dagger_episodes_per_task", 1), ("max_cycles", 1), ("epochs", 1), ("batch_size", 1), ("jobs", 1)):
+                     ("dagger_episodes_per_task", 1), ("max_cycles", 1), ("epochs", 1), ("batch_size", 2), ("jobs", 1)):
         v = getattr(args, name)
         if v < lo:
             raise ValueError(f"--{name.replace('_', '-')} {v}: must be >= {lo}")
-    if args.val_episodes >= min(args.episodes_per_task, args.dagger_episodes_per_task if args.dagger_rounds else
-                                args.episodes_per_task):
+    if args.val_episodes >= args.episodes_per_task:
         raise ValueError(f"--val-episodes {args.val_episodes}: must be below --episodes-per-task "
-                         f"({args.episodes_per_task}) and --dagger-episodes-per-task ({args.dagger_episodes_per_task})")
+                         f"({args.episodes_per_task})")
+    if args.dagger_rounds and args.val_episodes >= args.dagger_episodes_per_task:
+        raise ValueError(f"--val-episodes {args.val_episodes}: must be below --dagger-episodes-per-task "
+                         f"({args.dagger_episodes_per_task}) with --dagger-rounds {args.dagger_rounds}")
+    per_seed = args.episodes_per_task + args.dagger_rounds * args.dagger_episodes_per_task
+    if per_seed > SCENES_PER_SEED:
+        raise ValueError(f"--episodes-per-task + --dagger-rounds x --dagger-episodes-per-task = {per_seed}: a run may "
+                         f"record at most {SCENES_PER_SEED} scenes per task (runs with other seeds take the next)")
+    if (args.seed + 1) * SCENES_PER_SEED > len(TRAIN_SEEDS):
+        raise ValueError(f"--seed {args.seed}: must be below {len(TRAIN_SEEDS) // SCENES_PER_SEED} (its scenes are "
+                         f"training scenes seed * {SCENES_PER_SEED} + i, and the held-out scenes start at "
+                         f"{TRAIN_SEEDS.stop})")
     if not (args.learning_rate > 0 and np.isfinite(args.learning_rate)):
         raise ValueError(f"--learning-rate {args.learning_rate}: must be a finite number > 0")
 

@@ -291,6 +291,9 @@ def init_actor_fits(args: Args) -> None:
               ("actor.agent_id", actor.get("agent_id", False), args.agent_id, "--agent-id")]
     if waypoint and args.head == "node":
         wanted.append(("actor.node_hidden", actor.get("node_hidden"), args.node_hidden, "--node-hidden"))
+    if actor.get("node_map", False) and not args.node_map:
+        # The other way round is fine: load_initial_actor widens an actor without the map inputs.
+        wanted.append(("actor.node_map", True, args.node_map, "--node-map"))
     for field_name, theirs, ours, flag in wanted:
         if theirs != ours:
             raise ValueError(f"--init-actor {spec}: its card has {field_name} = {theirs!r}, this run's {flag} is "

@@ -138,7 +138,10 @@ class DPTeamPlanner:
     def plan_engine(self, engine: EngineView, horizon: int | None = None) -> TeamPlan:
         """:meth:`plan` for the current state of an engine (:class:`covert_env.engine.Engine`, or a vector env's
         copy: any :class:`covert_env.roles.EngineView`), from its track's predictions over ``horizon`` slots
-        (default the config's N)."""
+        (default the config's N; at most N, since the route is built for the config's horizon)."""
+        if horizon is not None and not 1 <= horizon <= engine.config.horizon:
+            raise ValueError(f"plan_engine: horizon must be in [1, config.horizon = {engine.config.horizon}], got "
+                             f"{horizon!r} (the route reaches N slots past the episode's last)")
         q_pred, phi_pred = engine.predict(horizon)
         tq = np.vstack([engine.target_xyz[None], q_pred])
         tp = np.concatenate([[engine.target_phi], phi_pred])
