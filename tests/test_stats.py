@@ -125,3 +125,17 @@ def test_learning_curves_draw_a_row_per_constrained_cost(tmp_path):
     assert main([str(run), "--out", str(tmp_path / "c2.png")]) == 0                # reward + separation rows
     assert matplotlib.image.imread(tmp_path / "c.png").shape[0] > 1.7 * matplotlib.image.imread(
         tmp_path / "c2.png").shape[0]
+
+
+def test_learning_curves_reject_a_curve_without_env_steps(tmp_path, capsys):
+    """An imitation run's curve (epochs and losses) fails with one error line naming the file, not an empty figure."""
+    from training.curves import main
+
+    run = tmp_path / "bc"
+    run.mkdir()
+    (run / "curve.jsonl").write_text('{"epoch": 1, "train_loss": 3.2}\n')
+    with pytest.raises(SystemExit) as exc:
+        main([str(run), "--out", str(tmp_path / "c.png")])
+    assert exc.value.code == 2
+    assert "curve.jsonl is not a training.mappo curve" in capsys.readouterr().err
+    assert not (tmp_path / "c.png").exists()

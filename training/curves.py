@@ -39,6 +39,9 @@ def load_curve(run: Path) -> dict[str, np.ndarray]:
     rows = [json.loads(line) for line in (Path(run) / "curve.jsonl").read_text().splitlines() if line.strip()]
     if not rows:
         raise ValueError(f"{run}/curve.jsonl has no rows")
+    if not all(isinstance(r, dict) and "env_steps" in r and "reward" in r for r in rows):
+        # training.imitation's curve has epochs and losses, not env steps and rewards: not a curve to draw here.
+        raise ValueError(f"{run}/curve.jsonl is not a training.mappo curve (its rows lack env_steps or reward)")
     return {k: np.array([r.get(k, np.nan) for r in rows], float)
             for k in ("env_steps", "wall_seconds", "reward", *COSTS)}
 
@@ -87,7 +90,10 @@ def main(argv: list[str] | None = None) -> int:
     import matplotlib.pyplot as plt
     import matplotlib.ticker  # noqa: F401  (matplotlib.ticker.FuncFormatter below)
 
-    curves = [load_curve(Path(r)) for r in a.runs]
+    try:
+        curves = [load_curve(Path(r)) for r in a.runs]
+    except (ValueError, OSError) as exc:
+        p.error(str(exc))
     metrics = [("reward", "training episode reward\n(mean over UAVs)", a.dp, "DP planner (held-out scenes)")]
     limits = constraint_levels(Path(a.runs[0]))
     if set(limits) - {"cost_separation"}:              # --constraints: a row per constrained cost
