@@ -19,14 +19,13 @@ import argparse
 import shlex
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
-from multiprocessing import get_context
 from pathlib import Path
 
 import numpy as np
 
 import covert_env
 from covert_env.tasks import get_task
+from training.common import ordered_results
 
 TERMS = ("disguise", "path", "los", "los_path", "zone", "separation", "terrain")
 CORE = ("sparse-3uav", "paper-3uav", "winding-3uav", "dense-3uav", "downtown-3uav", "towers-3uav",
@@ -107,13 +106,9 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     from tqdm.auto import tqdm
 
-    with ProcessPoolExecutor(max_workers=a.jobs, mp_context=get_context("spawn")) as pool:
-        futures = [pool.submit(episode_terms, *w) for w in work]
-        try:
-            rows = [f.result() for f in tqdm(futures, desc="episodes", file=sys.stderr, mininterval=5.0)]
-        except BaseException:
-            pool.shutdown(cancel_futures=True)          # the first failure ends the run, not the last episode
-            raise
+    bar = tqdm(total=len(work), desc="episodes", file=sys.stderr, mininterval=5.0)
+    rows = ordered_results(episode_terms, work, a.jobs, bar.update)
+    bar.close()
     secs = time.perf_counter() - t0
     print(f"$ python benchmarks/dp_horizon.py {shlex.join(argv if argv is not None else sys.argv[1:])}")
     print(f"{len(a.tasks)} tasks x {a.scenes} held-out scenes, {secs:.0f} s on {a.jobs} processes\n")

@@ -640,3 +640,16 @@ def test_training_runs_dir_on_a_read_only_filesystem(capsys):
     assert exc.value.code == 2
     err = capsys.readouterr().err
     assert "error: --runs-dir /proc/covert_env_runs: cannot write in /proc (" in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_ordered_results_keep_the_order_and_raise_the_first_failure(jobs):
+    """training.common.ordered_results: results in the order of the work, one callback per result, and a failing
+    item raises its own error (in this process or from a spawned worker)."""
+    from training.common import ordered_results
+
+    seen = []
+    assert ordered_results(int, [("3",), ("1",), ("2",)], jobs, lambda: seen.append(1)) == [3, 1, 2]
+    assert len(seen) == 3
+    with pytest.raises(ValueError, match="invalid literal for int"):
+        ordered_results(int, [("1",), ("x",), ("2",)], jobs)

@@ -44,14 +44,13 @@ import math
 import os
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
-from multiprocessing import get_context
 from pathlib import Path
 
 import numpy as np
 
 from covert_env.command_line import MAX_SCENES, UsageError, int_range, output_dir, positive_int, run_main
 from covert_env.tasks import DEFAULT_TASKS, SUITE_VERSION, TASKS, TEST_SCENES, get_task, resolve_tasks
+from training.common import ordered_results
 from training.evaluate import COLUMNS, LEARNED_PREFIXES, evaluate, load_policy, split_seeds, summarise, write_outputs
 from training.stats import iqm, mean, probability_of_improvement, stratified_bootstrap_ci
 
@@ -99,17 +98,8 @@ def run_cells(cells: list[tuple[str, str, int]], scenes: int, *, jobs: int = 1, 
         for ref in refs:
             out.append(ray.get(ref))
             bar.update()
-    elif jobs == 1:
-        for a in args:
-            out.append(_run_cell(*a))
-            bar.update()
     else:
-        # Spawned workers: a clean interpreter each, whatever the parent imported (torch, threads).
-        with ProcessPoolExecutor(max_workers=jobs, mp_context=get_context("spawn")) as pool:
-            futures = [pool.submit(_run_cell, *a) for a in args]
-            for f in futures:
-                out.append(f.result())
-                bar.update()
+        out = ordered_results(_run_cell, args, jobs, bar.update)
     bar.close()
     return [row for group in out for row in group]
 

@@ -45,7 +45,7 @@ from training.trust import require_trust
 if TYPE_CHECKING:
     from training.callbacks import TimeBudgetCallback
 
-__all__ = ["parse_args", "run_name", "setup_torch", "make_callbacks", "latest_checkpoint",
+__all__ = ["parse_args", "run_name", "setup_torch", "make_callbacks", "latest_checkpoint", "ordered_results",
            "resume_checkpoint", "save_run", "field_docs", "build_parser", "save_final_vecnormalize", "train_single"]
 
 
@@ -424,3 +424,31 @@ def train_single(args: Any, algo: str, sb3_class: str, action_mode: str,
     print(f"saved {run_dir / 'model.zip'}: {info}", flush=True)
     venv.close()
     return run_dir
+
+
+def ordered_results(fn: Callable, work: list[tuple], jobs: int = 1, on_result: Callable | None = None) -> list:
+    """``[fn(*w) for w in work]``, in that order, in this process (``jobs`` = 1) or on a pool of ``jobs`` spawned
+    processes (a clean interpreter each, whatever the parent imported: torch, threads). ``on_result`` is called
+    after each result, in order (a progress bar's update). The first failure cancels the work still queued and
+    raises, so a bad input fails at once rather than after every other item has run."""
+    out = []
+    if jobs == 1:
+        for w in work:
+            out.append(fn(*w))
+            if on_result is not None:
+                on_result()
+        return out
+    from concurrent.futures import ProcessPoolExecutor
+    from multiprocessing import get_context
+
+    with ProcessPoolExecutor(max_workers=jobs, mp_context=get_context("spawn")) as pool:
+        futures = [pool.submit(fn, *w) for w in work]
+        try:
+            for f in futures:
+                out.append(f.result())
+                if on_result is not None:
+                    on_result()
+        except BaseException:
+            pool.shutdown(cancel_futures=True)
+            raise
+    return out

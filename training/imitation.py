@@ -33,9 +33,7 @@ import dataclasses
 import json
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
-from multiprocessing import get_context
 from pathlib import Path
 
 import numpy as np
@@ -43,7 +41,7 @@ import numpy as np
 import covert_env
 from covert_env.families import TRAIN_SEEDS
 from covert_env.tasks import get_task
-from training.common import _ranges, parse_args, run_name, save_run, setup_torch
+from training.common import _ranges, ordered_results, parse_args, run_name, save_run, setup_torch
 
 __all__ = ["Args", "teacher_episode", "collect", "train"]
 
@@ -137,22 +135,8 @@ def collect(tasks: list[str], seeds: list[int], args: Args, settings: dict, stud
     work = [(t, s) for t in tasks for s in seeds]
     bar = tqdm(total=len(work), desc=label, unit="episode", disable=not args.progress_bar, file=sys.stderr,
                mininterval=1.0 if sys.stderr.isatty() else 30.0)
-    out = []
-    if args.jobs == 1:
-        for t, s in work:
-            out.append(teacher_episode(t, s, args.teacher, settings, student))
-            bar.update()
-    else:
-        # Spawned workers: a clean interpreter each, whatever the parent imported (torch, threads).
-        with ProcessPoolExecutor(max_workers=args.jobs, mp_context=get_context("spawn")) as pool:
-            futures = [pool.submit(teacher_episode, t, s, args.teacher, settings, student) for t, s in work]
-            try:
-                for f in futures:
-                    out.append(f.result())
-                    bar.update()
-            except BaseException:
-                pool.shutdown(cancel_futures=True)      # the first failure ends the collection, not the last episode
-                raise
+    out = ordered_results(teacher_episode, [(t, s, args.teacher, settings, student) for t, s in work], args.jobs,
+                          bar.update)
     bar.close()
     return [out[i * len(seeds):(i + 1) * len(seeds)] for i in range(len(tasks))]
 
