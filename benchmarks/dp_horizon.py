@@ -1,13 +1,13 @@
 """What the planner's look-ahead is worth: the DP team with horizons 1..N beside learned teams, reward by term.
 
     python benchmarks/dp_horizon.py [--tasks paper-3uav downtown-3uav ...] [--scenes 3] [--horizons 1 2 3 4 5]
-                                    [--learned runs/<run> pretrained:mappo] [--jobs 2] [--figure out.png]
+                                    [--learned mappo:runs/<run> pretrained:mappo] [--jobs 2] [--figure out.png]
 
 Each policy flies the first ``--scenes`` held-out scenes of every task (the suite's scenes, seeds
 ``Task.test_seeds``). The DP team plans over the first h slots of the target's predictions
 (``DPPolicy(horizon=h)``); h = ``config.horizon`` (5) is the paper's planner. A learned team acts as the harness
-runs it (``training.pretrained.load_learned``, its card's mask and shield). The table gives the mean episode
-reward per UAV and its terms (``infos[agent]["reward_<term>"]``, docs/decisions.md "Environment rewards"): the
+runs it (``training.evaluate.load_policy``: a harness spec, the card's mask and shield). The table gives the mean
+episode reward per UAV and its terms (``infos[agent]["reward_<term>"]``, docs/decisions.md "Environment rewards"): the
 disguise bonus, the path cost and each penalty. A learned team sees the target's displacement to the next slot
 only (the observation's ``target_displacement``), so the horizon at which the planner's reward passes the team's
 says how far ahead the team acts as if it could see.
@@ -35,13 +35,13 @@ CORE = ("sparse-3uav", "paper-3uav", "winding-3uav", "dense-3uav", "downtown-3ua
 def episode_terms(spec: str, task: str, seed: int) -> dict:
     """One episode's reward per UAV and its terms, summed over slots and averaged over the team."""
     from baselines.policies import DPPolicy
-    from training.pretrained import load_learned
+    from training.evaluate import load_policy
 
     if spec.startswith("dp-h"):
         pol, settings = DPPolicy(horizon=int(spec.removeprefix("dp-h"))), {"action_mode": "waypoint"}
     else:
-        pol = load_learned(_weights(spec))
-        settings = {k: v for k, v in pol.env_settings.items() if k != "n_uavs"}
+        pol, settings = load_policy(spec, get_task(task).n_uavs)
+        settings = {k: v for k, v in settings.items() if k != "n_uavs"}
     env = covert_env.parallel_env(task=task, **settings)
     obs, _ = env.reset(seed=seed, options={"scene_seed": seed})
     pol.reset(env, seed)
@@ -57,21 +57,13 @@ def episode_terms(spec: str, task: str, seed: int) -> dict:
     return out
 
 
-def _weights(spec: str) -> str:
-    """``pretrained:NAME`` to its shipped weights file; a run folder or ``.npz`` as given."""
-    if spec.startswith("pretrained:"):
-        from training.pretrained import PRETRAINED_DIR
-
-        return str(PRETRAINED_DIR / f"{spec.removeprefix('pretrained:')}.npz")
-    return spec
-
-
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--tasks", nargs="+", default=list(CORE), help="suite tasks (default: the eight 3-UAV core tasks)")
     p.add_argument("--scenes", type=int, default=3, help="held-out scenes per task (default 3)")
     p.add_argument("--horizons", nargs="+", type=int, default=[1, 2, 3, 4, 5], help="DP horizons (1..config.horizon)")
-    p.add_argument("--learned", nargs="*", default=[], help="learned teams: run folders, .npz or pretrained:NAME")
+    p.add_argument("--learned", nargs="*", default=[],
+                   help="learned teams, as the harness names them: mappo:RUN_FOLDER or pretrained:NAME")
     p.add_argument("--jobs", type=int, default=2, help="processes (default 2)")
     p.add_argument("--figure", default=None, help="also draw the reward against the horizon to this PNG")
     a = p.parse_args(argv)
@@ -88,17 +80,14 @@ def main(argv: list[str] | None = None) -> int:
             p.error(f"--horizons {a.horizons}: each must be in [1, {n}] (the config.horizon of task {t})")
     if a.jobs < 1:
         p.error(f"--jobs {a.jobs}: must be >= 1")
-    from training.pretrained import load_learned
+    from training.evaluate import load_policy
 
-    for spec in a.learned:                      # a wrong file or team size fails here, before any episode
-        try:
-            team = load_learned(_weights(spec))
-        except ValueError as exc:
-            p.error(f"--learned {spec}: {exc}")
-        for t in a.tasks:
-            if team.env_settings["n_uavs"] != get_task(t).n_uavs:
-                p.error(f"--learned {spec}: a team of {team.env_settings['n_uavs']} UAVs, but task {t} has "
-                        f"{get_task(t).n_uavs}")
+    for spec in a.learned:                      # a wrong spec, file or team size fails here, before any episode
+        for t in {get_task(t).n_uavs: t for t in a.tasks}.values():        # one task per team size
+            try:
+                load_policy(spec, get_task(t).n_uavs)
+            except ValueError as exc:
+                p.error(f"--learned {spec} on task {t} ({get_task(t).n_uavs} UAVs): {exc}")
     if a.figure and not Path(a.figure).resolve().parent.is_dir():
         p.error(f"--figure {a.figure}: no such folder {Path(a.figure).resolve().parent}")
     specs = [f"dp-h{h}" for h in a.horizons] + list(a.learned)

@@ -320,16 +320,12 @@ def save_actor(run_dir: Path, actor, card: dict, stats: dict) -> None:
 
 
 def check_args(args: Args) -> None:
-    """A ValueError naming the flag, its value and what is allowed."""
+    """The recipe, the teacher and the flags that bound each other: a ValueError naming the flag, its value and what
+    is allowed (each numeric flag's own range is checked by the CLI, :func:`training.common.parse_args`)."""
     mappo_args(args.recipe)
     teachers = _ranges()["teacher"][1]
     if args.teacher not in teachers:
         raise ValueError(f"--teacher {args.teacher!r}: choose from {', '.join(teachers)}")
-    for name, lo in (("episodes_per_task", 1), ("val_episodes", 0), ("dagger_rounds", 0),
-                     ("dagger_episodes_per_task", 1), ("max_cycles", 1), ("epochs", 1), ("batch_size", 2), ("jobs", 1)):
-        v = getattr(args, name)
-        if v < lo:
-            raise ValueError(f"--{name.replace('_', '-')} {v}: must be >= {lo}")
     if args.val_episodes >= args.episodes_per_task:
         raise ValueError(f"--val-episodes {args.val_episodes}: must be below --episodes-per-task "
                          f"({args.episodes_per_task})")
@@ -344,8 +340,6 @@ def check_args(args: Args) -> None:
         raise ValueError(f"--seed {args.seed}: must be below {len(TRAIN_SEEDS) // SCENES_PER_SEED} (its scenes are "
                          f"training scenes seed * {SCENES_PER_SEED} + i, and the held-out scenes start at "
                          f"{TRAIN_SEEDS.stop})")
-    if not (args.learning_rate > 0 and np.isfinite(args.learning_rate)):
-        raise ValueError(f"--learning-rate {args.learning_rate}: must be a finite number > 0")
 
 
 def main(argv: list[str] | None = None) -> Path:
