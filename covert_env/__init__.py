@@ -19,7 +19,7 @@ from covert_env.scenario import Scenario
 from covert_env.terrain import Polytope, Terrain
 from covert_env.trajectory import Trajectory
 
-__version__ = "0.8.0"
+__version__ = "0.9.0"
 
 # Environments are imported after the model: the model modules never import them.
 from covert_env import covert_sensing_v0, covert_sensing_v1, covert_sensing_v2, covert_sensing_v3  # noqa: E402

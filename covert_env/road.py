@@ -506,6 +506,22 @@ class TargetTrack:
         xy = self.road.point_at(s[:-1, None] + f * np.diff(s)[:, None])
         return np.concatenate([xy, np.full(xy.shape[:-1] + (1,), self.z)], axis=-1)
 
+    def predicted_ahead(self, horizon: int) -> tuple[np.ndarray, np.ndarray]:
+        """((n + 1, horizon, 3), (n + 1, horizon)): row k is :meth:`predict` ``(k, horizon)``, for every slot
+        k = 0..n at once (clamped at the track's end, like :meth:`predict`). Without prediction error the rows are
+        the track's own slots, bit for bit; otherwise equal to :meth:`predict` up to rounding (the nominal arc is
+        summed once for the whole track here, per prediction there)."""
+        _check_prediction(0, horizon, "TargetTrack.predicted_ahead")
+        k = np.arange(self.n_slots + 1)
+        ks = np.minimum(k[:, None] + np.arange(1, horizon + 1), self.n_slots)          # (n + 1, H)
+        if self.exact:
+            return self.positions[ks], self.headings[ks]
+        nominal = np.concatenate([[0.0], np.cumsum(self.nominal_speeds * self.delta)])
+        s = self.arc[:, None] + nominal[ks] - nominal[k][:, None]
+        xy = self.road.point_at(s.ravel()).reshape(s.shape + (2,))
+        q = np.concatenate([xy, np.full(s.shape + (1,), self.z)], axis=-1)
+        return q, self.road.heading_at(s.ravel()).reshape(s.shape)
+
     @cached_property
     def next_predicted(self) -> tuple[np.ndarray, np.ndarray]:
         """((n + 1, 3), (n + 1,)): the target's position and heading at slot k + 1 as predicted at slot k,

@@ -81,8 +81,12 @@ class CovertSensingParallelEnv(ParallelEnv):
     S = ``map_size``. The maps cover the zone's bounding box in the target's frame, row-major,
     computed with the exact vectorised line of sight.
 
+    ``target_path=P`` (0 by default, at most ``config.horizon``) appends the target's poses at slots k+1..k+P as
+    the tracker predicts them at slot k (what the DP planner plans on, ``TargetTrack.predict``): the planner reads
+    ``config.horizon`` slots ahead, the default observation one (``target_displacement``, ``map_next``).
+
     ``state()`` (for centralised critics) concatenates, for every UAV, indices 0-7 above, then the
-    target displacement, the time remaining and both maps.
+    target displacement, the time remaining, both maps and the target's path.
 
     ## Rewards
 
@@ -178,6 +182,8 @@ class CovertSensingParallelEnv(ParallelEnv):
     * ``dict_obs``: Dict observations carrying the action mask (waypoint mode only; Tianshou needs it).
     * ``mask_mode``: ``"visible"`` (default: reachable nodes of the visible zone) or ``"kinematic"`` (reachable
       nodes only); waypoint mode only.
+    * ``target_path``: P, the target's predicted slots in the observation (default 0: none; in
+      [0, ``config.horizon``]).
     * ``reward_scale``: the stage cost's divisor (default 100, in [1e-6, 1e12]).
     * ``los_penalty``, ``los_path_penalty``, ``zone_penalty``, ``separation_penalty``, ``terrain_penalty``: the
       penalty weights (each in [0, 1e6]; default 1.0).
@@ -196,6 +202,9 @@ class CovertSensingParallelEnv(ParallelEnv):
 
     ## Version History
 
+    * v3, covert_env 0.9.0 (no number changed at the defaults): ``target_path=P`` appends the target's path
+      predicted over P slots to the observation and ``state()``, after the maps (the default, 0, leaves both as
+      they were).
     * v3, covert_env 0.8.0 (no number changed): ``onward_reach(xy, theta)``, how many nodes UAVs ending this slot
       at given poses may reach in the next (read-only; the viability rule of ``training.shield``).
     * v3, covert_env 0.7.0: LoS lost between slot times counts. The reward has a term ``los_path``
@@ -257,7 +266,7 @@ class CovertSensingParallelEnv(ParallelEnv):
                  terrain_penalty: float = 1.0,
                  terminate_on_collision: bool = False, scene_pool: int = 10_000, path_samples: int = 11,
                  random_starts: bool = False, family: str | None = None, task: str | None = None,
-                 mask_mode: str = "visible"):
+                 mask_mode: str = "visible", target_path: int = 0):
         super().__init__()
         s = EnvSettings(config, n_uavs=n_uavs, scenario=scenario, action_mode=action_mode, max_cycles=max_cycles,
                         render_mode=render_mode, map_size=map_size, dict_obs=dict_obs, reward_scale=reward_scale,
@@ -265,7 +274,7 @@ class CovertSensingParallelEnv(ParallelEnv):
                         separation_penalty=separation_penalty, terrain_penalty=terrain_penalty,
                         terminate_on_collision=terminate_on_collision,
                         scene_pool=scene_pool, path_samples=path_samples, random_starts=random_starts,
-                        family=family, task=task, mask_mode=mask_mode)
+                        family=family, task=task, mask_mode=mask_mode, target_path=target_path)
         # One copy, no automatic reset (PettingZoo's agents leave at the end and reset() starts the next
         # episode), episodes recorded for the metrics.
         self._vec = CovertSensingVectorEnv.from_settings(1, s, autoreset_mode=AutoresetMode.DISABLED, record=True)
@@ -278,6 +287,8 @@ class CovertSensingParallelEnv(ParallelEnv):
         self.task = s.task
         #: What the waypoint action mask allows: ``"visible"`` or ``"kinematic"`` (see Action Space).
         self.mask_mode = s.mask_mode
+        #: Predicted slots of the target's path in the observation (0: none; see Observation Space).
+        self.target_path = s.target_path
         self.lattice, self.map_offsets, self.layout = s.lattice, s.map_offsets, s.layout
         self.possible_agents = list(s.possible_agents)
         self.agents: list[str] = []

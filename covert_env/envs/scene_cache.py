@@ -16,7 +16,7 @@ from functools import cached_property
 import numpy as np
 
 from covert_env.config import Config
-from covert_env.envs.observation import FIELDS, shared_block_slices
+from covert_env.envs.observation import FIELDS, SHARED, shared_block_slices
 from covert_env.metrics import top_clearance
 from covert_env.road import cumulative_lengths
 from covert_env.scenario import Scenario, random_scene_arrays, sample_starts_on
@@ -25,8 +25,9 @@ from covert_env.zone import to_world
 
 __all__ = ["SceneBatch", "SceneCache", "World", "shared_blocks", "start_nodes"]
 
-#: The target-displacement field of the observation layout (its bounds clip the shared block).
+#: The target-displacement and target-path fields of the observation layout (their bounds clip the shared block).
 DISPLACEMENT = next(f for f in FIELDS if f.name == "target_displacement")
+PATH = next(f for f in FIELDS if f.name == "target_path")
 
 
 class SceneBatch:
@@ -38,6 +39,8 @@ class SceneBatch:
             (:meth:`TerrainRows.set_rows <covert_env.visibility.TerrainRows.set_rows>`).
         q (N, T, 3), phi (N, T): the target's true track; q_next (N, T, 3), phi_next (N, T): slot k + 1 as predicted
             at slot k (row n: the track's end), as ``TargetTrack.next_predicted``; exact: the prediction is the truth.
+            q_ahead (N, T, H, 3), phi_ahead (N, T, H): slots k + 1..k + H as predicted at slot k (H =
+            ``config.horizon``), as ``TargetTrack.predicted_ahead``: what the observation's path fields read.
         roads (N, K, 2), road_lengths (N, K): the roads' vertices and their arc lengths (``Road.cumulative_length``),
             every road K vertices here; arc (N, T): the target's arc length at each slot (``TargetTrack.arc``);
             z (N,): the filmed point's height. The target between slot times, as ``TargetTrack.position_between``.
@@ -48,7 +51,7 @@ class SceneBatch:
                  scenario=None):
         self.keys, self.config, self.exact, self.scenario = list(keys), config, exact, scenario
         self.hs, self.centre, self.radius, self.z_max, self.top, self.growth = terrain
-        self.q, self.phi, self.q_next, self.phi_next = track
+        self.q, self.phi, self.q_next, self.phi_next, self.q_ahead, self.phi_ahead = track
         self.roads, self.road_lengths, self.arc, self.z = route
 
     def __len__(self) -> int:
@@ -64,13 +67,16 @@ class SceneBatch:
         n, z = len(a), np.full(len(a), float(config.target_height))
         if config.prediction_error == 0:
             q, phi = a.tracks()
-            nxt = np.minimum(np.arange(q.shape[1]) + 1, q.shape[1] - 1)
+            slots = np.arange(q.shape[1])
+            nxt = np.minimum(slots + 1, q.shape[1] - 1)
+            ahead = np.minimum(slots[:, None] + np.arange(1, config.horizon + 1), q.shape[1] - 1)
             arc = np.broadcast_to(a.nominal_arc(), (n, q.shape[1]))
             route = (a.roads, cumulative_lengths(a.roads), arc, z)
-            return cls(a.seeds, config, terrain, (q, phi, q[:, nxt], phi[:, nxt]), route, exact=True)
+            track = (q, phi, q[:, nxt], phi[:, nxt], q[:, ahead], phi[:, ahead])
+            return cls(a.seeds, config, terrain, track, route, exact=True)
         tracks = [a.track(i) for i in range(n)]
-        parts = [np.stack(x) for x in zip(*((t.positions, t.headings) + t.next_predicted for t in tracks),
-                                          strict=True)]
+        parts = [np.stack(x) for x in zip(*((t.positions, t.headings) + t.next_predicted
+                                            + t.predicted_ahead(config.horizon) for t in tracks), strict=True)]
         route = (a.roads, np.stack([t.road.cumulative_length for t in tracks]), np.stack([t.arc for t in tracks]), z)
         return cls(a.seeds, config, terrain, tuple(parts), route, exact=False)
 
@@ -80,28 +86,41 @@ class SceneBatch:
         arr, track = terrain_arrays(scenario.terrain), scenario.track
         tops = np.asarray(scenario.terrain.highest_points, float).reshape(-1, 3)
         terrain = tuple(x[None] for x in (arr.hs, arr.centre, arr.radius, arr.z_max, tops, arr.growth_factor))
-        parts = tuple(np.asarray(x)[None] for x in (track.positions, track.headings) + track.next_predicted)
+        parts = tuple(np.asarray(x)[None] for x in (track.positions, track.headings) + track.next_predicted
+                      + track.predicted_ahead(scenario.config.horizon))
         route = (track.road.points[None], track.road.cumulative_length[None], track.arc[None], np.array([track.z]))
         return cls([key], scenario.config, terrain, parts, route, exact=track.exact, scenario=scenario)
 
 
-def shared_blocks(config: Config, batch: SceneBatch, maps: np.ndarray, maps_next: np.ndarray) -> np.ndarray:
+def shared_blocks(config: Config, batch: SceneBatch, maps: np.ndarray, maps_next: np.ndarray,
+                  path_slots: int = 0) -> np.ndarray:
     """(N, T, D) float32, row k of scene n the observation's shared block at slot k: the target's displacement to
     k + 1 as predicted at k, in the target's frame at k; 0 for the time remaining (the env writes it); the maps
-    ``maps`` at k and ``maps_next`` at the predicted k + 1, (N, T, S*S) each (:mod:`covert_env.envs.observation`)."""
+    ``maps`` at k and ``maps_next`` at the predicted k + 1, (N, T, S*S) each; and with ``path_slots`` P > 0 the
+    target's poses at k + 1..k + P as predicted at k, in the target's frame at k
+    (:mod:`covert_env.envs.observation`)."""
     q, phi = batch.q, batch.phi
-    dx, dy = batch.q_next[..., 0] - q[..., 0], batch.q_next[..., 1] - q[..., 1]
     cs, sn = np.cos(phi), np.sin(phi)
-    scale = config.v_max * config.delta
-    at = shared_block_slices(maps.shape[-1])
-    blocks = np.zeros(q.shape[:2] + (at["map_next"].stop,), np.float32)
-    lo, hi = DISPLACEMENT.low, DISPLACEMENT.high
+    at = shared_block_slices(maps.shape[-1], path_slots)
+    blocks = np.zeros(q.shape[:2] + (at[SHARED[-1]].stop,), np.float32)
     disp = blocks[..., at["target_displacement"]]
-    disp[..., 0] = np.clip((cs * dx + sn * dy) / scale, lo, hi)
-    disp[..., 1] = np.clip((cs * dy - sn * dx) / scale, lo, hi)
+    disp[:] = np.clip(target_frame(batch.q_next[..., :2] - q[..., :2], cs, sn) / (config.v_max * config.delta),
+                      DISPLACEMENT.low, DISPLACEMENT.high)
     blocks[..., at["map_now"]] = maps
     blocks[..., at["map_next"]] = maps_next
+    if path_slots:
+        ahead = batch.q_ahead[:, :, :path_slots, :2] - q[:, :, None, :2]                 # (N, T, P, 2)
+        path = target_frame(ahead, cs[..., None], sn[..., None]) / config.r2
+        blocks[..., at["target_path"]] = np.clip(path, PATH.low, PATH.high).reshape(*q.shape[:2], -1)
+        turn = batch.phi_ahead[:, :, :path_slots] - phi[..., None]
+        blocks[..., at["target_path_heading"]] = np.stack([np.cos(turn), np.sin(turn)], -1).reshape(*q.shape[:2], -1)
     return blocks
+
+
+def target_frame(d: np.ndarray, cs: np.ndarray, sn: np.ndarray) -> np.ndarray:
+    """World displacements ``d`` (..., 2) in the target's frame of heading (cos, sin) = (``cs``, ``sn``) (...):
+    x forward, y to the left."""
+    return np.stack([cs * d[..., 0] + sn * d[..., 1], cs * d[..., 1] - sn * d[..., 0]], axis=-1)
 
 
 def start_nodes(config: Config, lattice: np.ndarray, q0: np.ndarray, phi0: np.ndarray,

@@ -36,6 +36,7 @@ class ScenePool:
         spec: the env's ``scenario`` argument (``"random"``, ``"paper"`` or a Scenario).
         config, lattice, map_offsets, map_in_zone: the env's (see the parallel env).
         waypoint: whether to tabulate the lattice's visibility per slot (the waypoint masks need it).
+        path_slots: predicted slots of the target's path in the shared blocks (the env's ``target_path``).
         capacity: rows kept; the least recently used scene no copy flies is replaced beyond it.
 
     Attributes (rows R, slots T = track slots + 1, polytopes M, faces F, lattice nodes L):
@@ -58,15 +59,16 @@ class ScenePool:
         circles (views of ``terrains``).
     """
 
-    def __init__(self, spec, config, lattice, map_offsets, map_in_zone, *, waypoint: bool, capacity: int):
+    def __init__(self, spec, config, lattice, map_offsets, map_in_zone, *, waypoint: bool, capacity: int,
+                 path_slots: int = 0):
         self.spec, self.config, self.lattice = spec, config, lattice
         self._map_cells, self._map_in_zone = map_offsets[map_in_zone], map_in_zone
-        self.waypoint, self.capacity = waypoint, capacity
+        self.waypoint, self.capacity, self.path_slots = waypoint, capacity, path_slots
         self._start_lattice = zone_lattice(config)
         self._rows: OrderedDict = OrderedDict()          # key -> row, least recently used first
         self._caches: list[SceneCache | None] = []
         self._names: list[str] = []                      # per row, for error messages
-        d = shared_block_size(len(map_offsets))
+        d = shared_block_size(len(map_offsets), path_slots)
         self.q, self.phi = np.zeros((0, 1, 3)), np.zeros((0, 1))
         self.q_next, self.phi_next = np.zeros((0, 1, 3)), np.zeros((0, 1))
         self.blocks = np.zeros((0, 1, d), np.float32)
@@ -237,7 +239,7 @@ class ScenePool:
             maps_next = np.zeros_like(maps)
             maps_next[..., in_zone] = visible_nodes_rows(self.terrains, rows, self._map_cells, batch.q_next,
                                                          batch.phi_next, c.altitude)
-        return shared_blocks(c, batch, maps, maps_next)
+        return shared_blocks(c, batch, maps, maps_next, self.path_slots)
 
     def _lattice_visible(self, rows: np.ndarray, batch: SceneBatch) -> np.ndarray:
         """(N, T, L) row k: the lattice nodes visible at slot k as predicted at k - 1 (row 0: slot 0; no mask reads

@@ -107,7 +107,7 @@ class EnvSettings:
                  zone_penalty: float = 1.0, separation_penalty: float = 1.0, terrain_penalty: float = 1.0,
                  terminate_on_collision: bool = False, scene_pool: int = 10_000, path_samples: int = 11,
                  random_starts: bool = False, family: str | None = None, task: str | None = None,
-                 mask_mode: str = "visible"):
+                 mask_mode: str = "visible", target_path: int = 0):
         if isinstance(config, Mapping):
             cfg = Config.from_dict(dict(config))
         elif config is None or isinstance(config, Config):
@@ -159,6 +159,8 @@ class EnvSettings:
             raise ValueError(f"mask_mode={mask_mode!r} needs action_mode='waypoint': the unicycle mode has no "
                              "action mask")
         self.map_size = int_arg("map_size", map_size, 2, 64)
+        # The tracks run config.horizon slots past the episode: the furthest any prediction reaches.
+        self.target_path = int_arg("target_path", target_path, 0, cfg.horizon)
         # Training scene seeds stay below the held-out ones (1_000_000 + i) that evaluations fly.
         self.scene_pool = int_arg("scene_pool", scene_pool, 1, MAX_SCENE_POOL)
         self.path_samples = int_arg("path_samples", path_samples, 2, MAX_PATH_SAMPLES)
@@ -189,7 +191,7 @@ class EnvSettings:
         self.map_offsets = np.array([(x, y) for y in gy[::-1] for x in gx])   # row-major, +y on top
         self.map_in_zone = in_feasible_zone(self.map_offsets, np.zeros(2), 0.0, c.r1, c.r2, c.mu, c.r_u)
 
-        self.layout = ObservationLayout(c.n_uavs, s)
+        self.layout = ObservationLayout(c.n_uavs, s, self.target_path)
         self.obs_box = self.layout.box()
         self.state_space = self.layout.state_box()
         if action_mode == "unicycle":

@@ -75,13 +75,15 @@ class CovertSensingEnv(gym.Env):
     ## Arguments
 
     Every keyword of the parallel env: ``config``, ``scenario``, ``max_cycles``, ``render_mode``,
-    ``map_size``, reward weights, ``scene_pool``, ``path_samples``; ``n_uavs`` may only be 1 (``config.n_uavs``
-    is not read: a Config's default team of 3 would otherwise forbid every Config here) and
+    ``map_size``, ``target_path``, reward weights, ``scene_pool``, ``path_samples``; ``n_uavs`` may only be 1
+    (``config.n_uavs`` is not read: a Config's default team of 3 would otherwise forbid every Config here) and
     ``action_mode`` only this env's (an error otherwise); ``dict_obs=True`` (waypoint env only) puts the
     action mask in the observation.
 
     ## Version History
 
+    * v3, covert_env 0.9.0 (no number changed at the defaults): ``target_path=P`` appends the target's predicted
+      path to the observation, as in the PettingZoo env this one wraps.
     * v3, covert_env 0.7.0: LoS lost along the flown path counts (``reward_los_path``, ``cost_los_path``,
       ``los_path``), as in the PettingZoo env this one wraps (its Version History says what changed).
     * v2, covert_env 0.6.0: random scenes from the batched generator and the waypoint mask of eq. 10's one rule,

@@ -160,6 +160,8 @@ class CovertSensingVectorEnv:
 
     ## Version History
 
+    * v3, covert_env 0.9.0 (no number changed at the defaults): ``target_path=P`` appends the target's predicted
+      path to the observation, as in the PettingZoo env (its Version History).
     * v3, covert_env 0.8.0 (no number changed): ``onward_reach(xy, theta)``, how many nodes UAVs ending this slot
       at given poses may reach in the next (read-only; the viability rule of ``training.shield``).
     * v3, covert_env 0.7.0: the task and numbers of ``covert_sensing_v3`` (LoS along the flown path in the reward,
@@ -214,6 +216,8 @@ class CovertSensingVectorEnv:
         self.lattice, self.possible_agents, self.layout = s.lattice, list(s.possible_agents), s.layout
         #: The observation maps' side S and their cells' centres (S * S, 2), target frame, row-major with +y on top.
         self.map_size, self.map_offsets = s.map_size, s.map_offsets
+        #: Predicted slots of the target's path in the observation (0: none; the parallel env's ``target_path``).
+        self.target_path = s.target_path
         self.single_observation_space, self.single_action_space = s.observation_space, s.action_space
         self.single_state_space = s.state_space
         b, u, c = self.num_envs, len(self.possible_agents), self.config
@@ -222,7 +226,7 @@ class CovertSensingVectorEnv:
         self.state_space = batch_space(self.single_state_space, b)
         self._pool = ScenePool(s.scenario, c, self.lattice, s.map_offsets, s.map_in_zone,
                                waypoint=self.action_mode == "waypoint" and s.mask_mode == "visible",
-                               capacity=cache_size)
+                               capacity=cache_size, path_slots=s.target_path)
         self._times = np.linspace(0.0, 1.0, self.path_samples) * c.delta      # the engine's sample times
         self._fractions = np.linspace(0.0, 1.0, self.path_samples)[1:]        # of the slot, after its start
         self._rngs: list[np.random.Generator] | None = None
