@@ -464,3 +464,38 @@ def test_shield_lookahead_and_viability_bar_are_recorded_checked_and_used(tmp_pa
         mappo.check_args(mappo.Args(shield_lookahead=True, separation_shield=False))
     with pytest.raises(SystemExit):
         mappo.main(["--viability-min-reach", "0"])
+
+
+def test_target_path_run_card_harness_and_widening(tmp_path, train_extra):
+    """--target-path P: the env's observation carries the target's path, the card records it, the harness builds the
+    same env; --init-actor from weights without the path puts zeros in the path's trunk columns (so the new actor
+    scores every node as the loaded one), and a card with another path length is an error naming both."""
+    run = mappo.main([*TINY, "--action-mode", "waypoint", "--target-path", "3", "--total-timesteps", "16",
+                      "--runs-dir", str(tmp_path), "--run-name", "p"])
+    card = json.loads((run / "model.json").read_text())
+    assert card["env_kwargs"]["target_path"] == 3
+    pol = load_learned(run)
+    assert pol.env_settings["target_path"] == 3
+    from training.evaluate import evaluate
+
+    rows = evaluate(pol, pol.env_settings, 1, env_kwargs={"max_cycles": 3}, progress=False)
+    assert len(rows) == 1 and np.isfinite(rows[0]["reward"])
+    shipped = load_learned("training/pretrained/mappo.npz")
+    wide = mappo.main([*TINY, "--hidden", "128", "--node-hidden", "32", "--action-mode", "waypoint",
+                       "--init-actor", "pretrained:mappo", "--actor-warmup-updates", "2", "--target-path", "5",
+                       "--total-timesteps", "32", "--runs-dir", str(tmp_path), "--run-name", "w"])
+    w = np.load(wide / "model.npz")["actor.trunk.0.weight"]
+    old = shipped.actor.p["trunk.0.weight"]
+    assert w.shape == (old.shape[0], old.shape[1] + 20) and not w[:, old.shape[1]:].any()
+    np.testing.assert_array_equal(w[:, :old.shape[1]], old.astype(np.float32))
+    obs = np.random.default_rng(0).normal(size=(4, old.shape[1])).astype(np.float32)
+    path_obs = np.concatenate([obs, np.random.default_rng(1).normal(size=(4, 20)).astype(np.float32)], axis=1)
+    lat = np.random.default_rng(2).uniform(-100, 30, (30, 2))
+    feats = node_features(obs, lat, 3, r2=100.0, v_max=50.0, delta=1.0, d_safe1=5.0)
+    np.testing.assert_allclose(load_learned(wide).actor.logits(path_obs, feats), shipped.actor.logits(obs, feats),
+                               rtol=1e-5, atol=1e-5)
+    with pytest.raises(ValueError, match=r"its card has env_kwargs.target_path = 3, this run's --target-path is 5"):
+        mappo.check_args(mappo.Args(action_mode="waypoint", hidden=16, node_hidden=8, init_actor=str(run),
+                                    target_path=5))
+    with pytest.raises(SystemExit):
+        mappo.main(["--target-path", "9"])

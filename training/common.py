@@ -37,7 +37,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from covert_env.command_line import UsageError, float_range, int_range, non_negative_int, output_dir, positive_int
-from covert_env.config import MAX_N_UAVS, read_json
+from covert_env.config import MAX_N_UAVS, Config, read_json
 from covert_env.envs.settings import MAX_SCENE_POOL
 from covert_env.envs.vector import MAX_NUM_ENVS
 from training.trust import require_trust
@@ -114,6 +114,7 @@ def _ranges() -> dict[str, tuple]:
         "shield_end_margin": non_negative, "map_size": int_range(2, 64), "lambda_max": non_negative,
         "actor_warmup_updates": non_negative_int, "viability_min_reach": int_range(1, 100_000),
         "init_temperature": float_range(0.01, 100.0),
+        "target_path": int_range(0, Config().horizon),      # the envs' bound: every task plans over config.horizon
         # training.imitation
         "teacher": ("choices", ("dp", "dp-binned", "dp-path")), "episodes_per_task": int_range(1, 100_000),
         "val_episodes": int_range(0, 100_000), "dagger_rounds": int_range(0, 100),

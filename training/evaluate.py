@@ -317,7 +317,7 @@ def evaluate(policy, settings: dict, episodes: int, seed_offset: int = HELD_OUT_
     reset with its seed, or its index for a hand-made set) and return one metrics row per episode."""
     kw = dict(env_kwargs or {})
     kw.update(n_uavs=settings["n_uavs"], action_mode=settings["action_mode"])
-    for key in ("map_size", "mask_mode"):
+    for key in ("map_size", "mask_mode", "target_path"):
         if key in settings:
             kw[key] = settings[key]
     if scenes is not None:

@@ -98,7 +98,7 @@ def mappo_args(recipe: str):
 def env_settings(margs, max_cycles: int = 70) -> dict:
     """The parallel env's keyword arguments matching the recipe's vector env (what the harness builds)."""
     return {"action_mode": margs.action_mode, "mask_mode": margs.mask_mode, "map_size": margs.map_size,
-            "max_cycles": max_cycles}
+            "target_path": margs.target_path, "max_cycles": max_cycles}
 
 
 def teacher_episode(task: str, seed: int, teacher: str, settings: dict, student: str | None = None) -> dict:
@@ -246,7 +246,8 @@ def train(args: Args) -> Path:
     t0 = time.monotonic()
 
     env_kwargs = dict(n_uavs=margs.n_uavs, action_mode=margs.action_mode, max_cycles=margs.max_cycles,
-                      scene_pool=margs.scene_pool, map_size=margs.map_size, mask_mode=margs.mask_mode)
+                      scene_pool=margs.scene_pool, map_size=margs.map_size, mask_mode=margs.mask_mode,
+                      target_path=margs.target_path)
     mix = make_training_env(tasks, len(tasks), **{k: v for k, v in env_kwargs.items()
                                                  if k not in ("n_uavs", "scene_pool")})
     s = sizes_of(margs, mix)

@@ -108,6 +108,9 @@ class Args:
     (training.pretrained.node_features), so that the head sees the shadows where it scores the nodes"""
     map_size: int = 8
     """side S of the observation's two S x S visibility maps (the env's map_size, 2..64)"""
+    target_path: int = 0
+    """predicted slots of the target's path in the observation (the env's target_path, 0..config.horizon; 0: the
+    default observation, which shows the next slot only)"""
     tasks: str = ""
     """train on these suite tasks' training scenes at once (comma-separated, e.g. 'sparse-3uav,paper-3uav'; each
     gets num_envs / its count copies; training.task_mix: the mix acts on the largest lattice, which must hold every
@@ -291,6 +294,9 @@ def init_actor_fits(args: Args) -> None:
               ("actor.agent_id", actor.get("agent_id", False), args.agent_id, "--agent-id")]
     if waypoint and args.head == "node":
         wanted.append(("actor.node_hidden", actor.get("node_hidden"), args.node_hidden, "--node-hidden"))
+    if ekw.get("target_path", 0) not in (0, args.target_path):
+        # From 0 load_initial_actor widens the trunk; between two path lengths the columns would not line up.
+        wanted.append(("env_kwargs.target_path", ekw["target_path"], args.target_path, "--target-path"))
     if actor.get("node_map", False) and not args.node_map:
         # The other way round is fine: load_initial_actor widens an actor without the map inputs.
         wanted.append(("actor.node_map", True, args.node_map, "--node-map"))
@@ -368,14 +374,16 @@ def make_networks(args: Args, s: Sizes):
     return actor, critic, optim
 
 
-def load_initial_actor(actor, spec: str, node_map: bool, temperature: float = 1.0) -> None:
+def load_initial_actor(actor, spec: str, node_map: bool, temperature: float = 1.0, target_path: int = 0) -> None:
     """``--init-actor``: copy the weights of ``spec`` (``pretrained:NAME``, a run folder or a weights ``.npz``,
     checked by :func:`training.pretrained.load_learned`) into ``actor``. Every parameter must have the loaded
     one's shape, except that an actor with ``node_map`` takes weights without it: the map's columns of
     ``node_feat.weight`` (the last :data:`~training.pretrained.N_MAP_FEATURES` features) start at zero, so the
-    new actor scores every node as the loaded one does. The output layer (``node_out`` or ``flat``) is divided by
-    ``temperature``: the same ranking of the nodes, a flatter distribution. A ``ValueError`` names the parameter
-    and both shapes."""
+    new actor scores every node as the loaded one does; and an actor reading the target's path over
+    ``target_path`` slots takes weights without it (the card's ``env_kwargs.target_path`` 0): the path's 4 P
+    columns of ``trunk.0.weight`` (after the observation's other fields) start at zero, likewise. The output layer
+    (``node_out`` or ``flat``) is divided by ``temperature``: the same ranking of the nodes, a flatter
+    distribution. A ``ValueError`` names the parameter and both shapes."""
     path = PRETRAINED_DIR / f"{spec.removeprefix('pretrained:')}.npz" if spec.startswith("pretrained:") else spec
     try:
         loaded = load_learned(path)
@@ -387,12 +395,17 @@ def load_initial_actor(actor, spec: str, node_map: bool, temperature: float = 1.
         raise ValueError(f"--init-actor {spec}: its parameters {sorted(params)} are not this actor's {sorted(own)} "
                          "(--head, --action-mode and the trunk's depth must match)")
     widen = node_map and not loaded.actor.spec.get("node_map", False)
+    path_columns = 4 * target_path if not loaded.card["env_kwargs"].get("target_path", 0) else 0
     new = {}
     for key, target in own.items():
         value = torch.from_numpy(params[key].astype(np.float32))
         if widen and key == "node_feat.weight" and value.shape[1] + N_MAP_FEATURES == target.shape[1] \
                 and value.shape[0] == target.shape[0]:
             value = torch.cat([value, torch.zeros(value.shape[0], N_MAP_FEATURES)], dim=1)
+        if path_columns and key == "trunk.0.weight" and value.shape[1] + path_columns == target.shape[1]:
+            # The path's fields come after every other field of the row and before the agent id's one-hot.
+            at = value.shape[1] - (loaded.env_settings["n_uavs"] if loaded.actor.spec.get("agent_id") else 0)
+            value = torch.cat([value[:, :at], torch.zeros(value.shape[0], path_columns), value[:, at:]], dim=1)
         if tuple(value.shape) != tuple(target.shape):
             raise ValueError(f"--init-actor {spec}: actor.{key} has shape {tuple(params[key].shape)}, this actor's "
                              f"is {tuple(target.shape)} (--hidden, --node-hidden, --agent-id, --n-uavs and "
@@ -774,6 +787,8 @@ def train(args: Args) -> Path:
                       scene_pool=args.scene_pool)
     if args.map_size != 8:
         env_kwargs["map_size"] = args.map_size
+    if args.target_path:
+        env_kwargs["target_path"] = args.target_path
     if args.mask_mode != "visible":
         if args.action_mode != "waypoint":
             raise ValueError(f"--mask-mode {args.mask_mode!r} needs --action-mode waypoint")
@@ -790,7 +805,7 @@ def train(args: Args) -> Path:
     if args.resume:
         prog = resume(run_dir, actor, critic, optim, vnorm)
     elif args.init_actor:
-        load_initial_actor(actor, args.init_actor, args.node_map, args.init_temperature)
+        load_initial_actor(actor, args.init_actor, args.node_map, args.init_temperature, args.target_path)
     prog.lam = {name: prog.lam.get(name, 0.0) for name in s.constrained}
     card = model_card(args, s, env, env_kwargs, shield)
     save_run(run_dir, args, {"card": card})

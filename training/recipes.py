@@ -75,10 +75,21 @@ RECIPES: dict[str, dict] = {
 #: reachable next slot, where another leaves 10); 45 minutes of wall clock (three seeds at once on 2 cores). The
 #: bound keeps a limit the team does not reach from drowning the reward (docs/decisions.md, "Learned teams across
 #: the suite").
+#: ``3uav-suite-path``: ``3uav-suite`` with the target's path predicted over the planner's five slots in the
+#: observation (the env's ``target_path=5``): the DP planner plans on that path; ``3uav-suite`` sees one slot.
 MAPPO_RECIPES: dict[str, dict] = {
     "3uav-suite": dict(
         algo="mappo", n_uavs=3, num_envs=16, action_mode="waypoint", head="node", node_map=True, map_size=16,
         mask_mode="kinematic", learning_rate=1e-3, time_budget_minutes=45.0, separation_shield=True,
+        viability_shield=True, viability_min_reach=10, shield_lookahead=True, shield_end_margin=10.0, lagrangian=True,
+        constraints="los=0.01,los_path=0.04,zone=0.015", lagrange_lr=1.0, lambda_max=4.0,
+        tasks="sparse-3uav,paper-3uav,winding-3uav,dense-3uav,downtown-3uav,towers-3uav,paper-3uav-deviating,"
+              "downtown-3uav-deviating",
+        checkpoint_every=100_000,
+    ),
+    "3uav-suite-path": dict(
+        algo="mappo", n_uavs=3, num_envs=16, action_mode="waypoint", head="node", node_map=True, map_size=16,
+        mask_mode="kinematic", target_path=5, learning_rate=1e-3, time_budget_minutes=45.0, separation_shield=True,
         viability_shield=True, viability_min_reach=10, shield_lookahead=True, shield_end_margin=10.0, lagrangian=True,
         constraints="los=0.01,los_path=0.04,zone=0.015", lagrange_lr=1.0, lambda_max=4.0,
         tasks="sparse-3uav,paper-3uav,winding-3uav,dense-3uav,downtown-3uav,towers-3uav,paper-3uav-deviating,"

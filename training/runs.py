@@ -24,15 +24,18 @@ def read_run_json(path: Path, what: str) -> Any:
 
 
 def run_env(env_kwargs: Any, where: str, n_uavs: int = 1) -> tuple[dict, Any]:
-    """The env settings (``n_uavs``, ``action_mode``, ``map_size``) of a run's ``env_kwargs`` (from ``where``, an
-    ``args.json`` or model card; ``n_uavs`` defaults to ``n_uavs``) and the parallel env they build, in which the
-    policy will act. A field the env rejects is a :class:`~covert_env.command_line.UsageError` naming the file, the
-    field, the value and what is allowed (the env's own check)."""
+    """The env settings (``n_uavs``, ``action_mode``, ``map_size``, ``target_path`` if set) of a run's
+    ``env_kwargs`` (from ``where``, an ``args.json`` or model card; ``n_uavs`` defaults to ``n_uavs``) and the
+    parallel env they build, in which the policy will act. A field the env rejects is a
+    :class:`~covert_env.command_line.UsageError` naming the file, the field, the value and what is allowed (the
+    env's own check)."""
     if not isinstance(env_kwargs, dict):
         raise UsageError(f"{where}: env_kwargs must be a JSON object, got {type(env_kwargs).__name__} "
                          f"{str(env_kwargs)[:60]}")
     settings = {"n_uavs": env_kwargs.get("n_uavs", n_uavs), "action_mode": env_kwargs.get("action_mode", "unicycle"),
                 "map_size": env_kwargs.get("map_size", 8)}
+    if env_kwargs.get("target_path", 0) != 0:          # only in the cards of teams that read the target's path
+        settings["target_path"] = env_kwargs["target_path"]
     try:
         env = CovertSensingParallelEnv(**settings)
     except (TypeError, ValueError) as exc:

@@ -166,6 +166,9 @@ class LearnedPolicy:
         self.viability = bool(card.get("viability_shield", False)) and self.shield is not None
         self.env_settings = {"n_uavs": int(ekw["n_uavs"]), "action_mode": ekw["action_mode"],
                              "map_size": int(ekw.get("map_size", 8))}
+        if ekw.get("target_path", 0):
+            # A team that reads the target's predicted path (the env's target_path), checked by run_env.
+            self.env_settings["target_path"] = int(ekw["target_path"])
         if ekw["action_mode"] == "waypoint":
             # The mask the team was trained with (cards before mask modes: the visible-zone mask).
             self.env_settings["mask_mode"] = ekw.get("mask_mode", "visible")
