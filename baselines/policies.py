@@ -147,6 +147,11 @@ class DPPolicy(Policy):
         max_rounds, separation_margin: negotiation settings (:class:`~baselines.dp.DPTeamPlanner`).
         horizon: plan over this many slots, from 1 to the env's ``config.horizon`` (default: all of them, the
             paper's N). Shorter horizons measure what the look-ahead is worth (``benchmarks/dp_horizon.py``).
+        known_slots: read only this many slots of the target's prediction (>= 1) and extrapolate the rest at a
+            constant speed and turn rate (:func:`baselines.dp.team.extrapolate_target`); default None: all. A
+            planner as far-sighted as the paper's that knows the target's future only as far as the default
+            observation shows it (1 slot): what the target's path is worth apart from the look-ahead itself.
+            Only on targets without prediction error (the planner's possible targets lie on the road).
 
     Waypoint mode acts with the planned node indices (exact). Unicycle mode flies :func:`arc_action` toward
     the planned first waypoint; read its docstring for what that mapping loses. ``last_plan`` holds the
@@ -155,11 +160,15 @@ class DPPolicy(Policy):
 
     def __init__(self, shadow_aware: bool = True, heading: str = "inherited", heading_bins: int = 16,
                  check_path: bool = False, max_rounds: int = 5, separation_margin: float = 0.5,
-                 horizon: int | None = None):
-        if horizon is not None and (isinstance(horizon, bool) or not isinstance(horizon, (int, np.integer))
-                                    or horizon < 1):
-            raise ValueError(f"DPPolicy: horizon must be None or an integer >= 1, got {horizon!r}")
+                 horizon: int | None = None, known_slots: int | None = None):
+        for name, v in (("horizon", horizon), ("known_slots", known_slots)):
+            if v is not None and (isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1):
+                raise ValueError(f"DPPolicy: {name} must be None or an integer >= 1, got {v!r}")
+        if known_slots is not None and check_path:
+            raise ValueError("DPPolicy: known_slots does not go with check_path (the path's samples are the track's "
+                             "prediction)")
         self.horizon = None if horizon is None else int(horizon)
+        self.known_slots = None if known_slots is None else int(known_slots)
         self.kw = dict(shadow_aware=shadow_aware, heading=heading, heading_bins=heading_bins,
                        check_path=check_path)
         self.team_kw = dict(max_rounds=max_rounds, separation_margin=separation_margin)
@@ -168,7 +177,8 @@ class DPPolicy(Policy):
         self.last_plan: TeamPlan | None = None
         h = "inherited" if heading == "inherited" else f"binned{heading_bins}"
         self.name = (f"dp-{'aware' if shadow_aware else 'blind'}-{h}{'-path' if check_path else ''}"
-                     f"{'' if horizon is None else f'-horizon{horizon}'}")
+                     f"{'' if horizon is None else f'-horizon{horizon}'}"
+                     f"{'' if known_slots is None else f'-known{known_slots}'}")
 
     def _team(self, par) -> DPTeamPlanner:
         # One planner per scene: its caches are keyed by the target's poses, which only hold for one terrain.
@@ -191,7 +201,11 @@ class DPPolicy(Policy):
         if self.horizon is not None and self.horizon > par.config.horizon:
             raise ValueError(f"DPPolicy: horizon {self.horizon} is longer than the env's config.horizon "
                              f"{par.config.horizon} (the route reaches that many slots past the episode's last)")
-        plan = team.plan_engine(par.engine, self.horizon)
+        if self.known_slots is not None and par.config.prediction_error > 0:
+            raise ValueError(f"DPPolicy: known_slots needs a target without prediction error, got "
+                             f"config.prediction_error = {par.config.prediction_error:g} (the planner's possible "
+                             "targets lie on the road; an extrapolated path leaves it)")
+        plan = team.plan_engine(par.engine, self.horizon, self.known_slots)
         self.last_plan = plan
         if par.action_mode == "waypoint":
             return {a: int(plan.nodes[i]) for i, a in enumerate(par.possible_agents) if a in par.agents}

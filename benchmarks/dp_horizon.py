@@ -1,7 +1,8 @@
 """What the planner's look-ahead is worth: the DP team with horizons 1..N beside learned teams, reward by term.
 
     python benchmarks/dp_horizon.py [--tasks paper-3uav downtown-3uav ...] [--scenes 3] [--horizons 1 2 3 4 5]
-                                    [--learned mappo:runs/<run> pretrained:mappo] [--jobs 2] [--figure out.png]
+                                    [--known-slots 1] [--learned mappo:runs/<run> pretrained:mappo] [--jobs 2]
+                                    [--figure out.png]
 
 Each policy flies the first ``--scenes`` held-out scenes of every task (the suite's scenes, seeds
 ``Task.test_seeds``). The DP team plans over the first h slots of the target's predictions
@@ -11,6 +12,12 @@ episode reward per UAV and its terms (``infos[agent]["reward_<term>"]``, docs/de
 disguise bonus, the path cost and each penalty. A learned team sees the target's displacement to the next slot
 only (the observation's ``target_displacement``), so the horizon at which the planner's reward passes the team's
 says how far ahead the team acts as if it could see.
+
+``--known-slots k`` adds the DP team at the longest of ``--horizons`` that reads only the first k slots of the
+target's predictions and extrapolates the rest at a constant speed and turn rate (``DPPolicy(known_slots=k)``):
+with k = 1 it knows the target's future as far as the default observation shows it, so its reward against the
+full planner's separates what the target's path is worth from what planning several slots ahead is worth (tasks
+without prediction error only: the planner's possible targets lie on the road).
 """
 
 from __future__ import annotations
@@ -38,7 +45,9 @@ def episode_terms(spec: str, task: str, seed: int) -> dict:
     from training.evaluate import load_policy
 
     if spec.startswith("dp-h"):
-        pol, settings = DPPolicy(horizon=int(spec.removeprefix("dp-h"))), {"action_mode": "waypoint"}
+        h, _, known = spec.removeprefix("dp-h").partition("-k")
+        pol = DPPolicy(horizon=int(h), known_slots=int(known) if known else None)
+        settings = {"action_mode": "waypoint"}
     else:
         pol, settings = load_policy(spec, get_task(task).n_uavs)
         settings = {k: v for k, v in settings.items() if k != "n_uavs"}
@@ -62,6 +71,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--tasks", nargs="+", default=list(CORE), help="suite tasks (default: the eight 3-UAV core tasks)")
     p.add_argument("--scenes", type=int, default=3, help="held-out scenes per task (default 3)")
     p.add_argument("--horizons", nargs="+", type=int, default=[1, 2, 3, 4, 5], help="DP horizons (1..config.horizon)")
+    p.add_argument("--known-slots", nargs="*", type=int, default=[],
+                   help="also the DP team at the longest horizon reading only this many slots of the target's "
+                        "predictions, extrapolating the rest (tasks without prediction error)")
     p.add_argument("--learned", nargs="*", default=[],
                    help="learned teams, as the harness names them: mappo:RUN_FOLDER or pretrained:NAME")
     p.add_argument("--jobs", type=int, default=2, help="processes (default 2)")
@@ -78,6 +90,13 @@ def main(argv: list[str] | None = None) -> int:
         n = get_task(t).config().horizon
         if any(not 1 <= h <= n for h in a.horizons):
             p.error(f"--horizons {a.horizons}: each must be in [1, {n}] (the config.horizon of task {t})")
+    for k in a.known_slots:
+        if not 1 <= k < max(a.horizons):
+            p.error(f"--known-slots {k}: must be in [1, {max(a.horizons) - 1}] (fewer than the longest of --horizons)")
+    deviating = [t for t in a.tasks if get_task(t).config().prediction_error > 0]
+    if a.known_slots and deviating:
+        p.error(f"--known-slots needs tasks without prediction error, got {deviating} (the planner's possible "
+                "targets lie on the road; an extrapolated path leaves it)")
     if a.jobs < 1:
         p.error(f"--jobs {a.jobs}: must be >= 1")
     from training.evaluate import load_policy
@@ -90,7 +109,8 @@ def main(argv: list[str] | None = None) -> int:
                 p.error(f"--learned {spec} on task {t} ({get_task(t).n_uavs} UAVs): {exc}")
     if a.figure and not Path(a.figure).resolve().parent.is_dir():
         p.error(f"--figure {a.figure}: no such folder {Path(a.figure).resolve().parent}")
-    specs = [f"dp-h{h}" for h in a.horizons] + list(a.learned)
+    specs = ([f"dp-h{h}" for h in a.horizons] + [f"dp-h{max(a.horizons)}-k{k}" for k in a.known_slots]
+             + list(a.learned))
     work = [(s, t, get_task(t).test_seeds.start + i) for s in specs for t in a.tasks for i in range(a.scenes)]
     t0 = time.perf_counter()
     from tqdm.auto import tqdm
@@ -107,7 +127,9 @@ def main(argv: list[str] | None = None) -> int:
     for s in specs:
         mine = [r for r, w in zip(rows, work, strict=True) if w[0] == s]
         mean = {k: float(np.mean([r[k] for r in mine])) for k in mine[0]}
-        name = f"DP, horizon {s.removeprefix('dp-h')}" if s.startswith("dp-h") else s
+        h, _, known = s.removeprefix("dp-h").partition("-k")
+        name = (s if not s.startswith("dp-h") else f"DP, horizon {h}" if not known
+                else f"DP, horizon {h}, the target's path known for {known} slot(s)")
         print(f"| {name} | {mean['reward']:.1f} | " + " | ".join(f"{mean[t]:.2f}" for t in TERMS) + " |")
         means[s] = mean
     if a.figure:
@@ -124,6 +146,10 @@ def figure(means: dict, horizons: list[int], path: str) -> None:
 
     fig, ax = plt.subplots(figsize=(6.4, 3.6), dpi=110)
     ax.plot(horizons, [means[f"dp-h{h}"]["reward"] for h in horizons], "o-", color="k", label="DP team")
+    for s, m in means.items():
+        if s.startswith("dp-h") and "-k" in s:
+            k = s.partition("-k")[2]
+            ax.plot([max(horizons)], [m["reward"]], "s", color="0.5", label=f"DP team, target known {k} slot(s)")
     for i, (s, m) in enumerate((s, m) for s, m in means.items() if not s.startswith("dp-h")):
         ax.axhline(m["reward"], ls="--", color=f"C{i}", label=s)
     ax.set_xlabel("DP horizon (slots of the target's predictions; the paper: 5)")

@@ -181,6 +181,57 @@ def test_dp_policy_horizon_plans_over_fewer_slots():
     env.close()
 
 
+def test_extrapolate_target_keeps_the_known_slots_and_then_step_and_turn():
+    """extrapolate_target: the known predicted poses unchanged; then the last known step, turned by the last known
+    turn once more every slot (a straight target stays on its line; a turning one on its circle); bad counts fail."""
+    from baselines.dp.team import extrapolate_target
+
+    q0, phi0 = np.array([0.0, 0.0, 1.5]), 0.0
+    straight = np.array([[10.0, 0.0, 1.5], [20.0, 0.0, 1.5]])
+    q, phi = extrapolate_target(q0, phi0, straight[:1], np.zeros(1), 5)
+    np.testing.assert_allclose(q, [[10.0 * j, 0.0, 1.5] for j in range(1, 6)], atol=1e-12)
+    assert np.array_equal(phi, np.zeros(5))
+    # A circle of radius r at angular step w: every extrapolated pose lies on it, headings advance by w.
+    r, w = 50.0, 0.2
+    pose = [np.array([r * np.sin(w * j), r * (1 - np.cos(w * j)), 1.5]) for j in range(6)]
+    q, phi = extrapolate_target(pose[0], 0.0, np.array(pose[1:3]), np.array([w, 2 * w]), 5)
+    np.testing.assert_allclose(q[:2], pose[1:3], atol=1e-12)
+    np.testing.assert_allclose(q, pose[1:], atol=1e-9)
+    np.testing.assert_allclose(phi, w * np.arange(1, 6), atol=1e-12)
+    for known in (0, 6):
+        with pytest.raises(ValueError, match=r"needs 1 to horizon = 5 known slots"):
+            extrapolate_target(q0, phi0, np.zeros((known, 3)), np.zeros(known), 5)
+
+
+def test_dp_policy_known_slots_reads_only_the_first_slots():
+    """DPPolicy(known_slots=N) is the paper's planner action for action; known_slots=1 flies (on an extrapolated
+    path: extrapolate_target's test); bad values and deviating targets fail naming the value."""
+    env = covert_env.parallel_env(task="winding-3uav", action_mode="waypoint", max_cycles=4)
+    runs = {}
+    for k in (None, env.config.horizon, 1):
+        pol = DPPolicy(known_slots=k)
+        obs, _ = env.reset(seed=3, options={"scene_seed": 1_000_003})
+        pol.reset(env, 3)
+        acts = []
+        while env.agents:
+            a = pol.act(obs, env)
+            acts.append([a[x] for x in env.possible_agents])
+            obs, *_ = env.step(a)
+        runs[k] = acts
+    assert runs[None] == runs[env.config.horizon] and len(runs[1]) == 4
+    assert DPPolicy(known_slots=1).name.endswith("-known1")
+    for bad in (0, True, 1.5):
+        with pytest.raises(ValueError, match=r"known_slots must be None or an integer >= 1"):
+            DPPolicy(known_slots=bad)
+    with pytest.raises(ValueError, match=r"known_slots does not go with check_path"):
+        DPPolicy(known_slots=1, check_path=True)
+    dev = covert_env.parallel_env(task="paper-3uav-deviating", action_mode="waypoint", max_cycles=2)
+    obs, _ = dev.reset(seed=0)
+    with pytest.raises(ValueError, match=r"known_slots needs a target without prediction error, got "
+                                         r"config.prediction_error = 4"):
+        DPPolicy(known_slots=1).act(obs, dev)
+
+
 def test_dp_horizon_benchmark_terms_add_up_to_the_reward():
     """benchmarks/dp_horizon.py's episode: the reward per UAV is the sum of its terms (path cost, disguise bonus,
     penalties), and the learned team's row runs through the harness's loader."""
@@ -198,3 +249,8 @@ def test_dp_horizon_benchmark_terms_add_up_to_the_reward():
     assert learned["reward"] == pytest.approx(sum(learned[t] for t in mod.TERMS), abs=1e-6)
     with pytest.raises(SystemExit):
         mod.main(["--scenes", "0"])
+    known = mod.episode_terms("dp-h5-k1", "paper-3uav", 1_000_000)
+    assert known["reward"] == pytest.approx(sum(known[t] for t in mod.TERMS), abs=1e-6)
+    for argv in (["--known-slots", "5"], ["--known-slots", "1", "--tasks", "paper-3uav-deviating"]):
+        with pytest.raises(SystemExit):
+            mod.main(argv)

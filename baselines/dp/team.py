@@ -10,10 +10,11 @@ import numpy as np
 from baselines.dp.plan import TeamPlan
 from baselines.dp.planner import DPPlanner
 from baselines.dp.safety import secure_first_moves
+from covert_env.angles import wrap_angle
 from covert_env.roles import EngineView
 from covert_env.separation import separation
 
-__all__ = ["Conflict", "DPTeamPlanner", "WORK_COUNTERS"]
+__all__ = ["Conflict", "DPTeamPlanner", "WORK_COUNTERS", "extrapolate_target"]
 
 #: What :attr:`DPTeamPlanner.stats` counts per team replan. With U UAVs and R = ``max_rounds``:
 #: ``dp_calls`` (batched DP runs) <= 1 + R; ``uav_plans`` (UAV plans inside them) <= U + R (U - 1);
@@ -135,14 +136,22 @@ class DPTeamPlanner:
                     avoid[s_, o, t] = pts
         return avoid
 
-    def plan_engine(self, engine: EngineView, horizon: int | None = None) -> TeamPlan:
+    def plan_engine(self, engine: EngineView, horizon: int | None = None, known_slots: int | None = None) -> TeamPlan:
         """:meth:`plan` for the current state of an engine (:class:`covert_env.engine.Engine`, or a vector env's
         copy: any :class:`covert_env.roles.EngineView`), from its track's predictions over ``horizon`` slots
-        (default the config's N; at most N, since the route is built for the config's horizon)."""
+        (default the config's N; at most N, since the route is built for the config's horizon). With
+        ``known_slots`` k, only the first k predicted slots are read and the rest extrapolated from them
+        (:func:`extrapolate_target`): a planner that sees as far ahead as the default observation (k = 1)."""
         if horizon is not None and not 1 <= horizon <= engine.config.horizon:
             raise ValueError(f"plan_engine: horizon must be in [1, config.horizon = {engine.config.horizon}], got "
                              f"{horizon!r} (the route reaches N slots past the episode's last)")
         q_pred, phi_pred = engine.predict(horizon)
+        if known_slots is not None and known_slots < len(phi_pred):
+            if self.planner.check_path:
+                raise ValueError("plan_engine: known_slots does not go with check_path (the path's samples are the "
+                                 "track's prediction)")
+            q_pred, phi_pred = extrapolate_target(engine.target_xyz, engine.target_phi, q_pred[:known_slots],
+                                                  phi_pred[:known_slots], len(phi_pred))
         tq = np.vstack([engine.target_xyz[None], q_pred])
         tp = np.concatenate([[engine.target_phi], phi_pred])
         path = None
@@ -176,3 +185,22 @@ class DPTeamPlanner:
         pair, t = np.nonzero(hit)
         return [Conflict(int(i[q]), int(k[q]), int(s), "node" if node_hit[q, s] else "path")
                 for q, s in zip(pair.tolist(), t.tolist(), strict=True)]
+
+
+def extrapolate_target(q0: np.ndarray, phi0: float, q_known: np.ndarray, phi_known: np.ndarray,
+                       horizon: int) -> tuple[np.ndarray, np.ndarray]:
+    """The target's poses at slots k+1..k+``horizon`` from its pose now (``q0`` (3,), ``phi0``) and its first k
+    known predicted poses (``q_known`` (k, 3), ``phi_known`` (k,), k >= 1): the known ones, then the last known
+    slot's step repeated, turned by the last known turn once more every slot (a constant speed and turn rate, off
+    the road where it bends otherwise). Returns ((horizon, 3), (horizon,))."""
+    q = np.vstack([np.asarray(q0, float)[None], np.asarray(q_known, float)])
+    phi = np.concatenate([[float(phi0)], np.asarray(phi_known, float)])
+    k, more = len(phi) - 1, horizon - (len(phi) - 1)
+    if k < 1 or more < 0:
+        raise ValueError(f"extrapolate_target: needs 1 to horizon = {horizon} known slots, got {k}")
+    step, turn = q[-1, :2] - q[-2, :2], wrap_angle(phi[-1] - phi[-2])
+    ang = turn * np.arange(1, more + 1)
+    c, s = np.cos(ang), np.sin(ang)
+    xy = q[-1, :2] + np.cumsum(np.stack([c * step[0] - s * step[1], s * step[0] + c * step[1]], axis=-1), axis=0)
+    out_q = np.vstack([q[1:], np.column_stack([xy, np.full(more, q[-1, 2])])])
+    return out_q, np.concatenate([phi[1:], phi[-1] + ang])
