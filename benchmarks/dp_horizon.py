@@ -9,9 +9,8 @@ Each policy flies the first ``--scenes`` held-out scenes of every task (the suit
 (``DPPolicy(horizon=h)``); h = ``config.horizon`` (5) is the paper's planner. A learned team acts as the harness
 runs it (``training.evaluate.load_policy``: a harness spec, the card's mask and shield). The table gives the mean
 episode reward per UAV and its terms (``infos[agent]["reward_<term>"]``, docs/decisions.md "Environment rewards"): the
-disguise bonus, the path cost and each penalty. A learned team sees the target's displacement to the next slot
-only (the observation's ``target_displacement``), so the horizon at which the planner's reward passes the team's
-says how far ahead the team acts as if it could see.
+disguise bonus, the path cost and each penalty. The horizon at which the planner's reward passes a learned team's
+says how far ahead the team acts as if it planned.
 
 ``--known-slots k`` adds the DP team at the longest of ``--horizons`` that reads only the first k slots of the
 target's predictions and extrapolates the rest at a constant speed and turn rate (``DPPolicy(known_slots=k)``):
@@ -146,13 +145,14 @@ def figure(means: dict, horizons: list[int], path: str) -> None:
 
     fig, ax = plt.subplots(figsize=(6.4, 3.6), dpi=110)
     ax.plot(horizons, [means[f"dp-h{h}"]["reward"] for h in horizons], "o-", color="k", label="DP team")
-    for s, m in means.items():
-        if s.startswith("dp-h") and "-k" in s:
-            k = s.partition("-k")[2]
-            ax.plot([max(horizons)], [m["reward"]], "s", color="0.5", label=f"DP team, target known {k} slot(s)")
+    known = [(s, m) for s, m in means.items() if s.startswith("dp-h") and "-k" in s]
+    for j, (s, m) in enumerate(known):
+        k = s.partition("-k")[2]
+        ax.plot([max(horizons)], [m["reward"]], "sD^v"[j % 4], color=str(0.35 + 0.4 * j / max(len(known), 1)),
+                ms=7, label=f"DP team, horizon {max(horizons)}, the target known {k} slot(s) ahead")
     for i, (s, m) in enumerate((s, m) for s, m in means.items() if not s.startswith("dp-h")):
         ax.axhline(m["reward"], ls="--", color=f"C{i}", label=s)
-    ax.set_xlabel("DP horizon (slots of the target's predictions; the paper: 5)")
+    ax.set_xlabel("DP horizon (slots planned ahead; the paper: 5)")
     ax.set_ylabel("episode reward per UAV")
     ax.set_xticks(horizons)
     ax.legend(fontsize=7, loc="lower right")
