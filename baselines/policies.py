@@ -164,6 +164,9 @@ class DPPolicy(Policy):
         for name, v in (("horizon", horizon), ("known_slots", known_slots)):
             if v is not None and (isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1):
                 raise ValueError(f"DPPolicy: {name} must be None or an integer >= 1, got {v!r}")
+        if known_slots is not None and horizon is not None and known_slots > horizon:
+            raise ValueError(f"DPPolicy: known_slots {known_slots} is more than the horizon {horizon}: the planner "
+                             "reads at most horizon slots")
         if known_slots is not None and check_path:
             raise ValueError("DPPolicy: known_slots does not go with check_path (the path's samples are the track's "
                              "prediction)")
@@ -201,6 +204,9 @@ class DPPolicy(Policy):
         if self.horizon is not None and self.horizon > par.config.horizon:
             raise ValueError(f"DPPolicy: horizon {self.horizon} is longer than the env's config.horizon "
                              f"{par.config.horizon} (the route reaches that many slots past the episode's last)")
+        if self.known_slots is not None and self.known_slots > par.config.horizon:
+            raise ValueError(f"DPPolicy: known_slots {self.known_slots} is more than the env's config.horizon "
+                             f"{par.config.horizon} (the planner reads at most that many slots)")
         if self.known_slots is not None and par.config.prediction_error > 0:
             raise ValueError(f"DPPolicy: known_slots needs a target without prediction error, got "
                              f"config.prediction_error = {par.config.prediction_error:g} (the planner's possible "

@@ -108,8 +108,8 @@ def main(argv: list[str] | None = None) -> int:
                 p.error(f"--learned {spec} on task {t} ({get_task(t).n_uavs} UAVs): {exc}")
     if a.figure and not Path(a.figure).resolve().parent.is_dir():
         p.error(f"--figure {a.figure}: no such folder {Path(a.figure).resolve().parent}")
-    specs = ([f"dp-h{h}" for h in a.horizons] + [f"dp-h{max(a.horizons)}-k{k}" for k in a.known_slots]
-             + list(a.learned))
+    specs = list(dict.fromkeys([f"dp-h{h}" for h in a.horizons]
+                               + [f"dp-h{max(a.horizons)}-k{k}" for k in a.known_slots] + list(a.learned)))
     work = [(s, t, get_task(t).test_seeds.start + i) for s in specs for t in a.tasks for i in range(a.scenes)]
     t0 = time.perf_counter()
     from tqdm.auto import tqdm

@@ -57,6 +57,7 @@ __all__ = [
     "in_feasible_zone",
     "lattice_offsets",
     "lattice_offsets_cfg",
+    "to_target_frame",
     "to_world",
     "visible_zone",
     "zone_distance",
@@ -284,6 +285,12 @@ def zone_mask(offsets, r1: float, r2: float, mu: float, r_u: float = 0.0) -> np.
     """
     inside = in_feasible_zone(offsets, (0.0, 0.0), 0.0, r1, r2, mu, r_u)
     return inside & (zone_distance(offsets, (0.0, 0.0), 0.0, r1, r2, mu) <= -ZONE_MARGIN)
+
+
+def to_target_frame(d, cs, sn) -> np.ndarray:
+    """World displacements ``d`` (..., 2) from a target of heading phi in its frame, ``R(-phi) d`` (..., 2), with
+    ``cs``, ``sn`` = cos, sin(phi) given, broadcast against ``d[..., 0]``: x forward, y to the left."""
+    return np.stack([cs * d[..., 0] + sn * d[..., 1], cs * d[..., 1] - sn * d[..., 0]], axis=-1)
 
 
 def to_world(offsets, q_xy, phi) -> np.ndarray:

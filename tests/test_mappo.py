@@ -499,3 +499,27 @@ def test_target_path_run_card_harness_and_widening(tmp_path, train_extra):
                                     target_path=5))
     with pytest.raises(SystemExit):
         mappo.main(["--target-path", "9"])
+
+
+def test_init_actor_widening_puts_the_path_before_the_agent_id(tmp_path, train_extra):
+    """With --agent-id the actor's input is the observation then the agent's one-hot: the path's zero columns go
+    between them, so the widened actor scores every node as the loaded one for every agent."""
+    base = mappo.main([*TINY, "--action-mode", "waypoint", "--agent-id", "--total-timesteps", "16", "--runs-dir",
+                       str(tmp_path), "--run-name", "a"])
+    wide = mappo.main([*TINY, "--action-mode", "waypoint", "--agent-id", "--init-actor", str(base),
+                       "--actor-warmup-updates", "2", "--target-path", "2", "--total-timesteps", "32", "--runs-dir",
+                       str(tmp_path), "--run-name", "b"])
+    old, new = load_learned(base), load_learned(wide)
+    w_old, w_new = old.actor.p["trunk.0.weight"], new.actor.p["trunk.0.weight"]
+    d = w_old.shape[1] - 3                                          # observation width without the path
+    assert w_new.shape[1] == w_old.shape[1] + 8 and not w_new[:, d:d + 8].any()
+    np.testing.assert_array_equal(w_new[:, :d], w_old[:, :d])
+    np.testing.assert_array_equal(w_new[:, d + 8:], w_old[:, d:])
+    rng = np.random.default_rng(0)
+    obs = rng.normal(size=(3, d)).astype(np.float32)
+    onehot = np.eye(3, dtype=np.float32)
+    lat = rng.uniform(-100, 30, (20, 2))
+    feats = node_features(obs, lat, 3, r2=100.0, v_max=50.0, delta=1.0, d_safe1=5.0)
+    path = rng.normal(size=(3, 8)).astype(np.float32)
+    np.testing.assert_allclose(new.actor.logits(np.concatenate([obs, path, onehot], 1), feats),
+                               old.actor.logits(np.concatenate([obs, onehot], 1), feats), rtol=1e-5, atol=1e-5)

@@ -198,14 +198,19 @@ def test_extrapolate_target_keeps_the_known_slots_and_then_step_and_turn():
     np.testing.assert_allclose(q[:2], pose[1:3], atol=1e-12)
     np.testing.assert_allclose(q, pose[1:], atol=1e-9)
     np.testing.assert_allclose(phi, w * np.arange(1, 6), atol=1e-12)
-    for known in (0, 6):
-        with pytest.raises(ValueError, match=r"needs 1 to horizon = 5 known slots"):
-            extrapolate_target(q0, phi0, np.zeros((known, 3)), np.zeros(known), 5)
+    for qk, pk in ((np.zeros((0, 3)), np.zeros(0)), (np.zeros((6, 3)), np.zeros(6)),
+                   (np.zeros((2, 3)), np.zeros(1)), (np.zeros((2, 2)), np.zeros(2))):
+        with pytest.raises(ValueError, match=r"q_known \(k, 3\) and phi_known \(k,\) must hold the same k known "
+                                             r"slots, 1 <= k <= horizon = 5, got shapes"):
+            extrapolate_target(q0, phi0, qk, pk, 5)
 
 
 def test_dp_policy_known_slots_reads_only_the_first_slots():
-    """DPPolicy(known_slots=N) is the paper's planner action for action; known_slots=1 flies (on an extrapolated
-    path: extrapolate_target's test); bad values and deviating targets fail naming the value."""
+    """DPPolicy(known_slots=N) is the paper's planner action for action; with known_slots=1 the planner is handed
+    the track's first predicted slot and then extrapolate_target's poses, which leave the track where the road
+    bends; bad values and deviating targets fail naming the value."""
+    from baselines.dp.team import DPTeamPlanner, extrapolate_target
+
     env = covert_env.parallel_env(task="winding-3uav", action_mode="waypoint", max_cycles=4)
     runs = {}
     for k in (None, env.config.horizon, 1):
@@ -220,6 +225,35 @@ def test_dp_policy_known_slots_reads_only_the_first_slots():
         runs[k] = acts
     assert runs[None] == runs[env.config.horizon] and len(runs[1]) == 4
     assert DPPolicy(known_slots=1).name.endswith("-known1")
+    handed = []
+    real_plan = DPTeamPlanner.plan
+
+    def spy(self, xy, theta, tq, tp, **kw):
+        handed.append((tq.copy(), tp.copy()))
+        return real_plan(self, xy, theta, tq, tp, **kw)
+
+    obs, _ = env.reset(seed=3, options={"scene_seed": 1_000_003})
+    team = DPPolicy()._team(env)
+    try:
+        DPTeamPlanner.plan = spy
+        team.plan_engine(env.engine, known_slots=1)
+        team.plan_engine(env.engine)
+    finally:
+        DPTeamPlanner.plan = real_plan
+    (tq1, tp1), (tq, tp) = handed
+    eng = env.engine
+    want_q, want_p = extrapolate_target(eng.target_xyz, eng.target_phi, tq[1:2], tp[1:2], env.config.horizon)
+    np.testing.assert_array_equal(tq1[:2], tq[:2])
+    np.testing.assert_allclose(tq1[1:], want_q, atol=1e-12)
+    np.testing.assert_allclose(tp1[1:], want_p, atol=1e-12)
+    assert np.abs(tq1[2:, :2] - tq[2:, :2]).max() > 0.1          # the winding road bends within five slots
+    for bad in (0, -2, True, 1.5):
+        with pytest.raises(ValueError, match=r"plan_engine: known_slots must be None or an integer >= 1"):
+            team.plan_engine(env.engine, known_slots=bad)
+    with pytest.raises(ValueError, match=r"known_slots 3 is more than the horizon 2"):
+        DPPolicy(horizon=2, known_slots=3)
+    with pytest.raises(ValueError, match=r"known_slots 6 is more than the env's config.horizon 5"):
+        DPPolicy(known_slots=6).act(obs, env)
     for bad in (0, True, 1.5):
         with pytest.raises(ValueError, match=r"known_slots must be None or an integer >= 1"):
             DPPolicy(known_slots=bad)

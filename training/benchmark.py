@@ -78,7 +78,7 @@ def _run_cell(task: str, spec: str, run: int, scenes: int, trust: bool) -> list[
     rows = evaluate(pol, settings, scenes, t.test_seeds.start, env_kwargs={"task": task}, progress=False)
     mask = settings.get("mask_mode", "visible") if settings["action_mode"] == "waypoint" else "none"
     return [{"task": task, "policy": spec, "run": run, "action_mode": settings["action_mode"], "mask_mode": mask,
-             **row} for row in rows]
+             "target_path": int(settings.get("target_path", 0)), **row} for row in rows]
 
 
 def run_cells(cells: list[tuple[str, str, int]], scenes: int, *, jobs: int = 1, trust: bool = False,
@@ -231,12 +231,13 @@ def write_suite(out: Path, rows: list[dict], ref: dict, agg: dict, meta: dict, s
     lines += ["", f"Wall time: {meta['seconds']:.0f} s ({meta['jobs']} worker(s)).",
               f"Command: `{meta['command']}`", ""]
     (out / "suite.md").write_text("\n".join(lines))
-    keys = ["task", "policy", "run", "action_mode", "mask_mode", "scene_seed", "score", *(k for k, _, _ in COLUMNS)]
+    keys = ["task", "policy", "run", "action_mode", "mask_mode", "target_path", "scene_seed", "score",
+            *(k for k, _, _ in COLUMNS)]
     with open(out / "cells.csv", "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(keys)
         for r in rows:
-            w.writerow([r[k] for k in keys])
+            w.writerow([r.get(k, 0) if k == "target_path" else r[k] for k in keys])   # rows of older runs: 0
     (out / "results.json").write_text(json.dumps({"suite": SUITE_VERSION, "meta": meta, "reference": ref,
                                                   "aggregate": agg, "cells": rows}, indent=1))
     (out / "marl_eval.json").write_text(json.dumps(marl_eval(rows)))
@@ -252,7 +253,7 @@ def _task_leaderboard(folder: Path, task, rows: list[dict], meta: dict) -> None:
         mine = [r for r in rows if r["policy"] == p]
         results[p] = {"rows": mine, "summary": summarise(mine), "spec": p, "runs": 1 + max(r["run"] for r in mine),
                       "settings": {"action_mode": mine[0]["action_mode"], "mask_mode": mine[0].get("mask_mode"),
-                                   "n_uavs": task.n_uavs}}
+                                   "target_path": mine[0].get("target_path", 0), "n_uavs": task.n_uavs}}
     write_outputs(results, folder, {"episodes": meta["scenes"], "seed_offset": task.test_seeds.start,
                                     "n_uavs": task.n_uavs, "family": task.family, "scene_set": None,
                                     "command": meta["command"]})

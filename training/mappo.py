@@ -408,8 +408,8 @@ def load_initial_actor(actor, spec: str, node_map: bool, temperature: float = 1.
             value = torch.cat([value[:, :at], torch.zeros(value.shape[0], path_columns), value[:, at:]], dim=1)
         if tuple(value.shape) != tuple(target.shape):
             raise ValueError(f"--init-actor {spec}: actor.{key} has shape {tuple(params[key].shape)}, this actor's "
-                             f"is {tuple(target.shape)} (--hidden, --node-hidden, --agent-id, --n-uavs and "
-                             "--map-size must match the loaded card's)")
+                             f"is {tuple(target.shape)} (--hidden, --node-hidden, --agent-id, --n-uavs, "
+                             "--map-size and --target-path must match the loaded card's)")
         if key.split(".")[0] in ("node_out", "flat"):
             value = value / temperature
         new[key] = value

@@ -87,18 +87,10 @@ MAPPO_RECIPES: dict[str, dict] = {
               "downtown-3uav-deviating",
         checkpoint_every=100_000,
     ),
-    "3uav-suite-path": dict(
-        algo="mappo", n_uavs=3, num_envs=16, action_mode="waypoint", head="node", node_map=True, map_size=16,
-        mask_mode="kinematic", target_path=5, learning_rate=1e-3, time_budget_minutes=45.0, separation_shield=True,
-        viability_shield=True, viability_min_reach=10, shield_lookahead=True, shield_end_margin=10.0, lagrangian=True,
-        constraints="los=0.01,los_path=0.04,zone=0.015", lagrange_lr=1.0, lambda_max=4.0,
-        tasks="sparse-3uav,paper-3uav,winding-3uav,dense-3uav,downtown-3uav,towers-3uav,paper-3uav-deviating,"
-              "downtown-3uav-deviating",
-        checkpoint_every=100_000,
-    ),
     "3uav-mappo": dict(
         algo="mappo", n_uavs=3, num_envs=16, action_mode="waypoint", head="node", learning_rate=1e-3,
         time_budget_minutes=45.0, separation_shield=True, shield_end_margin=10.0, lagrangian=True,
         checkpoint_every=100_000,
     ),
 }
+MAPPO_RECIPES["3uav-suite-path"] = {**MAPPO_RECIPES["3uav-suite"], "target_path": 5}

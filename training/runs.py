@@ -34,7 +34,7 @@ def run_env(env_kwargs: Any, where: str, n_uavs: int = 1) -> tuple[dict, Any]:
                          f"{str(env_kwargs)[:60]}")
     settings = {"n_uavs": env_kwargs.get("n_uavs", n_uavs), "action_mode": env_kwargs.get("action_mode", "unicycle"),
                 "map_size": env_kwargs.get("map_size", 8)}
-    if env_kwargs.get("target_path", 0) != 0:          # only in the cards of teams that read the target's path
+    if env_kwargs.get("target_path", 0) != 0:          # 0 (or absent, in older cards) is the default observation
         settings["target_path"] = env_kwargs["target_path"]
     try:
         env = CovertSensingParallelEnv(**settings)

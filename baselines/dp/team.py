@@ -145,6 +145,9 @@ class DPTeamPlanner:
         if horizon is not None and not 1 <= horizon <= engine.config.horizon:
             raise ValueError(f"plan_engine: horizon must be in [1, config.horizon = {engine.config.horizon}], got "
                              f"{horizon!r} (the route reaches N slots past the episode's last)")
+        if known_slots is not None and (isinstance(known_slots, bool) or not isinstance(known_slots, (int, np.integer))
+                                        or known_slots < 1):
+            raise ValueError(f"plan_engine: known_slots must be None or an integer >= 1, got {known_slots!r}")
         q_pred, phi_pred = engine.predict(horizon)
         if known_slots is not None and known_slots < len(phi_pred):
             if self.planner.check_path:
@@ -193,11 +196,14 @@ def extrapolate_target(q0: np.ndarray, phi0: float, q_known: np.ndarray, phi_kno
     known predicted poses (``q_known`` (k, 3), ``phi_known`` (k,), k >= 1): the known ones, then the last known
     slot's step repeated, turned by the last known turn once more every slot (a constant speed and turn rate, off
     the road where it bends otherwise). Returns ((horizon, 3), (horizon,))."""
-    q = np.vstack([np.asarray(q0, float)[None], np.asarray(q_known, float)])
-    phi = np.concatenate([[float(phi0)], np.asarray(phi_known, float)])
-    k, more = len(phi) - 1, horizon - (len(phi) - 1)
-    if k < 1 or more < 0:
-        raise ValueError(f"extrapolate_target: needs 1 to horizon = {horizon} known slots, got {k}")
+    q_known, phi_known = np.asarray(q_known, float), np.asarray(phi_known, float)
+    k = len(phi_known)
+    if q_known.shape != (k, 3) or phi_known.ndim != 1 or not 1 <= k <= horizon:
+        raise ValueError(f"extrapolate_target: q_known (k, 3) and phi_known (k,) must hold the same k known slots, "
+                         f"1 <= k <= horizon = {horizon}, got shapes {q_known.shape} and {phi_known.shape}")
+    q = np.vstack([np.asarray(q0, float)[None], q_known])
+    phi = np.concatenate([[float(phi0)], phi_known])
+    more = horizon - k
     step, turn = q[-1, :2] - q[-2, :2], wrap_angle(phi[-1] - phi[-2])
     ang = turn * np.arange(1, more + 1)
     c, s = np.cos(ang), np.sin(ang)

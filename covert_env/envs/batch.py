@@ -16,6 +16,7 @@ import numpy as np
 from covert_env.config import short_repr
 from covert_env.envs.observation import OFFSET_CLIP, OWN_SIZE, OWN_SLICES
 from covert_env.flight import fly_turn_straight, waypoint_controls
+from covert_env.zone import to_target_frame
 
 #: Smallest commanded speed as a fraction of V_max: the unicycle needs v > 0 (eq. 1).
 MIN_SPEED_FRACTION = 0.01
@@ -163,11 +164,9 @@ def own_features(xy, theta, q, phi, speed, los, zone_dist, c) -> np.ndarray:
     """(B, U, OWN_SIZE) per-UAV features (the observation layout's own block: offset, heading, speed, LoS, zone,
     zone distance), targets q (B, 3), phi (B,)."""
     cs, sn = np.cos(phi)[:, None], np.sin(phi)[:, None]
-    dx, dy = xy[..., 0] - q[:, 0, None], xy[..., 1] - q[:, 1, None]
     f = np.empty(theta.shape + (OWN_SIZE,))
     offset, heading = f[..., OWN_SLICES["offset"]], f[..., OWN_SLICES["heading"]]
-    offset[..., 0] = (cs * dx + sn * dy) / c.r2
-    offset[..., 1] = (cs * dy - sn * dx) / c.r2
+    offset[:] = to_target_frame(xy - q[:, None, :2], cs, sn) / c.r2
     np.minimum(np.maximum(offset, -OFFSET_CLIP), OFFSET_CLIP, out=offset)
     dth = theta - phi[:, None]
     heading[..., 0] = np.cos(dth)

@@ -56,7 +56,7 @@ FIELDS = (
     Field("target_path", "path", -OFFSET_CLIP, OFFSET_CLIP, "with target_path=P: the target's positions predicted "
           "at slots k+1..k+P, in the current target frame (x1, y1, x2, y2, ...)", "/ R2, clipped to +-5"),
     Field("target_path_heading", "path", -1.0, 1.0, "with target_path=P: cos, sin of the target's predicted "
-          "heading at k+1..k+P minus its heading now", ""),
+          "heading at k+1..k+P minus its heading now (cos1, sin1, cos2, ...)", ""),
 )
 #: Fields of the per-UAV block (``state()`` repeats it for every UAV) and of the block shared by all agents.
 OWN = ("offset", "heading", "speed", "los", "in_zone", "zone_distance")

@@ -21,7 +21,7 @@ from covert_env.metrics import top_clearance
 from covert_env.road import cumulative_lengths
 from covert_env.scenario import Scenario, random_scene_arrays, sample_starts_on
 from covert_env.visibility import terrain_arrays
-from covert_env.zone import to_world
+from covert_env.zone import to_target_frame, to_world
 
 __all__ = ["SceneBatch", "SceneCache", "World", "shared_blocks", "start_nodes"]
 
@@ -104,23 +104,18 @@ def shared_blocks(config: Config, batch: SceneBatch, maps: np.ndarray, maps_next
     at = shared_block_slices(maps.shape[-1], path_slots)
     blocks = np.zeros(q.shape[:2] + (at[SHARED[-1]].stop,), np.float32)
     disp = blocks[..., at["target_displacement"]]
-    disp[:] = np.clip(target_frame(batch.q_next[..., :2] - q[..., :2], cs, sn) / (config.v_max * config.delta),
+    disp[:] = np.clip(to_target_frame(batch.q_next[..., :2] - q[..., :2], cs, sn) / (config.v_max * config.delta),
                       DISPLACEMENT.low, DISPLACEMENT.high)
     blocks[..., at["map_now"]] = maps
     blocks[..., at["map_next"]] = maps_next
     if path_slots:
         ahead = batch.q_ahead[:, :, :path_slots, :2] - q[:, :, None, :2]                 # (N, T, P, 2)
-        path = target_frame(ahead, cs[..., None], sn[..., None]) / config.r2
+        path = to_target_frame(ahead, cs[..., None], sn[..., None]) / config.r2
         blocks[..., at["target_path"]] = np.clip(path, PATH.low, PATH.high).reshape(*q.shape[:2], -1)
         turn = batch.phi_ahead[:, :, :path_slots] - phi[..., None]
         blocks[..., at["target_path_heading"]] = np.stack([np.cos(turn), np.sin(turn)], -1).reshape(*q.shape[:2], -1)
     return blocks
 
-
-def target_frame(d: np.ndarray, cs: np.ndarray, sn: np.ndarray) -> np.ndarray:
-    """World displacements ``d`` (..., 2) in the target's frame of heading (cos, sin) = (``cs``, ``sn``) (...):
-    x forward, y to the left."""
-    return np.stack([cs * d[..., 0] + sn * d[..., 1], cs * d[..., 1] - sn * d[..., 0]], axis=-1)
 
 
 def start_nodes(config: Config, lattice: np.ndarray, q0: np.ndarray, phi0: np.ndarray,

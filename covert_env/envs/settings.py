@@ -159,7 +159,7 @@ class EnvSettings:
             raise ValueError(f"mask_mode={mask_mode!r} needs action_mode='waypoint': the unicycle mode has no "
                              "action mask")
         self.map_size = int_arg("map_size", map_size, 2, 64)
-        # The tracks run config.horizon slots past the episode: the furthest any prediction reaches.
+        # The tracks reach config.horizon slots past slot n_slots: the furthest any prediction reaches.
         self.target_path = int_arg("target_path", target_path, 0, cfg.horizon)
         # Training scene seeds stay below the held-out ones (1_000_000 + i) that evaluations fly.
         self.scene_pool = int_arg("scene_pool", scene_pool, 1, MAX_SCENE_POOL)
