@@ -115,7 +115,7 @@ def test_layout_field_slices_and_table():
     assert "target_path" in covert_env.envs.CovertSensingParallelEnv.__doc__
 
 
-def test_paper_scenario_and_gymnasium_checkers():
+def test_paper_scenario_gymnasium_and_sb3_checkers():
     from gymnasium.utils.env_checker import check_env
     from pettingzoo.test import parallel_api_test
 
@@ -124,6 +124,10 @@ def test_paper_scenario_and_gymnasium_checkers():
         env = gym.make(env_id, target_path=2, max_cycles=8)
         check_env(env.unwrapped)
         assert env.observation_space.shape[0] == gym.make(env_id).observation_space.shape[0] + 8
+    from _extras import needs
+
+    sb3_check_env = needs("stable_baselines3.common.env_checker").check_env
+    sb3_check_env(gym.make("covert_env/CovertSensingWaypoint-v3", target_path=5, max_cycles=8).unwrapped, warn=True)
 
 
 @pytest.mark.parametrize("bad, exc, pattern", [

@@ -142,3 +142,13 @@ def _masked_policy(env):
         in_keys=[("uav", "observation")], out_keys=[("uav", "logits")])
     return ProbabilisticActor(logits, in_keys={"logits": ("uav", "logits"), "mask": ("uav", "action_mask")},
                               out_keys=[("uav", "action")], distribution_class=MaskedCategorical)
+
+
+def test_check_env_specs_with_the_target_path():
+    """target_path=P widens the observation and the state by 4 P: TorchRL's checker at its default arguments."""
+    env = make_torchrl_env(num_envs=2, action_mode="waypoint", n_uavs=2, max_cycles=3, target_path=3)
+    base = make_torchrl_env(num_envs=2, action_mode="waypoint", n_uavs=2, max_cycles=3)
+    check_env_specs(env)
+    width = env.observation_spec["uav", "observation"].shape[-1]
+    assert width == base.observation_spec["uav", "observation"].shape[-1] + 12
+    assert env.observation_spec["state"].shape[-1] == base.observation_spec["state"].shape[-1] + 12
