@@ -146,22 +146,30 @@ def test_make_policy_names():
         parallel_env_of(object())
 
 
+def _team_actions(env, pol, seed: int, scene_seed: int, after_act=None) -> list[list[int]]:
+    """Every slot's actions of ``pol`` over one episode of ``env`` (scene ``scene_seed``), in agent order."""
+    obs, _ = env.reset(seed=seed, options={"scene_seed": scene_seed})
+    pol.reset(env, seed)
+    acts = []
+    while env.agents:
+        a = pol.act(obs, env)
+        acts.append([a[x] for x in env.possible_agents])
+        if after_act is not None:
+            after_act(pol)
+        obs, *_ = env.step(a)
+    return acts
+
+
 def test_dp_policy_horizon_plans_over_fewer_slots():
     """``DPPolicy(horizon=h)`` plans over the first h predicted slots: h = config.horizon is the paper's planner,
     action for action; h = 1 plans one slot; bad values fail naming the value."""
     env = covert_env.parallel_env(task="paper-3uav", action_mode="waypoint", max_cycles=3)
     runs = {}
     for h in (None, env.config.horizon, 1):
-        pol = DPPolicy(horizon=h)
-        obs, _ = env.reset(seed=2, options={"scene_seed": 2})
-        pol.reset(env, 2)
-        acts = []
-        while env.agents:
-            a = pol.act(obs, env)
-            acts.append([a[k] for k in env.possible_agents])
+        def planned(pol, h=h):
             assert len(pol.last_plan.plans[0].nodes) == (h or env.config.horizon)
-            obs, *_ = env.step(a)
-        runs[h] = acts
+
+        runs[h] = _team_actions(env, DPPolicy(horizon=h), 2, 2, after_act=planned)
     assert runs[None] == runs[env.config.horizon]
     assert DPPolicy(horizon=1).name.endswith("-horizon1")
     for bad in (0, True, 2.5):
@@ -212,17 +220,7 @@ def test_dp_policy_known_slots_reads_only_the_first_slots():
     from baselines.dp.team import DPTeamPlanner, extrapolate_target
 
     env = covert_env.parallel_env(task="winding-3uav", action_mode="waypoint", max_cycles=4)
-    runs = {}
-    for k in (None, env.config.horizon, 1):
-        pol = DPPolicy(known_slots=k)
-        obs, _ = env.reset(seed=3, options={"scene_seed": 1_000_003})
-        pol.reset(env, 3)
-        acts = []
-        while env.agents:
-            a = pol.act(obs, env)
-            acts.append([a[x] for x in env.possible_agents])
-            obs, *_ = env.step(a)
-        runs[k] = acts
+    runs = {k: _team_actions(env, DPPolicy(known_slots=k), 3, 1_000_003) for k in (None, env.config.horizon, 1)}
     assert runs[None] == runs[env.config.horizon] and len(runs[1]) == 4
     assert DPPolicy(known_slots=1).name.endswith("-known1")
     handed = []
