@@ -176,7 +176,8 @@ class Cloner:
         lattice, offsets, c, u = self.geometry[task]
         obs = d["obs"][idx]
         feats = self.node_features(obs, lattice, u, r2=c.r2, v_max=c.v_max, delta=c.delta, d_safe1=c.d_safe1,
-                                   map_offsets=offsets if self.margs.node_map else None)
+                                   map_offsets=offsets if self.margs.node_map else None,
+                                   w_max=c.w_max if self.margs.node_manoeuvre else None)
         x = np.concatenate([obs, np.eye(u, dtype=np.float32)[d["agent"][idx]]], 1) if self.margs.agent_id else obs
         mask = torch.from_numpy(d["mask"][idx])
         return self.actor.logits(torch.from_numpy(x), torch.from_numpy(feats), mask), mask

@@ -66,9 +66,9 @@ from training.budget import expected_steps
 from training.common import parse_args, resumed_args, run_name, save_run, setup_torch
 from training.pretrained import (
     N_MAP_FEATURES,
-    N_OWN_FEATURES,
     PRETRAINED_DIR,
     load_learned,
+    n_node_features,
     node_features,
     pretrained_names,
 )
@@ -106,6 +106,9 @@ class Args:
     node_map: bool = False
     """node head: also read the observation's map_next under each node and under the move's midpoint
     (training.pretrained.node_features), so that the head sees the shadows where it scores the nodes"""
+    node_manoeuvre: bool = False
+    """node head: also read the manoeuvre to each node (whether one exists, its length, the heading the UAV arrives
+    with; training.pretrained.manoeuvre_features), so that the head tells nodes apart by what the next slot reaches"""
     map_size: int = 8
     """side S of the observation's two S x S visibility maps (the env's map_size, 2..64)"""
     target_path: int = 0
@@ -228,9 +231,10 @@ def check_args(args: Args) -> None:
     if tasks and args.num_envs % len(tasks):
         raise ValueError(f"--num-envs {args.num_envs}: must be a multiple of the {len(tasks)} --tasks (each task gets "
                          "as many copies)")
-    if args.node_map and (args.head != "node" or args.action_mode != "waypoint"):
-        raise ValueError(f"--node-map needs --action-mode waypoint and --head node, got --action-mode "
-                         f"{args.action_mode!r} --head {args.head!r}")
+    for flag in ("node_map", "node_manoeuvre"):
+        if getattr(args, flag) and (args.head != "node" or args.action_mode != "waypoint"):
+            raise ValueError(f"--{flag.replace('_', '-')} needs --action-mode waypoint and --head node, got "
+                             f"--action-mode {args.action_mode!r} --head {args.head!r}")
     if args.init_actor.startswith("pretrained:"):
         name = args.init_actor.removeprefix("pretrained:")
         if not (PRETRAINED_DIR / f"{name}.npz").is_file():
@@ -294,6 +298,8 @@ def init_actor_fits(args: Args) -> None:
               ("actor.agent_id", actor.get("agent_id", False), args.agent_id, "--agent-id")]
     if waypoint and args.head == "node":
         wanted.append(("actor.node_hidden", actor.get("node_hidden"), args.node_hidden, "--node-hidden"))
+        wanted.append(("actor.node_manoeuvre", actor.get("node_manoeuvre", False), args.node_manoeuvre,
+                       "--node-manoeuvre"))
     if ekw.get("target_path", 0) not in (0, args.target_path):
         # From 0 load_initial_actor widens the trunk; between two path lengths the columns would not line up.
         wanted.append(("env_kwargs.target_path", ekw["target_path"], args.target_path, "--target-path"))
@@ -355,12 +361,17 @@ class Sizes:
     constrained: dict         # {cost name: limit} of the Lagrangian constraints, in the env's COSTS order
 
 
+def actor_fields(args: Args) -> dict:
+    """The node head's input switches, as the model card's ``actor`` records them."""
+    return dict(node_map=args.node_map, node_manoeuvre=args.node_manoeuvre)
+
+
 def sizes_of(args: Args, env) -> Sizes:
     waypoint = args.action_mode == "waypoint"
     obs, state, u = env.single_observation_space.shape[0], env.single_state_space.shape[0], args.n_uavs
     return Sizes(B=args.num_envs, U=u, T=args.num_steps, obs=obs, state=state,
                  critic_in=state + u if args.algo == "mappo" else obs, actions=len(env.lattice) if waypoint else 2,
-                 feats=N_OWN_FEATURES + u - 1 + (N_MAP_FEATURES if args.node_map else 0), waypoint=waypoint,
+                 feats=n_node_features(u, actor_fields(args)), waypoint=waypoint,
                  head=args.head if waypoint else "gaussian",
                  constrained=constraint_limits(args))
 
@@ -444,7 +455,8 @@ class Agents:
         c = self.env.config
         return torch.from_numpy(node_features(flat_obs, self.env.lattice, self.sizes.U, r2=c.r2, v_max=c.v_max,
                                               delta=c.delta, d_safe1=c.d_safe1,
-                                              map_offsets=self.env.map_offsets if self.args.node_map else None))
+                                              map_offsets=self.env.map_offsets if self.args.node_map else None,
+                                              w_max=c.w_max if self.args.node_manoeuvre else None))
 
     def actor_in(self, flat_obs: np.ndarray):
         """The actor's input rows: observations (agent-minor rows, as (..., U, D) flattened) and, with
@@ -682,7 +694,7 @@ class Progress:
 def model_card(args: Args, s: Sizes, env, env_kwargs: dict, shield) -> dict:
     """What an actor needs besides its weights: its spec, the env it was trained on, the shield it acted under."""
     actor_spec = dict(head=s.head, hidden=args.hidden, node_hidden=args.node_hidden, n_feat=s.feats, obs_dim=s.obs,
-                      n_actions=s.actions, agent_id=args.agent_id, node_map=args.node_map)
+                      n_actions=s.actions, agent_id=args.agent_id, **actor_fields(args))
     return {"algorithm": args.algo, "actor": actor_spec, "env_kwargs": env_kwargs, "env_id": env.metadata["name"],
             "separation_shield": None if shield is None else shield.min_distance,
             "shield_end_margin": None if shield is None else shield.end_margin,

@@ -77,6 +77,9 @@ RECIPES: dict[str, dict] = {
 #: the suite").
 #: ``3uav-suite-path``: ``3uav-suite`` with the target's path predicted over the planner's five slots in the
 #: observation (the env's ``target_path=5``): the DP planner plans on that path; ``3uav-suite`` sees one slot.
+#: ``3uav-suite-manoeuvre``: ``3uav-suite`` with the node head also reading the manoeuvre to each node (whether one
+#: exists, its length, the heading the UAV arrives with): the heading at a node sets what the next slot reaches,
+#: which the planner's search weighs and the node's position alone does not tell.
 MAPPO_RECIPES: dict[str, dict] = {
     "3uav-suite": dict(
         algo="mappo", n_uavs=3, num_envs=16, action_mode="waypoint", head="node", node_map=True, map_size=16,
@@ -94,3 +97,4 @@ MAPPO_RECIPES: dict[str, dict] = {
     ),
 }
 MAPPO_RECIPES["3uav-suite-path"] = {**MAPPO_RECIPES["3uav-suite"], "target_path": 5}
+MAPPO_RECIPES["3uav-suite-manoeuvre"] = {**MAPPO_RECIPES["3uav-suite"], "node_manoeuvre": True}

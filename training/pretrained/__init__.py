@@ -31,12 +31,14 @@ import numpy as np
 
 from baselines.policies import parallel_env_of
 from covert_env.angles import wrap_angle
+from covert_env.dynamics import solve_manoeuvre
 from covert_env.envs.observation import field_slices
 from training.runs import read_run_json, run_env
 from training.shield import SeparationShield
 
-__all__ = ["node_features", "map_at", "NumpyActor", "LearnedPolicy", "load_learned", "check_weights", "PRETRAINED_DIR",
-           "pretrained_names", "N_OWN_FEATURES", "N_MAP_FEATURES"]
+__all__ = ["node_features", "map_at", "manoeuvre_features", "n_node_features", "NumpyActor", "LearnedPolicy",
+           "load_learned", "check_weights", "PRETRAINED_DIR", "pretrained_names", "N_OWN_FEATURES", "N_MAP_FEATURES",
+           "N_MANOEUVRE_FEATURES"]
 
 PRETRAINED_DIR = Path(__file__).resolve().parent
 #: The largest weights file :func:`load_learned` unpacks (bytes of arrays): the shipped actor holds well under 1 MB.
@@ -45,12 +47,21 @@ MAX_WEIGHTS_BYTES = 256 * 2**20
 N_OWN_FEATURES = 9
 #: The map features :func:`node_features` adds with ``map_offsets`` (the actor's ``node_map``).
 N_MAP_FEATURES = 2
+#: The manoeuvre features :func:`node_features` adds with ``w_max`` (the actor's ``node_manoeuvre``).
+N_MANOEUVRE_FEATURES = 6
+
+
+def n_node_features(n_uavs: int, spec: dict) -> int:
+    """How many features per node the node head of an actor ``spec`` (its ``node_map``, ``node_manoeuvre``) reads
+    with ``n_uavs`` UAVs: the width of ``node_feat.weight``."""
+    return (N_OWN_FEATURES + n_uavs - 1 + (N_MAP_FEATURES if spec.get("node_map") else 0)
+            + (N_MANOEUVRE_FEATURES if spec.get("node_manoeuvre") else 0))
 
 
 def node_features(obs: np.ndarray, lattice: np.ndarray, n_uavs: int, *, r2: float, v_max: float, delta: float,
-                  d_safe1: float, map_offsets: np.ndarray | None = None) -> np.ndarray:
+                  d_safe1: float, map_offsets: np.ndarray | None = None, w_max: float | None = None) -> np.ndarray:
     """Per-node inputs of the actor's waypoint head, ``(..., L, 9 + U - 1)`` float32 from observations ``(..., D)``
-    (``(..., L, 11 + U - 1)`` with ``map_offsets``).
+    (2 more with ``map_offsets``, then 6 more with ``w_max``: :func:`n_node_features`).
 
     Everything is read from the agent's own observation (no extra information): its offset from the target
     (field ``offset``, in units of R2), the target's displacement to the next slot (``target_displacement``, in units
@@ -70,7 +81,11 @@ def node_features(obs: np.ndarray, lattice: np.ndarray, n_uavs: int, *, r2: floa
       the winding family), each at the nearest cell (0 outside the map). The shadows are in the observation's
       maps; these two inputs put them under the node the head scores, so that a team whose mask allows shadowed
       nodes (``mask_mode="kinematic"``) can learn to avoid them (docs/decisions.md, "Learned teams across the
-      suite").
+      suite");
+    * with ``w_max`` (the turn-rate limit W_max, rad/s): the manoeuvre that flies the UAV there
+      (:func:`manoeuvre_features`): whether one exists, its length and the heading the UAV arrives with. The
+      heading at a node sets which nodes the next slot reaches, so these inputs tell two nodes apart by what they
+      leave open (docs/decisions.md, "The arrival heading in the node head").
     """
     obs = np.asarray(obs, np.float32)
     # The fields read here come before the maps, so the maps' size (0 here) does not move them.
@@ -96,7 +111,44 @@ def node_features(obs: np.ndarray, lattice: np.ndarray, n_uavs: int, *, r2: floa
         grid = obs[..., field_slices(n_uavs, size)["map_next"]]           # (..., S * S)
         feats.append(map_at(grid, cells, p)[..., None])
         feats.append(map_at(grid, cells, 0.5 * (p + o[..., None, :]))[..., None])
+    if w_max is not None:
+        # The target turns by about twice its displacement's bearing in its own frame (a chord of an arc of
+        # constant curvature); the manoeuvre needs it, since a node 100 m away moves 28 m under a 0.28 rad turn.
+        turn = 2.0 * np.arctan2(disp[..., 1], disp[..., 0])
+        c, s = np.cos(turn)[..., None], np.sin(turn)[..., None]
+        start = np.concatenate([c * o[..., :1] + s * o[..., 1:], -s * o[..., :1] + c * o[..., 1:]], axis=-1)
+        heading = obs[..., field["heading"]]
+        feats.append(manoeuvre_features(start * r2, np.arctan2(heading[..., 1], heading[..., 0]) - turn, p * r2,
+                                        v_max=v_max, w_max=w_max, delta=delta))
     return np.concatenate(feats, axis=-1).astype(np.float32)
+
+
+def manoeuvre_features(start: np.ndarray, theta: np.ndarray, nodes: np.ndarray, *, v_max: float, w_max: float,
+                       delta: float) -> np.ndarray:
+    """The turn-then-straight manoeuvre (eqs. 22-29) from each start pose to each node, as node-head inputs:
+    ``(..., L, 6)`` float32 from starts ``(..., 2)`` m, headings ``(...)`` rad and nodes ``(L, 2)`` m, all in the
+    target's frame (the actor's frame: the heading is the observation's, relative to the target's).
+
+    Per node: 1 if a manoeuvre reaches it in one slot, else 0; its length as a fraction of ``v_max * delta``
+    (eq. 15); the cos and sin of the heading it arrives with; the cos and sin of that heading relative to the
+    node's bearing from the target (1, 0: flying straight away from the target). Where no manoeuvre reaches the
+    node, the straight line's length and heading stand in (the env then flies its best effort, or masks it).
+    Only nodes within ``v_max * delta`` of the start are solved: no manoeuvre reaches farther."""
+    start, theta, nodes = np.asarray(start, np.float64), np.asarray(theta, np.float64), np.asarray(nodes, np.float64)
+    rel = nodes - start[..., None, :]                                                 # (..., L, 2)
+    length = np.hypot(rel[..., 0], rel[..., 1])
+    head = np.arctan2(rel[..., 1], rel[..., 0])
+    ok = np.zeros(length.shape, bool)
+    near = np.nonzero(length <= v_max * delta)
+    if len(near[0]):
+        th = np.broadcast_to(theta[..., None], length.shape)[near]
+        m = solve_manoeuvre(start[near[:-1]], th, nodes[near[-1]], v_max=v_max, w_max=w_max, delta=delta)
+        ok[near] = m.feasible
+        length[near] = np.where(m.feasible, m.length, length[near])
+        head[near] = np.where(m.feasible, m.heading_after, head[near])
+    rel_head = head - np.arctan2(nodes[:, 1], nodes[:, 0])
+    return np.stack([ok, length / (v_max * delta), np.cos(head), np.sin(head), np.cos(rel_head), np.sin(rel_head)],
+                    axis=-1).astype(np.float32)
 
 
 def map_at(grid: np.ndarray, cells: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -192,7 +244,8 @@ class LearnedPolicy:
             c = par.config
             feats = node_features(obs, par.lattice, len(par.possible_agents), r2=c.r2, v_max=c.v_max, delta=c.delta,
                                   d_safe1=c.d_safe1,
-                                  map_offsets=par.map_offsets if self.actor.spec.get("node_map") else None
+                                  map_offsets=par.map_offsets if self.actor.spec.get("node_map") else None,
+                                  w_max=c.w_max if self.actor.spec.get("node_manoeuvre") else None
                                   ) if self.actor.head == "node" else None
             logits = self.actor.logits(x, feats)
             mask = np.stack([par.action_mask(a) for a in agents]).astype(bool)
@@ -232,8 +285,9 @@ def load_learned(path: str | Path) -> LearnedPolicy:
             raise KeyError("actor.head / env_kwargs.action_mode")
     except (KeyError, TypeError) as exc:
         raise ValueError(f"{card_path}: not a model card of training.mappo ({exc})") from None
-    if not isinstance(spec.get("node_map", False), bool):
-        raise ValueError(f"{card_path}: actor.node_map must be true or false, got {spec['node_map']!r}")
+    for key in ("node_map", "node_manoeuvre"):
+        if not isinstance(spec.get(key, False), bool):
+            raise ValueError(f"{card_path}: actor.{key} must be true or false, got {spec[key]!r}")
     if not isinstance(card.get("viability_shield", False), bool):
         raise ValueError(f"{card_path}: viability_shield must be true or false, got {card['viability_shield']!r}")
     if not isinstance(card.get("shield_lookahead", False), bool):
@@ -306,11 +360,12 @@ def check_weights(params: dict[str, np.ndarray], spec: dict, *, obs_dim: int, n_
         need(f"trunk.{i}.bias", (w.shape[0],), f"trunk.{i}.weight has {w.shape[0]} outputs")
         width, why = w.shape[0], f"trunk.{i} has {w.shape[0]} outputs"
     if spec["head"] == "node":
-        n_feat = N_OWN_FEATURES + n_uavs - 1 + (N_MAP_FEATURES if spec.get("node_map") else 0)
+        n_feat = n_node_features(n_uavs, spec)
         h = need("node_obs.weight", (None, width), why).shape[0]
         need("node_obs.bias", (h,), f"node_obs.weight has {h} outputs")
+        extra = [w for w, key in (("the map's", "node_map"), ("the manoeuvre's", "node_manoeuvre")) if spec.get(key)]
         need("node_feat.weight", (h, n_feat), f"{n_feat} node features for {n_uavs} UAVs"
-             + (" with the map's" if spec.get("node_map") else "") + f", node_obs has {h} outputs")
+             + (" with " + " and ".join(extra) if extra else "") + f", node_obs has {h} outputs")
         need("node_out.weight", (1, h), f"node_obs has {h} outputs")
         need("node_out.bias", (1,), "one logit per node")
     else:
