@@ -4,6 +4,7 @@ import json
 
 import numpy as np
 import pytest
+from _extras import needs
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -80,9 +81,8 @@ def test_the_arrival_heading_is_the_one_the_env_flies():
 def test_card_and_loader_know_node_manoeuvre(tmp_path):
     """``--node-manoeuvre`` trains an actor whose card records it; the loader checks the weights against it and the
     field's type; --init-actor from such a run needs the flag; the flag needs the node head."""
-    pytest.importorskip("torch")
-    for module in ("tensorboard", "tqdm"):
-        pytest.importorskip(module)
+    for module in ("torch", "tensorboard", "tqdm"):
+        needs(module)
     from training import mappo
 
     run = mappo.main(["--num-envs", "2", "--num-steps", "8", "--num-minibatches", "2", "--update-epochs", "1",
