@@ -3,6 +3,7 @@ and resume, the Lagrangian flag, and the numpy actor of training.pretrained agai
 
 import json
 import math
+import re
 
 import numpy as np
 import pytest
@@ -13,7 +14,14 @@ torch = needs("torch")
 from covert_env.envs.observation import field_slices  # noqa: E402
 from training import mappo  # noqa: E402
 from training.mappo_networks import Actor  # noqa: E402
-from training.pretrained import N_MAP_FEATURES, N_OWN_FEATURES, NumpyActor, load_learned, node_features  # noqa: E402
+from training.pretrained import (  # noqa: E402
+    N_MAP_FEATURES,
+    N_OWN_FEATURES,
+    NumpyActor,
+    load_learned,
+    node_features,
+    pretrained_names,
+)
 
 TINY = ["--num-envs", "2", "--num-steps", "8", "--num-minibatches", "2", "--update-epochs", "1", "--hidden", "16",
         "--node-hidden", "8", "--max-cycles", "5", "--checkpoint-every", "16", "--progress-bar", "false"]
@@ -334,7 +342,8 @@ def test_init_actor_starts_as_the_loaded_team_and_warmup_keeps_it(tmp_path, trai
 
 def test_init_actor_and_lambda_max_errors_name_the_value(tmp_path, train_extra):
     for bad, pattern in ((dict(init_actor="pretrained:nope"), r"--init-actor pretrained:nope: no shipped weights "
-                                                               r"'nope'; the shipped are \['mappo'\]"),
+                                                               r"'nope'; the shipped are "
+                                                               + re.escape(str(pretrained_names()))),
                          (dict(init_actor=str(tmp_path / "none.npz")), r"no such file or folder"),
                          (dict(actor_warmup_updates=3), r"--actor-warmup-updates 3: needs --init-actor"),
                          (dict(lambda_max=2.0), r"--lambda-max 2: bounds the Lagrange multipliers, but no "
