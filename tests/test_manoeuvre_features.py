@@ -10,6 +10,7 @@ from hypothesis import strategies as st
 
 import covert_env
 from covert_env.dynamics import solve_manoeuvre
+from covert_env.envs.observation import field_slices
 from training.pretrained import (
     N_MANOEUVRE_FEATURES,
     N_MAP_FEATURES,
@@ -59,6 +60,7 @@ def test_the_arrival_heading_is_the_one_the_env_flies():
     env = covert_env.parallel_env(task="paper-3uav", action_mode="waypoint", mask_mode="kinematic")
     obs, _ = env.reset(seed=3)
     c, rng = env.config, np.random.default_rng(0)
+    heading = field_slices(3, env.map_size)["heading"]          # cos, sin of own heading minus the target's
     errors, agree = [], []
     for _ in range(20):
         o = np.stack([obs[a] for a in env.agents])
@@ -71,7 +73,7 @@ def test_the_arrival_heading_is_the_one_the_env_flies():
                 agree.append(((f[i, :, 0] > 0.5) == masks[i]).mean())
         obs, *_ = env.step(acts)
         for i, a in enumerate(env.agents):
-            h = obs[a][2:4]                      # the observation's heading: cos, sin relative to the target's
+            h = obs[a][heading]
             want = f[i, acts[a], 2:4]
             errors.append(abs(np.angle(complex(*h) / complex(*want))))
     env.close()
