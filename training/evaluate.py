@@ -25,6 +25,8 @@ Policy specs (``SPEC[@MODE]``, MODE = ``unicycle`` or ``waypoint`` picks the env
 * ``mappo:PATH``: a MAPPO/IPPO actor of :mod:`training.mappo` -- a run folder (its ``model.npz`` and
   ``model.json``) or ``NAME.npz`` with its card ``NAME.json``; ``pretrained:NAME``: the weights shipped in
   ``training/pretrained/`` (``pretrained:mappo``). Both run in numpy (no torch, no pickle): :mod:`training.pretrained`.
+  A card of ``kind`` ``dp-cost`` is the planner with a learned cost (:mod:`training.pretrained.learned_cost`,
+  ``pretrained:dp-cost``, a :mod:`training.dp_cost` run folder): it plans for any team size in waypoint mode.
 * **Training seeds as one row**: ``PREFIX:PATH1,PATH2,...`` (``mappo:``, ``sb3:``, ``rllib:``) evaluates each run
   of a recipe (one per training seed) on the same scenes and reports them as one row: the metrics' mean ± std
   over seeds x episodes, and the reward's IQM with its 95 % stratified-bootstrap interval over seeds x scenes
@@ -70,6 +72,7 @@ from covert_env.families import FAMILIES, HELD_OUT_SEEDS
 from covert_env.scene_set import SceneSet
 from covert_env.tasks import get_task
 from training.pretrained import PRETRAINED_DIR, load_learned, pretrained_names
+from training.pretrained.learned_cost import is_cost_planner_card, load_cost_planner
 from training.rllib_ppo import load_policy as load_rllib
 from training.runs import read_run_json, run_env
 from training.stats import iqm, probability_of_improvement, stratified_bootstrap_ci
@@ -273,10 +276,15 @@ def load_policy(spec: str, n_uavs: int, *, trust_checkpoint: bool = False) -> tu
         else:
             path = Path(spec[len("mappo:"):])
         try:
-            pol = load_learned(path)
+            if is_cost_planner_card(path):
+                # The planner with a learned cost: it plans for any team size, like the planners.
+                pol = load_cost_planner(path)
+                settings = {"n_uavs": n_uavs, **pol.env_settings}
+            else:
+                pol = load_learned(path)
+                settings = dict(pol.env_settings)
         except ValueError as exc:
             raise UsageError(f"{spec}: {exc}") from None
-        settings = dict(pol.env_settings)
     elif spec.startswith("rllib:"):
         if not (Path(spec[6:]) / "learner_group").is_dir():
             raise UsageError(f"no RLlib checkpoint at {spec[6:]} (expected a training.rllib_ppo checkpoint folder)")

@@ -73,14 +73,20 @@ class PathChecker:
         return PathContext(tp, ph)
 
     def penalties(self, m: Manoeuvre, ok: np.ndarray, ctx: PathContext | None, j: int, n_stages: int,
-                  soft: bool):
+                  soft: bool, path_cost=None):
         """``check_path`` for manoeuvres into stage j: clears ``ok`` where the path fails; returns extra costs.
 
         Strict (the DP proper): LoS and zone along the path are constraints. Soft (fallback level 2):
-        only LoS counts, as a penalty equal to losing the visible zone at that stage.
+        only LoS counts, as a penalty equal to losing the visible zone at that stage. ``path_cost`` (per stage,
+        without ``check_path``): LoS along the path is a cost, ``path_cost[j]`` times :meth:`blocked_share`.
         """
         if ctx is None or not ok.any():
             return 0.0
+        if path_cost is not None and not soft:
+            extra = np.zeros(len(ok))
+            if path_cost[j] > 0:
+                extra[ok] = path_cost[j] * self.blocked_share(m, ok, ctx, j)
+            return extra
         if not soft:
             ok[ok] = self.keeps_sight(m, ok, ctx, j)
             return 0.0
@@ -115,6 +121,25 @@ class PathChecker:
             else:
                 good[idx] = line_of_sight(self.terrain, pts[idx, i], c.altitude, tq[i], tol=SAFE_LOS_TOLERANCE)
         return good
+
+    def blocked_share(self, m: Manoeuvre, ok: np.ndarray, ctx: PathContext, j: int) -> np.ndarray:
+        """For feasible manoeuvres into stage j: the share of the samples after the start (the end included)
+        with LoS to the target at the same instant blocked -- the env's ``cost_los_path`` on the planner's
+        samples and its predicted target (docs/decisions.md#a-learned-cost-in-the-planners-search)."""
+        c = self.config
+        p = self.path_samples
+        pts = take_manoeuvres(m, np.flatnonzero(ok)).points(p)[:, 1:]
+        tq = ctx.target[j, 1:]
+        blocked = np.zeros(len(pts))
+        # One pass per instant (the target, hence the shadows, differ), each over every manoeuvre at once.
+        for i in range(p - 1):
+            if c.h_min is None:
+                shadow = self.shadow(tq[i])
+                if shadow is not None:
+                    blocked += shapely.intersects_xy(shadow, pts[:, i, 0], pts[:, i, 1])
+            else:
+                blocked += ~line_of_sight(self.terrain, pts[:, i], c.altitude, tq[i], tol=SAFE_LOS_TOLERANCE)
+        return blocked / (p - 1)
 
     def shadow(self, q):
         """Prepared union of the shadows at target position q, grown by 1 cm (None: no shadow); cached."""

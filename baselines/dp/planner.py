@@ -65,6 +65,12 @@ class DPPlanner:
             (docs/decisions.md#prediction-los).
         road: the target's road; with a margin, the possible positions are the road within arc length
             ``los_margin`` of the prediction; None: the disk of radius ``los_margin`` (eq. 5's gamma(q)).
+        path_cost: None (the paper: LoS only at slot times), or per stage j = 1..N a cost (m of eq. 18's g) per
+            unit of blocked path share: a manoeuvre into stage j costs ``path_cost[j-1]`` times the share of its
+            ``path_samples`` (after the start, the end included) without LoS to the predicted target at the same
+            instant (:meth:`~baselines.dp.path_checks.PathChecker.blocked_share`). The env's reward charges
+            ``los_path_penalty * reward_scale`` = 100 m per slot fully blocked; the learned planner
+            (:mod:`training.dp_cost`) fits these numbers. Not with ``check_path`` (that makes LoS a constraint).
 
     Example::
 
@@ -79,7 +85,7 @@ class DPPlanner:
     def __init__(self, config: Config, terrain: Terrain, *, shadow_aware: bool = True,
                  heading: str = "inherited", heading_bins: int = 16, check_path: bool = False,
                  path_samples: int = 21, prune: bool = True, cache_size: int | None = None,
-                 los_margin: float | None = None, road: Road | None = None):
+                 los_margin: float | None = None, road: Road | None = None, path_cost=None):
         if not isinstance(config, Config):
             raise TypeError(f"DPPlanner: config must be a covert_env.Config, got {type(config).__name__}")
         if not isinstance(terrain, Terrain):
@@ -100,6 +106,7 @@ class DPPlanner:
         if isinstance(los_margin, bool) or not isinstance(los_margin, (int, float, np.integer, np.floating)) \
                 or not (np.isfinite(los_margin) and los_margin >= 0):
             raise ValueError(f"DPPlanner: los_margin must be None or a finite number >= 0 (m), got {los_margin!r}")
+        self.path_cost = _check_path_cost(path_cost, config.horizon, check_path)
         self.config = config
         self.terrain = terrain
         self.los_margin = float(los_margin)
@@ -120,11 +127,18 @@ class DPPlanner:
         self.recursion = ForwardRecursion(config, self.lattice, self.table, self.cache, self.paths)
 
     @property
+    def samples_path(self) -> bool:
+        """Whether plans read the target between slot times (``check_path`` or a ``path_cost``)."""
+        return self.check_path or self.path_cost is not None
+
+    @property
     def name(self) -> str:
         """A label such as ``dp-aware-inherited`` or ``dp-blind-binned16-path``."""
         h = "inherited" if self.heading == "inherited" else f"binned{self.heading_bins}"
         margin = f"-los{self.los_margin:g}" if self.los_margin > 0 else ""
-        return f"dp-{'aware' if self.shadow_aware else 'blind'}-{h}{'-path' if self.check_path else ''}{margin}"
+        cost = "-pathcost" if self.path_cost is not None else ""
+        return (f"dp-{'aware' if self.shadow_aware else 'blind'}-{h}{'-path' if self.check_path else ''}{cost}"
+                f"{margin}")
 
     def visible_nodes(self, q, phi) -> np.ndarray:
         """(L,) bool: lattice nodes at target pose (q, phi) with a clear line of sight (cached): to q (eq. 10),
@@ -192,7 +206,7 @@ class DPPlanner:
         L = len(self.lattice)
         removed = np.zeros((u, n, L), bool) if blocked is None else np.asarray(blocked, bool).reshape(u, n, L)
         stages = [self.cache.stage(tq[j], tphi[j]) for j in range(1, n + 1)]
-        path = self.paths.context(tq, tphi, target_path) if self.check_path else None
+        path = self.paths.context(tq, tphi, target_path) if self.samples_path else None
         counts = SolveCounts()
         alpha0 = np.atleast_1d(uav_target_angle(start, tq[0, :2], tphi[0]))
         d0 = np.atleast_1d(uav_target_distance(start, tq[0, :2]))
@@ -202,7 +216,8 @@ class DPPlanner:
         penalties = [np.where(removed[:, j], np.inf, base[j]) if any_removed else base[j] for j in range(n)]
         avoid = None if avoid is None else np.asarray(avoid, float).reshape(u, -1, n, np.shape(avoid)[-2], 2)
         prob = Problem(start=start, theta=theta0, alpha0=alpha0, d0=d0, stages=stages, penalties=penalties, path=path,
-                       avoid=avoid, avoid_dist=float(avoid_dist))
+                       avoid=avoid, avoid_dist=float(avoid_dist),
+                       path_cost=None if self.path_cost is None else self.path_cost[:n])
 
         outcomes, strict = self._strict_outcomes(prob, base, u, n, counts, self._resumed_layers(resume, u))
         todo = [i for i in range(u) if outcomes[i] is None]
@@ -280,6 +295,26 @@ class DPPlanner:
         if t0 < 1 or len(plans) != u or any(p.layers is None or len(p.layers) < t0 for p in plans):
             return None
         return batch_layers([p.layers for p in plans], t0)
+
+
+def _check_path_cost(path_cost, horizon: int, check_path: bool) -> np.ndarray | None:
+    """``path_cost`` as a read-only (N,) float array (None stays None); errors name the value and the range."""
+    if path_cost is None:
+        return None
+    if check_path:
+        raise ValueError("DPPlanner: path_cost does not go with check_path (check_path makes LoS along the path a "
+                         "constraint; path_cost makes it a cost)")
+    try:
+        w = np.array(path_cost, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        raise ValueError(f"DPPlanner: path_cost must be None or {horizon} numbers (one per stage), got "
+                         f"{path_cost!r}") from None
+    if np.shape(path_cost) != (horizon,) or not np.all(np.isfinite(w)) or np.any(w < 0) or np.any(w > 1e6):
+        raise ValueError(f"DPPlanner: path_cost must be None or {horizon} numbers in [0, 1e6] (one per stage of "
+                         f"config.horizon = {horizon}; m of stage cost per unit of blocked path share), got "
+                         f"{path_cost!r}")
+    w.setflags(write=False)
+    return w
 
 
 def _single_move(node: int, stage, n: int) -> dict:

@@ -78,7 +78,8 @@ class _FirstSlot:
         self.tp = np.asarray(target_phi, float).reshape(-1)
         self.stage = pl.cache.stage(self.tq[1], self.tp[1])
         self.allowed_nodes = pl.allowed_nodes(self.tq[1], self.tp[1])
-        self.sight = pl.paths.context(self.tq, self.tp, target_path) if pl.check_path else None
+        self.sight = pl.paths.context(self.tq, self.tp, target_path) if pl.samples_path else None
+        self.path_cost = pl.path_cost
         self.min_distance = team.separation
         self.n_samples = team.path_samples
         self.own = [q.path_points(self.n_samples)[0][1:] for q in plans]   # sample 0 (the current position) is fixed
@@ -105,7 +106,10 @@ class _FirstSlot:
         d0 = uav_target_distance(self.xy[i], self.tq[0, :2])
         g = transition_costs(c, m, ok, a0, d0, st.alpha, st.d)
         good = self.allowed_nodes.copy()
-        if self.sight is not None and ok.any():
+        if self.path_cost is not None and ok.any():
+            # The planner's learned path cost ranks the moves as it ranks them in the DP.
+            g[ok] += self.path_cost[0] * self.paths.blocked_share(m, ok, self.sight, 0)
+        elif self.sight is not None and ok.any():
             clear = np.zeros(len(ok), bool)
             clear[ok] = self.paths.keeps_sight(m, ok, self.sight, 0, zone=False)
             good &= clear

@@ -75,6 +75,7 @@ class Problem:
     avoid: np.ndarray | None = None   # (U, M, N, P, 2) other UAVs' planned path samples (NaN: none)
     avoid_dist: float = 0.0           # required distance to them at every sample
     path_soft: bool = False           # check_path in fallback: blocked LoS along a path is a penalty, zone ignored
+    path_cost: np.ndarray | None = None   # (N,) cost per unit of blocked path share per stage (planner's path_cost)
     #: per stage, path_checks.record_circles of ``avoid`` (computed once, used by every round's solve)
     avoid_circles: dict = field(default_factory=dict, repr=False)
 

@@ -158,7 +158,7 @@ class DPTeamPlanner:
         tq = np.vstack([engine.target_xyz[None], q_pred])
         tp = np.concatenate([[engine.target_phi], phi_pred])
         path = None
-        if self.planner.check_path:
+        if self.planner.samples_path:
             f = np.linspace(0.0, 1.0, self.planner.path_samples)
             path = engine.track.predict_between(engine.k, len(phi_pred), f)   # the prediction, not the truth
         return self.plan(engine.uav_xy, engine.uav_theta, tq, tp, target_path=path)

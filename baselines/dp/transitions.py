@@ -45,7 +45,7 @@ def solve_transitions(config: Config, paths: PathChecker, prob: Problem, j: int,
     ok = np.asarray(m.feasible, bool).reshape(-1).copy()
     if paths.clearance.active and ok.any():
         ok[ok] = paths.clearance.manoeuvres_clear(m, ok)           # eq. 3 along the path
-    extra = paths.penalties(m, ok, prob.path, j, len(prob.stages), prob.path_soft)
+    extra = paths.penalties(m, ok, prob.path, j, len(prob.stages), prob.path_soft, prob.path_cost)
     if prob.avoid is not None and ok.any():
         if j not in prob.avoid_circles:
             prob.avoid_circles[j] = record_circles(prob.avoid, prob.avoid_dist, j)

@@ -1,0 +1,90 @@
+"""The planner with a learned cost: the paper's DP whose stage cost also charges LoS lost along each manoeuvre.
+
+The paper's planner (:mod:`baselines.dp`) checks line of sight at slot times only; the env's reward also charges
+the share of the flown path without it (``reward_los_path``). :mod:`training.dp_cost` learns, from episodes on the
+training scenes, how much the planner's search should charge for that share at each stage of its horizon
+(``path_cost``, :class:`~baselines.dp.DPPlanner`), with the cross-entropy method. The team is the paper's
+decentralised DP in every other respect: the same nodes, negotiation and safety layer, so it keeps the same
+constraints (docs/decisions.md#a-learned-cost-in-the-planners-search).
+
+Files (no pickle: ``np.load(..., allow_pickle=False)`` and JSON):
+
+* ``NAME.npz``: ``path_cost``, (N,) float, m of stage cost per unit of blocked path share, stage 1 first;
+* ``NAME.json``: the card: ``kind`` = ``"dp-cost"``, ``planner`` (``heading``), the learned parameters, how they
+  were learned, and for shipped files the scores.
+"""
+
+from __future__ import annotations
+
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from baselines.policies import DPPolicy
+from covert_env.config import MAX_HORIZON
+from training.runs import read_run_json
+
+__all__ = ["KIND", "is_cost_planner_card", "load_cost_planner", "path_cost_of"]
+
+KIND = "dp-cost"
+"""The ``kind`` field of a learned-cost planner's card (MAPPO cards have none)."""
+#: Largest weights file read (bytes unpacked): the file holds N <= MAX_HORIZON numbers.
+MAX_BYTES = 1 << 16
+
+
+def path_cost_of(scale: float, decay: float, horizon: int) -> np.ndarray:
+    """The learned parametrisation: ``path_cost[j] = 100 * scale * decay ** j`` (m), j = 0 .. horizon - 1.
+
+    100 m of stage cost is what the env's default reward charges for a slot flown entirely without LoS
+    (``los_path_penalty * reward_scale``), so ``scale = 1, decay = 1`` charges in the planner what the reward
+    charges; ``decay < 1`` trusts the prediction's later stages less.
+    """
+    return 100.0 * float(scale) * float(decay) ** np.arange(horizon)
+
+
+def is_cost_planner_card(npz: Path) -> bool:
+    """Whether the card beside ``npz`` (``NAME.json``, or ``model.json`` in a run folder) is a learned-cost
+    planner's."""
+    npz = Path(npz)
+    card = (npz / "model.json") if npz.is_dir() else npz.with_suffix(".json")
+    if not card.is_file():
+        return False
+    data = read_run_json(card, "model card")
+    return isinstance(data, dict) and data.get("kind") == KIND
+
+
+def load_cost_planner(path: str | Path) -> DPPolicy:
+    """The :class:`~baselines.policies.DPPolicy` of a learned-cost planner's weights (``NAME.npz`` with its card, or
+    a :mod:`training.dp_cost` run folder). ``env_settings`` gives the env it acts in (waypoint mode). Raises
+    ``ValueError`` naming the file and the field on anything malformed."""
+    path = Path(path)
+    npz = path / "model.npz" if path.is_dir() else path
+    card_path = npz.with_suffix(".json")
+    if not npz.is_file() or not card_path.is_file():
+        raise ValueError(f"no learned-cost planner at {path} (expected NAME.npz with NAME.json beside it, or a "
+                         "training.dp_cost run folder holding model.npz and model.json)")
+    card = read_run_json(card_path, "model card")
+    if not isinstance(card, dict) or card.get("kind") != KIND:
+        raise ValueError(f"{card_path}: not the card of a learned-cost planner (kind must be {KIND!r})")
+    planner = card.get("planner", {})
+    heading = planner.get("heading") if isinstance(planner, dict) else None
+    if heading not in ("inherited", "binned"):
+        raise ValueError(f"{card_path}: planner.heading must be 'inherited' or 'binned', got {heading!r}")
+    try:
+        with zipfile.ZipFile(npz) as z:
+            unpacked = sum(info.file_size for info in z.infolist())
+        if unpacked > MAX_BYTES:
+            raise ValueError(f"{unpacked} bytes of arrays, more than the {MAX_BYTES} this file may hold")
+        with np.load(npz, allow_pickle=False) as data:
+            w = np.asarray(data["path_cost"], dtype=float)
+    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile) as exc:
+        raise ValueError(f"{npz}: not a learned-cost planner's weights ({exc})") from None
+    if w.ndim != 1 or not 1 <= len(w) <= MAX_HORIZON or not np.all(np.isfinite(w)) or np.any(w < 0) \
+            or np.any(w > 1e6):
+        raise ValueError(f"{npz}: path_cost must be 1 to {MAX_HORIZON} numbers in [0, 1e6], got {w.tolist()!r}")
+    pol = DPPolicy(heading=heading, path_cost=w)
+    pol.name = f"learned-cost({npz.stem if npz.stem != 'model' else npz.parent.name})"
+    pol.env_settings = {"action_mode": "waypoint"}
+    pol.card = card
+    return pol
