@@ -131,14 +131,21 @@ class PathChecker:
         pts = take_manoeuvres(m, np.flatnonzero(ok)).points(p)[:, 1:]
         tq = ctx.target[j, 1:]
         blocked = np.zeros(len(pts))
+        reach = c.r2 + c.shadow_margin - 2 * SHADOW_MARGIN
         # One pass per instant (the target, hence the shadows, differ), each over every manoeuvre at once.
         for i in range(p - 1):
-            if c.h_min is None:
-                shadow = self.shadow(tq[i])
-                if shadow is not None:
-                    blocked += shapely.intersects_xy(shadow, pts[:, i, 0], pts[:, i, 1])
-            else:
+            if c.h_min is not None:
                 blocked += ~line_of_sight(self.terrain, pts[:, i], c.altitude, tq[i], tol=SAFE_LOS_TOLERANCE)
+                continue
+            # The shadows are the blocked set within their radius; a path that bows out beyond it is checked
+            # exactly there.
+            far = np.hypot(pts[:, i, 0] - tq[i, 0], pts[:, i, 1] - tq[i, 1]) > reach
+            shadow = self.shadow(tq[i])
+            if shadow is not None:
+                near = np.flatnonzero(~far)
+                blocked[near] += shapely.intersects_xy(shadow, pts[near, i, 0], pts[near, i, 1])
+            if far.any():
+                blocked[far] += ~line_of_sight(self.terrain, pts[far, i], c.altitude, tq[i], tol=SAFE_LOS_TOLERANCE)
         return blocked / (p - 1)
 
     def shadow(self, q):
