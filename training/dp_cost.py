@@ -105,6 +105,14 @@ def episode_return(task: str, scene_seed: int, path_cost: list[float] | None, he
             "blocked_path_share": float(np.mean([m["blocked_path_share"] for m in res["metrics"]]))}
 
 
+def training_budget(training: dict, tasks: list[str]) -> dict:
+    """The episodes and env steps (team slots) a run of these ``training`` settings (the card's block) flies: every
+    iteration, the population and the paper's planner on ``scenes_per_task`` scenes of every task."""
+    episodes = training["iterations"] * (training["population"] + 1) * len(tasks) * training["scenes_per_task"]
+    n_slots = get_task(tasks[0]).config().n_slots
+    return {"episodes": episodes, "env_steps": episodes * n_slots}
+
+
 def _check(args: Args) -> None:
     for name, (lo, hi) in RANGES.items():
         v = getattr(args, name)
@@ -194,6 +202,7 @@ def main(argv: list[str] | None = None) -> Path:
                          "scenes_per_task": args.scenes_per_task,
                          "wall_time_minutes": round((time.perf_counter() - t_start) / 60, 1), "jobs": args.jobs},
             "commit": _commit(), "env_kwargs": {"action_mode": "waypoint"}}
+    card["training"].update(training_budget(card["training"], tasks))
     (run_dir / "model.json").write_text(json.dumps(card, indent=2) + "\n")
     print(f"path_cost {np.round(w, 1).tolist()} (scale {mean[0]:.3f}, decay {mean[1]:.3f}) -> {run_dir}")
     return run_dir

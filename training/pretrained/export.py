@@ -32,6 +32,7 @@ import covert_env
 from training.benchmark import CONSTRAINTS
 from training.evaluate import HELD_OUT_OFFSET, evaluate, summarise
 from training.pretrained import PRETRAINED_DIR, load_learned
+from training.pretrained.learned_cost import KIND, is_cost_planner_card, load_cost_planner
 from training.stats import iqm, stratified_bootstrap_ci
 
 __all__ = ["export", "main", "rescore", "suite_rows"]
@@ -55,6 +56,8 @@ def export(run: Path, name: str, episodes: int = 20, out_dir: Path = PRETRAINED_
     run = Path(run)
     meta = json.loads((run / "model.json").read_text())
     args = json.loads((run / "args.json").read_text())
+    if meta.get("kind") == KIND:
+        return _export_cost_planner(run, meta, args, name, episodes, out_dir, progress, note, suite)
     summary = json.loads((run / "train_summary.json").read_text()) if (run / "train_summary.json").exists() else {}
     with np.load(run / "model.npz", allow_pickle=False) as data:
         weights = {k: data[k].astype(np.float32) for k in data.files if k.startswith("actor.")}
@@ -76,6 +79,35 @@ def export(run: Path, name: str, episodes: int = 20, out_dir: Path = PRETRAINED_
             "training": {**summary, "run": run.name, "commit": training_commit or "unknown"}, "note": note}
     card_path = npz.with_suffix(".json")
     card_path.write_text(json.dumps(card, indent=2))          # the loader needs it to score the weights
+    card["scores"] = _scores(npz, name, episodes, progress)
+    card["constraints"] = _constraints(card["scores"])
+    if suite is not None:
+        card["suite"] = suite
+    card_path.write_text(json.dumps(card, indent=2))
+    return card_path
+
+
+def _export_cost_planner(run: Path, meta: dict, args: dict, name: str, episodes: int, out_dir: Path, progress: bool,
+                         note: str, suite: dict | None) -> Path:
+    """:func:`export` for a :mod:`training.dp_cost` run: the learned ``path_cost`` and a card of ``kind`` dp-cost
+    (the same ``scores``, ``constraints`` and ``suite`` blocks as a MAPPO card)."""
+    from covert_env.envs.vector import CovertSensingVectorEnv
+    from training.dp_cost import training_budget
+
+    with np.load(run / "model.npz", allow_pickle=False) as data:
+        w = np.asarray(data["path_cost"], dtype=float)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    npz = out_dir / f"{name}.npz"
+    np.savez(npz, path_cost=w)
+    card = {"name": name, **{k: meta[k] for k in ("kind", "planner", "params", "path_cost", "algorithm",
+                                                  "env_kwargs")},
+            "train_tasks": meta["tasks"], "env_id": CovertSensingVectorEnv.metadata["name"],
+            "covert_env_version": covert_env.__version__, "commit": _commit(),
+            "recipe": {k: v for k, v in args.items() if k not in ("runs_dir", "progress_bar")},
+            "training": {**meta["training"], **training_budget(meta["training"], meta["tasks"]), "run": run.name,
+                         "commit": meta.get("commit", "unknown")}, "note": note}
+    card_path = npz.with_suffix(".json")
+    card_path.write_text(json.dumps(card, indent=2))
     card["scores"] = _scores(npz, name, episodes, progress)
     card["constraints"] = _constraints(card["scores"])
     if suite is not None:
@@ -138,8 +170,13 @@ def rescore(name: str, episodes: int | None = None, out_dir: Path = PRETRAINED_D
 
 def _scores(npz: Path, name: str, episodes: int, progress: bool) -> dict:
     """The card's ``scores``: the harness on held-out scenes 1_000_000 .. + episodes - 1 (module docstring)."""
-    pol = load_learned(npz)
-    rows = evaluate(pol, pol.env_settings, episodes, HELD_OUT_OFFSET, progress=progress, label=name)
+    if is_cost_planner_card(npz):
+        pol = load_cost_planner(npz)
+        settings = {"n_uavs": 3, **pol.env_settings}     # the harness's default team
+    else:
+        pol = load_learned(npz)
+        settings = pol.env_settings
+    rows = evaluate(pol, settings, episodes, HELD_OUT_OFFSET, progress=progress, label=name)
     rewards = np.array([r["reward"] for r in rows])
     point, lo, hi = stratified_bootstrap_ci(rewards[:, None], iqm, reps=5000)
     return {
@@ -153,7 +190,8 @@ def _scores(npz: Path, name: str, episodes: int, progress: bool) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m training.pretrained.export", description=__doc__.split("\n")[0])
-    p.add_argument("run", nargs="?", help="a training.mappo run folder (model.npz, model.json, args.json)")
+    p.add_argument("run", nargs="?", help="a training.mappo or training.dp_cost run folder (model.npz, model.json, "
+                   "args.json)")
     p.add_argument("--rescore", metavar="NAME", help="instead: score the shipped NAME.npz in --out-dir again on the "
                    "current env version and rewrite its card's scores (--episodes: the card's count by default)")
     p.add_argument("--name", default="mappo", help="file stem in training/pretrained/ (pretrained:NAME)")

@@ -1,0 +1,265 @@
+"""The planner with a learned path cost: the blocked share it charges, its DP against a dense reference, the learning
+script and the files it writes (docs/decisions.md#a-learned-cost-in-the-planners-search)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import shapely
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from baselines.dp import DPPlanner
+from baselines.dp.clearance import take_manoeuvres
+from baselines.dp.path_checks import SHADOW_MARGIN
+from baselines.reproduce import HELDOUT_SEED_BASE, make_scenario
+from covert_env import Config, Scenario, Terrain
+from covert_env.angles import wrap_angle
+from covert_env.cost import uav_target_angle, uav_target_distance
+from covert_env.dynamics import solve_manoeuvre
+from covert_env.visibility import line_of_sight
+from covert_env.zone import to_world, zone_lattice
+from training.pretrained.learned_cost import load_cost_planner, path_cost_of
+
+P = 21  # the planner's path samples per slot
+
+
+def _poses(sc: Scenario, k: int, horizon: int):
+    ks = np.arange(k, k + horizon + 1)
+    return sc.track.position(ks), np.asarray(sc.track.heading(ks))
+
+
+def _blocked_share_reference(terrain, config, m, target_samples) -> np.ndarray:
+    """Share of samples 1..P-1 of each manoeuvre without LoS (eq. 6, exact) to the target at the same instant."""
+    pts = m.points(P)[..., 1:, :]
+    out = np.zeros(pts.shape[:-2])
+    for i in range(P - 1):
+        out += ~line_of_sight(terrain, pts[..., i, :].reshape(-1, 2), config.altitude,
+                              target_samples[i]).reshape(out.shape)
+    return out / (P - 1)
+
+
+def _within_margin_of_a_shadow(planner, m, ctx, j, rows) -> np.ndarray:
+    """Whether any sample of these manoeuvres lies within SHADOW_MARGIN (+1 mm) of a shadow's boundary, where the
+    planner's grown shadows call a clear point blocked (conservative by design)."""
+    pts = take_manoeuvres(m, rows).points(P)[:, 1:]
+    near = np.zeros(len(rows), bool)
+    for i in range(P - 1):
+        sh = planner.paths.shadow(ctx.target[j, 1 + i])
+        if sh is not None:
+            near |= shapely.dwithin(sh.boundary, shapely.points(pts[:, i]), SHADOW_MARGIN + 1e-3)
+    return near
+
+
+@settings(max_examples=12, deadline=None)
+@given(scene=st.integers(0, 3), k=st.integers(0, 64), seed=st.integers(0, 2**16))
+def test_blocked_share_is_the_exact_los_along_the_manoeuvre(scene, k, seed):
+    """Property: for random manoeuvres between zone nodes of consecutive stages, the planner's share (shadow union
+    within its radius, exact LoS beyond) equals eq. 6 checked exactly at every sample, except within the shadows'
+    1 cm growth, where it may only call a sample blocked."""
+    c = Config()
+    sc = Scenario.paper(c, 1) if scene == 0 else make_scenario("random", HELDOUT_SEED_BASE + scene, 1, c)
+    pl = DPPlanner(c, sc.terrain, path_cost=[100.0] * c.horizon)
+    tq, tp = _poses(sc, k, c.horizon)
+    ctx = pl.paths.context(tq, tp, None)
+    a_stage, b_stage = pl.cache.stage(tq[1], tp[1]), pl.cache.stage(tq[2], tp[2])
+    rng = np.random.default_rng(seed)
+    a, b = rng.integers(0, len(pl.lattice), (2, 300))
+    m = solve_manoeuvre(a_stage.xy[a], rng.uniform(-np.pi, np.pi, 300), b_stage.xy[b], v_max=c.v_max, w_max=c.w_max,
+                        delta=c.delta)
+    ok = np.asarray(m.feasible, bool).copy()
+    share = pl.paths.blocked_share(m, ok, ctx, 1)
+    ref = _blocked_share_reference(sc.terrain, c, take_manoeuvres(m, np.flatnonzero(ok)), ctx.target[1, 1:])
+    differ = np.flatnonzero(share != ref)
+    assert np.all(share[differ] > ref[differ])
+    assert np.all(_within_margin_of_a_shadow(pl, m, ctx, 1, np.flatnonzero(ok)[differ]))
+
+
+def test_blocked_share_counts_what_a_building_hides():
+    """A share that can fail: on the paper scene at a slot where shadows cross the zone (slot 57), some manoeuvres
+    lose LoS for part of the slot and the share is a multiple of 1/(P-1) between 0 and 1."""
+    c = Config()
+    sc = Scenario.paper(c, 1)
+    pl = DPPlanner(c, sc.terrain, path_cost=[100.0] * c.horizon)
+    tq, tp = _poses(sc, 56, c.horizon)          # slot 57: 181 of 577 zone nodes in shadow
+    ctx = pl.paths.context(tq, tp, None)
+    a_stage, b_stage = pl.cache.stage(tq[1], tp[1]), pl.cache.stage(tq[2], tp[2])
+    a, b = np.meshgrid(np.arange(0, len(pl.lattice), 7), np.arange(0, len(pl.lattice), 7))
+    m = solve_manoeuvre(a_stage.xy[a.ravel()], np.full(a.size, tp[1]), b_stage.xy[b.ravel()], v_max=c.v_max,
+                        w_max=c.w_max, delta=c.delta)
+    ok = np.asarray(m.feasible, bool).copy()
+    share = pl.paths.blocked_share(m, ok, ctx, 1)
+    assert 0 < np.count_nonzero(share) < len(share)
+    assert share.max() <= 1.0
+    np.testing.assert_allclose(share * (P - 1), np.round(share * (P - 1)), atol=1e-9)
+
+
+def _dense_path_cost_dp(config, terrain, start, theta, tq, tphi, allowed, path_cost, ctx):
+    """Reference: eqs. 19-21 with the inherited heading, every transition solved exactly, each charged
+    ``path_cost[j]`` times its exact blocked share (LoS checked at every sample with eq. 6)."""
+    c = config
+    lat = zone_lattice(c)
+    n = len(tq) - 1
+    xy = [to_world(lat, tq[j, :2], tphi[j]) for j in range(1, n + 1)]
+    al = [uav_target_angle(xy[j - 1], tq[j, :2], tphi[j]) for j in range(1, n + 1)]
+    dd = [uav_target_distance(xy[j - 1], tq[j, :2]) for j in range(1, n + 1)]
+    a0, d0 = uav_target_angle(start, tq[0, :2], tphi[0]), uav_target_distance(start, tq[0, :2])
+
+    def g(length, aa, ab, da, db):
+        return length - c.lam * (c.eta * np.abs(wrap_angle(ab - aa)) + np.abs(db - da))
+
+    cols = np.flatnonzero(allowed[0])
+    m = solve_manoeuvre(start, theta, xy[0][cols], v_max=c.v_max, w_max=c.w_max, delta=c.delta)
+    ok = np.asarray(m.feasible)
+    cost = g(m.length, a0, al[0][cols], d0, dd[0][cols])
+    cost = cost + path_cost[0] * _blocked_share_reference(terrain, c, m, ctx.target[0, 1:])
+    node, th, J = cols[ok], np.asarray(m.heading_after)[ok], cost[ok]
+    hist = node[:, None]
+    for j in range(1, n):
+        cols = np.flatnonzero(allowed[j])
+        m = solve_manoeuvre(xy[j - 1][node][:, None], th[:, None], xy[j][cols][None], v_max=c.v_max,
+                            w_max=c.w_max, delta=c.delta)
+        cost = J[:, None] + g(m.length, al[j - 1][node][:, None], al[j][cols][None], dd[j - 1][node][:, None],
+                              dd[j][cols][None])
+        feas = np.asarray(m.feasible)
+        share = np.zeros(feas.shape)
+        r, q = np.nonzero(feas)
+        share[r, q] = _blocked_share_reference(terrain, c, take_manoeuvres(m, np.flatnonzero(feas.ravel())),
+                                               ctx.target[j, 1:])
+        cost = cost + path_cost[j] * share
+        head = np.asarray(m.heading_after)[r, q]
+        order = np.lexsort((cost[r, q], cols[q]))
+        first = np.concatenate([[True], cols[q][order][1:] != cols[q][order][:-1]])
+        w = order[first]
+        node, th, J = cols[q[w]], head[w], cost[r[w], q[w]]
+        hist = np.column_stack([hist[r[w]], node])
+    best = int(np.argmin(J))
+    return float(J[best]), hist[best]
+
+
+def test_path_cost_dp_equals_the_dense_reference_and_changes_the_plan():
+    """At a 4 m grid, N = 3, on the paper scene at a slot where shadows cross the zone, from several starts and at
+    several weights: the pruned planner with a path cost returns the dense DP's plan (the cost enters the exact
+    transition costs, and the table's bounds stay lower bounds), and at some of them that plan differs from the
+    paper's."""
+    c = Config(grid_step=4.0, horizon=3)
+    sc = Scenario.paper(c, 1)
+    tq, tp = _poses(sc, 56, c.horizon)
+    plain = DPPlanner(c, sc.terrain)
+    changed = 0
+    for offset in ([-60.0, -12.0], [-50.0, 10.0], [-70.0, 0.0]):
+        start = to_world(np.array([offset]), tq[0, :2], tp[0])[0]
+        theta = float(tp[0])
+        base = plain.plan(start, theta, tq, tp)
+        for scale in (0.1, 0.3, 1.0, 4.0):
+            w = path_cost_of(scale, 0.5, c.horizon)
+            pl = DPPlanner(c, sc.terrain, path_cost=w)
+            allowed = np.stack([pl.allowed_nodes(tq[j], tp[j]) for j in range(1, c.horizon + 1)])
+            ctx = pl.paths.context(tq, tp, None)
+            ref, ref_nodes = _dense_path_cost_dp(c, sc.terrain, start, theta, tq, tp, allowed, w, ctx)
+            plan = pl.plan(start, theta, tq, tp)
+            assert plan.status == "ok" and base.status == "ok"
+            np.testing.assert_array_equal(plan.nodes, ref_nodes)
+            changed += not np.array_equal(plan.nodes, base.nodes)
+    assert changed >= 2
+
+
+def test_zero_path_cost_is_the_paper_planner():
+    c = Config()
+    sc = Scenario.paper(c, 1)
+    tq, tp = _poses(sc, 56, c.horizon)
+    start = to_world(np.array([[-60.0, -12.0]]), tq[0, :2], tp[0])[0]
+    a = DPPlanner(c, sc.terrain).plan(start, float(tp[0]), tq, tp)
+    b = DPPlanner(c, sc.terrain, path_cost=[0.0] * c.horizon).plan(start, float(tp[0]), tq, tp)
+    assert a.status == "ok"
+    np.testing.assert_array_equal(a.nodes, b.nodes)
+    assert a.cost == b.cost
+
+
+@pytest.mark.parametrize("bad, match", [([1.0, 2.0], "5 numbers"), ([-1.0] * 5, r"\[0, 1e6\]"),
+                                        ([np.nan] * 5, r"\[0, 1e6\]"), ("abc", "path_cost"),
+                                        ([[1.0] * 5], "5 numbers")])
+def test_path_cost_rejects_bad_values(bad, match):
+    with pytest.raises(ValueError, match=match):
+        DPPlanner(Config(), Terrain(()), path_cost=bad)
+
+
+def test_path_cost_does_not_go_with_check_path():
+    with pytest.raises(ValueError, match="check_path"):
+        DPPlanner(Config(), Terrain(()), path_cost=[1.0] * 5, check_path=True)
+
+
+def test_path_cost_of_is_the_documented_parametrisation():
+    np.testing.assert_allclose(path_cost_of(2.0, 0.5, 4), [200.0, 100.0, 50.0, 25.0])
+    np.testing.assert_allclose(path_cost_of(1.0, 1.0, 3), [100.0, 100.0, 100.0])
+
+
+# ---------------------------------------------------------------------- files
+def _write(tmp_path, card: dict, **arrays):
+    npz = tmp_path / "w.npz"
+    np.savez(npz, **arrays)
+    (tmp_path / "w.json").write_text(json.dumps(card))
+    return npz
+
+
+GOOD = {"kind": "dp-cost", "planner": {"heading": "inherited"}}
+
+
+def test_loader_builds_the_planner_with_the_files_path_cost(tmp_path):
+    pol = load_cost_planner(_write(tmp_path, GOOD, path_cost=np.array([50.0, 25.0, 0.0, 0.0, 0.0])))
+    assert pol.kw["path_cost"].tolist() == [50.0, 25.0, 0.0, 0.0, 0.0]
+    assert pol.env_settings == {"action_mode": "waypoint"}
+
+
+@pytest.mark.parametrize("card, arrays, match", [
+    ({**GOOD, "kind": "mappo"}, {"path_cost": np.ones(5)}, "kind"),
+    ({**GOOD, "planner": {"heading": "sideways"}}, {"path_cost": np.ones(5)}, "planner.heading"),
+    (GOOD, {"other": np.ones(5)}, "path_cost"),
+    (GOOD, {"path_cost": -np.ones(5)}, r"\[0, 1e6\]"),
+    (GOOD, {"path_cost": np.ones((2, 5))}, r"\[0, 1e6\]"),
+    (GOOD, {"path_cost": np.array([object()], dtype=object)}, "allow_pickle|weights"),
+])
+def test_loader_names_the_file_and_the_field(tmp_path, card, arrays, match):
+    npz = _write(tmp_path, card, **arrays)
+    with pytest.raises(ValueError, match=match):
+        load_cost_planner(npz)
+
+
+def test_loader_rejects_a_missing_card(tmp_path):
+    np.savez(tmp_path / "w.npz", path_cost=np.ones(5))
+    with pytest.raises(ValueError, match="NAME.json"):
+        load_cost_planner(tmp_path / "w.npz")
+
+
+# ---------------------------------------------------------------------- the learning script
+def test_dp_cost_learns_and_writes_a_loadable_run(tmp_path):
+    """One iteration of two candidates on one scene of one task: the curve compares with the paper's planner on the
+    same episode, the card's path_cost is the mean's, and the harness loads the run folder as a planner."""
+    from training.dp_cost import main
+    from training.evaluate import load_policy
+
+    run = main(["--iterations", "1", "--population", "2", "--elite", "1", "--tasks", "paper-3uav", "--jobs", "1",
+                "--runs-dir", str(tmp_path), "--run-name", "r", "--progress-bar", "false"])
+    line = json.loads((run / "curve.jsonl").read_text().splitlines()[0])
+    assert line["candidates"][0] == [1.0, 0.5]                   # the first candidate is the mean
+    assert line["gain_of_mean"] == pytest.approx(line["returns"][0] - line["paper_return"])
+    card = json.loads((run / "model.json").read_text())
+    assert card["kind"] == "dp-cost" and card["training"]["episodes"] == 3
+    assert card["training"]["env_steps"] == 3 * 70
+    pol, settings = load_policy(f"mappo:{run}", 3)
+    assert settings == {"n_uavs": 3, "action_mode": "waypoint"}
+    np.testing.assert_allclose(pol.kw["path_cost"], path_cost_of(*card["params"].values(), 5))
+
+
+@pytest.mark.parametrize("argv, match", [(["--elite", "7"], "elite"), (["--tasks", "nowhere-3uav"], "tasks"),
+                                         (["--tasks", "paper-3uav,paper-1uav"], "team size"),
+                                         (["--init-decay", "1.5"], "init-decay"), (["--heading", "sideways"],
+                                                                                   "heading")])
+def test_dp_cost_rejects_bad_flags(tmp_path, argv, match, capsys):
+    from training.dp_cost import main
+
+    with pytest.raises(SystemExit) as exc:
+        main([*argv, "--runs-dir", str(tmp_path)])
+    assert match in str(exc.value) + capsys.readouterr().err
