@@ -251,12 +251,15 @@ def test_dp_cost_learns_and_writes_a_loadable_run(tmp_path):
     pol, settings = load_policy(f"mappo:{run}", 3)
     assert settings == {"n_uavs": 3, "action_mode": "waypoint"}
     np.testing.assert_allclose(pol.kw["path_cost"], path_cost_of(*card["params"].values(), 5))
+    fig = main(["--plot", str(run), "--plot-out", str(tmp_path / "c.png")])
+    assert fig.stat().st_size > 10_000
 
 
 @pytest.mark.parametrize("argv, match", [(["--elite", "7"], "elite"), (["--tasks", "nowhere-3uav"], "tasks"),
                                          (["--tasks", "paper-3uav,paper-1uav"], "team size"),
-                                         (["--init-decay", "1.5"], "init-decay"), (["--heading", "sideways"],
-                                                                                   "heading")])
+                                         (["--init-decay", "1.5"], "init-decay"),
+                                         (["--heading", "sideways"], "heading"),
+                                         (["--plot", "nowhere"], "no curve.jsonl")])
 def test_dp_cost_rejects_bad_flags(tmp_path, argv, match, capsys):
     from training.dp_cost import main
 

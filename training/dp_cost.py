@@ -1,6 +1,7 @@
 """Learn the planner's cost for LoS lost along the path, with the cross-entropy method (CEM), across the suite.
 
     python -m training.dp_cost --seed 0                 # 8 three-UAV tasks, ~25 min on 2 cores
+    python -m training.dp_cost --plot runs/a,runs/b --plot-out outputs/dp_cost_curves.png
     covert-env evaluate --task downtown-3uav --policies dp runs/<run>   # as mappo:runs/<run> or pretrained:dp-cost
 
 The paper's planner keeps LoS at slot times; between them it is blind, and the env's reward charges the share of the
@@ -84,6 +85,11 @@ class Args:
     """run folder name (default {tasks}__dp_cost__{seed}__{time})"""
     progress_bar: bool = True
     """a progress bar on stderr"""
+    plot: str = ""
+    """instead of learning: comma-separated run folders whose curves (return over the paper's planner, blocked path
+    share, per iteration) are drawn into plot_out"""
+    plot_out: str = "outputs/dp_cost_curves.png"
+    """the figure of --plot"""
 
 
 RANGES = {"iterations": (1, 100), "population": (2, 100), "elite": (1, 100), "scenes_per_task": (1, 100),
@@ -147,8 +153,54 @@ def _commit() -> str:
         return "unknown"
 
 
+def plot_curves(runs: list[Path], out: Path) -> Path:
+    """Per iteration and run: the mean return over the paper's planner on the iteration's episodes (the current
+    mean's and the best candidate's) and the blocked path share of both planners."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import matplotlib.ticker  # noqa: F401  (matplotlib.ticker.MaxNLocator below)
+
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 3.6))
+    for i, run in enumerate(runs):
+        rows = [json.loads(x) for x in (Path(run) / "curve.jsonl").read_text().splitlines() if x.strip()]
+        if not rows:
+            raise ValueError(f"{run}/curve.jsonl: no iterations")
+        it = [r["iteration"] for r in rows]
+        col = f"C{i}"
+        a1.plot(it, [r["gain_of_mean"] for r in rows], "o-", color=col, label=f"{Path(run).name}: the mean")
+        a1.plot(it, [max(r["returns"]) - r["paper_return"] for r in rows], "x:", color=col, label="best candidate")
+        a2.plot(it, [r["mean_path_share"] for r in rows], "o-", color=col, label=f"{Path(run).name}: the mean")
+        a2.plot(it, [r["paper_path_share"] for r in rows], "s--", color=col, alpha=0.6, label="paper's planner")
+    a1.axhline(0.0, color="k", lw=0.8)
+    a1.set_ylabel("return over the paper's planner\n(per UAV, same episodes)")
+    a2.set_ylabel("blocked share of the path")
+    for ax in (a1, a2):
+        ax.xaxis.set_major_locator(matplotlib.ticker.MaxNLocator(integer=True))
+        ax.set_xlabel("CEM iteration")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out
+
+
 def main(argv: list[str] | None = None) -> Path:
     args = parse_args(Args, argv, description=__doc__.split("\n\n")[0])
+    if args.plot:
+        runs = [Path(r) for r in args.plot.split(",")]
+        missing = [str(r) for r in runs if not (r / "curve.jsonl").is_file()]
+        if missing:
+            raise SystemExit(f"--plot: no curve.jsonl in {', '.join(missing)}")
+        try:
+            out = plot_curves(runs, Path(args.plot_out))
+        except (ValueError, OSError) as exc:
+            raise SystemExit(f"--plot: {exc}") from None
+        print(f"wrote {out}")
+        return out
     _check(args)
     tasks = args.tasks.split(",")
     horizon = get_task(tasks[0]).config().horizon
