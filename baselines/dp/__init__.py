@@ -76,6 +76,12 @@ loser's plan stays valid but may not be its constrained optimum.
 in the zone of eq. 4 around the target at that instant and outside its shadows (eqs. 8-9, exact within
 R2 of the target, grown by 1 cm): a line-of-sight guarantee between slot times.
 
+``path_cost`` (per stage, m of stage cost) instead makes LoS along the manoeuvre a cost: a transition into stage
+j pays ``path_cost[j-1]`` times the share of its samples without LoS to the predicted target at the same instant.
+The extra cost is non-negative, so the table's bounds stay lower bounds and the recursion stays exact (tested
+against the dense DP). :mod:`training.dp_cost` learns the numbers
+(docs/decisions.md#a-learned-cost-in-the-planners-search).
+
 ## When the visible zone is empty or unreachable
 
 The planner never raises for lack of a plan. In order:
