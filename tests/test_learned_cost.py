@@ -266,3 +266,11 @@ def test_dp_cost_rejects_bad_flags(tmp_path, argv, match, capsys):
     with pytest.raises(SystemExit) as exc:
         main([*argv, "--runs-dir", str(tmp_path)])
     assert match in str(exc.value) + capsys.readouterr().err
+
+
+def test_a_planner_card_is_not_an_actor_to_start_from(tmp_path):
+    from training import mappo
+
+    npz = _write(tmp_path, GOOD, path_cost=np.ones(5))
+    with pytest.raises(ValueError, match="planner with a learned cost .* not an actor"):
+        mappo.init_actor_fits(mappo.Args(init_actor=str(npz), action_mode="waypoint", head="node"))

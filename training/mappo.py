@@ -285,10 +285,16 @@ def init_actor_fits(args: Args) -> None:
         card_path = path / "model.json" if path.is_dir() else path.with_suffix(".json")
     try:
         card = json.loads(card_path.read_text())
-        actor, ekw = dict(card["actor"]), dict(card["env_kwargs"])
+        if isinstance(card, dict) and card.get("kind") == "dp-cost":
+            actor = ekw = None
+        else:
+            actor, ekw = dict(card["actor"]), dict(card["env_kwargs"])
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise ValueError(f"--init-actor {spec}: no readable model card at {card_path} ({type(exc).__name__}: "
                          f"{exc})") from None
+    if actor is None:
+        raise ValueError(f"--init-actor {spec}: {card_path} is a planner with a learned cost (training.dp_cost), "
+                         "not an actor; give a MAPPO actor (pretrained:mappo, a run folder)")
     waypoint = args.action_mode == "waypoint"
     wanted = [("env_kwargs.action_mode", ekw.get("action_mode"), args.action_mode, "--action-mode"),
               ("env_kwargs.n_uavs", ekw.get("n_uavs"), args.n_uavs, "--n-uavs"),
