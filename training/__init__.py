@@ -9,6 +9,8 @@
 * :mod:`training.mappo` -- MAPPO / IPPO on the batched ``covert_env.vector_env`` (the ``3uav-mappo`` recipe),
   with the separation shield of :mod:`training.shield`; :mod:`training.curves` draws its learning curves.
 * :mod:`training.pretrained` -- the learned actor in numpy and the shipped weights (``pretrained:mappo``).
+* :mod:`training.dp_cost` -- the DP planner's cost for LoS lost along the path, learned with CEM
+  (``pretrained:dp-cost``, loaded by :mod:`training.pretrained.learned_cost`).
 * :mod:`training.evaluate` -- ``python -m training.evaluate``: every policy on the same held-out seeds,
   scored by :func:`covert_env.metrics.episode_metrics`, written to ``leaderboard.md`` / ``.csv`` and a figure;
   :mod:`training.stats` gives its IQM and bootstrap intervals.
