@@ -51,8 +51,8 @@ def _commit() -> str:
 
 def export(run: Path, name: str, episodes: int = 20, out_dir: Path = PRETRAINED_DIR, progress: bool = True,
            training_commit: str = "", note: str = "", suite: dict | None = None) -> Path:
-    """Write ``out_dir/NAME.npz`` and ``out_dir/NAME.json`` from a :mod:`training.mappo` run folder; returns the
-    card's path."""
+    """Write ``out_dir/NAME.npz`` and ``out_dir/NAME.json`` from a :mod:`training.mappo` or :mod:`training.dp_cost`
+    run folder; returns the card's path."""
     run = Path(run)
     meta = json.loads((run / "model.json").read_text())
     args = json.loads((run / "args.json").read_text())
@@ -77,14 +77,7 @@ def export(run: Path, name: str, episodes: int = 20, out_dir: Path = PRETRAINED_
             "covert_env_version": covert_env.__version__, "commit": _commit(),
             "recipe": {k: v for k, v in args.items() if k not in ("card", "resume", "runs_dir")},
             "training": {**summary, "run": run.name, "commit": training_commit or "unknown"}, "note": note}
-    card_path = npz.with_suffix(".json")
-    card_path.write_text(json.dumps(card, indent=2))          # the loader needs it to score the weights
-    card["scores"] = _scores(npz, name, episodes, progress)
-    card["constraints"] = _constraints(card["scores"])
-    if suite is not None:
-        card["suite"] = suite
-    card_path.write_text(json.dumps(card, indent=2))
-    return card_path
+    return _scored_card(npz, card, episodes, progress, suite)
 
 
 def _export_cost_planner(run: Path, meta: dict, args: dict, name: str, episodes: int, out_dir: Path, progress: bool,
@@ -106,9 +99,15 @@ def _export_cost_planner(run: Path, meta: dict, args: dict, name: str, episodes:
             "recipe": {k: v for k, v in args.items() if k not in ("runs_dir", "progress_bar")},
             "training": {**meta["training"], **training_budget(meta["training"], meta["tasks"]), "run": run.name,
                          "commit": meta.get("commit", "unknown")}, "note": note}
+    return _scored_card(npz, card, episodes, progress, suite)
+
+
+def _scored_card(npz: Path, card: dict, episodes: int, progress: bool, suite: dict | None) -> Path:
+    """Write ``card`` beside ``npz`` (the loader needs it to score the weights), then again with its ``scores``,
+    ``constraints`` and ``suite``; returns its path."""
     card_path = npz.with_suffix(".json")
     card_path.write_text(json.dumps(card, indent=2))
-    card["scores"] = _scores(npz, name, episodes, progress)
+    card["scores"] = _scores(npz, card["name"], episodes, progress)
     card["constraints"] = _constraints(card["scores"])
     if suite is not None:
         card["suite"] = suite
