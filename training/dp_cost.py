@@ -220,6 +220,7 @@ def main(argv: list[str] | None = None) -> Path:
         bar = tqdm(total=total, desc="dp_cost episodes", file=sys.stderr, mininterval=1.0 if sys.stderr.isatty()
                    else 30.0)
     t_start = time.perf_counter()
+    commit = _commit()                  # the code that learns, read before it runs
     curve = open(run_dir / "curve.jsonl", "w")
     for it in range(args.iterations):
         cands = np.clip(mean + std * rng.standard_normal((args.population, 2)), lo, hi)
@@ -253,7 +254,7 @@ def main(argv: list[str] | None = None) -> Path:
             "training": {"iterations": args.iterations, "population": args.population, "elite": args.elite,
                          "scenes_per_task": args.scenes_per_task,
                          "wall_time_minutes": round((time.perf_counter() - t_start) / 60, 1), "jobs": args.jobs},
-            "commit": _commit(), "env_kwargs": {"action_mode": "waypoint"}}
+            "commit": commit, "env_kwargs": {"action_mode": "waypoint"}}
     card["training"].update(training_budget(card["training"], tasks))
     (run_dir / "model.json").write_text(json.dumps(card, indent=2) + "\n")
     print(f"path_cost {np.round(w, 1).tolist()} (scale {mean[0]:.3f}, decay {mean[1]:.3f}) -> {run_dir}")
