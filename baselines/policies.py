@@ -154,6 +154,8 @@ class DPPolicy(Policy):
             Only on targets without prediction error (the planner's possible targets lie on the road).
         path_cost: None (the paper), or a cost per stage on LoS blocked along the manoeuvre
             (:class:`~baselines.dp.DPPlanner`'s ``path_cost``; the learned planner fits it).
+        separated_continuation: the team's one-slot look-ahead past plans that end after the slot flown
+            (:class:`~baselines.dp.DPTeamPlanner`); off for the paper's planner.
 
     Waypoint mode acts with the planned node indices (exact). Unicycle mode flies :func:`arc_action` toward
     the planned first waypoint; read its docstring for what that mapping loses. ``last_plan`` holds the
@@ -162,7 +164,8 @@ class DPPolicy(Policy):
 
     def __init__(self, shadow_aware: bool = True, heading: str = "inherited", heading_bins: int = 16,
                  check_path: bool = False, max_rounds: int = 5, separation_margin: float = 0.5,
-                 horizon: int | None = None, known_slots: int | None = None, path_cost=None):
+                 horizon: int | None = None, known_slots: int | None = None, path_cost=None,
+                 separated_continuation: bool = False):
         for name, v in (("horizon", horizon), ("known_slots", known_slots)):
             if v is not None and (isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1):
                 raise ValueError(f"DPPolicy: {name} must be None or an integer >= 1, got {v!r}")
@@ -179,13 +182,15 @@ class DPPolicy(Policy):
                              "prediction)")
         self.kw = dict(shadow_aware=shadow_aware, heading=heading, heading_bins=heading_bins,
                        check_path=check_path, path_cost=path_cost)
-        self.team_kw = dict(max_rounds=max_rounds, separation_margin=separation_margin)
+        self.team_kw = dict(max_rounds=max_rounds, separation_margin=separation_margin,
+                            separated_continuation=separated_continuation)
         self._world = None
         self.team: DPTeamPlanner | None = None
         self.last_plan: TeamPlan | None = None
         h = "inherited" if heading == "inherited" else f"binned{heading_bins}"
         self.name = (f"dp-{'aware' if shadow_aware else 'blind'}-{h}{'-path' if check_path else ''}"
                      f"{'' if path_cost is None else '-pathcost'}"
+                     f"{'-continuation' if separated_continuation else ''}"
                      f"{'' if horizon is None else f'-horizon{horizon}'}"
                      f"{'' if known_slots is None else f'-known{known_slots}'}")
 

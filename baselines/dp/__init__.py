@@ -130,7 +130,8 @@ every node pair. None of this depends on the UAV, so a team and successive repla
 
 * :mod:`~baselines.dp.planner` -- :class:`DPPlanner`: one UAV (or a batch of independent UAVs), fallbacks.
 * :mod:`~baselines.dp.team` -- :class:`DPTeamPlanner`: the negotiation; :mod:`~baselines.dp.safety`: the
-  safety layer for the slot that is flown.
+  safety layer for the slot that is flown; :mod:`~baselines.dp.continuation`: the optional one-slot look-ahead
+  past plans of depth 1.
 * :mod:`~baselines.dp.recursion` -- the forward recursion (eqs. 19-21) and backtracking;
   :mod:`~baselines.dp.selection` -- which transitions are solved exactly; :mod:`~baselines.dp.transitions`
   -- exact transition costs (eq. 18); :mod:`~baselines.dp.states` -- DP layers.

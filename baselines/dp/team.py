@@ -7,6 +7,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from baselines.dp.continuation import secure_continuations
 from baselines.dp.plan import TeamPlan
 from baselines.dp.planner import DPPlanner
 from baselines.dp.safety import secure_first_moves
@@ -19,8 +20,10 @@ __all__ = ["Conflict", "DPTeamPlanner", "WORK_COUNTERS", "extrapolate_target"]
 #: What :attr:`DPTeamPlanner.stats` counts per team replan. With U UAVs and R = ``max_rounds``:
 #: ``dp_calls`` (batched DP runs) <= 1 + R; ``uav_plans`` (UAV plans inside them) <= U + R (U - 1);
 #: ``conflict_checks`` (pairs of plans compared) <= (1 + R + 1) U (U - 1) / 2; ``safety_orders`` <= U;
-#: ``safety_solves`` (one-slot candidate sets, L manoeuvres or best efforts each) <= U. Polynomial in U: O(R U^2).
-WORK_COUNTERS = ("dp_calls", "uav_plans", "conflict_checks", "safety_orders", "safety_solves")
+#: ``safety_solves`` (one-slot candidate sets, L manoeuvres or best efforts each) <= U; with
+#: ``separated_continuation``, ``continuation_solves`` (end poses tested, L manoeuvres each) <= U (1 + L).
+#: Polynomial in U: O(R U^2).
+WORK_COUNTERS = ("dp_calls", "uav_plans", "conflict_checks", "safety_orders", "safety_solves", "continuation_solves")
 
 
 class Conflict(NamedTuple):
@@ -42,15 +45,23 @@ class DPTeamPlanner:
             (:func:`baselines.dp.safety.secure_first_moves`).
         separation_margin: metres added to d_safe1 in the conflict test.
         path_samples: instants per slot at which manoeuvres are compared (21 contains the engine's 11).
+        separated_continuation: also look one slot past every plan that ends after the slot flown, and move
+            its UAV where a separated move remains in the next slot
+            (:func:`baselines.dp.continuation.secure_continuations`). Off by default: the paper's planner, and
+            the suite's reference, plan without it.
     """
 
     def __init__(self, planner: DPPlanner, *, max_rounds: int = 5, separation_margin: float = 0.5,
-                 path_samples: int = 21):
+                 path_samples: int = 21, separated_continuation: bool = False):
+        if not isinstance(separated_continuation, (bool, np.bool_)):
+            raise ValueError(f"DPTeamPlanner: separated_continuation must be True or False, got "
+                             f"{separated_continuation!r}")
         self.planner = planner
         self.config = planner.config
         self.max_rounds = int(max_rounds)
         self.margin = float(separation_margin)
         self.path_samples = int(path_samples)
+        self.separated_continuation = bool(separated_continuation)
         #: Work done by the last :meth:`plan` (the negotiation's cost in U, see :data:`WORK_COUNTERS`).
         self.stats = dict.fromkeys(WORK_COUNTERS, 0)
 
@@ -119,6 +130,10 @@ class DPTeamPlanner:
         if any(c.stage == 0 for c in conflicts):
             plans = secure_first_moves(self, plans, xy=xy, th=th, target_xyz=target_xyz, target_phi=target_phi,
                                        target_path=target_path)
+            conflicts = self.conflicts(plans)
+        if self.separated_continuation:
+            plans = secure_continuations(self, plans, xy=xy, th=th, target_xyz=target_xyz, target_phi=target_phi,
+                                         target_path=target_path)
             conflicts = self.conflicts(plans)
         return TeamPlan(plans=plans, nodes=np.array([p.nodes[0] for p in plans]),
                         waypoints=np.array([p.waypoints[0] for p in plans]),

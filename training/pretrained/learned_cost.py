@@ -10,8 +10,9 @@ constraints (docs/decisions.md#a-learned-cost-in-the-planners-search).
 Files (no pickle: ``np.load(..., allow_pickle=False)`` and JSON):
 
 * ``NAME.npz``: ``path_cost``, (N,) float, m of stage cost per unit of blocked path share, stage 1 first;
-* ``NAME.json``: the card: ``kind`` = ``"dp-cost"``, ``planner`` (``heading``), the learned parameters, how they
-  were learned, and for shipped files the scores.
+* ``NAME.json``: the card: ``kind`` = ``"dp-cost"``, ``planner`` (``heading``, and ``separated_continuation``:
+  the team's look-ahead, off where absent), the learned parameters, how they were learned, and for shipped files
+  the scores.
 """
 
 from __future__ import annotations
@@ -71,6 +72,10 @@ def load_cost_planner(path: str | Path) -> DPPolicy:
     heading = planner.get("heading") if isinstance(planner, dict) else None
     if heading not in ("inherited", "binned"):
         raise ValueError(f"{card_path}: planner.heading must be 'inherited' or 'binned', got {heading!r}")
+    # Cards written before the look-ahead existed fly without it, as they were scored.
+    continuation = planner.get("separated_continuation", False)
+    if not isinstance(continuation, bool):
+        raise ValueError(f"{card_path}: planner.separated_continuation must be true or false, got {continuation!r}")
     try:
         with zipfile.ZipFile(npz) as z:
             unpacked = sum(info.file_size for info in z.infolist())
@@ -83,7 +88,7 @@ def load_cost_planner(path: str | Path) -> DPPolicy:
     if w.ndim != 1 or not 1 <= len(w) <= MAX_HORIZON or not np.all(np.isfinite(w)) or np.any(w < 0) \
             or np.any(w > 1e6):
         raise ValueError(f"{npz}: path_cost must be 1 to {MAX_HORIZON} numbers in [0, 1e6], got {w.tolist()!r}")
-    pol = DPPolicy(heading=heading, path_cost=w)
+    pol = DPPolicy(heading=heading, path_cost=w, separated_continuation=continuation)
     pol.name = f"learned-cost({npz.stem if npz.stem != 'model' else npz.parent.name})"
     pol.env_settings = {"action_mode": "waypoint"}
     pol.card = card

@@ -1,0 +1,115 @@
+"""The team's one-slot look-ahead: a UAV whose plan ends after the slot it flies must end that slot where it can
+still move clear of its teammates in the next one (docs/decisions.md#separated-continuation)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from baselines.dp.lattice import Stage
+from baselines.dp.safety import _clear_of, _FirstSlot, _Move
+from covert_env.dynamics import solve_manoeuvre
+from covert_env.envs.batch import fly_waypoints
+
+__all__ = ["secure_continuations"]
+
+#: Candidate end poses tested per batch (each against every node of the next slot: CHUNK x L manoeuvres).
+CHUNK = 64
+
+
+def secure_continuations(team, plans, *, xy, th, target_xyz, target_phi, target_path=None) -> list:
+    """Replace the first move of every one-stage plan that leaves its UAV without a separated move next slot.
+
+    A plan of depth 1 (``"truncated"``, ``"fallback"`` or ``"safety"``) says nothing about the slot after the one
+    flown, so the negotiation never compares it there. Two UAVs can then end the slot ``d_safe1`` apart but
+    flying at each other, where no pair of next moves keeps eq. 2. For such a UAV i this measures, from the pose
+    its first move ends in, its *room*: over the flyable manoeuvres (eq. 3 along them) to the nodes of the next
+    slot's lattice, the largest smallest distance from each teammate's planned move of that slot (teammates whose
+    plan reaches it), at every sample. If the room is below ``d_safe1 + separation_margin``, i takes instead, among
+    the safety layer's one-slot candidates separated from the teammates' first moves, the one whose end pose has
+    that room: to an allowed node if one has, the lowest stage cost first; if none has it, the one with the most
+    room, if that is more than the plan's (``status="safety"``; flagged if it leaves the allowed nodes). A UAV that
+    reaches no node chooses among the engine's best efforts the same way (flagged).
+
+    Cost: one manoeuvre solve per node of the next slot per depth-1 plan; when its room is short, the same for
+    each of its separated candidates (at most L), in batches of :data:`CHUNK`, stopping at the first that has the
+    room. ``team.stats`` counts ``continuation_solves`` (end poses tested).
+    """
+    tq = np.asarray(target_xyz, float).reshape(-1, 3)
+    tp = np.asarray(target_phi, float).reshape(-1)
+    if len(plans) < 2 or len(tq) < 3 or all(p.depth > 1 for p in plans):
+        return plans
+    plans = list(plans)
+    nxt = team.planner.cache.stage(tq[2], tp[2])
+    n = team.path_samples
+    slot = None
+    for i, plan in enumerate(plans):
+        ahead = [p.path_points(n)[1][1:] for j, p in enumerate(plans) if j != i and p.depth > 1]
+        if plan.depth != 1 or not ahead:
+            continue
+        end_xy, end_th = _end_pose(plan, team.config, n)
+        room = _room(team, nxt, end_xy[None], np.array([end_th]), ahead)[0]
+        if room >= team.separation:
+            continue
+        if slot is None:
+            slot = _FirstSlot(team, plans, xy, th, target_xyz, target_phi, target_path)
+        move = _move_with_room(slot, i, nxt, ahead, room)
+        if move is not None:
+            plans[i] = slot.safety_plan(plan, i, move)
+            slot.own[i] = slot.candidates(i).samples[move.node]
+    return plans
+
+
+def _end_pose(plan, config, n: int) -> tuple[np.ndarray, float]:
+    """Where the plan's first move ends, and the heading there (a best effort flown as the engine flies it)."""
+    if np.isfinite(plan.headings[0]):
+        return plan.waypoints[0], float(plan.headings[0])
+    times = np.linspace(0.0, config.delta, n)
+    path, theta = fly_waypoints(plan.start_xy.reshape(1, 1, 2), np.array([[plan.start_theta]]),
+                                plan.waypoints[0].reshape(1, 1, 2), config, times)[:2]
+    return path[0, 0, -1], float(theta[0, 0])
+
+
+def _room(team, nxt: Stage, end_xy: np.ndarray, end_th: np.ndarray, ahead: list) -> np.ndarray:
+    """(K,) for end poses (K, 2), (K,): the largest, over flyable moves to the nodes of ``nxt``, smallest distance
+    from the teammates' planned samples in ``ahead`` (each (P - 1, 2)); -inf where no move is flyable."""
+    team.stats["continuation_solves"] += len(end_xy)
+    c, clearance = team.config, team.planner.paths.clearance
+    m = solve_manoeuvre(end_xy[:, None], end_th[:, None], nxt.xy[None], v_max=c.v_max, w_max=c.w_max,
+                        delta=c.delta)
+    ok = np.asarray(m.feasible, bool).reshape(-1).copy()
+    if clearance.active:
+        ok &= np.broadcast_to(clearance.clear(nxt.xy)[None], m.feasible.shape).reshape(-1)
+        ok[ok] = clearance.manoeuvres_clear(m, ok)
+    ok = ok.reshape(m.feasible.shape)
+    pts = m.points(n=team.path_samples)[..., 1:, :].reshape(-1, team.path_samples - 1, 2)   # (K L, P - 1, 2)
+    gap = np.min([_clear_of(pts, [a]) for a in ahead], axis=0).reshape(ok.shape)
+    return np.where(ok, gap, -np.inf).max(axis=1)
+
+
+def _move_with_room(slot: _FirstSlot, i: int, nxt: Stage, ahead: list, room: float) -> _Move | None:
+    """UAV i's best separated move whose end pose has the team's separation as :func:`_room`, else the one with
+    the most room if more than ``room``; None otherwise."""
+    cand = slot.candidates(i)
+    others = [slot.own[j] for j in range(len(slot.own)) if j != i]
+    idx = np.flatnonzero(cand.flyable & (_clear_of(cand.samples, others) >= slot.min_distance))
+    idx = idx[np.lexsort((cand.cost[idx], ~cand.allowed[idx]))]            # allowed first, then cheapest
+    best, best_room = None, room
+    for s in range(0, len(idx), CHUNK):
+        k = idx[s:s + CHUNK]
+        r = _room(slot.team, nxt, cand.samples[k, -1], _end_headings(slot, i, cand, k), ahead)
+        if (r >= slot.min_distance).any():
+            best = int(k[int(np.argmax(r >= slot.min_distance))])
+            break
+        if r.max() > best_room:
+            best, best_room = int(k[int(np.argmax(r))]), float(r.max())
+    return None if best is None else _Move(best, bool(not cand.allowed[best]))
+
+
+def _end_headings(slot: _FirstSlot, i: int, cand, k: np.ndarray) -> np.ndarray:
+    """(len(k),) headings at the end of UAV i's candidate moves ``k`` (a best effort's as the engine flies it)."""
+    if not cand.best_effort:
+        return cand.heading[k]
+    times = np.linspace(0.0, slot.config.delta, slot.n_samples)
+    start = np.broadcast_to(slot.xy[i], (1, len(k), 2))
+    theta = np.full((1, len(k)), slot.th[i])
+    return fly_waypoints(start, theta, slot.stage.xy[k][None], slot.config, times)[1][0]
