@@ -22,24 +22,35 @@ SLOT62_XY = [[634.0233611109492, 10.45003234828442], [633.8614853526524, -0.3190
 SLOT62_THETA = [2.050931581627246, 5.388589480474471, 4.063344383545434]
 
 
-@pytest.fixture(scope="module")
-def downtown():
+#: Slot 22 of scene 1,000,001, the same cost flown with heading bins: uav_2's plan of depth 1 ends between its two
+#: teammates, and none of its own moves leaves it room next slot; uav_1 has to make way.
+SLOT22_XY = [[258.45291357888556, 26.242107372115914], [228.4240736878617, 45.380257094574844],
+             [270.14120733921015, 47.29878776035272]]
+SLOT22_THETA = [6.1332912970564495, 4.831905243992068, 5.353099668971478]
+
+
+def _downtown_scene(seed: int) -> Scenario:
     env = CovertSensingParallelEnv(task="downtown-3uav", n_uavs=3, action_mode="waypoint")
-    env.reset(seed=1_000_002, options={"scene_seed": 1_000_002})
+    env.reset(seed=seed, options={"scene_seed": seed})
     sc = env.scenario
     env.close()
     return sc
 
 
-def _plan(sc: Scenario, k: int, xy, th, *, continuation: bool):
+@pytest.fixture(scope="module")
+def downtown():
+    return _downtown_scene(1_000_002)
+
+
+def _plan(sc: Scenario, k: int, xy, th, *, continuation: bool, heading: str = "inherited"):
     c = sc.config
-    planner = DPPlanner(c, sc.terrain, road=sc.track.road, path_cost=SLOT62_COST)
+    planner = DPPlanner(c, sc.terrain, road=sc.track.road, path_cost=SLOT62_COST, heading=heading)
     team = DPTeamPlanner(planner, separated_continuation=continuation)
     q, phi = sc.track.predict(k, c.horizon)
     tq = np.vstack([sc.track.position(k)[None], q])
     tp = np.concatenate([[sc.track.heading(k)], phi])
     path = sc.track.predict_between(k, c.horizon, np.linspace(0.0, 1.0, planner.path_samples))
-    return team, team.plan(np.array(SLOT62_XY), np.array(SLOT62_THETA), tq, tp, target_path=path), tq, tp
+    return team, team.plan(np.array(xy), np.array(th), tq, tp, target_path=path), tq, tp
 
 
 def _rooms(team, plans, tq, tp) -> list[float]:
@@ -73,6 +84,19 @@ def test_a_plan_of_depth_one_ends_where_its_uav_can_still_separate(downtown):
     for i in range(3):
         for j in range(i + 1, 3):
             assert np.hypot(*(pts[i] - pts[j]).T).min() >= lim - 1e-9
+
+
+def test_a_teammate_makes_way_when_no_move_of_its_own_leaves_room():
+    """The sandwich above: uav_2 keeps its move, uav_1 replans its next two slots around uav_2's continuation."""
+    sc = _downtown_scene(1_000_001)
+    team, plain, tq, tp = _plan(sc, 22, SLOT22_XY, SLOT22_THETA, continuation=False, heading="binned")
+    assert [p.depth for p in plain.plans] == [5, 5, 1]
+    assert _rooms(team, plain.plans, tq, tp)[0] < team.separation
+    team, safe, tq, tp = _plan(sc, 22, SLOT22_XY, SLOT22_THETA, continuation=True, heading="binned")
+    assert safe.plans[1].depth >= 2 and not np.array_equal(safe.plans[1].nodes, plain.plans[1].nodes)
+    assert np.array_equal(safe.plans[0].nodes, plain.plans[0].nodes)
+    assert _rooms(team, safe.plans, tq, tp)[0] >= team.separation
+    assert not any(c.stage == 0 for c in team.conflicts(safe.plans))
 
 
 def test_room_is_the_best_separated_move_next_slot():

@@ -3,12 +3,15 @@ still move clear of its teammates in the next one (docs/decisions.md#separated-c
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from baselines.dp.lattice import Stage
-from baselines.dp.safety import _clear_of, _FirstSlot, _Move
+from baselines.dp.safety import _clear_of, _FirstSlot
 from covert_env.dynamics import solve_manoeuvre
 from covert_env.envs.batch import fly_waypoints
+from covert_env.separation import separation
 
 __all__ = ["secure_continuations"]
 
@@ -28,11 +31,13 @@ def secure_continuations(team, plans, *, xy, th, target_xyz, target_phi, target_
     the safety layer's one-slot candidates separated from the teammates' first moves, the one whose end pose has
     that room: to an allowed node if one has, the lowest stage cost first; if none has it, the one with the most
     room, if that is more than the plan's (``status="safety"``; flagged if it leaves the allowed nodes). A UAV that
-    reaches no node chooses among the engine's best efforts the same way (flagged).
+    reaches no node chooses among the engine's best efforts the same way (flagged). If i still lacks the room, a
+    teammate makes way (:func:`_make_way`): it replans its next two slots around one of i's next moves.
 
     Cost: one manoeuvre solve per node of the next slot per depth-1 plan; when its room is short, the same for
     each of its separated candidates (at most L), in batches of :data:`CHUNK`, stopping at the first that has the
-    room. ``team.stats`` counts ``continuation_solves`` (end poses tested).
+    room; then at most U - 1 single-UAV replans. ``team.stats`` counts ``continuation_solves`` (end poses tested)
+    and the replans in ``uav_plans``.
     """
     tq = np.asarray(target_xyz, float).reshape(-1, 3)
     tp = np.asarray(target_phi, float).reshape(-1)
@@ -56,6 +61,12 @@ def secure_continuations(team, plans, *, xy, th, target_xyz, target_phi, target_
         if move is not None:
             plans[i] = slot.safety_plan(plan, i, move)
             slot.own[i] = slot.candidates(i).samples[move.node]
+            if move.room >= team.separation:
+                continue
+        made = _make_way(team, plans, i, nxt, target_xyz, target_phi, target_path, xy, th)
+        if made is not None:
+            h, plans[h] = made
+            slot.own[h] = plans[h].path_points(n)[0][1:]
     return plans
 
 
@@ -72,6 +83,13 @@ def _end_pose(plan, config, n: int) -> tuple[np.ndarray, float]:
 def _room(team, nxt: Stage, end_xy: np.ndarray, end_th: np.ndarray, ahead: list) -> np.ndarray:
     """(K,) for end poses (K, 2), (K,): the largest, over flyable moves to the nodes of ``nxt``, smallest distance
     from the teammates' planned samples in ``ahead`` (each (P - 1, 2)); -inf where no move is flyable."""
+    ok, pts = _next_moves(team, nxt, end_xy, end_th)
+    return np.where(ok, _gap(pts, ahead), -np.inf).max(axis=1)
+
+
+def _next_moves(team, nxt: Stage, end_xy: np.ndarray, end_th: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """From end poses (K, 2), (K,) to every node of ``nxt``: (K, L) flyable (eq. 3 along the way) and the (K, L, P, 2)
+    path samples (the start first)."""
     team.stats["continuation_solves"] += len(end_xy)
     c, clearance = team.config, team.planner.paths.clearance
     m = solve_manoeuvre(end_xy[:, None], end_th[:, None], nxt.xy[None], v_max=c.v_max, w_max=c.w_max,
@@ -80,13 +98,23 @@ def _room(team, nxt: Stage, end_xy: np.ndarray, end_th: np.ndarray, ahead: list)
     if clearance.active:
         ok &= np.broadcast_to(clearance.clear(nxt.xy)[None], m.feasible.shape).reshape(-1)
         ok[ok] = clearance.manoeuvres_clear(m, ok)
-    ok = ok.reshape(m.feasible.shape)
-    pts = m.points(n=team.path_samples)[..., 1:, :].reshape(-1, team.path_samples - 1, 2)   # (K L, P - 1, 2)
-    gap = np.min([_clear_of(pts, [a]) for a in ahead], axis=0).reshape(ok.shape)
-    return np.where(ok, gap, -np.inf).max(axis=1)
+    return ok.reshape(m.feasible.shape), m.points(n=team.path_samples)
 
 
-def _move_with_room(slot: _FirstSlot, i: int, nxt: Stage, ahead: list, room: float) -> _Move | None:
+def _gap(pts: np.ndarray, ahead: list) -> np.ndarray:
+    """(...) smallest distance of paths ``pts`` (..., P, 2), samples after the start, from the samples ``ahead``."""
+    if not ahead:
+        return np.full(pts.shape[:-2], np.inf)
+    return np.min([separation(pts[..., 1:, :], a) for a in ahead], axis=0)
+
+
+class _RoomyMove(NamedTuple):
+    node: int
+    infeasible: bool
+    room: float
+
+
+def _move_with_room(slot: _FirstSlot, i: int, nxt: Stage, ahead: list, room: float) -> _RoomyMove | None:
     """UAV i's best separated move whose end pose has the team's separation as :func:`_room`, else the one with
     the most room if more than ``room``; None otherwise."""
     cand = slot.candidates(i)
@@ -98,11 +126,55 @@ def _move_with_room(slot: _FirstSlot, i: int, nxt: Stage, ahead: list, room: flo
         k = idx[s:s + CHUNK]
         r = _room(slot.team, nxt, cand.samples[k, -1], _end_headings(slot, i, cand, k), ahead)
         if (r >= slot.min_distance).any():
-            best = int(k[int(np.argmax(r >= slot.min_distance))])
+            q = int(np.argmax(r >= slot.min_distance))
+            best, best_room = int(k[q]), float(r[q])
             break
         if r.max() > best_room:
             best, best_room = int(k[int(np.argmax(r))]), float(r.max())
-    return None if best is None else _Move(best, bool(not cand.allowed[best]))
+    return None if best is None else _RoomyMove(best, bool(not cand.allowed[best]), best_room)
+
+
+def _make_way(team, plans: list, i: int, nxt: Stage, target_xyz, target_phi, target_path, xy, th):
+    """``(h, plan)``: teammate h replanned to leave UAV i a separated next move; None if no teammate can.
+
+    i keeps its first move. For each teammate h whose plan reaches the next slot (the lowest priority first),
+    i's continuation is reserved: of its flyable next moves separated from the other teammates' planned ones, the
+    one farthest from h's. h then replans (:meth:`DPPlanner.plan_batch`) around the teammates' first moves and
+    the others' next moves, the reserved one included, as the negotiation's records do. The replan is taken if it
+    reaches the next slot and leaves no conflict in the slot flown.
+    """
+    n, lim, u = team.path_samples, team.separation, len(plans)
+    end_xy, end_th = _end_pose(plans[i], team.config, n)
+    ok, pts = _next_moves(team, nxt, end_xy[None], np.array([end_th]))
+    ok, pts = ok[0], pts[0]
+    tq = np.asarray(target_xyz, float).reshape(-1, 3)
+    now = team.planner.cache.stage(tq[1], np.asarray(target_phi, float).reshape(-1)[1]).xy
+    horizon, lattice = len(tq) - 1, len(nxt.xy)
+    for h in sorted((j for j in range(u) if j != i and plans[j].depth > 1), reverse=True):
+        rest = [j for j in range(u) if j not in (i, h) and plans[j].depth > 1]
+        free = ok & (_gap(pts, [plans[j].path_points(n)[1][1:] for j in rest]) >= lim)
+        if not free.any():
+            continue
+        mine = plans[h].path_points(n)[1][1:]
+        keep = int(np.argmax(np.where(free, _gap(pts, [mine]), -np.inf)))
+        avoid = np.full((1, u, horizon, n, 2), np.nan)
+        blocked = np.zeros((1, horizon, lattice), bool)
+        for o, j in enumerate(j for j in range(u) if j != h):
+            avoid[0, o, 0] = plans[j].path_points(n)[0]
+            blocked[0, 0] |= separation(now[:, None], plans[j].waypoints[0][None, None]) < lim
+        for o, j in enumerate([*rest, i]):
+            path = pts[keep] if j == i else plans[j].path_points(n)[1]
+            avoid[0, o, 1] = path
+            blocked[0, 1] |= separation(nxt.xy[:, None], path[-1][None, None]) < lim
+        team.stats["uav_plans"] += 1
+        new = team.planner.plan_batch(xy[[h]], th[[h]], target_xyz, target_phi, blocked=blocked, avoid=avoid,
+                                      avoid_dist=lim, target_path=target_path)[0]
+        if new.depth < 2:
+            continue
+        trial = [new if j == h else p for j, p in enumerate(plans)]
+        if not any(c.stage == 0 for c in team.conflicts(trial)):
+            return h, new
+    return None
 
 
 def _end_headings(slot: _FirstSlot, i: int, cand, k: np.ndarray) -> np.ndarray:
