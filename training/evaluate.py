@@ -38,8 +38,8 @@ start poses. The env uses its DEFAULT reward settings, whatever a policy was tra
 comparable across rows (it is the mean over UAVs of the episode return).
 
 Writes ``leaderboard.md``, ``leaderboard.csv`` (mean and std over episodes of the team-mean per-UAV metrics of
-:func:`covert_env.metrics.episode_metrics`), ``episodes.csv`` (one row per policy and episode) and
-``comparison.png`` into ``--out`` (default ``outputs/leaderboard``).
+:func:`covert_env.metrics.episode_metrics`; for ``min_separation`` the team's smallest), ``episodes.csv`` (one row
+per policy and episode) and ``comparison.png`` into ``--out`` (default ``outputs/leaderboard``).
 """
 
 from __future__ import annotations
@@ -311,9 +311,11 @@ def load_policy(spec: str, n_uavs: int, *, trust_checkpoint: bool = False) -> tu
 
 # ---------------------------------------------------------------------- evaluation
 def _team_row(result: dict) -> dict:
-    """Team mean of the per-UAV metrics of one episode, plus the mean episode reward over UAVs."""
+    """Team mean of the per-UAV metrics of one episode (``min_separation``: the team's smallest, a minimum as the
+    name says), plus the mean episode reward over UAVs."""
     ms = result["metrics"]
     row = {k: float(np.mean([m[k] for m in ms])) for k in ms[0]}
+    row["min_separation"] = float(min(m["min_separation"] for m in ms))
     row["reward"] = float(np.mean(list(result["return"].values())))
     return row
 
@@ -399,7 +401,8 @@ def write_outputs(results: dict[str, dict], out: Path, meta: dict) -> None:
              f"held-out scenes (scene seeds {meta['seed_offset']} .. {meta['seed_offset'] + meta['episodes'] - 1}"
              f"{family})")
     lines = [f"# Leaderboard: {meta['episodes']} {where}, {meta['n_uavs']} UAV(s)", "",
-             "Mean ± std over episodes of the team-mean per-UAV metrics (covert_env.metrics.episode_metrics); "
+             "Mean ± std over episodes of the team-mean per-UAV metrics (covert_env.metrics.episode_metrics; "
+             "min separation: the team's smallest); "
              "episode reward = env default reward, mean over UAVs. Lower is better except reward, disguise and "
              "min separation.", "",
              "| policy | mode | " + " | ".join(h for _, h, _ in COLUMNS) + " |",

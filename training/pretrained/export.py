@@ -121,7 +121,8 @@ def _constraints(scores: dict) -> dict:
     return {"zone_violation_rate": m["zone_violation_rate"], "blocked_los_rate_slot_times": m["occlusion_rate"],
             "blocked_los_rate_along_path": m["occlusion_rate_path"], "blocked_path_share": m["blocked_path_share"],
             "separation_violation_slots_per_uav": m["separation_violations"],
-            "min_separation_m": m["min_separation"], "terrain_violation_slots_per_uav": m["terrain_violations"]}
+            "min_separation_m": scores.get("min_separation", m["min_separation"]),
+            "terrain_violation_slots_per_uav": m["terrain_violations"]}
 
 
 def suite_rows(cells: Path, policy: str, run: int | None = None) -> dict:
@@ -184,6 +185,7 @@ def _scores(npz: Path, name: str, episodes: int, progress: bool) -> dict:
         "reward_iqm": point, "reward_iqm_ci95_over_scenes": [lo, hi],
         "metrics_mean_std": {k: list(v) for k, v in summarise(rows).items() if k != "decision_time_ms"},
         "per_scene_reward": {str(r["scene_seed"]): r["reward"] for r in rows},
+        "min_separation": float(min(r["min_separation"] for r in rows)),     # the smallest of any scene
     }
 
 
