@@ -175,6 +175,8 @@ class DPPolicy(Policy):
         if known_slots is not None and check_path:
             raise ValueError("DPPolicy: known_slots does not go with check_path (the path's samples are the track's "
                              "prediction)")
+        if not isinstance(separated_continuation, (bool, np.bool_)):
+            raise ValueError(f"DPPolicy: separated_continuation must be True or False, got {separated_continuation!r}")
         self.horizon = None if horizon is None else int(horizon)
         self.known_slots = None if known_slots is None else int(known_slots)
         if known_slots is not None and path_cost is not None:

@@ -26,7 +26,8 @@ Policy specs (``SPEC[@MODE]``, MODE = ``unicycle`` or ``waypoint`` picks the env
   ``model.json``) or ``NAME.npz`` with its card ``NAME.json``; ``pretrained:NAME``: the weights shipped in
   ``training/pretrained/`` (``pretrained:mappo``). Both run in numpy (no torch, no pickle): :mod:`training.pretrained`.
   A card of ``kind`` ``dp-cost`` is the planner with a learned cost (:mod:`training.pretrained.learned_cost`,
-  ``pretrained:dp-cost``, a :mod:`training.dp_cost` run folder): it plans for any team size in waypoint mode.
+  ``pretrained:dp-cost``, ``pretrained:dp-cost-binned``, a :mod:`training.dp_cost` run folder): it plans for any
+  team size in waypoint mode.
 * **Training seeds as one row**: ``PREFIX:PATH1,PATH2,...`` (``mappo:``, ``sb3:``, ``rllib:``) evaluates each run
   of a recipe (one per training seed) on the same scenes and reports them as one row: the metrics' mean ± std
   over seeds x episodes, and the reward's IQM with its 95 % stratified-bootstrap interval over seeds x scenes

@@ -34,10 +34,14 @@ def secure_continuations(team, plans, *, xy, th, target_xyz, target_phi, target_
     reaches no node chooses among the engine's best efforts the same way (flagged). If i still lacks the room, a
     teammate makes way (:func:`_make_way`): it replans its next two slots around one of i's next moves.
 
+    Limits: a depth-1 plan is checked against the teammates whose plans reach the next slot, not against another
+    depth-1 plan; a reserved continuation is not carried to the next UAV checked, and a room checked earlier is not
+    checked again after a teammate made way (docs/decisions.md#separated-continuation).
+
     Cost: one manoeuvre solve per node of the next slot per depth-1 plan; when its room is short, the same for
     each of its separated candidates (at most L), in batches of :data:`CHUNK`, stopping at the first that has the
     room; then at most U - 1 single-UAV replans. ``team.stats`` counts ``continuation_solves`` (end poses tested)
-    and the replans in ``uav_plans``.
+    and the replans in ``dp_calls`` and ``uav_plans`` (bounds: :data:`baselines.dp.team.WORK_COUNTERS`).
     """
     tq = np.asarray(target_xyz, float).reshape(-1, 3)
     tp = np.asarray(target_phi, float).reshape(-1)
@@ -139,9 +143,11 @@ def _make_way(team, plans: list, i: int, nxt: Stage, target_xyz, target_phi, tar
 
     i keeps its first move. For each teammate h whose plan reaches the next slot (the lowest priority first),
     i's continuation is reserved: of its flyable next moves separated from the other teammates' planned ones, the
-    one farthest from h's. h then replans (:meth:`DPPlanner.plan_batch`) around the teammates' first moves and
-    the others' next moves, the reserved one included, as the negotiation's records do. The replan is taken if it
-    reaches the next slot and leaves no conflict in the slot flown.
+    one farthest from h's. h then replans its horizon from scratch (:meth:`DPPlanner.plan_batch`), with records in
+    the negotiation's form at its first two stages only: the teammates' first moves, and the others' next moves,
+    the reserved one included. Its negotiation records at later stages are not kept, so conflicts there may come
+    back (the negotiation leaves those too, after ``max_rounds``). The replan is taken if it reaches the next slot
+    (a level-2 fallback plan counts) and leaves no conflict in the slot flown.
     """
     n, lim, u = team.path_samples, team.separation, len(plans)
     end_xy, end_th = _end_pose(plans[i], team.config, n)
@@ -166,6 +172,7 @@ def _make_way(team, plans: list, i: int, nxt: Stage, target_xyz, target_phi, tar
             path = pts[keep] if j == i else plans[j].path_points(n)[1]
             avoid[0, o, 1] = path
             blocked[0, 1] |= separation(nxt.xy[:, None], path[-1][None, None]) < lim
+        team.stats["dp_calls"] += 1
         team.stats["uav_plans"] += 1
         new = team.planner.plan_batch(xy[[h]], th[[h]], target_xyz, target_phi, blocked=blocked, avoid=avoid,
                                       avoid_dist=lim, target_path=target_path)[0]
