@@ -9,6 +9,7 @@ import pytest
 
 from baselines.dp import DPPlanner, DPTeamPlanner
 from baselines.dp.continuation import _end_pose, _room
+from baselines.dp.safety import _clear_of, _FirstSlot
 from baselines.policies import DPPolicy
 from covert_env import Config, Scenario
 from covert_env.envs.covert_sensing import CovertSensingParallelEnv
@@ -80,6 +81,17 @@ def test_a_plan_of_depth_one_ends_where_its_uav_can_still_separate(downtown):
     assert _rooms(team, safe.plans, tq, tp)[0] >= lim
     assert not any(c.stage == 0 for c in team.conflicts(safe.plans))
     assert team.stats["continuation_solves"] > 1
+    # The re-choice is the cheapest allowed separated move with room: every cheaper one lacks it.
+    path = downtown.track.predict_between(62, downtown.config.horizon, np.linspace(0.0, 1.0, 21))
+    slot = _FirstSlot(team, plain.plans, np.array(SLOT62_XY), np.array(SLOT62_THETA), tq, tp, path)
+    cand, node = slot.candidates(2), int(safe.plans[2].nodes[0])
+    assert cand.allowed[node] and not safe.plans[2].infeasible
+    ok = cand.flyable & cand.allowed & (_clear_of(cand.samples, slot.own[:2]) >= lim)
+    cheaper = np.flatnonzero(ok & (cand.cost < cand.cost[node]))
+    assert cheaper.size > 0                                        # the plan's own move is among them
+    ahead = [p.path_points(21)[1][1:] for p in plain.plans[:2]]
+    nxt = team.planner.cache.stage(tq[2], tp[2])
+    assert (_room(team, nxt, cand.samples[cheaper, -1], cand.heading[cheaper], ahead) < lim).all()
     pts = [p.path_points(21)[0][1:] for p in safe.plans]
     for i in range(3):
         for j in range(i + 1, 3):
