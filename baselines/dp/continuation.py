@@ -32,7 +32,7 @@ def secure_continuations(team, plans, *, xy, th, target_xyz, target_phi, target_
     that room: to an allowed node if one has, the lowest stage cost first; if none has it, the one with the most
     room, if that is more than the plan's (``status="safety"``; flagged if it leaves the allowed nodes). A UAV that
     reaches no node chooses among the engine's best efforts the same way (flagged). If i still lacks the room, a
-    teammate makes way (:func:`_make_way`): it replans its next two slots around one of i's next moves.
+    teammate makes way (:func:`_make_way`): it replans around one of i's next moves, reserved at its stage 2.
 
     Limits: a depth-1 plan is checked against the teammates whose plans reach the next slot, not against another
     depth-1 plan; a reserved continuation is not carried to the next UAV checked, and a room checked earlier is not
