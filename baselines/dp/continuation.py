@@ -106,10 +106,10 @@ def _next_moves(team, nxt: Stage, end_xy: np.ndarray, end_th: np.ndarray) -> tup
 
 
 def _gap(pts: np.ndarray, ahead: list) -> np.ndarray:
-    """(...) smallest distance of paths ``pts`` (..., P, 2), samples after the start, from the samples ``ahead``."""
-    if not ahead:
-        return np.full(pts.shape[:-2], np.inf)
-    return np.min([separation(pts[..., 1:, :], a) for a in ahead], axis=0)
+    """(...) smallest distance of paths ``pts`` (..., P, 2), samples after the start, from the samples ``ahead``
+    (the safety layer's :func:`~baselines.dp.safety._clear_of` on any batch shape)."""
+    after = pts[..., 1:, :]
+    return _clear_of(after.reshape(-1, *after.shape[-2:]), ahead).reshape(pts.shape[:-2])
 
 
 class _RoomyMove(NamedTuple):
