@@ -156,6 +156,8 @@ class DPPolicy(Policy):
             (:class:`~baselines.dp.DPPlanner`'s ``path_cost``; the learned planner fits it).
         separated_continuation: the team's one-slot look-ahead past plans that end after the slot flown
             (:class:`~baselines.dp.DPTeamPlanner`); off for the paper's planner.
+        best_effort_escape: the safety layer may fly a best effort toward an unreachable node where no pair of
+            manoeuvres keeps two UAVs apart (:class:`~baselines.dp.DPTeamPlanner`); off for the paper's planner.
 
     Waypoint mode acts with the planned node indices (exact). Unicycle mode flies :func:`arc_action` toward
     the planned first waypoint; read its docstring for what that mapping loses. ``last_plan`` holds the
@@ -165,7 +167,7 @@ class DPPolicy(Policy):
     def __init__(self, shadow_aware: bool = True, heading: str = "inherited", heading_bins: int = 16,
                  check_path: bool = False, max_rounds: int = 5, separation_margin: float = 0.5,
                  horizon: int | None = None, known_slots: int | None = None, path_cost=None,
-                 separated_continuation: bool = False):
+                 separated_continuation: bool = False, best_effort_escape: bool = False):
         for name, v in (("horizon", horizon), ("known_slots", known_slots)):
             if v is not None and (isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1):
                 raise ValueError(f"DPPolicy: {name} must be None or an integer >= 1, got {v!r}")
@@ -175,8 +177,10 @@ class DPPolicy(Policy):
         if known_slots is not None and check_path:
             raise ValueError("DPPolicy: known_slots does not go with check_path (the path's samples are the track's "
                              "prediction)")
-        if not isinstance(separated_continuation, (bool, np.bool_)):
-            raise ValueError(f"DPPolicy: separated_continuation must be True or False, got {separated_continuation!r}")
+        for name, flag in (("separated_continuation", separated_continuation),
+                           ("best_effort_escape", best_effort_escape)):
+            if not isinstance(flag, (bool, np.bool_)):
+                raise ValueError(f"DPPolicy: {name} must be True or False, got {flag!r}")
         self.horizon = None if horizon is None else int(horizon)
         self.known_slots = None if known_slots is None else int(known_slots)
         if known_slots is not None and path_cost is not None:
@@ -185,7 +189,7 @@ class DPPolicy(Policy):
         self.kw = dict(shadow_aware=shadow_aware, heading=heading, heading_bins=heading_bins,
                        check_path=check_path, path_cost=path_cost)
         self.team_kw = dict(max_rounds=max_rounds, separation_margin=separation_margin,
-                            separated_continuation=separated_continuation)
+                            separated_continuation=separated_continuation, best_effort_escape=best_effort_escape)
         self._world = None
         self.team: DPTeamPlanner | None = None
         self.last_plan: TeamPlan | None = None
@@ -193,6 +197,7 @@ class DPPolicy(Policy):
         self.name = (f"dp-{'aware' if shadow_aware else 'blind'}-{h}{'-path' if check_path else ''}"
                      f"{'' if path_cost is None else '-pathcost'}"
                      f"{'-continuation' if separated_continuation else ''}"
+                     f"{'-escape' if best_effort_escape else ''}"
                      f"{'' if horizon is None else f'-horizon{horizon}'}"
                      f"{'' if known_slots is None else f'-known{known_slots}'}")
 

@@ -116,6 +116,7 @@ class _RoomyMove(NamedTuple):
     node: int
     infeasible: bool
     room: float
+    best_effort: bool = False      # (a move of the UAV's own candidates: a best effort only if it reaches no node)
 
 
 def _move_with_room(slot: _FirstSlot, i: int, nxt: Stage, ahead: list, room: float) -> _RoomyMove | None:

@@ -17,6 +17,9 @@ from covert_env.separation import priority_negotiation, separation
 
 __all__ = ["secure_first_moves"]
 
+#: The escape's score per best effort in a pair: above any sum of stage costs, so fewer best efforts always win.
+PER_BEST_EFFORT = 1e9
+
 
 class _Candidates(NamedTuple):
     """One UAV's one-slot moves to every lattice node of the next slot, as the engine flies them."""
@@ -33,6 +36,7 @@ class _Candidates(NamedTuple):
 class _Move(NamedTuple):
     node: int
     infeasible: bool          # the move leaves the allowed nodes (flagged to the engine)
+    best_effort: bool = False  # the engine's best effort toward ``node`` (an escape), not a manoeuvre to it
 
 
 def secure_first_moves(team, plans, *, xy, th, target_xyz, target_phi, target_path=None) -> list:
@@ -47,11 +51,14 @@ def secure_first_moves(team, plans, *, xy, th, target_xyz, target_phi, target_pa
     reach no node at all (a last-resort fallback) chooses among the engine's best efforts to every node instead,
     the nearest first (level 3's rule), flagged. If it has no separated move at all, its move and that of one
     settled UAV are re-chosen together (every pair of their candidates; a fast teammate sweeping past can leave
-    no single move); failing that it is left without one (docs/decisions.md#safety-layer) and, in the order that
-    stands, takes its most separated move (flagged). Moves keep eq. 3 along their samples. ``status="safety"``.
+    no single move). With the team's ``best_effort_escape``, the engine's best efforts toward every node are then
+    candidates too, for it and for the settled UAV it is re-chosen with (:meth:`_FirstSlot.escape`, flagged).
+    Failing that it is left without one (docs/decisions.md#safety-layer) and, in the order that stands, takes its
+    most separated move (flagged). Moves keep eq. 3 along their samples. ``status="safety"``.
 
     Cost: at most U orders, each O(U) picks and O(U^2) pair repairs; every UAV's candidate moves are solved
-    once (L manoeuvres, or L best efforts). ``team.stats`` counts ``safety_orders`` and ``safety_solves``.
+    once (L manoeuvres, or L best efforts), and with the escape its best efforts once more. ``team.stats`` counts
+    ``safety_orders`` and ``safety_solves``.
     """
     slot = _FirstSlot(team, plans, xy, th, target_xyz, target_phi, target_path)
     moves = slot.negotiate()
@@ -80,10 +87,12 @@ class _FirstSlot:
         self.allowed_nodes = pl.allowed_nodes(self.tq[1], self.tp[1])
         self.sight = pl.paths.context(self.tq, self.tp, target_path) if pl.samples_path else None
         self.path_cost = pl.path_cost
+        self.escapes = team.best_effort_escape
         self.min_distance = team.separation
         self.n_samples = team.path_samples
         self.own = [q.path_points(self.n_samples)[0][1:] for q in plans]   # sample 0 (the current position) is fixed
         self._candidates: dict[int, _Candidates] = {}
+        self._efforts: dict[int, _Candidates] = {}
 
     # ------------------------------------------------------------------------------------- candidate moves
     def candidates(self, i: int) -> _Candidates:
@@ -92,6 +101,20 @@ class _FirstSlot:
             self.team.stats["safety_solves"] += 1
             self._candidates[i] = self._manoeuvres(i)
         return self._candidates[i]
+
+    def best_efforts(self, i: int) -> _Candidates:
+        """UAV i's best efforts toward every node (the escape's extra candidates; its candidates if it reaches no
+        node)."""
+        if self.candidates(i).best_effort:
+            return self.candidates(i)
+        if i not in self._efforts:
+            self.team.stats["safety_solves"] += 1
+            self._efforts[i] = self._best_efforts(i)
+        return self._efforts[i]
+
+    def path_of(self, i: int, move: _Move) -> np.ndarray:
+        """(P - 1, 2) the samples UAV i flies with ``move``."""
+        return (self.best_efforts(i) if move.best_effort else self.candidates(i)).samples[move.node]
 
     def _manoeuvres(self, i: int) -> _Candidates:
         c, st, clearance = self.config, self.stage, self.paths.clearance
@@ -160,13 +183,58 @@ class _FirstSlot:
         a_, b_ = np.unravel_index(int(np.argmin(score)), score.shape)
         return _Move(int(ch[a_]), bool(not al_h[a_])), _Move(int(ci[b_]), bool(not al_i[b_]))
 
+    def _wide(self, i: int) -> tuple[_Candidates, int]:
+        """UAV i's manoeuvres and best efforts stacked (the escape's candidates), and L: index k >= L is the best
+        effort toward node k - L."""
+        cand, eff = self.candidates(i), self.best_efforts(i)
+        if cand.best_effort:
+            return cand, len(cand.cost)
+        both = _Candidates(*(np.concatenate([a, b]) for a, b in zip(cand[:-1], eff[:-1], strict=True)), False)
+        return both, len(cand.cost)
+
+    @staticmethod
+    def _wide_move(k: int, n: int, cand: _Candidates, effort_only: bool) -> _Move:
+        if effort_only:
+            return _Move(k, True, True)
+        return _Move(k % n, bool(k >= n or not cand.allowed[k]), k >= n)
+
+    def escape(self, i: int, fixed: dict, moves: dict) -> _Move | None:
+        """UAV i's best effort separated from the settled paths (the nearest node first); else i and the latest
+        settled UAV that allows it re-chosen together over manoeuvres and best efforts (fewest best efforts, then
+        the lowest summed cost: stage cost for a manoeuvre, level 3's nearness for a best effort), h's move and
+        path in ``moves`` and ``fixed`` replaced. None if neither separates."""
+        lim = self.min_distance
+        eff = self.best_efforts(i)
+        d = np.where(eff.flyable, _clear_of(eff.samples, fixed.values()), -np.inf)
+        if (d >= lim).any():
+            return _Move(int(np.argmin(np.where(d >= lim, eff.cost, np.inf))), True, True)
+        wi, ni = self._wide(i)
+        for h in reversed(list(fixed)):
+            rest = [f for k, f in fixed.items() if k != h]
+            wh, nh = self._wide(h)
+            ci = np.flatnonzero(wi.flyable & (_clear_of(wi.samples, rest) >= lim))
+            ch = np.flatnonzero(wh.flyable & (_clear_of(wh.samples, rest) >= lim))
+            if ci.size == 0 or ch.size == 0:
+                continue
+            sep = separation(wh.samples[ch][:, None], wi.samples[ci][None])
+            efforts = (ch >= nh)[:, None].astype(float) + (ci >= ni)[None].astype(float)
+            score = np.where(sep >= lim, efforts * PER_BEST_EFFORT + wh.cost[ch][:, None] + wi.cost[ci][None], np.inf)
+            if not np.isfinite(score).any():
+                continue
+            a_, b_ = np.unravel_index(int(np.argmin(score)), score.shape)
+            moves[h] = self._wide_move(int(ch[a_]), nh, wh, self.candidates(h).best_effort)
+            fixed[h] = wh.samples[ch[a_]]
+            return self._wide_move(int(ci[b_]), ni, wi, self.candidates(i).best_effort)
+        return None
+
     def most_separated(self, i: int, fixed: dict) -> _Move | None:
-        """UAV i's flyable move farthest from the settled paths (flagged); None if none is flyable."""
-        cand = self.candidates(i)
+        """UAV i's flyable move farthest from the settled paths (flagged; among its best efforts too with the
+        escape); None if none is flyable."""
+        cand, n = self._wide(i) if self.escapes else (self.candidates(i), len(self.candidates(i).cost))
         if not cand.flyable.any():
             return None
         d = np.where(cand.flyable, _clear_of(cand.samples, fixed.values()), -np.inf)
-        return _Move(int(np.argmax(d)), True)
+        return self._wide_move(int(np.argmax(d)), n, cand, self.candidates(i).best_effort)
 
     # ------------------------------------------------------------------------------------- settling the team
     def settle(self, order: list[int]) -> tuple[dict, int | None]:
@@ -180,11 +248,13 @@ class _FirstSlot:
                 mv = self.pick(i, fixed)
                 if mv is None:
                     mv = self._repair_with_a_settled_uav(i, fixed, moves)
+                if mv is None and self.escapes:
+                    mv = self.escape(i, fixed, moves)
                 if mv is None:
                     stuck = i if stuck is None else stuck
                     mv = self.most_separated(i, fixed)         # None: nothing flyable, keep the (fallback) plan
             moves[i] = mv
-            fixed[i] = self.own[i] if mv is None else self.candidates(i).samples[mv.node]
+            fixed[i] = self.own[i] if mv is None else self.path_of(i, mv)
         return moves, stuck
 
     def _repair_with_a_settled_uav(self, i: int, fixed: dict, moves: dict) -> _Move | None:
@@ -214,7 +284,7 @@ class _FirstSlot:
 
     def safety_plan(self, plan: DPPlan, i: int, move: _Move) -> DPPlan:
         """``plan`` cut to UAV i's one safety move (``status="safety"``)."""
-        cand = self.candidates(i)
+        cand = self.best_efforts(i) if move.best_effort else self.candidates(i)
         node = move.node
         n = len(plan.nodes)
         nodes = np.full(n, -1, np.int64)

@@ -52,19 +52,24 @@ class DPTeamPlanner:
             its UAV where a separated move remains in the next slot
             (:func:`baselines.dp.continuation.secure_continuations`). Off by default: the paper's planner, and
             the suite's reference, plan without it.
+        best_effort_escape: let the safety layer fly a UAV's best effort toward a node it cannot reach (flagged
+            infeasible) when no pair of manoeuvres separates it from a teammate
+            (:meth:`baselines.dp.safety._FirstSlot.escape`). Off by default, as for the look-ahead.
     """
 
     def __init__(self, planner: DPPlanner, *, max_rounds: int = 5, separation_margin: float = 0.5,
-                 path_samples: int = 21, separated_continuation: bool = False):
-        if not isinstance(separated_continuation, (bool, np.bool_)):
-            raise ValueError(f"DPTeamPlanner: separated_continuation must be True or False, got "
-                             f"{separated_continuation!r}")
+                 path_samples: int = 21, separated_continuation: bool = False, best_effort_escape: bool = False):
+        for name, flag in (("separated_continuation", separated_continuation),
+                           ("best_effort_escape", best_effort_escape)):
+            if not isinstance(flag, (bool, np.bool_)):
+                raise ValueError(f"DPTeamPlanner: {name} must be True or False, got {flag!r}")
         self.planner = planner
         self.config = planner.config
         self.max_rounds = int(max_rounds)
         self.margin = float(separation_margin)
         self.path_samples = int(path_samples)
         self.separated_continuation = bool(separated_continuation)
+        self.best_effort_escape = bool(best_effort_escape)
         #: Work done by the last :meth:`plan` (the negotiation's cost in U, see :data:`WORK_COUNTERS`).
         self.stats = dict.fromkeys(WORK_COUNTERS, 0)
 

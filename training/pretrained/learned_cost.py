@@ -10,9 +10,9 @@ constraints (docs/decisions.md#a-learned-cost-in-the-planners-search).
 Files (no pickle: ``np.load(..., allow_pickle=False)`` and JSON):
 
 * ``NAME.npz``: ``path_cost``, (N,) float, m of stage cost per unit of blocked path share, stage 1 first;
-* ``NAME.json``: the card: ``kind`` = ``"dp-cost"``, ``planner`` (``heading``, and ``separated_continuation``:
-  the team's look-ahead, off where absent), the learned parameters, how they were learned, and for shipped files
-  the scores.
+* ``NAME.json``: the card: ``kind`` = ``"dp-cost"``, ``planner`` (``heading``; ``separated_continuation``, the
+  team's look-ahead, and ``best_effort_escape``, the safety layer's escape, both off where absent), the learned
+  parameters, how they were learned, and for shipped files the scores.
 """
 
 from __future__ import annotations
@@ -72,10 +72,11 @@ def load_cost_planner(path: str | Path) -> DPPolicy:
     heading = planner.get("heading") if isinstance(planner, dict) else None
     if heading not in ("inherited", "binned"):
         raise ValueError(f"{card_path}: planner.heading must be 'inherited' or 'binned', got {heading!r}")
-    # Cards written before the look-ahead existed fly without it, as they were scored.
-    continuation = planner.get("separated_continuation", False)
-    if not isinstance(continuation, bool):
-        raise ValueError(f"{card_path}: planner.separated_continuation must be true or false, got {continuation!r}")
+    # Cards written before the look-ahead or the escape existed fly without them, as they were scored.
+    flags = {name: planner.get(name, False) for name in ("separated_continuation", "best_effort_escape")}
+    for name, flag in flags.items():
+        if not isinstance(flag, bool):
+            raise ValueError(f"{card_path}: planner.{name} must be true or false, got {flag!r}")
     try:
         with zipfile.ZipFile(npz) as z:
             unpacked = sum(info.file_size for info in z.infolist())
@@ -88,7 +89,7 @@ def load_cost_planner(path: str | Path) -> DPPolicy:
     if w.ndim != 1 or not 1 <= len(w) <= MAX_HORIZON or not np.all(np.isfinite(w)) or np.any(w < 0) \
             or np.any(w > 1e6):
         raise ValueError(f"{npz}: path_cost must be 1 to {MAX_HORIZON} numbers in [0, 1e6], got {w.tolist()!r}")
-    pol = DPPolicy(heading=heading, path_cost=w, separated_continuation=continuation)
+    pol = DPPolicy(heading=heading, path_cost=w, **flags)
     pol.name = f"learned-cost({npz.stem if npz.stem != 'model' else npz.parent.name})"
     pol.env_settings = {"action_mode": "waypoint"}
     pol.card = card
