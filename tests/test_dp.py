@@ -578,15 +578,17 @@ def test_negotiation_work_is_polynomial_in_the_team_size():
     xy = np.array([[60.0 + 7.0 * (i % 2), 7.0 * (i // 2) - 10.5] for i in range(u)])
     th = np.full(u, 0.1)
     pairs = u * (u - 1)
-    for rounds, ahead in ((0, False), (5, False), (0, True), (5, True)):
-        team = DPTeamPlanner(DPPlanner(c, sc.terrain), max_rounds=rounds, separated_continuation=ahead)
+    for rounds, ahead, escape in ((0, False, False), (5, False, False), (0, True, False), (5, True, False),
+                                  (0, False, True), (5, True, True)):
+        team = DPTeamPlanner(DPPlanner(c, sc.terrain), max_rounds=rounds, separated_continuation=ahead,
+                             best_effort_escape=escape)
         plan = team.plan(xy, th, tq, tp)
         w = plan.work
         extra = pairs if ahead else 0            # the look-ahead's single-UAV replans (baselines.dp.team)
         assert w["dp_calls"] <= 1 + rounds + extra
         assert w["uav_plans"] <= u + rounds * (u - 1) + extra
         assert w["conflict_checks"] <= (rounds + 2 + (1 + pairs if ahead else 0)) * pairs // 2
-        assert w["safety_orders"] <= u and w["safety_solves"] <= (2 * u if ahead else u)
+        assert w["safety_orders"] <= u and w["safety_solves"] <= (2 if ahead else 1) * (2 if escape else 1) * u
         assert w["continuation_solves"] <= (u * (len(team.planner.lattice) + 2) if ahead else 0)
         assert not any(t == 0 for _, _, t, _ in team.conflicts(plan.plans))
     assert w["dp_calls"] >= 2, "the negotiation should have been exercised"

@@ -251,8 +251,9 @@ def test_dp_cost_learns_and_writes_a_loadable_run(tmp_path):
     pol, settings = load_policy(f"mappo:{run}", 3)
     assert settings == {"n_uavs": 3, "action_mode": "waypoint"}
     np.testing.assert_allclose(pol.kw["path_cost"], path_cost_of(*card["params"].values(), 5))
-    assert card["planner"] == {"heading": "inherited", "separated_continuation": True}       # learned and flown with
-    assert pol.team_kw["separated_continuation"] is True
+    assert card["planner"] == {"heading": "inherited", "separated_continuation": True,       # learned and flown with
+                               "best_effort_escape": True}
+    assert pol.team_kw["separated_continuation"] is True and pol.team_kw["best_effort_escape"] is True
     fig = main(["--plot", str(run), "--plot-out", str(tmp_path / "c.png")])
     assert fig.stat().st_size > 10_000
 
