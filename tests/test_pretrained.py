@@ -93,10 +93,16 @@ def test_rescore_scores_shipped_weights_on_the_current_env(tmp_path, capsys):
     for ext in (".npz", ".json"):
         shutil.copy(PRETRAINED_DIR / f"{name}{ext}", tmp_path / f"{name}{ext}")
     old = json.loads((tmp_path / f"{name}.json").read_text())
+    suite = {"cells": "c.csv", "policy": "p", "run": 0, "tasks": {}}
+    now = CovertSensingVectorEnv.metadata["name"]
+    old.update(env_id=now, suite=suite)                          # scored on this env version: the suite stays
+    (tmp_path / f"{name}.json").write_text(json.dumps(old))
+    assert json.loads(rescore(name, 1, tmp_path, progress=False).read_text())["suite"] == suite
     old.update(env_id="covert_sensing_vector_v0", covert_env_version="0.0.1", commit="0" * 40)
     (tmp_path / f"{name}.json").write_text(json.dumps(old))
     card = json.loads(rescore(name, 1, tmp_path, progress=False).read_text())
-    assert card["env_id"] == CovertSensingVectorEnv.metadata["name"] and card["recipe"] == old["recipe"]
+    assert "suite" not in card                                   # measured on another env version: dropped
+    assert card["env_id"] == now and card["recipe"] == old["recipe"]
     assert card["covert_env_version"] == covert_env.__version__ and card["commit"] != "0" * 40
     assert card["scores"]["scenes"] == [1_000_000, 1_000_000]
     pol, settings = load_policy(f"pretrained:{name}", 3)

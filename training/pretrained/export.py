@@ -147,8 +147,8 @@ def suite_rows(cells: Path, policy: str, run: int | None = None) -> dict:
 def rescore(name: str, episodes: int | None = None, out_dir: Path = PRETRAINED_DIR, progress: bool = True) -> Path:
     """Score shipped weights again on the current env version (same held-out scenes; ``episodes`` defaults to the
     card's count) and rewrite the card's ``scores``, ``constraints``, ``env_id``, ``covert_env_version`` and
-    ``commit`` (a ``suite`` block, measured on an older version, is dropped); the env id the weights were trained
-    on stays in ``recipe``. Returns the card's path."""
+    ``commit``. A ``suite`` block is kept if the card's env id is the current one, else dropped (it was measured
+    on another env version); the env id the weights were trained on stays in ``recipe``. Returns the card's path."""
     from covert_env.envs.vector import CovertSensingVectorEnv
 
     npz = Path(out_dir) / f"{name}.npz"
@@ -161,7 +161,8 @@ def rescore(name: str, episodes: int | None = None, out_dir: Path = PRETRAINED_D
                          "wrote)") from None
     card["scores"] = _scores(npz, name, episodes or last - first + 1, progress)
     card["constraints"] = _constraints(card["scores"])
-    card.pop("suite", None)
+    if card.get("env_id") != CovertSensingVectorEnv.metadata["name"]:
+        card.pop("suite", None)
     card.update(env_id=CovertSensingVectorEnv.metadata["name"], covert_env_version=covert_env.__version__,
                 commit=_commit())
     card_path.write_text(json.dumps(card, indent=2))
