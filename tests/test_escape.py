@@ -53,9 +53,10 @@ def _flown_gaps(plans) -> np.ndarray:
 
 def test_no_pair_of_manoeuvres_separates_the_trap(scene):
     """The premise: uav_0's best efforts against uav_1's manoeuvres leave no separated pair, and without the escape
-    the slot flown breaks d_safe1."""
+    the slot flown breaks d_safe1 (both stuck moves flagged, as the safety layer always flagged them)."""
     team, plain, (tq, tp, path) = _plan(scene, escape=False)
     assert [p.status for p in plain.plans] == ["fallback", "safety", "ok"]
+    assert [p.infeasible for p in plain.plans] == [True, True, False]
     slot = _FirstSlot(team, plain.plans, np.array(XY), np.array(THETA), tq, tp, path)
     c0, c1 = slot.candidates(0), slot.candidates(1)
     assert c0.best_effort and not c1.best_effort and c1.flyable.sum() == 1
@@ -65,51 +66,75 @@ def test_no_pair_of_manoeuvres_separates_the_trap(scene):
 
 
 def test_a_best_effort_escape_separates_the_slot_flown(scene):
-    """With the escape, uav_1 flies a best effort (flagged, no planned heading) and every pair keeps d_safe1 +
-    margin along the slot flown; uav_2's plan is untouched."""
+    """With the escape, uav_1 flies a best effort toward a node it cannot reach (flagged, no planned heading or
+    cost, the engine's path) and every pair keeps d_safe1 + margin along the slot flown; uav_2's plan is
+    untouched. The escape settles the order that stands once more and solves uav_1's best efforts once."""
     _, plain, _ = _plan(scene, escape=False)
-    team, safe, _ = _plan(scene, escape=True)
+    off = dict(plain.work)
+    team, safe, (tq, tp, path) = _plan(scene, escape=True)
     assert (_flown_gaps(safe.plans) >= team.separation - 1e-9).all()
-    assert safe.plans[1].status == "safety" and safe.plans[1].infeasible and np.isnan(safe.plans[1].headings[0])
+    p1 = safe.plans[1]
+    assert p1.status == "safety" and p1.infeasible and np.isnan(p1.headings[0]) and np.isnan(p1.cost)
+    slot = _FirstSlot(team, plain.plans, np.array(XY), np.array(THETA), tq, tp, path)
+    node = int(p1.nodes[0])
+    assert not slot.candidates(1).flyable[node] and slot.escape_efforts(1).flyable[node]
+    np.testing.assert_allclose(p1.path_points(21)[0][1:], slot.escape_efforts(1).samples[node], atol=1e-9)
     assert np.array_equal(safe.plans[2].nodes, plain.plans[2].nodes)
     assert not any(c.stage == 0 for c in team.conflicts(safe.plans))
+    assert safe.work["safety_orders"] == off["safety_orders"] + 1
+    assert safe.work["safety_solves"] == off["safety_solves"] + 1
 
 
-def test_the_escape_takes_the_fewest_best_efforts(scene):
-    """Where one UAV's own best effort is separated from the settled paths, the settled UAV keeps its move, and
-    the escape is the nearest such best effort (level 3's rule)."""
-    team, plain, (tq, tp, path) = _plan(scene, escape=True)
-    slot = _FirstSlot(team, plain.plans, np.array(XY), np.array(THETA), tq, tp, path)
-    fixed = {2: slot.own[2]}
-    moves = {2: None}
-    mv = slot.escape(1, fixed, moves)
-    eff = slot.best_efforts(1)
-    gap = separation(eff.samples[:, None], slot.own[2][None]).min(axis=-1).reshape(-1)
-    ok = eff.flyable & (gap >= team.separation)
-    assert mv.best_effort and mv.infeasible and moves == {2: None}
-    assert mv.node == int(np.argmin(np.where(ok, eff.cost, np.inf)))
+def _cands(xs, cost, allowed, flyable=None, effort=False):
+    """Synthetic one-sample moves at (x, 0)."""
+    from baselines.dp.safety import _Candidates
+
+    n = len(xs)
+    return _Candidates(heading=np.full(n, np.nan if effort else 0.0), speed=np.full(n, np.nan if effort else 1.0),
+                       flyable=np.ones(n, bool) if flyable is None else np.array(flyable),
+                       samples=np.array([[[x, 0.0]] for x in xs]), cost=np.array(cost, float),
+                       allowed=np.array(allowed), best_effort=effort)
 
 
 def test_a_re_chosen_pair_takes_the_fewest_best_efforts_before_the_lowest_cost(scene):
-    """Two UAVs on a line, one sample per move. uav_1's best efforts all sit 1 m from uav_0's path; separated pairs:
-    two manoeuvres (cost 100), uav_0's best effort and a manoeuvre (1.5), two best efforts (0.5). The pair without
-    a best effort wins."""
-    from baselines.dp.safety import _Candidates, _Move
+    """Two UAVs on a line, one sample per move, three nodes. uav_0 is settled at x = 0; its manoeuvres (x = 0, 2)
+    and uav_1's one manoeuvre (x = 1, off the allowed nodes) are all too close, and so are uav_1's best efforts
+    (x = 3, 4) to uav_0's path. Separated pairs: uav_0's best effort (x = 100) with uav_1's manoeuvre (one best
+    effort), or with a best effort of uav_1 (two, cheaper). The pair with one best effort wins and uav_0's
+    path moves."""
+    from baselines.dp.safety import _Move
 
     team, plain, (tq, tp, path) = _plan(scene, escape=True)
     slot = _FirstSlot(team, plain.plans, np.array(XY), np.array(THETA), tq, tp, path)
-
-    def cands(xs, cost, effort):
-        n = len(xs)
-        return _Candidates(heading=np.full(n, np.nan if effort else 0.0), speed=np.full(n, np.nan if effort else 1.0),
-                           flyable=np.ones(n, bool), samples=np.array([[[x, 0.0]] for x in xs]),
-                           cost=np.array(cost, float), allowed=np.full(n, not effort), best_effort=effort)
-
-    slot._candidates = {0: cands([0.0, 0.0], [50, 50], False), 1: cands([1.0, 20.0], [1, 50], False)}
-    slot._efforts = {0: cands([100.0, 100.0], [0.5, 0.5], True), 1: cands([1.0, 1.0], [0, 0], True)}
+    slot._candidates = {0: _cands([0.0, 2.0, 0.0], [1, 1, np.inf], [True, True, False], [True, True, False]),
+                        1: _cands([1.0, 0.0, 0.0], [10, np.inf, np.inf], [False] * 3, [True, False, False])}
+    slot._reachable = {0: np.array([True, True, False]), 1: np.array([True, False, False])}
+    slot._efforts = {0: _cands([0.0, 0.0, 100.0], [0.5] * 3, [False] * 3, [False, False, True], effort=True),
+                     1: _cands([0.0, 3.0, 4.0], [0.1] * 3, [False] * 3, [False, True, True], effort=True)}
     fixed, moves = {0: np.array([[0.0, 0.0]])}, {0: None}
-    assert slot.escape(1, fixed, moves) == _Move(1, False, False)
-    assert moves[0] == _Move(0, False, False) and np.array_equal(fixed[0], [[0.0, 0.0]])
+    assert slot.pick(1, fixed) is None and slot.repair(1, 0, fixed) is None
+    assert slot.escape(1, fixed, moves) == _Move(0, True, False)
+    assert moves[0] == _Move(2, True, True) and np.array_equal(fixed[0], [[100.0, 0.0]])
+    assert np.array_equal(slot.path_of(0, moves[0]), [[100.0, 0.0]])
+
+
+def test_the_escape_acts_only_where_no_order_separates_the_team(scene):
+    """uav_2 (x = 10, one manoeuvre) between uav_0 (x = 6) and uav_1 (x = 14) is stuck in the order 0, 1, 2, and no
+    joint re-choice frees it; promoted to the front, the team separates with manoeuvres. The escape, which would
+    have freed it with a best effort in the first order, changes nothing."""
+    from baselines.dp.safety import _Move
+
+    team, plain, (tq, tp, path) = _plan(scene, escape=False)
+    slot = _FirstSlot(team, plain.plans, np.array(XY), np.array(THETA), tq, tp, path)
+    slot.own = [np.array([[6.0, 0.0]]), np.array([[14.0, 0.0]]), np.array([[10.0, 0.0]])]
+    slot._candidates = {0: _cands([6.0, 0.0], [0, 1], [True, True]), 1: _cands([14.0, 20.0], [0, 1], [True, True]),
+                        2: _cands([10.0, 10.0], [0, np.inf], [True, True], [True, False])}
+    slot._reachable = {0: np.ones(2, bool), 1: np.ones(2, bool), 2: np.array([True, False])}
+    slot._efforts = {i: _cands([30.0, 30.0], [1, 1], [False, False], [False, i == 2], effort=True) for i in range(3)}
+    assert slot.settle([0, 1, 2])[1] == 2 and slot.settle([0, 1, 2], escape=True)[1] is None
+    plain_moves = slot.negotiate()
+    slot.escapes = True
+    assert slot.negotiate() == plain_moves == {2: None, 0: _Move(1, False), 1: _Move(1, False)}
 
 
 @pytest.mark.parametrize("bad", [1, "yes", None])

@@ -64,7 +64,7 @@ def secure_continuations(team, plans, *, xy, th, target_xyz, target_phi, target_
         move = _move_with_room(slot, i, nxt, ahead, room)
         if move is not None:
             plans[i] = slot.safety_plan(plan, i, move)
-            slot.own[i] = slot.candidates(i).samples[move.node]
+            slot.own[i] = slot.path_of(i, move)
             if move.room >= team.separation:
                 continue
         made = _make_way(team, plans, i, nxt, target_xyz, target_phi, target_path, xy, th)
@@ -116,7 +116,7 @@ class _RoomyMove(NamedTuple):
     node: int
     infeasible: bool
     room: float
-    best_effort: bool = False      # (a move of the UAV's own candidates: a best effort only if it reaches no node)
+    escaped: bool = False          # never: the look-ahead chooses among the UAV's own candidates (_FirstSlot.path_of)
 
 
 def _move_with_room(slot: _FirstSlot, i: int, nxt: Stage, ahead: list, room: float) -> _RoomyMove | None:

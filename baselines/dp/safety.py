@@ -17,8 +17,14 @@ from covert_env.separation import priority_negotiation, separation
 
 __all__ = ["secure_first_moves"]
 
-#: The escape's score per best effort in a pair: above any sum of stage costs, so fewer best efforts always win.
+#: The escape's score per best effort in a pair: above any sum of stage costs and fallback penalties, so fewer
+#: best efforts always win.
 PER_BEST_EFFORT = 1e9
+
+#: Candidates of h compared with all of i's at once in the escape's pair search (CHUNK x 2L paths in memory).
+CHUNK = 64
+
+_FIELDS = ("heading", "speed", "flyable", "samples", "cost", "allowed")
 
 
 class _Candidates(NamedTuple):
@@ -36,7 +42,7 @@ class _Candidates(NamedTuple):
 class _Move(NamedTuple):
     node: int
     infeasible: bool          # the move leaves the allowed nodes (flagged to the engine)
-    best_effort: bool = False  # the engine's best effort toward ``node`` (an escape), not a manoeuvre to it
+    escaped: bool = False     # a best effort of the escape (toward a node the UAV's manoeuvres cannot reach)
 
 
 def secure_first_moves(team, plans, *, xy, th, target_xyz, target_phi, target_path=None) -> list:
@@ -51,14 +57,15 @@ def secure_first_moves(team, plans, *, xy, th, target_xyz, target_phi, target_pa
     reach no node at all (a last-resort fallback) chooses among the engine's best efforts to every node instead,
     the nearest first (level 3's rule), flagged. If it has no separated move at all, its move and that of one
     settled UAV are re-chosen together (every pair of their candidates; a fast teammate sweeping past can leave
-    no single move). With the team's ``best_effort_escape``, the engine's best efforts toward every node are then
-    candidates too, for it and for the settled UAV it is re-chosen with (:meth:`_FirstSlot.escape`, flagged).
-    Failing that it is left without one (docs/decisions.md#safety-layer) and, in the order that stands, takes its
-    most separated move (flagged). Moves keep eq. 3 along their samples. ``status="safety"``.
+    no single move). Failing that it is left without one (docs/decisions.md#safety-layer) and, in the order that
+    stands, takes its most separated move (flagged). With the team's ``best_effort_escape``, that order is settled
+    once more, and a UAV left without a separated move may also fly the engine's best effort toward a node it
+    cannot reach, alone or re-chosen with a settled UAV (:meth:`_FirstSlot.escape`, flagged). Moves keep eq. 3
+    along their samples. ``status="safety"``.
 
-    Cost: at most U orders, each O(U) picks and O(U^2) pair repairs; every UAV's candidate moves are solved
-    once (L manoeuvres, or L best efforts), and with the escape its best efforts once more. ``team.stats`` counts
-    ``safety_orders`` and ``safety_solves``.
+    Cost: at most U orders (U + 1 with the escape), each O(U) picks and O(U^2) pair repairs; every UAV's
+    candidate moves are solved once (L manoeuvres, or L best efforts), and with the escape its best efforts once
+    more. ``team.stats`` counts ``safety_orders`` and ``safety_solves``.
     """
     slot = _FirstSlot(team, plans, xy, th, target_xyz, target_phi, target_path)
     moves = slot.negotiate()
@@ -92,7 +99,8 @@ class _FirstSlot:
         self.n_samples = team.path_samples
         self.own = [q.path_points(self.n_samples)[0][1:] for q in plans]   # sample 0 (the current position) is fixed
         self._candidates: dict[int, _Candidates] = {}
-        self._efforts: dict[int, _Candidates] = {}
+        self._reachable: dict[int, np.ndarray] = {}
+        self._efforts: dict[int, _Candidates | None] = {}
 
     # ------------------------------------------------------------------------------------- candidate moves
     def candidates(self, i: int) -> _Candidates:
@@ -102,24 +110,27 @@ class _FirstSlot:
             self._candidates[i] = self._manoeuvres(i)
         return self._candidates[i]
 
-    def best_efforts(self, i: int) -> _Candidates:
-        """UAV i's best efforts toward every node (the escape's extra candidates; its candidates if it reaches no
-        node)."""
+    def escape_efforts(self, i: int) -> _Candidates | None:
+        """The escape's extra moves for UAV i: the engine's best efforts toward the nodes its manoeuvres cannot
+        reach (flyable where eq. 3 holds along them); None if it reaches no node (its candidates are best efforts
+        already)."""
         if self.candidates(i).best_effort:
-            return self.candidates(i)
+            return None
         if i not in self._efforts:
             self.team.stats["safety_solves"] += 1
-            self._efforts[i] = self._best_efforts(i)
+            eff = self._best_efforts(i)
+            self._efforts[i] = eff._replace(flyable=eff.flyable & ~self._reachable[i])
         return self._efforts[i]
 
-    def path_of(self, i: int, move: _Move) -> np.ndarray:
-        """(P - 1, 2) the samples UAV i flies with ``move``."""
-        return (self.best_efforts(i) if move.best_effort else self.candidates(i)).samples[move.node]
+    def path_of(self, i: int, move) -> np.ndarray:
+        """(P - 1, 2) the samples UAV i flies with ``move`` (a :class:`_Move`)."""
+        return (self.escape_efforts(i) if move.escaped else self.candidates(i)).samples[move.node]
 
     def _manoeuvres(self, i: int) -> _Candidates:
         c, st, clearance = self.config, self.stage, self.paths.clearance
         m = solve_manoeuvre(self.xy[i], self.th[i], st.xy, v_max=c.v_max, w_max=c.w_max, delta=c.delta)
-        ok = np.asarray(m.feasible, bool).copy()
+        self._reachable[i] = np.asarray(m.feasible, bool)
+        ok = self._reachable[i].copy()
         if clearance.active:
             ok &= clearance.clear(st.xy)                          # eq. 3 at the node and along the path
             ok[ok] = clearance.manoeuvres_clear(m, ok)
@@ -184,30 +195,30 @@ class _FirstSlot:
         return _Move(int(ch[a_]), bool(not al_h[a_])), _Move(int(ci[b_]), bool(not al_i[b_]))
 
     def _wide(self, i: int) -> tuple[_Candidates, int]:
-        """UAV i's manoeuvres and best efforts stacked (the escape's candidates), and L: index k >= L is the best
+        """UAV i's candidates with the escape's best efforts stacked after them, and L: index k >= L is the best
         effort toward node k - L."""
-        cand, eff = self.candidates(i), self.best_efforts(i)
-        if cand.best_effort:
+        cand, eff = self.candidates(i), self.escape_efforts(i)
+        if eff is None:
             return cand, len(cand.cost)
-        both = _Candidates(*(np.concatenate([a, b]) for a, b in zip(cand[:-1], eff[:-1], strict=True)), False)
-        return both, len(cand.cost)
+        both = {f: np.concatenate([getattr(cand, f), getattr(eff, f)]) for f in _FIELDS}
+        return _Candidates(**both, best_effort=False), len(cand.cost)
 
     @staticmethod
-    def _wide_move(k: int, n: int, cand: _Candidates, effort_only: bool) -> _Move:
-        if effort_only:
-            return _Move(k, True, True)
-        return _Move(k % n, bool(k >= n or not cand.allowed[k]), k >= n)
+    def _wide_move(k: int, n: int, wide: _Candidates, flagged: bool = False) -> _Move:
+        return _Move(k % n, bool(flagged or not wide.allowed[k]), k >= n)
 
     def escape(self, i: int, fixed: dict, moves: dict) -> _Move | None:
-        """UAV i's best effort separated from the settled paths (the nearest node first); else i and the latest
-        settled UAV that allows it re-chosen together over manoeuvres and best efforts (fewest best efforts, then
-        the lowest summed cost: stage cost for a manoeuvre, level 3's nearness for a best effort), h's move and
-        path in ``moves`` and ``fixed`` replaced. None if neither separates."""
+        """UAV i's escape: its best effort toward a node it cannot reach, separated from the settled paths (the
+        nearest node first, level 3's rule); else i and the latest settled UAV h that allows it, re-chosen
+        together over their moves and best efforts (the fewest best efforts, then the fewest moves off the
+        allowed nodes, then the lowest summed cost: stage cost for a manoeuvre, level 3's nearness for a best
+        effort), h's move and path in ``moves`` and ``fixed`` replaced. None if neither separates."""
         lim = self.min_distance
-        eff = self.best_efforts(i)
-        d = np.where(eff.flyable, _clear_of(eff.samples, fixed.values()), -np.inf)
-        if (d >= lim).any():
-            return _Move(int(np.argmin(np.where(d >= lim, eff.cost, np.inf))), True, True)
+        eff = self.escape_efforts(i)
+        if eff is not None:
+            d = np.where(eff.flyable, _clear_of(eff.samples, fixed.values()), -np.inf)
+            if (d >= lim).any():
+                return _Move(int(np.argmin(np.where(d >= lim, eff.cost, np.inf))), True, True)
         wi, ni = self._wide(i)
         for h in reversed(list(fixed)):
             rest = [f for k, f in fixed.items() if k != h]
@@ -216,30 +227,36 @@ class _FirstSlot:
             ch = np.flatnonzero(wh.flyable & (_clear_of(wh.samples, rest) >= lim))
             if ci.size == 0 or ch.size == 0:
                 continue
-            sep = separation(wh.samples[ch][:, None], wi.samples[ci][None])
-            efforts = (ch >= nh)[:, None].astype(float) + (ci >= ni)[None].astype(float)
-            score = np.where(sep >= lim, efforts * PER_BEST_EFFORT + wh.cost[ch][:, None] + wi.cost[ci][None], np.inf)
-            if not np.isfinite(score).any():
+            score_i = PER_BEST_EFFORT * (ci >= ni) + FALLBACK_PENALTY * ~wi.allowed[ci] + wi.cost[ci]
+            score_h = PER_BEST_EFFORT * (ch >= nh) + FALLBACK_PENALTY * ~wh.allowed[ch] + wh.cost[ch]
+            best, pair = np.inf, None
+            for s in range(0, len(ch), CHUNK):
+                k = ch[s:s + CHUNK]
+                sep = separation(wh.samples[k][:, None], wi.samples[ci][None])
+                score = np.where(sep >= lim, score_h[s:s + CHUNK, None] + score_i[None], np.inf)
+                q = int(np.argmin(score))
+                if score.flat[q] < best:
+                    best, pair = score.flat[q], (int(k[q // len(ci)]), int(ci[q % len(ci)]))
+            if pair is None:
                 continue
-            a_, b_ = np.unravel_index(int(np.argmin(score)), score.shape)
-            moves[h] = self._wide_move(int(ch[a_]), nh, wh, self.candidates(h).best_effort)
-            fixed[h] = wh.samples[ch[a_]]
-            return self._wide_move(int(ci[b_]), ni, wi, self.candidates(i).best_effort)
+            moves[h] = self._wide_move(pair[0], nh, wh)
+            fixed[h] = wh.samples[pair[0]]
+            return self._wide_move(pair[1], ni, wi)
         return None
 
-    def most_separated(self, i: int, fixed: dict) -> _Move | None:
-        """UAV i's flyable move farthest from the settled paths (flagged; among its best efforts too with the
-        escape); None if none is flyable."""
-        cand, n = self._wide(i) if self.escapes else (self.candidates(i), len(self.candidates(i).cost))
+    def most_separated(self, i: int, fixed: dict, escape: bool = False) -> _Move | None:
+        """UAV i's flyable move farthest from the settled paths (flagged; with ``escape``, its escape's best
+        efforts count too); None if none is flyable."""
+        cand, n = self._wide(i) if escape else (self.candidates(i), len(self.candidates(i).cost))
         if not cand.flyable.any():
             return None
         d = np.where(cand.flyable, _clear_of(cand.samples, fixed.values()), -np.inf)
-        return self._wide_move(int(np.argmax(d)), n, cand, self.candidates(i).best_effort)
+        return self._wide_move(int(np.argmax(d)), n, cand, flagged=True)
 
     # ------------------------------------------------------------------------------------- settling the team
-    def settle(self, order: list[int]) -> tuple[dict, int | None]:
-        """Moves per UAV settled in ``order`` (None: it keeps its plan); and the first UAV left without a
-        separated move (None: clean)."""
+    def settle(self, order: list[int], escape: bool = False) -> tuple[dict, int | None]:
+        """Moves per UAV settled in ``order`` (None: it keeps its plan), with :meth:`escape` as the last resort if
+        ``escape``; and the first UAV left without a separated move (None: clean)."""
         fixed, moves, stuck = {}, {}, None
         for i in order:
             if _clear_of(self.own[i][None], fixed.values())[0] >= self.min_distance:
@@ -248,11 +265,11 @@ class _FirstSlot:
                 mv = self.pick(i, fixed)
                 if mv is None:
                     mv = self._repair_with_a_settled_uav(i, fixed, moves)
-                if mv is None and self.escapes:
+                if mv is None and escape:
                     mv = self.escape(i, fixed, moves)
                 if mv is None:
                     stuck = i if stuck is None else stuck
-                    mv = self.most_separated(i, fixed)         # None: nothing flyable, keep the (fallback) plan
+                    mv = self.most_separated(i, fixed, escape)   # None: nothing flyable, keep the (fallback) plan
             moves[i] = mv
             fixed[i] = self.own[i] if mv is None else self.path_of(i, mv)
         return moves, stuck
@@ -264,27 +281,31 @@ class _FirstSlot:
             both = self.repair(i, h, fixed)
             if both is not None:
                 moves[h], mv = both
-                fixed[h] = self.candidates(h).samples[moves[h].node]
+                fixed[h] = self.path_of(h, moves[h])
                 return mv
         return None
 
     def negotiate(self) -> dict:
-        """Moves per UAV in the order that stands after :func:`~covert_env.separation.priority_negotiation`."""
+        """Moves per UAV in the order that stands after :func:`~covert_env.separation.priority_negotiation`; if
+        that order leaves a UAV without a separated move and the team escapes, that order settled again with the
+        escape (so the escape acts only where no order separates the team with the UAVs' own candidates)."""
         settled: dict = {}
         u = len(self.own)
 
         def settle_order(order, rows):
             self.team.stats["safety_orders"] += 1
-            seq = order[0].tolist()
-            settled["moves"], stuck = self.settle(seq)
-            return np.array([u if stuck is None else seq.index(stuck)])
+            settled["order"] = order[0].tolist()
+            settled["moves"], stuck = self.settle(settled["order"])
+            return np.array([u if stuck is None else settled["order"].index(stuck)])
 
-        priority_negotiation(settle_order, 1, u)
+        if priority_negotiation(settle_order, 1, u)[0] and self.escapes:
+            self.team.stats["safety_orders"] += 1
+            settled["moves"], _ = self.settle(settled["order"], escape=True)
         return settled["moves"]
 
     def safety_plan(self, plan: DPPlan, i: int, move: _Move) -> DPPlan:
         """``plan`` cut to UAV i's one safety move (``status="safety"``)."""
-        cand = self.best_efforts(i) if move.best_effort else self.candidates(i)
+        cand = self.escape_efforts(i) if move.escaped else self.candidates(i)
         node = move.node
         n = len(plan.nodes)
         nodes = np.full(n, -1, np.int64)

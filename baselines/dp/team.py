@@ -20,12 +20,13 @@ __all__ = ["Conflict", "DPTeamPlanner", "WORK_COUNTERS", "extrapolate_target"]
 #: What :attr:`DPTeamPlanner.stats` counts per team replan. With U UAVs and R = ``max_rounds``:
 #: ``dp_calls`` (batched DP runs) <= 1 + R; ``uav_plans`` (UAV plans inside them) <= U + R (U - 1);
 #: ``conflict_checks`` (pairs of plans compared) <= (1 + R + 1) U (U - 1) / 2; ``safety_orders`` <= U;
-#: ``safety_solves`` (one-slot candidate sets, L manoeuvres or best efforts each) <= U, <= 2 U with
-#: ``best_effort_escape`` (each UAV's best efforts once more). With
+#: ``safety_solves`` (one-slot candidate sets, L manoeuvres or best efforts each) <= U. With
+#: ``best_effort_escape``: ``safety_orders`` <= U + 1 and ``safety_solves`` <= 2 U (each UAV's best efforts once
+#: more; a pair re-choice then compares up to L^2 paths, in chunks). With
 #: ``separated_continuation`` each UAV with a plan of depth 1 may add a candidate set, L + 2 end poses tested
 #: (``continuation_solves``, L manoeuvres each) and U - 1 single-UAV replans, each checked for conflicts:
 #: ``dp_calls`` <= 1 + R + U (U - 1), ``uav_plans`` <= U + R (U - 1) + U (U - 1), ``conflict_checks`` <=
-#: (3 + R + U (U - 1)) U (U - 1) / 2, ``safety_solves`` <= 2 U (4 U with the escape), ``continuation_solves``
+#: (3 + R + U (U - 1)) U (U - 1) / 2, ``safety_solves`` <= 2 U (3 U with the escape), ``continuation_solves``
 #: <= U (L + 2).
 #: Polynomial in U: O(R U^2), O(U^4) comparisons with the look-ahead.
 WORK_COUNTERS = ("dp_calls", "uav_plans", "conflict_checks", "safety_orders", "safety_solves", "continuation_solves")
