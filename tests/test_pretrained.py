@@ -256,3 +256,17 @@ def test_card_states_the_constraint_rates_and_the_suite_rows(tmp_path, capsys):
         with pytest.raises(SystemExit):
             export_main([*argv, "--out-dir", str(tmp_path / "shipped")])
         assert message in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("name", ["dp-cost", "dp-cost-binned"])
+def test_shipped_planners_fly_with_both_separation_rules_and_keep_d_safe1(name):
+    """The learned-cost cards turn on the look-ahead and the escape, and state a smallest separation (the smallest of
+    any scored scene, on the held-out paper scenes and per suite task) of at least d_safe1."""
+    from covert_env import Config
+
+    pol, _ = load_policy(f"pretrained:{name}", 3)
+    assert pol.team_kw["separated_continuation"] is True and pol.team_kw["best_effort_escape"] is True
+    d_safe1 = Config().d_safe1
+    assert pol.card["constraints"]["min_separation_m"] >= d_safe1
+    assert pol.card["constraints"]["separation_violation_slots_per_uav"] == 0.0
+    assert min(t["min_separation"] for t in pol.card["suite"]["tasks"].values()) >= d_safe1
