@@ -21,9 +21,11 @@ __all__ = ["secure_first_moves"]
 #: best efforts always win.
 PER_BEST_EFFORT = 1e9
 
-#: Candidates of h compared with all of i's at once in the escape's pair search (CHUNK x 2L paths in memory).
+#: Candidates of h compared with all of i's at once in the escape's pair search (at most CHUNK x L pairs of paths:
+#: a UAV's manoeuvres and its escape's best efforts go to disjoint nodes).
 CHUNK = 64
 
+#: The per-node arrays of :class:`_Candidates` (stacked by :meth:`_FirstSlot._wide`).
 _FIELDS = ("heading", "speed", "flyable", "samples", "cost", "allowed")
 
 
