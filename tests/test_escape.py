@@ -137,6 +137,25 @@ def test_the_escape_acts_only_where_no_order_separates_the_team(scene):
     assert slot.negotiate() == plain_moves == {2: None, 0: _Move(1, False), 1: _Move(1, False)}
 
 
+def test_where_nothing_separates_the_most_separated_move_counts_the_best_efforts(scene):
+    """uav_1 (one manoeuvre, to x = 1) and its best effort toward an unreachable node (x = 4) are both too close
+    to uav_0 at x = 0, whose moves (x = 0, 2) free nothing: uav_1 stays stuck and takes the farther best effort,
+    flagged; without the escape, its manoeuvre."""
+    from baselines.dp.safety import _Move
+
+    team, plain, (tq, tp, path) = _plan(scene, escape=True)
+    slot = _FirstSlot(team, plain.plans, np.array(XY), np.array(THETA), tq, tp, path)
+    slot.own = [np.array([[0.0, 0.0]]), np.array([[1.0, 0.0]])]
+    slot._candidates = {0: _cands([0.0, 2.0], [0, 1], [True, True]),
+                        1: _cands([1.0, 0.0], [0, np.inf], [True, True], [True, False])}
+    slot._reachable = {0: np.ones(2, bool), 1: np.array([True, False])}
+    slot._efforts = {0: None, 1: _cands([0.0, 4.0], [1, 1], [False, False], [False, True], effort=True)}
+    moves, stuck = slot.settle([0, 1], escape=True)
+    assert stuck == 1 and moves == {0: None, 1: _Move(1, True, True)}
+    moves, stuck = slot.settle([0, 1])
+    assert stuck == 1 and moves == {0: None, 1: _Move(0, True, False)}
+
+
 @pytest.mark.parametrize("bad", [1, "yes", None])
 def test_the_option_must_be_a_bool(bad):
     c = Config()
