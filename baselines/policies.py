@@ -156,8 +156,9 @@ class DPPolicy(Policy):
             (:class:`~baselines.dp.DPPlanner`'s ``path_cost``; the learned planner fits it).
         separated_continuation: the team's one-slot look-ahead past plans that end after the slot flown
             (:class:`~baselines.dp.DPTeamPlanner`); off for the paper's planner.
-        best_effort_escape: the safety layer may fly a best effort toward an unreachable node where no pair of
-            manoeuvres keeps two UAVs apart (:class:`~baselines.dp.DPTeamPlanner`); off for the paper's planner.
+        best_effort_escape: the safety layer may fly a best effort toward an unreachable node where no priority
+            order separates the team with its moves (:class:`~baselines.dp.DPTeamPlanner`); off for the paper's
+            planner.
 
     Waypoint mode acts with the planned node indices (exact). Unicycle mode flies :func:`arc_action` toward
     the planned first waypoint; read its docstring for what that mapping loses. ``last_plan`` holds the

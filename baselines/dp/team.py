@@ -55,9 +55,9 @@ class DPTeamPlanner:
             its UAV where a separated move remains in the next slot
             (:func:`baselines.dp.continuation.secure_continuations`). Off by default: the paper's planner, and
             the suite's reference, plan without it.
-        best_effort_escape: let the safety layer fly a UAV's best effort toward a node it cannot reach (flagged
-            infeasible) when no pair of manoeuvres separates it from a teammate
-            (:meth:`baselines.dp.safety._FirstSlot.escape`). Off by default, as for the look-ahead.
+        best_effort_escape: where no priority order of the safety layer separates the team with its moves, let a
+            UAV left without a separated move fly its best effort toward a node it cannot reach (flagged
+            infeasible; :meth:`baselines.dp.safety._FirstSlot.escape`). Off by default, as for the look-ahead.
     """
 
     def __init__(self, planner: DPPlanner, *, max_rounds: int = 5, separation_margin: float = 0.5,
