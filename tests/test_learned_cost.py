@@ -19,6 +19,7 @@ from covert_env import Config, Scenario, Terrain
 from covert_env.angles import wrap_angle
 from covert_env.cost import uav_target_angle, uav_target_distance
 from covert_env.dynamics import solve_manoeuvre
+from covert_env.tasks import get_task
 from covert_env.visibility import line_of_sight
 from covert_env.zone import to_world, zone_lattice
 from training.pretrained.learned_cost import load_cost_planner, path_cost_of
@@ -210,7 +211,19 @@ GOOD = {"kind": "dp-cost", "planner": {"heading": "inherited"}}
 def test_loader_builds_the_planner_with_the_files_path_cost(tmp_path):
     pol = load_cost_planner(_write(tmp_path, GOOD, path_cost=np.array([50.0, 25.0, 0.0, 0.0, 0.0])))
     assert pol.kw["path_cost"].tolist() == [50.0, 25.0, 0.0, 0.0, 0.0]
-    assert pol.env_settings == {"action_mode": "waypoint"}
+    assert pol.env_settings == {"action_mode": "waypoint", "mask_mode": "visible"}
+    assert pol.kw["shadow_aware"] is True                       # cards written before the field plan as the paper
+
+
+def test_a_shadow_blind_card_plans_over_the_kinematic_mask(tmp_path):
+    card = {**GOOD, "planner": {"heading": "inherited", "shadow_aware": False}}
+    pol = load_cost_planner(_write(tmp_path, card, path_cost=np.ones(5)))
+    assert pol.kw["shadow_aware"] is False and pol.name == "learned-cost(w)"
+    assert pol.env_settings == {"action_mode": "waypoint", "mask_mode": "kinematic"}
+    card["planner"]["shadow_aware"] = "no"
+    (tmp_path / "w.json").write_text(json.dumps(card))
+    with pytest.raises(ValueError, match=r"w.json: planner.shadow_aware must be true or false, got 'no'"):
+        load_cost_planner(tmp_path / "w.npz")
 
 
 @pytest.mark.parametrize("card, arrays, match", [
@@ -249,13 +262,26 @@ def test_dp_cost_learns_and_writes_a_loadable_run(tmp_path):
     assert card["kind"] == "dp-cost" and card["training"]["episodes"] == 3
     assert card["training"]["env_steps"] == 3 * 70
     pol, settings = load_policy(f"mappo:{run}", 3)
-    assert settings == {"n_uavs": 3, "action_mode": "waypoint"}
+    assert settings == {"n_uavs": 3, "action_mode": "waypoint", "mask_mode": "visible"}
     np.testing.assert_allclose(pol.kw["path_cost"], path_cost_of(*card["params"].values(), 5))
     assert card["planner"] == {"heading": "inherited", "separated_continuation": True,       # learned and flown with
-                               "best_effort_escape": True}
+                               "best_effort_escape": True, "shadow_aware": True}
     assert pol.team_kw["separated_continuation"] is True and pol.team_kw["best_effort_escape"] is True
     fig = main(["--plot", str(run), "--plot-out", str(tmp_path / "c.png")])
     assert fig.stat().st_size > 10_000
+
+
+def test_shadow_blind_candidates_fly_into_shadows_without_a_cost_but_the_paper_planner_does_not():
+    """``shadow_aware=False`` changes the candidates only: with no cost they plan over shadowed nodes too (more of the
+    path blocked than the paper's planner on the same scene), and the reference episode stays the paper's."""
+    from training.dp_cost import episode_return
+
+    seed = int(get_task("downtown-3uav").train_seeds[3])
+    paper = episode_return("downtown-3uav", seed, None, "inherited")
+    assert episode_return("downtown-3uav", seed, None, "inherited", shadow_aware=False) == paper
+    blind = episode_return("downtown-3uav", seed, [0.0] * 5, "inherited", shadow_aware=False)
+    assert blind["blocked_path_share"] > paper["blocked_path_share"] + 0.05
+    assert blind["return"] < paper["return"]
 
 
 @pytest.mark.parametrize("argv, match", [(["--elite", "7"], "elite"), (["--tasks", "nowhere-3uav"], "tasks"),

@@ -83,6 +83,11 @@ class Args:
     best_effort_escape: bool = True
     """the candidates' safety layer may fly a best effort where no pair of manoeuvres keeps two UAVs apart
     (baselines.dp.safety); the paper's planner they are compared with does not"""
+    shadow_aware: bool = True
+    """the candidates plan over the visible zone (eq. 10, the paper's nodes); false: over the kinematic mask's nodes
+    (every zone node clear of the tops, shadowed or not), so the learned cost is all that keeps them out of the
+    shadows, and they fly in envs with ``mask_mode="kinematic"``. The paper's planner they are compared with stays
+    shadow-aware"""
     jobs: int = 2
     """worker processes for the episodes"""
     runs_dir: str = "runs"
@@ -103,17 +108,21 @@ RANGES = {"iterations": (1, 100), "population": (2, 100), "elite": (1, 100), "sc
 
 
 def episode_return(task: str, scene_seed: int, path_cost: list[float] | None, heading: str,
-                   separated_continuation: bool = False, best_effort_escape: bool = False) -> dict:
-    """One episode of the planner (``path_cost`` None: the paper's, without the look-ahead or the escape) on a
-    task's scene: mean return per UAV and the blocked path share (a worker's unit of work)."""
+                   separated_continuation: bool = False, best_effort_escape: bool = False,
+                   shadow_aware: bool = True) -> dict:
+    """One episode of the planner (``path_cost`` None: the paper's, shadow-aware, without the look-ahead or the
+    escape) on a task's scene: mean return per UAV and the blocked path share (a worker's unit of work)."""
     from baselines.policies import DPPolicy, run_episode
     from covert_env.envs.covert_sensing import CovertSensingParallelEnv
 
     t = get_task(task)
-    env = CovertSensingParallelEnv(task=task, n_uavs=t.n_uavs, action_mode="waypoint")
-    pol = DPPolicy(heading=heading, path_cost=path_cost,
-                   separated_continuation=separated_continuation and path_cost is not None,
-                   best_effort_escape=best_effort_escape and path_cost is not None)
+    learned = path_cost is not None
+    # The mask mode changes only the action mask and the infeasible flags, not the dynamics or the reward.
+    env = CovertSensingParallelEnv(task=task, n_uavs=t.n_uavs, action_mode="waypoint",
+                                   mask_mode="visible" if shadow_aware or not learned else "kinematic")
+    pol = DPPolicy(heading=heading, path_cost=path_cost, shadow_aware=shadow_aware or not learned,
+                   separated_continuation=separated_continuation and learned,
+                   best_effort_escape=best_effort_escape and learned)
     res = run_episode(pol, env, seed=scene_seed, options={"scene_seed": scene_seed})
     env.close()
     return {"return": float(np.mean(list(res["return"].values()))),
@@ -237,8 +246,8 @@ def main(argv: list[str] | None = None) -> Path:
         scenes = [(t, int(s)) for t in tasks for s in rng.choice(min(args.scene_pool, len(get_task(t).train_seeds)),
                                                                  args.scenes_per_task, replace=False)]
         costs = [None] + [path_cost_of(a, g, horizon).tolist() for a, g in cands]
-        work = [(t, s, c, args.heading, args.separated_continuation, args.best_effort_escape) for c in costs
-                for (t, s) in scenes]
+        work = [(t, s, c, args.heading, args.separated_continuation, args.best_effort_escape, args.shadow_aware)
+                for c in costs for (t, s) in scenes]
         res = ordered_results(episode_return, work, jobs=args.jobs, on_result=bar.update if bar else None)
         ret = np.array([r["return"] for r in res]).reshape(len(costs), len(scenes))
         share = np.array([r["blocked_path_share"] for r in res]).reshape(len(costs), len(scenes))
@@ -259,13 +268,14 @@ def main(argv: list[str] | None = None) -> Path:
     w = path_cost_of(mean[0], mean[1], horizon)
     np.savez(run_dir / "model.npz", path_cost=w)
     planner = {"heading": args.heading, "separated_continuation": args.separated_continuation,
-               "best_effort_escape": args.best_effort_escape}
+               "best_effort_escape": args.best_effort_escape, "shadow_aware": args.shadow_aware}
     card = {"kind": KIND, "planner": planner, "params": {"scale": float(mean[0]), "decay": float(mean[1])},
             "path_cost": w.tolist(), "algorithm": "CEM", "tasks": tasks, "seed": args.seed,
             "training": {"iterations": args.iterations, "population": args.population, "elite": args.elite,
                          "scenes_per_task": args.scenes_per_task,
                          "wall_time_minutes": round((time.perf_counter() - t_start) / 60, 1), "jobs": args.jobs},
-            "commit": commit, "env_kwargs": {"action_mode": "waypoint"}}
+            "commit": commit, "env_kwargs": {"action_mode": "waypoint",
+                                             "mask_mode": "visible" if args.shadow_aware else "kinematic"}}
     card["training"].update(training_budget(card["training"], tasks))
     (run_dir / "model.json").write_text(json.dumps(card, indent=2) + "\n")
     print(f"path_cost {np.round(w, 1).tolist()} (scale {mean[0]:.3f}, decay {mean[1]:.3f}) -> {run_dir}")

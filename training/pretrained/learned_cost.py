@@ -11,7 +11,9 @@ Files (no pickle: ``np.load(..., allow_pickle=False)`` and JSON):
 
 * ``NAME.npz``: ``path_cost``, (N,) float, m of stage cost per unit of blocked path share, stage 1 first;
 * ``NAME.json``: the card: ``kind`` = ``"dp-cost"``, ``planner`` (``heading``; ``separated_continuation``, the
-  team's look-ahead, and ``best_effort_escape``, the safety layer's escape, both off where absent), the learned
+  team's look-ahead, and ``best_effort_escape``, the safety layer's escape, both off where absent;
+  ``shadow_aware``, true where absent: false plans over the kinematic mask's nodes, shadowed ones too, and flies in
+  envs with ``mask_mode="kinematic"``), the learned
   parameters, how they were learned, and for shipped files the scores.
 """
 
@@ -74,6 +76,7 @@ def load_cost_planner(path: str | Path) -> DPPolicy:
         raise ValueError(f"{card_path}: planner.heading must be 'inherited' or 'binned', got {heading!r}")
     # Cards written before the look-ahead or the escape existed fly without them, as they were scored.
     flags = {name: planner.get(name, False) for name in ("separated_continuation", "best_effort_escape")}
+    flags["shadow_aware"] = planner.get("shadow_aware", True)       # cards before the kinematic-mask planner
     for name, flag in flags.items():
         if not isinstance(flag, bool):
             raise ValueError(f"{card_path}: planner.{name} must be true or false, got {flag!r}")
@@ -91,6 +94,6 @@ def load_cost_planner(path: str | Path) -> DPPolicy:
         raise ValueError(f"{npz}: path_cost must be 1 to {MAX_HORIZON} numbers in [0, 1e6], got {w.tolist()!r}")
     pol = DPPolicy(heading=heading, path_cost=w, **flags)
     pol.name = f"learned-cost({npz.stem if npz.stem != 'model' else npz.parent.name})"
-    pol.env_settings = {"action_mode": "waypoint"}
+    pol.env_settings = {"action_mode": "waypoint", "mask_mode": "visible" if flags["shadow_aware"] else "kinematic"}
     pol.card = card
     return pol
