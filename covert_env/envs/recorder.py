@@ -12,9 +12,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from covert_env.envs.arguments import int_arg
+from covert_env.scenario import Scenario
 from covert_env.trajectory import Trajectory
 
-__all__ = ["CopyView", "EpisodeRecorder"]
+__all__ = ["CopyReaders", "CopyView", "EpisodeRecorder"]
 
 
 class EpisodeRecorder:
@@ -117,3 +119,66 @@ class CopyView:
 
     def trajectory(self) -> Trajectory:
         return self._venv.trajectory(self._i)
+
+
+class CopyReaders:
+    """The vector env's readers of its copies: slots, poses, scenes, episodes and :class:`CopyView` (a base of
+    :class:`~covert_env.envs.vector.CovertSensingVectorEnv`, whose batch state ``_k``, ``_xy``, ``_theta``, ``_rows``,
+    ``_pool``, ``_drawn``, ``_start_xy``, ``_start_theta`` and ``_recorder`` they read; ``require_running`` guards
+    them like every other read)."""
+
+    @property
+    def started(self) -> bool:
+        """True once ``reset()`` has been called."""
+        return self._started
+
+    @property
+    def slots(self) -> np.ndarray:
+        """(B,) the slot k each copy has reached."""
+        return self._k.copy()
+
+    @property
+    def uav_xy(self) -> np.ndarray:
+        """(B, U, 2) the UAVs' positions (read-only view)."""
+        out = self._xy.view()
+        out.flags.writeable = False
+        return out
+
+    @property
+    def uav_theta(self) -> np.ndarray:
+        """(B, U) the UAVs' headings in [0, 2 pi) (read-only view)."""
+        out = self._theta.view()
+        out.flags.writeable = False
+        return out
+
+    def scene(self, i: int):
+        """The scene copy i flies (``config``, ``terrain``, ``track``, ``name``), without starts."""
+        i = self._copy("scene()", i)
+        return self._pool.cache(self._rows[i]).parts
+
+    def scenario(self, i: int) -> Scenario:
+        """The :class:`~covert_env.scenario.Scenario` of copy i's episode, with the starts actually flown."""
+        i = self._copy("scenario()", i)
+        cache = self._pool.cache(self._rows[i])
+        if not self._drawn[i]:
+            return cache.seeded_scenario()
+        w = cache.parts
+        return Scenario(w.config, w.terrain, w.track, self._start_xy[i].copy(), self._start_theta[i].copy(),
+                        name=w.name)
+
+    def trajectory(self, i: int) -> Trajectory:
+        """Copy i's episode so far as a :class:`~covert_env.trajectory.Trajectory` (needs ``record=True``)."""
+        if self._recorder is None:
+            raise RuntimeError("trajectory() needs the vector env built with record=True")
+        i = self._copy("trajectory()", i)
+        return self._recorder.trajectory(i, int(self._k[i]), self.scene(i).track)
+
+    def copy_view(self, i: int) -> CopyView:
+        """Copy i read as an engine (:class:`~covert_env.envs.recorder.CopyView`), after ``reset()``."""
+        return CopyView(self, self._copy("copy_view()", i))
+
+    def _copy(self, what: str, i) -> int:
+        """Copy index ``i`` checked (an integer in [0, num_envs - 1]; no negative indices, bools or floats) while
+        the env is running."""
+        self.require_running(what)
+        return int_arg(f"{what}: copy index", i, 0, self.num_envs - 1)

@@ -20,8 +20,8 @@ from covert_env.scenario import PAPER_UAV_STARTS, Scenario
 from covert_env.tasks import get_task
 from covert_env.zone import in_feasible_zone, lattice_offsets, zone_lattice
 
-__all__ = ["ACTION_MODES", "EnvSettings", "MASK_MODES", "MAX_PATH_SAMPLES", "MAX_SCENE_POOL", "PENALTIES",
-           "RENDER_MODES", "PenaltyWeights", "check_penalties", "check_reward_scale"]
+__all__ = ["ACTION_MODES", "EnvSettings", "LiveSettings", "MASK_MODES", "MAX_PATH_SAMPLES", "MAX_SCENE_POOL",
+           "PENALTIES", "RENDER_MODES", "PenaltyWeights", "check_penalties", "check_reward_scale"]
 
 ACTION_MODES = ("unicycle", "waypoint")
 #: What the waypoint action mask allows: reachable nodes of the visible zone (eq. 10), or every reachable node.
@@ -203,3 +203,53 @@ class EnvSettings:
                                                   "action_mask": spaces.Box(0, 1, (len(self.lattice),), dtype=np.int8)})
         else:
             self.observation_space = self.obs_box
+
+
+class LiveSettings:
+    """The settings an env reads at every step, which users may assign between steps (PettingZoo's test battery
+    and wrappers set ``max_cycles`` as an attribute): every assignment is validated as the constructor's argument.
+
+    A base of :class:`~covert_env.envs.vector.CovertSensingVectorEnv`, which sets ``config`` and the private fields
+    once in its setup; the parallel env forwards these attributes to its one-copy vector env.
+    """
+
+    @property
+    def max_cycles(self) -> int:
+        """Episode length bound in slots (validated on assignment); episodes also end at ``config.n_slots``."""
+        return self._max_cycles
+
+    @max_cycles.setter
+    def max_cycles(self, value) -> None:
+        self._max_cycles = int_arg("max_cycles", value, 1)
+
+    @property
+    def episode_length(self) -> int:
+        return min(self._max_cycles, self.config.n_slots)
+
+    @property
+    def reward_scale(self) -> float:
+        """The stage cost's divisor in the reward (validated on assignment, read at every step)."""
+        return self._reward_scale
+
+    @reward_scale.setter
+    def reward_scale(self, value) -> None:
+        self._reward_scale = check_reward_scale(value)
+
+    @property
+    def penalties(self) -> dict[str, float]:
+        """Penalty weights by term, read at every step. Assigning a dict validates it, and so does item
+        assignment (``penalties["los"] = 2.0``, live: :class:`~covert_env.envs.settings.PenaltyWeights`)."""
+        return self._penalties
+
+    @penalties.setter
+    def penalties(self, value) -> None:
+        self._penalties = check_penalties(value)
+
+    @property
+    def terminate_on_collision(self) -> bool:
+        """End a copy's episode when two UAVs come closer than d_safe1 (validated on assignment)."""
+        return self._terminate
+
+    @terminate_on_collision.setter
+    def terminate_on_collision(self, value) -> None:
+        self._terminate = bool_arg("terminate_on_collision", value)

@@ -12,16 +12,15 @@ from gymnasium.vector.utils import batch_space
 from covert_env.angles import wrap_heading
 from covert_env.config import short_repr
 from covert_env.envs import batch
-from covert_env.envs.arguments import bool_arg, int_arg, reset_options
-from covert_env.envs.recorder import CopyView, EpisodeRecorder
+from covert_env.envs.arguments import int_arg, reset_options
+from covert_env.envs.recorder import CopyReaders, EpisodeRecorder
 from covert_env.envs.scene_pool import ScenePool
-from covert_env.envs.settings import EnvSettings, check_penalties, check_reward_scale
+from covert_env.envs.settings import EnvSettings, LiveSettings, check_penalties
+from covert_env.envs.waypoint_queries import WaypointQueries
 from covert_env.flight import fly_arc
 from covert_env.metrics import moves_quantities
 from covert_env.reach import reach_table
-from covert_env.scenario import Scenario
 from covert_env.separation import nearest_teammate
-from covert_env.trajectory import Trajectory
 from covert_env.zone import zone_distance
 
 __all__ = ["AUTORESET_MODES", "CovertSensingVectorEnv", "vector_env", "INFO_BOOLS", "INFO_KEYS", "INFO_DTYPES",
@@ -47,7 +46,7 @@ INFO_DTYPES = {key: np.dtype(np.int64) if key == "slot" else np.dtype(bool) if k
                else np.dtype(np.float64) for key in INFO_KEYS}
 
 
-class CovertSensingVectorEnv:
+class CovertSensingVectorEnv(LiveSettings, CopyReaders, WaypointQueries):
     """B copies of :class:`~covert_env.envs.covert_sensing.CovertSensingParallelEnv`, as batch-first arrays.
 
     ## Description
@@ -244,52 +243,10 @@ class CovertSensingVectorEnv:
         self._recorder = EpisodeRecorder(b, u, c.n_slots, self.path_samples) if record else None
         self._reach = reach_table(c.v_max, c.w_max, c.delta) if self.action_mode == "waypoint" else None
 
-    # ------------------------------------------------------------------ properties
-    @property
-    def max_cycles(self) -> int:
-        """Episode length bound in slots (validated on assignment); episodes also end at ``config.n_slots``."""
-        return self._max_cycles
-
-    @max_cycles.setter
-    def max_cycles(self, value) -> None:
-        self._max_cycles = int_arg("max_cycles", value, 1)
-
-    @property
-    def episode_length(self) -> int:
-        return min(self._max_cycles, self.config.n_slots)
-
-    @property
-    def reward_scale(self) -> float:
-        """The stage cost's divisor in the reward (validated on assignment, read at every step)."""
-        return self._reward_scale
-
-    @reward_scale.setter
-    def reward_scale(self, value) -> None:
-        self._reward_scale = check_reward_scale(value)
-
     @property
     def num_envs(self) -> int:
         """B, the number of copies (fixed at construction: every array is sized by it)."""
         return self._num_envs
-
-    @property
-    def penalties(self) -> dict[str, float]:
-        """Penalty weights by term, read at every step. Assigning a dict validates it, and so does item
-        assignment (``penalties["los"] = 2.0``, live: :class:`~covert_env.envs.settings.PenaltyWeights`)."""
-        return self._penalties
-
-    @penalties.setter
-    def penalties(self, value) -> None:
-        self._penalties = check_penalties(value)
-
-    @property
-    def terminate_on_collision(self) -> bool:
-        """End a copy's episode when two UAVs come closer than d_safe1 (validated on assignment)."""
-        return self._terminate
-
-    @terminate_on_collision.setter
-    def terminate_on_collision(self, value) -> None:
-        self._terminate = bool_arg("terminate_on_collision", value)
 
     # ------------------------------------------------------------------ API
     def reset(self, *, seed=None, options: dict | None = None):
@@ -397,143 +354,11 @@ class CovertSensingVectorEnv:
                 np.repeat(trunc[:, None], u, axis=1), infos)
 
     # ------------------------------------------------------------------ reading copies
-    @property
-    def started(self) -> bool:
-        """True once ``reset()`` has been called."""
-        return self._started
-
-    @property
-    def slots(self) -> np.ndarray:
-        """(B,) the slot k each copy has reached."""
-        return self._k.copy()
-
-    @property
-    def uav_xy(self) -> np.ndarray:
-        """(B, U, 2) the UAVs' positions (read-only view)."""
-        out = self._xy.view()
-        out.flags.writeable = False
-        return out
-
-    @property
-    def uav_theta(self) -> np.ndarray:
-        """(B, U) the UAVs' headings in [0, 2 pi) (read-only view)."""
-        out = self._theta.view()
-        out.flags.writeable = False
-        return out
-
-    def scene(self, i: int):
-        """The scene copy i flies (``config``, ``terrain``, ``track``, ``name``), without starts."""
-        i = self._copy("scene()", i)
-        return self._pool.cache(self._rows[i]).parts
-
-    def scenario(self, i: int) -> Scenario:
-        """The :class:`~covert_env.scenario.Scenario` of copy i's episode, with the starts actually flown."""
-        i = self._copy("scenario()", i)
-        cache = self._pool.cache(self._rows[i])
-        if not self._drawn[i]:
-            return cache.seeded_scenario()
-        w = cache.parts
-        return Scenario(w.config, w.terrain, w.track, self._start_xy[i].copy(), self._start_theta[i].copy(),
-                        name=w.name)
-
-    def trajectory(self, i: int) -> Trajectory:
-        """Copy i's episode so far as a :class:`~covert_env.trajectory.Trajectory` (needs ``record=True``)."""
-        if self._recorder is None:
-            raise RuntimeError("trajectory() needs the vector env built with record=True")
-        i = self._copy("trajectory()", i)
-        return self._recorder.trajectory(i, int(self._k[i]), self.scene(i).track)
-
-    def copy_view(self, i: int) -> CopyView:
-        """Copy i read as an engine (:class:`~covert_env.envs.recorder.CopyView`), after ``reset()``."""
-        return CopyView(self, self._copy("copy_view()", i))
-
     def action_masks(self) -> np.ndarray:
         """(B, U, L) int8 waypoint masks (1 = allowed); all ones (B, U, 2) in unicycle mode. Known after
         ``reset()``: before it (or after ``close()``) a RuntimeError, as in the parallel env."""
         self.require_running("action_masks()")
         return self._masks.copy()
-
-    def waypoint_paths(self, nodes) -> np.ndarray:
-        """Where the UAVs would fly in this slot to lattice ``nodes``: path samples ``(B, U, M, path_samples, 2)``
-        (world frame, m) for node indices ``(B, U, M)``, at the sample times of ``step`` and flown as ``step``
-        flies them (the manoeuvre of eqs. 22-29, or its best effort where a node is out of reach). An index of -1
-        stands for no node (ragged candidate lists): its samples are NaN and cost nothing.
-
-        A read-only query (the state does not change), for policies that plan with the model: the separation
-        shield of ``training.shield`` tests these paths against eq. 2. Waypoint mode, after ``reset()``."""
-        nodes = self._checked_nodes("waypoint_paths()", nodes)
-        if nodes.shape[2] > len(self.lattice):
-            raise ValueError(f"waypoint_paths(): at most {len(self.lattice)} nodes per UAV (the lattice's), got "
-                             f"M = {nodes.shape[2]}")
-        return batch.fly_to_goals(self._xy, self._theta, self._goals(nodes), self.config, self._times)
-
-    def waypoint_goals(self, nodes) -> np.ndarray:
-        """Where lattice ``nodes`` ``(B, U, M)`` lie at slot k+1: ``(B, U, M, 2)`` (world frame, m), the waypoints
-        those actions fly to; NaN where the index is -1 (no node). Read-only; waypoint mode, after ``reset()``."""
-        return self._goals(self._checked_nodes("waypoint_goals()", nodes))
-
-    def onward_reach(self, xy, theta) -> np.ndarray:
-        """How many lattice nodes UAVs ending this slot at poses ``xy`` ``(B, U, M, 2)`` (world frame, m), heading
-        ``theta`` ``(B, U, M)``, may reach in the next slot: ``(B, U, M)`` int64, -1 where the pose holds a NaN.
-
-        The next slot's nodes are placed at the target two slots ahead: its pose predicted for slot k+1, driven on
-        for one more slot with the same displacement and turn (a constant-speed, constant-curvature guess; the env
-        keeps one slot of prediction). Reachability is :class:`~covert_env.reach.ReachTable`'s lookup without the
-        manoeuvre solver: the nodes in its boundary cells count as unreachable, so the count is a lower bound
-        (within a cell of the reach boundary). A UAV with a count of 0 reaches no node next slot, or only nodes
-        at the edge of its reach: it is about to leave the zone. A read-only query (waypoint mode, after
-        ``reset()``) for policies that look one slot ahead: the viability rule of ``training.shield`` tests the
-        ends of its candidate paths (``waypoint_paths``) with it."""
-        if self.action_mode != "waypoint":
-            raise RuntimeError("onward_reach() is for action_mode='waypoint'")
-        self.require_running("onward_reach()")
-        xy, theta = np.asarray(xy), np.asarray(theta)
-        b, u = self.num_envs, len(self.possible_agents)
-        if xy.ndim != 4 or xy.shape[:2] != (b, u) or xy.shape[3] != 2 or theta.shape != xy.shape[:3]:
-            raise ValueError(f"onward_reach(): xy must have shape ({b}, {u}, M, 2) and theta ({b}, {u}, M), got "
-                             f"{xy.shape} and {theta.shape}")
-        if xy.dtype.kind not in "fiu" or theta.dtype.kind not in "fiu":
-            raise ValueError(f"onward_reach(): xy and theta must be real numbers, got dtypes {xy.dtype} and "
-                             f"{theta.dtype}")
-        xy, theta = xy.astype(np.float64), theta.astype(np.float64)
-        if np.isinf(xy).any() or np.isinf(theta).any():
-            raise ValueError("onward_reach(): xy and theta must be finite (NaN marks no pose), got inf")
-        out = np.full(theta.shape, -1, np.int64)
-        ci, ui, mi = np.nonzero(~(np.isnan(xy).any(axis=-1) | np.isnan(theta)))
-        if len(ci) == 0:
-            return out
-        pool, rows, k = self._pool, self._rows, self._k
-        q0, q1 = pool.q[rows, k, :2], pool.q_next[rows, k, :2]
-        turn = pool.phi_next[rows, k] - pool.phi[rows, k]
-        q2 = batch.to_world_batch((q1 - q0)[:, None], q1, turn)[:, 0]          # the displacement, turned, again
-        phi2 = pool.phi_next[rows, k] + turn
-        reach = self._reach.reachable(xy[ci, ui, mi][:, None], theta[ci, ui, mi][:, None], q2[ci], phi2[ci],
-                                      self.lattice, exact=False)                                  # (N, 1, L)
-        out[ci, ui, mi] = reach[:, 0].sum(axis=-1)
-        return out
-
-    def _checked_nodes(self, what: str, nodes) -> np.ndarray:
-        """Node indices ``(B, U, M)`` (-1: none) checked for ``what``: waypoint mode, running, shape, type, range."""
-        if self.action_mode != "waypoint":
-            raise RuntimeError(f"{what} is for action_mode='waypoint'")
-        self.require_running(what)
-        nodes = np.asarray(nodes)
-        b, u = self.num_envs, len(self.possible_agents)
-        if nodes.ndim != 3 or nodes.shape[:2] != (b, u) or not np.issubdtype(nodes.dtype, np.integer):
-            raise ValueError(f"{what}: nodes must be integer indices of shape ({b}, {u}, M), got "
-                             f"{nodes.dtype} {nodes.shape}")
-        if nodes.size and (nodes.min() < -1 or nodes.max() >= len(self.lattice)):
-            raise ValueError(f"{what}: node indices must be in [0, {len(self.lattice) - 1}] (or -1 for "
-                             f"none), got [{nodes.min()}, {nodes.max()}]")
-        return nodes
-
-    def _goals(self, nodes: np.ndarray) -> np.ndarray:
-        pool, rows, k = self._pool, self._rows, self._k
-        ci, ui, mi = np.nonzero(nodes >= 0)                       # only the real (copy, UAV, node) triples
-        out = np.full((*nodes.shape, 2), np.nan)
-        out[ci, ui, mi] = batch.to_world_batch(self.lattice[nodes[ci, ui, mi]][:, None],
-                                               pool.q_next[rows[ci], k[ci], :2], pool.phi_next[rows[ci], k[ci]])[:, 0]
-        return out
 
     def state(self) -> np.ndarray:
         """(B, S) float32 global state, row b the parallel env's ``state()`` of copy b."""
@@ -551,12 +376,6 @@ class CovertSensingVectorEnv:
             raise RuntimeError(f"{what} called after close(); make a new env")
         if not self._started:
             raise RuntimeError(f"{what} called before reset(); call reset() first")
-
-    def _copy(self, what: str, i) -> int:
-        """Copy index ``i`` checked (an integer in [0, num_envs - 1]; no negative indices, bools or floats) while
-        the env is running."""
-        self.require_running(what)
-        return int_arg(f"{what}: copy index", i, 0, self.num_envs - 1)
 
     # ------------------------------------------------------------------ internals
     def _reset_copies(self, idx: np.ndarray, scene_seeds) -> None:

@@ -1,0 +1,105 @@
+"""Read-only queries of where waypoint actions would take the UAVs, for policies that plan with the model.
+
+The separation shield and the viability rule of ``training.shield`` ask these of the vector env before they act:
+the paths a set of candidate nodes would fly this slot (tested against eq. 2), their end points, and how many
+nodes a UAV could still reach from each end next slot. None of them changes the env's state.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from covert_env.envs import batch
+
+__all__ = ["WaypointQueries"]
+
+
+class WaypointQueries:
+    """The vector env's waypoint queries (a base of :class:`~covert_env.envs.vector.CovertSensingVectorEnv`).
+
+    They read the env's batch state: ``_xy``, ``_theta`` (B, U), ``_k`` (B,) and ``_rows`` (B,) into the scene
+    pool ``_pool``, the ``lattice``, ``config``, the reach table ``_reach`` and the sample times ``_times`` of a
+    slot; ``require_running`` guards them like every other read.
+    """
+
+    def waypoint_paths(self, nodes) -> np.ndarray:
+        """Where the UAVs would fly in this slot to lattice ``nodes``: path samples ``(B, U, M, path_samples, 2)``
+        (world frame, m) for node indices ``(B, U, M)``, at the sample times of ``step`` and flown as ``step``
+        flies them (the manoeuvre of eqs. 22-29, or its best effort where a node is out of reach). An index of -1
+        stands for no node (ragged candidate lists): its samples are NaN and cost nothing.
+
+        A read-only query (the state does not change), for policies that plan with the model: the separation
+        shield of ``training.shield`` tests these paths against eq. 2. Waypoint mode, after ``reset()``."""
+        nodes = self._checked_nodes("waypoint_paths()", nodes)
+        if nodes.shape[2] > len(self.lattice):
+            raise ValueError(f"waypoint_paths(): at most {len(self.lattice)} nodes per UAV (the lattice's), got "
+                             f"M = {nodes.shape[2]}")
+        return batch.fly_to_goals(self._xy, self._theta, self._goals(nodes), self.config, self._times)
+
+    def waypoint_goals(self, nodes) -> np.ndarray:
+        """Where lattice ``nodes`` ``(B, U, M)`` lie at slot k+1: ``(B, U, M, 2)`` (world frame, m), the waypoints
+        those actions fly to; NaN where the index is -1 (no node). Read-only; waypoint mode, after ``reset()``."""
+        return self._goals(self._checked_nodes("waypoint_goals()", nodes))
+
+    def onward_reach(self, xy, theta) -> np.ndarray:
+        """How many lattice nodes UAVs ending this slot at poses ``xy`` ``(B, U, M, 2)`` (world frame, m), heading
+        ``theta`` ``(B, U, M)``, may reach in the next slot: ``(B, U, M)`` int64, -1 where the pose holds a NaN.
+
+        The next slot's nodes are placed at the target two slots ahead: its pose predicted for slot k+1, driven on
+        for one more slot with the same displacement and turn (a constant-speed, constant-curvature guess; the env
+        keeps one slot of prediction). Reachability is :class:`~covert_env.reach.ReachTable`'s lookup without the
+        manoeuvre solver: the nodes in its boundary cells count as unreachable, so the count is a lower bound
+        (within a cell of the reach boundary). A UAV with a count of 0 reaches no node next slot, or only nodes
+        at the edge of its reach: it is about to leave the zone. A read-only query (waypoint mode, after
+        ``reset()``) for policies that look one slot ahead: the viability rule of ``training.shield`` tests the
+        ends of its candidate paths (``waypoint_paths``) with it."""
+        if self.action_mode != "waypoint":
+            raise RuntimeError("onward_reach() is for action_mode='waypoint'")
+        self.require_running("onward_reach()")
+        xy, theta = np.asarray(xy), np.asarray(theta)
+        b, u = self.num_envs, len(self.possible_agents)
+        if xy.ndim != 4 or xy.shape[:2] != (b, u) or xy.shape[3] != 2 or theta.shape != xy.shape[:3]:
+            raise ValueError(f"onward_reach(): xy must have shape ({b}, {u}, M, 2) and theta ({b}, {u}, M), got "
+                             f"{xy.shape} and {theta.shape}")
+        if xy.dtype.kind not in "fiu" or theta.dtype.kind not in "fiu":
+            raise ValueError(f"onward_reach(): xy and theta must be real numbers, got dtypes {xy.dtype} and "
+                             f"{theta.dtype}")
+        xy, theta = xy.astype(np.float64), theta.astype(np.float64)
+        if np.isinf(xy).any() or np.isinf(theta).any():
+            raise ValueError("onward_reach(): xy and theta must be finite (NaN marks no pose), got inf")
+        out = np.full(theta.shape, -1, np.int64)
+        ci, ui, mi = np.nonzero(~(np.isnan(xy).any(axis=-1) | np.isnan(theta)))
+        if len(ci) == 0:
+            return out
+        pool, rows, k = self._pool, self._rows, self._k
+        q0, q1 = pool.q[rows, k, :2], pool.q_next[rows, k, :2]
+        turn = pool.phi_next[rows, k] - pool.phi[rows, k]
+        q2 = batch.to_world_batch((q1 - q0)[:, None], q1, turn)[:, 0]          # the displacement, turned, again
+        phi2 = pool.phi_next[rows, k] + turn
+        reach = self._reach.reachable(xy[ci, ui, mi][:, None], theta[ci, ui, mi][:, None], q2[ci], phi2[ci],
+                                      self.lattice, exact=False)                                  # (N, 1, L)
+        out[ci, ui, mi] = reach[:, 0].sum(axis=-1)
+        return out
+
+    def _checked_nodes(self, what: str, nodes) -> np.ndarray:
+        """Node indices ``(B, U, M)`` (-1: none) checked for ``what``: waypoint mode, running, shape, type, range."""
+        if self.action_mode != "waypoint":
+            raise RuntimeError(f"{what} is for action_mode='waypoint'")
+        self.require_running(what)
+        nodes = np.asarray(nodes)
+        b, u = self.num_envs, len(self.possible_agents)
+        if nodes.ndim != 3 or nodes.shape[:2] != (b, u) or not np.issubdtype(nodes.dtype, np.integer):
+            raise ValueError(f"{what}: nodes must be integer indices of shape ({b}, {u}, M), got "
+                             f"{nodes.dtype} {nodes.shape}")
+        if nodes.size and (nodes.min() < -1 or nodes.max() >= len(self.lattice)):
+            raise ValueError(f"{what}: node indices must be in [0, {len(self.lattice) - 1}] (or -1 for "
+                             f"none), got [{nodes.min()}, {nodes.max()}]")
+        return nodes
+
+    def _goals(self, nodes: np.ndarray) -> np.ndarray:
+        pool, rows, k = self._pool, self._rows, self._k
+        ci, ui, mi = np.nonzero(nodes >= 0)                       # only the real (copy, UAV, node) triples
+        out = np.full((*nodes.shape, 2), np.nan)
+        out[ci, ui, mi] = batch.to_world_batch(self.lattice[nodes[ci, ui, mi]][:, None],
+                                               pool.q_next[rows[ci], k[ci], :2], pool.phi_next[rows[ci], k[ci]])[:, 0]
+        return out
