@@ -220,6 +220,10 @@ def test_a_shadow_blind_card_plans_over_the_kinematic_mask(tmp_path):
     pol = load_cost_planner(_write(tmp_path, card, path_cost=np.ones(5)))
     assert pol.kw["shadow_aware"] is False and pol.name == "learned-cost(w)"
     assert pol.env_settings == {"action_mode": "waypoint", "mask_mode": "kinematic"}
+    card["env_kwargs"] = {"action_mode": "waypoint", "mask_mode": "visible"}
+    (tmp_path / "w.json").write_text(json.dumps(card))
+    with pytest.raises(ValueError, match=r"w.json: env_kwargs.mask_mode 'visible' contradicts planner.shadow_aware"):
+        load_cost_planner(tmp_path / "w.npz")
     card["planner"]["shadow_aware"] = "no"
     (tmp_path / "w.json").write_text(json.dumps(card))
     with pytest.raises(ValueError, match=r"w.json: planner.shadow_aware must be true or false, got 'no'"):

@@ -200,8 +200,8 @@ def write_suite(out: Path, rows: list[dict], ref: dict, agg: dict, meta: dict, s
              "over tasks x runs x scenes with 95 % stratified-bootstrap intervals (strata: tasks). Constraint rates "
              "are means over the policy's cells (per UAV); min sep. is the smallest over its cells with a "
              "teammate. Action mask: the env's waypoint mask a policy acted with ('visible': reachable nodes of the "
-             "visible zone; 'kinematic': reachable nodes only; the planners choose among their own visible-zone nodes "
-             "and ignore it).", "",
+             "visible zone; 'kinematic': reachable nodes only; the planners choose among their own nodes, the visible "
+             "zone's or, shadow-blind, every zone node, and ignore the mask).", "",
              "| policy | action mask | tasks | score IQM [95 % CI] | score mean [95 % CI] | "
              + " | ".join(h for _, h in CONSTRAINTS) + " |",
              "|---|---|---|---|---|" + "---|" * len(CONSTRAINTS)]

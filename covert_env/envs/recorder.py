@@ -123,9 +123,10 @@ class CopyView:
 
 class CopyReaders:
     """The vector env's readers of its copies: slots, poses, scenes, episodes and :class:`CopyView` (a base of
-    :class:`~covert_env.envs.vector.CovertSensingVectorEnv`, whose batch state ``_k``, ``_xy``, ``_theta``, ``_rows``,
-    ``_pool``, ``_drawn``, ``_start_xy``, ``_start_theta`` and ``_recorder`` they read; ``require_running`` guards
-    them like every other read)."""
+    :class:`~covert_env.envs.vector.CovertSensingVectorEnv`, whose ``num_envs`` and batch state ``_started``, ``_k``,
+    ``_xy``, ``_theta``, ``_rows``, ``_pool``, ``_drawn``, ``_start_xy``, ``_start_theta`` and ``_recorder`` they
+    read). The readers of one copy check its index and ``require_running``; ``started``, ``slots``, ``uav_xy`` and
+    ``uav_theta`` read the arrays as they are (zeros before the first ``reset()``)."""
 
     @property
     def started(self) -> bool:

@@ -17,9 +17,9 @@ __all__ = ["WaypointQueries"]
 class WaypointQueries:
     """The vector env's waypoint queries (a base of :class:`~covert_env.envs.vector.CovertSensingVectorEnv`).
 
-    They read the env's batch state: ``_xy``, ``_theta`` (B, U), ``_k`` (B,) and ``_rows`` (B,) into the scene
-    pool ``_pool``, the ``lattice``, ``config``, the reach table ``_reach`` and the sample times ``_times`` of a
-    slot; ``require_running`` guards them like every other read.
+    They read the env's ``action_mode``, ``num_envs``, ``possible_agents``, ``lattice`` and ``config``, its batch
+    state ``_xy``, ``_theta`` (B, U), ``_k`` (B,) and ``_rows`` (B,) into the scene pool ``_pool``, the reach table
+    ``_reach`` and the sample times ``_times`` of a slot; each checks the waypoint mode and ``require_running``.
     """
 
     def waypoint_paths(self, nodes) -> np.ndarray:

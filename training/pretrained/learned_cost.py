@@ -4,8 +4,10 @@ The paper's planner (:mod:`baselines.dp`) checks line of sight at slot times onl
 the share of the flown path without it (``reward_los_path``). :mod:`training.dp_cost` learns, from episodes on the
 training scenes, how much the planner's search should charge for that share at each stage of its horizon
 (``path_cost``, :class:`~baselines.dp.DPPlanner`), with the cross-entropy method. The team is the paper's
-decentralised DP in every other respect: the same nodes, negotiation and safety layer, so it keeps the same
-constraints (docs/decisions.md#a-learned-cost-in-the-planners-search).
+decentralised DP in every other respect: the same negotiation and safety layer, so it keeps the same constraints,
+and the same nodes, the visible zone's, unless the card says ``shadow_aware: false``: then it plans over every zone
+node clear of the tops, shadowed or not (the kinematic mask's), and only the learned cost keeps it out of the
+shadows (docs/decisions.md#a-learned-cost-in-the-planners-search).
 
 Files (no pickle: ``np.load(..., allow_pickle=False)`` and JSON):
 
@@ -80,6 +82,13 @@ def load_cost_planner(path: str | Path) -> DPPolicy:
     for name, flag in flags.items():
         if not isinstance(flag, bool):
             raise ValueError(f"{card_path}: planner.{name} must be true or false, got {flag!r}")
+    mask = "visible" if flags["shadow_aware"] else "kinematic"
+    env_kwargs = card.get("env_kwargs")
+    stated = env_kwargs.get("mask_mode", mask) if isinstance(env_kwargs, dict) else mask
+    if stated != mask:
+        raise ValueError(f"{card_path}: env_kwargs.mask_mode {stated!r} contradicts planner.shadow_aware "
+                         f"{flags['shadow_aware']} (a shadow-aware planner flies with the 'visible' mask, a blind one "
+                         "with 'kinematic')")
     try:
         with zipfile.ZipFile(npz) as z:
             unpacked = sum(info.file_size for info in z.infolist())
@@ -94,6 +103,6 @@ def load_cost_planner(path: str | Path) -> DPPolicy:
         raise ValueError(f"{npz}: path_cost must be 1 to {MAX_HORIZON} numbers in [0, 1e6], got {w.tolist()!r}")
     pol = DPPolicy(heading=heading, path_cost=w, **flags)
     pol.name = f"learned-cost({npz.stem if npz.stem != 'model' else npz.parent.name})"
-    pol.env_settings = {"action_mode": "waypoint", "mask_mode": "visible" if flags["shadow_aware"] else "kinematic"}
+    pol.env_settings = {"action_mode": "waypoint", "mask_mode": mask}
     pol.card = card
     return pol
