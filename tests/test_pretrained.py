@@ -258,7 +258,7 @@ def test_card_states_the_constraint_rates_and_the_suite_rows(tmp_path, capsys):
         assert message in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("name", ["dp-cost", "dp-cost-binned"])
+@pytest.mark.parametrize("name", ["dp-cost", "dp-cost-binned", "dp-cost-kinematic"])
 def test_shipped_planners_fly_with_both_separation_rules_and_keep_d_safe1(name):
     """The learned-cost cards turn on the look-ahead and the escape, and state a smallest separation (the smallest of
     any scored scene, on the held-out paper scenes and per suite task) of at least d_safe1."""
@@ -270,3 +270,12 @@ def test_shipped_planners_fly_with_both_separation_rules_and_keep_d_safe1(name):
     assert pol.card["constraints"]["min_separation_m"] >= d_safe1
     assert pol.card["constraints"]["separation_violation_slots_per_uav"] == 0.0
     assert min(t["min_separation"] for t in pol.card["suite"]["tasks"].values()) >= d_safe1
+
+
+def test_the_kinematic_mask_planner_plans_over_shadowed_nodes_and_says_so():
+    """``pretrained:dp-cost-kinematic`` is shadow-blind (its nodes are the kinematic mask's) and flies, scores and
+    reports its suite rows with the kinematic mask."""
+    pol, settings = load_policy("pretrained:dp-cost-kinematic", 3)
+    assert pol.kw["shadow_aware"] is False and settings["mask_mode"] == "kinematic"
+    assert {t["mask_mode"] for t in pol.card["suite"]["tasks"].values()} == {"kinematic"}
+

@@ -1,6 +1,7 @@
 """Learn the planner's cost for LoS lost along the path, with the cross-entropy method (CEM), across the suite.
 
     python -m training.dp_cost --seed 0                 # 8 three-UAV tasks, ~25 min on 2 cores
+    python -m training.dp_cost --seed 0 --shadow-aware false   # the kinematic mask's nodes: shadows left to the cost
     python -m training.dp_cost --plot runs/a,runs/b --plot-out outputs/dp_cost_curves.png
     covert-env evaluate --task downtown-3uav --policies dp runs/<run>   # as mappo:runs/<run> or pretrained:dp-cost
 
