@@ -118,10 +118,11 @@ def episode_return(task: str, scene_seed: int, path_cost: list[float] | None, he
 
     t = get_task(task)
     learned = path_cost is not None
+    aware = shadow_aware or not learned                 # the reference is the paper's planner
     # The mask mode changes only the action mask and the infeasible flags, not the dynamics or the reward.
     env = CovertSensingParallelEnv(task=task, n_uavs=t.n_uavs, action_mode="waypoint",
-                                   mask_mode="visible" if shadow_aware or not learned else "kinematic")
-    pol = DPPolicy(heading=heading, path_cost=path_cost, shadow_aware=shadow_aware or not learned,
+                                   mask_mode="visible" if aware else "kinematic")
+    pol = DPPolicy(heading=heading, path_cost=path_cost, shadow_aware=aware,
                    separated_continuation=separated_continuation and learned,
                    best_effort_escape=best_effort_escape and learned)
     res = run_episode(pol, env, seed=scene_seed, options={"scene_seed": scene_seed})

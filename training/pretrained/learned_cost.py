@@ -15,8 +15,8 @@ Files (no pickle: ``np.load(..., allow_pickle=False)`` and JSON):
 * ``NAME.json``: the card: ``kind`` = ``"dp-cost"``, ``planner`` (``heading``; ``separated_continuation``, the
   team's look-ahead, and ``best_effort_escape``, the safety layer's escape, both off where absent;
   ``shadow_aware``, true where absent: false plans over the kinematic mask's nodes, shadowed ones too, and flies in
-  envs with ``mask_mode="kinematic"``), the learned
-  parameters, how they were learned, and for shipped files the scores.
+  envs with ``mask_mode="kinematic"``), the learned parameters, how they were learned, and for shipped files the
+  scores.
 """
 
 from __future__ import annotations
