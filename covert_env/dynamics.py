@@ -440,8 +440,9 @@ class Manoeuvre:
         zx, zy = self.tangent[..., 0][ex], self.tangent[..., 1][ex]
         in_turn = t <= tt
         # Each phase is flown exactly from its own start; times outside a phase are clipped, then discarded.
-        x1, y1, _ = unicycle_step(sx, sy, th0, v, om, np.minimum(t, tt))
-        x2, y2, _ = unicycle_step(zx, zy, tha, v, 0.0, np.maximum(t - tt, 0.0))
+        # Positions only: the headings along the path are never read.
+        x1, y1, _ = unicycle_arc(sx, sy, th0, v, om, np.minimum(t, tt), heading=False)
+        x2, y2, _ = unicycle_arc(zx, zy, tha, v, 0.0, np.maximum(t - tt, 0.0), heading=False)
         return np.stack([np.where(in_turn, x1, x2), np.where(in_turn, y1, y2)], axis=-1)
 
 

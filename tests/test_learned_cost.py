@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 import shapely
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from baselines.dp import DPPlanner
@@ -20,7 +20,7 @@ from covert_env.angles import wrap_angle
 from covert_env.cost import uav_target_angle, uav_target_distance
 from covert_env.dynamics import solve_manoeuvre
 from covert_env.tasks import get_task
-from covert_env.visibility import line_of_sight
+from covert_env.visibility import SAFE_LOS_TOLERANCE, line_of_sight
 from covert_env.zone import to_world, zone_lattice
 from training.pretrained.learned_cost import load_cost_planner, path_cost_of
 
@@ -76,6 +76,50 @@ def test_blocked_share_is_the_exact_los_along_the_manoeuvre(scene, k, seed):
     differ = np.flatnonzero(share != ref)
     assert np.all(share[differ] > ref[differ])
     assert np.all(_within_margin_of_a_shadow(pl, m, ctx, 1, np.flatnonzero(ok)[differ]))
+
+
+def _blocked_share_per_instant(pl, m, ok, ctx, j) -> np.ndarray:
+    """The planner's share one instant at a time: the grown shadows within their radius, exact LoS beyond (or
+    everywhere, with a fixed h_min)."""
+    c = pl.config
+    pts = take_manoeuvres(m, np.flatnonzero(ok)).points(P)[:, 1:]
+    tq = ctx.target[j, 1:]
+    out = np.zeros(len(pts))
+    reach = c.r2 + c.shadow_margin - 2 * SHADOW_MARGIN
+    for i in range(P - 1):
+        exact = np.ones(len(pts), bool)
+        if c.h_min is None:
+            exact = np.hypot(*(pts[:, i] - tq[i, :2]).T) > reach
+            sh = pl.paths.shadow(tq[i])
+            if sh is not None:
+                out[~exact] += shapely.intersects_xy(sh, pts[~exact, i, 0], pts[~exact, i, 1])
+        if exact.any():
+            out[exact] += ~line_of_sight(pl.paths.terrain, pts[exact, i], c.altitude, tq[i], tol=SAFE_LOS_TOLERANCE)
+    return out / (P - 1)
+
+
+@settings(max_examples=10, deadline=None)
+@given(scene=st.integers(0, 3), k=st.integers(0, 64), seed=st.integers(0, 2**16), h_min=st.sampled_from([None, 30.0]))
+@example(scene=0, k=60, seed=60, h_min=None)    # 22 samples beyond the radius are blocked
+@example(scene=3, k=30, seed=30, h_min=None)    # 13
+def test_blocked_share_checks_all_instants_at_once_as_one_at_a_time(scene, k, seed, h_min):
+    """Property: the share, every (manoeuvre, instant) tested in one call, equals the same tests made one instant at a
+    time, bit for bit, with the automatic h_min (grown shadows; half the paths start beyond the shadows' radius,
+    where they are checked exactly) and with a fixed one (exact LoS everywhere)."""
+    c = Config(h_min=h_min)
+    sc = Scenario.paper(c, 1) if scene == 0 else make_scenario("random", HELDOUT_SEED_BASE + scene, 1, c)
+    pl = DPPlanner(c, sc.terrain, path_cost=[100.0] * c.horizon)
+    tq, tp = _poses(sc, k, c.horizon)
+    ctx = pl.paths.context(tq, tp, None)
+    a_stage, b_stage = pl.cache.stage(tq[1], tp[1]), pl.cache.stage(tq[2], tp[2])
+    rng = np.random.default_rng(seed)
+    a, b = rng.integers(0, len(pl.lattice), (2, 400))
+    start = a_stage.xy[a]
+    start[::2] = tq[1, :2] + 1.3 * (start[::2] - tq[1, :2])     # starts beyond the shadows' radius
+    m = solve_manoeuvre(start, rng.uniform(-np.pi, np.pi, 400), b_stage.xy[b], v_max=c.v_max, w_max=c.w_max,
+                        delta=c.delta)
+    ok = np.asarray(m.feasible, bool).copy()
+    np.testing.assert_array_equal(pl.paths.blocked_share(m, ok, ctx, 1), _blocked_share_per_instant(pl, m, ok, ctx, 1))
 
 
 def test_blocked_share_counts_what_a_building_hides():

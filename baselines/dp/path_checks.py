@@ -24,7 +24,7 @@ import shapely
 from baselines.dp.clearance import TerrainClearance, take_manoeuvres
 from covert_env.angles import wrap_angle
 from covert_env.config import Config
-from covert_env.dynamics import Manoeuvre, unicycle_step
+from covert_env.dynamics import Manoeuvre, unicycle_arc
 from covert_env.separation import separation
 from covert_env.terrain import Terrain
 from covert_env.visibility import SAFE_LOS_TOLERANCE, line_of_sight, shadow_union_cfg
@@ -128,25 +128,23 @@ class PathChecker:
         samples and its predicted target (docs/decisions.md#a-learned-cost-in-the-planners-search)."""
         c = self.config
         p = self.path_samples
-        pts = take_manoeuvres(m, np.flatnonzero(ok)).points(p)[:, 1:]
-        tq = ctx.target[j, 1:]
-        blocked = np.zeros(len(pts))
-        reach = c.r2 + c.shadow_margin - 2 * SHADOW_MARGIN
-        # One pass per instant (the target, hence the shadows, differ), each over every manoeuvre at once.
-        for i in range(p - 1):
-            if c.h_min is not None:
-                blocked += ~line_of_sight(self.terrain, pts[:, i], c.altitude, tq[i], tol=SAFE_LOS_TOLERANCE)
-                continue
+        pts = take_manoeuvres(m, np.flatnonzero(ok)).points(p)[:, 1:]          # (K, P - 1, 2)
+        tq = ctx.target[j, 1:]                                                  # (P - 1, 3)
+        if c.h_min is not None:
+            exact = np.ones(pts.shape[:2], bool)
+            blocked = np.zeros(pts.shape[:2], bool)
+        else:
+            # Every (manoeuvre, instant) against that instant's shadows in one call (None: no shadow, clear).
             # The shadows are the blocked set within their radius; a path that bows out beyond it is checked
             # exactly there.
-            far = np.hypot(pts[:, i, 0] - tq[i, 0], pts[:, i, 1] - tq[i, 1]) > reach
-            shadow = self.shadow(tq[i])
-            if shadow is not None:
-                near = np.flatnonzero(~far)
-                blocked[near] += shapely.intersects_xy(shadow, pts[near, i, 0], pts[near, i, 1])
-            if far.any():
-                blocked[far] += ~line_of_sight(self.terrain, pts[far, i], c.altitude, tq[i], tol=SAFE_LOS_TOLERANCE)
-        return blocked / (p - 1)
+            reach = c.r2 + c.shadow_margin - 2 * SHADOW_MARGIN
+            exact = np.hypot(pts[..., 0] - tq[:, 0], pts[..., 1] - tq[:, 1]) > reach
+            shadows = np.array([self.shadow(q) for q in tq], dtype=object)
+            blocked = shapely.intersects_xy(shadows, pts[..., 0], pts[..., 1])
+        if exact.any():
+            k, i = np.nonzero(exact)
+            blocked[k, i] = ~line_of_sight(self.terrain, pts[k, i], c.altitude, tq[i], tol=SAFE_LOS_TOLERANCE)
+        return blocked.sum(axis=1) / (p - 1)
 
     def shadow(self, q):
         """Prepared union of the shadows at target position q, grown by 1 cm (None: no shadow); cached."""
@@ -253,7 +251,8 @@ def sample_points(m: Manoeuvre, k: np.ndarray, n: int) -> np.ndarray:
     t = np.linspace(0.0, m.delta, n)[k]
     v, om, tt = (np.asarray(x, dtype=float) for x in (m.v, m.omega, m.turn_time))
     in_turn = t <= tt
-    x1, y1, _ = unicycle_step(m.start[:, 0], m.start[:, 1], np.asarray(m.theta0, float), v, om, np.minimum(t, tt))
-    x2, y2, _ = unicycle_step(m.tangent[:, 0], m.tangent[:, 1], np.asarray(m.heading_after, float), v, 0.0,
-                              np.maximum(t - tt, 0.0))
+    x1, y1, _ = unicycle_arc(m.start[:, 0], m.start[:, 1], np.asarray(m.theta0, float), v, om, np.minimum(t, tt),
+                             heading=False)
+    x2, y2, _ = unicycle_arc(m.tangent[:, 0], m.tangent[:, 1], np.asarray(m.heading_after, float), v, 0.0,
+                             np.maximum(t - tt, 0.0), heading=False)
     return np.stack([np.where(in_turn, x1, x2), np.where(in_turn, y1, y2)], axis=-1)
