@@ -54,23 +54,33 @@ def _within_margin_of_a_shadow(planner, m, ctx, j, rows) -> np.ndarray:
     return near
 
 
-@settings(max_examples=12, deadline=None)
-@given(scene=st.integers(0, 3), k=st.integers(0, 64), seed=st.integers(0, 2**16))
-def test_blocked_share_is_the_exact_los_along_the_manoeuvre(scene, k, seed):
-    """Property: for random manoeuvres between zone nodes of consecutive stages, the planner's share (shadow union
-    within its radius, exact LoS beyond) equals eq. 6 checked exactly at every sample, except within the shadows'
-    1 cm growth, where it may only call a sample blocked."""
-    c = Config()
+def _random_manoeuvres(c, scene, k, seed, n, outward=1.0):
+    """A planner with a path cost on scene ``scene`` (0: the paper's), the target samples of slots k..k+N, and ``n``
+    random manoeuvres (random start headings) from stage-1 to stage-2 zone nodes, every second start moved
+    ``outward`` times as far from the target; returns (scenario, planner, context, manoeuvres, feasible)."""
     sc = Scenario.paper(c, 1) if scene == 0 else make_scenario("random", HELDOUT_SEED_BASE + scene, 1, c)
     pl = DPPlanner(c, sc.terrain, path_cost=[100.0] * c.horizon)
     tq, tp = _poses(sc, k, c.horizon)
     ctx = pl.paths.context(tq, tp, None)
     a_stage, b_stage = pl.cache.stage(tq[1], tp[1]), pl.cache.stage(tq[2], tp[2])
     rng = np.random.default_rng(seed)
-    a, b = rng.integers(0, len(pl.lattice), (2, 300))
-    m = solve_manoeuvre(a_stage.xy[a], rng.uniform(-np.pi, np.pi, 300), b_stage.xy[b], v_max=c.v_max, w_max=c.w_max,
+    a, b = rng.integers(0, len(pl.lattice), (2, n))
+    start = a_stage.xy[a]
+    if outward != 1.0:
+        start[::2] = tq[1, :2] + outward * (start[::2] - tq[1, :2])
+    m = solve_manoeuvre(start, rng.uniform(-np.pi, np.pi, n), b_stage.xy[b], v_max=c.v_max, w_max=c.w_max,
                         delta=c.delta)
-    ok = np.asarray(m.feasible, bool).copy()
+    return sc, pl, ctx, m, np.asarray(m.feasible, bool).copy()
+
+
+@settings(max_examples=12, deadline=None)
+@given(scene=st.integers(0, 3), k=st.integers(0, 64), seed=st.integers(0, 2**16))
+def test_blocked_share_is_the_exact_los_along_the_manoeuvre(scene, k, seed):
+    """Property: for random manoeuvres between zone nodes of consecutive stages, the planner's share (shadow union
+    within its radius, exact LoS beyond) equals eq. 6 checked exactly at every sample, except within the shadows'
+    1 cm growth, where it may only call a sample blocked."""
+    sc, pl, ctx, m, ok = _random_manoeuvres(Config(), scene, k, seed, 300)
+    c = pl.config
     share = pl.paths.blocked_share(m, ok, ctx, 1)
     ref = _blocked_share_reference(sc.terrain, c, take_manoeuvres(m, np.flatnonzero(ok)), ctx.target[1, 1:])
     differ = np.flatnonzero(share != ref)
@@ -106,19 +116,7 @@ def test_blocked_share_checks_all_instants_at_once_as_one_at_a_time(scene, k, se
     """Property: the share, every (manoeuvre, instant) tested in one call, equals the same tests made one instant at a
     time, bit for bit, with the automatic h_min (grown shadows; half the paths start beyond the shadows' radius,
     where they are checked exactly) and with a fixed one (exact LoS everywhere)."""
-    c = Config(h_min=h_min)
-    sc = Scenario.paper(c, 1) if scene == 0 else make_scenario("random", HELDOUT_SEED_BASE + scene, 1, c)
-    pl = DPPlanner(c, sc.terrain, path_cost=[100.0] * c.horizon)
-    tq, tp = _poses(sc, k, c.horizon)
-    ctx = pl.paths.context(tq, tp, None)
-    a_stage, b_stage = pl.cache.stage(tq[1], tp[1]), pl.cache.stage(tq[2], tp[2])
-    rng = np.random.default_rng(seed)
-    a, b = rng.integers(0, len(pl.lattice), (2, 400))
-    start = a_stage.xy[a]
-    start[::2] = tq[1, :2] + 1.3 * (start[::2] - tq[1, :2])     # starts beyond the shadows' radius
-    m = solve_manoeuvre(start, rng.uniform(-np.pi, np.pi, 400), b_stage.xy[b], v_max=c.v_max, w_max=c.w_max,
-                        delta=c.delta)
-    ok = np.asarray(m.feasible, bool).copy()
+    _, pl, ctx, m, ok = _random_manoeuvres(Config(h_min=h_min), scene, k, seed, 400, outward=1.3)
     np.testing.assert_array_equal(pl.paths.blocked_share(m, ok, ctx, 1), _blocked_share_per_instant(pl, m, ok, ctx, 1))
 
 
