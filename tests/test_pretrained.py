@@ -258,7 +258,7 @@ def test_card_states_the_constraint_rates_and_the_suite_rows(tmp_path, capsys):
         assert message in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("name", ["dp-cost", "dp-cost-binned", "dp-cost-kinematic"])
+@pytest.mark.parametrize("name", ["dp-cost", "dp-cost-binned", "dp-cost-kinematic", "dp-cost-kinematic-binned"])
 def test_shipped_planners_fly_with_both_separation_rules_and_keep_d_safe1(name):
     """The learned-cost cards turn on the look-ahead and the escape, and state a smallest separation (the smallest of
     any scored scene, on the held-out paper scenes and per suite task) of at least d_safe1."""
@@ -272,10 +272,13 @@ def test_shipped_planners_fly_with_both_separation_rules_and_keep_d_safe1(name):
     assert min(t["min_separation"] for t in pol.card["suite"]["tasks"].values()) >= d_safe1
 
 
-def test_the_kinematic_mask_planner_plans_over_shadowed_nodes_and_says_so():
-    """``pretrained:dp-cost-kinematic`` is shadow-blind (its nodes are the kinematic mask's) and flies, scores and
-    reports its suite rows with the kinematic mask."""
-    pol, settings = load_policy("pretrained:dp-cost-kinematic", 3)
+@pytest.mark.parametrize("name,heading", [("dp-cost-kinematic", "inherited"), ("dp-cost-kinematic-binned", "binned")])
+def test_the_kinematic_mask_planners_plan_over_shadowed_nodes_and_say_so(name, heading):
+    """The kinematic-mask cards are shadow-blind (their nodes are the kinematic mask's) and fly, score and report
+    their suite rows with the kinematic mask; the binned one flies the same learned cost with heading bins."""
+    pol, settings = load_policy(f"pretrained:{name}", 3)
     assert pol.kw["shadow_aware"] is False and settings["mask_mode"] == "kinematic"
+    assert pol.kw["heading"] == heading
+    assert pol.card["path_cost"] == load_policy("pretrained:dp-cost-kinematic", 3)[0].card["path_cost"]
     assert {t["mask_mode"] for t in pol.card["suite"]["tasks"].values()} == {"kinematic"}
 
