@@ -114,8 +114,9 @@ def _blocked_share_per_instant(pl, m, ok, ctx, j) -> np.ndarray:
 @example(scene=3, k=30, seed=30, h_min=None)    # 13
 def test_blocked_share_checks_all_instants_at_once_as_one_at_a_time(scene, k, seed, h_min):
     """Property: the share, every (manoeuvre, instant) tested in one call, equals the same tests made one instant at a
-    time, bit for bit, with the automatic h_min (grown shadows; half the paths start beyond the shadows' radius,
-    where they are checked exactly) and with a fixed one (exact LoS everywhere)."""
+    time, bit for bit, with the automatic h_min (grown shadows; every second start is moved 1.3 times as far out, so
+    some paths start beyond the shadows' radius, where they are checked exactly) and with a fixed one (exact LoS
+    everywhere)."""
     _, pl, ctx, m, ok = _random_manoeuvres(Config(h_min=h_min), scene, k, seed, 400, outward=1.3)
     np.testing.assert_array_equal(pl.paths.blocked_share(m, ok, ctx, 1), _blocked_share_per_instant(pl, m, ok, ctx, 1))
 
