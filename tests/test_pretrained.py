@@ -281,4 +281,3 @@ def test_the_kinematic_mask_planners_plan_over_shadowed_nodes_and_say_so(name, h
     assert pol.kw["heading"] == heading
     assert pol.card["path_cost"] == load_policy("pretrained:dp-cost-kinematic", 3)[0].card["path_cost"]
     assert {t["mask_mode"] for t in pol.card["suite"]["tasks"].values()} == {"kinematic"}
-
