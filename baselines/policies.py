@@ -6,8 +6,8 @@ Every policy has a ``name`` and two methods::
     actions = policy.act(observations, env)
 
 ``env`` is either the PettingZoo :class:`~covert_env.envs.covert_sensing.CovertSensingParallelEnv` or one
-of the Gymnasium single-UAV envs (``gym.make("covert_env/CovertSensing-v3")`` or
-``"covert_env/CovertSensingWaypoint-v3"``, wrapped or not; the parallel env inside is
+of the Gymnasium single-UAV envs (``gym.make("covert_env/CovertSensing-v4")`` or
+``"covert_env/CovertSensingWaypoint-v4"``, wrapped or not; the parallel env inside is
 ``env.unwrapped.par``). For the parallel env ``act`` returns ``{agent: action}``; for a Gymnasium env it
 returns the single agent's action. Policies read the world from the env's public attributes
 (``engine``, ``scenario``, ``config``, ``lattice``, ``action_mask``) as a planner with full knowledge
@@ -54,6 +54,7 @@ import numpy as np
 from baselines.dp import DPPlanner, DPTeamPlanner, TeamPlan
 from covert_env.envs.batch import MIN_SPEED_FRACTION  # the env's unicycle action scaling, inverted below
 from covert_env.metrics import episode_metrics
+from covert_env.ties import first_argmin
 from covert_env.zone import to_world
 
 __all__ = [
@@ -276,7 +277,7 @@ class HoldZoneCentrePolicy(Policy):
                 continue
             if par.action_mode == "waypoint":
                 d = np.hypot(*(par.lattice - centre).T)
-                out[a] = int(np.argmin(np.where(par.action_mask(a) > 0, d, np.inf)))
+                out[a] = first_argmin(np.where(par.action_mask(a) > 0, d, np.inf))
             else:
                 out[a] = arc_action(eng.uav_xy[i], eng.uav_theta[i], goal, c)
         return out

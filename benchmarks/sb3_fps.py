@@ -143,7 +143,7 @@ def main(argv=None) -> int:
     a, b = max(ours), max(theirs)
     paired = [x / y for x, y in zip(ours, theirs, strict=True)]
     print(f"SB3 PPO, 3 agents x {args.n_copies} copies, {args.timesteps} agent-steps, best of {args.repeats}:")
-    print(f"  covert_sensing_v3 via training.vec_env : {a:8.0f} agent-steps/s")
+    print(f"  covert_sensing_v4 via training.vec_env : {a:8.0f} agent-steps/s")
     print(f"  mpe2 simple_spread_v3 via SuperSuit    : {b:8.0f} agent-steps/s")
     print(f"  ratio ours / simple_spread = {a / b:.2f} (target >= 1)")
     # On a shared machine the load moves between runs; back-to-back pairs see about the same load.

@@ -9,7 +9,7 @@ Uneven Terrain", Remote Sensing 16(22):4273, 2024. The environments are thin ada
     venv = covert_env.vector_env(num_envs=256, n_uavs=3)         # 256 copies, batch-first arrays
     aec = covert_env.env(n_uavs=3)                               # PettingZoo AEC
     import gymnasium as gym
-    genv = gym.make("covert_env/CovertSensing-v3")               # Gymnasium, one UAV
+    genv = gym.make("covert_env/CovertSensing-v4")               # Gymnasium, one UAV
 """
 
 from covert_env.config import Config
@@ -19,29 +19,34 @@ from covert_env.scenario import Scenario
 from covert_env.terrain import Polytope, Terrain
 from covert_env.trajectory import Trajectory
 
-__version__ = "0.9.0"
+__version__ = "0.10.0"
 
 # Environments are imported after the model: the model modules never import them.
-from covert_env import covert_sensing_v0, covert_sensing_v1, covert_sensing_v2, covert_sensing_v3  # noqa: E402
+from covert_env import (  # noqa: E402
+    covert_sensing_v0,
+    covert_sensing_v1,
+    covert_sensing_v2,
+    covert_sensing_v3,
+    covert_sensing_v4,
+)
 from covert_env.envs import env, parallel_env, raw_env, vector_env  # noqa: E402
 
 __all__ = ["Config", "Engine", "Polytope", "Road", "Scenario", "TargetTrack", "Terrain", "Trajectory",
-           "covert_sensing_v0", "covert_sensing_v1", "covert_sensing_v2", "covert_sensing_v3", "env", "parallel_env",
-           "raw_env",
-           "vector_env"]
+           "covert_sensing_v0", "covert_sensing_v1", "covert_sensing_v2", "covert_sensing_v3", "covert_sensing_v4",
+           "env", "parallel_env", "raw_env", "vector_env"]
 
 
 def _register() -> None:
     """Register the Gymnasium ids (Gymnasium 1.x has no plugin entry point) and PettingZoo ids.
 
-    v3 is the env; the v1 and v2 ids are registered to raise what changed (``covert_sensing_v1.V1_RETIRED``,
-    ``covert_sensing_v2.V2_RETIRED``), and v0 is not registered:
+    v4 is the env; the v1, v2 and v3 ids are registered to raise what changed (``covert_sensing_v1.V1_RETIRED``,
+    ``covert_sensing_v2.V2_RETIRED``, ``covert_sensing_v3.V3_RETIRED``), and v0 is not registered:
     ``gym.make("covert_env/CovertSensing-v0")`` raises Gymnasium's own ``DeprecatedEnv`` ("... is deprecated. Please
-    use `covert_env/CovertSensing-v3` instead.")."""
+    use `covert_env/CovertSensing-v4` instead.")."""
     import gymnasium
 
-    ids = {"v3": ("covert_env.envs.single:CovertSensingEnv", "covert_env.envs.single:CovertSensingWaypointEnv")}
-    for version in ("v2", "v1"):
+    ids = {"v4": ("covert_env.envs.single:CovertSensingEnv", "covert_env.envs.single:CovertSensingWaypointEnv")}
+    for version in ("v3", "v2", "v1"):
         ids[version] = (f"covert_env.covert_sensing_{version}:parallel_env",) * 2
     for version, (unicycle, waypoint) in ids.items():
         for env_id, entry in ((f"covert_env/CovertSensing-{version}", unicycle),
@@ -52,8 +57,8 @@ def _register() -> None:
         from pettingzoo import aec_registry, parallel_registry, register
     except ImportError:  # older PettingZoo without a registry
         return
-    for version, module in (("v3", "covert_env.envs.covert_sensing"), ("v2", "covert_env.covert_sensing_v2"),
-                            ("v1", "covert_env.covert_sensing_v1")):
+    for version, module in (("v4", "covert_env.envs.covert_sensing"), ("v3", "covert_env.covert_sensing_v3"),
+                            ("v2", "covert_env.covert_sensing_v2"), ("v1", "covert_env.covert_sensing_v1")):
         if f"covert_env/CovertSensing-{version}" not in parallel_registry:
             register("parallel", f"covert_env/CovertSensing-{version}", f"{module}:parallel_env")
         if f"covert_env/CovertSensing-{version}" not in aec_registry:

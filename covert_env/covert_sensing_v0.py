@@ -13,7 +13,8 @@ V0_RETIRED = (
     "at reset and step (infos[a]['reward_terms'][t] is now infos[a]['reward_' + t]), constraint costs "
     "(infos[a]['cost'], 'cost_los', ...) were added, with dict_obs=True the action mask is only in the observation, "
     "and a waypoint straight behind the UAV turns right (eq. 22 as the paper states). Observations and rewards are "
-    "otherwise unchanged. Use covert_env.covert_sensing_v3 (v1 and v2 changed again, see covert_sensing_v1, _v2) "
+    "otherwise unchanged. Use covert_env.covert_sensing_v4 (v1, v2 and v3 changed again, see covert_sensing_v1 "
+    "to _v3) "
     "or covert_env.parallel_env, or pip install 'covert_env<0.2' for v0.")
 
 

@@ -18,8 +18,9 @@ V1_RETIRED = (
     "on random scenes differ; on the paper scene or a given Scenario they can (waypoint masks; in both modes the "
     "maps and starts where a sight line grazes a polytope); rewards and costs are unchanged, and so are the "
     "dynamics except that, with a prediction error, a waypoint node is placed about the target's predicted next "
-    "pose (v1: its true one). v2 changed again in 0.7.0 (see covert_sensing_v2). Use covert_env.covert_sensing_v3 "
-    "(or covert_env.parallel_env, gym.make('covert_env/CovertSensing-v3'), covert_env.vector_env), or "
+    "pose (v1: its true one). v2 and v3 changed again in 0.7.0 and 0.10.0 (see covert_sensing_v2, _v3). Use "
+    "covert_env.covert_sensing_v4 "
+    "(or covert_env.parallel_env, gym.make('covert_env/CovertSensing-v4'), covert_env.vector_env), or "
     "pip install 'covert_env<0.6' for v1.")
 
 

@@ -14,8 +14,9 @@ V2_RETIRED = (
     "now counts. The reward has a new term reward_los_path = -los_path_penalty * (share of the slot's flown path "
     "with LoS to the target blocked), the infos a cost cost_los_path (that share, in [0, 1], also in 'cost') and a "
     "flag los_path (LoS clear along the whole slot). Observations, dynamics, scenes and every other reward term and "
-    "cost are unchanged: v3 with los_path_penalty=0 gives v2's rewards. Use covert_env.covert_sensing_v3 (or "
-    "covert_env.parallel_env, gym.make('covert_env/CovertSensing-v3'), covert_env.vector_env), or "
+    "cost are unchanged: v3 with los_path_penalty=0 gives v2's rewards (v3 changed again in 0.10.0, see "
+    "covert_sensing_v3). Use covert_env.covert_sensing_v4 (or "
+    "covert_env.parallel_env, gym.make('covert_env/CovertSensing-v4'), covert_env.vector_env), or "
     "pip install 'covert_env<0.7' for v2.")
 
 

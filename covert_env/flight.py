@@ -14,10 +14,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from covert_env.angles import wrap_heading
+from covert_env.angles import TWO_PI, wrap_heading
 from covert_env.dynamics import solve_manoeuvre, unicycle_arc, unicycle_heading
 
-__all__ = ["check_unicycle", "closest_constant_control", "fly_arc", "fly_turn_straight", "waypoint_controls"]
+__all__ = ["HEADING_GRID", "POSITION_GRID", "check_unicycle", "closest_constant_control", "fly_arc",
+           "fly_turn_straight", "settle_pose", "waypoint_controls"]
+
+#: The grids a UAV's pose is settled on at every slot end (docs/decisions.md#settled-slot-end-poses): positions
+#: (m) and headings (rad). Powers of two, so that settling is exact arithmetic.
+POSITION_GRID = 2.0 ** -20
+HEADING_GRID = 2.0 ** -24
 
 
 def check_unicycle(ctl: np.ndarray, c) -> None:
@@ -42,7 +48,22 @@ def fly_arc(xy, theta, v, w, times):
     path[..., 0, :] = xy
     unicycle_arc(xy[..., 0, None], xy[..., 1, None], theta[..., None], v[..., None], w[..., None], times[1:],
                  out=(path[..., 1:, 0], path[..., 1:, 1]), heading=False)
-    return path, wrap_heading(unicycle_heading(theta, w, times[-1]))
+    return settle_pose(path, unicycle_heading(theta, w, times[-1]))
+
+
+def settle_pose(path, end_theta):
+    """The slot's end pose settled on :data:`POSITION_GRID` and :data:`HEADING_GRID`: rounds ``path[..., -1, :]``
+    in place and returns ``(path, end headings)``, each a multiple of the grid in [0, 2 pi).
+
+    A waypoint flight maps a start heading to an end heading with a gain of a few per slot, so a last-bit
+    difference in a sine or an arctangent (numpy's float64 ``arctan2``, ``exp`` and ``arccos`` differ by an ulp
+    between CPUs with and without AVX-512) would grow to centimetres within about thirty slots and change
+    decisions. Rounding the carried pose to about a micrometre and 6e-8 rad removes that difference at every slot
+    end unless it straddles a grid boundary (about one pose in 10^6)."""
+    end = path[..., -1, :]
+    np.multiply(np.rint(end * (1.0 / POSITION_GRID)), POSITION_GRID, out=end)
+    heading = np.rint(wrap_heading(end_theta) * (1.0 / HEADING_GRID)) * HEADING_GRID
+    return path, np.where(heading >= TWO_PI, 0.0, heading)          # 2 pi rounds up onto the grid: that is 0
 
 
 def waypoint_controls(xy, theta, goals, c):
@@ -121,4 +142,4 @@ def fly_turn_straight(xy, theta, v, w, t_turn, times):
     # The straight leg from there, omega the scalar 0: one sine and cosine per UAV.
     unicycle_arc(x1, y1, th1e[..., None], v[..., None], 0.0, t2, out=(path[..., 1:, 0], path[..., 1:, 1]),
                  heading=False)
-    return path, wrap_heading(unicycle_heading(th1e, 0.0, t2[..., -1]))
+    return settle_pose(path, unicycle_heading(th1e, 0.0, t2[..., -1]))

@@ -22,7 +22,7 @@ from pettingzoo.test import (
 )
 
 import covert_env
-from covert_env import covert_sensing_v3
+from covert_env import covert_sensing_v4
 
 MODES = ("unicycle", "waypoint")
 TERMS = ("path", "disguise", "los", "los_path", "zone", "separation", "terrain")
@@ -110,7 +110,7 @@ def test_costs_are_the_constraint_violations():
 
 
 def test_gymnasium_env_exposes_the_same_infos():
-    genv = gym.make("covert_env/CovertSensing-v3", max_cycles=3)
+    genv = gym.make("covert_env/CovertSensing-v4", max_cycles=3)
     _, info0 = genv.reset(seed=1)
     _, _, _, _, info1 = genv.step(genv.action_space.sample())
     assert _signature(info0) == _signature(info1)
@@ -137,8 +137,8 @@ def test_pettingzoo_battery_dict_obs_default_arguments():
 @pytest.mark.parametrize("u", [1, 3])
 def test_max_cycles_render_and_performance_default_arguments(mode, u):
     # max_cycles_test takes a module exposing env() and parallel_env(); this one fixes the mode and team size.
-    module = SimpleNamespace(env=functools.partial(covert_sensing_v3.env, action_mode=mode, n_uavs=u),
-                             parallel_env=functools.partial(covert_sensing_v3.parallel_env, action_mode=mode, n_uavs=u))
+    module = SimpleNamespace(env=functools.partial(covert_sensing_v4.env, action_mode=mode, n_uavs=u),
+                             parallel_env=functools.partial(covert_sensing_v4.parallel_env, action_mode=mode, n_uavs=u))
     max_cycles_test(module)
     render_test(lambda render_mode=None: covert_env.env(action_mode=mode, n_uavs=u, render_mode=render_mode))
     performance_benchmark(covert_env.env(n_uavs=u, action_mode=mode))
@@ -178,7 +178,7 @@ def test_closed_env_is_collected():
     gc.collect()
     assert ref() is None
 
-    genv = gym.make("covert_env/CovertSensing-v3", max_cycles=2)
+    genv = gym.make("covert_env/CovertSensing-v4", max_cycles=2)
     genv.reset(seed=0)
     genv.step(genv.action_space.sample())
     genv.close()
@@ -284,10 +284,10 @@ def test_bad_waypoint_actions(bad):
 
 
 @pytest.mark.parametrize("env_id, kw, pattern", [
-    ("covert_env/CovertSensing-v3", dict(n_uavs=3), r"flies one UAV, got n_uavs=3.*parallel_env"),
-    ("covert_env/CovertSensing-v3", dict(action_mode="waypoint"), "CovertSensingWaypoint-v3"),
-    ("covert_env/CovertSensingWaypoint-v3", dict(action_mode="unicycle"), "covert_env/CovertSensing-v3"),
-    ("covert_env/CovertSensing-v3", dict(dict_obs=True), "dict_obs=True needs action_mode='waypoint'"),
+    ("covert_env/CovertSensing-v4", dict(n_uavs=3), r"flies one UAV, got n_uavs=3.*parallel_env"),
+    ("covert_env/CovertSensing-v4", dict(action_mode="waypoint"), "CovertSensingWaypoint-v4"),
+    ("covert_env/CovertSensingWaypoint-v4", dict(action_mode="unicycle"), "covert_env/CovertSensing-v4"),
+    ("covert_env/CovertSensing-v4", dict(dict_obs=True), "dict_obs=True needs action_mode='waypoint'"),
 ])
 def test_gymnasium_make_rejects_contradicting_arguments(env_id, kw, pattern):
     with pytest.raises(ValueError, match=pattern):
@@ -299,14 +299,14 @@ def test_gymnasium_make_rejects_contradicting_arguments(env_id, kw, pattern):
 def test_v0_ids_fail_with_a_clear_message():
     from covert_env import covert_sensing_v0
 
-    with pytest.raises(gym.error.DeprecatedEnv, match="CovertSensing-v3"):
+    with pytest.raises(gym.error.DeprecatedEnv, match="CovertSensing-v4"):
         gym.make("covert_env/CovertSensing-v0")
-    with pytest.raises(gym.error.DeprecatedEnv, match="CovertSensingWaypoint-v3"):
+    with pytest.raises(gym.error.DeprecatedEnv, match="CovertSensingWaypoint-v4"):
         gym.make("covert_env/CovertSensingWaypoint-v0")
     for make in (covert_sensing_v0.parallel_env, covert_sensing_v0.env, covert_sensing_v0.raw_env):
-        with pytest.raises(RuntimeError, match=r"replaced by covert_sensing_v1.*reward_.*covert_sensing_v3"):
+        with pytest.raises(RuntimeError, match=r"replaced by covert_sensing_v1.*reward_.*covert_sensing_v4"):
             make(n_uavs=3)
-    assert covert_env.covert_sensing_v3.parallel_env(n_uavs=2).metadata["name"] == "covert_sensing_v3"
+    assert covert_env.covert_sensing_v4.parallel_env(n_uavs=2).metadata["name"] == "covert_sensing_v4"
 
 
 def test_v1_ids_fail_with_what_changed_in_v2():
@@ -316,8 +316,8 @@ def test_v1_ids_fail_with_what_changed_in_v2():
     from covert_env import covert_sensing_v1
 
     changed = (r"replaced by covert_sensing_v2 in covert_env 0\.6\.0: random scenes come from a new.*eq\. 10.*"
-               r"Use covert_env\.covert_sensing_v3 \(or covert_env\.parallel_env, "
-               r"gym\.make\('covert_env/CovertSensing-v3'\)")
+               r"Use covert_env\.covert_sensing_v4 \(or covert_env\.parallel_env, "
+               r"gym\.make\('covert_env/CovertSensing-v4'\)")
     for env_id in ("covert_env/CovertSensing-v1", "covert_env/CovertSensingWaypoint-v1"):
         with pytest.raises(RuntimeError, match=changed):
             gym.make(env_id)
@@ -325,7 +325,7 @@ def test_v1_ids_fail_with_what_changed_in_v2():
                  lambda **kw: pettingzoo.make("parallel", "covert_env/CovertSensing-v1", **kw)):
         with pytest.raises(RuntimeError, match=changed):
             make(n_uavs=3)
-    assert covert_env.vector_env(num_envs=1).metadata["name"] == "covert_sensing_vector_v3"
+    assert covert_env.vector_env(num_envs=1).metadata["name"] == "covert_sensing_vector_v4"
 
 
 def test_v2_ids_fail_with_what_changed_in_v3():
@@ -341,6 +341,24 @@ def test_v2_ids_fail_with_what_changed_in_v3():
             gym.make(env_id)
     for make in (covert_sensing_v2.parallel_env, covert_sensing_v2.env, covert_sensing_v2.raw_env,
                  lambda **kw: pettingzoo.make("parallel", "covert_env/CovertSensing-v2", **kw)):
+        with pytest.raises(RuntimeError, match=changed):
+            make(n_uavs=3)
+
+
+def test_v3_ids_fail_with_what_changed_in_v4():
+    """v4 settles the slot-end poses: every v3 entry point says so, and where to get v3."""
+    import pettingzoo
+
+    from covert_env import covert_sensing_v3
+
+    changed = (r"replaced by covert_sensing_v4 in covert_env 0\.10\.0: every UAV's pose is settled at each slot end.*"
+               r"pip install 'covert_env<0\.10' for v3")
+    for env_id in ("covert_env/CovertSensing-v3", "covert_env/CovertSensingWaypoint-v3"):
+        with pytest.raises(RuntimeError, match=changed):
+            gym.make(env_id)
+    for make in (covert_sensing_v3.parallel_env, covert_sensing_v3.env, covert_sensing_v3.raw_env,
+                 lambda **kw: pettingzoo.make("parallel", "covert_env/CovertSensing-v3", **kw),
+                 lambda **kw: pettingzoo.make("aec", "covert_env/CovertSensing-v3", **kw)):
         with pytest.raises(RuntimeError, match=changed):
             make(n_uavs=3)
 
@@ -436,7 +454,7 @@ def test_max_cycles_attribute_on_aec_and_gymnasium_envs():
         steps += 1
     assert steps == 3 + 1                       # three slots, then the final None step of the one agent
 
-    genv = gym.make("covert_env/CovertSensingWaypoint-v3")
+    genv = gym.make("covert_env/CovertSensingWaypoint-v4")
     with pytest.raises(TypeError, match="max_cycles must be an integer"):
         genv.unwrapped.max_cycles = 2.5
     genv.unwrapped.max_cycles = 2
@@ -461,7 +479,7 @@ def test_action_mask_before_reset_and_nested_waypoint_actions():
 @pytest.mark.parametrize("bad", [True, 1.0, 2, "1"])
 def test_gymnasium_n_uavs_must_be_one(bad):
     with pytest.raises(ValueError, match="flies one UAV"):
-        gym.make("covert_env/CovertSensing-v3", n_uavs=bad)
+        gym.make("covert_env/CovertSensing-v4", n_uavs=bad)
 
 
 # ---------------------------------------------------------------------- LoS along the path
@@ -563,6 +581,6 @@ def test_kinematic_mask_passes_pettingzoo_and_gymnasium_checks():
     from pettingzoo.test import parallel_api_test
 
     parallel_api_test(covert_env.parallel_env(action_mode="waypoint", mask_mode="kinematic", max_cycles=5))
-    env = gym.make("covert_env/CovertSensingWaypoint-v3", mask_mode="kinematic", max_cycles=5)
+    env = gym.make("covert_env/CovertSensingWaypoint-v4", mask_mode="kinematic", max_cycles=5)
     check_env(env.unwrapped)
     assert env.unwrapped.par.mask_mode == "kinematic"

@@ -24,7 +24,7 @@ def _make(kind: str, **kw):
         return covert_env.env(n_uavs=2, max_cycles=3, **kw)
     if kind == "gymnasium":
         mode = kw.pop("action_mode", "unicycle")
-        name = "covert_env/CovertSensingWaypoint-v3" if mode == "waypoint" else "covert_env/CovertSensing-v3"
+        name = "covert_env/CovertSensingWaypoint-v4" if mode == "waypoint" else "covert_env/CovertSensing-v4"
         return gym.make(name, max_cycles=3, **kw)
     return covert_env.vector_env(num_envs=2, n_uavs=2, max_cycles=3, **kw)
 
@@ -94,7 +94,7 @@ def test_action_masks_before_reset_raise_in_every_kind(mode):
         "vector": lambda: covert_env.vector_env(2, action_mode=mode).action_masks(),
     }
     if mode == "waypoint":
-        calls["gymnasium"] = lambda: gym.make("covert_env/CovertSensingWaypoint-v3").unwrapped.action_masks()
+        calls["gymnasium"] = lambda: gym.make("covert_env/CovertSensingWaypoint-v4").unwrapped.action_masks()
     assert len(calls) == (3 if mode == "waypoint" else 2)
     for call in calls.values():
         with pytest.raises(RuntimeError, match=r"action_masks?\(\) called before reset\(\); call reset\(\) first"):

@@ -19,7 +19,7 @@ from pettingzoo.test import (
 from pettingzoo.utils import parallel_to_aec
 
 import covert_env
-from covert_env import covert_sensing_v3
+from covert_env import covert_sensing_v4
 
 MODES = ["unicycle", "waypoint"]
 TEAMS = [1, 3]
@@ -37,21 +37,21 @@ def _quiet():
 @pytest.mark.parametrize("u", TEAMS)
 def test_pettingzoo_battery(mode, u):
     kw = dict(action_mode=mode, n_uavs=u, max_cycles=SHORT)
-    parallel_api_test(covert_sensing_v3.parallel_env(**kw), num_cycles=40)
-    api_test(parallel_to_aec(covert_sensing_v3.parallel_env(**kw)), num_cycles=40)
-    seed_test(lambda: covert_sensing_v3.env(**kw), num_cycles=40)
-    parallel_seed_test(lambda: covert_sensing_v3.parallel_env(**kw))
-    state_test(covert_sensing_v3.env(**kw), covert_sensing_v3.parallel_env(**kw), num_cycles=40)
+    parallel_api_test(covert_sensing_v4.parallel_env(**kw), num_cycles=40)
+    api_test(parallel_to_aec(covert_sensing_v4.parallel_env(**kw)), num_cycles=40)
+    seed_test(lambda: covert_sensing_v4.env(**kw), num_cycles=40)
+    parallel_seed_test(lambda: covert_sensing_v4.parallel_env(**kw))
+    state_test(covert_sensing_v4.env(**kw), covert_sensing_v4.parallel_env(**kw), num_cycles=40)
 
 
 def test_dict_obs_battery():
     kw = dict(action_mode="waypoint", n_uavs=3, max_cycles=SHORT, dict_obs=True)
-    parallel_api_test(covert_sensing_v3.parallel_env(**kw), num_cycles=20)
-    api_test(parallel_to_aec(covert_sensing_v3.parallel_env(**kw)), num_cycles=20)
+    parallel_api_test(covert_sensing_v4.parallel_env(**kw), num_cycles=20)
+    api_test(parallel_to_aec(covert_sensing_v4.parallel_env(**kw)), num_cycles=20)
 
 
 def test_max_cycles():
-    max_cycles_test(covert_sensing_v3)
+    max_cycles_test(covert_sensing_v4)
 
 
 @pytest.mark.parametrize("mode", MODES)
@@ -59,11 +59,11 @@ def test_render_battery(mode):
     import matplotlib
 
     matplotlib.use("Agg")
-    render_test(lambda render_mode=None: covert_sensing_v3.env(action_mode=mode, max_cycles=3,
+    render_test(lambda render_mode=None: covert_sensing_v4.env(action_mode=mode, max_cycles=3,
                                                                render_mode=render_mode))
 
 
-@pytest.mark.parametrize("env_id", ["covert_env/CovertSensing-v3", "covert_env/CovertSensingWaypoint-v3"])
+@pytest.mark.parametrize("env_id", ["covert_env/CovertSensing-v4", "covert_env/CovertSensingWaypoint-v4"])
 def test_gymnasium_checker(env_id):
     from gymnasium.utils.env_checker import check_env
 
@@ -71,14 +71,14 @@ def test_gymnasium_checker(env_id):
     check_env(env.unwrapped, skip_render_check=False)
 
 
-@pytest.mark.parametrize("env_id", ["covert_env/CovertSensing-v3", "covert_env/CovertSensingWaypoint-v3"])
+@pytest.mark.parametrize("env_id", ["covert_env/CovertSensing-v4", "covert_env/CovertSensingWaypoint-v4"])
 def test_sb3_checker(env_id):
     sb3_check_env = needs("stable_baselines3.common.env_checker").check_env
     sb3_check_env(gym.make(env_id, max_cycles=SHORT).unwrapped, warn=True)
 
 
 def test_make_without_import_prefix():
-    env = gym.make("covert_env:covert_env/CovertSensing-v3", max_cycles=3)
+    env = gym.make("covert_env:covert_env/CovertSensing-v4", max_cycles=3)
     obs, _ = env.reset(seed=0)
     assert env.observation_space.contains(obs)
 
@@ -86,7 +86,7 @@ def test_make_without_import_prefix():
 def test_pettingzoo_registry():
     import pettingzoo
 
-    penv = pettingzoo.make("parallel", "covert_env/CovertSensing-v3", n_uavs=2)
+    penv = pettingzoo.make("parallel", "covert_env/CovertSensing-v4", n_uavs=2)
     assert penv.possible_agents == ["uav_0", "uav_1"]
 
 
@@ -251,7 +251,7 @@ def test_waypoint_actions_land_on_lattice_node():
     goal = covert_env.zone.to_world(env.lattice[idx:idx + 1], q1[0, :2], float(phi1[0]))[0]
     env.step({"uav_0": idx})
     assert np.allclose(env.engine.uav_xy[0], goal, atol=1e-6)
-    gym_env = gym.make("covert_env/CovertSensingWaypoint-v3", scenario="paper")
+    gym_env = gym.make("covert_env/CovertSensingWaypoint-v4", scenario="paper")
     gym_env.reset(seed=0)
     assert np.array_equal(gym_env.unwrapped.action_masks(), mask.astype(bool))
 
@@ -293,13 +293,13 @@ def test_pickle_round_trip():
     clone = pickle.loads(pickle.dumps(env))
     acts = {a: np.array([0.2, -0.1]) for a in env.agents}
     assert _equal(env.step(acts), clone.step(acts))
-    genv = gym.make("covert_env/CovertSensing-v3")
+    genv = gym.make("covert_env/CovertSensing-v4")
     genv.reset(seed=1)
     assert pickle.loads(pickle.dumps(genv)).unwrapped.par.config == genv.unwrapped.par.config
 
 
 def test_make_vec_async():
-    venv = gym.make_vec("covert_env/CovertSensing-v3", num_envs=2, vectorization_mode="async",
+    venv = gym.make_vec("covert_env/CovertSensing-v4", num_envs=2, vectorization_mode="async",
                         vector_kwargs={"context": "spawn"}, max_cycles=5)
     try:
         obs, _ = venv.reset(seed=[0, 1])
@@ -321,7 +321,7 @@ def test_rgb_frame_and_record_video(tmp_path):
     env.reset(seed=0)
     frame = env.render()
     assert frame.dtype == np.uint8 and frame.ndim == 3 and frame.shape[2] == 3 and frame.std() > 5
-    genv = gym.make("covert_env/CovertSensing-v3", render_mode="rgb_array", max_cycles=3)
+    genv = gym.make("covert_env/CovertSensing-v4", render_mode="rgb_array", max_cycles=3)
     needs("moviepy")                                    # RecordVideo writes the mp4 with it
     rec = RecordVideo(genv, str(tmp_path), episode_trigger=lambda e: True)
     rec.reset(seed=0)
@@ -357,7 +357,7 @@ def test_visibility_maps_match_exact_per_cell_check(scene_seed):
     from covert_env.visibility import line_of_sight
     from covert_env.zone import in_feasible_zone, to_world
 
-    env = covert_sensing_v3.parallel_env(n_uavs=2, map_size=10)
+    env = covert_sensing_v4.parallel_env(n_uavs=2, map_size=10)
     obs, _ = env.reset(seed=0, options={"scene_seed": scene_seed})
     c, s, u = env.config, env.map_size, 2
     start = 11 + 2 * (u - 1)
@@ -387,7 +387,7 @@ def test_starts_scene_seed_and_random_starts():
     from covert_env.visibility import line_of_sight
     from covert_env.zone import in_feasible_zone
 
-    env = covert_sensing_v3.parallel_env(n_uavs=3)
+    env = covert_sensing_v4.parallel_env(n_uavs=3)
     env.reset(seed=1, options={"scene_seed": 42})
     ref = Scenario.random(42, env.config)
     np.testing.assert_array_equal(env.engine.uav_xy, ref.uav_xy)
@@ -397,7 +397,7 @@ def test_starts_scene_seed_and_random_starts():
 
     starts = []
     for seed in (0, 1):
-        penv = covert_sensing_v3.parallel_env(n_uavs=2, scenario="paper", random_starts=True)
+        penv = covert_sensing_v4.parallel_env(n_uavs=2, scenario="paper", random_starts=True)
         penv.reset(seed=seed)
         sc, c = penv.scenario, penv.config
         assert sc.n_uavs == 2
@@ -421,7 +421,7 @@ def test_shortest_allowed_track_runs_to_the_end():
     track = TargetTrack.constant(Road(base.track.road.points), c.target_speed, c.n_slots + c.horizon,
                                  delta=c.delta, z=c.target_height, s0=base.track.s0)
     sc = Scenario(c, base.terrain, track, base.uav_xy, base.uav_theta)
-    env = covert_sensing_v3.parallel_env(scenario=sc)
+    env = covert_sensing_v4.parallel_env(scenario=sc)
     obs, _ = env.reset(seed=0)
     steps = 0
     while env.agents:

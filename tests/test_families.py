@@ -87,7 +87,7 @@ def test_families_are_selected_by_name_in_every_env_kind():
     venv = covert_env.vector_env(num_envs=2, family="towers")
     venv.reset(seed=0)
     assert venv.family == "towers" and all(len(venv.scene(i).terrain) == 24 for i in range(2))
-    genv = gym.make("covert_env/CovertSensing-v3", family="winding")
+    genv = gym.make("covert_env/CovertSensing-v4", family="winding")
     assert genv.unwrapped.par.config.road_max_curvature == pytest.approx(1 / 30)
     aec = covert_env.env(family="sparse", n_uavs=2)
     aec.reset(seed=0)

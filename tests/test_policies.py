@@ -40,7 +40,7 @@ def test_dp_policy_through_the_waypoint_env_reproduces_the_reproduce_trajectory(
 def test_dp_policy_through_the_gymnasium_waypoint_env_on_a_heldout_scene():
     seed = HELDOUT_SEED_BASE + 3
     ref = rollout(make_scenario("random", seed, 1, CFG), shadow_aware=False)["trajectory"]
-    env = gym.make("covert_env/CovertSensingWaypoint-v3", config=CFG)
+    env = gym.make("covert_env/CovertSensingWaypoint-v4", config=CFG)
     res = run_episode(DPPolicy(shadow_aware=False), env, seed=0, options={"scene_seed": seed})
     np.testing.assert_array_equal(res["trajectory"].uav_xy, ref.uav_xy)
 
@@ -59,7 +59,7 @@ def test_dp_policy_in_unicycle_mode_keeps_the_target_in_sight():
 
 
 def test_gymnasium_actions_are_single_actions_in_the_action_space():
-    for env_id in ("covert_env/CovertSensingWaypoint-v3", "covert_env/CovertSensing-v3"):
+    for env_id in ("covert_env/CovertSensingWaypoint-v4", "covert_env/CovertSensing-v4"):
         env = gym.make(env_id, scenario="paper", config=CFG)
         obs, _ = env.reset(seed=0)
         par, agent = parallel_env_of(env)

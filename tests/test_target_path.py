@@ -120,14 +120,14 @@ def test_paper_scenario_gymnasium_and_sb3_checkers():
     from pettingzoo.test import parallel_api_test
 
     parallel_api_test(covert_env.parallel_env(scenario="paper", action_mode="waypoint", target_path=5, max_cycles=8))
-    for env_id in ("covert_env/CovertSensing-v3", "covert_env/CovertSensingWaypoint-v3"):
+    for env_id in ("covert_env/CovertSensing-v4", "covert_env/CovertSensingWaypoint-v4"):
         env = gym.make(env_id, target_path=2, max_cycles=8)
         check_env(env.unwrapped)
         assert env.observation_space.shape[0] == gym.make(env_id).observation_space.shape[0] + 8
     from _extras import needs
 
     sb3_check_env = needs("stable_baselines3.common.env_checker").check_env
-    sb3_check_env(gym.make("covert_env/CovertSensingWaypoint-v3", target_path=5, max_cycles=8).unwrapped, warn=True)
+    sb3_check_env(gym.make("covert_env/CovertSensingWaypoint-v4", target_path=5, max_cycles=8).unwrapped, warn=True)
 
 
 @pytest.mark.parametrize("bad, exc, pattern", [

@@ -67,8 +67,8 @@ def test_task_conflicts_and_bad_names_are_clear_errors():
         with pytest.raises(ValueError, match=r"task must be a task name .* got"):
             get_task(bad)
     with pytest.raises(ValueError, match="flies 3 UAV"):
-        gym.make("covert_env/CovertSensing-v3", task="towers-3uav")
-    assert gym.make("covert_env/CovertSensing-v3", task="towers-1uav").reset(seed=0)[0].shape == (139,)
+        gym.make("covert_env/CovertSensing-v4", task="towers-3uav")
+    assert gym.make("covert_env/CovertSensing-v4", task="towers-1uav").reset(seed=0)[0].shape == (139,)
 
 
 def test_resolve_tasks_expands_groups_in_order_without_repeats():

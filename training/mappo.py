@@ -88,7 +88,7 @@ else:
 class Args:
     algo: str = "mappo"
     """'mappo' (critic on the centralised state() and the agent's id) or 'ippo' (critic on the agent's obs)"""
-    env_id: str = "covert_sensing_vector_v3"
+    env_id: str = "covert_sensing_vector_v4"
     """name of the env in run names (covert_env.vector_env)"""
     seed: int = 0
     """seed of numpy, torch and the env copies (their scenes, starts and the action sampling)"""

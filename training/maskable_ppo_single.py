@@ -1,4 +1,4 @@
-"""Single-UAV MaskablePPO (sb3-contrib) on ``gym.make("covert_env/CovertSensingWaypoint-v3")``.
+"""Single-UAV MaskablePPO (sb3-contrib) on ``gym.make("covert_env/CovertSensingWaypoint-v4")``.
 
 The action is a node of the DP planner's waypoint lattice; ``env.action_masks()`` marks nodes reachable in one
 slot and in the visible zone (eq. 10), and MaskablePPO never samples a masked node.
@@ -22,7 +22,7 @@ ALGO = "maskable_ppo_single"
 
 @dataclass
 class Args:
-    env_id: str = "covert_env/CovertSensingWaypoint-v3"
+    env_id: str = "covert_env/CovertSensingWaypoint-v4"
     """Gymnasium id of the single-UAV waypoint env (with action_masks())"""
     seed: int = 0
     """seed of the envs, the policy and the action sampling"""

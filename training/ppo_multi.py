@@ -35,7 +35,7 @@ ALGO = "ppo_multi"
 
 @dataclass
 class Args:
-    env_id: str = "covert_sensing_v3"
+    env_id: str = "covert_sensing_v4"
     """name of the env in run names (the PettingZoo env covert_env.parallel_env)"""
     seed: int = 0
     """seed of the env copies, the policy and the action sampling"""

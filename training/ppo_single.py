@@ -1,4 +1,4 @@
-"""Single-UAV PPO on ``gym.make("covert_env/CovertSensing-v3")`` (SB3, continuous (v, omega) actions).
+"""Single-UAV PPO on ``gym.make("covert_env/CovertSensing-v4")`` (SB3, continuous (v, omega) actions).
 
     OMP_NUM_THREADS=1 python -m training.ppo_single --total-timesteps 1000000
     python -m training.ppo_single --resume runs/<run> --trust-checkpoint   # continue from the newest checkpoint
@@ -19,7 +19,7 @@ ALGO = "ppo_single"
 
 @dataclass
 class Args:
-    env_id: str = "covert_env/CovertSensing-v3"
+    env_id: str = "covert_env/CovertSensing-v4"
     """Gymnasium id of the single-UAV env"""
     seed: int = 0
     """seed of the envs, the policy and the action sampling"""

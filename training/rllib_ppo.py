@@ -58,7 +58,7 @@ from training.runs import read_run_json, run_env
 from training.trust import require_trust
 
 ALGO = "rllib_ppo"
-ENV_NAME = "covert_sensing_v3"
+ENV_NAME = "covert_sensing_v4"
 MODULE_ID = "shared_policy"
 
 

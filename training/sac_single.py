@@ -1,4 +1,4 @@
-"""Single-UAV SAC on ``gym.make("covert_env/CovertSensing-v3")`` (SB3, continuous (v, omega) actions).
+"""Single-UAV SAC on ``gym.make("covert_env/CovertSensing-v4")`` (SB3, continuous (v, omega) actions).
 
     OMP_NUM_THREADS=1 python -m training.sac_single --total-timesteps 300000
     python -m training.sac_single --resume runs/<run> --trust-checkpoint   # continue from the newest checkpoint
@@ -21,7 +21,7 @@ ALGO = "sac_single"
 
 @dataclass
 class Args:
-    env_id: str = "covert_env/CovertSensing-v3"
+    env_id: str = "covert_env/CovertSensing-v4"
     """Gymnasium id of the single-UAV env"""
     seed: int = 0
     """seed of the envs, the policy and the action sampling"""

@@ -12,6 +12,7 @@ from baselines.dp.safety import _clear_of, _FirstSlot
 from covert_env.dynamics import solve_manoeuvre
 from covert_env.envs.batch import fly_waypoints
 from covert_env.separation import separation
+from covert_env.ties import first_argmax
 
 __all__ = ["secure_continuations"]
 
@@ -135,7 +136,7 @@ def _move_with_room(slot: _FirstSlot, i: int, nxt: Stage, ahead: list, room: flo
             best, best_room = int(k[q]), float(r[q])
             break
         if r.max() > best_room:
-            best, best_room = int(k[int(np.argmax(r))]), float(r.max())
+            best, best_room = int(k[first_argmax(r)]), float(r.max())
     return None if best is None else _RoomyMove(best, bool(not cand.allowed[best]), best_room)
 
 
@@ -163,7 +164,7 @@ def _make_way(team, plans: list, i: int, nxt: Stage, target_xyz, target_phi, tar
         if not free.any():
             continue
         mine = plans[h].path_points(n)[1][1:]
-        keep = int(np.argmax(np.where(free, _gap(pts, [mine]), -np.inf)))
+        keep = first_argmax(np.where(free, _gap(pts, [mine]), -np.inf))
         avoid = np.full((1, u, horizon, n, 2), np.nan)
         blocked = np.zeros((1, horizon, lattice), bool)
         for o, j in enumerate(j for j in range(u) if j != h):

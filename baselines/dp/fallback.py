@@ -7,6 +7,7 @@ import numpy as np
 from baselines.dp.lattice import Stage
 from baselines.dp.path_checks import FALLBACK_PENALTY
 from covert_env.config import Config
+from covert_env.ties import first_argmin
 
 __all__ = ["fallback_penalties", "nearest_zone_node", "nearness"]
 
@@ -22,7 +23,7 @@ def fallback_penalties(allowed: np.ndarray, blocked: np.ndarray) -> list[np.ndar
 def nearest_zone_node(config: Config, stage: Stage, start, allowed: np.ndarray, blocked: np.ndarray) -> int:
     """Level 3: the stage-1 node nearest to ``start`` (not ``blocked`` if any is free; a visible one on near-ties)."""
     free = ~blocked if (~blocked).any() else np.ones(len(stage.xy), bool)
-    return int(np.argmin(np.where(free, nearness(config, stage, start, allowed), np.inf)))
+    return first_argmin(np.where(free, nearness(config, stage, start, allowed), np.inf))
 
 
 def nearness(config: Config, stage: Stage, start, allowed: np.ndarray) -> np.ndarray:

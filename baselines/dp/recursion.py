@@ -22,6 +22,7 @@ from baselines.dp.states import Layer, Problem, SolveCounts
 from baselines.dp.table import ManoeuvreBoundsTable
 from baselines.dp.transitions import SolvedTransitions, solve_transitions
 from covert_env.config import Config
+from covert_env.ties import first_argmin
 
 __all__ = ["ForwardRecursion", "backtrack"]
 
@@ -255,7 +256,7 @@ def backtrack(layers: list[Layer], i: int, depth: int, stages) -> dict:
     g = np.full(n, np.nan)
     last = layers[depth - 1]
     mine = np.flatnonzero(last.uav == i)
-    s = int(mine[np.argmin(last.J[mine])])
+    s = int(mine[first_argmin(last.J[mine])])
     for j in range(depth - 1, -1, -1):
         lay = layers[j]
         nodes[j], head[j], v[j], g[j] = lay.node[s], lay.theta[s], lay.v[s], lay.g[s]

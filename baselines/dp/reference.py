@@ -8,6 +8,7 @@ from covert_env.angles import wrap_angle
 from covert_env.config import Config
 from covert_env.cost import uav_target_angle, uav_target_distance
 from covert_env.dynamics import solve_manoeuvre
+from covert_env.ties import first_argmin
 from covert_env.zone import to_world, zone_lattice
 
 __all__ = ["brute_force_plan", "evaluate_plan"]
@@ -74,6 +75,6 @@ def brute_force_plan(config: Config, start_xy, start_theta: float, target_xyz, t
         seq = np.column_stack([seq[r], cols[cc]])
         J = J[r] + g[r, cc]
         pos, th, a, d = xy[cc], np.asarray(m.heading_after)[r, cc], a1[cc], d1[cc]
-    best = int(np.argmin(J))
+    best = first_argmin(J)
     return float(J[best]), seq[best]
 

@@ -14,6 +14,7 @@ from baselines.dp.transitions import transition_costs
 from covert_env.cost import uav_target_angle, uav_target_distance
 from covert_env.dynamics import solve_manoeuvre
 from covert_env.separation import priority_negotiation, separation
+from covert_env.ties import first_argmax, first_argmin, tie_tolerance
 
 __all__ = ["secure_first_moves"]
 
@@ -171,9 +172,9 @@ class _FirstSlot:
         d = np.where(cand.flyable, _clear_of(cand.samples, fixed.values()), -np.inf)
         safe = d >= self.min_distance
         if (safe & cand.allowed).any():
-            return _Move(int(np.argmin(np.where(safe & cand.allowed, cand.cost, np.inf))), False)
+            return _Move(first_argmin(np.where(safe & cand.allowed, cand.cost, np.inf)), False)
         if safe.any():
-            return _Move(int(np.argmin(np.where(safe, cand.cost, np.inf))), True)
+            return _Move(first_argmin(np.where(safe, cand.cost, np.inf)), True)
         return None
 
     def repair(self, i: int, h: int, fixed: dict) -> tuple[_Move, _Move] | None:
@@ -193,7 +194,7 @@ class _FirstSlot:
         score = np.where(d >= lim, score, np.inf)
         if not np.isfinite(score).any():
             return None
-        a_, b_ = np.unravel_index(int(np.argmin(score)), score.shape)
+        a_, b_ = np.unravel_index(first_argmin(score), score.shape)
         return _Move(int(ch[a_]), bool(not al_h[a_])), _Move(int(ci[b_]), bool(not al_i[b_]))
 
     def _wide(self, i: int) -> tuple[_Candidates, int]:
@@ -220,7 +221,7 @@ class _FirstSlot:
         if eff is not None:
             d = np.where(eff.flyable, _clear_of(eff.samples, fixed.values()), -np.inf)
             if (d >= lim).any():
-                return _Move(int(np.argmin(np.where(d >= lim, eff.cost, np.inf))), True, True)
+                return _Move(first_argmin(np.where(d >= lim, eff.cost, np.inf)), True, True)
         wi, ni = self._wide(i)
         for h in reversed(list(fixed)):
             rest = [f for k, f in fixed.items() if k != h]
@@ -236,8 +237,8 @@ class _FirstSlot:
                 k = ch[s:s + CHUNK]
                 sep = separation(wh.samples[k][:, None], wi.samples[ci][None])
                 score = np.where(sep >= lim, score_h[s:s + CHUNK, None] + score_i[None], np.inf)
-                q = int(np.argmin(score))
-                if score.flat[q] < best:
+                q = first_argmin(score)
+                if score.flat[q] < best - tie_tolerance(best, score.dtype):
                     best, pair = score.flat[q], (int(k[q // len(ci)]), int(ci[q % len(ci)]))
             if pair is None:
                 continue
@@ -253,7 +254,7 @@ class _FirstSlot:
         if not cand.flyable.any():
             return None
         d = np.where(cand.flyable, _clear_of(cand.samples, fixed.values()), -np.inf)
-        return self._wide_move(int(np.argmax(d)), n, cand, flagged=True)
+        return self._wide_move(first_argmax(d), n, cand, flagged=True)
 
     # ------------------------------------------------------------------------------------- settling the team
     def settle(self, order: list[int], escape: bool = False) -> tuple[dict, int | None]:

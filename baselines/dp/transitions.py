@@ -17,6 +17,7 @@ from covert_env.angles import TWO_PI, wrap_heading
 from covert_env.config import Config
 from covert_env.cost import stage_cost
 from covert_env.dynamics import Manoeuvre, solve_manoeuvre
+from covert_env.ties import tie_tolerance
 
 __all__ = ["SolvedTransitions", "solve_transitions", "transition_costs"]
 
@@ -104,9 +105,13 @@ class SolvedTransitions:
             return Layer.empty()
         rows, nodes, cost, head, v, g = rows[ok], nodes[ok], cost[ok], head[ok], v[ok], g[ok]
         key = self._key(rows, nodes, head, bins)
-        # Sort by (key, cost): the first row of every key is its winner, and layers come out sorted by uav.
+        # Sort by (key, cost): every key's cheapest row comes first, and layers come out sorted by uav. Rows within
+        # the tie tolerance of that cost tie (covert_env.ties), and a tie goes to the row solved first.
         order = np.lexsort((cost, key))
-        first = np.concatenate([[True], key[order][1:] != key[order][:-1]])
-        w = order[first]
+        ks, cs = key[order], cost[order]
+        starts = np.flatnonzero(np.concatenate([[True], ks[1:] != ks[:-1]]))
+        best = np.repeat(cs[starts], np.diff(np.append(starts, len(cs))))
+        tied = cs <= best + tie_tolerance(best, cs.dtype)
+        w = np.minimum.reduceat(np.where(tied, order, len(order)), starts)
         return Layer(uav=self.layer.uav[rows[w]], node=nodes[w], theta=wrap_heading(head[w]), J=cost[w],
                      parent=rows[w], v=v[w], g=g[w])

@@ -202,6 +202,12 @@ class CovertSensingParallelEnv(ParallelEnv):
 
     ## Version History
 
+    * v4, covert_env 0.10.0: every UAV's pose is settled at each slot end on a grid of 2^-20 m and 2^-24 rad
+      (:func:`covert_env.flight.settle_pose`, docs/decisions.md#settled-slot-end-poses), so that a seeded rollout
+      gives the same numbers on CPUs whose float64 ``arctan2``/``exp``/``arccos`` differ in the last bit (numpy with
+      and without AVX-512). The flight amplifies such a difference a few times per slot, and in v3 it changed
+      decisions within about thirty slots. Observations, rewards, costs, scenes and spaces are otherwise unchanged,
+      but seeded rollouts differ from v3's. ``covert_sensing_v3`` and the v3 ids raise an error that says this.
     * v3, covert_env 0.9.0 (no number changed at the defaults): ``target_path=P`` appends the target's path
       predicted over P slots to the observation and ``state()``, after the maps (the default, 0, leaves both as
       they were).
@@ -255,7 +261,7 @@ class CovertSensingParallelEnv(ParallelEnv):
     * v0: initial release.
     """
 
-    metadata = {"name": "covert_sensing_v3", "render_modes": list(RENDER_MODES), "render_fps": 4,
+    metadata = {"name": "covert_sensing_v4", "render_modes": list(RENDER_MODES), "render_fps": 4,
                 "is_parallelizable": True}
 
     def __init__(self, config: Config | dict | None = None, *, n_uavs: int | None = None,

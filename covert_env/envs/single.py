@@ -1,7 +1,7 @@
 """Gymnasium single-UAV environments, thin wrappers over the PettingZoo env with one agent.
 
-Registered at ``import covert_env`` as ``covert_env/CovertSensing-v3`` (continuous unicycle actions)
-and ``covert_env/CovertSensingWaypoint-v3`` (discrete waypoint actions with ``action_masks()`` for
+Registered at ``import covert_env`` as ``covert_env/CovertSensing-v4`` (continuous unicycle actions)
+and ``covert_env/CovertSensingWaypoint-v4`` (discrete waypoint actions with ``action_masks()`` for
 sb3-contrib's MaskablePPO).
 """
 
@@ -32,7 +32,7 @@ class CovertSensingEnv(gym.Env):
 
     ``Box(-1, 1, (2,), float32)``: (speed, turn rate) scaled to 0 < v <= V_max = 50 m/s and
     |omega| <= W_max = 3 rad/s, integrated exactly over the slot. Out-of-range values are clipped;
-    NaN/inf raise ``ValueError``. (``CovertSensingWaypoint-v3``: ``Discrete(L)`` lattice waypoints.)
+    NaN/inf raise ``ValueError``. (``CovertSensingWaypoint-v4``: ``Discrete(L)`` lattice waypoints.)
 
     ## Observation Space
 
@@ -64,7 +64,7 @@ class CovertSensingEnv(gym.Env):
 
     ## Vectorized Environment
 
-    ``gym.make_vec("covert_env/CovertSensing-v3", num_envs=N)`` gives Gymnasium's ``SyncVectorEnv`` (or, with
+    ``gym.make_vec("covert_env/CovertSensing-v4", num_envs=N)`` gives Gymnasium's ``SyncVectorEnv`` (or, with
     ``vectorization_mode="async"``, ``AsyncVectorEnv``) of N of these envs; it resets an ended env in
     Gymnasium's next-step mode (``AutoresetMode.NEXT_STEP``: the ``step()`` after the end resets it and ignores
     its action). ``covert_env.vector_env(num_envs=N, n_uavs=1)`` is the batched alternative (one process, array
@@ -82,6 +82,8 @@ class CovertSensingEnv(gym.Env):
 
     ## Version History
 
+    * v4, covert_env 0.10.0: every UAV's pose is settled at each slot end on a fine grid, as in the PettingZoo env
+      this one wraps (its Version History says why).
     * v3, covert_env 0.9.0 (no number changed at the defaults): ``target_path=P`` appends the target's predicted
       path to the observation, as in the PettingZoo env this one wraps.
     * v3, covert_env 0.7.0: LoS lost along the flown path counts (``reward_los_path``, ``cost_los_path``,
@@ -113,7 +115,7 @@ class CovertSensingEnv(gym.Env):
         if kwargs.get("action_mode", self._action_mode) != self._action_mode:
             other = "CovertSensingWaypoint" if self._action_mode == "unicycle" else "CovertSensing"
             raise ValueError(f"{type(self).__name__} has action_mode={self._action_mode!r}, got "
-                             f"action_mode={kwargs['action_mode']!r}; use the id covert_env/{other}-v3")
+                             f"action_mode={kwargs['action_mode']!r}; use the id covert_env/{other}-v4")
         kwargs.update(n_uavs=1, action_mode=self._action_mode)
         self.par = CovertSensingParallelEnv(render_mode=render_mode, **kwargs)
         self.render_mode = render_mode

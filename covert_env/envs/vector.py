@@ -159,6 +159,8 @@ class CovertSensingVectorEnv(LiveSettings, CopyReaders, WaypointQueries):
 
     ## Version History
 
+    * v4, covert_env 0.10.0: the task and numbers of ``covert_sensing_v4`` (every UAV's pose settled at each slot end
+      on a fine grid, so that seeded rollouts reproduce across CPUs).
     * v3, covert_env 0.9.0 (no number changed at the defaults): ``target_path=P`` appends the target's predicted
       path to the observation, as in the PettingZoo env (its Version History).
     * v3, covert_env 0.8.0 (no number changed): ``onward_reach(xy, theta)``, how many nodes UAVs ending this slot
@@ -176,7 +178,7 @@ class CovertSensingVectorEnv(LiveSettings, CopyReaders, WaypointQueries):
       unchanged.
     """
 
-    metadata = {"name": "covert_sensing_vector_v3", "autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
+    metadata = {"name": "covert_sensing_vector_v4", "autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
     render_mode = None
 
     def __init__(self, num_envs: int = 1, *, autoreset_mode: AutoresetMode = AutoresetMode.SAME_STEP,

@@ -33,6 +33,7 @@ from baselines.policies import parallel_env_of
 from covert_env.angles import wrap_angle
 from covert_env.dynamics import solve_manoeuvre
 from covert_env.envs.observation import field_slices
+from covert_env.ties import first_argmax
 from training.runs import read_run_json, run_env
 from training.shield import SeparationShield
 
@@ -251,12 +252,12 @@ class LearnedPolicy:
             mask = np.stack([par.action_mask(a) for a in agents]).astype(bool)
             if self.shield is not None:
                 act, _ = self.shield.choose(mask[None], lambda n: par.waypoint_paths(n[0])[None],
-                                            lambda k, m: np.argmax(np.where(m, logits[k], -np.inf), axis=-1),
+                                            lambda k, m: first_argmax(np.where(m, logits[k], -np.inf), axis=-1),
                                             (lambda xy, th: par.onward_reach(xy[0], th[0])[None]) if self.viability
                                             else None)
                 out = {a: int(act[0, i]) for i, a in enumerate(agents)}
             else:
-                out = {a: int(np.argmax(np.where(mask[i], logits[i], -np.inf))) for i, a in enumerate(agents)}
+                out = {a: first_argmax(np.where(mask[i], logits[i], -np.inf)) for i, a in enumerate(agents)}
         return out[single] if single is not None else out
 
 
