@@ -1,7 +1,11 @@
 """Shipped weights reproduce their model card; export -> card -> loader round trip (numpy only, no torch)."""
 
 import json
+import os
 import re
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -9,25 +13,100 @@ import pytest
 from training.evaluate import evaluate, load_policy, main
 from training.pretrained import N_OWN_FEATURES, pretrained_names
 from training.pretrained.export import export
+from training.provenance import numpy_cpu_dispatch, platform_key, platform_record
+from training.stats import iqm
 
-N_SCENES = 3        # scenes replayed per shipped card (a few seconds each in waypoint mode)
+N_SCENES = 3        # scenes replayed per shipped card in the slow test (a few seconds each in waypoint mode)
+#: Largest relative difference of a replayed scene's reward from its card's on another platform (another CPU
+#: dispatch of numpy or other library versions: training.provenance). On the card's own platform: none.
+REPLAY_RTOL = 1e-6
+#: The fast subset's replay: the cheapest card, one scene.
+FAST_CARD = "mappo-suite"
+
+_REPLAY = """
+import json, sys
+from training.evaluate import evaluate, load_policy
+from training.provenance import platform_record
+pol, settings = load_policy("pretrained:" + sys.argv[1], 3)
+rows = evaluate(pol, settings, int(sys.argv[2]), progress=False)
+print(json.dumps({"platform": platform_record(), "rewards": {str(r["scene_seed"]): r["reward"] for r in rows}}))
+"""
 
 
-@pytest.mark.parametrize("name", pretrained_names() or [pytest.param(None, marks=pytest.mark.skip("none shipped"))])
-def test_shipped_weights_reproduce_their_card(name):
+def _replay(name: str, n: int) -> tuple[dict, dict]:
     pol, settings = load_policy(f"pretrained:{name}", 3)
-    card = pol.card
+    rows = evaluate(pol, settings, n, progress=False)
+    return pol.card, {str(r["scene_seed"]): r["reward"] for r in rows}
+
+
+def _assert_replays(card: dict, rewards: dict, record: dict) -> None:
+    """Bit for bit on the card's platform, within REPLAY_RTOL per scene elsewhere."""
+    want = card["scores"]["per_scene_reward"]
+    same = platform_key(card["platform"]) == platform_key(record)
+    for seed, r in rewards.items():
+        if same:
+            assert r == want[seed], f"{card['name']} scene {seed}: {r!r} != {want[seed]!r} on the card's platform"
+        else:
+            assert r == pytest.approx(want[seed], rel=REPLAY_RTOL), f"{card['name']} scene {seed} on another platform"
+
+
+def test_every_card_records_its_platform_and_is_scored_on_this_env():
     from covert_env.envs.vector import CovertSensingVectorEnv
 
-    # Scored on the env as it is now (export --rescore after every env version).
-    assert card["env_id"] == CovertSensingVectorEnv.metadata["name"]
-    assert card["commit"] and card["training"]["env_steps"] > 0
+    for name in pretrained_names():
+        card = load_policy(f"pretrained:{name}", 3)[0].card
+        # Scored on the env as it is now (export --rescore after every env version).
+        assert card["env_id"] == CovertSensingVectorEnv.metadata["name"], name
+        assert card["commit"] and card["training"]["env_steps"] > 0
+        lo, hi = card["scores"]["reward_iqm_ci95_over_scenes"]
+        assert lo <= card["scores"]["reward_iqm"] <= hi
+        assert set(card["platform"]) >= {"machine", "numpy", "numpy_cpu_dispatch", "shapely", "geos"}, name
+        assert not card["commit"].endswith("-dirty"), f"{name} was scored on uncommitted code"
+
+
+def test_a_shipped_card_replays():
+    """The fast subset's replay: the cheapest card's first scene."""
+    card, rewards = _replay(FAST_CARD, 1)
+    _assert_replays(card, rewards, platform_record())
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", pretrained_names() or [pytest.param(None, marks=pytest.mark.skip("none shipped"))])
+def test_shipped_weights_reproduce_their_card(name):
+    card, rewards = _replay(name, N_SCENES)
+    _assert_replays(card, rewards, platform_record())
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["mappo", "mappo-suite"])
+def test_a_card_replays_every_scene_within_its_interval(name):
+    """All of a card's scenes, and the IQM of the replay inside the card's interval (the aggregate check)."""
+    pol, _ = load_policy(f"pretrained:{name}", 3)
+    first, last = pol.card["scores"]["scenes"]
+    card, rewards = _replay(name, last - first + 1)
+    _assert_replays(card, rewards, platform_record())
     lo, hi = card["scores"]["reward_iqm_ci95_over_scenes"]
-    assert lo <= card["scores"]["reward_iqm"] <= hi
-    rows = evaluate(pol, settings, N_SCENES, progress=False)
-    for r in rows:
-        # Deterministic acting in numpy: the same scene gives the same episode, up to float summation order.
-        assert r["reward"] == pytest.approx(card["scores"]["per_scene_reward"][str(r["scene_seed"])], abs=1e-6)
+    assert lo <= iqm(np.array(list(rewards.values()))[:, None]) <= hi
+
+
+def _avx512_targets() -> list[str]:
+    return [t for t in numpy_cpu_dispatch() if "512" in t or t == "X86_V4"]
+
+
+@pytest.mark.parametrize("name", [FAST_CARD, pytest.param("dp-cost", marks=pytest.mark.slow)])
+def test_cards_replay_without_avx512(name):
+    """The replay on this machine with numpy's AVX-512 dispatch disabled (where the CPU has it): numpy then
+    rounds its float64 arctan2, exp and arccos as on a CPU without AVX-512, and the card still replays."""
+    off = _avx512_targets()
+    if not off:
+        pytest.skip("this CPU has no AVX-512 dispatch in numpy: nothing to disable")
+    env = {**os.environ, "NPY_DISABLE_CPU_FEATURES": " ".join(off)}
+    out = subprocess.run([sys.executable, "-c", _REPLAY, name, "2"], env=env, capture_output=True, text=True,
+                         check=True, cwd=Path(__file__).resolve().parents[1])
+    got = json.loads(out.stdout.strip().splitlines()[-1])
+    assert not set(off) & set(got["platform"]["numpy_cpu_dispatch"])          # the child ran without AVX-512
+    card = load_policy(f"pretrained:{name}", 3)[0].card
+    _assert_replays(card, got["rewards"], got["platform"])
 
 
 def _tiny_run(tmp_path, head="node", mode="waypoint", u=2):
@@ -46,7 +125,7 @@ def _tiny_run(tmp_path, head="node", mode="waypoint", u=2):
     run = tmp_path / "run"
     run.mkdir()
     np.savez(run / "model.npz", **{f"actor.{k}": v.astype(np.float32) for k, v in params.items()})
-    meta = {"algorithm": "mappo", "env_id": "covert_sensing_vector_v3", "global_step": 16,
+    meta = {"algorithm": "mappo", "env_id": "covert_sensing_vector_v4", "global_step": 16,
             "actor": {"head": head, "hidden": h, "node_hidden": nh, "n_feat": N_OWN_FEATURES + u - 1,
                       "obs_dim": d, "n_actions": n_act},
             "env_kwargs": {"n_uavs": u, "action_mode": mode, "max_cycles": 70, "scene_pool": 10000},
@@ -80,7 +159,8 @@ def test_export_card_round_trip(tmp_path, head, mode):
 
 def test_rescore_scores_shipped_weights_on_the_current_env(tmp_path, capsys):
     """After an env version bump the shipped weights are scored again: the card names the env it was scored on
-    (the recipe keeps the one it was trained on) and its scenes' rewards are the harness's."""
+    (the recipe keeps the one it was trained on; the suite rows the one they were measured on), its scenes' rewards
+    are the harness's and its platform is this one."""
     import shutil
 
     import covert_env
@@ -89,19 +169,22 @@ def test_rescore_scores_shipped_weights_on_the_current_env(tmp_path, capsys):
     from training.pretrained.export import main as export_main
     from training.pretrained.export import rescore
 
-    name = pretrained_names()[0]
+    name = FAST_CARD
     for ext in (".npz", ".json"):
         shutil.copy(PRETRAINED_DIR / f"{name}{ext}", tmp_path / f"{name}{ext}")
     old = json.loads((tmp_path / f"{name}.json").read_text())
-    suite = {"cells": "c.csv", "policy": "p", "run": 0, "tasks": {}}
+    suite = {"env_id": "covert_sensing_vector_v1", "cells": "c.csv", "policy": "p", "run": 0, "tasks": {}}
     now = CovertSensingVectorEnv.metadata["name"]
-    old.update(env_id=now, suite=suite)                          # scored on this env version: the suite stays
+    old.update(env_id=now, suite=suite)                          # the suite keeps the env id it names
     (tmp_path / f"{name}.json").write_text(json.dumps(old))
     assert json.loads(rescore(name, 1, tmp_path, progress=False).read_text())["suite"] == suite
-    old.update(env_id="covert_sensing_vector_v0", covert_env_version="0.0.1", commit="0" * 40)
+    del suite["env_id"]
+    old.update(env_id="covert_sensing_vector_v0", covert_env_version="0.0.1", commit="0" * 40, suite=suite)
     (tmp_path / f"{name}.json").write_text(json.dumps(old))
     card = json.loads(rescore(name, 1, tmp_path, progress=False).read_text())
-    assert "suite" not in card                                   # measured on another env version: dropped
+    # A suite without an env id was measured with the card's old scores: it is labelled with that env.
+    assert card["suite"] == {"env_id": "covert_sensing_vector_v0", **suite}
+    assert card["platform"] == platform_record()
     assert card["env_id"] == now and card["recipe"] == old["recipe"]
     assert card["covert_env_version"] == covert_env.__version__ and card["commit"] != "0" * 40
     assert card["scores"]["scenes"] == [1_000_000, 1_000_000]
@@ -250,7 +333,7 @@ def test_card_states_the_constraint_rates_and_the_suite_rows(tmp_path, capsys):
     with pytest.raises(SystemExit):
         export_main([str(run), "--out-dir", str(tmp_path / "shipped"), "--suite", str(cells)])
     assert "--suite needs --suite-policy" in capsys.readouterr().err
-    assert card["env_id"] == "covert_sensing_vector_v3" and card["train_tasks"] is None
+    assert card["env_id"] == "covert_sensing_vector_v4" and card["train_tasks"] is None
     for argv, message in (([str(run), "--suite-policy", "mappo:x"], "--suite-policy and --suite-run need --suite"),
                           (["--rescore", "tiny", "--suite", str(cells)], "--suite does not go with --rescore")):
         with pytest.raises(SystemExit):

@@ -9,12 +9,14 @@ recipe) and training summary (env steps, wall time), the repository commit, the 
 version, and the scores of the harness (:mod:`training.evaluate`, env default reward) on the held-out scenes
 1_000_000 .. 1_000_000 + episodes - 1: mean ± std over scenes, IQM with a 95 % bootstrap interval over scenes
 (:mod:`training.stats`; one training seed, so the scenes are the resampled runs), the paper's metrics, and the
-reward of each scene (``tests/test_pretrained.py`` replays the first few and compares).
+reward of each scene (``tests/test_pretrained.py`` replays them and compares), and the platform and library
+versions that measured them (``platform``, :mod:`training.provenance`).
 
 ``constraints`` states each constraint's rate on those scenes (the paper's constraints: the zone, eq. 4; LoS at
 slot times, eq. 6, and along the flown path; separation, eq. 2; terrain, eq. 3). With ``--suite``, ``suite`` adds
 the suite protocol's rows of the weights (``covert-env benchmark``'s ``cells.csv``: the policy spec and, for a seed
-group, the run that these weights are): per task, the normalised score and the same rates, over its test scenes.
+group, the run that these weights are): per task, the normalised score and the same rates, over its test scenes,
+with the env id they were measured on.
 """
 
 from __future__ import annotations
@@ -33,6 +35,7 @@ from training.benchmark import CONSTRAINTS
 from training.evaluate import HELD_OUT_OFFSET, evaluate, summarise
 from training.pretrained import PRETRAINED_DIR, load_learned
 from training.pretrained.learned_cost import KIND, is_cost_planner_card, load_cost_planner
+from training.provenance import platform_record
 from training.stats import iqm, stratified_bootstrap_ci
 
 __all__ = ["export", "main", "rescore", "suite_rows"]
@@ -108,9 +111,10 @@ def _scored_card(npz: Path, card: dict, episodes: int, progress: bool, suite: di
     card_path = npz.with_suffix(".json")
     card_path.write_text(json.dumps(card, indent=2))
     card["scores"] = _scores(npz, card["name"], episodes, progress)
+    card["platform"] = platform_record()
     card["constraints"] = _constraints(card["scores"])
     if suite is not None:
-        card["suite"] = suite
+        card["suite"] = {"env_id": card["env_id"], **suite}
     card_path.write_text(json.dumps(card, indent=2))
     return card_path
 
@@ -146,9 +150,10 @@ def suite_rows(cells: Path, policy: str, run: int | None = None) -> dict:
 
 def rescore(name: str, episodes: int | None = None, out_dir: Path = PRETRAINED_DIR, progress: bool = True) -> Path:
     """Score shipped weights again on the current env version (same held-out scenes; ``episodes`` defaults to the
-    card's count) and rewrite the card's ``scores``, ``constraints``, ``env_id``, ``covert_env_version`` and
-    ``commit``. A ``suite`` block is kept if the card's env id is the current one, else dropped (it was measured
-    on another env version); the env id the weights were trained on stays in ``recipe``. Returns the card's path."""
+    card's count) and rewrite the card's ``scores``, ``platform``, ``constraints``, ``env_id``,
+    ``covert_env_version`` and ``commit``. A ``suite`` block keeps the env id it was measured on (its ``env_id``,
+    the card's old one where it has none): a suite is hours of runs, and its rows stay labelled with the env they
+    are from. The env id the weights were trained on stays in ``recipe``. Returns the card's path."""
     from covert_env.envs.vector import CovertSensingVectorEnv
 
     npz = Path(out_dir) / f"{name}.npz"
@@ -160,9 +165,10 @@ def rescore(name: str, episodes: int | None = None, out_dir: Path = PRETRAINED_D
         raise ValueError(f"{card_path}: no scores.scenes [first, last] to score again (not a card this module "
                          "wrote)") from None
     card["scores"] = _scores(npz, name, episodes or last - first + 1, progress)
+    card["platform"] = platform_record()
     card["constraints"] = _constraints(card["scores"])
-    if card.get("env_id") != CovertSensingVectorEnv.metadata["name"]:
-        card.pop("suite", None)
+    if isinstance(card.get("suite"), dict):
+        card["suite"] = {"env_id": card["suite"].get("env_id", card.get("env_id")), **card["suite"]}
     card.update(env_id=CovertSensingVectorEnv.metadata["name"], covert_env_version=covert_env.__version__,
                 commit=_commit())
     card_path.write_text(json.dumps(card, indent=2))
