@@ -934,24 +934,9 @@ def write_gif(path, *, n_uavs: int = 3, method: str = "aware", n_slots: int | No
 
 
 def _progress(total: int):
-    """A tqdm bar on stderr; a plain counter if tqdm is missing (it ships with the ``train`` extra)."""
-    try:
-        from tqdm import tqdm
-    except ImportError:  # pragma: no cover
-        class _Plain:
-            n = 0
+    """A tqdm bar on stderr."""
+    from tqdm import tqdm
 
-            def set_postfix_str(self, s):
-                self.s = s
-
-            def update(self, k):
-                self.n += k
-                print(f"reproduce: {self.n}/{total} runs ({self.s})", file=sys.stderr, flush=True)
-
-            def close(self):
-                pass
-
-        return _Plain()
     return tqdm(total=total, desc="reproduce", unit="run", file=sys.stderr)
 
 

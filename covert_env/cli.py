@@ -8,8 +8,10 @@
     covert-env animate                                       # the DP team flying: outputs/dp_team.gif
     covert-env animate --out docs/dp_team.gif                # regenerate the README's animation
     covert-env scene-set --family downtown --scenes 20 --out downtown20.json   # scenes as data, to share
+    covert-env list                                          # the tasks, families, policies and shipped weights
 
-``reproduce``, ``evaluate`` and ``benchmark`` live in ``baselines`` and ``training`` (imported only when called).
+``reproduce``, ``evaluate``, ``benchmark`` and ``list`` live in ``baselines`` and ``training`` (imported only when
+called).
 
 Mistakes in the command line or in the files it names (a missing or invalid ``--config``, or one that is not a
 regular file; an unknown policy; an ``--out`` that is a file where a folder is expected, or that cannot be written,
@@ -106,6 +108,8 @@ def build_parser() -> argparse.ArgumentParser:
                                     "(see: covert-env evaluate --help)")
     sub.add_parser("benchmark", help="the task suite's protocol: every task x policy x scene, normalised scores, "
                                      "IQM with intervals, profiles (see: covert-env benchmark --help)")
+    sub.add_parser("list", help="the tasks, scene families, policies and shipped weights the commands accept "
+                                "(covert-env list [tasks|families|policies|weights])")
     p = sub.add_parser("scene", help="draw terrain, road, target, zone, shadows and visible zone at one slot",
                        description="Draw terrain, road, target, zone, shadows and visible zone at one slot.")
     p.add_argument("--seed", type=non_negative_int, default=0,
@@ -170,7 +174,8 @@ def _scene_set(args: argparse.Namespace) -> int:
     return 0
 
 
-_FORWARDED = {"reproduce": "baselines.reproduce", "evaluate": "training.evaluate", "benchmark": "training.benchmark"}
+_FORWARDED = {"reproduce": "baselines.reproduce", "evaluate": "training.evaluate", "benchmark": "training.benchmark",
+              "list": "training.catalogue"}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -502,8 +502,9 @@ def build_parser(prog: str = "python -m training.evaluate") -> argparse.Argument
     p = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n")[0],
                                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     p.add_argument("--policies", nargs="+", default=["random", "hold-centre", "dp", "dp-blind"],
-                   help="policy specs: dp, dp-blind, dp-binned, random, hold-centre/heuristic, sb3:PATH, rllib:PATH, "
-                        "mappo:PATH, pretrained:NAME, each optionally @unicycle or @waypoint")
+                   help=f"policy specs: {', '.join(POLICIES)}, {', '.join(BUILTIN_ALIASES)} (= hold-centre), "
+                        "sb3:PATH, rllib:PATH, mappo:PATH, pretrained:NAME, each optionally @unicycle or @waypoint "
+                        "(covert-env list)")
     p.add_argument("--episodes", type=int_range(1, MAX_SCENES), default=20,
                    help=f"held-out scenes per policy, in [1, {MAX_SCENES}]")
     p.add_argument("--n-uavs", type=positive_int, default=3, help="team size, >= 1")

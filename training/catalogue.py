@@ -1,0 +1,93 @@
+"""``covert-env list``: what can be named on the command line. The tasks, scene families, policies and shipped
+weights, from the registries that the commands themselves read.
+
+    covert-env list                     # everything
+    covert-env list tasks               # or: families, policies, weights
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from covert_env.families import FAMILIES
+from covert_env.tasks import DEFAULT_TASKS, SUITE_VERSION, TASKS
+
+__all__ = ["TIERS", "build_parser", "main", "tier_of"]
+
+SECTIONS = ("tasks", "families", "policies", "weights")
+#: The leaderboard's tiers, by what a team reads to act.
+TIERS = {"planner": "planner (reads the terrain and the target's predicted route)",
+         "hybrid": "hybrid (a planner with a learned cost)",
+         "learned": "learned from observations"}
+
+
+def tier_of(card: dict) -> str:
+    """A shipped card's tier: ``hybrid`` for a planner with a learned cost, ``learned`` for an actor that acts from
+    observations."""
+    from training.pretrained.learned_cost import KIND
+
+    return "hybrid" if card.get("kind") == KIND else "learned"
+
+
+def _tasks() -> list[str]:
+    lines = [f"Tasks ({SUITE_VERSION}; --task NAME, covert-env benchmark --tasks NAME ... | core | all; * = core):"]
+    for t in TASKS.values():
+        lines.append(f"  {'*' if t.name in DEFAULT_TASKS else ' '} {t.name:<26} family {t.family:<9} "
+                     f"{t.n_uavs} UAV{'s' if t.n_uavs > 1 else ' '}  target {t.target}")
+    return lines
+
+
+def _families() -> list[str]:
+    return ["Scene families (--family NAME):", *(f"  {f.name:<9} {f.description}" for f in FAMILIES.values())]
+
+
+def _policies() -> list[str]:
+    from baselines.policies import POLICIES
+    from training.evaluate import BUILTIN_ALIASES
+
+    alias = {v: k for k, v in BUILTIN_ALIASES.items()}
+    names = [f"{n} (or {alias[n]})" if n in alias else n for n in POLICIES]
+    return ["Policies (covert-env evaluate / benchmark --policies SPEC, optionally SPEC@unicycle or SPEC@waypoint):",
+            f"  built in: {', '.join(names)}",
+            "  from files: pretrained:NAME (below), mappo:PATH, sb3:PATH and rllib:PATH (these two hold pickles: "
+            "--trust-checkpoint)"]
+
+
+def _weights() -> list[str]:
+    from training.pretrained import PRETRAINED_DIR, pretrained_names
+    from training.runs import read_run_json
+
+    lines = ["Shipped weights (pretrained:NAME; cards in training/pretrained/NAME.json; reward IQM [95 % interval] on "
+             "the held-out paper scenes):", *(f"  tier {k}: {v}" for k, v in TIERS.items() if k != "planner")]
+    for name in pretrained_names():
+        card = read_run_json(PRETRAINED_DIR / f"{name}.json", "model card")
+        s = card.get("scores", {})
+        lo, hi = s.get("reward_iqm_ci95_over_scenes", (float("nan"),) * 2)
+        lines.append(f"  {name:<26} {tier_of(card):<8} {card.get('algorithm', '?'):<6} {card.get('env_id', '?'):<26} "
+                     f"{s.get('reward_iqm', float('nan')):6.1f} [{lo:.1f}, {hi:.1f}]")
+    return lines
+
+
+def build_parser(prog: str = "python -m training.catalogue") -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog=prog, description="List the tasks, scene families, policies and shipped weights "
+                                "that the commands accept.")
+    p.add_argument("what", nargs="*", metavar="SECTION", help=f"only these sections: {', '.join(SECTIONS)} "
+                   "(default: all)")
+    return p
+
+
+def main(argv: list[str] | None = None, prog: str = "python -m training.catalogue") -> int:
+    parser = build_parser(prog)
+    args = parser.parse_args(argv)
+    for w in args.what:
+        if w not in SECTIONS:
+            parser.error(f"unknown section {w!r}; use any of {', '.join(SECTIONS)}")
+    show = [s for s in SECTIONS if not args.what or s in args.what]
+    parts = {"tasks": _tasks, "families": _families, "policies": _policies, "weights": _weights}
+    print("\n\n".join("\n".join(parts[s]()) for s in show))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
