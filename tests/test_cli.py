@@ -576,6 +576,23 @@ def test_evaluate_reuses_a_sound_cache(evaluate_files, capsys, monkeypatch):
     assert "random" in (evaluate_files / "lb3" / "leaderboard.md").read_text()
 
 
+def test_evaluate_names_a_built_in_policy_by_its_spec_as_the_suite_does(evaluate_files, monkeypatch):
+    """leaderboard.md and suite.md name the paper's planner alike: dp (its planner label is dp-aware-inherited)."""
+    import training.evaluate
+
+    monkeypatch.setattr(training.evaluate, "evaluate", lambda *a, **k: (_ for _ in ()).throw(AssertionError("ran")))
+    rows = json.loads((evaluate_files / "lb3" / "cache" / "random__2__1000000__3.json").read_text())
+    rows[1]["reward"] = 2.0
+    cache = evaluate_files / "dp" / "cache" / "dp__2__1000000__3.json"
+    cache.parent.mkdir(parents=True)
+    cache.write_text(json.dumps(rows))
+    assert main(["evaluate", "--policies", "dp", "--out", str(evaluate_files / "dp"), "--reuse", "--episodes", "2",
+                 "--no-progress"]) == 0
+    board = (evaluate_files / "dp" / "leaderboard.md").read_text()
+    assert "| dp | waypoint |" in board and "dp-aware-inherited" not in board
+    assert set(json.loads((evaluate_files / "dp" / "results.json").read_text())) == {"dp"}
+
+
 # ---------------------------------------------------------------------- training scripts: paths and saved arguments
 def _training_path_cases(tmp: Path) -> dict[str, tuple[str, list[str], str]]:
     """name -> (script, argv, regex of the error line after `error: `); folders under ``tmp``."""

@@ -667,13 +667,15 @@ def _main(args: argparse.Namespace, command: str) -> int:
     results: dict[str, dict] = {}
     for spec, group in loaded:
         pol, settings = group[0]
-        name = getattr(pol, "name", spec) if len(group) == 1 else f"{spec.split(':', 1)[0]} ({len(group)} seeds)"
+        # A built-in policy's row is its spec, as in the suite's tables (dp, not its planner label).
+        builtin = spec in caches
+        name = (spec if builtin else getattr(pol, "name", spec)) if len(group) == 1 else \
+            f"{spec.split(':', 1)[0]} ({len(group)} seeds)"
         if "@" in spec and not name.endswith(spec.rsplit("@", 1)[1]):
             name = f"{name}@{spec.rsplit('@', 1)[1]}"
         while name in results:
             name += "'"
         t0 = time.perf_counter()
-        builtin = spec in caches
         cache = out / caches[spec] if builtin else None
         if spec in reused:
             rows = reused[spec]
