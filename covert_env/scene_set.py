@@ -9,11 +9,18 @@
     covert-env scene-set --family downtown --scenes 20 --out downtown20.json
     covert-env evaluate --scene-set downtown20.json ...      # the harness on those scenes
 
-A file holds the config, the family and seeds it was drawn from (for the record: loading never draws again), and
-per scene its terrain (a GeoJSON FeatureCollection, :meth:`Terrain.to_geojson`), road points, the target's speed
-profile and the UAVs' starts. JSON floats round-trip exactly, so a loaded scene is the saved one to the last bit.
+A file holds the config, the family and seeds it was drawn from, and per scene its terrain (a GeoJSON
+FeatureCollection, :meth:`Terrain.to_geojson`), road points, the target's speed profile and the UAVs' starts. JSON
+floats round-trip exactly, so a loaded scene is the saved one to the last bit.
 No pickle: a file is data, read through the same checks as a hand-written one (:meth:`Terrain.from_geojson`,
 :class:`Road`, :class:`TargetTrack`, :class:`Scenario`), with errors naming the scene and the field.
+
+A set is also checked against itself when it is made or loaded, since labs compare on it: every scene's team is
+the config's ``n_uavs``; no scene repeats another; no polytope's footprint touches the road (the target drives
+through no building); a seed is an integer in the scene seeds' range (all scenes have one, or none does); and a
+set that names its family carries that family's config. A set with a family and seeds is drawn again from them
+(:meth:`SceneSet.generate`) and must equal the file's scenes to within 1e-9 (relative) in every number, so a
+mislabelled or edited scene is refused, naming the scene and the part that differs.
 """
 
 from __future__ import annotations
@@ -25,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from covert_env.config import Config, read_json
-from covert_env.families import HELD_OUT_SEEDS, family_config, scene_family
+from covert_env.families import FAMILIES, HELD_OUT_SEEDS, family_config, scene_family
 from covert_env.road import Road, TargetTrack
 from covert_env.scenario import Scenario
 from covert_env.terrain import Terrain
@@ -36,6 +43,11 @@ __all__ = ["FORMAT", "MAX_SCENES", "SceneSet"]
 FORMAT = ("covert_env.scene_set", 1)
 #: Most scenes in one set (a file is also capped at 64 MiB by the JSON reader).
 MAX_SCENES = 100_000
+#: Scene seeds are integers in [0, MAX_SEED] (what numpy's generators take, as int64).
+MAX_SEED = 2 ** 63 - 1
+#: How far a loaded seeded scene may be from the scene drawn again from its seed (relative, and absolute in m): a
+#: file written on another CPU may differ in the last bits (docs/decisions.md#settled-slot-end-poses).
+REDRAW_TOL = 1e-9
 
 
 class SceneSet(Sequence):
@@ -57,9 +69,15 @@ class SceneSet(Sequence):
         if any(s.config != scenarios[0].config for s in scenarios):
             raise ValueError("SceneSet: every scenario must have the same config")
         if family is not None:
-            scene_family(family)
-        if seeds is not None and len(seeds) != len(scenarios):
-            raise ValueError(f"SceneSet: {len(seeds)} seeds for {len(scenarios)} scenarios")
+            _check_family_config(family, scenarios[0].config)
+        if seeds is not None:
+            if len(seeds) != len(scenarios):
+                raise ValueError(f"SceneSet: {len(seeds)} seeds for {len(scenarios)} scenarios")
+            for i, seed in enumerate(seeds):
+                if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)) \
+                        or not 0 <= seed <= MAX_SEED:
+                    raise ValueError(f"SceneSet: scene {i}: seed must be an integer in [0, 2^63 - 1], got {seed!r}")
+        _check_scenes(scenarios)
         self._scenarios = scenarios
         self.family = family
         self.seeds = None if seeds is None else [int(s) for s in seeds]
@@ -130,8 +148,33 @@ class SceneSet(Sequence):
                 raise ValueError(f"scene set scene {i}: {type(exc).__name__ if isinstance(exc, KeyError) else ''}"
                                  f"{exc}") from None
             seeds.append(s.get("seed"))
-        has_seeds = all(isinstance(s, int) and not isinstance(s, bool) for s in seeds)
-        return cls(scenarios, family=family, seeds=seeds if has_seeds else None)
+        if all(seed is None for seed in seeds):
+            seeds = None
+        elif any(seed is None for seed in seeds):
+            raise ValueError(f"scene set: scene {seeds.index(None)} has no seed but others have one (every scene "
+                             "has a seed, or none does)")
+        out = cls(scenarios, family=family, seeds=seeds)
+        if family is not None and seeds is not None:
+            out.check_against_seeds()
+        return out
+
+    def check_against_seeds(self) -> None:
+        """Draw every scene again from the family and its seed and compare (module docstring); a ValueError names
+        the first scene that differs and the part (terrain, road, target track or starts)."""
+        if self.family is None or self.seeds is None:
+            raise ValueError("SceneSet.check_against_seeds: the set has no family or no seeds to draw from")
+        for i, (sc, seed) in enumerate(zip(self._scenarios, self.seeds, strict=True)):
+            again = Scenario.random(seed, self.config)
+            parts = {"terrain": (_terrain_numbers(sc.terrain), _terrain_numbers(again.terrain)),
+                     "road": (sc.track.road.points, again.track.road.points),
+                     "target track": (sc.track.speeds, again.track.speeds),
+                     "UAV starts": (np.column_stack([sc.uav_xy, sc.uav_theta]),
+                                np.column_stack([again.uav_xy, again.uav_theta]))}
+            for part, (got, want) in parts.items():
+                if np.shape(got) != np.shape(want) or not np.allclose(got, want, rtol=REDRAW_TOL, atol=REDRAW_TOL):
+                    raise ValueError(f"scene {i} (seed {seed}) is not what family {self.family!r} draws from seed "
+                                     f"{seed} with this config (first difference: {part}); the file was edited or "
+                                     "mislabelled (a hand-made set has no family or no seeds)")
 
     def save(self, path: str | Path) -> None:
         """Write :meth:`to_json` to ``path``."""
@@ -145,6 +188,42 @@ class SceneSet(Sequence):
             return cls.from_json(obj)
         except ValueError as exc:
             raise ValueError(f"scene set file {path}: {exc}") from None
+
+
+def _check_family_config(family: str, config: Config) -> None:
+    """The generator fields of ``config`` are the family's (a set labelled downtown holds downtown's scenes)."""
+    scene_family(family)
+    want = family_config(family)
+    fields = sorted({k for f in FAMILIES.values() for k in f.fields})
+    wrong = {k: getattr(config, k) for k in fields if getattr(config, k) != getattr(want, k)}
+    if wrong:
+        raise ValueError(f"SceneSet: family {family!r} draws with {({k: getattr(want, k) for k in wrong})}, but the "
+                         f"config has {wrong}; the family label and the config disagree")
+
+
+def _terrain_numbers(terrain: Terrain) -> np.ndarray:
+    return np.concatenate([p.vertices.reshape(-1) for p in terrain] or [np.zeros(0)])
+
+
+def _check_scenes(scenarios: list[Scenario]) -> None:
+    """Every scene flies the config's team, repeats no other scene and has no polytope on its road."""
+    from shapely import LineString, Polygon
+
+    u = scenarios[0].config.n_uavs
+    seen: dict[bytes, int] = {}
+    for i, sc in enumerate(scenarios):
+        if sc.n_uavs != u:
+            raise ValueError(f"SceneSet: scene {i} has {sc.n_uavs} UAV starts, but the config's n_uavs is {u}")
+        key = b"".join(np.ascontiguousarray(a, float).tobytes() for a in (
+            _terrain_numbers(sc.terrain), sc.track.road.points, sc.track.speeds, sc.uav_xy, sc.uav_theta))
+        if key in seen:
+            raise ValueError(f"SceneSet: scene {i} repeats scene {seen[key]} (a set's scenes are distinct)")
+        seen[key] = i
+        road = LineString(sc.track.road.points)
+        on_road = [j for j, p in enumerate(sc.terrain) if Polygon(p.base).intersects(road)]
+        if on_road:
+            raise ValueError(f"SceneSet: scene {i}: polytope {on_road[0]} stands on the road (its footprint crosses "
+                             "the target's road)")
 
 
 def _scenario(s: dict, config: Config) -> Scenario:

@@ -97,3 +97,61 @@ def test_the_cli_writes_a_set_the_harness_flies_as_the_family(tmp_path, capsys):
         with pytest.raises(SystemExit):
             main([*argv, "--out", str(tmp_path / "c")])
         assert message in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------------- a set is checked against itself
+def _edited(tmp_path, towers, edit):
+    obj = towers.to_json()
+    edit(obj)
+    path = tmp_path / "edited.json"
+    path.write_text(json.dumps(obj))
+    return path
+
+
+def _move_polytope_onto_road(obj):
+    scene = obj["scenes"][0]
+    road = np.asarray(scene["road"]["points"])
+    mid = road[len(road) // 2]
+    feat = scene["terrain"]["features"][0]
+    ring = np.asarray(feat["geometry"]["coordinates"][0])
+    shift = mid - ring[:-1, :2].mean(axis=0)
+    feat["geometry"]["coordinates"][0] = [[x + shift[0], y + shift[1], *rest] for x, y, *rest in ring.tolist()]
+    for key in ("top",):
+        if key in feat["properties"]:
+            feat["properties"][key] = [[x + shift[0], y + shift[1], *rest] for x, y, *rest in feat["properties"][key]]
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda o: o.update(family="downtown"), r"family 'downtown' draws with .* the family label and the config "
+                                            r"disagree"),
+    (lambda o: o["scenes"][1]["starts"].update(xy=o["scenes"][1]["starts"]["xy"][:2],
+                                               theta=o["scenes"][1]["starts"]["theta"][:2]),
+     r"scene 1 has 2 UAV starts, but the config's n_uavs is 3"),
+    (lambda o: o["scenes"].__setitem__(1, o["scenes"][0]), r"scene 1 repeats scene 0"),
+    (_move_polytope_onto_road, r"scene 0: polytope 0 stands on the road"),
+    (lambda o: o["scenes"][0]["starts"].update(theta=[t + 1e-3 for t in o["scenes"][0]["starts"]["theta"]]),
+     r"scene 0 \(seed 1000000\) is not what family 'towers' draws .*\(first difference: UAV starts\).*edited"),
+    (lambda o: o["scenes"][1].update(seed=1_000_007), r"scene 1 \(seed 1000007\) is not what family 'towers' "
+                                                      r"draws.*first difference: terrain"),
+    (lambda o: o["scenes"][0].update(seed=1_000_000.5), r"scene 0: seed must be an integer in \[0, 2\^63 - 1\], "
+                                                        r"got 1000000\.5"),
+    (lambda o: o["scenes"][0].update(seed=2 ** 64), r"scene 0: seed must be an integer in \[0, 2\^63 - 1\]"),
+    (lambda o: o["scenes"][0].update(seed=None), r"scene 0 has no seed but others have one"),
+])
+def test_a_set_that_contradicts_itself_is_refused_naming_the_scene(tmp_path, towers, edit, message):
+    path = _edited(tmp_path, towers, edit)
+    with pytest.raises(ValueError, match=message) as exc:
+        SceneSet.load(path)
+    assert str(path) in str(exc.value)
+
+
+def test_a_hand_made_set_without_family_or_seeds_is_not_drawn_again(tmp_path, towers):
+    """Without a family or seeds there is nothing to draw from: edited starts load (the other checks still hold)."""
+    def edit(o):
+        o["family"] = None
+        o["scenes"][0]["starts"]["theta"] = [t + 1e-3 for t in o["scenes"][0]["starts"]["theta"]]
+
+    back = SceneSet.load(_edited(tmp_path, towers, edit))
+    assert back.family is None and back.seeds == [1_000_000, 1_000_001]
+    with pytest.raises(ValueError, match="no family or no seeds"):
+        back.check_against_seeds()
