@@ -150,8 +150,8 @@ def build_parser() -> argparse.ArgumentParser:
                                    "terrain, road, target track and starts, read back bit for bit by "
                                    "SceneSet.load and by covert-env evaluate --scene-set.")
     p.add_argument("--family", choices=list(FAMILIES), default="paper", help="scene family (default: paper)")
-    p.add_argument("--scenes", type=int_range(1, MAX_SCENES), default=20,
-                   help=f"the family's first held-out scenes, in [1, {MAX_SCENES}] (default: 20)")
+    p.add_argument("--scenes", type=int_range(1, MAX_SCENES), default=None,
+                   help=f"the family's first held-out scenes, in [1, {MAX_SCENES}]; not with --seeds (default: 20)")
     p.add_argument("--seeds", type=non_negative_int, nargs="+", default=None,
                    help="these scene seeds instead of the first held-out ones")
     p.add_argument("--n-uavs", type=int_range(1, 64), default=3, help="team size of the starts (default: 3)")
@@ -163,9 +163,13 @@ def build_parser() -> argparse.ArgumentParser:
 def _scene_set(args: argparse.Namespace) -> int:
     from covert_env.scene_set import SceneSet
 
+    if args.scenes is not None and args.seeds is not None:
+        raise UsageError(f"--scenes {args.scenes} and --seeds {' '.join(map(str, args.seeds))}: give the number of "
+                         "held-out scenes or the seeds, not both")
     out = output_file(args.out, suffixes=("json",))
     try:
-        scenes = SceneSet.generate(args.family, args.scenes, seeds=args.seeds, config=Config(n_uavs=args.n_uavs))
+        scenes = SceneSet.generate(args.family, 20 if args.scenes is None else args.scenes, seeds=args.seeds,
+                                   config=Config(n_uavs=args.n_uavs))
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     scenes.save(out)

@@ -44,7 +44,8 @@ DEVIATION = 4.0
 """Largest deviation (m) of the ``deviating`` tasks' target from its prediction (and the zone's erosion r_u)."""
 TEST_SCENES = 20
 """Held-out scenes per task (the first of :data:`~covert_env.families.HELD_OUT_SEEDS`)."""
-_TARGETS = {"nominal": {}, "deviating": {"prediction_error": DEVIATION, "r_u": DEVIATION}}
+# The nominal target names its prediction error too, so that a config with another one clashes with the task.
+_TARGETS = {"nominal": {"prediction_error": 0.0}, "deviating": {"prediction_error": DEVIATION, "r_u": DEVIATION}}
 
 
 @dataclass(frozen=True)

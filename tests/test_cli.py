@@ -670,3 +670,11 @@ def test_ordered_results_keep_the_order_and_raise_the_first_failure(jobs):
     assert len(seen) == 3
     with pytest.raises(ValueError, match="invalid literal for int"):
         ordered_results(int, [("1",), ("x",), ("2",)], jobs)
+
+
+def test_scene_set_refuses_scenes_beside_seeds(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["scene-set", "--scenes", "5", "--seeds", "1", "2", "--out", str(tmp_path / "s.json")])
+    assert exc.value.code == 2 and not (tmp_path / "s.json").exists()
+    assert "--scenes 5 and --seeds 1 2: give the number of held-out scenes or the seeds, not both" in \
+        capsys.readouterr().err

@@ -96,3 +96,29 @@ def test_the_harness_flies_a_task_on_its_held_out_scenes(tmp_path, capsys):
         with pytest.raises(SystemExit) as e:
             main(argv + ["--out", str(out)])
         assert e.value.code == 2 and msg in capsys.readouterr().err
+
+
+def test_a_config_that_changes_the_tasks_target_is_refused():
+    """A nominal task's target drives its prediction exactly: a config with a prediction error contradicts it."""
+    with pytest.raises(ValueError, match=r"task='paper-3uav' sets .*'prediction_error': 0\.0.*the config sets "
+                                         r"\{'prediction_error': 2\.0\}"):
+        covert_env.parallel_env(task="paper-3uav", config=Config(prediction_error=2.0, r_u=2.0))
+    with pytest.raises(ValueError, match=r"the config sets \{'prediction_error': 1\.0\}"):
+        covert_env.vector_env(num_envs=1, task="paper-3uav-deviating", config=Config(prediction_error=1.0))
+    assert covert_env.parallel_env(task="paper-3uav-deviating").config.prediction_error == 4.0
+
+
+@pytest.mark.parametrize("make", [lambda: covert_env.parallel_env(task="paper-3uav", action_mode="waypoint"),
+                                  lambda: covert_env.vector_env(num_envs=2, task="paper-3uav", action_mode="waypoint")])
+def test_construction_settings_are_read_only_after_construction(make):
+    """Assigning a construction setting would change nothing the env built: it raises, naming the value it keeps."""
+    from covert_env.envs.arguments import CONSTRUCTION_SETTINGS
+
+    env = make()
+    for name in CONSTRUCTION_SETTINGS:
+        before = getattr(env, name)
+        with pytest.raises(AttributeError, match=rf"\.{name} is a construction setting.*make a new env with {name}="):
+            setattr(env, name, "other")
+        assert getattr(env, name) is before
+    env.max_cycles = 10                                  # a live setting: assignable
+    assert env.max_cycles == 10

@@ -9,7 +9,55 @@ from collections.abc import Mapping
 import gymnasium
 import numpy as np
 
-__all__ = ["bool_arg", "int_arg", "number_arg", "reset_options"]
+__all__ = ["CONSTRUCTION_SETTINGS", "ConstructionSetting", "ConstructionSettings", "bool_arg", "int_arg", "number_arg",
+           "reset_options"]
+
+#: The envs' settings that shape the spaces, the scenes or the dynamics: fixed when an env is made.
+CONSTRUCTION_SETTINGS = ("config", "action_mode", "mask_mode", "task", "family", "map_size", "target_path", "dict_obs",
+                         "scenario_spec", "scene_pool", "path_samples", "random_starts")
+
+
+class ConstructionSetting:
+    """An attribute set once, while the env is made, and read-only after: assigning ``env.task = ...`` later would
+    change nothing the env has built (its scenes, spaces and lattice), so it raises an ``AttributeError`` that says
+    to make a new env instead. (``max_cycles``, ``reward_scale``, ``penalties`` and ``terminate_on_collision`` are
+    live settings: they may be assigned.)"""
+
+    def __set_name__(self, owner, name: str) -> None:
+        self.name = name
+
+    def __get__(self, obj, owner=None):
+        if obj is None:
+            return self
+        try:
+            return obj.__dict__["_construction"][self.name]
+        except KeyError:
+            raise AttributeError(f"{type(obj).__name__} has no {self.name} yet (it is set while the env is made)") \
+                from None
+
+    def __set__(self, obj, value) -> None:
+        fixed = obj.__dict__.setdefault("_construction", {})
+        if self.name in fixed:
+            raise AttributeError(f"{type(obj).__name__}.{self.name} is a construction setting, fixed when the env was "
+                                 f"made ({self.name}={fixed[self.name]!r}); make a new env with {self.name}={value!r}")
+        fixed[self.name] = value
+
+
+class ConstructionSettings:
+    """Base of the envs: :data:`CONSTRUCTION_SETTINGS` as :class:`ConstructionSetting` attributes."""
+
+    config = ConstructionSetting()
+    action_mode = ConstructionSetting()
+    mask_mode = ConstructionSetting()
+    task = ConstructionSetting()
+    family = ConstructionSetting()
+    map_size = ConstructionSetting()
+    target_path = ConstructionSetting()
+    dict_obs = ConstructionSetting()
+    scenario_spec = ConstructionSetting()
+    scene_pool = ConstructionSetting()
+    path_samples = ConstructionSetting()
+    random_starts = ConstructionSetting()
 
 
 def int_arg(name: str, value, low: int, high: int | None = None) -> int:

@@ -19,7 +19,7 @@ from pettingzoo import ParallelEnv
 from pettingzoo.utils import parallel_to_aec, wrappers
 
 from covert_env.config import Config
-from covert_env.envs.arguments import int_arg, reset_options
+from covert_env.envs.arguments import ConstructionSettings, int_arg, reset_options
 from covert_env.envs.observation import observation_table
 from covert_env.envs.recorder import CopyView
 from covert_env.envs.settings import ACTION_MODES, MAX_PATH_SAMPLES, MAX_SCENE_POOL, RENDER_MODES, EnvSettings
@@ -31,7 +31,7 @@ __all__ = ["CovertSensingParallelEnv", "env", "parallel_env", "raw_env", "ACTION
            "MAX_SCENE_POOL"]
 
 
-class CovertSensingParallelEnv(ParallelEnv):
+class CovertSensingParallelEnv(ConstructionSettings, ParallelEnv):
     """Covert video sensing of a ground target by a team of UAVs on uneven terrain.
 
     ## Description

@@ -12,7 +12,7 @@ from gymnasium.vector.utils import batch_space
 from covert_env.angles import wrap_heading
 from covert_env.config import short_repr
 from covert_env.envs import batch
-from covert_env.envs.arguments import int_arg, reset_options
+from covert_env.envs.arguments import ConstructionSettings, int_arg, reset_options
 from covert_env.envs.recorder import CopyReaders, EpisodeRecorder
 from covert_env.envs.scene_pool import ScenePool
 from covert_env.envs.settings import EnvSettings, LiveSettings, check_penalties
@@ -46,7 +46,7 @@ INFO_DTYPES = {key: np.dtype(np.int64) if key == "slot" else np.dtype(bool) if k
                else np.dtype(np.float64) for key in INFO_KEYS}
 
 
-class CovertSensingVectorEnv(LiveSettings, CopyReaders, WaypointQueries):
+class CovertSensingVectorEnv(ConstructionSettings, LiveSettings, CopyReaders, WaypointQueries):
     """B copies of :class:`~covert_env.envs.covert_sensing.CovertSensingParallelEnv`, as batch-first arrays.
 
     ## Description
