@@ -213,9 +213,10 @@ def test_kinematic_mask_run_records_its_mask(tmp_path, train_extra):
                       "--run-name", "k"])
     assert json.loads((run / "model.json").read_text())["env_kwargs"]["mask_mode"] == "kinematic"
     assert load_learned(run).env_settings["mask_mode"] == "kinematic"
-    with pytest.raises(ValueError, match=r"--mask-mode 'kinematic' needs --action-mode waypoint"):
+    with pytest.raises(SystemExit) as exc:                  # one error line, before anything is set up
         mappo.main([*TINY, "--mask-mode", "kinematic", "--action-mode", "unicycle", "--total-timesteps", "16",
                     "--runs-dir", str(tmp_path), "--run-name", "u"])
+    assert exc.value.code == 2 and not (tmp_path / "u").exists()
     with pytest.raises(ValueError, match=r"--mask-mode 'nope': must be one of \('visible', 'kinematic'\)"):
         mappo.check_args(mappo.Args(mask_mode="nope"))
 
@@ -340,7 +341,7 @@ def test_init_actor_starts_as_the_loaded_team_and_warmup_keeps_it(tmp_path, trai
                                rtol=1e-5, atol=1e-5)
 
 
-def test_init_actor_and_lambda_max_errors_name_the_value(tmp_path, train_extra):
+def test_init_actor_and_lambda_max_errors_name_the_value(tmp_path, train_extra, capsys):
     for bad, pattern in ((dict(init_actor="pretrained:nope"), r"--init-actor pretrained:nope: no shipped weights "
                                                                r"'nope'; the shipped are "
                                                                + re.escape(str(pretrained_names()))),
@@ -370,13 +371,27 @@ def test_init_actor_and_lambda_max_errors_name_the_value(tmp_path, train_extra):
     (tmp_path / "w.npz").write_bytes((mappo.PRETRAINED_DIR / "mappo.npz").read_bytes())
     with pytest.raises(ValueError, match=r"no readable model card at .*w.json"):
         mappo.check_args(mappo.Args(action_mode="waypoint", init_actor=str(tmp_path / "w.npz")))
-    # The weights themselves are checked on loading: a card that fits the flags but not its weights.
+    # The weights themselves are checked with the flags, before anything is set up: a card that fits the flags but
+    # not its weights, and a weights file that is no zip, end in one error line and no run folder.
     card = json.loads((mappo.PRETRAINED_DIR / "mappo.json").read_text())
     card["actor"].update(hidden=16, node_hidden=8)
     (tmp_path / "w.json").write_text(json.dumps(card))
-    with pytest.raises(ValueError, match=r"--init-actor .*w.npz: .*trunk"):
-        mappo.main([*TINY, "--init-actor", str(tmp_path / "w.npz"), "--total-timesteps", "16", "--runs-dir",
-                    str(tmp_path), "--run-name", "y"])
+    (tmp_path / "g.npz").write_text("not weights")
+    (tmp_path / "g.json").write_text(json.dumps(card))
+    for weights, pattern in (("w.npz", r"--init-actor .*w.npz: .*actor.trunk.0.weight has 128 outputs, but the card's "
+                                       r"actor.hidden is 16"),
+                             ("g.npz", r"--init-actor .*g.npz: .*g.npz: not a weights file")):
+        with pytest.raises(SystemExit) as exc:
+            mappo.main([*TINY, "--init-actor", str(tmp_path / weights), "--total-timesteps", "16", "--runs-dir",
+                        str(tmp_path), "--run-name", "y"])
+        assert exc.value.code == 2 and not (tmp_path / "y").exists()
+        err = capsys.readouterr().err
+        assert re.search(r"python -m training.mappo: error: " + pattern, err) and "Traceback" not in err, err
+    for bad, pattern in ((dict(mask_mode="kinematic", action_mode="unicycle"),
+                          r"--mask-mode 'kinematic' needs --action-mode waypoint"),
+                         (dict(constraints=" , ,"), r"--constraints ' , ,' names no constraint")):
+        with pytest.raises(ValueError, match=pattern):
+            mappo.check_args(mappo.Args(**bad))
     with pytest.raises(SystemExit):
         mappo.main(["--lambda-max", "-1"])
 

@@ -245,6 +245,16 @@ def check_args(args: Args) -> None:
                          "or a weights .npz)")
     if args.init_actor:
         init_actor_fits(args)
+        # The weights themselves, before any env is built (a malformed file fails here with its field named).
+        spec = args.init_actor
+        try:
+            load_learned(PRETRAINED_DIR / f"{spec.removeprefix('pretrained:')}.npz" if spec.startswith("pretrained:")
+                         else spec)
+        except Exception as exc:        # the loader's UsageError/ValueError name the file and field
+            raise ValueError(f"--init-actor {spec}: {exc}") from None
+    if args.mask_mode != "visible" and args.action_mode != "waypoint":
+        raise ValueError(f"--mask-mode {args.mask_mode!r} needs --action-mode waypoint (the unicycle mode has no "
+                         "action mask)")
     for flag, on in (("--viability-shield", args.viability_shield), ("--shield-lookahead", args.shield_lookahead)):
         if on and not (args.separation_shield and args.action_mode == "waypoint"):
             raise ValueError(f"{flag} acts inside the separation shield: it needs --action-mode waypoint and "
@@ -517,7 +527,11 @@ def constraint_limits(args: Args) -> dict[str, float]:
     """The constrained costs and their limits, {name: limit} in the env's COSTS order: ``--constraints``, and
     separation at ``--cost-limit`` with ``--lagrangian`` (a ValueError names a bad item)."""
     limits: dict[str, float] = {}
-    for item in filter(None, (x.strip() for x in args.constraints.split(","))):
+    items = [x.strip() for x in args.constraints.split(",") if x.strip()]
+    if args.constraints.strip() and not items:
+        raise ValueError(f"--constraints {args.constraints!r} names no constraint; give NAME=LIMIT[,NAME=LIMIT...] "
+                         f"with NAME one of {COSTS}, or leave it out")
+    for item in items:
         name, sep, value = item.partition("=")
         name = name.strip()
         if not sep or name not in COSTS:
@@ -808,8 +822,6 @@ def train(args: Args) -> Path:
     if args.target_path:
         env_kwargs["target_path"] = args.target_path
     if args.mask_mode != "visible":
-        if args.action_mode != "waypoint":
-            raise ValueError(f"--mask-mode {args.mask_mode!r} needs --action-mode waypoint")
         env_kwargs["mask_mode"] = args.mask_mode
     tasks = task_list(args)
     env = make_training_env(tasks, args.num_envs, **({k: v for k, v in env_kwargs.items()

@@ -360,9 +360,15 @@ def check_weights(params: dict[str, np.ndarray], spec: dict, *, obs_dim: int, n_
         w = need(f"trunk.{i}.weight", (None, width), why)
         need(f"trunk.{i}.bias", (w.shape[0],), f"trunk.{i}.weight has {w.shape[0]} outputs")
         width, why = w.shape[0], f"trunk.{i} has {w.shape[0]} outputs"
+        if spec.get("hidden") is not None and width != spec["hidden"]:
+            raise ValueError(f"{where}: actor.trunk.{i}.weight has {width} outputs, but the card's actor.hidden is "
+                             f"{spec['hidden']!r}; the card does not describe these weights")
     if spec["head"] == "node":
         n_feat = n_node_features(n_uavs, spec)
         h = need("node_obs.weight", (None, width), why).shape[0]
+        if spec.get("node_hidden") is not None and h != spec["node_hidden"]:
+            raise ValueError(f"{where}: actor.node_obs.weight has {h} outputs, but the card's actor.node_hidden is "
+                             f"{spec['node_hidden']!r}; the card does not describe these weights")
         need("node_obs.bias", (h,), f"node_obs.weight has {h} outputs")
         extra = [w for w, key in (("the map's", "node_map"), ("the manoeuvre's", "node_manoeuvre")) if spec.get(key)]
         need("node_feat.weight", (h, n_feat), f"{n_feat} node features for {n_uavs} UAVs"
