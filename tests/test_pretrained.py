@@ -10,8 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from covert_env.command_line import UsageError
 from training.evaluate import evaluate, load_policy, main
 from training.pretrained import N_OWN_FEATURES, pretrained_names
+from training.pretrained import PRETRAINED_DIR as PRETRAINED
 from training.pretrained.export import export
 from training.provenance import numpy_cpu_dispatch, platform_key, platform_record
 from training.stats import iqm
@@ -364,3 +366,58 @@ def test_the_kinematic_mask_planners_plan_over_shadowed_nodes_and_say_so(name, h
     assert pol.kw["heading"] == heading
     assert pol.card["path_cost"] == load_policy("pretrained:dp-cost-kinematic", 3)[0].card["path_cost"]
     assert {t["mask_mode"] for t in pol.card["suite"]["tasks"].values()} == {"kinematic"}
+
+
+# ---------------------------------------------------------------------- cards are checked against one schema at load
+def _card_copy(tmp_path, name, edit, weights=None):
+    card = json.loads((PRETRAINED / f"{name}.json").read_text())
+    edit(card)
+    (tmp_path / "c.json").write_text(json.dumps(card))
+    if weights is None:
+        (tmp_path / "c.npz").write_bytes((PRETRAINED / f"{name}.npz").read_bytes())
+    else:
+        np.savez(tmp_path / "c.npz", **weights)
+    return tmp_path / "c.npz"
+
+
+@pytest.mark.parametrize("name, edit, weights, message", [
+    ("mappo-suite", lambda c: c["env_kwargs"].update(frame_skip=2), None,
+     r"env_kwargs has unknown fields \['frame_skip'\]"),
+    ("mappo-suite", lambda c: c["env_kwargs"].update(n_uavs="3"), None, r"env_kwargs: n_uavs must be an integer"),
+    ("mappo-suite", lambda c: c["env_kwargs"].update(max_cycles=0), None, r"env_kwargs: max_cycles"),
+    ("mappo-suite", lambda c: c["actor"].update(hidden="128"), None, r"actor.hidden must be an integer"),
+    ("mappo-suite", lambda c: c["actor"].update(dropout=0.1), None, r"actor has unknown fields \['dropout'\]"),
+    ("dp-cost", lambda c: c["planner"].update(horizon=7), None, r"planner has unknown fields \['horizon'\]"),
+    ("dp-cost", lambda c: c["env_kwargs"].update(map_size=4), None, r"env_kwargs has unknown fields \['map_size'\]"),
+    ("dp-cost", lambda c: c["env_kwargs"].update(action_mode="unicycle"), None,
+     r"env_kwargs.action_mode must be 'waypoint'"),
+    ("dp-cost", lambda c: c.pop("path_cost"), {"path_cost": np.ones(3)},
+     r"path_cost must be 5 numbers .* \(config\.horizon = 5\)"),
+    ("dp-cost", lambda c: c.pop("path_cost"), {"path_cost": np.array(["1", "2", "3", "4", "5"])},
+     r"path_cost must hold numbers"),
+    ("dp-cost", lambda c: c.update(path_cost=[1.0] * 5), None, r"path_cost \[1\.0, .*\] is not the weights'"),
+])
+def test_a_card_that_breaks_the_schema_fails_at_load(tmp_path, name, edit, weights, message):
+    """Unknown fields, wrong types (no string read as a number) and a learned cost of the wrong length or not its
+    weights' are refused when the card is loaded, naming the card and the field, not at the first act."""
+    npz = _card_copy(tmp_path, name, edit, weights)
+    with pytest.raises(UsageError, match=message):
+        load_policy(f"mappo:{npz}", 3)
+
+
+def test_pretrained_names_are_names_not_paths(tmp_path, capsys):
+    from training import mappo
+    from training.pretrained import pretrained_path
+    from training.pretrained.export import main as export_main
+
+    for bad in ("../mappo", "../pretrained/mappo", "/etc/passwd"):
+        with pytest.raises(ValueError, match="no pretrained weights"):
+            pretrained_path(bad)
+        with pytest.raises(UsageError, match="no pretrained weights"):
+            load_policy(f"pretrained:{bad}", 3)
+        with pytest.raises(ValueError, match="no shipped weights"):
+            mappo.check_args(mappo.Args(action_mode="waypoint", init_actor=f"pretrained:{bad}"))
+    with pytest.raises(SystemExit):
+        export_main(["--rescore", "../pretrained/mappo", "--out-dir", str(tmp_path)])
+    assert "a file stem in --out-dir" in capsys.readouterr().err
+    assert pretrained_path("mappo") == PRETRAINED / "mappo.npz"

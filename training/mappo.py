@@ -237,7 +237,7 @@ def check_args(args: Args) -> None:
                              f"--action-mode {args.action_mode!r} --head {args.head!r}")
     if args.init_actor.startswith("pretrained:"):
         name = args.init_actor.removeprefix("pretrained:")
-        if not (PRETRAINED_DIR / f"{name}.npz").is_file():
+        if name not in pretrained_names():                  # a name, never a path (no ../)
             raise ValueError(f"--init-actor {args.init_actor}: no shipped weights {name!r}; the shipped are "
                              f"{pretrained_names()}")
     elif args.init_actor and not Path(args.init_actor).exists():

@@ -33,6 +33,7 @@ from baselines.policies import parallel_env_of
 from covert_env.angles import wrap_angle
 from covert_env.dynamics import solve_manoeuvre
 from covert_env.envs.observation import field_slices
+from covert_env.envs.settings import EnvSettings
 from covert_env.ties import first_argmax
 from training.runs import read_run_json, run_env
 from training.shield import SeparationShield
@@ -261,6 +262,36 @@ class LearnedPolicy:
         return out[single] if single is not None else out
 
 
+#: The fields of a MAPPO card's ``env_kwargs`` (what :mod:`training.mappo` writes) and of its ``actor``.
+MAPPO_ENV_KWARGS = ("n_uavs", "action_mode", "max_cycles", "scene_pool", "map_size", "mask_mode", "target_path")
+ACTOR_FIELDS = ("head", "hidden", "node_hidden", "n_feat", "obs_dim", "n_actions", "agent_id", "node_map",
+                "node_manoeuvre")
+
+
+def check_env_kwargs(ekw, allowed: tuple[str, ...], card_path) -> None:
+    """A card's ``env_kwargs``: only ``allowed`` fields, each valid for the env (its own checks, types included: no
+    string is read as a number). A ``ValueError`` names the card, the field and the value."""
+    if not isinstance(ekw, dict):
+        raise ValueError(f"{card_path}: env_kwargs must be a JSON object, got {type(ekw).__name__}")
+    unknown = sorted(set(ekw) - set(allowed))
+    if unknown:
+        raise ValueError(f"{card_path}: env_kwargs has unknown fields {unknown}; a card's env_kwargs are "
+                         f"{list(allowed)}")
+    try:
+        EnvSettings(**ekw)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{card_path}: env_kwargs: {exc}") from None
+
+
+def pretrained_path(name) -> Path:
+    """The weights of ``pretrained:NAME``; a ``ValueError`` unless NAME is one of :func:`pretrained_names` (so no
+    path, ``../`` or other, leaves this folder)."""
+    names = pretrained_names()
+    if name not in names:
+        raise ValueError(f"no pretrained weights {name!r} (shipped: {', '.join(names) or 'none'})")
+    return PRETRAINED_DIR / f"{name}.npz"
+
+
 def pretrained_names() -> list[str]:
     """Names of the weights shipped in this folder (``NAME.npz`` with its card ``NAME.json``)."""
     return sorted(p.stem for p in PRETRAINED_DIR.glob("*.npz") if p.with_suffix(".json").is_file())
@@ -286,7 +317,15 @@ def load_learned(path: str | Path) -> LearnedPolicy:
             raise KeyError("actor.head / env_kwargs.action_mode")
     except (KeyError, TypeError) as exc:
         raise ValueError(f"{card_path}: not a model card of training.mappo ({exc})") from None
-    for key in ("node_map", "node_manoeuvre"):
+    check_env_kwargs(ekw, MAPPO_ENV_KWARGS, card_path)
+    unknown = sorted(set(spec) - set(ACTOR_FIELDS))
+    if unknown:
+        raise ValueError(f"{card_path}: actor has unknown fields {unknown}; an actor's fields are {list(ACTOR_FIELDS)}")
+    for key in ("hidden", "node_hidden", "n_feat", "obs_dim", "n_actions"):
+        v = spec.get(key)
+        if v is not None and (isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= 1_000_000):
+            raise ValueError(f"{card_path}: actor.{key} must be an integer in [1, 1000000], got {v!r}")
+    for key in ("node_map", "node_manoeuvre", "agent_id"):
         if not isinstance(spec.get(key, False), bool):
             raise ValueError(f"{card_path}: actor.{key} must be true or false, got {spec[key]!r}")
     if not isinstance(card.get("viability_shield", False), bool):

@@ -225,6 +225,8 @@ def main(argv: list[str] | None = None) -> int:
             if value:
                 p.error(f"{flag} does not go with --rescore (it rewrites only the card's scores, constraints, env "
                         "id, version and commit)")
+        if Path(a.rescore).name != a.rescore or a.rescore in ("", ".", ".."):
+            p.error(f"--rescore {a.rescore}: a file stem in --out-dir (NAME of NAME.npz), not a path")
         stem = Path(a.out_dir) / a.rescore
         if not stem.with_suffix(".json").is_file() or not stem.with_suffix(".npz").is_file():
             p.error(f"--rescore {a.rescore}: no {a.rescore}.npz with its card in {a.out_dir}")

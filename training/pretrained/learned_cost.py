@@ -27,15 +27,17 @@ from pathlib import Path
 import numpy as np
 
 from baselines.policies import DPPolicy
-from covert_env.config import MAX_HORIZON
+from covert_env.config import Config
 from training.runs import read_run_json
 
 __all__ = ["KIND", "is_cost_planner_card", "load_cost_planner", "path_cost_of"]
 
 KIND = "dp-cost"
 """The ``kind`` field of a learned-cost planner's card (MAPPO cards have none)."""
-#: Largest weights file read (bytes unpacked): the file holds N <= MAX_HORIZON numbers.
+#: Largest weights file read (bytes unpacked): the file holds config.horizon numbers.
 MAX_BYTES = 1 << 16
+#: The fields of a card's ``planner``.
+PLANNER_FIELDS = ("heading", "separated_continuation", "best_effort_escape", "shadow_aware")
 
 
 def path_cost_of(scale: float, decay: float, horizon: int) -> np.ndarray:
@@ -72,8 +74,14 @@ def load_cost_planner(path: str | Path) -> DPPolicy:
     card = read_run_json(card_path, "model card")
     if not isinstance(card, dict) or card.get("kind") != KIND:
         raise ValueError(f"{card_path}: not the card of a learned-cost planner (kind must be {KIND!r})")
+    from training.pretrained import check_env_kwargs  # the package imports this module
+
     planner = card.get("planner", {})
-    heading = planner.get("heading") if isinstance(planner, dict) else None
+    unknown = sorted(set(planner) - set(PLANNER_FIELDS)) if isinstance(planner, dict) else ["(not an object)"]
+    if unknown:
+        raise ValueError(f"{card_path}: planner has unknown fields {unknown}; a planner's fields are "
+                         f"{list(PLANNER_FIELDS)}")
+    heading = planner.get("heading")
     if heading not in ("inherited", "binned"):
         raise ValueError(f"{card_path}: planner.heading must be 'inherited' or 'binned', got {heading!r}")
     # Cards written before the look-ahead or the escape existed fly without them, as they were scored.
@@ -83,8 +91,12 @@ def load_cost_planner(path: str | Path) -> DPPolicy:
         if not isinstance(flag, bool):
             raise ValueError(f"{card_path}: planner.{name} must be true or false, got {flag!r}")
     mask = "visible" if flags["shadow_aware"] else "kinematic"
-    env_kwargs = card.get("env_kwargs")
-    stated = env_kwargs.get("mask_mode", mask) if isinstance(env_kwargs, dict) else mask
+    env_kwargs = card.get("env_kwargs", {"action_mode": "waypoint"})
+    check_env_kwargs(env_kwargs, ("action_mode", "mask_mode"), card_path)
+    if env_kwargs.get("action_mode", "waypoint") != "waypoint":
+        raise ValueError(f"{card_path}: env_kwargs.action_mode must be 'waypoint' (the planner flies waypoints), got "
+                         f"{env_kwargs['action_mode']!r}")
+    stated = env_kwargs.get("mask_mode", mask)
     if stated != mask:
         raise ValueError(f"{card_path}: env_kwargs.mask_mode {stated!r} contradicts planner.shadow_aware "
                          f"{flags['shadow_aware']} (a shadow-aware planner flies with the 'visible' mask, a blind one "
@@ -95,12 +107,22 @@ def load_cost_planner(path: str | Path) -> DPPolicy:
         if unpacked > MAX_BYTES:
             raise ValueError(f"{unpacked} bytes of arrays, more than the {MAX_BYTES} this file may hold")
         with np.load(npz, allow_pickle=False) as data:
-            w = np.asarray(data["path_cost"], dtype=float)
+            raw = data["path_cost"]
+        if raw.dtype.kind not in "fiu":
+            raise ValueError(f"path_cost must hold numbers, got dtype {raw.dtype}")
+        w = raw.astype(float)
     except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile) as exc:
         raise ValueError(f"{npz}: not a learned-cost planner's weights ({exc})") from None
-    if w.ndim != 1 or not 1 <= len(w) <= MAX_HORIZON or not np.all(np.isfinite(w)) or np.any(w < 0) \
-            or np.any(w > 1e6):
-        raise ValueError(f"{npz}: path_cost must be 1 to {MAX_HORIZON} numbers in [0, 1e6], got {w.tolist()!r}")
+    horizon = Config().horizon
+    if w.ndim != 1 or len(w) != horizon or not np.all(np.isfinite(w)) or np.any(w < 0) or np.any(w > 1e6):
+        raise ValueError(f"{npz}: path_cost must be {horizon} numbers in [0, 1e6], one per stage of the planner's "
+                         f"horizon (config.horizon = {horizon}), got {w.tolist()!r}")
+    stated_cost = card.get("path_cost")
+    if stated_cost is not None and (not isinstance(stated_cost, list) or len(stated_cost) != len(w)
+                                    or not all(isinstance(x, (int, float)) and not isinstance(x, bool)
+                                               for x in stated_cost)
+                                    or not np.allclose(stated_cost, w, rtol=1e-12, atol=0.0)):
+        raise ValueError(f"{card_path}: path_cost {stated_cost!r} is not the weights' {w.tolist()!r} ({npz})")
     pol = DPPolicy(heading=heading, path_cost=w, **flags)
     pol.name = f"learned-cost({npz.stem if npz.stem != 'model' else npz.parent.name})"
     pol.env_settings = {"action_mode": "waypoint", "mask_mode": mask}
