@@ -122,8 +122,9 @@ class CovertSensingParallelEnv(ConstructionSettings, ParallelEnv):
     LoS, zone and terrain are checked at slot times, as the paper's constraints are stated on the slot
     positions; separation and ``cost_los_path`` along the path: the paper films the target continuously, and a
     team that keeps LoS at slot times can lose it in between (docs/decisions.md#line-of-sight-along-the-path).
-    (Terrain generated with the default ``max_height`` keeps every top at least d_safe2 below the UAVs, so
-    ``cost_terrain`` fires only on terrain given by the user, e.g. a tall pole.)
+    (Terrain generated with the default ``max_height`` keeps every top at least d_safe2 below the UAVs, so there
+    ``cost_terrain`` fires only on terrain given by the user, e.g. a tall pole; the ``towers`` family's masts reach
+    within d_safe2 of the UAVs, so there it binds.)
 
     ## Infos
 
