@@ -120,9 +120,13 @@ def _scored_card(npz: Path, card: dict, episodes: int, progress: bool, suite: di
 
 
 def _constraints(scores: dict) -> dict:
-    """Each constraint's rate (mean over the scored scenes) from the card's scores, named for a reader."""
+    """Each constraint's rate (mean over the scored scenes) from the card's scores, named for a reader, with the
+    scenes they were measured on (the paper family's: a family that binds another constraint, such as towers for
+    eq. 3, is in the ``suite`` rows)."""
     m = {k: v[0] for k, v in scores["metrics_mean_std"].items()}
-    return {"zone_violation_rate": m["zone_violation_rate"], "blocked_los_rate_slot_times": m["occlusion_rate"],
+    first, last = scores["scenes"]
+    return {"measured_on": f"held-out paper-family scenes {first}..{last}, 3 UAVs (per suite task: the card's suite)",
+            "zone_violation_rate": m["zone_violation_rate"], "blocked_los_rate_slot_times": m["occlusion_rate"],
             "blocked_los_rate_along_path": m["occlusion_rate_path"], "blocked_path_share": m["blocked_path_share"],
             "separation_violation_slots_per_uav": m["separation_violations"],
             "min_separation_m": scores.get("min_separation", m["min_separation"]),
