@@ -233,6 +233,9 @@ def _scenario(s: dict, config: Config) -> Scenario:
     terrain = Terrain.from_geojson(s["terrain"], altitude=config.altitude)
     road = Road.from_points(s["road"]["points"])
     t = s["track"]
+    for key in ("delta", "z", "s0"):
+        if isinstance(t[key], bool) or not isinstance(t[key], (int, float)):
+            raise TypeError(f"track.{key} must be a number, got {t[key]!r}")
     nominal = t.get("nominal_speeds")
     track = TargetTrack(road, np.asarray(t["speeds"], dtype=float), delta=float(t["delta"]), z=float(t["z"]),
                         s0=float(t["s0"]), nominal_speeds=None if nominal is None else np.asarray(nominal, float))

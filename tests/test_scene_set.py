@@ -137,6 +137,7 @@ def _move_polytope_onto_road(obj):
                                                         r"got 1000000\.5"),
     (lambda o: o["scenes"][0].update(seed=2 ** 64), r"scene 0: seed must be an integer in \[0, 2\^63 - 1\]"),
     (lambda o: o["scenes"][0].update(seed=None), r"scene 0 has no seed but others have one"),
+    (lambda o: o["scenes"][1]["track"].update(delta="1.0"), r"scene 1: track.delta must be a number, got '1.0'"),
 ])
 def test_a_set_that_contradicts_itself_is_refused_naming_the_scene(tmp_path, towers, edit, message):
     path = _edited(tmp_path, towers, edit)

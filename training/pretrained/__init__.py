@@ -365,6 +365,12 @@ def load_learned(path: str | Path) -> LearnedPolicy:
     except (OSError, ValueError, EOFError) as exc:
         raise ValueError(f"{npz}: not a weights file ({exc})") from None
     agent = env.possible_agents[0]
+    obs_dim = env.observation_space(agent).shape[0]
+    if spec.get("obs_dim") is not None and spec["obs_dim"] != obs_dim:
+        env.close()
+        raise ValueError(f"{card_path}: actor.obs_dim is {spec['obs_dim']}, but env_kwargs {ekw} give observations of "
+                         f"{obs_dim} values (n_uavs, map_size and target_path set their size); the card contradicts "
+                         "itself")
     check_weights(params, spec, obs_dim=env.observation_space(agent).shape[0], n_uavs=len(env.possible_agents),
                   n_actions=int(getattr(env.action_space(agent), "n", 2)), where=str(npz))
     env.close()
