@@ -14,7 +14,7 @@ import pytest
 
 #: Top-level package -> the extra of pyproject.toml that installs it (torch comes with Stable-Baselines3).
 EXTRA_OF = {
-    "stable_baselines3": "train", "sb3_contrib": "train", "torch": "train", "tensorboard": "train", "tqdm": "train",
+    "stable_baselines3": "train", "sb3_contrib": "train", "torch": "train", "tensorboard": "train",
     "rich": "train", "ray": "rllib", "torchrl": "torchrl", "tensordict": "torchrl", "benchmarl": "benchmarl",
     "tianshou": "tianshou", "moviepy": "dev",
 }

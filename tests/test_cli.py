@@ -445,7 +445,7 @@ def test_every_numeric_training_flag_is_range_checked(script, capsys):
 
 
 #: Packages of the extras that no training script's ``--help`` (nor ``import training.common``) may need.
-OPTIONAL_PACKAGES = ("stable_baselines3", "sb3_contrib", "torch", "tensorboard", "tqdm", "rich", "ray", "torchrl",
+OPTIONAL_PACKAGES = ("stable_baselines3", "sb3_contrib", "torch", "tensorboard", "rich", "ray", "torchrl",
                      "tensordict", "benchmarl", "tianshou")
 
 

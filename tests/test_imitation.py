@@ -85,7 +85,6 @@ def test_bad_flags_name_the_flag(flags, match, capsys):
 
 def test_smoke_run_with_a_dagger_round_saves_a_loadable_team(tmp_path):
     needs("tensorboard")
-    needs("tqdm")
     run = imitation.main([*SMOKE, "--runs-dir", str(tmp_path), "--run-name", "bc"])
     card = json.loads((run / "model.json").read_text())
     assert card["algorithm"] == "bc-dp" and card["imitation"]["dagger_rounds"] == 1

@@ -83,7 +83,7 @@ def test_the_arrival_heading_is_the_one_the_env_flies():
 def test_card_and_loader_know_node_manoeuvre(tmp_path):
     """``--node-manoeuvre`` trains an actor whose card records it; the loader checks the weights against it and the
     field's type; --init-actor from such a run needs the flag; the flag needs the node head."""
-    for module in ("torch", "tensorboard", "tqdm"):
+    for module in ("torch", "tensorboard"):
         needs(module)
     from training import mappo
 

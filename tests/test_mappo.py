@@ -29,9 +29,8 @@ TINY = ["--num-envs", "2", "--num-steps", "8", "--num-minibatches", "2", "--upda
 
 @pytest.fixture
 def train_extra():
-    """What training.mappo.train imports besides torch."""
+    """What training.mappo.train imports besides torch and the core dependencies."""
     needs("tensorboard")
-    needs("tqdm")
 
 
 def _curve(run):
