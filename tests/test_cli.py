@@ -678,3 +678,25 @@ def test_scene_set_refuses_scenes_beside_seeds(tmp_path, capsys):
     assert exc.value.code == 2 and not (tmp_path / "s.json").exists()
     assert "--scenes 5 and --seeds 1 2: give the number of held-out scenes or the seeds, not both" in \
         capsys.readouterr().err
+
+
+def test_list_shows_what_the_commands_accept(capsys):
+    """covert-env list: every task, family, built-in policy (dp-path too) and shipped weight with its tier."""
+    from baselines.policies import POLICIES
+    from covert_env.families import FAMILIES
+    from covert_env.tasks import TASKS
+    from training.pretrained import pretrained_names
+
+    assert main(["list"]) == 0
+    out = capsys.readouterr().out
+    assert all(f" {t} " in out for t in TASKS) and all(f"  {f} " in out for f in FAMILIES)
+    assert all(p in out for p in POLICIES) and "dp-path" in out and "hold-centre (or heuristic)" in out
+    for name in pretrained_names():
+        tier = "hybrid" if name.startswith("dp-cost") else "learned"
+        assert re.search(rf"^  {re.escape(name)} +{tier} ", out, re.M), name
+    assert main(["list", "families"]) == 0
+    out = capsys.readouterr().out
+    assert "towers" in out and "paper-3uav" not in out
+    with pytest.raises(SystemExit) as exc:
+        main(["list", "planets"])
+    assert exc.value.code == 2 and "unknown section 'planets'" in capsys.readouterr().err

@@ -8,6 +8,7 @@ weights, from the registries that the commands themselves read.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 from covert_env.families import FAMILIES
@@ -85,7 +86,10 @@ def main(argv: list[str] | None = None, prog: str = "python -m training.catalogu
             parser.error(f"unknown section {w!r}; use any of {', '.join(SECTIONS)}")
     show = [s for s in SECTIONS if not args.what or s in args.what]
     parts = {"tasks": _tasks, "families": _families, "policies": _policies, "weights": _weights}
-    print("\n\n".join("\n".join(parts[s]()) for s in show))
+    try:
+        print("\n\n".join("\n".join(parts[s]()) for s in show), flush=True)
+    except BrokenPipeError:             # covert-env list | head: the reader left; say nothing more
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
     return 0
 
 
