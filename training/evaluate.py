@@ -6,7 +6,8 @@
     python -m training.evaluate --policies dp rllib:runs/<rllib-run>/checkpoint --trust-checkpoint
     covert-env evaluate ...                          # the same (forwards to training.evaluate.main)
 
-Policy specs (``SPEC[@MODE]``, MODE = ``unicycle`` or ``waypoint`` picks the env's action mode):
+Policy specs (``SPEC[@MODE][+shield]``, MODE = ``unicycle`` or ``waypoint`` picks the env's action mode;
+``+shield`` flies a waypoint policy through the safety filter, :mod:`covert_env.envs.safety_filter`):
 
 * ``dp`` (shadow-aware, the paper's method), ``dp-blind`` (shadow-blind), ``dp-binned``, ``random``,
   ``hold-centre`` (alias ``heuristic``): :mod:`baselines.policies`. DP defaults to waypoint mode, where it acts
@@ -68,6 +69,7 @@ from covert_env.command_line import (
     run_main,
 )
 from covert_env.envs.covert_sensing import CovertSensingParallelEnv
+from covert_env.envs.safety_filter import ShieldedPolicy
 from covert_env.envs.vector import MAX_SCENE_SEED
 from covert_env.families import FAMILIES, HELD_OUT_SEEDS
 from covert_env.scene_set import SceneSet
@@ -78,6 +80,9 @@ from training.rllib_ppo import load_policy as load_rllib
 from training.runs import read_run_json, run_env
 from training.stats import iqm, probability_of_improvement, stratified_bootstrap_ci
 from training.trust import require_trust
+
+#: The spec suffix that flies a waypoint policy through the safety filter.
+SHIELD_SUFFIX = "+shield"
 
 __all__ = ["main", "load_policy", "evaluate", "split_seeds", "SB3Policy", "COLUMNS", "HELD_OUT_OFFSET"]
 
@@ -255,9 +260,16 @@ def load_policy(spec: str, n_uavs: int, *, trust_checkpoint: bool = False) -> tu
 
     A bad spec (unknown name or mode, missing path, team size or action mode that do not fit) raises
     :class:`covert_env.command_line.UsageError` (a ``ValueError``) naming it, and so do ``sb3:`` and ``rllib:`` specs
-    (pickled checkpoints) unless ``trust_checkpoint=True``.
+    (pickled checkpoints) unless ``trust_checkpoint=True``. A spec ending in ``+shield`` flies the policy through
+    the safety filter (:class:`covert_env.envs.safety_filter.ShieldedPolicy`; waypoint teams only).
     """
-
+    if spec.endswith(SHIELD_SUFFIX):
+        inner = spec[:-len(SHIELD_SUFFIX)]
+        pol, settings = load_policy(inner, n_uavs, trust_checkpoint=trust_checkpoint)
+        if settings["action_mode"] != "waypoint":
+            raise UsageError(f"{spec}: the safety filter is for waypoint teams, and {inner} acts in "
+                             f"{settings['action_mode']} mode (use {inner.split('@')[0]}@waypoint{SHIELD_SUFFIX})")
+        return ShieldedPolicy(pol), settings
     mode = None
     if "@" in spec:
         spec, mode = spec.rsplit("@", 1)
@@ -421,15 +433,17 @@ def write_outputs(results: dict[str, dict], out: Path, meta: dict) -> None:
 
 
 def split_seeds(spec: str) -> list[str]:
-    """The member specs of a seed group ``PREFIX:PATH1,PATH2[@MODE]`` (a one-element list for any other spec)."""
+    """The member specs of a seed group ``PREFIX:PATH1,PATH2[@MODE][+shield]`` (a one-element list for any other
+    spec)."""
     if not spec.startswith(LEARNED_PREFIXES) or "," not in spec:
         return [spec]
-    prefix, rest = spec.split(":", 1)
+    shield = SHIELD_SUFFIX if spec.endswith(SHIELD_SUFFIX) else ""
+    prefix, rest = spec[:len(spec) - len(shield)].split(":", 1)
     mode = ""
     if "@" in rest:
         rest, mode = rest.rsplit("@", 1)
         mode = "@" + mode
-    return [f"{prefix}:{part}{mode}" for part in rest.split(",") if part]
+    return [f"{prefix}:{part}{mode}{shield}" for part in rest.split(",") if part]
 
 
 def _reward_matrix(r: dict) -> np.ndarray:

@@ -491,6 +491,11 @@ class CovertSensingParallelEnv(ConstructionSettings, ParallelEnv):
         (:meth:`CovertSensingVectorEnv.onward_reach`)."""
         return self._vec.onward_reach(np.asarray(xy)[None], np.asarray(theta)[None])[0]
 
+    def safety_state(self):
+        """What the safety filter reads of this slot, as a batch of one copy
+        (:meth:`CovertSensingVectorEnv.safety_state`). Read-only; waypoint mode, after ``reset()``."""
+        return self._vec.safety_state()
+
     def state(self) -> np.ndarray:
         """Global state for centralised critics (see the class docstring)."""
         return self._vec.state()[0]

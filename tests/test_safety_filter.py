@@ -1,0 +1,128 @@
+"""The safety filter (covert_env.envs.safety_filter): eqs. 2 and 3 on the flown path for any waypoint team.
+
+The guarantee is tested the way an outsider would: masked-random waypoints flown through the filter, measured on
+the env's own recorded path at 201 samples per slot. A violation is allowed only in a slot the filter reported as
+an infeasible event (it never fails silently); on the scenes below there are none.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+
+import covert_env
+from baselines.policies import RandomPolicy
+from covert_env.command_line import UsageError
+from covert_env.envs.safety_filter import SafetyFilter, ShieldedPolicy, path_separation, top_clearance_along
+from covert_env.metrics import top_clearance
+from covert_env.separation import team_separation
+from training.evaluate import load_policy, split_seeds
+
+coords = st.floats(-200.0, 200.0, allow_nan=False)
+
+
+@settings(max_examples=60, deadline=None)
+@given(arrays(float, (3, 7, 2), elements=coords), arrays(float, (4, 7, 2), elements=coords))
+def test_path_separation_is_the_closest_sample_after_the_start(a, b):
+    got = path_separation(a[:, None], b[None])                                  # (3, 4)
+    want = np.array([[min(np.hypot(*(p[t] - q[t])) for t in range(1, 7)) for q in b] for p in a])
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-300)
+    np.testing.assert_array_equal(got, path_separation(b[None], a[:, None]))     # symmetric, bit for bit
+
+
+@settings(max_examples=40, deadline=None)
+@given(arrays(float, (2, 3, 5, 2), elements=coords), arrays(float, (2, 4, 3), elements=st.floats(-200, 70)))
+def test_top_clearance_along_is_the_metric_at_every_sample(paths, tops):
+    got = top_clearance_along(paths, tops, 80.0)
+    want = np.stack([top_clearance(paths[i, :, 1:], 80.0, tops[i]).min(axis=-1) for i in range(2)])
+    np.testing.assert_allclose(got, want, rtol=1e-12)
+
+
+def _fly(task: str, seed: int, *, record_state: bool = False):
+    """One episode of masked-random waypoints through the filter at 201 samples per slot: per-slot team
+    separation and terrain clearance on the env's recorded path, and the filter's counts."""
+    par = covert_env.parallel_env(task=task, action_mode="waypoint", path_samples=201)
+    pol = ShieldedPolicy(RandomPolicy())
+    obs, _ = par.reset(seed=seed)
+    pol.reset(par, seed=seed)
+    while par.agents:
+        obs, *_ = par.step(pol.act(obs, par))
+    tr, c = par.engine.trajectory(), par.config
+    sep = team_separation(tr.path_xy[:, :, 1:]).min(axis=1)
+    clear = top_clearance(tr.path_xy[:, :, 1:], c.altitude, par.scenario.terrain.highest_points).min(axis=(1, 2))
+    return sep, clear, pol.safety.stats, c
+
+
+@pytest.mark.parametrize("task", ["paper-3uav", "towers-3uav"])
+def test_masked_random_through_the_filter_keeps_eqs_2_and_3(task):
+    sep, clear, stats, c = _fly(task, 8_000_000)
+    bad = np.flatnonzero((sep < c.d_safe1) | (clear < c.d_safe2))
+    assert stats.infeasible == 0 and len(bad) == 0, (stats, bad, sep.min(), clear.min())
+    assert stats.team_slots == c.n_slots
+    # Random proposals are mostly unsafe in a team of three: the filter acted, and not on every choice.
+    assert 0 < stats.changed < 3 * c.n_slots
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("family", ["sparse", "paper", "winding", "dense", "downtown", "towers"])
+def test_six_uav_teams_through_the_filter(family):
+    sep, clear, stats, c = _fly(f"{family}-6uav", 8_000_001)
+    bad = set(np.flatnonzero((sep < c.d_safe1) | (clear < c.d_safe2)).tolist())
+    # Never silent: a slot with a violation is one the filter reported.
+    assert bad <= {slot for _, slot in stats.events}, (stats, sorted(bad))
+    assert stats.infeasible == 0, stats
+
+
+def test_a_single_uav_far_from_every_top_is_never_changed():
+    sep, clear, stats, c = _fly("sparse-1uav", 8_000_002)
+    assert stats.changed == 0 and stats.team_slots == c.n_slots
+    assert clear.min() >= c.d_safe2
+
+
+def test_the_backup_is_safe_when_flown():
+    """Recursive feasibility: the move certified for the next slot is flown exactly as it was checked."""
+    par = covert_env.parallel_env(task="paper-6uav", action_mode="waypoint", path_samples=201)
+    par.reset(seed=8_000_003)
+    flt = SafetyFilter(par.config, par.lattice)
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        state = par.safety_state()
+        proposed = np.array([[rng.choice(np.flatnonzero(m)) for m in state.masks[0]]])
+        nodes = flt.filter(state, proposed)[0]
+        par.step({a: int(n) for a, n in zip(par.possible_agents, nodes, strict=True)})
+    slot, end_xy, backup = flt._backup[0]
+    state = par.safety_state()
+    assert slot == state.slot[0] and np.allclose(end_xy, state.xy[0], atol=1e-6)
+    par.step({a: int(n) for a, n in zip(par.possible_agents, backup, strict=True)})
+    tr, c = par.engine.trajectory(), par.config
+    assert team_separation(tr.path_xy[-1:, :, 1:]).min() >= c.d_safe1
+    assert top_clearance(tr.path_xy[-1, :, 1:], c.altitude, par.scenario.terrain.highest_points).min() >= c.d_safe2
+
+
+def test_filter_refuses_bad_proposals():
+    par = covert_env.parallel_env(task="paper-3uav", action_mode="waypoint")
+    par.reset(seed=1)
+    flt = SafetyFilter(par.config, par.lattice)
+    with pytest.raises(ValueError, match=r"proposed nodes must be in \[0, "):
+        flt.filter(par.safety_state(), np.array([[0, 1, len(par.lattice)]]))
+    with pytest.raises(ValueError, match="integer nodes of shape"):
+        flt.filter(par.safety_state(), np.array([[0.0, 1.0, 2.0]]))
+    with pytest.raises(ValueError, match="samples must be an integer >= 2"):
+        SafetyFilter(par.config, par.lattice, samples=1)
+
+
+def test_shield_specs():
+    pol, settings = load_policy("random@waypoint+shield", 3)
+    assert isinstance(pol, ShieldedPolicy) and settings["action_mode"] == "waypoint"
+    assert pol.name == "random+shield"
+    with pytest.raises(UsageError, match=r"random\+shield: the safety filter is for waypoint teams.*random@waypoint"
+                                         r"\+shield"):
+        load_policy("random+shield", 3)
+    assert split_seeds("mappo:a,b@waypoint+shield") == ["mappo:a@waypoint+shield", "mappo:b@waypoint+shield"]
+    par = covert_env.parallel_env(task="paper-3uav")
+    par.reset(seed=0)
+    with pytest.raises(ValueError, match="for waypoint teams"):
+        ShieldedPolicy(RandomPolicy()).reset(par)
