@@ -82,34 +82,43 @@ def test_a_single_uav_far_from_every_top_is_never_changed():
     assert clear.min() >= c.d_safe2
 
 
-def test_the_backup_is_safe_when_flown():
-    """Recursive feasibility: the move certified for the next slot is flown exactly as it was checked."""
+def test_the_backup_plan_is_safe_when_flown():
+    """Recursive feasibility: the moves planned for the next slots are flown exactly as they were checked."""
     par = covert_env.parallel_env(task="paper-6uav", action_mode="waypoint", path_samples=201)
     par.reset(seed=8_000_003)
     flt = SafetyFilter(par.config, par.lattice)
     rng = np.random.default_rng(0)
     for _ in range(5):
-        state = par.safety_state()
+        state = par.safety_state(flt.depth)
         proposed = np.array([[rng.choice(np.flatnonzero(m)) for m in state.masks[0]]])
         nodes = flt.filter(state, proposed)[0]
         par.step({a: int(n) for a, n in zip(par.possible_agents, nodes, strict=True)})
-    slot, end_xy, backup = flt._backup[0]
-    state = par.safety_state()
-    assert slot == state.slot[0] and np.allclose(end_xy, state.xy[0], atol=1e-6)
-    par.step({a: int(n) for a, n in zip(par.possible_agents, backup, strict=True)})
-    tr, c = par.engine.trajectory(), par.config
-    assert team_separation(tr.path_xy[-1:, :, 1:]).min() >= c.d_safe1
-    assert top_clearance(tr.path_xy[-1, :, 1:], c.altitude, par.scenario.terrain.highest_points).min() >= c.d_safe2
+    slot, starts, plan = flt._backup[0]
+    assert len(plan) == flt.depth
+    c = par.config
+    for d in range(flt.depth):
+        state = par.safety_state(flt.depth)
+        assert slot + d == state.slot[0] and np.allclose(starts[d], state.xy[0], atol=1e-6)
+        par.step({a: int(n) for a, n in zip(par.possible_agents, plan[d], strict=True)})
+        path = par.engine.trajectory().path_xy[-1:, :, 1:]
+        assert team_separation(path).min() >= c.d_safe1
+        assert top_clearance(path[0], c.altitude, par.scenario.terrain.highest_points).min() >= c.d_safe2
 
 
 def test_filter_refuses_bad_proposals():
     par = covert_env.parallel_env(task="paper-3uav", action_mode="waypoint")
     par.reset(seed=1)
     flt = SafetyFilter(par.config, par.lattice)
+    state = par.safety_state(flt.depth)
     with pytest.raises(ValueError, match=r"proposed nodes must be in \[0, "):
-        flt.filter(par.safety_state(), np.array([[0, 1, len(par.lattice)]]))
+        flt.filter(state, np.array([[0, 1, len(par.lattice)]]))
     with pytest.raises(ValueError, match="integer nodes of shape"):
-        flt.filter(par.safety_state(), np.array([[0.0, 1.0, 2.0]]))
+        flt.filter(state, np.array([[0.0, 1.0, 2.0]]))
+    with pytest.raises(ValueError, match=r"looks 1 slot\(s\) ahead, the filter plans 3; pass "
+                                         r"env.safety_state\(depth=3\)"):
+        flt.filter(par.safety_state(), np.array([[0, 1, 2]]))
+    with pytest.raises(ValueError, match="end_margin must be a finite number >= 0"):
+        SafetyFilter(par.config, par.lattice, end_margin=-1.0)
     with pytest.raises(ValueError, match="samples must be an integer >= 2"):
         SafetyFilter(par.config, par.lattice, samples=1)
 

@@ -491,10 +491,10 @@ class CovertSensingParallelEnv(ConstructionSettings, ParallelEnv):
         (:meth:`CovertSensingVectorEnv.onward_reach`)."""
         return self._vec.onward_reach(np.asarray(xy)[None], np.asarray(theta)[None])[0]
 
-    def safety_state(self):
-        """What the safety filter reads of this slot, as a batch of one copy
+    def safety_state(self, depth: int = 1):
+        """What the safety filter reads of this slot and the next ``depth``, as a batch of one copy
         (:meth:`CovertSensingVectorEnv.safety_state`). Read-only; waypoint mode, after ``reset()``."""
-        return self._vec.safety_state()
+        return self._vec.safety_state(depth)
 
     def state(self) -> np.ndarray:
         """Global state for centralised critics (see the class docstring)."""

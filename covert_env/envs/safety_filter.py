@@ -110,22 +110,26 @@ class _Flights:
             self.end_theta[ci, ui, mi] = wrap_heading(end_theta[:, 0])
         self.clear = np.zeros((b, u, m), bool)
         self.clear[ci, ui, mi] = True
+        self.roomy = self.clear.copy()          # and ends end_margin clear of the tops: room to turn away next slot
         if tops.shape[1] and len(ci):
             gap = top_clearance_along(self.paths.reshape(b, u * m, -1, 2), tops, c.altitude).reshape(b, u, m)
             self.clear &= gap >= c.d_safe2
+            end = top_clearance(self.paths[:, :, :, -1], c.altitude, tops)                     # (B, U, M)
+            self.roomy &= self.clear & (end >= c.d_safe2 + flt.end_margin)
 
 
-def _negotiate(flt: SafetyFilter, fl: _Flights, rank: np.ndarray, rows: np.ndarray, room: float = 0.0
-               ) -> tuple[np.ndarray, np.ndarray]:
+def _negotiate(flt: SafetyFilter, fl: _Flights, rank: np.ndarray, rows: np.ndarray, room: float = 0.0,
+               strict: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Priority negotiation over the candidates of the copies ``rows`` (B,) bool: per UAV the index (into M) of its
     best-ranked candidate (``rank`` (B, U, M), inf: not a candidate) that is clear and separated from the UAVs
     settled before it; with ``room`` > 0, one that also ends at least d_safe1 + room from their ends where it has
     one (a cramped end leaves the next slot little to choose from). Returns the choices (B, U) (-1 where a UAV had
-    none) and the copies left unsettled (B,)."""
+    none) and the copies left unsettled (B,). ``strict``: only moves that end ``end_margin`` clear of the tops
+    (a UAV that ends on the edge of a top's d_safe2, heading at it, has no clear move left)."""
     b, u, m = rank.shape
     copies = np.arange(b)
     choice = np.full((b, u), -1)
-    usable = fl.clear & np.isfinite(rank) & rows[:, None, None]
+    usable = (fl.roomy if strict else fl.clear) & np.isfinite(rank) & rows[:, None, None]
 
     def settle(order, redo):
         pick = np.full((b, u), -1)
@@ -199,65 +203,63 @@ class SafetyFilter:
     Args:
         config: the env's :class:`~covert_env.config.Config`; lattice: its waypoint lattice (L, 2).
         samples: instants per slot at which eqs. 2 and 3 are checked (start and end included), >= 2.
-        candidates: nodes tried per UAV and slot; certificate_candidates: per UAV for the next slot.
-        rounds: negotiations per slot whose certificate failed before the filter widens to every node.
+        depth: slots after this one that a certificate plans safe moves for (the backup plan), >= 1.
+        candidates: nodes tried per UAV and slot; certificate_candidates: per UAV and slot of the backup plan.
+        rounds: negotiations per slot whose certificate failed before the filter tries more nodes.
+        room: after a failed certificate, ends at least d_safe1 + room (m) apart are preferred (so are the backup
+            plan's); end_margin: and ends at least d_safe2 + end_margin (m) from the tops.
     """
 
-    def __init__(self, config, lattice, *, samples: int = 201, candidates: int = 48,
-                 certificate_candidates: int = 32, rounds: int = 4, room: float = 5.0):
-        for name, v, lo in (("samples", samples, 2), ("candidates", candidates, 2),
+    def __init__(self, config, lattice, *, samples: int = 201, depth: int = 3, candidates: int = 48,
+                 certificate_candidates: int = 32, rounds: int = 4, room: float = 5.0, end_margin: float = 2.0):
+        for name, v, lo in (("samples", samples, 2), ("depth", depth, 1), ("candidates", candidates, 2),
                             ("certificate_candidates", certificate_candidates, 1), ("rounds", rounds, 1)):
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
                 raise ValueError(f"SafetyFilter: {name} must be an integer >= {lo}, got {v!r}")
+        for name, v in (("room", room), ("end_margin", end_margin)):
+            if not np.isfinite(v) or v < 0:
+                raise ValueError(f"SafetyFilter: {name} must be a finite number >= 0 (m), got {v!r}")
         self.config, self.lattice = config, np.asarray(lattice, float)
-        self.samples, self.candidates = int(samples), int(candidates)
+        self.samples, self.depth, self.candidates = int(samples), int(depth), int(candidates)
         self.certificate_candidates, self.rounds = int(certificate_candidates), int(rounds)
-        #: After a failed certificate, the team prefers ends at least d_safe1 + room (m) apart.
-        self.room = float(room)
+        self.room, self.end_margin = float(room), float(end_margin)
         self.times = np.linspace(0.0, 1.0, self.samples) * config.delta
         self._reach = reach_table(config.v_max, config.w_max, config.delta)
         self.stats = FilterStats()
+        #: Per copy: (slot, starts (D', U, 2), nodes (D', U)), the backup plan of the slots from ``slot`` on.
         self._backup: dict[int, tuple] = {}
 
     def reset_stats(self) -> None:
+        """Start the counts of :attr:`stats` again."""
         self.stats = FilterStats()
 
     def forget(self) -> None:
-        """Drop the stored backups (call when the copies start new episodes outside ``filter``'s view)."""
+        """Drop the backup plans (call when copies start new episodes)."""
         self._backup = {}
 
     # ------------------------------------------------------------------ candidates
-    def _spread(self, allowed: np.ndarray, pref: np.ndarray, n: int | None) -> tuple[np.ndarray, np.ndarray]:
-        """Up to ``n`` nodes per row of ``allowed`` (R, L): half the most preferred (``pref`` (R, L), lower first),
-        half spread evenly over the rest. Returns nodes (R, n) (-1 padded) and their ranks (R, n) (inf padded)."""
-        r, l = allowed.shape
+    @staticmethod
+    def _spread(allowed: np.ndarray, pref: np.ndarray, n: int | None) -> tuple[np.ndarray, np.ndarray]:
+        """Up to ``n`` (None: all) nodes per row of ``allowed`` (R, L): half the most preferred (``pref`` (R, L),
+        lower first), half spread evenly over the rest. Nodes (R, n) (-1 padded) and their ranks (R, n) (inf)."""
         key = np.where(allowed, pref, np.inf)
         order = np.argsort(key, axis=1, kind="stable")
-        count = allowed.sum(axis=1)
-        if n is None or n >= count.max():                 # every allowed node, the preferred first
+        count, l = allowed.sum(axis=1), allowed.shape[1]
+        if n is None or n >= count.max():
             n = max(int(count.max()), 1)
             nodes = order[:, :n]
-            keep = np.arange(n) < count[:, None]
-            return np.where(keep, nodes, -1), np.where(keep, np.take_along_axis(key, nodes, axis=1), np.inf)
-        top = (n + 1) // 2
-        pos = np.arange(n)
-        # The rest (positions top .. count-1 of the order) sampled evenly.
-        rest = top + ((pos - top) * np.maximum(count - top, 0)[:, None]) // max(n - top, 1)
-        idx = np.where(pos < top, pos, rest)
-        idx = np.minimum(idx, np.maximum(count - 1, 0)[:, None])
-        nodes = np.take_along_axis(order, idx, axis=1)
-        ranks = np.take_along_axis(key, nodes, axis=1)
-        keep = pos < count[:, None]
-        # Duplicates (few allowed nodes): keep the first occurrence only.
-        dup = np.zeros_like(keep)
-        srt = np.sort(np.where(keep, nodes, -1), axis=1)
-        if (srt[:, 1:] == srt[:, :-1]).any():
-            for i in range(1, n):
-                dup[:, i] = (nodes[:, :i] == nodes[:, i, None]).any(axis=1)
-        keep &= ~dup
+        else:
+            # Rows with at most n allowed nodes take them all; the others the top half and an even spread (a
+            # stride above 1, so no node twice).
+            top, pos = (n + 1) // 2, np.arange(n)
+            rest = top + ((pos - top) * np.maximum(count - top, 0)[:, None]) // max(n - top, 1)
+            idx = np.where((count[:, None] <= n) | (pos < top), pos, rest)
+            nodes = np.take_along_axis(order, np.minimum(idx, l - 1), axis=1)
+        keep = (nodes >= 0) & (np.arange(n) < count[:, None])
+        ranks = np.take_along_axis(key, np.maximum(nodes, 0), axis=1)
         return np.where(keep, nodes, -1), np.where(keep, ranks, np.inf)
 
-    def _proposal_pref(self, proposed: np.ndarray, scores: np.ndarray | None) -> np.ndarray:
+    def _proposal_pref(self, proposed: np.ndarray, scores) -> np.ndarray:
         """(B, U, L) preference (lower first): minus the policy's scores, or the distance to the proposed node;
         the proposal itself first."""
         if scores is not None:
@@ -272,131 +274,160 @@ class SafetyFilter:
 
     # ------------------------------------------------------------------ the filter
     def filter(self, state: SafetyState, proposed, scores=None) -> np.ndarray:
-        """The team's nodes (B, U) for the proposals ``proposed`` (B, U) (lattice indices), under ``state``
-        (the env's :meth:`~covert_env.envs.waypoint_queries.WaypointQueries.safety_state`). ``scores`` (B, U, L),
-        higher preferred (e.g. a policy's logits), orders the alternatives; default: nearest to the proposal."""
+        """The team's nodes (B, U) for the proposals ``proposed`` (B, U) (lattice indices), under ``state`` (the
+        env's :meth:`~covert_env.envs.waypoint_queries.WaypointQueries.safety_state` with ``depth`` >= this
+        filter's). ``scores`` (B, U, L), higher preferred (e.g. a policy's logits), orders the alternatives;
+        default: the nodes nearest to the proposal first."""
         proposed = np.asarray(proposed)
-        b, u = proposed.shape
-        if state.xy.shape[:2] != (b, u) or not np.issubdtype(proposed.dtype, np.integer):
-            raise ValueError(f"SafetyFilter.filter: proposed must be integer nodes of shape {state.xy.shape[:2]}, "
-                             f"got {proposed.dtype} {proposed.shape}")
+        b, u = state.xy.shape[:2]
+        if proposed.shape != (b, u) or not np.issubdtype(proposed.dtype, np.integer):
+            raise ValueError(f"SafetyFilter.filter: proposed must be integer nodes of shape {(b, u)}, got "
+                             f"{proposed.dtype} {proposed.shape}")
         if proposed.size and (proposed.min() < 0 or proposed.max() >= len(self.lattice)):
             raise ValueError(f"SafetyFilter.filter: proposed nodes must be in [0, {len(self.lattice) - 1}], got "
                              f"[{proposed.min()}, {proposed.max()}]")
+        if state.q_ahead.shape[1] < self.depth:
+            raise ValueError(f"SafetyFilter.filter: the state looks {state.q_ahead.shape[1]} slot(s) ahead, the "
+                             f"filter plans {self.depth}; pass env.safety_state(depth={self.depth})")
         c = self.config
         tops = _near_tops(state.tops, c.altitude, c.d_safe2)
         pref = self._proposal_pref(proposed, scores)
         out = proposed.copy()
         pending = np.ones(b, bool)
-        next_backup: dict[int, tuple] = {}
+        plans: dict[int, tuple] = {}
         # A few candidates first; every allowed node where they leave no certified move; then every node.
         for widen, n in ((False, self.candidates), (False, None), (True, None)):
             if not pending.any():
                 break
             allowed = np.ones_like(state.masks) if widen else state.masks.copy()
             allowed[np.arange(b)[:, None], np.arange(u)[None], proposed] = True
-            done = self._certified(state, tops, allowed, pref, pending, out, next_backup, n)
+            done = self._certified(state, tops, allowed, pref, pending, out, plans, n)
             if widen:
                 self.stats.widened += int(done.sum())
             pending &= ~done
-        for j in np.nonzero(pending)[0]:
+        for j in np.nonzero(pending)[0]:                         # the backup plan (rare: a loop over those copies)
             held = self._backup.get(int(j))
-            if held is not None and held[0] == int(state.slot[j]) and np.allclose(held[1], state.xy[j], atol=1e-6):
-                out[j] = held[2]
+            if held is not None and held[0] == int(state.slot[j]) and np.allclose(held[1][0], state.xy[j], atol=1e-6):
+                out[j] = held[2][0]
                 pending[j] = False
                 self.stats.backups += 1
+                if len(held[2]) > 1:
+                    plans[int(j)] = (held[0] + 1, held[1][1:], held[2][1:])
         if pending.any():
             self._uncertified(state, tops, pref, pending, out)
-        self._backup = next_backup
+        self._backup = plans
         self.stats.team_slots += b
         self.stats.changed += int((out != proposed).sum())
         return out
 
-    def _certified(self, state, tops, allowed, pref, rows, out, next_backup, n) -> np.ndarray:
+    def _certified(self, state, tops, allowed, pref, rows, out, plans, n) -> np.ndarray:
         """Certified joint moves for the copies ``rows`` among ``n`` (None: all) of the ``allowed`` nodes per UAV;
-        fills ``out`` and the backups of the next slot, returns the copies done."""
+        fills ``out`` and the next slots' backup ``plans``, returns the copies done."""
         b, u, _ = allowed.shape
         idx = np.nonzero(rows)[0]
         nodes, rank = self._spread(allowed[idx].reshape(len(idx) * u, -1), pref[idx].reshape(len(idx) * u, -1), n)
         nodes, rank = nodes.reshape(len(idx), u, -1), rank.reshape(len(idx), u, -1)
         fl = _Flights(self, state.xy[idx], state.theta[idx], state.q_next[idx], state.phi_next[idx], nodes, tops[idx])
-        done = np.zeros(len(idx), bool)
-        todo = np.ones(len(idx), bool)
+        done, todo = np.zeros(len(idx), bool), np.ones(len(idx), bool)
+        uavs = np.arange(u)
         for attempt in range(self.rounds):
-            choice, unsettled = _negotiate(self, fl, rank, todo, room=self.room if attempt else 0.0)
+            choice, unsettled = _negotiate(self, fl, rank, todo, room=self.room if attempt else 0.0,
+                                           strict=attempt > 0)
             todo &= ~unsettled
             if not todo.any():
                 break
-            ok, backup, stuck = self._certificate(state, tops, idx, fl, choice, todo)
+            ok, plan_nodes, plan_starts, stuck = self._certificate(state, tops, idx, fl, choice, todo)
             for j in np.nonzero(ok)[0]:
-                out[idx[j]] = nodes[j, np.arange(u), choice[j]]
-                if backup is not None:
-                    next_backup[int(idx[j])] = (int(state.slot[idx[j]]) + 1, fl.paths[j, np.arange(u), choice[j], -1],
-                                                backup[j])
+                out[idx[j]] = nodes[j, uavs, choice[j]]
+                d = int((plan_nodes[j] >= 0).all(axis=1).sum())
+                if d:
+                    plans[int(idx[j])] = (int(state.slot[idx[j]]) + 1, plan_starts[j, :d], plan_nodes[j, :d])
             done |= ok
             todo &= ~ok
             if not todo.any():
                 break
             # Set aside the stuck UAV's node and that of the teammate ending nearest to it, and negotiate again.
             for j in np.nonzero(todo)[0]:
-                s = stuck[j]
-                ends = fl.paths[j, np.arange(u), choice[j], -1]
-                d = np.hypot(*(ends - ends[s]).T)
-                d[s] = np.inf
-                for v in (s, int(np.argmin(d))):
-                    rank[j, v, choice[j, v]] = np.inf
+                ends = fl.paths[j, uavs, choice[j], -1]
+                d = np.hypot(*(ends - ends[stuck[j]]).T)
+                d[stuck[j]] = np.inf
+                rank[j, [stuck[j], int(np.argmin(d))], choice[j, [stuck[j], int(np.argmin(d))]]] = np.inf
         result = np.zeros(b, bool)
         result[idx[done]] = True
         return result
 
     def _certificate(self, state, tops, idx, fl, choice, rows):
-        """For the copies ``rows`` (of ``idx``) whose joint move ``choice`` is settled: is there a safe joint move
-        in the next slot from where it ends? Returns (ok (R,), backup nodes (R, U) or None, stuck UAV (R,))."""
+        """For the copies ``rows`` (of ``idx``) whose joint move ``choice`` is settled: a backup plan of safe joint
+        moves for the next ``depth`` slots (those the episode has) from where it ends. Returns ok (R,), the plan's
+        nodes (R, D, U) and start positions (R, D, U, 2), and per failed copy the UAV left stuck (R,)."""
         r, u = choice.shape
-        ok = rows & state.last[idx]
-        rest = rows & ~state.last[idx]
+        plan_nodes, plan_starts = np.full((r, self.depth, u), -1), np.full((r, self.depth, u, 2), np.nan)
         stuck = np.zeros(r, np.int64)
-        if not rest.any():
-            return ok, None, stuck
-        j = np.nonzero(rest)[0]
-        sel = choice[j]
-        end_xy = fl.paths[j[:, None], np.arange(u), sel, -1]                                    # (R', U, 2)
-        end_th = fl.end_theta[j[:, None], np.arange(u), sel]
-        q, phi = state.q_after[idx[j]], state.phi_after[idx[j]]
-        reach = self._reach.reachable(end_xy, end_th, q, phi, self.lattice, exact=False)       # (R', U, L)
-        none = ~reach.any(axis=2)
-        reach[none] = True                                  # no node reachable: best efforts toward every node
-        # Keep the UAV's place behind the target first: nodes nearest to where it ends, in the next lattice's frame.
+        j = np.nonzero(rows)[0]
+        xy = fl.paths[j[:, None], np.arange(u), choice[j], -1]                                  # (R', U, 2)
+        th = fl.end_theta[j[:, None], np.arange(u), choice[j]]
+        alive = np.ones(len(j), bool)
+        for d in range(self.depth):
+            sub = np.nonzero(alive & (state.slots_left[idx[j]] > d))[0]
+            if not len(sub):
+                break
+            plan_starts[j[sub], d] = xy[sub]
+            q, phi = state.q_ahead[idx[j[sub]], d], state.phi_ahead[idx[j[sub]], d]
+            nodes, good, ends, end_th, stuck_uav = self._safe_step(xy[sub], th[sub], q, phi, tops[idx[j[sub]]])
+            plan_nodes[j[sub[good]], d] = nodes[good]
+            xy[sub[good]], th[sub[good]] = ends[good], end_th[good]
+            alive[sub[~good]] = False
+            stuck[j[sub[~good]]] = stuck_uav[~good]
+        ok = np.zeros(r, bool)
+        ok[j[alive]] = True
+        return ok, plan_nodes, plan_starts, stuck
+
+    def _safe_step(self, xy, th, q, phi, tops):
+        """One slot of a backup plan from poses (R, U): a safe joint move among the nodes each UAV can reach
+        (lattice at q, phi), the nodes that keep its place behind the target first, roomy ends where there are.
+        Returns nodes (R, U), found (R,), end positions (R, U, 2) and headings (R, U), the stuck UAV (R,)."""
+        r, u = th.shape
+        lat = len(self.lattice)
+        reach = self._reach.reachable(xy, th, q, phi, self.lattice, exact=False)                  # (R, U, L)
+        reach[~reach.any(axis=2)] = True                 # no node reachable: best efforts toward every node
         c, s = np.cos(phi)[:, None], np.sin(phi)[:, None]
-        dx, dy = end_xy[..., 0] - q[:, None, 0], end_xy[..., 1] - q[:, None, 1]
-        place = np.stack([c * dx + s * dy, -s * dx + c * dy], axis=-1)                         # (R', U, 2)
+        dx, dy = xy[..., 0] - q[:, None, 0], xy[..., 1] - q[:, None, 1]
+        place = np.stack([c * dx + s * dy, -s * dx + c * dy], axis=-1)                          # target frame
         diff = self.lattice[None, None] - place[:, :, None]
         pref = np.hypot(diff[..., 0], diff[..., 1])
-        backup = np.full((r, u), -1)
-        todo = np.ones(len(j), bool)
+        out = np.full((r, u), -1)
+        found = np.zeros(r, bool)
+        stuck = np.zeros(r, np.int64)
+        ends, end_th = np.full((r, u, 2), np.nan), np.full((r, u), np.nan)
+        todo = np.ones(r, bool)
         for n in (self.certificate_candidates, None):          # a few nodes, then every reachable one
             sub = np.nonzero(todo)[0]
-            nodes, rank = self._spread(reach[sub].reshape(-1, len(self.lattice)),
-                                       pref[sub].reshape(-1, len(self.lattice)), n)
+            nodes, rank = self._spread(reach[sub].reshape(-1, lat), pref[sub].reshape(-1, lat), n)
             nodes, rank = nodes.reshape(len(sub), u, -1), rank.reshape(len(sub), u, -1)
-            nf = _Flights(self, end_xy[sub], end_th[sub], q[sub], phi[sub], nodes, tops[idx[j[sub]]])
-            bchoice, unsettled = _negotiate(self, nf, rank, np.ones(len(sub), bool))
+            nf = _Flights(self, xy[sub], th[sub], q[sub], phi[sub], nodes, tops[sub])
+            pick, unsettled = _negotiate(self, nf, rank, np.ones(len(sub), bool), room=self.room, strict=True)
+            if unsettled.any():
+                again, unsettled2 = _negotiate(self, nf, rank, unsettled)
+                pick[unsettled], unsettled = again[unsettled], unsettled2
             good = ~unsettled
-            ok[j[sub[good]]] = True
-            backup[j[sub[good]]] = nodes[good][np.arange(int(good.sum()))[:, None], np.arange(u), bchoice[good]]
-            # The stuck UAV of a failed certificate: the one with no choice (the first in agent order).
-            stuck[j[sub[~good]]] = np.argmax(bchoice[~good] < 0, axis=1)
-            todo[sub[good]] = False
+            g = sub[good]
+            sel = pick[good]
+            out[g] = nodes[good][np.arange(len(g))[:, None], np.arange(u), sel]
+            ends[g] = nf.paths[good][np.arange(len(g))[:, None], np.arange(u), sel, -1]
+            end_th[g] = nf.end_theta[good][np.arange(len(g))[:, None], np.arange(u), sel]
+            found[g] = True
+            stuck[sub[~good]] = np.argmax(pick[~good] < 0, axis=1)
+            todo[g] = False
             if not todo.any():
                 break
-        return ok, backup, stuck
+        return out, found, ends, end_th, stuck
 
     def _uncertified(self, state, tops, pref, rows, out) -> None:
         """A safe joint move without a certificate for the copies ``rows``, or the proposals (infeasible events)."""
-        b, u, _ = state.masks.shape
+        u = state.xy.shape[1]
         idx = np.nonzero(rows)[0]
-        allowed = np.ones((len(idx), u, len(self.lattice)), bool)
-        nodes, rank = self._spread(allowed.reshape(len(idx) * u, -1), pref[idx].reshape(len(idx) * u, -1), None)
+        allowed = np.ones((len(idx) * u, len(self.lattice)), bool)
+        nodes, rank = self._spread(allowed, pref[idx].reshape(len(idx) * u, -1), None)
         nodes, rank = nodes.reshape(len(idx), u, -1), rank.reshape(len(idx), u, -1)
         fl = _Flights(self, state.xy[idx], state.theta[idx], state.q_next[idx], state.phi_next[idx], nodes, tops[idx])
         choice, unsettled = _negotiate(self, fl, rank, np.ones(len(idx), bool))
@@ -440,9 +471,9 @@ class ShieldedPolicy:
         acts = self.policy.act(observations, env)
         agents = list(par.possible_agents)
         if not isinstance(acts, dict):                                      # a Gymnasium single-UAV env
-            return int(self.safety.filter(par.safety_state(), np.array([[int(acts)]]))[0, 0])
+            return int(self.safety.filter(par.safety_state(self.safety.depth), np.array([[int(acts)]]))[0, 0])
         if any(a not in acts for a in agents):                              # the episode is ending
             return acts
         proposed = np.array([[int(acts[a]) for a in agents]])
-        safe = self.safety.filter(par.safety_state(), proposed)[0]
+        safe = self.safety.filter(par.safety_state(self.safety.depth), proposed)[0]
         return {a: int(safe[i]) for i, a in enumerate(agents)}

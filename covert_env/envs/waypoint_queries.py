@@ -12,21 +12,22 @@ import numpy as np
 from typing import NamedTuple
 
 from covert_env.envs import batch
+from covert_env.envs.arguments import int_arg
 
 __all__ = ["SafetyState", "WaypointQueries"]
 
 
 class SafetyState(NamedTuple):
-    """What the safety filter (:mod:`covert_env.envs.safety_filter`) reads of a waypoint env at the start of a slot,
+    """What the safety filter (:mod:`covert_env.envs.safety_filter`) reads of a waypoint env at the start of a slot k,
     for B copies of U UAVs (copies, not views: the filter may keep it)."""
 
     xy: np.ndarray            # (B, U, 2) the UAVs' positions (world frame, m)
     theta: np.ndarray         # (B, U) their headings (rad)
     q_next: np.ndarray        # (B, 2) where this slot's lattice is placed: the target at k+1 as predicted at k
     phi_next: np.ndarray      # (B,) its heading
-    q_after: np.ndarray       # (B, 2) where the next slot's lattice will be placed (the prediction at k+1)
-    phi_after: np.ndarray     # (B,) its heading
-    last: np.ndarray          # (B,) bool: this slot ends the episode (nothing follows it)
+    q_ahead: np.ndarray       # (B, D, 2) where the lattices of slots k+1 .. k+D will be placed (the env's predictions)
+    phi_ahead: np.ndarray     # (B, D) their headings
+    slots_left: np.ndarray    # (B,) int64, slots of the episode after this one (0: this slot ends it)
     tops: np.ndarray          # (B, T, 3) each copy's polytope tops (eq. 3), padded with inf
     masks: np.ndarray         # (B, U, L) bool, the env's action masks
     slot: np.ndarray          # (B,) int64, the slot k of each copy
@@ -99,19 +100,20 @@ class WaypointQueries:
         out[ci, ui, mi] = reach[:, 0].sum(axis=-1)
         return out
 
-    def safety_state(self) -> SafetyState:
-        """What the safety filter reads of this slot (:class:`SafetyState`): the poses, where this slot's and the
-        next slot's lattices lie, the polytope tops and the masks. The next slot's lattice is the env's own
-        prediction at k+1 (what the observation will show then), so a move the filter certifies for the next slot
-        is flown exactly as checked. Read-only; waypoint mode, after ``reset()``."""
+    def safety_state(self, depth: int = 1) -> SafetyState:
+        """What the safety filter reads of this slot (:class:`SafetyState`): the poses, where this slot's lattice and
+        the next ``depth`` slots' lattices lie, the polytope tops and the masks. The later lattices are the env's own
+        predictions at those slots (what the observation will show then), so moves the filter plans for them are
+        flown exactly as checked. Read-only; waypoint mode, after ``reset()``."""
         if self.action_mode != "waypoint":
             raise RuntimeError("safety_state() is for action_mode='waypoint'")
         self.require_running("safety_state()")
+        depth = int_arg("depth", depth, 1, 1000)
         pool, rows, k = self._pool, self._rows, self._k
-        after = np.minimum(k + 1, pool.q_next.shape[1] - 1)
+        ahead = np.minimum(k[:, None] + np.arange(1, depth + 1), pool.q_next.shape[1] - 1)        # (B, D)
         return SafetyState(self._xy.copy(), self._theta.copy(), pool.q_next[rows, k, :2].copy(),
-                           pool.phi_next[rows, k].copy(), pool.q_next[rows, after, :2].copy(),
-                           pool.phi_next[rows, after].copy(), k + 1 >= self.episode_length,
+                           pool.phi_next[rows, k].copy(), pool.q_next[rows[:, None], ahead, :2],
+                           pool.phi_next[rows[:, None], ahead], self.episode_length - k - 1,
                            pool.top[rows].copy(), self._masks.astype(bool), k.copy())
 
     def _checked_nodes(self, what: str, nodes) -> np.ndarray:

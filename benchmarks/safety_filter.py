@@ -1,0 +1,96 @@
+"""The safety filter's guarantee, tested as an outsider would: masked-random waypoints flown through it on every task.
+
+    python benchmarks/safety_filter.py [--episodes 4] [--tasks paper-6uav towers-6uav ...] [--policy random]
+
+Flies ``--policy`` (default masked-random waypoints) through :class:`covert_env.envs.safety_filter.ShieldedPolicy`
+on each task's first ``--episodes`` held-out scenes (``reset(seed=s, options={"scene_seed": s})``, s from the
+task's test seeds, as the suite does), in an env with 201 path samples per slot, and counts on the env's recorded
+path:
+
+* team-slots where two UAVs came closer than d_safe1 at some sample (eq. 2),
+* team-slots where a UAV came closer than d_safe2 to a polytope top at some sample (eq. 3),
+
+beside what the filter did (``FilterStats``: changed choices, widened to nodes outside the masks, backup plans
+flown, uncertified moves, infeasible events). It prints one row per task and the totals, and exits with status 1
+if a violation happened in a slot the filter did not report as infeasible (a silent failure).
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+
+import numpy as np
+from tqdm import tqdm
+
+import covert_env
+from baselines.policies import make_policy
+from covert_env.envs.safety_filter import ShieldedPolicy
+from covert_env.metrics import top_clearance
+from covert_env.separation import team_separation
+from covert_env.tasks import TASKS, get_task
+
+COLUMNS = ("team_slots", "sep_slots", "terrain_slots", "min_sep", "changed", "widened", "backups", "uncertified",
+           "infeasible", "silent")
+
+
+def fly_task(task_name: str, episodes: int, policy: str = "random", samples: int = 201) -> dict:
+    """One task's row: the counts above over its first ``episodes`` held-out scenes."""
+    task = get_task(task_name)
+    env = covert_env.parallel_env(task=task.name, action_mode="waypoint", path_samples=samples)
+    pol = ShieldedPolicy(make_policy(policy))
+    row = dict.fromkeys(COLUMNS, 0)
+    row["min_sep"] = np.inf
+    c = env.config
+    for seed in list(task.test_seeds)[:episodes]:
+        obs, _ = env.reset(seed=seed, options={"scene_seed": seed})
+        pol.reset(env, seed)
+        before = len(pol.safety.stats.events)
+        while env.agents:
+            obs, *_ = env.step(pol.act(obs, env))
+        path = env.engine.trajectory().path_xy[:, :, 1:]                                  # (T, U, P - 1, 2)
+        sep = team_separation(path).min(axis=1)
+        clear = top_clearance(path, c.altitude, env.scenario.terrain.highest_points).min(axis=(1, 2))
+        bad = (sep < c.d_safe1) | (clear < c.d_safe2)
+        reported = {slot for _, slot in pol.safety.stats.events[before:]}
+        row["silent"] += len(set(np.flatnonzero(bad).tolist()) - reported)
+        row["sep_slots"] += int((sep < c.d_safe1).sum())
+        row["terrain_slots"] += int((clear < c.d_safe2).sum())
+        row["min_sep"] = min(row["min_sep"], float(sep.min()))
+    stats = pol.safety.stats.as_dict()
+    for key in ("team_slots", "changed", "widened", "backups", "uncertified", "infeasible"):
+        row[key] = stats[key]
+    env.close()
+    return row
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--tasks", nargs="+", default=list(TASKS), help="suite tasks (default: all 36)")
+    parser.add_argument("--episodes", type=int, default=4, help="held-out scenes per task (default 4: 10,080 "
+                        "team-slots over the 36 tasks)")
+    parser.add_argument("--policy", default="random", help="a built-in waypoint policy (default random: masked)")
+    parser.add_argument("--samples", type=int, default=201, help="path samples per slot of the env (default 201)")
+    parser.add_argument("--no-progress", action="store_true")
+    args = parser.parse_args(argv)
+    if args.episodes < 1:
+        parser.error(f"--episodes must be >= 1, got {args.episodes}")
+    print("command:", shlex.join(["python", "benchmarks/safety_filter.py", *(argv or sys.argv[1:])]))
+    print("| task | " + " | ".join(COLUMNS) + " |")
+    print("|---" * (len(COLUMNS) + 1) + "|")
+    total = dict.fromkeys(COLUMNS, 0)
+    total["min_sep"] = np.inf
+    for name in tqdm(args.tasks, desc="tasks", disable=args.no_progress, file=sys.stderr):
+        row = fly_task(name, args.episodes, args.policy, args.samples)
+        print(f"| {name} | " + " | ".join(f"{row[k]:.2f}" if k == "min_sep" else str(row[k]) for k in COLUMNS) + " |",
+              flush=True)
+        for k in COLUMNS:
+            total[k] = min(total[k], row[k]) if k == "min_sep" else total[k] + row[k]
+    print("| **total** | " + " | ".join(f"{total[k]:.2f}" if k == "min_sep" else str(total[k]) for k in COLUMNS)
+          + " |")
+    return 1 if total["silent"] else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
