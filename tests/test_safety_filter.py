@@ -19,7 +19,7 @@ from covert_env.command_line import UsageError
 from covert_env.envs.safety_filter import SafetyFilter, ShieldedPolicy, path_separation, top_clearance_along
 from covert_env.metrics import top_clearance
 from covert_env.separation import team_separation
-from training.evaluate import load_policy, split_seeds
+from training.evaluate import evaluate, load_policy, split_seeds
 
 coords = st.floats(-200.0, 200.0, allow_nan=False)
 
@@ -135,3 +135,10 @@ def test_shield_specs():
     par.reset(seed=0)
     with pytest.raises(ValueError, match="for waypoint teams"):
         ShieldedPolicy(RandomPolicy()).reset(par)
+
+
+def test_evaluate_reports_what_the_filter_did():
+    pol, settings = load_policy("random@waypoint+shield", 3)
+    rows = evaluate(pol, settings, 1, env_kwargs={"task": "paper-3uav"}, progress=False)
+    assert rows[0]["filter_team_slots"] == 70 and rows[0]["filter_infeasible"] == 0
+    assert rows[0]["filter_changed"] > 0 and rows[0]["separation_violations"] == 0

@@ -333,6 +333,14 @@ def _team_row(result: dict) -> dict:
     return row
 
 
+def _filter_counts(policy) -> dict:
+    """A ``+shield`` policy's safety-filter counts of the episode just flown (``filter_changed``,
+    ``filter_infeasible``, ...: the episodes' CSV columns); {} for other policies."""
+    if not isinstance(policy, ShieldedPolicy):
+        return {}
+    return {f"filter_{k}": v for k, v in policy.episode_counts().items()}
+
+
 def evaluate(policy, settings: dict, episodes: int, seed_offset: int = HELD_OUT_OFFSET,
              env_kwargs: dict | None = None, progress: bool = True, label: str | None = None,
              scenes: SceneSet | None = None) -> list[dict]:
@@ -350,7 +358,7 @@ def evaluate(policy, settings: dict, episodes: int, seed_offset: int = HELD_OUT_
     for i in _episodes(episodes, progress, label or getattr(policy, "name", "policy")):
         s = seed_offset + i
         res = run_episode(policy, env, seed=s, options={"scene_seed": s})
-        row = _team_row(res)
+        row = _team_row(res) | _filter_counts(policy)
         row["scene_seed"] = s
         rows.append(row)
     env.close()
@@ -374,7 +382,7 @@ def _evaluate_set(policy, kw: dict, scenes: SceneSet, episodes: int, progress: b
     for i in _episodes(episodes, progress, label or getattr(policy, "name", "policy")):
         s = scenes.seeds[i] if scenes.seeds is not None else i
         env = CovertSensingParallelEnv(scenario=scenes[i], **kw)
-        row = _team_row(run_episode(policy, env, seed=s))
+        row = _team_row(run_episode(policy, env, seed=s)) | _filter_counts(policy)
         row["scene_seed"] = s
         rows.append(row)
         env.close()
@@ -710,6 +718,10 @@ def _main(args: argparse.Namespace, command: str) -> int:
         print(f"{name:40s} reward {s['reward'][0]:8.1f} ± {s['reward'][1]:6.1f}  blocked LoS "
               f"{s['occlusion_rate'][0]:.3f}  zone viol. {s['zone_violation_rate'][0]:.3f}  "
               f"({time.perf_counter() - t0:.0f} s)", flush=True)
+        if rows and "filter_infeasible" in rows[0]:
+            print(f"{'':40s} safety filter: {sum(r['filter_infeasible'] for r in rows)} infeasible event(s) in "
+                  f"{sum(r['filter_team_slots'] for r in rows)} team-slots; {sum(r['filter_changed'] for r in rows)} "
+                  f"UAV choices changed, {sum(r['filter_backups'] for r in rows)} backup moves flown", flush=True)
     write_outputs(results, out, {"episodes": args.episodes, "seed_offset": args.seed_offset, "n_uavs": args.n_uavs,
                                  "family": args.family, "task": args.task, "scene_set": args.scene_set,
                                  "command": command})

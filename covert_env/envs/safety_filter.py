@@ -465,6 +465,12 @@ class ShieldedPolicy:
         if self.safety is None or self.safety.config != par.config:
             self.safety = SafetyFilter(par.config, par.lattice, **self.filter_kw)
         self.safety.forget()
+        self._at_reset = self.safety.stats.as_dict()
+
+    def episode_counts(self) -> dict:
+        """What the filter did since the last ``reset`` (the keys of :class:`FilterStats`, without the events)."""
+        now = self.safety.stats.as_dict()
+        return {k: v - self._at_reset[k] for k, v in now.items()}
 
     def act(self, observations, env):
         par = self._parallel(env)
