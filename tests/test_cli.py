@@ -700,3 +700,12 @@ def test_list_shows_what_the_commands_accept(capsys):
     with pytest.raises(SystemExit) as exc:
         main(["list", "planets"])
     assert exc.value.code == 2 and "unknown section 'planets'" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("command", ["evaluate", "benchmark"])
+def test_a_policy_given_twice_is_a_usage_error(command, capsys, tmp_path):
+    with pytest.raises(SystemExit) as exc:
+        main([command, "--policies", "dp", "random@waypoint", "dp", "--out", str(tmp_path / "out")])
+    assert exc.value.code == 2
+    assert "--policies: dp given twice; give each spec once" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()

@@ -334,6 +334,9 @@ def _main(args: argparse.Namespace, command: str) -> int:
         tasks = resolve_tasks(args.tasks)
     except ValueError as exc:
         raise UsageError(f"--tasks: {exc}") from None
+    twice = sorted({p for p in args.policies if args.policies.count(p) > 1})
+    if twice:
+        raise UsageError(f"--policies: {', '.join(twice)} given twice; give each spec once")
     specs = list(dict.fromkeys([*args.policies, REFERENCE]))
     if not any(s.split("@")[0].startswith("dp") for s in specs):
         raise UsageError("--policies: include at least one dp planner (dp, dp-path, dp-blind, dp-binned): the best "

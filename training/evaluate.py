@@ -662,6 +662,9 @@ def _cache_name(spec: str, args: argparse.Namespace) -> str:
 
 
 def _main(args: argparse.Namespace, command: str) -> int:
+    twice = sorted({p for p in args.policies if args.policies.count(p) > 1})
+    if twice:
+        raise UsageError(f"--policies: {', '.join(twice)} given twice; give each spec once")
 
     env_kwargs = _task_flags(args)
     scenes = _scene_set(args)
