@@ -589,7 +589,7 @@ def test_evaluate_names_a_built_in_policy_by_its_spec_as_the_suite_does(evaluate
     assert main(["evaluate", "--policies", "dp", "--out", str(evaluate_files / "dp"), "--reuse", "--episodes", "2",
                  "--no-progress"]) == 0
     board = (evaluate_files / "dp" / "leaderboard.md").read_text()
-    assert "| dp | waypoint |" in board and "dp-aware-inherited" not in board
+    assert "| planner | dp | waypoint |" in board and "dp-aware-inherited" not in board
     assert set(json.loads((evaluate_files / "dp" / "results.json").read_text())) == {"dp"}
 
 

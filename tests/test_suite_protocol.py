@@ -140,3 +140,15 @@ def test_an_episode_row_reports_the_teams_smallest_separation():
     row = _team_row({"metrics": ms, "return": {"a": 1.0, "b": 2.0, "c": 3.0}})
     assert row["min_separation"] == 2.9
     assert row["separation_violations"] == pytest.approx(2 / 3) and row["reward"] == 2.0
+
+
+def test_every_policy_spec_has_a_tier():
+    """The leaderboards' three tiers (and the references): what a team reads to act decides its tier."""
+    from training.catalogue import TIERS, spec_tier
+
+    assert list(TIERS) == ["planner", "hybrid", "learned", "reference"]
+    cases = {"dp": "planner", "dp-binned@waypoint+shield": "planner", "pretrained:dp-cost": "hybrid",
+             "pretrained:dp-cost-kinematic-binned+shield": "hybrid", "pretrained:mappo-suite": "learned",
+             "mappo:runs/a,runs/b@waypoint+shield": "learned", "sb3:runs/x": "learned", "rllib:runs/y": "learned",
+             "random@waypoint": "reference", "hold-centre": "reference"}
+    assert {s: spec_tier(s) for s in cases} == cases

@@ -50,6 +50,7 @@ import numpy as np
 
 from covert_env.command_line import MAX_SCENES, UsageError, int_range, output_dir, positive_int, run_main
 from covert_env.tasks import DEFAULT_TASKS, SUITE_VERSION, TASKS, TEST_SCENES, get_task, resolve_tasks
+from training.catalogue import TIERS, spec_tier
 from training.common import ordered_results
 from training.evaluate import COLUMNS, LEARNED_PREFIXES, evaluate, load_policy, split_seeds, summarise, write_outputs
 from training.stats import iqm, mean, probability_of_improvement, stratified_bootstrap_ci
@@ -202,13 +203,16 @@ def write_suite(out: Path, rows: list[dict], ref: dict, agg: dict, meta: dict, s
              "teammate. Action mask: the env's waypoint mask a policy acted with ('visible': reachable nodes of the "
              "visible zone; 'kinematic': reachable nodes only; the planners choose among their own nodes, the visible "
              "zone's or, shadow-blind, every zone node, and ignore the mask).", "",
-             "| policy | action mask | tasks | score IQM [95 % CI] | score mean [95 % CI] | "
+             "Tiers, by what a team reads to act: " + "; ".join(TIERS.values()) + ". A spec ending in +shield "
+             "flew through the safety filter (covert_env.envs.safety_filter).", "",
+             "| tier | policy | action mask | tasks | score IQM [95 % CI] | score mean [95 % CI] | "
              + " | ".join(h for _, h in CONSTRAINTS) + " |",
-             "|---|---|---|---|---|" + "---|" * len(CONSTRAINTS)]
-    for p in pols:
+             "|---|---|---|---|---|---|" + "---|" * len(CONSTRAINTS)]
+    tiers = {p: spec_tier(p) for p in pols}
+    for p in sorted(pols, key=lambda q: list(TIERS).index(tiers[q])):        # stable: the run's order per tier
         a = agg["policies"][p]
         masks = ", ".join(sorted({r.get("mask_mode", "visible") for r in rows if r["policy"] == p}))
-        lines.append(f"| {p} | {masks} | {len(a['tasks'])} | {_fmt(a['iqm'])} | {_fmt(a['mean'])} | "
+        lines.append(f"| {tiers[p]} | {p} | {masks} | {len(a['tasks'])} | {_fmt(a['iqm'])} | {_fmt(a['mean'])} | "
                      + " | ".join(f"{a[k]:.3f}" if k != "min_separation" else f"{a[k]:.1f}" for k, _ in CONSTRAINTS)
                      + " |")
     lines += ["", "Mean normalised score per task (random's and the best planner's mean rewards in brackets):", "",

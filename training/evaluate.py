@@ -74,6 +74,7 @@ from covert_env.envs.vector import MAX_SCENE_SEED
 from covert_env.families import FAMILIES, HELD_OUT_SEEDS
 from covert_env.scene_set import SceneSet
 from covert_env.tasks import get_task
+from training.catalogue import TIERS, spec_tier
 from training.pretrained import PRETRAINED_DIR, load_learned, pretrained_names
 from training.pretrained.learned_cost import is_cost_planner_card, load_cost_planner
 from training.rllib_ppo import load_policy as load_rllib
@@ -422,18 +423,20 @@ def write_outputs(results: dict[str, dict], out: Path, meta: dict) -> None:
              f"held-out scenes (scene seeds {meta['seed_offset']} .. {meta['seed_offset'] + meta['episodes'] - 1}"
              f"{family})")
     lines = [f"# Leaderboard: {meta['episodes']} {where}, {meta['n_uavs']} UAV(s)", "",
+             "Tiers, by what a team reads to act: " + "; ".join(TIERS.values()) + ".", "",
              "Mean ± std over episodes of the team-mean per-UAV metrics (covert_env.metrics.episode_metrics; "
              "min separation: the team's smallest); "
              "episode reward = env default reward, mean over UAVs. Lower is better except reward, disguise and "
              "min separation.", "",
-             "| policy | mode | " + " | ".join(h for _, h, _ in COLUMNS) + " |",
-             "|---|---|" + "---|" * len(COLUMNS)]
+             "| tier | policy | mode | " + " | ".join(h for _, h, _ in COLUMNS) + " |",
+             "|---|---|---|" + "---|" * len(COLUMNS)]
     for name, r in results.items():
         cells = []
         for k, _, fmt in COLUMNS:
             m, s = r["summary"][k]
             cells.append(f"{fmt.format(m)} ± {fmt.format(s)}")
-        lines.append(f"| {name} | {r['settings']['action_mode']} | " + " | ".join(cells) + " |")
+        lines.append(f"| {spec_tier(r.get('spec', name))} | {name} | {r['settings']['action_mode']} | "
+                     + " | ".join(cells) + " |")
     lines += _robust_lines(results)
     lines += ["", f"Command: `{meta['command']}`", ""]
     (out / "leaderboard.md").write_text("\n".join(lines))
