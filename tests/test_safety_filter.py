@@ -142,3 +142,22 @@ def test_evaluate_reports_what_the_filter_did():
     rows = evaluate(pol, settings, 1, env_kwargs={"task": "paper-3uav"}, progress=False)
     assert rows[0]["filter_team_slots"] == 70 and rows[0]["filter_infeasible"] == 0
     assert rows[0]["filter_changed"] > 0 and rows[0]["separation_violations"] == 0
+
+
+def test_candidates_follow_the_proposal_then_the_policys_scores():
+    par = covert_env.parallel_env(task="paper-3uav", action_mode="waypoint")
+    flt = SafetyFilter(par.config, par.lattice)
+    lat = len(par.lattice)
+    scores = np.random.default_rng(0).normal(size=(1, 3, lat))
+    proposed = np.array([[5, 6, 7]])
+    pref = flt._proposal_pref(proposed, scores)
+    nodes, _ = flt._spread(np.ones((3, lat), bool), pref[0], 10)
+    assert nodes[:, 0].tolist() == [5, 6, 7]
+    for u in range(3):
+        best = [n for n in np.argsort(-scores[0, u], kind="stable") if n != proposed[0, u]][:4]
+        assert nodes[u, 1:5].tolist() == best                 # then the highest scores
+        assert len(set(nodes[u].tolist())) == 10              # and a spread over the rest, no node twice
+    # Without scores: the nodes nearest to the proposal.
+    nodes, _ = flt._spread(np.ones((1, lat), bool), flt._proposal_pref(proposed, None)[0, :1], 3)
+    d = np.hypot(*(par.lattice[nodes[0, 1]] - par.lattice[5]))
+    assert nodes[0, 0] == 5 and np.isclose(d, np.hypot(*(par.lattice - par.lattice[5]).T)[np.arange(lat) != 5].min())

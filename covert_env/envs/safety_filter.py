@@ -442,7 +442,9 @@ class SafetyFilter:
 
 class ShieldedPolicy:
     """Any waypoint policy of the harness's interface (``reset(env, seed)``, ``act(observations, env)``) flown
-    through a :class:`SafetyFilter` on the PettingZoo parallel env: the spec suffix ``+shield``."""
+    through a :class:`SafetyFilter` on the PettingZoo parallel env: the spec suffix ``+shield``. Where the policy
+    leaves its node scores in ``last_logits`` (U, L) (the learned teams of ``training.pretrained`` do), the filter
+    orders each UAV's alternatives by them; otherwise by the distance to the proposed node."""
 
     def __init__(self, policy, **filter_kw):
         self.policy, self.filter_kw = policy, filter_kw
@@ -481,5 +483,9 @@ class ShieldedPolicy:
         if any(a not in acts for a in agents):                              # the episode is ending
             return acts
         proposed = np.array([[int(acts[a]) for a in agents]])
-        safe = self.safety.filter(par.safety_state(self.safety.depth), proposed)[0]
+        scores = getattr(self.policy, "last_logits", None)
+        if scores is not None and np.shape(scores) != (len(agents), len(par.lattice)):
+            scores = None
+        safe = self.safety.filter(par.safety_state(self.safety.depth), proposed,
+                                  None if scores is None else np.asarray(scores, float)[None])[0]
         return {a: int(safe[i]) for i, a in enumerate(agents)}

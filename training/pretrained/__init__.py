@@ -250,6 +250,9 @@ class LearnedPolicy:
                                   w_max=c.w_max if self.actor.spec.get("node_manoeuvre") else None
                                   ) if self.actor.head == "node" else None
             logits = self.actor.logits(x, feats)
+            #: The node logits of the last ``act`` (U, L): a safety filter around the team orders its
+            #: alternatives by them (:class:`covert_env.envs.safety_filter.ShieldedPolicy`).
+            self.last_logits = logits
             mask = np.stack([par.action_mask(a) for a in agents]).astype(bool)
             if self.shield is not None:
                 act, _ = self.shield.choose(mask[None], lambda n: par.waypoint_paths(n[0])[None],
