@@ -93,16 +93,73 @@ def test_the_backup_plan_is_safe_when_flown():
         proposed = np.array([[rng.choice(np.flatnonzero(m)) for m in state.masks[0]]])
         nodes = flt.filter(state, proposed)[0]
         par.step({a: int(n) for a, n in zip(par.possible_agents, nodes, strict=True)})
-    slot, starts, plan = flt._backup[0]
-    assert len(plan) == flt.depth
+    plan = flt._plan
+    assert plan.length[0] == flt.depth and plan.slot[0] == par.safety_state().slot[0]
     c = par.config
     for d in range(flt.depth):
         state = par.safety_state(flt.depth)
-        assert slot + d == state.slot[0] and np.allclose(starts[d], state.xy[0], atol=1e-6)
-        par.step({a: int(n) for a, n in zip(par.possible_agents, plan[d], strict=True)})
+        assert np.allclose(plan.starts[0, d], state.xy[0], atol=1e-6)
+        par.step({a: int(n) for a, n in zip(par.possible_agents, plan.nodes[0, d], strict=True)})
         path = par.engine.trajectory().path_xy[-1:, :, 1:]
         assert team_separation(path).min() >= c.d_safe1
         assert top_clearance(path[0], c.altitude, par.scenario.terrain.highest_points).min() >= c.d_safe2
+
+
+def test_the_filter_flies_its_backup_plan_when_nothing_is_certified(monkeypatch):
+    """With every certificate refused, the filter flies the plan of the last certified slot, move by move, then
+    safe moves without a certificate; each is counted."""
+    par = covert_env.parallel_env(task="paper-3uav", action_mode="waypoint", path_samples=201)
+    par.reset(seed=8_000_004)
+    flt = SafetyFilter(par.config, par.lattice)
+    rng = np.random.default_rng(1)
+
+    def propose(state):
+        return np.array([[rng.choice(np.flatnonzero(m)) for m in state.masks[0]]])
+
+    for _ in range(3):
+        state = par.safety_state(flt.depth)
+        par.step(dict(zip(par.possible_agents, flt.filter(state, propose(state))[0].tolist(), strict=True)))
+    planned = flt._plan.nodes[0].copy()
+    monkeypatch.setattr(SafetyFilter, "_certified", lambda self, *a: np.zeros(len(a[0].slot), bool))
+    for d in range(flt.depth + 1):
+        state = par.safety_state(flt.depth)
+        nodes = flt.filter(state, propose(state))[0]
+        if d < flt.depth:
+            assert nodes.tolist() == planned[d].tolist() and flt.stats.backups == d + 1
+        else:
+            assert flt.stats.backups == flt.depth and flt.stats.uncertified == 1
+        par.step(dict(zip(par.possible_agents, nodes.tolist(), strict=True)))
+    path = par.engine.trajectory().path_xy[-(flt.depth + 1):, :, 1:]
+    assert team_separation(path).min() >= par.config.d_safe1 and flt.stats.infeasible == 0
+
+
+def test_no_safe_move_is_an_infeasible_event_and_the_proposals_fly():
+    par = covert_env.parallel_env(task="paper-3uav", action_mode="waypoint")
+    par.reset(seed=8_000_005)
+    flt = SafetyFilter(par.config, par.lattice)
+    state = par.safety_state(flt.depth)
+    xy = state.xy.copy()
+    xy[0, 1] = xy[0, 0] + [1.0, 0.0]                       # two UAVs 1 m apart: every move starts too close
+    proposed = np.array([[3, 4, 5]])
+    out = flt.filter(state._replace(xy=xy), proposed)
+    assert out.tolist() == proposed.tolist()
+    assert flt.stats.infeasible == 1 and flt.stats.events == [(0, int(state.slot[0]))]
+
+
+def test_a_batch_is_filtered_as_its_copies_alone():
+    venv = covert_env.vector_env(num_envs=3, task="paper-6uav", action_mode="waypoint")
+    venv.reset(seed=[8_000_006, 8_000_007, 8_000_008])
+    rng = np.random.default_rng(2)
+    together = SafetyFilter(venv.config, venv.lattice)
+    alone = [SafetyFilter(venv.config, venv.lattice) for _ in range(3)]
+    for _ in range(3):
+        state = venv.safety_state(together.depth)
+        proposed = np.array([[rng.choice(np.flatnonzero(m)) for m in copy] for copy in state.masks])
+        out = together.filter(state, proposed)
+        for j, flt in enumerate(alone):
+            one = type(state)(*(np.asarray(f)[j:j + 1] for f in state))
+            assert flt.filter(one, proposed[j:j + 1])[0].tolist() == out[j].tolist()
+        venv.step(out)
 
 
 def test_filter_refuses_bad_proposals():
@@ -119,6 +176,14 @@ def test_filter_refuses_bad_proposals():
         flt.filter(par.safety_state(), np.array([[0, 1, 2]]))
     with pytest.raises(ValueError, match="end_margin must be a finite number >= 0"):
         SafetyFilter(par.config, par.lattice, end_margin=-1.0)
+    with pytest.raises(ValueError, match=r"room must be a finite number >= 0 \(m\), got 'a'"):
+        SafetyFilter(par.config, par.lattice, room="a")
+    with pytest.raises(ValueError, match=r"lattice must be finite target-frame offsets of shape \(L, 2\)"):
+        SafetyFilter(par.config, np.zeros(5))
+    with pytest.raises(ValueError, match=r"scores must be real numbers of shape \(1, 3, "):
+        flt.filter(state, np.array([[0, 1, 2]]), scores=np.zeros((3, len(par.lattice))))
+    with pytest.raises(ValueError, match="the filter's lattice 576 nodes"):
+        SafetyFilter(par.config, par.lattice[:-1]).filter(state, np.array([[0, 1, 2]]))
     with pytest.raises(ValueError, match="samples must be an integer >= 2"):
         SafetyFilter(par.config, par.lattice, samples=1)
 
@@ -161,3 +226,12 @@ def test_candidates_follow_the_proposal_then_the_policys_scores():
     nodes, _ = flt._spread(np.ones((1, lat), bool), flt._proposal_pref(proposed, None)[0, :1], 3)
     d = np.hypot(*(par.lattice[nodes[0, 1]] - par.lattice[5]))
     assert nodes[0, 0] == 5 and np.isclose(d, np.hypot(*(par.lattice - par.lattice[5]).T)[np.arange(lat) != 5].min())
+
+
+def test_a_shielded_learned_team_keeps_its_name_and_mode(tmp_path):
+    from training.evaluate import main
+
+    assert main(["--policies", "pretrained:mappo@waypoint+shield", "--episodes", "1", "--out", str(tmp_path),
+                 "--no-progress"]) == 0
+    board = (tmp_path / "leaderboard.md").read_text()
+    assert "| learned | mappo (mappo)@waypoint+shield | waypoint |" in board

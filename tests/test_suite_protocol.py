@@ -150,5 +150,6 @@ def test_every_policy_spec_has_a_tier():
     cases = {"dp": "planner", "dp-binned@waypoint+shield": "planner", "pretrained:dp-cost": "hybrid",
              "pretrained:dp-cost-kinematic-binned+shield": "hybrid", "pretrained:mappo-suite": "learned",
              "mappo:runs/a,runs/b@waypoint+shield": "learned", "sb3:runs/x": "learned", "rllib:runs/y": "learned",
-             "random@waypoint": "reference", "hold-centre": "reference"}
+             "pretrained:dp-cost,dp-cost-binned": "hybrid", "random@waypoint": "reference",
+             "hold-centre": "reference"}
     assert {s: spec_tier(s) for s in cases} == cases

@@ -42,7 +42,7 @@ def spec_tier(spec: str) -> str:
 
     base = spec.removesuffix("+shield").split("@")[0]
     if base.startswith("pretrained:"):
-        path = PRETRAINED_DIR / f"{base[len('pretrained:'):]}.npz"
+        path = PRETRAINED_DIR / f"{base[len('pretrained:'):].split(',')[0]}.npz"
     elif base.startswith("mappo:"):
         path = Path(base[len("mappo:"):].split(",")[0])
     elif base.startswith(("sb3:", "rllib:")):
@@ -81,7 +81,8 @@ def _weights() -> list[str]:
     from training.runs import read_run_json
 
     lines = ["Shipped weights (pretrained:NAME; cards in training/pretrained/NAME.json; reward IQM [95 % interval] on "
-             "the held-out paper scenes):", *(f"  tier {k}: {v}" for k, v in TIERS.items() if k != "planner")]
+             "the held-out paper scenes):",
+             *(f"  tier {k}: {v}" for k, v in TIERS.items() if k in ("hybrid", "learned"))]
     for name in pretrained_names():
         card = read_run_json(PRETRAINED_DIR / f"{name}.json", "model card")
         s = card.get("scores", {})

@@ -699,8 +699,9 @@ def _main(args: argparse.Namespace, command: str) -> int:
         builtin = spec in caches
         name = (spec if builtin else getattr(pol, "name", spec)) if len(group) == 1 else \
             f"{spec.split(':', 1)[0]} ({len(group)} seeds)"
-        if "@" in spec and not name.endswith(spec.rsplit("@", 1)[1]):
-            name = f"{name}@{spec.rsplit('@', 1)[1]}"
+        bare = spec.removesuffix(SHIELD_SUFFIX)
+        if "@" in bare and not name.removesuffix(SHIELD_SUFFIX).endswith(bare.rsplit("@", 1)[1]):
+            name = f"{name.removesuffix(SHIELD_SUFFIX)}@{bare.rsplit('@', 1)[1]}{SHIELD_SUFFIX if bare != spec else ''}"
         while name in results:
             name += "'"
         t0 = time.perf_counter()

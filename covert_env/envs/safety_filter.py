@@ -1,35 +1,37 @@
-"""The safety filter of waypoint teams: eqs. 2 and 3 along the whole flown path, and a safe slot after it.
+"""The safety filter of waypoint teams: eqs. 2 and 3 along the whole flown path, and safe slots after it.
 
 Any waypoint policy proposes one lattice node per UAV; the filter returns the team's nodes. It keeps a proposal
-where the team stays safe, and otherwise moves the fewest UAVs it can to the safe nodes their policy prefers. A
-joint move is **safe** when, at every one of the filter's ``samples`` instants of the slot (201 by default, the
-start excluded: no choice changes it), every two UAVs are at least d_safe1 apart (eq. 2) and every UAV is at least
-d_safe2 from every polytope top (eq. 3). It is **certified** when, from the poses where it ends, the team has a
-safe joint move in the next slot too (recursive feasibility, as MPC safety filters have it): the filter finds one
-with the same negotiation and keeps it as the **backup** of the next slot. The next slot's lattice is the env's
-own prediction at k+1, so the backup is flown exactly as it was checked: where the next slot finds no certified
-move, the backup is safe (docs/decisions.md#safety-filter).
+where the team stays safe, and otherwise moves UAVs to the safe nodes their policy prefers. A joint move is
+**safe** when, at every one of the filter's ``samples`` instants of the slot (201 by default, the start excluded:
+no choice changes it), every two UAVs are at least d_safe1 apart (eq. 2) and every UAV is at least d_safe2 from
+every polytope top (eq. 3). It is **certified** when, from the poses where it ends, the team has safe joint moves
+for the next ``depth`` slots too (recursive feasibility, as MPC safety filters have it): the filter plans them
+with the same negotiation, each UAV keeping its place behind the target where it can, and keeps them as the
+**backup plan**. The later lattices are the env's own predictions for those slots, so the plan is flown exactly
+as it was checked: where a later slot finds no certified move, the plan's next move is safe
+(docs/decisions.md#safety-filter).
 
 Per slot and copy, in order, the first that exists:
 
-1. a certified joint move among the allowed nodes (the env's masks), found by priority negotiation
-   (:func:`~covert_env.separation.priority_negotiation`): each UAV takes its most preferred node that is clear of
-   the tops and separated from the paths already settled, the proposal first. Where the certificate fails, the
-   nodes of the UAV it left stuck and of the teammate ending nearest to it are set aside and the team negotiates
-   again (``rounds`` times);
-2. the same among all lattice nodes (a node outside the mask is flown as the env flies it, flagged infeasible by
-   the env): ``widened``;
-3. the backup certified in the previous slot: ``backups``;
+1. a certified joint move among ``candidates`` of the allowed nodes (the env's masks) per UAV, found by priority
+   negotiation (:func:`~covert_env.separation.priority_negotiation`): each UAV takes its most preferred node that
+   is clear of the tops and separated from the paths already settled, the proposal first; a UAV left without one
+   re-chooses together with a settled UAV. Where the certificate fails, the nodes of the UAV it left stuck and of
+   the teammate ending nearest to it are set aside and the team negotiates again, preferring roomy ends (ends
+   d_safe1 + ``room`` apart and d_safe2 + ``end_margin`` from the tops), ``rounds`` times;
+2. the same among every allowed node, then among every lattice node (a node outside the mask is flown as the env
+   flies it, flagged infeasible by the env);
+3. the backup plan's next move: ``backups``;
 4. a safe joint move without a certificate: ``uncertified``;
-5. the proposals, unchanged: an ``infeasible`` event (no safe joint move was found). It is counted, never silent.
+5. the proposals, unchanged: an ``infeasible`` event (no safe joint move was found), counted with its copy and
+   slot. The filter never fails silently.
 
 The samples are the instants the metric of a ``path_samples=201`` env measures. Between two of them the distance
 of two UAVs can dip by at most (2 v_max dt)^2 / (8 d_safe1) + v_max w_max dt^2 / 4, about 1 cm at the defaults.
 
-Candidates per UAV: at most ``candidates`` nodes (the proposal, the allowed nodes the policy prefers, and a spread
-of the rest); for the certificate ``certificate_candidates`` of the nodes the UAV can reach next slot, the ones
-that keep its place behind the target first. Work per slot: the candidates' flights, O(U^2 M P) distances per
-negotiation, and the same again for the certificate.
+Work per slot: the candidates' flights (U ``candidates`` per copy), O(U^2 M P) distances per negotiation, and per
+slot of the backup plan the same for ``certificate_candidates`` nodes; the later stages only where the earlier
+leave a copy without a move.
 """
 
 from __future__ import annotations
@@ -82,8 +84,8 @@ class FilterStats:
 
     team_slots: int = 0        # team choices filtered (one per copy and slot)
     changed: int = 0           # UAV choices the filter changed
-    widened: int = 0           # team choices that needed a node outside the masks
-    backups: int = 0           # team choices that flew the previous slot's backup
+    widened: int = 0           # team choices where the filter moved a UAV to a node outside its mask
+    backups: int = 0           # team choices that flew the backup plan's next move
     uncertified: int = 0       # team choices safe for this slot, with no safe move known after it
     infeasible: int = 0        # team choices with no safe joint move found: the proposals were flown
     events: list = field(default_factory=list)   # (copy, slot) of every infeasible choice
@@ -117,6 +119,13 @@ class _Flights:
             end = top_clearance(self.paths[:, :, :, -1], c.altitude, tops)                     # (B, U, M)
             self.roomy &= self.clear & (end >= c.d_safe2 + flt.end_margin)
 
+    def take(self, idx: np.ndarray) -> _Flights:
+        """The flights of the copies ``idx`` alone."""
+        sub = object.__new__(_Flights)
+        for name in ("nodes", "paths", "end_theta", "clear", "roomy"):
+            setattr(sub, name, getattr(self, name)[idx])
+        return sub
+
 
 def _negotiate(flt: SafetyFilter, fl: _Flights, rank: np.ndarray, rows: np.ndarray, room: float = 0.0,
                strict: bool = False) -> tuple[np.ndarray, np.ndarray]:
@@ -126,10 +135,20 @@ def _negotiate(flt: SafetyFilter, fl: _Flights, rank: np.ndarray, rows: np.ndarr
     one (a cramped end leaves the next slot little to choose from). Returns the choices (B, U) (-1 where a UAV had
     none) and the copies left unsettled (B,). ``strict``: only moves that end ``end_margin`` clear of the tops
     (a UAV that ends on the edge of a top's d_safe2, heading at it, has no clear move left)."""
+    full = np.full(rank.shape[:2], -1)
+    idx = np.nonzero(rows)[0]
+    if len(idx) == 0:
+        return full, np.zeros(len(rows), bool)
+    if len(idx) < len(rows):                          # only the copies asked about: negotiate on them alone
+        choice, unsettled = _negotiate(flt, fl.take(idx), rank[idx], np.ones(len(idx), bool), room, strict)
+        full[idx] = choice
+        out = np.zeros(len(rows), bool)
+        out[idx] = unsettled
+        return full, out
     b, u, m = rank.shape
     copies = np.arange(b)
-    choice = np.full((b, u), -1)
-    usable = (fl.roomy if strict else fl.clear) & np.isfinite(rank) & rows[:, None, None]
+    choice = full
+    usable = (fl.roomy if strict else fl.clear) & np.isfinite(rank)
 
     def settle(order, redo):
         pick = np.full((b, u), -1)
@@ -159,8 +178,8 @@ def _negotiate(flt: SafetyFilter, fl: _Flights, rank: np.ndarray, rows: np.ndarr
         choice[redo] = pick[redo]
         return stuck_at
 
-    unsettled = priority_negotiation(settle, b, u) & rows
-    return choice, unsettled | (rows & (choice < 0).any(axis=1))
+    unsettled = priority_negotiation(settle, b, u)
+    return choice, unsettled | (choice < 0).any(axis=1)
 
 
 def _repair(flt, fl: _Flights, rank, usable, j: int, k: int, settled: np.ndarray, pick, chosen) -> bool:
@@ -180,8 +199,11 @@ def _repair(flt, fl: _Flights, rank, usable, j: int, k: int, settled: np.ndarray
         ck, ch = np.nonzero(ok_k)[0], np.nonzero(ok_h)[0]
         if not len(ck) or not len(ch):
             continue
-        coarse = path_separation(fl.paths[j, k, ck][:, None, ::4], fl.paths[j, h, ch][None, :, ::4]) >= d1
-        a, b = np.nonzero(coarse)
+        # The screen in blocks of candidates of k (every pair at once is L^2 P / 4 floats: 500 MB at L = 577).
+        blocks = [np.nonzero(path_separation(fl.paths[j, k, ck[c0:c0 + 64]][:, None, ::4],
+                                             fl.paths[j, h, ch][None, :, ::4]) >= d1) for c0 in range(0, len(ck), 64)]
+        a = np.concatenate([blk[0] + 64 * n for n, blk in enumerate(blocks)])
+        b = np.concatenate([blk[1] for blk in blocks])
         if not len(a):
             continue
         score = rank[j, k, ck[a]] + rank[j, h, ch[b]]
@@ -195,6 +217,35 @@ def _repair(flt, fl: _Flights, rank, usable, j: int, k: int, settled: np.ndarray
                 chosen[j, k], chosen[j, h] = fl.paths[j, k, pick[j, k]], fl.paths[j, h, pick[j, h]]
                 return True
     return False
+
+
+class _Plan:
+    """The backup plans of B copies: from slot ``slot`` on, ``length`` joint moves ``nodes`` (B, D, U), each flown
+    from ``starts`` (B, D, U, 2)."""
+
+    def __init__(self, b: int, u: int, depth: int):
+        self.slot, self.length = np.full(b, -1), np.zeros(b, np.int64)
+        self.nodes, self.starts = np.full((b, depth, u), -1), np.full((b, depth, u, 2), np.nan)
+
+    def set(self, idx, slot, starts, nodes) -> None:
+        """Plans for the copies ``idx``: their leading steps with a node for every UAV."""
+        self.slot[idx], self.starts[idx], self.nodes[idx] = slot, starts, nodes
+        self.length[idx] = np.cumprod((nodes >= 0).all(axis=2), axis=1).sum(axis=1)
+
+    def holds(self, state: SafetyState) -> np.ndarray:
+        """(B,) the copies whose plan starts at this slot where their UAVs are (not a plan of an earlier episode)."""
+        if self.slot.shape != state.slot.shape or self.nodes.shape[2] != state.xy.shape[1]:
+            return np.zeros(len(state.slot), bool)
+        where = np.abs(self.starts[:, 0] - state.xy) <= 1e-6
+        return (self.slot == state.slot) & (self.length >= 1) & where.all(axis=(1, 2))
+
+    def shift_from(self, old: _Plan, idx) -> None:
+        """The copies ``idx`` keep the rest of ``old``'s plans (their first move is being flown)."""
+        idx = np.nonzero(idx)[0]
+        self.slot[idx] = old.slot[idx] + 1
+        self.length[idx] = old.length[idx] - 1
+        self.nodes[idx, :-1], self.starts[idx, :-1] = old.nodes[idx, 1:], old.starts[idx, 1:]
+        self.nodes[idx, -1], self.starts[idx, -1] = -1, np.nan
 
 
 class SafetyFilter:
@@ -217,17 +268,20 @@ class SafetyFilter:
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
                 raise ValueError(f"SafetyFilter: {name} must be an integer >= {lo}, got {v!r}")
         for name, v in (("room", room), ("end_margin", end_margin)):
-            if not np.isfinite(v) or v < 0:
+            if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not 0 <= v < np.inf:
                 raise ValueError(f"SafetyFilter: {name} must be a finite number >= 0 (m), got {v!r}")
-        self.config, self.lattice = config, np.asarray(lattice, float)
+        lattice = np.asarray(lattice, float)
+        if lattice.ndim != 2 or lattice.shape[1] != 2 or not len(lattice) or not np.isfinite(lattice).all():
+            raise ValueError(f"SafetyFilter: lattice must be finite target-frame offsets of shape (L, 2), L >= 1, "
+                             f"got shape {lattice.shape}")
+        self.config, self.lattice = config, lattice
         self.samples, self.depth, self.candidates = int(samples), int(depth), int(candidates)
         self.certificate_candidates, self.rounds = int(certificate_candidates), int(rounds)
         self.room, self.end_margin = float(room), float(end_margin)
         self.times = np.linspace(0.0, 1.0, self.samples) * config.delta
         self._reach = reach_table(config.v_max, config.w_max, config.delta)
         self.stats = FilterStats()
-        #: Per copy: (slot, starts (D', U, 2), nodes (D', U)), the backup plan of the slots from ``slot`` on.
-        self._backup: dict[int, tuple] = {}
+        self._plan = _Plan(0, 0, self.depth)
 
     def reset_stats(self) -> None:
         """Start the counts of :attr:`stats` again."""
@@ -235,13 +289,13 @@ class SafetyFilter:
 
     def forget(self) -> None:
         """Drop the backup plans (call when copies start new episodes)."""
-        self._backup = {}
+        self._plan = _Plan(0, 0, self.depth)
 
     # ------------------------------------------------------------------ candidates
     @staticmethod
     def _spread(allowed: np.ndarray, pref: np.ndarray, n: int | None) -> tuple[np.ndarray, np.ndarray]:
         """Up to ``n`` (None: all) nodes per row of ``allowed`` (R, L): half the most preferred (``pref`` (R, L),
-        lower first), half spread evenly over the rest. Nodes (R, n) (-1 padded) and their ranks (R, n) (inf)."""
+        finite, lower first), half spread evenly over the rest. Nodes (R, n) (-1 padded) and their ranks (R, n)."""
         key = np.where(allowed, pref, np.inf)
         order = np.argsort(key, axis=1, kind="stable")
         count, l = allowed.sum(axis=1), allowed.shape[1]
@@ -260,69 +314,78 @@ class SafetyFilter:
         return np.where(keep, nodes, -1), np.where(keep, ranks, np.inf)
 
     def _proposal_pref(self, proposed: np.ndarray, scores) -> np.ndarray:
-        """(B, U, L) preference (lower first): minus the policy's scores, or the distance to the proposed node;
-        the proposal itself first."""
+        """(B, U, L) finite preference (lower first): minus the policy's scores (a score of -inf or NaN: last), or
+        the distance to the proposed node; the proposal itself first."""
         if scores is not None:
             pref = -np.asarray(scores, float)
+            pref = np.where(np.isfinite(pref), pref, 1e300)
         else:
             diff = self.lattice[None, None] - self.lattice[proposed][:, :, None]
             pref = np.hypot(diff[..., 0], diff[..., 1])
-        pref = pref.copy()
         b, u = proposed.shape
-        pref[np.arange(b)[:, None], np.arange(u)[None], proposed] = -1e300          # first, and a candidate
+        pref[np.arange(b)[:, None], np.arange(u)[None], proposed] = -1e300
         return pref
+
+    def _check(self, state: SafetyState, proposed, scores) -> np.ndarray:
+        """``proposed`` as checked integer nodes (B, U); ``scores`` and ``state`` checked against the filter."""
+        proposed = np.asarray(proposed)
+        b, u = state.xy.shape[:2]
+        lat = len(self.lattice)
+        if state.masks.shape != (b, u, lat):
+            raise ValueError(f"SafetyFilter.filter: the state's masks have shape {state.masks.shape}, the filter's "
+                             f"lattice {lat} nodes; make the filter with the env's config and lattice")
+        if proposed.shape != (b, u) or not np.issubdtype(proposed.dtype, np.integer):
+            raise ValueError(f"SafetyFilter.filter: proposed must be integer nodes of shape {(b, u)}, got "
+                             f"{proposed.dtype} {proposed.shape}")
+        if proposed.size and (proposed.min() < 0 or proposed.max() >= lat):
+            raise ValueError(f"SafetyFilter.filter: proposed nodes must be in [0, {lat - 1}], got "
+                             f"[{proposed.min()}, {proposed.max()}]")
+        if scores is not None and (np.shape(scores) != (b, u, lat) or np.asarray(scores).dtype.kind not in "fiu"):
+            raise ValueError(f"SafetyFilter.filter: scores must be real numbers of shape {(b, u, lat)} (copies, UAVs, "
+                             f"nodes), got {np.asarray(scores).dtype} {np.shape(scores)}")
+        if state.q_ahead.shape[1] < self.depth:
+            raise ValueError(f"SafetyFilter.filter: the state looks {state.q_ahead.shape[1]} slot(s) ahead, the "
+                             f"filter plans {self.depth}; pass env.safety_state(depth={self.depth})")
+        return proposed
 
     # ------------------------------------------------------------------ the filter
     def filter(self, state: SafetyState, proposed, scores=None) -> np.ndarray:
         """The team's nodes (B, U) for the proposals ``proposed`` (B, U) (lattice indices), under ``state`` (the
         env's :meth:`~covert_env.envs.waypoint_queries.WaypointQueries.safety_state` with ``depth`` >= this
-        filter's). ``scores`` (B, U, L), higher preferred (e.g. a policy's logits), orders the alternatives;
-        default: the nodes nearest to the proposal first."""
-        proposed = np.asarray(proposed)
-        b, u = state.xy.shape[:2]
-        if proposed.shape != (b, u) or not np.issubdtype(proposed.dtype, np.integer):
-            raise ValueError(f"SafetyFilter.filter: proposed must be integer nodes of shape {(b, u)}, got "
-                             f"{proposed.dtype} {proposed.shape}")
-        if proposed.size and (proposed.min() < 0 or proposed.max() >= len(self.lattice)):
-            raise ValueError(f"SafetyFilter.filter: proposed nodes must be in [0, {len(self.lattice) - 1}], got "
-                             f"[{proposed.min()}, {proposed.max()}]")
-        if state.q_ahead.shape[1] < self.depth:
-            raise ValueError(f"SafetyFilter.filter: the state looks {state.q_ahead.shape[1]} slot(s) ahead, the "
-                             f"filter plans {self.depth}; pass env.safety_state(depth={self.depth})")
-        c = self.config
-        tops = _near_tops(state.tops, c.altitude, c.d_safe2)
+        filter's). ``scores`` (B, U, L), higher preferred (e.g. a policy's logits; -inf: last), orders the
+        alternatives; default: the nodes nearest to the proposal first."""
+        proposed = self._check(state, proposed, scores)
+        b, u = proposed.shape
+        tops = _near_tops(state.tops, self.config.altitude, self.config.d_safe2)
         pref = self._proposal_pref(proposed, scores)
-        out = proposed.copy()
+        out, plan = proposed.copy(), _Plan(b, u, self.depth)
         pending = np.ones(b, bool)
-        plans: dict[int, tuple] = {}
         # A few candidates first; every allowed node where they leave no certified move; then every node.
         for widen, n in ((False, self.candidates), (False, None), (True, None)):
             if not pending.any():
                 break
             allowed = np.ones_like(state.masks) if widen else state.masks.copy()
             allowed[np.arange(b)[:, None], np.arange(u)[None], proposed] = True
-            done = self._certified(state, tops, allowed, pref, pending, out, plans, n)
-            if widen:
-                self.stats.widened += int(done.sum())
-            pending &= ~done
-        for j in np.nonzero(pending)[0]:                         # the backup plan (rare: a loop over those copies)
-            held = self._backup.get(int(j))
-            if held is not None and held[0] == int(state.slot[j]) and np.allclose(held[1][0], state.xy[j], atol=1e-6):
-                out[j] = held[2][0]
-                pending[j] = False
-                self.stats.backups += 1
-                if len(held[2]) > 1:
-                    plans[int(j)] = (held[0] + 1, held[1][1:], held[2][1:])
+            pending &= ~self._certified(state, tops, allowed, pref, pending, out, plan, n)
+        held = pending & self._plan.holds(state)                      # the backup plan's next move
+        if held.any():
+            out[held] = self._plan.nodes[held, 0]
+            plan.shift_from(self._plan, held)
+            pending &= ~held
         if pending.any():
             self._uncertified(state, tops, pref, pending, out)
-        self._backup = plans
+        self._plan = plan
+        moved = out != proposed
         self.stats.team_slots += b
-        self.stats.changed += int((out != proposed).sum())
+        self.stats.changed += int(moved.sum())
+        self.stats.backups += int(held.sum())
+        off_mask = ~np.take_along_axis(state.masks, out[..., None], axis=2)[..., 0]
+        self.stats.widened += int((moved & off_mask).any(axis=1).sum())
         return out
 
-    def _certified(self, state, tops, allowed, pref, rows, out, plans, n) -> np.ndarray:
+    def _certified(self, state, tops, allowed, pref, rows, out, plan, n) -> np.ndarray:
         """Certified joint moves for the copies ``rows`` among ``n`` (None: all) of the ``allowed`` nodes per UAV;
-        fills ``out`` and the next slots' backup ``plans``, returns the copies done."""
+        fills ``out`` and the next slots' backup ``plan``, returns the copies done."""
         b, u, _ = allowed.shape
         idx = np.nonzero(rows)[0]
         nodes, rank = self._spread(allowed[idx].reshape(len(idx) * u, -1), pref[idx].reshape(len(idx) * u, -1), n)
@@ -337,21 +400,20 @@ class SafetyFilter:
             if not todo.any():
                 break
             ok, plan_nodes, plan_starts, stuck = self._certificate(state, tops, idx, fl, choice, todo)
-            for j in np.nonzero(ok)[0]:
-                out[idx[j]] = nodes[j, uavs, choice[j]]
-                d = int((plan_nodes[j] >= 0).all(axis=1).sum())
-                if d:
-                    plans[int(idx[j])] = (int(state.slot[idx[j]]) + 1, plan_starts[j, :d], plan_nodes[j, :d])
+            j = np.nonzero(ok)[0]
+            out[idx[j]] = np.take_along_axis(nodes[j], choice[j][..., None], axis=2)[..., 0]
+            plan.set(idx[j], state.slot[idx[j]] + 1, plan_starts[j], plan_nodes[j])
             done |= ok
             todo &= ~ok
             if not todo.any():
                 break
             # Set aside the stuck UAV's node and that of the teammate ending nearest to it, and negotiate again.
-            for j in np.nonzero(todo)[0]:
-                ends = fl.paths[j, uavs, choice[j], -1]
-                d = np.hypot(*(ends - ends[stuck[j]]).T)
-                d[stuck[j]] = np.inf
-                rank[j, [stuck[j], int(np.argmin(d))], choice[j, [stuck[j], int(np.argmin(d))]]] = np.inf
+            r = np.nonzero(todo)[0]
+            ends = fl.paths[r[:, None], uavs, choice[r], -1]                                      # (R, U, 2)
+            gap = np.hypot(*np.moveaxis(ends - ends[np.arange(len(r)), stuck[r]][:, None], -1, 0))
+            gap[np.arange(len(r)), stuck[r]] = np.inf
+            for who in (stuck[r], np.argmin(gap, axis=1)):
+                rank[r, who, choice[r, who]] = np.inf
         result = np.zeros(b, bool)
         result[idx[done]] = True
         return result
@@ -431,13 +493,11 @@ class SafetyFilter:
         nodes, rank = nodes.reshape(len(idx), u, -1), rank.reshape(len(idx), u, -1)
         fl = _Flights(self, state.xy[idx], state.theta[idx], state.q_next[idx], state.phi_next[idx], nodes, tops[idx])
         choice, unsettled = _negotiate(self, fl, rank, np.ones(len(idx), bool))
-        for j in range(len(idx)):
-            if unsettled[j]:
-                self.stats.infeasible += 1
-                self.stats.events.append((int(idx[j]), int(state.slot[idx[j]])))
-            else:
-                out[idx[j]] = nodes[j, np.arange(u), choice[j]]
-                self.stats.uncertified += 1
+        j = np.nonzero(~unsettled)[0]
+        out[idx[j]] = np.take_along_axis(nodes[j], choice[j][..., None], axis=2)[..., 0]
+        self.stats.uncertified += len(j)
+        self.stats.infeasible += int(unsettled.sum())
+        self.stats.events += [(int(c), int(state.slot[c])) for c in idx[unsettled]]
 
 
 class ShieldedPolicy:
@@ -471,17 +531,24 @@ class ShieldedPolicy:
 
     def episode_counts(self) -> dict:
         """What the filter did since the last ``reset`` (the keys of :class:`FilterStats`, without the events)."""
+        if self.safety is None:
+            raise RuntimeError(f"{self.name}: episode_counts() before reset(); call reset(env) first")
         now = self.safety.stats.as_dict()
         return {k: v - self._at_reset[k] for k, v in now.items()}
 
     def act(self, observations, env):
+        if self.safety is None:
+            raise RuntimeError(f"{self.name}: act() before reset(); call reset(env) first")
         par = self._parallel(env)
         acts = self.policy.act(observations, env)
         agents = list(par.possible_agents)
         if not isinstance(acts, dict):                                      # a Gymnasium single-UAV env
             return int(self.safety.filter(par.safety_state(self.safety.depth), np.array([[int(acts)]]))[0, 0])
-        if any(a not in acts for a in agents):                              # the episode is ending
+        if not par.agents:                                                  # the episode has ended
             return acts
+        if set(acts) != set(agents):
+            raise ValueError(f"{self.name}: the policy acted for {sorted(acts)}, the team is {agents}; the filter "
+                             "needs one node for every UAV")
         proposed = np.array([[int(acts[a]) for a in agents]])
         scores = getattr(self.policy, "last_logits", None)
         if scores is not None and np.shape(scores) != (len(agents), len(par.lattice)):
