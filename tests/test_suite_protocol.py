@@ -144,7 +144,7 @@ def test_an_episode_row_reports_the_teams_smallest_separation():
 
 def test_every_policy_spec_has_a_tier():
     """The leaderboards' three tiers (and the references): what a team reads to act decides its tier."""
-    from training.catalogue import TIERS, spec_tier
+    from training.tiers import TIERS, spec_tier
 
     assert list(TIERS) == ["planner", "hybrid", "learned", "reference"]
     cases = {"dp": "planner", "dp-binned@waypoint+shield": "planner", "pretrained:dp-cost": "hybrid",

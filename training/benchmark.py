@@ -50,10 +50,10 @@ import numpy as np
 
 from covert_env.command_line import MAX_SCENES, UsageError, int_range, output_dir, positive_int, run_main
 from covert_env.tasks import DEFAULT_TASKS, SUITE_VERSION, TASKS, TEST_SCENES, get_task, resolve_tasks
-from training.catalogue import TIERS, spec_tier
 from training.common import ordered_results
 from training.evaluate import COLUMNS, LEARNED_PREFIXES, evaluate, load_policy, split_seeds, summarise, write_outputs
 from training.stats import iqm, mean, probability_of_improvement, stratified_bootstrap_ci
+from training.tiers import TIERS, spec_tier
 
 __all__ = ["DEFAULT_POLICIES", "DEFAULT_SCENES", "REFERENCE", "aggregate", "main", "normalised_scores", "run_cells"]
 

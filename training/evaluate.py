@@ -74,12 +74,12 @@ from covert_env.envs.vector import MAX_SCENE_SEED
 from covert_env.families import FAMILIES, HELD_OUT_SEEDS
 from covert_env.scene_set import SceneSet
 from covert_env.tasks import get_task
-from training.catalogue import TIERS, spec_tier
 from training.pretrained import PRETRAINED_DIR, load_learned, pretrained_names
 from training.pretrained.learned_cost import is_cost_planner_card, load_cost_planner
 from training.rllib_ppo import load_policy as load_rllib
 from training.runs import read_run_json, run_env
 from training.stats import iqm, probability_of_improvement, stratified_bootstrap_ci
+from training.tiers import TIERS, spec_tier
 from training.trust import require_trust
 
 #: The spec suffix that flies a waypoint policy through the safety filter.

@@ -43,8 +43,8 @@ import numpy as np
 from covert_env.angles import wrap_heading
 from covert_env.envs import batch
 from covert_env.envs.waypoint_queries import SafetyState
-from covert_env.reach import reach_table
 from covert_env.metrics import top_clearance
+from covert_env.reach import reach_table
 from covert_env.separation import priority_negotiation, separation
 
 __all__ = ["FilterStats", "SafetyFilter", "ShieldedPolicy", "path_separation", "top_clearance_along"]
