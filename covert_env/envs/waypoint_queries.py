@@ -7,9 +7,9 @@ nodes a UAV could still reach from each end next slot. None of them changes the 
 
 from __future__ import annotations
 
-import numpy as np
-
 from typing import NamedTuple
+
+import numpy as np
 
 from covert_env.envs import batch
 from covert_env.envs.arguments import int_arg
