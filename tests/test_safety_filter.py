@@ -235,3 +235,26 @@ def test_a_shielded_learned_team_keeps_its_name_and_mode(tmp_path):
                  "--no-progress"]) == 0
     board = (tmp_path / "leaderboard.md").read_text()
     assert "| learned | mappo (mappo)@waypoint+shield | waypoint |" in board
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.integers(3, 41), arrays(float, (2, 2), elements=st.floats(-8.0, 8.0)),
+       arrays(float, (2,), elements=st.floats(0.0, 6.3)), arrays(float, (2,), elements=st.floats(0.5, 50.0)),
+       arrays(float, (2,), elements=st.floats(-3.0, 3.0)), arrays(float, (3,), elements=st.floats(-30.0, 30.0)))
+def test_the_sample_bounds_keep_eqs_2_and_3_between_the_samples(n, xy, theta, v, w, top):
+    """Whatever two flights do (constant speed, turn rate within w_max, as every slot's flight), distances of at
+    least sample_bounds at n instants keep d_safe1 and d_safe2 at every instant in between."""
+    from covert_env.config import Config
+    from covert_env.envs.safety_filter import sample_bounds
+    from covert_env.flight import fly_arc
+
+    c = Config()
+    sep_need, top_need = sample_bounds(c, n)
+    coarse, fine = np.linspace(0.0, c.delta, n), np.linspace(0.0, c.delta, 40 * (n - 1) + 1)
+    pc = fly_arc(xy[None], theta[None], v[None], w[None], coarse)[0][0]          # (2, n, 2)
+    pf = fly_arc(xy[None], theta[None], v[None], w[None], fine)[0][0]
+    if np.hypot(*(pc[0] - pc[1]).T).min() >= sep_need:
+        assert np.hypot(*(pf[0] - pf[1]).T).min() >= c.d_safe1
+    tops = np.array([[top[0], top[1], c.altitude - abs(top[2]) / 3]])
+    if top_clearance(pc[0], c.altitude, tops).min() >= top_need:
+        assert top_clearance(pf[0], c.altitude, tops).min() >= c.d_safe2

@@ -26,8 +26,9 @@ Per slot and copy, in order, the first that exists:
 5. the proposals, unchanged: an ``infeasible`` event (no safe joint move was found), counted with its copy and
    slot. The filter never fails silently.
 
-The samples are the instants the metric of a ``path_samples=201`` env measures. Between two of them the distance
-of two UAVs can dip by at most (2 v_max dt)^2 / (8 d_safe1) + v_max w_max dt^2 / 4, about 1 cm at the defaults.
+The guarantee holds between the samples too: at the samples the filter asks for a little more than d_safe1 and
+d_safe2 (:func:`sample_bounds`: 7 mm and 1 mm more at 201 samples and the default kinematics, 0.7 m and 0.1 m at 21),
+enough that no flight can come closer in between.
 
 Work per slot: the candidates' flights (U ``candidates`` per copy), O(U^2 M P) distances per negotiation, and per
 slot of the backup plan the same for ``certificate_candidates`` nodes; the later stages only where the earlier
@@ -47,7 +48,7 @@ from covert_env.metrics import top_clearance
 from covert_env.reach import reach_table
 from covert_env.separation import priority_negotiation, separation
 
-__all__ = ["FilterStats", "SafetyFilter", "ShieldedPolicy", "path_separation", "top_clearance_along"]
+__all__ = ["FilterStats", "SafetyFilter", "ShieldedPolicy", "path_separation", "sample_bounds", "top_clearance_along"]
 
 #: Far-away stand-in for padded polytope tops (m below the plane): never within d_safe2 of a UAV.
 _FAR = 1e9
@@ -63,6 +64,21 @@ def top_clearance_along(paths: np.ndarray, tops: np.ndarray, altitude: float) ->
     """Eq. 3's distance over a slot (:func:`~covert_env.metrics.top_clearance`): from UAVs at ``altitude`` flying
     ``paths`` (N, M, P, 2) to the nearest of their copy's tops (N, T, 3), at the samples after the start; (N, M)."""
     return top_clearance(paths[:, :, 1:], altitude, tops).min(axis=-1)
+
+
+def sample_bounds(config, samples: int) -> tuple[float, float]:
+    """What the filter asks at its ``samples`` instants so that eqs. 2 and 3 hold at every instant of the slot:
+    (UAV-UAV distance, distance to a top), m.
+
+    Between two instants dt apart a UAV flies a chord of at most v_max dt and strays from it by at most
+    v_max w_max dt^2 / 8 (its speed is constant over the slot, its turn rate at most w_max). Where both ends of a
+    chord are at least D' from a point (a top, or, for two UAVs, the origin of their relative position, whose chord
+    is at most twice as long and strays twice as far), the chord passes at least sqrt(D'^2 - chord^2 / 4) from it.
+    So D' = sqrt((D + stray)^2 + chord^2 / 4) keeps D at every instant."""
+    dt = config.delta / (samples - 1)
+    chord, stray = config.v_max * dt, config.v_max * config.w_max * dt * dt / 8.0
+    return (float(np.sqrt((config.d_safe1 + 2 * stray) ** 2 + chord ** 2)),
+            float(np.sqrt((config.d_safe2 + stray) ** 2 + chord ** 2 / 4)))
 
 
 def _near_tops(tops: np.ndarray, altitude: float, d_safe2: float) -> np.ndarray:
@@ -115,7 +131,7 @@ class _Flights:
         self.roomy = self.clear.copy()          # and ends end_margin clear of the tops: room to turn away next slot
         if tops.shape[1] and len(ci):
             gap = top_clearance_along(self.paths.reshape(b, u * m, -1, 2), tops, c.altitude).reshape(b, u, m)
-            self.clear &= gap >= c.d_safe2
+            self.clear &= gap >= flt.top_need
             end = top_clearance(self.paths[:, :, :, -1], c.altitude, tops)                     # (B, U, M)
             self.roomy &= self.clear & (end >= c.d_safe2 + flt.end_margin)
 
@@ -160,7 +176,7 @@ def _negotiate(flt: SafetyFilter, fl: _Flights, rank: np.ndarray, rows: np.ndarr
             if i:
                 past = chosen[copies[:, None], order[:, :i]]                                # (B, i, P, 2)
                 gap = path_separation(fl.paths[copies, k][:, :, None], past[:, None])      # (B, M, i)
-                ok &= (np.nan_to_num(gap, nan=np.inf) >= flt.config.d_safe1).all(axis=2)
+                ok &= (np.nan_to_num(gap, nan=np.inf) >= flt.sep_need).all(axis=2)
                 if room > 0:
                     end = fl.paths[copies, k][:, :, None, -1] - past[:, None, :, -1]          # (B, M, i, 2)
                     roomy = ok & (np.nan_to_num(np.hypot(end[..., 0], end[..., 1]), nan=np.inf)
@@ -186,7 +202,7 @@ def _repair(flt, fl: _Flights, rank, usable, j: int, k: int, settled: np.ndarray
     """Copy ``j``'s UAV ``k`` has no move separated from the ``settled`` UAVs: re-choose it together with one of
     them (every pair of their candidates, the nearest settled UAV first); ``pick`` and ``chosen`` change in place.
     Pairs are screened at every fourth sample, then checked at all of them, the best-ranked pair first."""
-    d1 = flt.config.d_safe1
+    d1 = flt.sep_need
     near = np.hypot(*(fl.paths[j, k, 0, 0] - chosen[j, settled, 0]).T) if len(settled) else np.zeros(0)
     for h in settled[np.argsort(near, kind="stable")]:
         rest = settled[settled != h]
@@ -279,6 +295,7 @@ class SafetyFilter:
         self.certificate_candidates, self.rounds = int(certificate_candidates), int(rounds)
         self.room, self.end_margin = float(room), float(end_margin)
         self.times = np.linspace(0.0, 1.0, self.samples) * config.delta
+        self.sep_need, self.top_need = sample_bounds(config, self.samples)
         self._reach = reach_table(config.v_max, config.w_max, config.delta)
         self.stats = FilterStats()
         self._plan = _Plan(0, 0, self.depth)
@@ -356,7 +373,7 @@ class SafetyFilter:
         alternatives; default: the nodes nearest to the proposal first."""
         proposed = self._check(state, proposed, scores)
         b, u = proposed.shape
-        tops = _near_tops(state.tops, self.config.altitude, self.config.d_safe2)
+        tops = _near_tops(state.tops, self.config.altitude, self.top_need)
         pref = self._proposal_pref(proposed, scores)
         out, plan = proposed.copy(), _Plan(b, u, self.depth)
         pending = np.ones(b, bool)
