@@ -1,6 +1,7 @@
 """The safety filter's guarantee, tested as an outsider would: masked-random waypoints flown through it on every task.
 
     python benchmarks/safety_filter.py [--episodes 4] [--tasks paper-6uav towers-6uav ...] [--policy random]
+    python benchmarks/safety_filter.py --throughput [--sizes 16 64] [--samples 201 21] [--depth 3 1]
 
 Flies ``--policy`` (default masked-random waypoints) through :class:`covert_env.envs.safety_filter.ShieldedPolicy`
 on each task's first ``--episodes`` held-out scenes (``reset(seed=s, options={"scene_seed": s})``, s from the
@@ -13,6 +14,10 @@ path:
 beside what the filter did (``FilterStats``: changed choices, widened to nodes outside the masks, backup plans
 flown, uncertified moves, infeasible events). It prints one row per task and the totals, and exits with status 1
 if a violation happened in a slot the filter did not report as infeasible (a silent failure).
+
+``--throughput`` instead measures what the filter costs a learner: env-steps per CPU-second of the waypoint vector
+env (``--task``, kinematic mask, masked-random actions, automatic resets) with and without
+:class:`~covert_env.envs.safety_filter.SafetyFilteredVectorEnv`, in the same run, per B and filter setting.
 """
 
 from __future__ import annotations
@@ -20,13 +25,14 @@ from __future__ import annotations
 import argparse
 import shlex
 import sys
+import time
 
 import numpy as np
 from tqdm import tqdm
 
 import covert_env
 from baselines.policies import make_policy
-from covert_env.envs.safety_filter import FilterStats, ShieldedPolicy
+from covert_env.envs.safety_filter import FilterStats, SafetyFilteredVectorEnv, ShieldedPolicy
 from covert_env.metrics import top_clearance
 from covert_env.separation import team_separation
 from covert_env.tasks import TASKS, get_task
@@ -82,6 +88,42 @@ class _Unfiltered:
         return self.policy.act(observations, env)
 
 
+def throughput(b: int, task: str, seconds: float, **filter_kw) -> float:
+    """Env-steps per CPU-second of ``b`` copies of ``task`` (kinematic mask, masked-random actions), through the
+    filter with ``filter_kw`` (None: the raw env), after one warm-up step."""
+    venv = covert_env.vector_env(num_envs=b, task=task, action_mode="waypoint", mask_mode="kinematic")
+    if filter_kw.pop("filtered", True):
+        venv = SafetyFilteredVectorEnv(venv, **filter_kw)
+    venv.reset(seed=list(range(b)))
+    rng = np.random.default_rng(0)
+
+    def step():
+        masks = venv.action_masks().astype(bool)
+        venv.step(np.argmax(np.where(masks, rng.random(masks.shape), -1.0), axis=2))
+
+    step()
+    t0, n = time.process_time(), 0
+    while time.process_time() - t0 < seconds:
+        step()
+        n += 1
+    rate = b * n / (time.process_time() - t0)
+    venv.close()
+    return rate
+
+
+def _throughput(args) -> int:
+    print("| B | filter | env-steps per CPU-second | / raw env |")
+    print("|---|---|---|---|")
+    for b in args.sizes:
+        raw = throughput(b, args.task, args.seconds, filtered=False)
+        print(f"| {b} | none (raw env) | {raw:,.0f} | 1.00 |", flush=True)
+        for samples in args.filter_samples:
+            for depth in args.depth:
+                rate = throughput(b, args.task, args.seconds, samples=samples, depth=depth)
+                print(f"| {b} | samples {samples}, depth {depth} | {rate:,.0f} | {rate / raw:.2f} |", flush=True)
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--tasks", nargs="+", default=list(TASKS), help="suite tasks (default: all 36)")
@@ -90,11 +132,20 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--policy", default="random", help="a built-in waypoint policy (default random: masked)")
     parser.add_argument("--samples", type=int, default=201, help="path samples per slot of the env (default 201)")
     parser.add_argument("--no-filter", action="store_true", help="fly the policy without the filter (the baseline)")
+    parser.add_argument("--throughput", action="store_true", help="measure env-steps/s with and without the filter")
+    parser.add_argument("--task", default="paper-3uav", help="--throughput's task (default paper-3uav)")
+    parser.add_argument("--sizes", type=int, nargs="+", default=[16, 64], help="--throughput's B (default 16 64)")
+    parser.add_argument("--filter-samples", type=int, nargs="+", default=[201, 21],
+                        help="--throughput's filter samples per slot (default 201 21)")
+    parser.add_argument("--depth", type=int, nargs="+", default=[3, 1], help="--throughput's plan depths (default 3 1)")
+    parser.add_argument("--seconds", type=float, default=5.0, help="--throughput's CPU-seconds per row (default 5)")
     parser.add_argument("--no-progress", action="store_true")
     args = parser.parse_args(argv)
     if args.episodes < 1:
         parser.error(f"--episodes must be >= 1, got {args.episodes}")
     print("command:", shlex.join(["python", "benchmarks/safety_filter.py", *(argv or sys.argv[1:])]))
+    if args.throughput:
+        return _throughput(args)
     print("| task | " + " | ".join(COLUMNS) + " |")
     print("|---" * (len(COLUMNS) + 1) + "|")
     total = dict.fromkeys(COLUMNS, 0)

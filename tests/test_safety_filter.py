@@ -258,3 +258,26 @@ def test_the_sample_bounds_keep_eqs_2_and_3_between_the_samples(n, xy, theta, v,
     tops = np.array([[top[0], top[1], c.altitude - abs(top[2]) / 3]])
     if top_clearance(pc[0], c.altitude, tops).min() >= top_need:
         assert top_clearance(pf[0], c.altitude, tops).min() >= c.d_safe2
+
+
+def test_a_vector_env_through_the_filter_keeps_eqs_2_and_3():
+    """The learner's env: masked-random proposals in, the filter's nodes flown; the env's own per-step separation
+    and terrain cost (at 201 path samples) show no violation, and the infos say what the filter changed."""
+    from covert_env.envs.safety_filter import SafetyFilteredVectorEnv
+
+    venv = SafetyFilteredVectorEnv(covert_env.vector_env(num_envs=4, task="towers-6uav", action_mode="waypoint",
+                                                         path_samples=201))
+    venv.reset(seed=[8_000_010 + j for j in range(4)])
+    rng = np.random.default_rng(3)
+    changed = 0
+    for _ in range(12):
+        masks = venv.action_masks().astype(bool)
+        proposed = np.argmax(np.where(masks, rng.random(masks.shape), -1.0), axis=2)
+        _, _, _, _, infos = venv.step(proposed)
+        assert (infos["separation"] >= venv.config.d_safe1).all() and (infos["cost_terrain"] == 0).all()
+        assert not infos["shield_infeasible"].any()
+        np.testing.assert_array_equal(infos["shield_changed"], infos["shield_node"] != proposed)
+        changed += int(infos["shield_changed"].sum())
+    assert changed > 0 and venv.safety.stats.team_slots == 48
+    with pytest.raises(ValueError, match="for waypoint teams, got an env with action_mode='unicycle'"):
+        SafetyFilteredVectorEnv(covert_env.vector_env(num_envs=1, n_uavs=3))

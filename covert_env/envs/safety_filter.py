@@ -48,7 +48,8 @@ from covert_env.metrics import top_clearance
 from covert_env.reach import reach_table
 from covert_env.separation import priority_negotiation, separation
 
-__all__ = ["FilterStats", "SafetyFilter", "ShieldedPolicy", "path_separation", "sample_bounds", "top_clearance_along"]
+__all__ = ["FilterStats", "SafetyFilter", "SafetyFilteredVectorEnv", "ShieldedPolicy", "path_separation",
+           "sample_bounds", "top_clearance_along"]
 
 #: Far-away stand-in for padded polytope tops (m below the plane): never within d_safe2 of a UAV.
 _FAR = 1e9
@@ -573,3 +574,57 @@ class ShieldedPolicy:
         safe = self.safety.filter(par.safety_state(self.safety.depth), proposed,
                                   None if scores is None else np.asarray(scores, float)[None])[0]
         return {a: int(safe[i]) for i, a in enumerate(agents)}
+
+
+class SafetyFilteredVectorEnv:
+    """A waypoint vector env (:func:`covert_env.vector_env`) whose actions fly through a :class:`SafetyFilter`:
+    the env a learner trains in when the filter is part of the world (action projection).
+
+    ``step(actions)`` takes the learner's nodes (B, U) as proposals and steps the env with the filter's nodes, so
+    the rewards, costs and next observations are those of the moves actually flown; a learner keeps the
+    probabilities of its own proposals. Everything else is the wrapped env's (attributes are forwarded). The infos
+    gain, per copy and UAV:
+
+    ============================  ==============================================================================
+    ``shield_node`` (int64)        the node flown
+    ``shield_changed`` (bool)      the filter replaced the proposal
+    ``shield_infeasible`` (bool)   the copy's team had no safe joint move this slot (the proposals were flown)
+    ============================  ==============================================================================
+
+    Args:
+        venv: a :class:`~covert_env.envs.vector.CovertSensingVectorEnv` in waypoint mode.
+        **filter_kw: :class:`SafetyFilter`'s settings (``samples``, ``depth``, ``candidates``, ...).
+    """
+
+    def __init__(self, venv, **filter_kw):
+        if getattr(venv, "action_mode", None) != "waypoint":
+            raise ValueError(f"SafetyFilteredVectorEnv: the safety filter is for waypoint teams, got an env with "
+                             f"action_mode={getattr(venv, 'action_mode', None)!r}")
+        self.env = venv
+        #: The filter; its ``stats`` count what it did since construction.
+        self.safety = SafetyFilter(venv.config, venv.lattice, **filter_kw)
+
+    def __getattr__(self, name):
+        if name == "env":                                   # before __init__ set it (copy, pickle)
+            raise AttributeError(name)
+        return getattr(self.env, name)
+
+    def reset(self, *, seed=None, options=None):
+        """The env's ``reset``; a copy reset here starts without a backup plan."""
+        return self.env.reset(seed=seed, options=options)
+
+    def step(self, actions):
+        """One slot with the filter's nodes for the proposals ``actions`` (B, U); see the class docstring."""
+        b, u = self.env.num_envs, len(self.env.possible_agents)
+        proposed = batch.waypoint_actions(actions, (b, u), len(self.env.lattice), self.env.possible_agents)
+        before = len(self.safety.stats.events)
+        flown = self.safety.filter(self.env.safety_state(self.safety.depth), proposed)
+        obs, rewards, terminations, truncations, infos = self.env.step(flown)
+        infeasible = np.zeros((b, u), bool)
+        for copy, _ in self.safety.stats.events[before:]:
+            infeasible[copy] = True
+        infos = dict(infos, shield_node=flown, shield_changed=flown != proposed, shield_infeasible=infeasible)
+        return obs, rewards, terminations, truncations, infos
+
+    def close(self) -> None:
+        self.env.close()
