@@ -47,6 +47,7 @@ from covert_env.envs.waypoint_queries import SafetyState
 from covert_env.metrics import top_clearance
 from covert_env.reach import reach_table
 from covert_env.separation import priority_negotiation, separation
+from covert_env.zone import to_target_frame
 
 __all__ = ["FilterStats", "SafetyFilter", "SafetyFilteredVectorEnv", "ShieldedPolicy", "path_separation",
            "sample_bounds", "top_clearance_along"]
@@ -470,9 +471,7 @@ class SafetyFilter:
         lat = len(self.lattice)
         reach = self._reach.reachable(xy, th, q, phi, self.lattice, exact=False)                  # (R, U, L)
         reach[~reach.any(axis=2)] = True                 # no node reachable: best efforts toward every node
-        c, s = np.cos(phi)[:, None], np.sin(phi)[:, None]
-        dx, dy = xy[..., 0] - q[:, None, 0], xy[..., 1] - q[:, None, 1]
-        place = np.stack([c * dx + s * dy, -s * dx + c * dy], axis=-1)                          # target frame
+        place = to_target_frame(xy - q[:, None], np.cos(phi)[:, None], np.sin(phi)[:, None])      # (R, U, 2)
         diff = self.lattice[None, None] - place[:, :, None]
         pref = np.hypot(diff[..., 0], diff[..., 1])
         out = np.full((r, u), -1)
