@@ -310,7 +310,8 @@ def build_parser(prog: str = "python -m training.benchmark") -> argparse.Argumen
                    help=f"task names of covert_env.tasks, or the groups 'core' (the protocol's {len(DEFAULT_TASKS)} "
                         f"tasks) and 'all' ({len(TASKS)})")
     p.add_argument("--policies", nargs="+", default=list(DEFAULT_POLICIES),
-                   help=f"policy specs (as covert-env evaluate); at least one dp* planner; {REFERENCE} is always run")
+                   help=f"policy specs (as covert-env evaluate); at least one dp* planner (a dp*+shield planner "
+                        f"counts: the best planner of the run is each task's score 1); {REFERENCE} is always run")
     p.add_argument("--scenes", type=int_range(1, min(TEST_SCENES, MAX_SCENES)), default=DEFAULT_SCENES,
                    help=f"test scenes per task, in [1, {TEST_SCENES}] (the first of each task's held-out scenes)")
     p.add_argument("--jobs", type=positive_int, default=os.cpu_count() or 1, help="worker processes, >= 1")
