@@ -691,6 +691,8 @@ def test_list_shows_what_the_commands_accept(capsys):
     out = capsys.readouterr().out
     assert all(f" {t} " in out for t in TASKS) and all(f"  {f} " in out for f in FAMILIES)
     assert all(p in out for p in POLICIES) and "dp-path" in out and "hold-centre (or heuristic)" in out
+    assert "SPEC+shield" in out and "random@waypoint+shield" in out
+    assert "tier reference" not in out                       # no shipped weight can be a reference
     for name in pretrained_names():
         tier = "hybrid" if name.startswith("dp-cost") else "learned"
         assert re.search(rf"^  {re.escape(name)} +{tier} ", out, re.M), name

@@ -39,7 +39,9 @@ def _policies() -> list[str]:
     return ["Policies (covert-env evaluate / benchmark --policies SPEC, optionally SPEC@unicycle or SPEC@waypoint):",
             f"  built in: {', '.join(names)}",
             "  from files: pretrained:NAME (below), mappo:PATH, sb3:PATH and rllib:PATH (these two hold pickles: "
-            "--trust-checkpoint)"]
+            "--trust-checkpoint)",
+            "  SPEC+shield: a waypoint team flown through the safety filter, which keeps eqs. 2 and 3 on the flown "
+            "path (e.g. random@waypoint+shield, dp-path+shield)"]
 
 
 def _weights() -> list[str]:
