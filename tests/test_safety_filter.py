@@ -235,6 +235,12 @@ def test_a_shielded_learned_team_keeps_its_name_and_mode(tmp_path):
                  "--no-progress"]) == 0
     board = (tmp_path / "leaderboard.md").read_text()
     assert "| learned | mappo (mappo)@waypoint+shield | waypoint |" in board
+    # A seed group keeps the filter in its row's name (beside the same group unfiltered).
+    pretrained = "training/pretrained/mappo.npz"
+    assert main(["--policies", f"mappo:{pretrained},{pretrained}", f"mappo:{pretrained},{pretrained}+shield",
+                 "--episodes", "1", "--out", str(tmp_path / "group"), "--no-progress"]) == 0
+    board = (tmp_path / "group" / "leaderboard.md").read_text()
+    assert "| learned | mappo (2 seeds) | waypoint |" in board and "| learned | mappo (2 seeds)+shield |" in board
 
 
 @settings(max_examples=300, deadline=None)

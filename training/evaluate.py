@@ -699,9 +699,12 @@ def _main(args: argparse.Namespace, command: str) -> int:
         builtin = spec in caches
         name = (spec if builtin else getattr(pol, "name", spec)) if len(group) == 1 else \
             f"{spec.split(':', 1)[0]} ({len(group)} seeds)"
-        bare = spec.removesuffix(SHIELD_SUFFIX)
-        if "@" in bare and not name.removesuffix(SHIELD_SUFFIX).endswith(bare.rsplit("@", 1)[1]):
-            name = f"{name.removesuffix(SHIELD_SUFFIX)}@{bare.rsplit('@', 1)[1]}{SHIELD_SUFFIX if bare != spec else ''}"
+        # The row names the mode and the filter as the spec does: NAME[@MODE][+shield].
+        bare, shield = spec.removesuffix(SHIELD_SUFFIX), SHIELD_SUFFIX if spec.endswith(SHIELD_SUFFIX) else ""
+        name = name.removesuffix(SHIELD_SUFFIX)
+        if "@" in bare and not name.endswith(bare.rsplit("@", 1)[1]):
+            name = f"{name}@{bare.rsplit('@', 1)[1]}"
+        name += shield
         while name in results:
             name += "'"
         t0 = time.perf_counter()
