@@ -41,59 +41,22 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from covert_env.angles import wrap_heading
 from covert_env.envs import batch
+from covert_env.envs.joint_moves import (
+    Flights,
+    Plan,
+    near_tops,
+    negotiate,
+    path_separation,
+    sample_bounds,
+    top_clearance_along,
+)
 from covert_env.envs.waypoint_queries import SafetyState
-from covert_env.metrics import top_clearance
 from covert_env.reach import reach_table
-from covert_env.separation import priority_negotiation, separation
 from covert_env.zone import to_target_frame
 
 __all__ = ["FilterStats", "SafetyFilter", "SafetyFilteredVectorEnv", "ShieldedPolicy", "path_separation",
            "sample_bounds", "top_clearance_along"]
-
-#: Far-away stand-in for padded polytope tops (m below the plane): never within d_safe2 of a UAV.
-_FAR = 1e9
-
-
-def path_separation(paths: np.ndarray, others: np.ndarray) -> np.ndarray:
-    """Eq. 2's distance over a slot (:func:`~covert_env.separation.separation`) at the common instants after the
-    start (samples 1 to P - 1) of ``paths`` and ``others`` (..., P, 2), broadcast against each other."""
-    return separation(paths[..., 1:, :], others[..., 1:, :])
-
-
-def top_clearance_along(paths: np.ndarray, tops: np.ndarray, altitude: float) -> np.ndarray:
-    """Eq. 3's distance over a slot (:func:`~covert_env.metrics.top_clearance`): from UAVs at ``altitude`` flying
-    ``paths`` (N, M, P, 2) to the nearest of their copy's tops (N, T, 3), at the samples after the start; (N, M)."""
-    return top_clearance(paths[:, :, 1:], altitude, tops).min(axis=-1)
-
-
-def sample_bounds(config, samples: int) -> tuple[float, float]:
-    """What the filter asks at its ``samples`` instants so that eqs. 2 and 3 hold at every instant of the slot:
-    (UAV-UAV distance, distance to a top), m.
-
-    Between two instants dt apart a UAV flies a chord of at most v_max dt and strays from it by at most
-    v_max w_max dt^2 / 8 (its speed is constant over the slot, its turn rate at most w_max). Where both ends of a
-    chord are at least D' from a point (a top, or, for two UAVs, the origin of their relative position, whose chord
-    is at most twice as long and strays twice as far), the chord passes at least sqrt(D'^2 - chord^2 / 4) from it.
-    So D' = sqrt((D + stray)^2 + chord^2 / 4) keeps D at every instant."""
-    dt = config.delta / (samples - 1)
-    chord, stray = config.v_max * dt, config.v_max * config.w_max * dt * dt / 8.0
-    return (float(np.sqrt((config.d_safe1 + 2 * stray) ** 2 + chord ** 2)),
-            float(np.sqrt((config.d_safe2 + stray) ** 2 + chord ** 2 / 4)))
-
-
-def _near_tops(tops: np.ndarray, altitude: float, d_safe2: float) -> np.ndarray:
-    """The tops (B, T', 3) that can come within d_safe2 of the flight plane; padded far below it."""
-    tops = np.asarray(tops, float)
-    near = np.isfinite(tops).all(axis=-1) & (altitude - tops[..., 2] < d_safe2)
-    t = int(near.sum(axis=1).max()) if near.size else 0
-    out = np.zeros((len(tops), t, 3))
-    out[..., 2] = -_FAR
-    b, j = np.nonzero(near)
-    slot = np.cumsum(near, axis=1)[b, j] - 1
-    out[b, slot] = tops[b, j]
-    return out
 
 
 @dataclass
@@ -110,160 +73,6 @@ class FilterStats:
 
     def as_dict(self) -> dict:
         return {k: v for k, v in self.__dict__.items() if k != "events"}
-
-
-class _Flights:
-    """Candidate moves of B copies' U UAVs to M nodes each: paths (B, U, M, P, 2), end poses, clearance of eq. 3."""
-
-    def __init__(self, flt: SafetyFilter, xy, theta, q, phi, nodes, tops):
-        c = flt.config
-        self.nodes = nodes                                                   # (B, U, M), -1: none
-        ci, ui, mi = np.nonzero(nodes >= 0)
-        b, u, m = nodes.shape
-        self.paths = np.full((b, u, m, len(flt.times), 2), np.nan)
-        self.end_theta = np.full((b, u, m), np.nan)
-        if len(ci):
-            goals = batch.to_world_batch(flt.lattice[nodes[ci, ui, mi]][:, None], q[ci], phi[ci])   # (N, 1, 2)
-            path, end_theta, *_ = batch.fly_waypoints(xy[ci, ui][:, None], theta[ci, ui][:, None], goals, c,
-                                                      flt.times)
-            self.paths[ci, ui, mi] = path[:, 0]
-            self.end_theta[ci, ui, mi] = wrap_heading(end_theta[:, 0])
-        self.clear = np.zeros((b, u, m), bool)
-        self.clear[ci, ui, mi] = True
-        self.roomy = self.clear.copy()          # and ends end_margin clear of the tops: room to turn away next slot
-        if tops.shape[1] and len(ci):
-            gap = top_clearance_along(self.paths.reshape(b, u * m, -1, 2), tops, c.altitude).reshape(b, u, m)
-            self.clear &= gap >= flt.top_need
-            end = top_clearance(self.paths[:, :, :, -1], c.altitude, tops)                     # (B, U, M)
-            self.roomy &= self.clear & (end >= c.d_safe2 + flt.end_margin)
-
-    def take(self, idx: np.ndarray) -> _Flights:
-        """The flights of the copies ``idx`` alone."""
-        sub = object.__new__(_Flights)
-        for name in ("nodes", "paths", "end_theta", "clear", "roomy"):
-            setattr(sub, name, getattr(self, name)[idx])
-        return sub
-
-
-def _negotiate(flt: SafetyFilter, fl: _Flights, rank: np.ndarray, rows: np.ndarray, room: float = 0.0,
-               strict: bool = False) -> tuple[np.ndarray, np.ndarray]:
-    """Priority negotiation over the candidates of the copies ``rows`` (B,) bool: per UAV the index (into M) of its
-    best-ranked candidate (``rank`` (B, U, M), inf: not a candidate) that is clear and separated from the UAVs
-    settled before it; with ``room`` > 0, one that also ends at least d_safe1 + room from their ends where it has
-    one (a cramped end leaves the next slot little to choose from). Returns the choices (B, U) (-1 where a UAV had
-    none) and the copies left unsettled (B,). ``strict``: only moves that end ``end_margin`` clear of the tops
-    (a UAV that ends on the edge of a top's d_safe2, heading at it, has no clear move left)."""
-    full = np.full(rank.shape[:2], -1)
-    idx = np.nonzero(rows)[0]
-    if len(idx) == 0:
-        return full, np.zeros(len(rows), bool)
-    if len(idx) < len(rows):                          # only the copies asked about: negotiate on them alone
-        choice, unsettled = _negotiate(flt, fl.take(idx), rank[idx], np.ones(len(idx), bool), room, strict)
-        full[idx] = choice
-        out = np.zeros(len(rows), bool)
-        out[idx] = unsettled
-        return full, out
-    b, u, m = rank.shape
-    copies = np.arange(b)
-    choice = full
-    usable = (fl.roomy if strict else fl.clear) & np.isfinite(rank)
-
-    def settle(order, redo):
-        pick = np.full((b, u), -1)
-        stuck_at = np.full(b, u)
-        chosen = np.full((b, u, fl.paths.shape[3], 2), np.nan)
-        for i in range(u):
-            k = order[:, i]
-            ok = usable[copies, k] & redo[:, None]                                         # (B, M)
-            if i:
-                past = chosen[copies[:, None], order[:, :i]]                                # (B, i, P, 2)
-                gap = path_separation(fl.paths[copies, k][:, :, None], past[:, None])      # (B, M, i)
-                ok &= (np.nan_to_num(gap, nan=np.inf) >= flt.sep_need).all(axis=2)
-                if room > 0:
-                    end = fl.paths[copies, k][:, :, None, -1] - past[:, None, :, -1]          # (B, M, i, 2)
-                    roomy = ok & (np.nan_to_num(np.hypot(end[..., 0], end[..., 1]), nan=np.inf)
-                                  >= flt.config.d_safe1 + room).all(axis=2)
-                    ok = np.where(roomy.any(axis=1, keepdims=True), roomy, ok)
-            r = np.where(ok, rank[copies, k], np.inf)
-            best = np.argmin(r, axis=1)
-            has = np.isfinite(r[copies, best])
-            pick[copies, k] = np.where(has, best, -1)
-            chosen[copies[has], k[has]] = fl.paths[copies[has], k[has], best[has]]
-            # A UAV left without a move re-chooses together with one settled UAV (rare: a loop over those copies).
-            for j in np.nonzero(redo & ~has)[0] if i else ():
-                has[j] = _repair(flt, fl, rank, usable, j, int(k[j]), order[j, :i], pick, chosen)
-            stuck_at[(~has) & redo & (stuck_at == u)] = i
-        choice[redo] = pick[redo]
-        return stuck_at
-
-    unsettled = priority_negotiation(settle, b, u)
-    return choice, unsettled | (choice < 0).any(axis=1)
-
-
-def _repair(flt, fl: _Flights, rank, usable, j: int, k: int, settled: np.ndarray, pick, chosen) -> bool:
-    """Copy ``j``'s UAV ``k`` has no move separated from the ``settled`` UAVs: re-choose it together with one of
-    them (every pair of their candidates, the nearest settled UAV first); ``pick`` and ``chosen`` change in place.
-    Pairs are screened at every fourth sample, then checked at all of them, the best-ranked pair first."""
-    d1 = flt.sep_need
-    near = np.hypot(*(fl.paths[j, k, 0, 0] - chosen[j, settled, 0]).T) if len(settled) else np.zeros(0)
-    for h in settled[np.argsort(near, kind="stable")]:
-        rest = settled[settled != h]
-        ok_k, ok_h = usable[j, k].copy(), usable[j, h].copy()
-        if len(rest):
-            ok_k &= (np.nan_to_num(path_separation(fl.paths[j, k][:, None], chosen[j, rest][None]), nan=np.inf)
-                     >= d1).all(axis=1)
-            ok_h &= (np.nan_to_num(path_separation(fl.paths[j, h][:, None], chosen[j, rest][None]), nan=np.inf)
-                     >= d1).all(axis=1)
-        ck, ch = np.nonzero(ok_k)[0], np.nonzero(ok_h)[0]
-        if not len(ck) or not len(ch):
-            continue
-        # The screen in blocks of candidates of k (every pair at once is L^2 P / 4 floats: 500 MB at L = 577).
-        blocks = [np.nonzero(path_separation(fl.paths[j, k, ck[c0:c0 + 64]][:, None, ::4],
-                                             fl.paths[j, h, ch][None, :, ::4]) >= d1) for c0 in range(0, len(ck), 64)]
-        a = np.concatenate([blk[0] + 64 * n for n, blk in enumerate(blocks)])
-        b = np.concatenate([blk[1] for blk in blocks])
-        if not len(a):
-            continue
-        score = rank[j, k, ck[a]] + rank[j, h, ch[b]]
-        order = np.argsort(score, kind="stable")
-        for start in range(0, len(order), 256):
-            sel = order[start:start + 256]
-            exact = path_separation(fl.paths[j, k, ck[a[sel]]], fl.paths[j, h, ch[b[sel]]]) >= d1
-            if exact.any():
-                first = sel[np.argmax(exact)]
-                pick[j, k], pick[j, h] = ck[a[first]], ch[b[first]]
-                chosen[j, k], chosen[j, h] = fl.paths[j, k, pick[j, k]], fl.paths[j, h, pick[j, h]]
-                return True
-    return False
-
-
-class _Plan:
-    """The backup plans of B copies: from slot ``slot`` on, ``length`` joint moves ``nodes`` (B, D, U), each flown
-    from ``starts`` (B, D, U, 2)."""
-
-    def __init__(self, b: int, u: int, depth: int):
-        self.slot, self.length = np.full(b, -1), np.zeros(b, np.int64)
-        self.nodes, self.starts = np.full((b, depth, u), -1), np.full((b, depth, u, 2), np.nan)
-
-    def set(self, idx, slot, starts, nodes) -> None:
-        """Plans for the copies ``idx``: their leading steps with a node for every UAV."""
-        self.slot[idx], self.starts[idx], self.nodes[idx] = slot, starts, nodes
-        self.length[idx] = np.cumprod((nodes >= 0).all(axis=2), axis=1).sum(axis=1)
-
-    def holds(self, state: SafetyState) -> np.ndarray:
-        """(B,) the copies whose plan starts at this slot where their UAVs are (not a plan of an earlier episode)."""
-        if self.slot.shape != state.slot.shape or self.nodes.shape[2] != state.xy.shape[1]:
-            return np.zeros(len(state.slot), bool)
-        where = np.abs(self.starts[:, 0] - state.xy) <= 1e-6
-        return (self.slot == state.slot) & (self.length >= 1) & where.all(axis=(1, 2))
-
-    def shift_from(self, old: _Plan, idx) -> None:
-        """The copies ``idx`` keep the rest of ``old``'s plans (their first move is being flown)."""
-        idx = np.nonzero(idx)[0]
-        self.slot[idx] = old.slot[idx] + 1
-        self.length[idx] = old.length[idx] - 1
-        self.nodes[idx, :-1], self.starts[idx, :-1] = old.nodes[idx, 1:], old.starts[idx, 1:]
-        self.nodes[idx, -1], self.starts[idx, -1] = -1, np.nan
 
 
 class SafetyFilter:
@@ -300,7 +109,7 @@ class SafetyFilter:
         self.sep_need, self.top_need = sample_bounds(config, self.samples)
         self._reach = reach_table(config.v_max, config.w_max, config.delta)
         self.stats = FilterStats()
-        self._plan = _Plan(0, 0, self.depth)
+        self._plan = Plan(0, 0, self.depth)
 
     def reset_stats(self) -> None:
         """Start the counts of :attr:`stats` again."""
@@ -308,7 +117,7 @@ class SafetyFilter:
 
     def forget(self) -> None:
         """Drop the backup plans (call when copies start new episodes)."""
-        self._plan = _Plan(0, 0, self.depth)
+        self._plan = Plan(0, 0, self.depth)
 
     # ------------------------------------------------------------------ candidates
     @staticmethod
@@ -375,9 +184,9 @@ class SafetyFilter:
         alternatives; default: the nodes nearest to the proposal first."""
         proposed = self._check(state, proposed, scores)
         b, u = proposed.shape
-        tops = _near_tops(state.tops, self.config.altitude, self.top_need)
+        tops = near_tops(state.tops, self.config.altitude, self.top_need)
         pref = self._proposal_pref(proposed, scores)
-        out, plan = proposed.copy(), _Plan(b, u, self.depth)
+        out, plan = proposed.copy(), Plan(b, u, self.depth)
         pending = np.ones(b, bool)
         # A few candidates first; every allowed node where they leave no certified move; then every node.
         for widen, n in ((False, self.candidates), (False, None), (True, None)):
@@ -409,11 +218,11 @@ class SafetyFilter:
         idx = np.nonzero(rows)[0]
         nodes, rank = self._spread(allowed[idx].reshape(len(idx) * u, -1), pref[idx].reshape(len(idx) * u, -1), n)
         nodes, rank = nodes.reshape(len(idx), u, -1), rank.reshape(len(idx), u, -1)
-        fl = _Flights(self, state.xy[idx], state.theta[idx], state.q_next[idx], state.phi_next[idx], nodes, tops[idx])
+        fl = Flights(self, state.xy[idx], state.theta[idx], state.q_next[idx], state.phi_next[idx], nodes, tops[idx])
         done, todo = np.zeros(len(idx), bool), np.ones(len(idx), bool)
         uavs = np.arange(u)
         for attempt in range(self.rounds):
-            choice, unsettled = _negotiate(self, fl, rank, todo, room=self.room if attempt else 0.0,
+            choice, unsettled = negotiate(self, fl, rank, todo, room=self.room if attempt else 0.0,
                                            strict=attempt > 0)
             todo &= ~unsettled
             if not todo.any():
@@ -483,10 +292,10 @@ class SafetyFilter:
             sub = np.nonzero(todo)[0]
             nodes, rank = self._spread(reach[sub].reshape(-1, lat), pref[sub].reshape(-1, lat), n)
             nodes, rank = nodes.reshape(len(sub), u, -1), rank.reshape(len(sub), u, -1)
-            nf = _Flights(self, xy[sub], th[sub], q[sub], phi[sub], nodes, tops[sub])
-            pick, unsettled = _negotiate(self, nf, rank, np.ones(len(sub), bool), room=self.room, strict=True)
+            nf = Flights(self, xy[sub], th[sub], q[sub], phi[sub], nodes, tops[sub])
+            pick, unsettled = negotiate(self, nf, rank, np.ones(len(sub), bool), room=self.room, strict=True)
             if unsettled.any():
-                again, unsettled2 = _negotiate(self, nf, rank, unsettled)
+                again, unsettled2 = negotiate(self, nf, rank, unsettled)
                 pick[unsettled], unsettled = again[unsettled], unsettled2
             good = ~unsettled
             g = sub[good]
@@ -508,8 +317,8 @@ class SafetyFilter:
         allowed = np.ones((len(idx) * u, len(self.lattice)), bool)
         nodes, rank = self._spread(allowed, pref[idx].reshape(len(idx) * u, -1), None)
         nodes, rank = nodes.reshape(len(idx), u, -1), rank.reshape(len(idx), u, -1)
-        fl = _Flights(self, state.xy[idx], state.theta[idx], state.q_next[idx], state.phi_next[idx], nodes, tops[idx])
-        choice, unsettled = _negotiate(self, fl, rank, np.ones(len(idx), bool))
+        fl = Flights(self, state.xy[idx], state.theta[idx], state.q_next[idx], state.phi_next[idx], nodes, tops[idx])
+        choice, unsettled = negotiate(self, fl, rank, np.ones(len(idx), bool))
         j = np.nonzero(~unsettled)[0]
         out[idx[j]] = np.take_along_axis(nodes[j], choice[j][..., None], axis=2)[..., 0]
         self.stats.uncertified += len(j)
