@@ -37,7 +37,9 @@ def test_path_separation_is_the_closest_sample_after_the_start(a, b):
 @given(arrays(float, (2, 3, 5, 2), elements=coords), arrays(float, (2, 4, 3), elements=st.floats(-200, 70)))
 def test_top_clearance_along_is_the_metric_at_every_sample(paths, tops):
     got = top_clearance_along(paths, tops, 80.0)
-    want = np.stack([top_clearance(paths[i, :, 1:], 80.0, tops[i]).min(axis=-1) for i in range(2)])
+    # Eq. 3 written out: the 3-D distance from (x, y, 80) to each top of the copy, the closest over samples 1..P-1.
+    want = np.array([[min(np.sqrt((p[t, 0] - x) ** 2 + (p[t, 1] - y) ** 2 + (80.0 - z) ** 2)
+                          for t in range(1, 5) for x, y, z in tops[i]) for p in paths[i]] for i in range(2)])
     np.testing.assert_allclose(got, want, rtol=1e-12)
 
 
