@@ -93,54 +93,59 @@ class Flights:
 
 
 def negotiate(flt, fl: Flights, rank: np.ndarray, rows: np.ndarray, room: float = 0.0,
-               strict: bool = False) -> tuple[np.ndarray, np.ndarray]:
+               strict: bool = False, repair: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Priority negotiation over the candidates of the copies ``rows`` (B,) bool: per UAV the index (into M) of its
     best-ranked candidate (``rank`` (B, U, M), inf: not a candidate) that is clear and separated from the UAVs
     settled before it; with ``room`` > 0, one that also ends at least d_safe1 + room from their ends where it has
     one (a cramped end leaves the next slot little to choose from). Returns the choices (B, U) (-1 where a UAV had
     none) and the copies left unsettled (B,). ``strict``: only moves that end ``end_margin`` clear of the tops
-    (a UAV that ends on the edge of a top's d_safe2, heading at it, has no clear move left)."""
+    (a UAV that ends on the edge of a top's d_safe2, heading at it, has no clear move left). ``repair``: a UAV
+    left without a move re-chooses together with a settled UAV (:func:`_repair`); off, the copy stays unsettled."""
     full = np.full(rank.shape[:2], -1)
     idx = np.nonzero(rows)[0]
     if len(idx) == 0:
         return full, np.zeros(len(rows), bool)
     if len(idx) < len(rows):                          # only the copies asked about: negotiate on them alone
-        choice, unsettled = negotiate(flt, fl.take(idx), rank[idx], np.ones(len(idx), bool), room, strict)
+        choice, unsettled = negotiate(flt, fl.take(idx), rank[idx], np.ones(len(idx), bool), room, strict, repair)
         full[idx] = choice
         out = np.zeros(len(rows), bool)
         out[idx] = unsettled
         return full, out
     b, u, m = rank.shape
-    copies = np.arange(b)
     choice = full
     usable = (fl.roomy if strict else fl.clear) & np.isfinite(rank)
 
     def settle(order, redo):
-        pick = np.full((b, u), -1)
-        stuck_at = np.full(b, u)
-        chosen = np.full((b, u, fl.paths.shape[3], 2), np.nan)
+        rows = np.nonzero(redo)[0]                       # work on the copies to settle alone
+        at = np.arange(len(rows))
+        paths, use, rk, od = fl.paths[rows], usable[rows], rank[rows], order[rows]
+        pick = np.full((len(rows), u), -1)
+        stuck = np.full(len(rows), u)
+        chosen = np.full((len(rows), u, paths.shape[3], 2), np.nan)
         for i in range(u):
-            k = order[:, i]
-            ok = usable[copies, k] & redo[:, None]                                         # (B, M)
+            k = od[:, i]
+            ok, cand = use[at, k], paths[at, k]                                          # (R, M), (R, M, P, 2)
             if i:
-                past = chosen[copies[:, None], order[:, :i]]                                # (B, i, P, 2)
-                gap = path_separation(fl.paths[copies, k][:, :, None], past[:, None])      # (B, M, i)
+                past = chosen[at[:, None], od[:, :i]]                                     # (R, i, P, 2)
+                gap = path_separation(cand[:, :, None], past[:, None])                   # (R, M, i)
                 ok &= (np.nan_to_num(gap, nan=np.inf) >= flt.sep_need).all(axis=2)
                 if room > 0:
-                    end = fl.paths[copies, k][:, :, None, -1] - past[:, None, :, -1]          # (B, M, i, 2)
+                    end = cand[:, :, None, -1] - past[:, None, :, -1]                       # (R, M, i, 2)
                     roomy = ok & (np.nan_to_num(np.hypot(end[..., 0], end[..., 1]), nan=np.inf)
                                   >= flt.config.d_safe1 + room).all(axis=2)
                     ok = np.where(roomy.any(axis=1, keepdims=True), roomy, ok)
-            r = np.where(ok, rank[copies, k], np.inf)
+            r = np.where(ok, rk[at, k], np.inf)
             best = np.argmin(r, axis=1)
-            has = np.isfinite(r[copies, best])
-            pick[copies, k] = np.where(has, best, -1)
-            chosen[copies[has], k[has]] = fl.paths[copies[has], k[has], best[has]]
+            has = np.isfinite(r[at, best])
+            pick[at, k] = np.where(has, best, -1)
+            chosen[at[has], k[has]] = cand[at[has], best[has]]
             # A UAV left without a move re-chooses together with one settled UAV (rare: a loop over those copies).
-            for j in np.nonzero(redo & ~has)[0] if i else ():
-                has[j] = _repair(flt, fl, rank, usable, j, int(k[j]), order[j, :i], pick, chosen)
-            stuck_at[(~has) & redo & (stuck_at == u)] = i
-        choice[redo] = pick[redo]
+            for j in np.nonzero(~has)[0] if i and repair else ():
+                has[j] = _repair(flt, fl, rank, usable, rows[j], int(k[j]), od[j, :i], pick[j], chosen[j])
+            stuck[~has & (stuck == u)] = i
+        choice[rows] = pick
+        stuck_at = np.full(b, u)
+        stuck_at[rows] = stuck
         return stuck_at
 
     unsettled = priority_negotiation(settle, b, u)
@@ -149,17 +154,18 @@ def negotiate(flt, fl: Flights, rank: np.ndarray, rows: np.ndarray, room: float 
 
 def _repair(flt, fl: Flights, rank, usable, j: int, k: int, settled: np.ndarray, pick, chosen) -> bool:
     """Copy ``j``'s UAV ``k`` has no move separated from the ``settled`` UAVs: re-choose it together with one of
-    them (every pair of their candidates, the nearest settled UAV first); ``pick`` and ``chosen`` change in place.
+    them (every pair of their candidates, the nearest settled UAV first); the copy's ``pick`` (U,) and ``chosen``
+    paths (U, P, 2) change in place.
     Pairs are screened at every fourth sample, then checked at all of them, the best-ranked pair first."""
     d1 = flt.sep_need
-    near = np.hypot(*(fl.paths[j, k, 0, 0] - chosen[j, settled, 0]).T) if len(settled) else np.zeros(0)
+    near = np.hypot(*(fl.paths[j, k, 0, 0] - chosen[settled, 0]).T) if len(settled) else np.zeros(0)
     for h in settled[np.argsort(near, kind="stable")]:
         rest = settled[settled != h]
         ok_k, ok_h = usable[j, k].copy(), usable[j, h].copy()
         if len(rest):
-            ok_k &= (np.nan_to_num(path_separation(fl.paths[j, k][:, None], chosen[j, rest][None]), nan=np.inf)
+            ok_k &= (np.nan_to_num(path_separation(fl.paths[j, k][:, None], chosen[rest][None]), nan=np.inf)
                      >= d1).all(axis=1)
-            ok_h &= (np.nan_to_num(path_separation(fl.paths[j, h][:, None], chosen[j, rest][None]), nan=np.inf)
+            ok_h &= (np.nan_to_num(path_separation(fl.paths[j, h][:, None], chosen[rest][None]), nan=np.inf)
                      >= d1).all(axis=1)
         ck, ch = np.nonzero(ok_k)[0], np.nonzero(ok_h)[0]
         if not len(ck) or not len(ch):
@@ -178,8 +184,8 @@ def _repair(flt, fl: Flights, rank, usable, j: int, k: int, settled: np.ndarray,
             exact = path_separation(fl.paths[j, k, ck[a[sel]]], fl.paths[j, h, ch[b[sel]]]) >= d1
             if exact.any():
                 first = sel[np.argmax(exact)]
-                pick[j, k], pick[j, h] = ck[a[first]], ch[b[first]]
-                chosen[j, k], chosen[j, h] = fl.paths[j, k, pick[j, k]], fl.paths[j, h, pick[j, h]]
+                pick[k], pick[h] = ck[a[first]], ch[b[first]]
+                chosen[k], chosen[h] = fl.paths[j, k, pick[k]], fl.paths[j, h, pick[h]]
                 return True
     return False
 

@@ -13,12 +13,16 @@ as it was checked: where a later slot finds no certified move, the plan's next m
 
 Per slot and copy, in order, the first that exists:
 
-1. a certified joint move among ``candidates`` of the allowed nodes (the env's masks) per UAV, found by priority
+1. a certified joint move among a few of the allowed nodes (the env's masks) per UAV, found by priority
    negotiation (:func:`~covert_env.separation.priority_negotiation`): each UAV takes its most preferred node that
-   is clear of the tops and separated from the paths already settled, the proposal first; a UAV left without one
-   re-chooses together with a settled UAV. Where the certificate fails, the nodes of the UAV it left stuck and of
-   the teammate ending nearest to it are set aside and the team negotiates again, preferring roomy ends (ends
-   d_safe1 + ``room`` apart and d_safe2 + ``end_margin`` from the tops), ``rounds`` times;
+   is clear of the tops and separated from the paths already settled, the proposal first. The search widens in
+   stages, each for the copies the one before left without a certified move: the proposals alone (their
+   certificate tries the 2 nodes per UAV and later slot that keep its place behind the target best); 8 nodes
+   per UAV (certificates over 8); ``candidates`` nodes (certificates over ``certificate_candidates``, then over
+   every reachable node). In the last, a UAV left without a move re-chooses together with a settled UAV (pair
+   repair). Where a certificate fails, the nodes of the UAV it left stuck and of the teammate ending nearest to
+   it are set aside and the team negotiates again, preferring roomy ends (ends d_safe1 + ``room`` apart and
+   d_safe2 + ``end_margin`` from the tops), up to ``rounds`` times;
 2. the same among every allowed node, then among every lattice node (a node outside the mask is flown as the env
    flies it, flagged infeasible by the env);
 3. the backup plan's next move: ``backups``;
@@ -30,14 +34,16 @@ The guarantee holds between the samples too: at the samples the filter asks for 
 d_safe2 (:func:`sample_bounds`: 7 mm and 1 mm more at 201 samples and the default kinematics, 0.7 m and 0.1 m at 21),
 enough that no flight can come closer in between.
 
-Work per slot: the candidates' flights (U ``candidates`` per copy), O(U^2 M P) distances per negotiation, and per
-slot of the backup plan the same for ``certificate_candidates`` nodes; the later stages only where the earlier
-leave a copy without a move.
+Work per slot and copy: O(U^2 M P) distances per negotiation among M candidates per UAV, the flights of the
+candidates, and per slot of the backup plan the same for its candidates. A copy whose proposals are kept costs
+about 4 U flights (the proposals and 2 per UAV and later slot) and the distances between them; the later stages
+run only for the copies the earlier leave without a certified move.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
@@ -75,6 +81,16 @@ class FilterStats:
         return {k: v for k, v in self.__dict__.items() if k != "events"}
 
 
+class _Stage(NamedTuple):
+    """One stage of the filter's search for a certified joint move."""
+
+    widen: bool                 # every lattice node a candidate, not only the allowed ones
+    candidates: int | None      # nodes tried per UAV for this slot (None: all)
+    certificate: tuple          # nodes tried per UAV and slot of the backup plan, in turn (None: every reachable)
+    rounds: int                 # negotiations whose certificate failed before the next stage
+    repair: bool                # pair repair (joint_moves._repair) where a UAV is left without a move
+
+
 class SafetyFilter:
     """Keeps eqs. 2 and 3 along the flown path for any waypoint team (see the module docstring).
 
@@ -110,6 +126,14 @@ class SafetyFilter:
         self._reach = reach_table(config.v_max, config.w_max, config.delta)
         self.stats = FilterStats()
         self._plan = Plan(0, 0, self.depth)
+        full = (self.certificate_candidates, None)
+        # Cheapest first; most copies are done by the first stage, whose work is a few flights per UAV.
+        self._search = (_Stage(False, 1, (2,), 1, False),                   # the proposals, keeping places after
+                        _Stage(False, 8, (8,), 2, False),                   # a few alternatives
+                        _Stage(False, self.candidates, (self.certificate_candidates,), self.rounds, False),
+                        _Stage(False, self.candidates, full, self.rounds, True),
+                        _Stage(False, None, full, self.rounds, True),       # every allowed node
+                        _Stage(True, None, full, self.rounds, True))        # every lattice node
 
     def reset_stats(self) -> None:
         """Start the counts of :attr:`stats` again."""
@@ -125,8 +149,16 @@ class SafetyFilter:
         """Up to ``n`` (None: all) nodes per row of ``allowed`` (R, L): half the most preferred (``pref`` (R, L),
         finite, lower first), half spread evenly over the rest. Nodes (R, n) (-1 padded) and their ranks (R, n)."""
         key = np.where(allowed, pref, np.inf)
-        order = np.argsort(key, axis=1, kind="stable")
         count, l = allowed.sum(axis=1), allowed.shape[1]
+        if n is not None and n <= 2:                      # the best two are the spread of two: no full sort
+            rows, key, best = np.arange(len(key)), key.copy(), []
+            for _ in range(n):                            # argmin takes the first of equals, as a stable sort
+                best.append(np.argmin(key, axis=1))
+                key[rows, best[-1]] = np.inf
+            nodes = np.stack(best, axis=1)
+            keep = np.arange(n) < count[:, None]
+            return np.where(keep, nodes, -1), np.where(keep, np.take_along_axis(pref, nodes, axis=1), np.inf)
+        order = np.argsort(key, axis=1, kind="stable")
         if n is None or n >= count.max():
             n = max(int(count.max()), 1)
             nodes = order[:, :n]
@@ -188,13 +220,12 @@ class SafetyFilter:
         pref = self._proposal_pref(proposed, scores)
         out, plan = proposed.copy(), Plan(b, u, self.depth)
         pending = np.ones(b, bool)
-        # A few candidates first; every allowed node where they leave no certified move; then every node.
-        for widen, n in ((False, self.candidates), (False, None), (True, None)):
+        for stage in self._search:
             if not pending.any():
                 break
-            allowed = np.ones_like(state.masks) if widen else state.masks.copy()
+            allowed = np.ones_like(state.masks) if stage.widen else state.masks.copy()
             allowed[np.arange(b)[:, None], np.arange(u)[None], proposed] = True
-            pending &= ~self._certified(state, tops, allowed, pref, pending, out, plan, n)
+            pending &= ~self._certified(state, tops, allowed, pref, pending, out, plan, stage)
         held = pending & self._plan.holds(state)                      # the backup plan's next move
         if held.any():
             out[held] = self._plan.nodes[held, 0]
@@ -211,23 +242,24 @@ class SafetyFilter:
         self.stats.widened += int((moved & off_mask).any(axis=1).sum())
         return out
 
-    def _certified(self, state, tops, allowed, pref, rows, out, plan, n) -> np.ndarray:
-        """Certified joint moves for the copies ``rows`` among ``n`` (None: all) of the ``allowed`` nodes per UAV;
-        fills ``out`` and the next slots' backup ``plan``, returns the copies done."""
+    def _certified(self, state, tops, allowed, pref, rows, out, plan, stage: _Stage) -> np.ndarray:
+        """Certified joint moves for the copies ``rows`` among ``stage.candidates`` (None: all) of the ``allowed``
+        nodes per UAV; fills ``out`` and the next slots' backup ``plan``, returns the copies done."""
         b, u, _ = allowed.shape
         idx = np.nonzero(rows)[0]
-        nodes, rank = self._spread(allowed[idx].reshape(len(idx) * u, -1), pref[idx].reshape(len(idx) * u, -1), n)
+        nodes, rank = self._spread(allowed[idx].reshape(len(idx) * u, -1), pref[idx].reshape(len(idx) * u, -1),
+                                   stage.candidates)
         nodes, rank = nodes.reshape(len(idx), u, -1), rank.reshape(len(idx), u, -1)
         fl = Flights(self, state.xy[idx], state.theta[idx], state.q_next[idx], state.phi_next[idx], nodes, tops[idx])
         done, todo = np.zeros(len(idx), bool), np.ones(len(idx), bool)
         uavs = np.arange(u)
-        for attempt in range(self.rounds):
+        for attempt in range(stage.rounds):
             choice, unsettled = negotiate(self, fl, rank, todo, room=self.room if attempt else 0.0,
-                                           strict=attempt > 0)
+                                           strict=attempt > 0, repair=stage.repair)
             todo &= ~unsettled
             if not todo.any():
                 break
-            ok, plan_nodes, plan_starts, stuck = self._certificate(state, tops, idx, fl, choice, todo)
+            ok, plan_nodes, plan_starts, stuck = self._certificate(state, tops, idx, fl, choice, todo, stage)
             j = np.nonzero(ok)[0]
             out[idx[j]] = np.take_along_axis(nodes[j], choice[j][..., None], axis=2)[..., 0]
             plan.set(idx[j], state.slot[idx[j]] + 1, plan_starts[j], plan_nodes[j])
@@ -246,7 +278,7 @@ class SafetyFilter:
         result[idx[done]] = True
         return result
 
-    def _certificate(self, state, tops, idx, fl, choice, rows):
+    def _certificate(self, state, tops, idx, fl, choice, rows, stage: _Stage):
         """For the copies ``rows`` (of ``idx``) whose joint move ``choice`` is settled: a backup plan of safe joint
         moves for the next ``depth`` slots (those the episode has) from where it ends. Returns ok (R,), the plan's
         nodes (R, D, U) and start positions (R, D, U, 2), and per failed copy the UAV left stuck (R,)."""
@@ -263,7 +295,8 @@ class SafetyFilter:
                 break
             plan_starts[j[sub], d] = xy[sub]
             q, phi = state.q_ahead[idx[j[sub]], d], state.phi_ahead[idx[j[sub]], d]
-            nodes, good, ends, end_th, stuck_uav = self._safe_step(xy[sub], th[sub], q, phi, tops[idx[j[sub]]])
+            nodes, good, ends, end_th, stuck_uav = self._safe_step(xy[sub], th[sub], q, phi, tops[idx[j[sub]]],
+                                                                   stage)
             plan_nodes[j[sub[good]], d] = nodes[good]
             xy[sub[good]], th[sub[good]] = ends[good], end_th[good]
             alive[sub[~good]] = False
@@ -272,9 +305,10 @@ class SafetyFilter:
         ok[j[alive]] = True
         return ok, plan_nodes, plan_starts, stuck
 
-    def _safe_step(self, xy, th, q, phi, tops):
-        """One slot of a backup plan from poses (R, U): a safe joint move among the nodes each UAV can reach
-        (lattice at q, phi), the nodes that keep its place behind the target first, roomy ends where there are.
+    def _safe_step(self, xy, th, q, phi, tops, stage: _Stage):
+        """One slot of a backup plan from poses (R, U): a safe joint move among ``stage.certificate`` of the nodes
+        each UAV can reach (lattice at q, phi), the nodes that keep its place behind the target first, roomy ends
+        where there are.
         Returns nodes (R, U), found (R,), end positions (R, U, 2) and headings (R, U), the stuck UAV (R,)."""
         r, u = th.shape
         lat = len(self.lattice)
@@ -288,14 +322,15 @@ class SafetyFilter:
         stuck = np.zeros(r, np.int64)
         ends, end_th = np.full((r, u, 2), np.nan), np.full((r, u), np.nan)
         todo = np.ones(r, bool)
-        for n in (self.certificate_candidates, None):          # a few nodes, then every reachable one
+        for n in stage.certificate:
             sub = np.nonzero(todo)[0]
             nodes, rank = self._spread(reach[sub].reshape(-1, lat), pref[sub].reshape(-1, lat), n)
             nodes, rank = nodes.reshape(len(sub), u, -1), rank.reshape(len(sub), u, -1)
             nf = Flights(self, xy[sub], th[sub], q[sub], phi[sub], nodes, tops[sub])
-            pick, unsettled = negotiate(self, nf, rank, np.ones(len(sub), bool), room=self.room, strict=True)
+            pick, unsettled = negotiate(self, nf, rank, np.ones(len(sub), bool), room=self.room, strict=True,
+                                        repair=stage.repair)
             if unsettled.any():
-                again, unsettled2 = negotiate(self, nf, rank, unsettled)
+                again, unsettled2 = negotiate(self, nf, rank, unsettled, repair=stage.repair)
                 pick[unsettled], unsettled = again[unsettled], unsettled2
             good = ~unsettled
             g = sub[good]
