@@ -59,20 +59,22 @@ def near_tops(tops: np.ndarray, altitude: float, d_safe2: float) -> np.ndarray:
 
 
 class Flights:
-    """Candidate moves of B copies' U UAVs to M nodes each: paths (B, U, M, P, 2), end poses, clearance of eq. 3.
-    ``flt`` here and below is the :class:`~covert_env.envs.safety_filter.SafetyFilter` whose settings apply."""
+    """Candidate moves of B copies' U UAVs to M nodes each: paths (B, U, M, P, 2) at ``samples`` instants (one of
+    the filter's :attr:`~covert_env.envs.safety_filter.SafetyFilter.grids`), end poses, clearance of eq. 3, and
+    what eqs. 2 and 3 ask at those instants (``sep_need``, ``top_need``: :func:`sample_bounds`). ``flt`` here and
+    below is the :class:`~covert_env.envs.safety_filter.SafetyFilter` whose settings apply."""
 
-    def __init__(self, flt, xy, theta, q, phi, nodes, tops):
+    def __init__(self, flt, xy, theta, q, phi, nodes, tops, samples: int):
         c = flt.config
+        times, self.sep_need, self.top_need = flt.grids[samples]
         self.nodes = nodes                                                   # (B, U, M), -1: none
         ci, ui, mi = np.nonzero(nodes >= 0)
         b, u, m = nodes.shape
-        self.paths = np.full((b, u, m, len(flt.times), 2), np.nan)
+        self.paths = np.full((b, u, m, len(times), 2), np.nan)
         self.end_theta = np.full((b, u, m), np.nan)
         if len(ci):
             goals = batch.to_world_batch(flt.lattice[nodes[ci, ui, mi]][:, None], q[ci], phi[ci])   # (N, 1, 2)
-            path, end_theta, *_ = batch.fly_waypoints(xy[ci, ui][:, None], theta[ci, ui][:, None], goals, c,
-                                                      flt.times)
+            path, end_theta, *_ = batch.fly_waypoints(xy[ci, ui][:, None], theta[ci, ui][:, None], goals, c, times)
             self.paths[ci, ui, mi] = path[:, 0]
             self.end_theta[ci, ui, mi] = wrap_heading(end_theta[:, 0])
         self.clear = np.zeros((b, u, m), bool)
@@ -80,7 +82,7 @@ class Flights:
         self.roomy = self.clear.copy()          # and ends end_margin clear of the tops: room to turn away next slot
         if tops.shape[1] and len(ci):
             gap = top_clearance_along(self.paths.reshape(b, u * m, -1, 2), tops, c.altitude).reshape(b, u, m)
-            self.clear &= gap >= flt.top_need
+            self.clear &= gap >= self.top_need
             end = top_clearance(self.paths[:, :, :, -1], c.altitude, tops)                     # (B, U, M)
             self.roomy &= self.clear & (end >= c.d_safe2 + flt.end_margin)
 
@@ -89,6 +91,7 @@ class Flights:
         sub = object.__new__(Flights)
         for name in ("nodes", "paths", "end_theta", "clear", "roomy"):
             setattr(sub, name, getattr(self, name)[idx])
+        sub.sep_need, sub.top_need = self.sep_need, self.top_need
         return sub
 
 
@@ -128,7 +131,7 @@ def negotiate(flt, fl: Flights, rank: np.ndarray, rows: np.ndarray, room: float 
             if i:
                 past = chosen[at[:, None], od[:, :i]]                                     # (R, i, P, 2)
                 gap = path_separation(cand[:, :, None], past[:, None])                   # (R, M, i)
-                ok &= (np.nan_to_num(gap, nan=np.inf) >= flt.sep_need).all(axis=2)
+                ok &= (np.nan_to_num(gap, nan=np.inf) >= fl.sep_need).all(axis=2)
                 if room > 0:
                     end = cand[:, :, None, -1] - past[:, None, :, -1]                       # (R, M, i, 2)
                     roomy = ok & (np.nan_to_num(np.hypot(end[..., 0], end[..., 1]), nan=np.inf)
@@ -157,7 +160,7 @@ def _repair(flt, fl: Flights, rank, usable, j: int, k: int, settled: np.ndarray,
     them (every pair of their candidates, the nearest settled UAV first); the copy's ``pick`` (U,) and ``chosen``
     paths (U, P, 2) change in place.
     Pairs are screened at every fourth sample, then checked at all of them, the best-ranked pair first."""
-    d1 = flt.sep_need
+    d1 = fl.sep_need
     near = np.hypot(*(fl.paths[j, k, 0, 0] - chosen[settled, 0]).T) if len(settled) else np.zeros(0)
     for h in settled[np.argsort(near, kind="stable")]:
         rest = settled[settled != h]

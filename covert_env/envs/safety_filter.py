@@ -32,7 +32,9 @@ Per slot and copy, in order, the first that exists:
 
 The guarantee holds between the samples too: at the samples the filter asks for a little more than d_safe1 and
 d_safe2 (:func:`sample_bounds`: 7 mm and 1 mm more at 201 samples and the default kinematics, 0.7 m and 0.1 m at 21),
-enough that no flight can come closer in between.
+enough that no flight can come closer in between. The backup plan's moves are checked at ``certificate_samples``
+instants (21 by default) in the first stages, and at ``samples`` in the stages with pair repair: either way a
+safe move, with more room asked at fewer instants.
 
 Work per slot and copy: O(U^2 M P) distances per negotiation among M candidates per UAV, the flights of the
 candidates, and per slot of the backup plan the same for its candidates. A copy whose proposals are kept costs
@@ -89,6 +91,7 @@ class _Stage(NamedTuple):
     certificate: tuple          # nodes tried per UAV and slot of the backup plan, in turn (None: every reachable)
     rounds: int                 # negotiations whose certificate failed before the next stage
     repair: bool                # pair repair (joint_moves._repair) where a UAV is left without a move
+    certificate_samples: int    # instants per slot at which the backup plan's moves are checked
 
 
 class SafetyFilter:
@@ -97,6 +100,7 @@ class SafetyFilter:
     Args:
         config: the env's :class:`~covert_env.config.Config`; lattice: its waypoint lattice (L, 2).
         samples: instants per slot at which eqs. 2 and 3 are checked (start and end included), >= 2.
+        certificate_samples: the same for the backup plan's moves in the first stages, in [2, samples].
         depth: slots after this one that a certificate plans safe moves for (the backup plan), >= 1.
         candidates: nodes tried per UAV and slot; certificate_candidates: per UAV and slot of the backup plan.
         rounds: negotiations per slot whose certificate failed before the filter tries more nodes.
@@ -104,12 +108,17 @@ class SafetyFilter:
             plan's); end_margin: and ends at least d_safe2 + end_margin (m) from the tops.
     """
 
-    def __init__(self, config, lattice, *, samples: int = 201, depth: int = 3, candidates: int = 48,
-                 certificate_candidates: int = 32, rounds: int = 4, room: float = 5.0, end_margin: float = 2.0):
-        for name, v, lo in (("samples", samples, 2), ("depth", depth, 1), ("candidates", candidates, 2),
+    def __init__(self, config, lattice, *, samples: int = 201, certificate_samples: int = 21, depth: int = 3,
+                 candidates: int = 48, certificate_candidates: int = 32, rounds: int = 4, room: float = 5.0,
+                 end_margin: float = 2.0):
+        for name, v, lo in (("samples", samples, 2), ("certificate_samples", certificate_samples, 2),
+                            ("depth", depth, 1), ("candidates", candidates, 2),
                             ("certificate_candidates", certificate_candidates, 1), ("rounds", rounds, 1)):
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
                 raise ValueError(f"SafetyFilter: {name} must be an integer >= {lo}, got {v!r}")
+        if certificate_samples > samples:
+            raise ValueError(f"SafetyFilter: certificate_samples must be at most samples ({samples}), got "
+                             f"{certificate_samples}")
         for name, v in (("room", room), ("end_margin", end_margin)):
             if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not 0 <= v < np.inf:
                 raise ValueError(f"SafetyFilter: {name} must be a finite number >= 0 (m), got {v!r}")
@@ -118,22 +127,24 @@ class SafetyFilter:
             raise ValueError(f"SafetyFilter: lattice must be finite target-frame offsets of shape (L, 2), L >= 1, "
                              f"got shape {lattice.shape}")
         self.config, self.lattice = config, lattice
-        self.samples, self.depth, self.candidates = int(samples), int(depth), int(candidates)
+        self.samples, self.certificate_samples = int(samples), int(certificate_samples)
+        self.depth, self.candidates = int(depth), int(candidates)
         self.certificate_candidates, self.rounds = int(certificate_candidates), int(rounds)
         self.room, self.end_margin = float(room), float(end_margin)
-        self.times = np.linspace(0.0, 1.0, self.samples) * config.delta
-        self.sep_need, self.top_need = sample_bounds(config, self.samples)
+        #: Per number of instants: the instants (s) and what eqs. 2 and 3 ask there (m, :func:`sample_bounds`).
+        self.grids = {n: (np.linspace(0.0, 1.0, n) * config.delta, *sample_bounds(config, n))
+                      for n in {self.samples, self.certificate_samples}}
         self._reach = reach_table(config.v_max, config.w_max, config.delta)
         self.stats = FilterStats()
         self._plan = Plan(0, 0, self.depth)
-        full = (self.certificate_candidates, None)
+        full, coarse, fine = (self.certificate_candidates, None), self.certificate_samples, self.samples
         # Cheapest first; most copies are done by the first stage, whose work is a few flights per UAV.
-        self._search = (_Stage(False, 1, (2,), 1, False),                   # the proposals, keeping places after
-                        _Stage(False, 8, (8,), 2, False),                   # a few alternatives
-                        _Stage(False, self.candidates, (self.certificate_candidates,), self.rounds, False),
-                        _Stage(False, self.candidates, full, self.rounds, True),
-                        _Stage(False, None, full, self.rounds, True),       # every allowed node
-                        _Stage(True, None, full, self.rounds, True))        # every lattice node
+        self._search = (_Stage(False, 1, (2,), 1, False, coarse),            # the proposals, keeping places after
+                        _Stage(False, 8, (8,), 2, False, coarse),            # a few alternatives
+                        _Stage(False, self.candidates, (self.certificate_candidates,), self.rounds, False, coarse),
+                        _Stage(False, self.candidates, full, self.rounds, True, fine),
+                        _Stage(False, None, full, self.rounds, True, fine),  # every allowed node
+                        _Stage(True, None, full, self.rounds, True, fine))   # every lattice node
 
     def reset_stats(self) -> None:
         """Start the counts of :attr:`stats` again."""
@@ -216,7 +227,7 @@ class SafetyFilter:
         alternatives; default: the nodes nearest to the proposal first."""
         proposed = self._check(state, proposed, scores)
         b, u = proposed.shape
-        tops = near_tops(state.tops, self.config.altitude, self.top_need)
+        tops = near_tops(state.tops, self.config.altitude, max(g[2] for g in self.grids.values()))
         pref = self._proposal_pref(proposed, scores)
         out, plan = proposed.copy(), Plan(b, u, self.depth)
         pending = np.ones(b, bool)
@@ -250,7 +261,8 @@ class SafetyFilter:
         nodes, rank = self._spread(allowed[idx].reshape(len(idx) * u, -1), pref[idx].reshape(len(idx) * u, -1),
                                    stage.candidates)
         nodes, rank = nodes.reshape(len(idx), u, -1), rank.reshape(len(idx), u, -1)
-        fl = Flights(self, state.xy[idx], state.theta[idx], state.q_next[idx], state.phi_next[idx], nodes, tops[idx])
+        fl = Flights(self, state.xy[idx], state.theta[idx], state.q_next[idx], state.phi_next[idx], nodes, tops[idx],
+                     self.samples)
         done, todo = np.zeros(len(idx), bool), np.ones(len(idx), bool)
         uavs = np.arange(u)
         for attempt in range(stage.rounds):
@@ -326,7 +338,7 @@ class SafetyFilter:
             sub = np.nonzero(todo)[0]
             nodes, rank = self._spread(reach[sub].reshape(-1, lat), pref[sub].reshape(-1, lat), n)
             nodes, rank = nodes.reshape(len(sub), u, -1), rank.reshape(len(sub), u, -1)
-            nf = Flights(self, xy[sub], th[sub], q[sub], phi[sub], nodes, tops[sub])
+            nf = Flights(self, xy[sub], th[sub], q[sub], phi[sub], nodes, tops[sub], stage.certificate_samples)
             pick, unsettled = negotiate(self, nf, rank, np.ones(len(sub), bool), room=self.room, strict=True,
                                         repair=stage.repair)
             if unsettled.any():
@@ -352,7 +364,8 @@ class SafetyFilter:
         allowed = np.ones((len(idx) * u, len(self.lattice)), bool)
         nodes, rank = self._spread(allowed, pref[idx].reshape(len(idx) * u, -1), None)
         nodes, rank = nodes.reshape(len(idx), u, -1), rank.reshape(len(idx), u, -1)
-        fl = Flights(self, state.xy[idx], state.theta[idx], state.q_next[idx], state.phi_next[idx], nodes, tops[idx])
+        fl = Flights(self, state.xy[idx], state.theta[idx], state.q_next[idx], state.phi_next[idx], nodes, tops[idx],
+                     self.samples)
         choice, unsettled = negotiate(self, fl, rank, np.ones(len(idx), bool))
         j = np.nonzero(~unsettled)[0]
         out[idx[j]] = np.take_along_axis(nodes[j], choice[j][..., None], axis=2)[..., 0]
