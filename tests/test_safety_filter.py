@@ -188,6 +188,9 @@ def test_filter_refuses_bad_proposals():
         SafetyFilter(par.config, par.lattice[:-1]).filter(state, np.array([[0, 1, 2]]))
     with pytest.raises(ValueError, match="samples must be an integer >= 2"):
         SafetyFilter(par.config, par.lattice, samples=1)
+    with pytest.raises(ValueError, match=r"certificate_samples must be at most samples \(11\), got 21"):
+        SafetyFilter(par.config, par.lattice, samples=11, certificate_samples=21)
+    assert SafetyFilter(par.config, par.lattice, samples=11).certificate_samples == 11
 
 
 def test_shield_specs():

@@ -100,7 +100,8 @@ class SafetyFilter:
     Args:
         config: the env's :class:`~covert_env.config.Config`; lattice: its waypoint lattice (L, 2).
         samples: instants per slot at which eqs. 2 and 3 are checked (start and end included), >= 2.
-        certificate_samples: the same for the backup plan's moves in the first stages, in [2, samples].
+        certificate_samples: the same for the backup plan's moves in the first stages, in [2, samples]; default
+            21 (``samples`` if fewer).
         depth: slots after this one that a certificate plans safe moves for (the backup plan), >= 1.
         candidates: nodes tried per UAV and slot; certificate_candidates: per UAV and slot of the backup plan.
         rounds: negotiations per slot whose certificate failed before the filter tries more nodes.
@@ -108,9 +109,11 @@ class SafetyFilter:
             plan's); end_margin: and ends at least d_safe2 + end_margin (m) from the tops.
     """
 
-    def __init__(self, config, lattice, *, samples: int = 201, certificate_samples: int = 21, depth: int = 3,
+    def __init__(self, config, lattice, *, samples: int = 201, certificate_samples: int | None = None, depth: int = 3,
                  candidates: int = 48, certificate_candidates: int = 32, rounds: int = 4, room: float = 5.0,
                  end_margin: float = 2.0):
+        if certificate_samples is None:
+            certificate_samples = min(21, samples) if isinstance(samples, (int, np.integer)) else samples
         for name, v, lo in (("samples", samples, 2), ("certificate_samples", certificate_samples, 2),
                             ("depth", depth, 1), ("candidates", candidates, 2),
                             ("certificate_candidates", certificate_candidates, 1), ("rounds", rounds, 1)):
