@@ -210,7 +210,8 @@ class DPPolicy(Policy):
         if self.team is None or self._world is None or world[0] is not self._world[0] \
                 or world[1] is not self._world[1]:
             self._world = world
-            # The road bounds where the true target may be under a prediction error (docs/decisions.md#prediction-los).
+            # The road bounds where the true target may be under a prediction error
+            # (docs/decisions/model.md#prediction-los).
             self.team = DPTeamPlanner(DPPlanner(par.config, par.scenario.terrain, road=par.scenario.track.road,
                                                 **self.kw), **self.team_kw)
         return self.team

@@ -1,13 +1,13 @@
 """What the eroded zone (eq. 5) and the widened shadows buy under a real prediction error.
 
-The target drives with bounded speed noise (``Config.prediction_error`` = b, docs/decisions.md#prediction-error);
+The target drives with bounded speed noise (``Config.prediction_error`` = b, docs/decisions/model.md#prediction-error);
 the shadow-aware DP team plans on the prediction (re-made every slot from the true current position) and the
 metrics score the truth. Three planners fly the same scenes (road, terrain, true track and starts):
 
 * ``r_u = 0``: neither eq. 5's erosion nor widened shadows (the planner trusts the prediction);
 * ``eroded``: r_u = b, shadows of the predicted target only (``los_margin=0``: eq. 10 as the paper states it);
 * ``eroded + widened``: r_u = b and the line of sight checked to every true position the error allows
-  (the default with ``prediction_error > 0``, docs/decisions.md#prediction-los).
+  (the default with ``prediction_error > 0``, docs/decisions/model.md#prediction-los).
 
 Per UAV-slot, against the true target:
 
@@ -143,7 +143,7 @@ def study_markdown(rows: list[dict], n_scenes: int, n_slots: int, n_uavs: int, n
     lines = ["# Prediction error: the eroded zone (eq. 5) and the widened shadows (eq. 10)", "",
              f"Shadow-aware DP team, {n_uavs} UAV(s), {n_scenes} scenes x {n_slots} slots, prediction error bound "
              f"b = {rows[0]['prediction_error']:g} m; the truth scored, the prediction planned on "
-             "(docs/decisions.md#prediction-error, #prediction-los). Rates per UAV-slot: mean over the scenes "
+             "(docs/decisions/model.md#prediction-error, #prediction-los). Rates per UAV-slot: mean over the scenes "
              "[95 % percentile bootstrap interval over scenes] (count).", ""]
     if note:
         lines += [note, ""]

@@ -29,7 +29,7 @@ Outputs in ``--out``:
 * ``sensitivity.md`` (``--sensitivity``): grid step, r_u, h_min and target speed varied one at a time;
 * ``prediction_study.md``, ``.json`` and ``fig_prediction.png`` (``--prediction-study``): a prediction error of
   4 m, the planner with r_u = 0, with the eroded zone of eq. 5, and with it and the widened shadows
-  (docs/decisions.md#prediction-los): zone violations and blocked LoS against the true target, with 95 % CIs
+  (docs/decisions/model.md#prediction-los): zone violations and blocked LoS against the true target, with 95 % CIs
   (:mod:`baselines.prediction_study`).
 
 ``--quick`` flies the paper scene and 2 held-out scenes for 15 slots, chosen so that the paper's effects show:

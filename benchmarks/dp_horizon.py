@@ -8,9 +8,9 @@ Each policy flies the first ``--scenes`` held-out scenes of every task (the suit
 ``Task.test_seeds``). The DP team plans over the first h slots of the target's predictions
 (``DPPolicy(horizon=h)``); h = ``config.horizon`` (5) is the paper's planner. A learned team acts as the harness
 runs it (``training.evaluate.load_policy``: a harness spec, the card's mask and shield). The table gives the mean
-episode reward per UAV and its terms (``infos[agent]["reward_<term>"]``, docs/decisions.md "Environment rewards"): the
-disguise bonus, the path cost and each penalty. The horizon at which the planner's reward passes a learned team's
-says how far ahead the team acts as if it planned.
+episode reward per UAV and its terms (``infos[agent]["reward_<term>"]``, docs/decisions/environments.md
+"Environment rewards"): the disguise bonus, the path cost and each penalty. The horizon at which the planner's
+reward passes a learned team's says how far ahead the team acts as if it planned.
 
 ``--known-slots k`` adds the DP team at the longest of ``--horizons`` that reads only the first k slots of the
 target's predictions and extrapolates the rest at a constant speed and turn rate (``DPPolicy(known_slots=k)``):

@@ -129,7 +129,7 @@ class Config:
     prediction_error: float = 0.0
     """Bound (m) on the target-prediction error along the road; 0 (default, the paper's setting) means
     the prediction is the truth. Otherwise the scenario's target drives with bounded speed noise
-    (docs/decisions.md#prediction-error), seeded by the scene, so that a prediction made from its true
+    (docs/decisions/model.md#prediction-error), seeded by the scene, so that a prediction made from its true
     position is off by at most this at every predicted slot; planner and observations see the
     prediction, the metrics the truth. 0 <= prediction_error <= target_speed * delta (the noise never
     makes the target reverse). Eq. 5 keeps the UAVs in the zone only if r_u >= prediction_error; a
@@ -142,8 +142,9 @@ class Config:
     and the eroded zone at least one node (more: see ``d_safe1``)."""
     h_min: float | None = None
     """Shadow truncation height (m, eq. 9). None (default) picks it per polytope so that the
-    truncated shadow is exact within ``r2 + shadow_margin`` of the target (docs/decisions.md#shadow-truncation-h_min);
-    a number uses that fixed height for every polytope, as the paper does (then shadows may be incomplete)."""
+    truncated shadow is exact within ``r2 + shadow_margin`` of the target
+    (docs/decisions/model.md#shadow-truncation-h_min); a number uses that fixed height for every polytope, as the
+    paper does (then shadows may be incomplete)."""
     shadow_margin: float = 10.0
     """(decided) Extra radius (m) beyond R2 inside which the automatic h_min keeps shadows exact."""
 

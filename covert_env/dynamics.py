@@ -49,7 +49,7 @@ A root counts only if ``D >= r``, i.e. ``r <= R_c = |g - p|^2 / (2 b)`` (the way
 the turning circle), and ``r <= V_max / W_max``. Since the path is at least ``|g - p|`` long, every root has
 ``r >= |g - p| / (delta W_max)``.
 
-**Root structure (verified; one root only for waypoints ahead: docs/decisions.md#manoeuvre-speed-root).** With
+**Root structure (verified; one root only for waypoints ahead: docs/decisions/flight.md#manoeuvre-speed-root).** With
 ``h(r) = F(r) / r + delta W_max = tau + L / r`` one finds ``h'(r) = -phi(r) / D^2`` where
 ``phi(r) = L (L^2 + r b) / r^2 + a``. ``phi`` is strictly decreasing in r, so h is strictly decreasing when
 ``a >= 0`` (exactly one root, found by bracketing) but, for a waypoint *behind* the UAV (``a < 0``), h

@@ -20,7 +20,7 @@ from covert_env.dynamics import solve_manoeuvre, unicycle_arc, unicycle_heading
 __all__ = ["HEADING_GRID", "POSITION_GRID", "check_unicycle", "closest_constant_control", "fly_arc",
            "fly_turn_straight", "settle_pose", "waypoint_controls"]
 
-#: The grids a UAV's pose is settled on at every slot end (docs/decisions.md#settled-slot-end-poses): positions
+#: The grids a UAV's pose is settled on at every slot end (docs/decisions/flight.md#settled-slot-end-poses): positions
 #: (m) and headings (rad). Powers of two, so that settling is exact arithmetic.
 POSITION_GRID = 2.0 ** -20
 HEADING_GRID = 2.0 ** -24

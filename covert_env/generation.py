@@ -10,7 +10,7 @@ are few (most polytopes are placed in the first).
 Every random number of a scene is a function of its seed, a stream and a counter (SplitMix64, :func:`uniforms`),
 so a scene does not depend on the batch it is drawn in or on the process: ``random_worlds([s])`` is row ``i`` of
 ``random_worlds(seeds)`` wherever ``seeds[i] == s``. The generator's rules are those of
-docs/decisions.md#terrain-generator; its invariants (tested for every family): footprints convex and
+docs/decisions/world.md#terrain-generator; its invariants (tested for every family): footprints convex and
 counter-clockwise, at least ``MIN_GAP`` apart; every footprint's circumcircle at least ``road_clearance`` from the
 road's centreline; tops in ``[min_height, max_polytope_height]`` and inside the footprint's plan view.
 """

@@ -6,7 +6,7 @@ predicted positions q[k+1..k+N]; the prediction error is bounded by a disk gamma
 
 By default the prediction is the truth (the paper's setting). :meth:`TargetTrack.with_speed_noise`
 makes a track whose true speed deviates from the nominal profile the tracker assumes, within a bound
-on the prediction error (docs/decisions.md#prediction-error).
+on the prediction error (docs/decisions/model.md#prediction-error).
 """
 
 from __future__ import annotations
@@ -542,7 +542,7 @@ class TargetTrack:
 def speed_noise_offsets(step: np.ndarray, bound: float, rng: np.random.Generator) -> np.ndarray:
     """Offsets e[0..n] (m) of the true arc length from the nominal one: s_true(k) = s_nominal(k) + e(k).
 
-    A bounded random walk (docs/decisions.md#prediction-error): e(0) = 0 and
+    A bounded random walk (docs/decisions/model.md#prediction-error): e(0) = 0 and
 
         e(k+1) = clip(e(k) + bound * u(k), -bound / 2, bound / 2),   u(k) ~ U(-1, 1),
 

@@ -46,7 +46,7 @@ MAX_SCENES = 100_000
 #: Scene seeds are integers in [0, MAX_SEED] (what numpy's generators take, as int64).
 MAX_SEED = 2 ** 63 - 1
 #: How far a loaded seeded scene may be from the scene drawn again from its seed (relative, and absolute in m): a
-#: file written on another CPU may differ in the last bits (docs/decisions.md#settled-slot-end-poses).
+#: file written on another CPU may differ in the last bits (docs/decisions/flight.md#settled-slot-end-poses).
 REDRAW_TOL = 1e-9
 
 

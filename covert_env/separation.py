@@ -64,7 +64,7 @@ def priority_negotiation(settle: Callable[[np.ndarray, np.ndarray], np.ndarray],
                          n_uavs: int) -> np.ndarray:
     """The order in which a team settles its moves for one slot, each UAV keeping eq. 2 from those settled before.
 
-    The UAVs settle in priority order (the agent index, docs/decisions.md#team-priority-rule). Where a UAV is
+    The UAVs settle in priority order (the agent index, docs/decisions/planner.md#team-priority-rule). Where a UAV is
     left without a separated move, it is promoted to the front (the others keep their order) and the team
     settles again: the UAV that lacked room gets the first choice. A UAV is promoted at most once and at most U
     orders are tried, so the work is polynomial in U (trying all U! orders is not, and did no better). Where

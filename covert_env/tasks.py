@@ -15,9 +15,10 @@ target         what it is
 =============  ========================================================================================================
 ``nominal``    the paper's setting: the target drives the predicted track exactly (``prediction_error`` = 0).
 ``deviating``  the target's speed deviates from the prediction, by at most :data:`DEVIATION` m along the road at any
-               slot a prediction covers (``prediction_error`` = :data:`DEVIATION`, docs/decisions.md#prediction-error);
-               the zone is eroded by as much (``r_u`` = :data:`DEVIATION`, eq. 5), so a planner that keeps to it
-               stays in the true zone; line of sight is where the prediction breaks down.
+               slot a prediction covers (``prediction_error`` = :data:`DEVIATION`,
+               docs/decisions/model.md#prediction-error); the zone is eroded by as much (``r_u`` = :data:`DEVIATION`,
+               eq. 5), so a planner that keeps to it stays in the true zone; line of sight is where the prediction
+               breaks down.
 =============  ========================================================================================================
 
 The suite is versioned (:data:`SUITE_VERSION`): a change to any task's scenes, team, target or test scenes makes a

@@ -5,7 +5,7 @@ computed along different paths and differ in their last bits, and by different l
 float64 ``arctan2``, ``exp`` and ``arccos`` differ by an ulp between CPUs with and without AVX-512). A plain
 ``np.argmin`` then picks whichever rounded lower, so a planner or a policy takes another decision on another
 machine. Here every value within :func:`tie_tolerance` of the best counts as tied, and a tie goes to the lowest
-index (docs/decisions.md#settled-slot-end-poses).
+index (docs/decisions/flight.md#settled-slot-end-poses).
 """
 
 from __future__ import annotations

@@ -46,7 +46,7 @@ def _reference_fly(xy, theta, v, w, t_turn, t):
 
 
 def _settled(path, end_heading):
-    """The end pose on the grids of docs/decisions.md#settled-slot-end-poses, written out independently."""
+    """The end pose on the grids of docs/decisions/flight.md#settled-slot-end-poses, written out independently."""
     path = path.copy()
     path[..., -1, :] = np.rint(path[..., -1, :] * 2.0 ** 20) / 2.0 ** 20
     end = np.rint(np.mod(np.asarray(end_heading), 2 * np.pi) * 2.0 ** 24) / 2.0 ** 24

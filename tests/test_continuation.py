@@ -1,4 +1,4 @@
-"""The team's one-slot look-ahead past plans of depth 1 (docs/decisions.md#separated-continuation)."""
+"""The team's one-slot look-ahead past plans of depth 1 (docs/decisions/planner.md#separated-continuation)."""
 
 from __future__ import annotations
 

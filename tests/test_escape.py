@@ -1,4 +1,4 @@
-"""The safety layer's best-effort escape (docs/decisions.md#best-effort-escape)."""
+"""The safety layer's best-effort escape (docs/decisions/planner.md#best-effort-escape)."""
 
 from __future__ import annotations
 

@@ -109,7 +109,7 @@ def test_smoke_run_with_a_dagger_round_saves_a_loadable_team(tmp_path):
 def test_cloning_fits_the_planners_choices():
     """Four hundred steps on 36 recorded UAV-slots: the cross-entropy falls by half and the actor ranks the planner's
     node first on at least 40 % of them (the node head scores nodes from smooth features, so it separates a node
-    from its neighbours slowly; docs/decisions.md, "Cloning the planner")."""
+    from its neighbours slowly; docs/decisions/learning.md, "Cloning the planner")."""
     margs = imitation.mappo_args("3uav-suite")
     settings = imitation.env_settings(margs, 6)
     train, _ = imitation.join([imitation.teacher_episode("downtown-3uav", s, "dp", settings) for s in (0, 1)], 0)

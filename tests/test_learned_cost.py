@@ -1,5 +1,5 @@
 """The planner with a learned path cost: the blocked share it charges, its DP against a dense reference, the learning
-script and the files it writes (docs/decisions.md#a-learned-cost-in-the-planners-search)."""
+script and the files it writes (docs/decisions/planner.md#a-learned-cost-in-the-planners-search)."""
 
 from __future__ import annotations
 

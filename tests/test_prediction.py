@@ -1,10 +1,10 @@
-"""Prediction error (``Config.prediction_error``, docs/decisions.md#prediction-error).
+"""Prediction error (``Config.prediction_error``, docs/decisions/model.md#prediction-error).
 
 Default off: the truth is the prediction, bit for bit. On: the true target deviates from every
 prediction (made from its true current position) by at most the bound; the planner and the
 observations read the prediction, the metrics the truth; the zone eroded by r_u >= the bound
 (eq. 5) keeps the UAV in the true target's zone where r_u = 0 does not, and the planner's shadows widened
-to every position the error allows (docs/decisions.md#prediction-los) keep the line of sight to the true
+to every position the error allows (docs/decisions/model.md#prediction-los) keep the line of sight to the true
 target where the prediction's shadows lose it.
 """
 

@@ -1,5 +1,6 @@
-"""The README's Python snippets run as written (the framework snippets, tagged ``python framework=...``, run in
-tests/test_frameworks.py where their framework is installed)."""
+"""The README: its Python snippets run as written, it stays short (at most 200 lines), its links lead to files of
+the repository, and its leaderboard is the published suite run's (python -m training.leaderboard --check).
+The documentation site's pages are tested in tests/test_docs.py."""
 
 from __future__ import annotations
 
@@ -13,7 +14,27 @@ BLOCKS = re.findall(r"^```python\n(.*?)^```", README.read_text(encoding="utf-8")
 
 
 def test_readme_has_snippets():
-    assert len(BLOCKS) >= 2
+    assert len(BLOCKS) >= 1
+
+
+def test_readme_is_short():
+    lines = README.read_text(encoding="utf-8").count("\n")
+    assert lines <= 200, f"README.md has {lines} lines; keep it at most 200 (the rest belongs in docs/)"
+
+
+def test_readme_links_lead_to_files():
+    text = README.read_text(encoding="utf-8")
+    targets = re.findall(r"\]\(([^)\s]+)\)", text) + re.findall(r'src="([^"]+)"', text)
+    local = [t.split("#")[0] for t in targets if not t.startswith(("http://", "https://", "#"))]
+    assert local, "the README links no file"
+    missing = [t for t in local if not (README.parent / t).exists()]
+    assert not missing, f"README links to missing files: {missing}"
+
+
+def test_readme_leaderboard_is_the_published_run():
+    from training.leaderboard import check
+
+    assert check() == []
 
 
 @pytest.mark.parametrize("code", BLOCKS, ids=[f"block{i}" for i in range(len(BLOCKS))])

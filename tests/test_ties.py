@@ -1,5 +1,5 @@
 """covert_env.ties: argmin and argmax whose choice does not hinge on the last bit
-(docs/decisions.md#settled-slot-end-poses)."""
+(docs/decisions/flight.md#settled-slot-end-poses)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Training and evaluation for covert_env (layout: docs/README.md#layout).
+"""Training and evaluation for covert_env (layout: docs/development.md#layout).
 
 * :mod:`training.vec_env` -- :class:`~training.vec_env.ParallelEnvVecAdapter`, our small SB3 ``VecEnv``
   over PettingZoo ParallelEnvs: copies x agents flattened, one shared policy (no SuperSuit);

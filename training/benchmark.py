@@ -26,7 +26,8 @@ The protocol, fixed so that two users' runs compare (defaults: :data:`DEFAULT_PO
 * **Performance profile** (``performance_profile.png``): the share of a policy's (task, run, scene) scores above
   tau, for tau from -0.25 (or the lowest score) to 1.25 (or the highest). **Probability of improvement**
   (``improvement.png``): P(X > Y) over the tasks both were scored on (Mann-Whitney per task, averaged).
-* Raw results: ``cells.csv`` (one row per cell), ``results.json`` and ``marl_eval.json`` (marl-eval's raw-data
+* Raw results: ``cells.csv`` (one row per cell), ``results.json``, ``summary.json`` (what the README and the
+  documentation show, :mod:`training.leaderboard`) and ``marl_eval.json`` (marl-eval's raw-data
   layout: environment, task, algorithm, ``run_i``, one evaluation step with per-scene lists and
   ``absolute_metrics``). Per-task leaderboards: ``tasks/<task>/leaderboard.md`` (the harness's tables).
 
@@ -48,8 +49,11 @@ from pathlib import Path
 
 import numpy as np
 
+import covert_env
 from covert_env.command_line import MAX_SCENES, UsageError, int_range, output_dir, positive_int, run_main
+from covert_env.envs.covert_sensing import CovertSensingParallelEnv
 from covert_env.tasks import DEFAULT_TASKS, SUITE_VERSION, TASKS, TEST_SCENES, get_task, resolve_tasks
+from training import leaderboard
 from training.common import ordered_results
 from training.evaluate import COLUMNS, LEARNED_PREFIXES, evaluate, load_policy, split_seeds, summarise, write_outputs
 from training.stats import iqm, mean, probability_of_improvement, stratified_bootstrap_ci
@@ -245,6 +249,9 @@ def write_suite(out: Path, rows: list[dict], ref: dict, agg: dict, meta: dict, s
     (out / "results.json").write_text(json.dumps({"suite": SUITE_VERSION, "meta": meta, "reference": ref,
                                                   "aggregate": agg, "cells": rows}, indent=1))
     (out / "marl_eval.json").write_text(json.dumps(marl_eval(rows)))
+    results = {"suite": SUITE_VERSION, "meta": meta, "reference": ref, "aggregate": agg, "cells": rows}
+    if "covert_env" in meta:                                   # what the docs are made from (training.leaderboard)
+        (out / "summary.json").write_text(json.dumps(leaderboard.summary(results), indent=1))
     _figures(out, rows, agg)
     for task in ref:
         _task_leaderboard(out / "tasks" / task, get_task(task), [r for r in rows if r["task"] == task], meta)
@@ -361,7 +368,7 @@ def _main(args: argparse.Namespace, command: str) -> int:
         if spec in skipped and len(skipped[spec]) == len(tasks):
             raise UsageError(f"--policies: {spec} acts for another team size than every task of --tasks "
                              f"({', '.join(t.name for t in tasks)}); add a task of its team size")
-    out = output_dir(args.out, files=("suite.md", "cells.csv", "results.json", "marl_eval.json",
+    out = output_dir(args.out, files=("suite.md", "cells.csv", "results.json", "summary.json", "marl_eval.json",
                                       "performance_profile.png", "improvement.png"), folders=("tasks",))
     t0 = time.perf_counter()
     if args.ray_address is not None:
@@ -375,7 +382,8 @@ def _main(args: argparse.Namespace, command: str) -> int:
     agg = aggregate(scored, specs)
     workers = args.jobs if args.ray_address is None else f"Ray at {args.ray_address}"
     meta = {"scenes": args.scenes, "jobs": workers, "seconds": time.perf_counter() - t0, "command": command,
-            "tasks": [t.name for t in tasks], "policies": specs}
+            "tasks": [t.name for t in tasks], "policies": specs, "covert_env": covert_env.__version__,
+            "env": CovertSensingParallelEnv.metadata["name"]}
     write_suite(out, scored, ref, agg, meta, skipped)
     for p, a in agg["policies"].items():
         print(f"{p:28s} score IQM {_fmt(a['iqm'])}  zone viol. {a['zone_violation_rate']:.3f}  blocked LoS "

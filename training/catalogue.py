@@ -15,7 +15,7 @@ from covert_env.families import FAMILIES
 from covert_env.tasks import DEFAULT_TASKS, SUITE_VERSION, TASKS
 from training.tiers import TIERS, spec_tier, tier_of
 
-__all__ = ["TIERS", "build_parser", "main", "spec_tier", "tier_of"]
+__all__ = ["TIERS", "build_parser", "main", "spec_tier", "tier_of", "weights_table"]
 
 SECTIONS = ("tasks", "families", "policies", "weights")
 def _tasks() -> list[str]:
@@ -58,6 +58,29 @@ def _weights() -> list[str]:
         lines.append(f"  {name:<26} {tier_of(card):<8} {card.get('algorithm', '?'):<6} {card.get('env_id', '?'):<26} "
                      f"{s.get('reward_iqm', float('nan')):6.1f} [{lo:.1f}, {hi:.1f}]")
     return lines
+
+
+def weights_table() -> str:
+    """The shipped weights as a markdown table (the documentation's cards page): tier, algorithm, the env and
+    version a card's scores were measured on, the team size, the training budget and the reward on the held-out
+    paper scenes."""
+    from training.pretrained import PRETRAINED_DIR, pretrained_names
+    from training.runs import read_run_json
+
+    lines = ["| `pretrained:NAME` | tier | algorithm | scored on | UAVs | trained | reward IQM [95 % CI], held-out "
+             "paper scenes |", "|---|---|---|---|---|---|---|"]
+    for name in pretrained_names():
+        card = read_run_json(PRETRAINED_DIR / f"{name}.json", "model card")
+        s, t = card.get("scores", {}), card.get("training", {})
+        lo, hi = s.get("reward_iqm_ci95_over_scenes", (float("nan"),) * 2)
+        minutes = t.get("train_minutes", t.get("wall_time_minutes"))
+        budget = ", ".join(([f"{t['env_steps']:,} env-steps"] if "env_steps" in t else [])
+                           + ([f"{minutes:.0f} min"] if minutes is not None else [])) or "-"
+        team = card.get("recipe", {}).get("n_uavs", "any")
+        lines.append(f"| `{name}` | {tier_of(card)} | {card.get('algorithm', '?')} | {card.get('env_id', '?')}, "
+                     f"covert_env {card.get('covert_env_version', '?')} | {team} | "
+                     f"{budget} | {s.get('reward_iqm', float('nan')):.1f} [{lo:.1f}, {hi:.1f}] |")
+    return "\n".join(lines)
 
 
 def build_parser(prog: str = "python -m training.catalogue") -> argparse.ArgumentParser:

@@ -150,7 +150,7 @@ def join(episodes: list[dict], val: int) -> tuple[dict, dict]:
         if not eps:
             return None
         d = {k: np.concatenate([e[k] for e in eps]) for k in episodes[0]}
-        # The planner's best effort when no node qualifies may lie outside the mask (docs/decisions.md,
+        # The planner's best effort when no node qualifies may lie outside the mask (docs/decisions/flight.md,
         # "Unreachable waypoint best effort"): no masked categorical can pick it, so it teaches nothing.
         keep = d["mask"][np.arange(len(d["label"])), d["label"]]
         return {k: v[keep] for k, v in d.items()}

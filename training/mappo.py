@@ -19,7 +19,7 @@ checkpoints; ``train``, which runs them in that order. Nothing here is pickled: 
   as in CleanRL's continuous PPO).
 * **Map under each node** (``--node-map``): the node head also reads the observation's ``map_next`` under each
   node and the move's midpoint, so that a team acting with ``--mask-mode kinematic`` sees the shadows where it
-  scores the nodes (docs/decisions.md, "Learned teams across the suite").
+  scores the nodes (docs/decisions/learning.md, "Learned teams across the suite").
 * **Tasks** (``--tasks a,b,...``): the copies are split evenly over suite tasks and draw from each task's training
   scenes (:mod:`training.task_mix`); without it, random scenes of the paper family.
 * **Separation shield** (waypoint mode, ``--separation-shield``, on by default): the UAVs of a copy choose one

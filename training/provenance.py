@@ -4,7 +4,7 @@ A model card records :func:`platform_record` when its scores are measured. A rep
 record (:func:`platform_key`) must give every number bit for bit; elsewhere, numpy's float64 transcendental
 functions (``arctan2``, ``exp``, ``arccos``: SVML on CPUs with AVX-512, other code elsewhere) or another GEOS may
 round differently, and the env and the planners are built so that such a difference does not change decisions
-(docs/decisions.md#settled-slot-end-poses), so a replay agrees within a stated tolerance.
+(docs/decisions/flight.md#settled-slot-end-poses), so a replay agrees within a stated tolerance.
 """
 
 from __future__ import annotations

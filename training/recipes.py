@@ -64,7 +64,7 @@ RECIPES: dict[str, dict] = {
 
 #: Named settings of :mod:`training.mappo` (``python -m training.mappo --recipe NAME``; flags override).
 #: ``3uav-mappo``: MAPPO in the waypoint mode with the separation shield (training.shield) and the Lagrangian
-#: on the separation cost, 45 minutes of wall clock (three seeds at once on 2 cores; training/README.md has the
+#: on the separation cost, 45 minutes of wall clock (three seeds at once on 2 cores; docs/training.md has the
 #: measured runs).
 #: ``3uav-suite``: the team of the task suite. It trains on the training scenes of the suite's eight 3-UAV core
 #: tasks at once (two copies each, training.task_mix), with the kinematic mask (every reachable node: the team
@@ -73,8 +73,8 @@ RECIPES: dict[str, dict] = {
 #: constraint (LoS at slot times, LoS along the path, the zone, separation) with a dual step of 1 and a bound of
 #: 4, the separation shield with its look-ahead and its viability rule (no node from which fewer than 10 nodes are
 #: reachable next slot, where another leaves 10); 45 minutes of wall clock (three seeds at once on 2 cores). The
-#: bound keeps a limit the team does not reach from drowning the reward (docs/decisions.md, "Learned teams across
-#: the suite").
+#: bound keeps a limit the team does not reach from drowning the reward (docs/decisions/learning.md, "Learned teams
+#: across the suite").
 #: ``3uav-suite-path``: ``3uav-suite`` with the target's path predicted over the planner's five slots in the
 #: observation (the env's ``target_path=5``): the DP planner plans on that path; ``3uav-suite`` sees one slot.
 #: ``3uav-suite-manoeuvre``: ``3uav-suite`` with the node head also reading the manoeuvre to each node (whether one

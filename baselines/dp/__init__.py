@@ -11,7 +11,7 @@ a node index is an action. The allowed nodes are
 * ``shadow_aware=True`` (the paper's method): nodes of the visible zone F[k+j] (eq. 10), i.e. eroded zone
   and a clear line of sight (eq. 6) to q[k+j] -- under a prediction error (``Config.prediction_error > 0``)
   to every true target position within ``los_margin`` (default r_u) of it along the road
-  (:mod:`baselines.dp.possible_targets`, docs/decisions.md#prediction-los);
+  (:mod:`baselines.dp.possible_targets`, docs/decisions/model.md#prediction-los);
 * ``shadow_aware=False`` (the earlier method [1], the paper's comparison): every node of the eroded zone;
 
 and, for both, only nodes at least ``d_safe2`` from every polytope's highest point (eq. 3,
@@ -80,7 +80,7 @@ R2 of the target, grown by 1 cm): a line-of-sight guarantee between slot times.
 j pays ``path_cost[j-1]`` times the share of its samples without LoS to the predicted target at the same instant.
 The extra cost is non-negative, so the table's bounds stay lower bounds and the recursion stays exact (tested
 against the dense DP). :mod:`training.dp_cost` learns the numbers
-(docs/decisions.md#a-learned-cost-in-the-planners-search).
+(docs/decisions/planner.md#a-learned-cost-in-the-planners-search).
 
 ## When the visible zone is empty or unreachable
 

@@ -1,5 +1,5 @@
 """The team's one-slot look-ahead: a UAV whose plan ends after the slot it flies must end that slot where it can
-still move clear of its teammates in the next one (docs/decisions.md#separated-continuation)."""
+still move clear of its teammates in the next one (docs/decisions/planner.md#separated-continuation)."""
 
 from __future__ import annotations
 
@@ -37,7 +37,7 @@ def secure_continuations(team, plans, *, xy, th, target_xyz, target_phi, target_
 
     Limits: a depth-1 plan is checked against the teammates whose plans reach the next slot, not against another
     depth-1 plan; a reserved continuation is not carried to the next UAV checked, and a room checked earlier is not
-    checked again after a teammate made way (docs/decisions.md#separated-continuation).
+    checked again after a teammate made way (docs/decisions/planner.md#separated-continuation).
 
     Cost: one manoeuvre solve per node of the next slot per depth-1 plan; when its room is short, the same for
     each of its separated candidates (at most L), in batches of :data:`CHUNK`, stopping at the first that has the

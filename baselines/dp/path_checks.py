@@ -125,7 +125,7 @@ class PathChecker:
     def blocked_share(self, m: Manoeuvre, ok: np.ndarray, ctx: PathContext, j: int) -> np.ndarray:
         """For feasible manoeuvres into stage j: the share of the samples after the start (the end included)
         with LoS to the target at the same instant blocked -- the env's ``cost_los_path`` on the planner's
-        samples and its predicted target (docs/decisions.md#a-learned-cost-in-the-planners-search)."""
+        samples and its predicted target (docs/decisions/planner.md#a-learned-cost-in-the-planners-search)."""
         c = self.config
         p = self.path_samples
         pts = take_manoeuvres(m, np.flatnonzero(ok)).points(p)[:, 1:]          # (K, P - 1, 2)

@@ -62,7 +62,7 @@ class DPPlanner:
             of sight is clear to every true target position within this margin of the predicted one
             (:mod:`baselines.dp.possible_targets`). None (default): ``config.r_u`` when
             ``config.prediction_error > 0``, else 0 -- the paper's eq. 10, the predicted target only
-            (docs/decisions.md#prediction-los).
+            (docs/decisions/model.md#prediction-los).
         road: the target's road; with a margin, the possible positions are the road within arc length
             ``los_margin`` of the prediction; None: the disk of radius ``los_margin`` (eq. 5's gamma(q)).
         path_cost: None (the paper: LoS only at slot times), or per stage j = 1..N a cost (m of eq. 18's g) per

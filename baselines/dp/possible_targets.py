@@ -5,9 +5,9 @@ target q[k+j]. The zone erosion of eq. 5 absorbs a prediction error up to r_u fo
 for the line of sight: a node next to a shadow edge sees the prediction and may not see the true target a
 few metres along the road. With a prediction error (``Config.prediction_error > 0``) the planner therefore
 keeps a node only if its line of sight is clear to every position the true target may have
-(docs/decisions.md#prediction-los):
+(docs/decisions/model.md#prediction-los):
 
-* with the target's road (the error is speed noise along it, docs/decisions.md#prediction-error): the piece
+* with the target's road (the error is speed noise along it, docs/decisions/model.md#prediction-error): the piece
   of road within arc length ``margin`` of the prediction, clamped to the road's ends as the track is;
 * without a road: the disk gamma(q) of radius ``margin`` of eq. 5 at the target's height (any direction; a
   superset of the road piece, so also safe, only more conservative).
@@ -63,7 +63,7 @@ class PossibleTargets:
     """The true target positions a prediction allows, sampled so that the LoS check covers all of them.
 
     Args:
-        margin: the prediction-error radius (m), > 0: the planner's r_u (docs/decisions.md#prediction-los).
+        margin: the prediction-error radius (m), > 0: the planner's r_u (docs/decisions/model.md#prediction-los).
         road: the target's route, or None for the disk gamma(q) of eq. 5.
         cover: covering radius of the samples (m), > 0 (module docstring).
     """

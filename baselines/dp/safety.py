@@ -60,7 +60,7 @@ def secure_first_moves(team, plans, *, xy, th, target_xyz, target_phi, target_pa
     reach no node at all (a last-resort fallback) chooses among the engine's best efforts to every node instead,
     the nearest first (level 3's rule), flagged. If it has no separated move at all, its move and that of one
     settled UAV are re-chosen together (every pair of their candidates; a fast teammate sweeping past can leave
-    no single move). Failing that it is left without one (docs/decisions.md#safety-layer) and, in the order that
+    no single move). Failing that it is left without one (docs/decisions/planner.md#safety-layer) and, in the order that
     stands, takes its most separated move (flagged). With the team's ``best_effort_escape``, that order is settled
     once more, and a UAV left without a separated move may also fly the engine's best effort toward a node it
     cannot reach, alone or re-chosen with a settled UAV (:meth:`_FirstSlot.escape`, flagged). Moves keep eq. 3

@@ -63,7 +63,7 @@ class CovertSensingParallelEnv(ConstructionSettings, ParallelEnv):
     The action mask (int8, length L, 1 = allowed) marks nodes that are reachable in one slot and in
     the visible zone (eq. 10) at k+1 (``mask_mode="visible"``, the default), or, with ``mask_mode="kinematic"``,
     every node reachable in one slot: shadowed nodes are then the policy's to avoid, from the observation's maps
-    and the LoS costs (docs/decisions.md#action-mask-modes). It lives in one place per setting:
+    and the LoS costs (docs/decisions/environments.md#action-mask-modes). It lives in one place per setting:
     ``infos[agent]["action_mask"]`` by default, or, with ``dict_obs=True``, the observation
     ``{"observation": ..., "action_mask": ...}`` (and then not in the infos); ``env.action_mask(agent)`` returns it
     in both. If no node qualifies, reachable nodes are unmasked, and if none is reachable every node is, so a
@@ -121,7 +121,8 @@ class CovertSensingParallelEnv(ConstructionSettings, ParallelEnv):
 
     LoS, zone and terrain are checked at slot times, as the paper's constraints are stated on the slot
     positions; separation and ``cost_los_path`` along the path: the paper films the target continuously, and a
-    team that keeps LoS at slot times can lose it in between (docs/decisions.md#line-of-sight-along-the-path).
+    team that keeps LoS at slot times can lose it in between
+    (docs/decisions/environments.md#line-of-sight-along-the-path).
     (Terrain generated with the default ``max_height`` keeps every top at least d_safe2 below the UAVs, so there
     ``cost_terrain`` fires only on terrain given by the user, e.g. a tall pole; the ``towers`` family's masts reach
     within d_safe2 of the UAVs, so there it binds.)
@@ -204,7 +205,7 @@ class CovertSensingParallelEnv(ConstructionSettings, ParallelEnv):
     ## Version History
 
     * v4, covert_env 0.10.0: every UAV's pose is settled at each slot end on a grid of 2^-20 m and 2^-24 rad
-      (:func:`covert_env.flight.settle_pose`, docs/decisions.md#settled-slot-end-poses), so that a seeded rollout
+      (:func:`covert_env.flight.settle_pose`, docs/decisions/flight.md#settled-slot-end-poses), so that a seeded rollout
       gives the same numbers on CPUs whose float64 ``arctan2``/``exp``/``arccos`` differ in the last bit (numpy with
       and without AVX-512). The flight amplifies such a difference a few times per slot, and in v3 it changed
       decisions within about thirty slots. Observations, rewards, costs, scenes and spaces are otherwise unchanged,
@@ -235,7 +236,7 @@ class CovertSensingParallelEnv(ConstructionSettings, ParallelEnv):
       ``Scenario``) seeded rollouts can differ from v1 in waypoint mode through the mask, in both modes through
       the maps and the starts; rewards, costs and dynamics are unchanged. With a prediction error
       (``config.prediction_error`` > 0), a waypoint action's node and the action mask are about the target's next
-      pose as predicted now (docs/decisions.md#prediction-error, and where the DP planner plans them); v1 placed
+      pose as predicted now (docs/decisions/model.md#prediction-error, and where the DP planner plans them); v1 placed
       the node about the true next pose, which no policy sees when it acts (the DP team's waypoints then landed up
       to 50 m from its plan). ``covert_sensing_v1`` and the v1 ids raise an error that says this.
     * v1, covert_env 0.5.0 (no number of a valid seeded rollout changed): calls out of order raise alike in

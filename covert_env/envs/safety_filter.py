@@ -9,7 +9,7 @@ for the next ``depth`` slots too (recursive feasibility, as MPC safety filters h
 with the same negotiation, each UAV keeping its place behind the target where it can, and keeps them as the
 **backup plan**. The later lattices are the env's own predictions for those slots, so the plan is flown exactly
 as it was checked: where a later slot finds no certified move, the plan's next move is safe
-(docs/decisions.md#safety-filter).
+(docs/decisions/learning.md#safety-filter).
 
 Per slot and copy, in order, the first that exists:
 

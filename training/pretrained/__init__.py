@@ -82,12 +82,12 @@ def node_features(obs: np.ndarray, lattice: np.ndarray, n_uavs: int, *, r2: floa
       midpoint of the move (with ``o`` moved as above: off by the target's turn in the slot, up to about 6 m on
       the winding family), each at the nearest cell (0 outside the map). The shadows are in the observation's
       maps; these two inputs put them under the node the head scores, so that a team whose mask allows shadowed
-      nodes (``mask_mode="kinematic"``) can learn to avoid them (docs/decisions.md, "Learned teams across the
+      nodes (``mask_mode="kinematic"``) can learn to avoid them (docs/decisions/learning.md, "Learned teams across the
       suite");
     * with ``w_max`` (the turn-rate limit W_max, rad/s): the manoeuvre that flies the UAV there
       (:func:`manoeuvre_features`): whether one exists, its length and the heading the UAV arrives with. The
       heading at a node sets which nodes the next slot reaches, so these inputs tell two nodes apart by what they
-      leave open (docs/decisions.md, "The arrival heading in the node head").
+      leave open (docs/decisions/learning.md, "The arrival heading in the node head").
     """
     obs = np.asarray(obs, np.float32)
     # The fields read here come before the maps, so the maps' size (0 here) does not move them.

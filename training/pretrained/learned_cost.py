@@ -7,7 +7,7 @@ training scenes, how much the planner's search should charge for that share at e
 decentralised DP in every other respect: the same negotiation and safety layer, so it keeps the same constraints,
 and the same nodes, the visible zone's, unless the card says ``shadow_aware: false``: then it plans over every zone
 node clear of the tops, shadowed or not (the kinematic mask's), and only the learned cost keeps it out of the
-shadows (docs/decisions.md#a-learned-cost-in-the-planners-search).
+shadows (docs/decisions/planner.md#a-learned-cost-in-the-planners-search).
 
 Files (no pickle: ``np.load(..., allow_pickle=False)`` and JSON):
 

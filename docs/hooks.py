@@ -1,0 +1,122 @@
+"""mkdocs hooks: the site's generated parts, made from the repository at build time (nothing here is hand-copied).
+
+* ``<!-- generated: NAME -->`` on a page is replaced by the table or list NAME (:data:`GENERATED`): the suite's
+  leaderboard from ``docs/results/suite.json`` (the run published by ``python -m training.leaderboard``), the
+  shipped cards from ``training/pretrained/*.json``, the task list from ``covert_env.tasks``.
+* Generated files: ``changelog.md`` (the repository's ``CHANGELOG.md``), ``images/families/<family>.png`` (one
+  held-out scene of each family, drawn by ``covert_env.render.scene_figure``) and ``images/suite_profile.png``
+  (the published run's performance profiles, drawn by ``training.leaderboard.profile_figure``).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import re
+from pathlib import Path
+
+from mkdocs.structure.files import File
+
+ROOT = Path(__file__).resolve().parents[1]
+PLACEHOLDER = re.compile(r"<!-- generated: ([a-z_]+) -->")
+
+
+def _suite() -> dict:
+    return json.loads((ROOT / "docs" / "results" / "suite.json").read_text())
+
+
+def _cards() -> str:
+    from training.catalogue import weights_table
+
+    return weights_table()
+
+
+def _tasks() -> str:
+    from covert_env.tasks import DEFAULT_TASKS, TASKS
+
+    lines = ["| task | family | UAVs | target | core |", "|---|---|---|---|---|"]
+    lines += [f"| `{t.name}` | {t.family} | {t.n_uavs} | {t.target} | {'yes' if t.name in DEFAULT_TASKS else ''} |"
+              for t in TASKS.values()]
+    return "\n".join(lines)
+
+
+def _families() -> str:
+    from covert_env.families import FAMILIES
+
+    return "\n".join(f"### `{name}`\n\n{fam.description}.\n\n![A held-out scene of the {name} family]"
+                     f"(images/families/{name}.png)\n" for name, fam in FAMILIES.items())
+
+
+def _suite_tiers() -> str:
+    from training.leaderboard import tier_table
+
+    return tier_table(_suite())
+
+
+def _suite_tasks() -> str:
+    from training.leaderboard import task_table
+
+    return task_table(_suite())
+
+
+def _suite_caption() -> str:
+    from training.leaderboard import caption
+
+    return f"*{caption(_suite())}.*"
+
+
+#: What a placeholder may name.
+GENERATED = {"cards": _cards, "tasks": _tasks, "families": _families, "suite_tiers": _suite_tiers,
+             "suite_tasks": _suite_tasks, "suite_caption": _suite_caption}
+
+
+def on_page_markdown(markdown: str, page, config, files) -> str:
+    def fill(m: re.Match) -> str:
+        if m.group(1) not in GENERATED:
+            raise KeyError(f"{page.file.src_uri}: no generated part named {m.group(1)!r} (docs/hooks.py: "
+                           f"{', '.join(GENERATED)})")
+        return GENERATED[m.group(1)]()
+
+    return PLACEHOLDER.sub(fill, markdown)
+
+
+def _png(draw) -> bytes:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig = draw()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=80)
+    plt.close(fig)
+    return buf.getvalue()
+
+
+def _family_figure(name: str):
+    import covert_env
+    from covert_env.families import HELD_OUT_SEEDS
+    from covert_env.render import scene_figure
+
+    env = covert_env.parallel_env(task=f"{name}-3uav")
+    seed = HELD_OUT_SEEDS.start
+    env.reset(seed=seed, options={"scene_seed": seed})
+    fig = scene_figure(env.scenario, 10, uav_xy=None)
+    fig.suptitle(f"{name}: held-out scene {seed}, slot 10 (feasible zone black, shadows red, visible zone green)",
+                 fontsize=9)
+    env.close()
+    return fig
+
+
+def on_files(files, config):
+    from covert_env.families import FAMILIES
+    from training.leaderboard import profile_figure
+
+    files.append(File.generated(config, "changelog.md", content=(ROOT / "CHANGELOG.md").read_text(encoding="utf-8")))
+    for name in FAMILIES:
+        files.append(File.generated(config, f"images/families/{name}.png",
+                                    content=_png(lambda name=name: _family_figure(name))))
+    buf = io.BytesIO()
+    profile_figure(_suite(), buf)
+    files.append(File.generated(config, "images/suite_profile.png", content=buf.getvalue()))
+    return files
