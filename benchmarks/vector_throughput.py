@@ -245,6 +245,23 @@ def ratio_rows(res: dict) -> list[tuple[str, str, str]]:
     return [r for r in out if r[1] in res and r[2] in res]
 
 
+def write_json(path: Path, rows, argv) -> None:
+    """The rows as the documentation's throughput figure reads them: per B and configuration the env-steps per
+    second (wall clock and CPU time), with the command, version and load that made them."""
+    import json
+
+    import covert_env
+
+    cmd = shlex.join(["python", "benchmarks/vector_throughput.py", *(sys.argv[1:] if argv is None else argv)])
+    data = {"command": cmd, "covert_env": covert_env.__version__, "date": time.strftime("%Y-%m-%d"),
+            "cpus": os.cpu_count(), "load_average": round(os.getloadavg()[0], 1),
+            "rows": [{"B": int(b), "config": name, "steps_per_s_wall": round(float(r[0]), 1),
+                      "steps_per_s_cpu": round(float(r[1]), 1)} for b, res in rows for name, r in res.items()]}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(data, indent=1) + "\n")
+    print(f"wrote {path}")
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--seconds", type=float, default=3.0,
@@ -260,6 +277,8 @@ def main(argv=None) -> None:
                              "instants per slot; 2 checks the slot's end only (with --no-memory)")
     parser.add_argument("--no-memory", action="store_true", help="skip the memory per copy (fresh interpreters)")
     parser.add_argument("--profile", action="store_true", help="also profile one episode at the largest B")
+    parser.add_argument("--json", type=Path, metavar="PATH",
+                        help="also write the rows to PATH (docs/results/throughput.json: the documentation's figure)")
     parser.add_argument("--rss", type=int, metavar="ENV_STEPS", help="only the RSS check over ENV_STEPS env-steps")
     parser.add_argument("--rss-size", type=int, default=1024, help="B of the RSS check")
     parser.add_argument("--rss-every", type=int, metavar="ENV_STEPS", help="RSS printed every ... (default: 20 rows)")
@@ -313,6 +332,8 @@ def main(argv=None) -> None:
             print(f"{b:>5}  {label:<28} {res[num][0] / res[den][0]:>5.2f}x {res[num][1] / res[den][1]:>5.2f}x  "
                   f"{target}".rstrip())
     print(f"load average: {os.getloadavg()[0]:.1f} (1 min) on {os.cpu_count()} CPUs")
+    if args.json:
+        write_json(args.json, rows, argv)
     if args.profile:
         for name in names:
             if name != "vmas navigation":

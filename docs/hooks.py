@@ -4,8 +4,10 @@
   leaderboard from ``docs/results/suite.json`` (the run published by ``python -m training.leaderboard``), the
   shipped cards from ``training/pretrained/*.json``, the task list from ``covert_env.tasks``.
 * Generated files: ``changelog.md`` (the repository's ``CHANGELOG.md``), ``images/families/<family>.png`` (one
-  held-out scene of each family, drawn by ``covert_env.render.scene_figure``) and ``images/suite_profile.png``
-  (the published run's performance profiles, drawn by ``training.leaderboard.profile_figure``).
+  held-out scene of each family, drawn by ``covert_env.render.scene_figure``), ``images/suite_profile.png``
+  (the published run's performance profiles, drawn by ``training.leaderboard.profile_figure``) and
+  ``images/throughput.png`` (env-steps per second against B, from ``docs/results/throughput.json``, which
+  ``benchmarks/vector_throughput.py --json`` writes).
 """
 
 from __future__ import annotations
@@ -65,9 +67,39 @@ def _suite_caption() -> str:
     return f"*{caption(_suite())}.*"
 
 
+def _throughput() -> dict:
+    return json.loads((ROOT / "docs" / "results" / "throughput.json").read_text())
+
+
+def _throughput_caption() -> str:
+    t = _throughput()
+    return (f"*covert_env {t['covert_env']}, {t['date']}, {t['cpus']} CPUs (load average {t['load_average']} at the "
+            f"end), CPU-time rates: `{t['command']}`.*")
+
+
+def _throughput_figure():
+    import matplotlib.pyplot as plt
+
+    t = _throughput()
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for config in dict.fromkeys(r["config"] for r in t["rows"]):
+        rows = sorted((r for r in t["rows"] if r["config"] == config), key=lambda r: r["B"])
+        ax.plot([r["B"] for r in rows], [r["steps_per_s_cpu"] for r in rows], "o-" if "vmas" not in config else "s--",
+                label=config if "vmas" in config else f"covert_env, {config}")
+    ax.set_xscale("log", base=2)
+    ax.set_yscale("log")
+    ax.set_xlabel("copies B (3 agents each)")
+    ax.set_ylabel("env-steps per CPU-second")
+    ax.set_title(f"Vector env throughput, covert_env {t['covert_env']} ({t['date']})", fontsize=9)
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    return fig
+
+
 #: What a placeholder may name.
 GENERATED = {"cards": _cards, "tasks": _tasks, "families": _families, "suite_tiers": _suite_tiers,
-             "suite_tasks": _suite_tasks, "suite_caption": _suite_caption}
+             "suite_tasks": _suite_tasks, "suite_caption": _suite_caption, "throughput_caption": _throughput_caption}
 
 
 def on_page_markdown(markdown: str, page, config, files) -> str:
@@ -102,8 +134,8 @@ def _family_figure(name: str):
     seed = HELD_OUT_SEEDS.start
     env.reset(seed=seed, options={"scene_seed": seed})
     fig = scene_figure(env.scenario, 10, uav_xy=None)
-    fig.suptitle(f"{name}: held-out scene {seed}, slot 10 (feasible zone black, shadows red, visible zone green)",
-                 fontsize=9)
+    fig.suptitle(f"{name}: held-out scene {seed}, slot 10 (covert_env {covert_env.__version__}; feasible zone black, "
+                 "shadows red, visible zone green)", fontsize=9)
     env.close()
     return fig
 
@@ -116,6 +148,7 @@ def on_files(files, config):
     for name in FAMILIES:
         files.append(File.generated(config, f"images/families/{name}.png",
                                     content=_png(lambda name=name: _family_figure(name))))
+    files.append(File.generated(config, "images/throughput.png", content=_png(_throughput_figure)))
     buf = io.BytesIO()
     profile_figure(_suite(), buf)
     files.append(File.generated(config, "images/suite_profile.png", content=buf.getvalue()))

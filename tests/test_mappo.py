@@ -136,6 +136,29 @@ def test_shielded_run_records_the_shield_and_evaluates_with_it(tmp_path, train_e
     assert json.loads((uni / "model.json").read_text())["separation_shield"] is None
 
 
+def test_safety_filter_run_flies_through_the_filter_and_evaluates_with_it(tmp_path, train_extra, capsys):
+    """--safety-filter: the env flies the filter's nodes (a task mix too), the card says so, and the harness flies
+    the team through the same filter: no separation or terrain violation on the flown path."""
+    from covert_env.envs.safety_filter import ShieldedPolicy
+    from training.evaluate import evaluate, load_policy
+
+    with pytest.raises(SystemExit):
+        mappo.main([*TINY, "--safety-filter", "true", "--total-timesteps", "16"])
+    assert "--safety-filter replaces the separation shield" in capsys.readouterr().err
+    run = mappo.main([*TINY, "--safety-filter", "true", "--separation-shield", "false", "--mask-mode", "kinematic",
+                      "--tasks", "paper-3uav,towers-3uav", "--total-timesteps", "32", "--runs-dir", str(tmp_path),
+                      "--run-name", "filt"])
+    card = json.loads((run / "model.json").read_text())
+    assert card["safety_filter"] is True and card["separation_shield"] is None
+    pol, settings = load_policy(f"mappo:{run}", 3, trust_checkpoint=False)
+    assert isinstance(pol, ShieldedPolicy) and settings["mask_mode"] == "kinematic"
+    assert load_policy(f"mappo:{run}+shield", 3)[0].__class__ is ShieldedPolicy          # not wrapped twice
+    row = evaluate(pol, settings, 1, progress=False, env_kwargs={"task": "towers-3uav"})[0]
+    assert row["separation_violations"] == 0 and row["terrain_violations"] == 0 and row["filter_team_slots"] > 0
+    tb = list((run / "tb").glob("events.*"))
+    assert tb, "no TensorBoard log"
+
+
 @pytest.mark.slow
 def test_seed_group_is_one_leaderboard_row(tmp_path, train_extra):
     """``mappo:RUN1,RUN2``: both runs on the same scenes, one row, its IQM interval over seeds x scenes."""

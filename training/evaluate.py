@@ -270,7 +270,7 @@ def load_policy(spec: str, n_uavs: int, *, trust_checkpoint: bool = False) -> tu
         if settings["action_mode"] != "waypoint":
             raise UsageError(f"{spec}: the safety filter is for waypoint teams, and {inner} acts in "
                              f"{settings['action_mode']} mode (use {inner.split('@')[0]}@waypoint{SHIELD_SUFFIX})")
-        return ShieldedPolicy(pol), settings
+        return (pol if isinstance(pol, ShieldedPolicy) else ShieldedPolicy(pol)), settings
     mode = None
     if "@" in spec:
         spec, mode = spec.rsplit("@", 1)
@@ -297,6 +297,8 @@ def load_policy(spec: str, n_uavs: int, *, trust_checkpoint: bool = False) -> tu
             else:
                 pol = load_learned(path)
                 settings = dict(pol.env_settings)
+                if pol.card.get("safety_filter"):       # trained through the filter: it flies through it here too
+                    pol = ShieldedPolicy(pol)
         except ValueError as exc:
             raise UsageError(f"{spec}: {exc}") from None
     elif spec.startswith("rllib:"):

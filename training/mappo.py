@@ -27,6 +27,11 @@ checkpoints; ``train``, which runs them in that order. Nothing here is pickled: 
   path (:mod:`training.shield`; the env's ``waypoint_paths`` flies the candidates). The shielded masks are
   stored with the actions, so PPO's ratios use the masks the actions were sampled under, and the harness runs
   the same shield (the model card's ``separation_shield``).
+* **Safety filter** (waypoint mode, ``--safety-filter``, with ``--separation-shield false``): the team's sampled
+  nodes are proposals, and the env flies the nodes of :class:`covert_env.envs.safety_filter.SafetyFilteredVectorEnv`,
+  which keeps eqs. 2 and 3 along the flown path and certifies each move by a backup plan (action projection: PPO
+  keeps the probabilities of the proposals, the rewards and costs are those of the moves flown). The harness
+  flies a team trained so through the same filter (the model card's ``safety_filter``).
 * **Critic**: MAPPO (``--algo mappo``) sees the centralised ``state()`` of the copy plus a one-hot of the agent
   (the rewards are per agent, so one state value would not do); IPPO (``--algo ippo``) sees the agent's own
   observation. Value targets are normalised by running statistics (``--value-norm``, MAPPO's ValueNorm).
@@ -61,6 +66,7 @@ import numpy as np
 
 import covert_env
 from covert_env.envs.batch import COSTS
+from covert_env.envs.safety_filter import SafetyFilteredVectorEnv
 from covert_env.tasks import TASKS
 from training.budget import expected_steps
 from training.common import parse_args, resumed_args, run_name, save_run, setup_torch
@@ -171,6 +177,10 @@ class Args:
     """waypoint mode: the UAVs choose one after another and none may choose a node whose path comes closer than
     d_safe1 + shield_margin to a teammate's chosen path (training.shield); in training and evaluation alike.
     The unicycle mode has no shield"""
+    safety_filter: bool = False
+    """waypoint mode, with --separation-shield false: the team's nodes are proposals that fly through the safety
+    filter (covert_env.envs.safety_filter), which keeps eqs. 2 and 3 along the flown path; in training and
+    evaluation alike"""
     viability_shield: bool = False
     """waypoint mode, with the separation shield: a UAV also avoids a node from which it could reach no lattice
     node next slot (it would leave the zone): the end of the chosen path is tested with the env's onward_reach and,
@@ -260,6 +270,10 @@ def check_args(args: Args) -> None:
             raise ValueError(f"{flag} acts inside the separation shield: it needs --action-mode waypoint and "
                              f"--separation-shield true, got --action-mode {args.action_mode!r} --separation-shield "
                              f"{str(args.separation_shield).lower()}")
+    if args.safety_filter and (args.action_mode != "waypoint" or args.separation_shield):
+        raise ValueError(f"--safety-filter replaces the separation shield: it needs --action-mode waypoint and "
+                         f"--separation-shield false, got --action-mode {args.action_mode!r} --separation-shield "
+                         f"{str(args.separation_shield).lower()}")
     if args.viability_min_reach != 1 and not args.viability_shield:
         raise ValueError(f"--viability-min-reach {args.viability_min_reach}: a bar of the viability rule, it needs "
                          "--viability-shield true")
@@ -721,14 +735,15 @@ def model_card(args: Args, s: Sizes, env, env_kwargs: dict, shield) -> dict:
             "viability_shield": bool(shield is not None and args.viability_shield),
             "viability_min_reach": shield.min_reach if shield is not None and args.viability_shield else None,
             "shield_lookahead": bool(shield is not None and shield.lookahead),
+            "safety_filter": bool(args.safety_filter),
             "train_tasks": task_list(args) or None,
             "covert_env_version": covert_env.__version__ if hasattr(covert_env, "__version__") else None}
 
 
 def log_update(writer, curve, bar, prog: Progress, *, losses: dict, clipfracs: list, shield,
-               episodes: Episodes) -> None:
-    """The update's losses and charts to TensorBoard; the finished episodes' means to TensorBoard, curve.jsonl
-    and the progress bar."""
+               episodes: Episodes, agents_env=None) -> None:
+    """The update's losses and charts to TensorBoard (with the safety filter's counts where ``agents_env`` has
+    one); the finished episodes' means to TensorBoard, curve.jsonl and the progress bar."""
     step = prog.global_step
     for k, v in losses.items():
         writer.add_scalar(f"losses/{k}", v, step)
@@ -736,6 +751,11 @@ def log_update(writer, curve, bar, prog: Progress, *, losses: dict, clipfracs: l
     writer.add_scalar("charts/sps", step / max(prog.wall_seconds, 1e-9), step)
     for name, value in prog.lam.items():
         writer.add_scalar(f"charts/lambda_{name}", value, step)
+    safety = getattr(agents_env, "safety", None)
+    if safety is not None:                   # the safety filter: what it did, since the run (re)started
+        st = safety.stats
+        for key in ("changed", "backups", "uncertified", "infeasible"):
+            writer.add_scalar(f"charts/filter_{key}", getattr(st, key) / max(st.team_slots, 1), step)
     if shield is not None:
         writer.add_scalar("charts/shield_fallbacks", shield.fallbacks / max(shield.choices, 1), step)
         writer.add_scalar("charts/shield_dead_ends", shield.dead_ends / max(shield.choices, 1), step)
@@ -826,6 +846,8 @@ def train(args: Args) -> Path:
     tasks = task_list(args)
     env = make_training_env(tasks, args.num_envs, **({k: v for k, v in env_kwargs.items()
                                                        if k not in ("n_uavs", "scene_pool")} if tasks else env_kwargs))
+    if args.safety_filter:
+        env = SafetyFilteredVectorEnv(env)
     s = sizes_of(args, env)
     shield = (SeparationShield(env.config.d_safe1 + args.shield_margin, args.shield_end_margin,
                                lookahead=args.shield_lookahead, min_reach=args.viability_min_reach)
@@ -875,7 +897,8 @@ def train(args: Args) -> Path:
         prog.updates += 1
 
         prog.wall_seconds = time.monotonic() - t_start
-        log_update(writer, curve, bar, prog, losses=losses, clipfracs=clipfracs, shield=shield, episodes=episodes)
+        log_update(writer, curve, bar, prog, losses=losses, clipfracs=clipfracs, shield=shield, episodes=episodes,
+                   agents_env=env)
         if args.time_budget_minutes > 0 and prog.wall_seconds > 60 * args.time_budget_minutes:
             print(f"time budget of {args.time_budget_minutes:g} min reached at {prog.global_step} env steps: "
                   "stopping", flush=True)

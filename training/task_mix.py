@@ -20,6 +20,7 @@ import numpy as np
 
 import covert_env
 from covert_env.envs.batch import fly_to_goals
+from covert_env.envs.waypoint_queries import SafetyState
 
 __all__ = ["TaskMix", "make_training_env"]
 
@@ -104,7 +105,7 @@ class TaskMix:
                 self._from_mix.append(inverse)
         else:
             self.lattice = first.lattice
-        self.possible_agents = first.possible_agents
+        self.possible_agents, self.action_mode = first.possible_agents, first.action_mode
         self.single_observation_space, self.single_state_space = (first.single_observation_space,
                                                                   first.single_state_space)
         self.metadata = dict(first.metadata)            # the env's id: the tasks are in ``tasks`` (and the card)
@@ -168,6 +169,37 @@ class TaskMix:
             full[..., at] = m
             out.append(full)
         return np.concatenate(out)
+
+    @property
+    def available_nodes(self) -> np.ndarray:
+        """(B, L) bool: the nodes of the mix's lattice that each copy's task has (what its masks may allow)."""
+        if not self.waypoint:
+            raise RuntimeError("TaskMix.available_nodes is for action_mode='waypoint'")
+        return np.concatenate([np.repeat((inv >= 0)[None], e.num_envs, axis=0)
+                               for e, inv in zip(self.envs, self._from_mix, strict=True)])
+
+    def safety_state(self, depth: int = 1) -> SafetyState:
+        """The tasks' ``safety_state`` joined along the copy axis, on the mix's lattice: masks at each task's nodes'
+        places (False elsewhere), polytope tops padded with inf to the most any task has."""
+        if not self.waypoint:
+            raise RuntimeError("TaskMix.safety_state() is for action_mode='waypoint'")
+        parts = [e.safety_state(depth) for e in self.envs]
+        tops = max(p.tops.shape[1] for p in parts)
+        fields = {}
+        for name in SafetyState._fields:
+            if name == "masks":
+                full = []
+                for p, at in zip(parts, self._to_mix, strict=True):
+                    m = np.zeros((*p.masks.shape[:2], len(self.lattice)), bool)
+                    m[..., at] = p.masks
+                    full.append(m)
+                fields[name] = np.concatenate(full)
+            elif name == "tops":
+                fields[name] = np.concatenate([np.pad(p.tops, ((0, 0), (0, tops - p.tops.shape[1]), (0, 0)),
+                                                      constant_values=np.inf) for p in parts])
+            else:
+                fields[name] = np.concatenate([getattr(p, name) for p in parts])
+        return SafetyState(**fields)
 
     def waypoint_paths(self, nodes) -> np.ndarray:
         """The tasks' ``waypoint_paths`` for nodes ``(B, U, M)`` of the mix's lattice (-1: none): each task places

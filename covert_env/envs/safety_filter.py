@@ -223,13 +223,21 @@ class SafetyFilter:
         return proposed
 
     # ------------------------------------------------------------------ the filter
-    def filter(self, state: SafetyState, proposed, scores=None) -> np.ndarray:
+    def filter(self, state: SafetyState, proposed, scores=None, available=None) -> np.ndarray:
         """The team's nodes (B, U) for the proposals ``proposed`` (B, U) (lattice indices), under ``state`` (the
         env's :meth:`~covert_env.envs.waypoint_queries.WaypointQueries.safety_state` with ``depth`` >= this
         filter's). ``scores`` (B, U, L), higher preferred (e.g. a policy's logits; -inf: last), orders the
-        alternatives; default: the nodes nearest to the proposal first."""
+        alternatives; default: the nodes nearest to the proposal first. ``available`` (B, L) bool: the nodes a copy
+        may fly to at all, where the filter looks beyond the masks (default: every lattice node; a mix of tasks
+        whose lattices differ passes each copy's own)."""
         proposed = self._check(state, proposed, scores)
         b, u = proposed.shape
+        if available is None:
+            available = np.ones((b, len(self.lattice)), bool)
+        elif np.shape(available) != (b, len(self.lattice)) or np.asarray(available).dtype != bool:
+            raise ValueError(f"SafetyFilter.filter: available must be bools of shape {(b, len(self.lattice))} "
+                             f"(copies, nodes), got {np.asarray(available).dtype} {np.shape(available)}")
+        available = np.asarray(available)
         tops = near_tops(state.tops, self.config.altitude, max(g[2] for g in self.grids.values()))
         pref = self._proposal_pref(proposed, scores)
         out, plan = proposed.copy(), Plan(b, u, self.depth)
@@ -237,7 +245,7 @@ class SafetyFilter:
         for stage in self._search:
             if not pending.any():
                 break
-            allowed = np.ones_like(state.masks) if stage.widen else state.masks.copy()
+            allowed = np.repeat(available[:, None], u, axis=1) if stage.widen else state.masks.copy()
             allowed[np.arange(b)[:, None], np.arange(u)[None], proposed] = True
             pending &= ~self._certified(state, tops, allowed, pref, pending, out, plan, stage)
         held = pending & self._plan.holds(state)                      # the backup plan's next move
@@ -246,7 +254,7 @@ class SafetyFilter:
             plan.shift_from(self._plan, held)
             pending &= ~held
         if pending.any():
-            self._uncertified(state, tops, pref, pending, out)
+            self._uncertified(state, tops, pref, pending, out, available)
         self._plan = plan
         moved = out != proposed
         self.stats.team_slots += b
@@ -360,11 +368,11 @@ class SafetyFilter:
                 break
         return out, found, ends, end_th, stuck
 
-    def _uncertified(self, state, tops, pref, rows, out) -> None:
+    def _uncertified(self, state, tops, pref, rows, out, available) -> None:
         """A safe joint move without a certificate for the copies ``rows``, or the proposals (infeasible events)."""
         u = state.xy.shape[1]
         idx = np.nonzero(rows)[0]
-        allowed = np.ones((len(idx) * u, len(self.lattice)), bool)
+        allowed = np.repeat(available[idx], u, axis=0)
         nodes, rank = self._spread(allowed, pref[idx].reshape(len(idx) * u, -1), None)
         nodes, rank = nodes.reshape(len(idx), u, -1), rank.reshape(len(idx), u, -1)
         fl = Flights(self, state.xy[idx], state.theta[idx], state.q_next[idx], state.phi_next[idx], nodes, tops[idx],
@@ -451,7 +459,9 @@ class SafetyFilteredVectorEnv:
     ============================  ==============================================================================
 
     Args:
-        venv: a :class:`~covert_env.envs.vector.CovertSensingVectorEnv` in waypoint mode.
+        venv: a :class:`~covert_env.envs.vector.CovertSensingVectorEnv` in waypoint mode, or an env with the same
+            waypoint interface (``safety_state``, ``step``; ``available_nodes`` (B, L) where copies' lattices
+            differ, as in a mix of tasks).
         **filter_kw: :class:`SafetyFilter`'s settings (``samples``, ``depth``, ``candidates``, ...).
     """
 
@@ -470,14 +480,15 @@ class SafetyFilteredVectorEnv:
 
     def reset(self, *, seed=None, options=None):
         """The env's ``reset``; a copy reset here starts without a backup plan."""
-        return self.env.reset(seed=seed, options=options)
+        return self.env.reset(seed=seed) if options is None else self.env.reset(seed=seed, options=options)
 
     def step(self, actions):
         """One slot with the filter's nodes for the proposals ``actions`` (B, U); see the class docstring."""
         b, u = self.env.num_envs, len(self.env.possible_agents)
         proposed = batch.waypoint_actions(actions, (b, u), len(self.env.lattice), self.env.possible_agents)
         before = len(self.safety.stats.events)
-        flown = self.safety.filter(self.env.safety_state(self.safety.depth), proposed)
+        flown = self.safety.filter(self.env.safety_state(self.safety.depth), proposed,
+                                   available=getattr(self.env, "available_nodes", None))
         obs, rewards, terminations, truncations, infos = self.env.step(flown)
         infeasible = np.zeros((b, u), bool)
         for copy, _ in self.safety.stats.events[before:]:

@@ -333,6 +333,11 @@ def load_learned(path: str | Path) -> LearnedPolicy:
             raise ValueError(f"{card_path}: actor.{key} must be true or false, got {spec[key]!r}")
     if not isinstance(card.get("viability_shield", False), bool):
         raise ValueError(f"{card_path}: viability_shield must be true or false, got {card['viability_shield']!r}")
+    if not isinstance(card.get("safety_filter", False), bool):
+        raise ValueError(f"{card_path}: safety_filter must be true or false, got {card['safety_filter']!r}")
+    if card.get("safety_filter") and card.get("separation_shield") is not None:
+        raise ValueError(f"{card_path}: safety_filter replaces the separation shield, but separation_shield is "
+                         f"{card['separation_shield']!r}")
     if not isinstance(card.get("shield_lookahead", False), bool):
         raise ValueError(f"{card_path}: shield_lookahead must be true or false, got {card['shield_lookahead']!r}")
     reach = card.get("viability_min_reach")

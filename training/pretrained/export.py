@@ -77,6 +77,7 @@ def export(run: Path, name: str, episodes: int = 20, out_dir: Path = PRETRAINED_
             "viability_shield": bool(meta.get("viability_shield", False)),
             "viability_min_reach": meta.get("viability_min_reach"),
             "shield_lookahead": bool(meta.get("shield_lookahead", False)),
+            "safety_filter": bool(meta.get("safety_filter", False)),
             "covert_env_version": covert_env.__version__, "commit": _commit(),
             "recipe": {k: v for k, v in args.items() if k not in ("card", "resume", "runs_dir")},
             "training": {**summary, "run": run.name, "commit": training_commit or "unknown"}, "note": note}
