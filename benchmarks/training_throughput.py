@@ -1,0 +1,190 @@
+"""What the MAPPO training loop makes of the engine: env-steps per CPU-second of the loop against the raw vector env
+at the same B, tasks and mask mode, in the same run, with where the loop's time goes.
+
+    python benchmarks/training_throughput.py [--sizes 16 64 256] [--updates 2] [--num-steps 16]
+        [--guards shield filter] [--recipe 3uav-suite]
+
+For each B: the raw env (the recipe's tasks as one ``TaskMix``, kinematic mask, masked-random nodes, automatic
+resets), then the recipe's loop (``training.mappo``: rollout of ``--num-steps`` slots, GAE, the PPO update) for
+``--updates`` updates after one untimed update, with each guard of ``--guards``:
+
+* ``shield``: the recipe's separation shield (``training.shield``, with its look-ahead and viability rule);
+* ``filter``: the safety filter (``--safety-filter``: eqs. 2 and 3 along the flown path, certified moves);
+* ``none``: no guard (what the loop costs without one).
+
+It prints the command, one row per (B, guard): env-steps per CPU-second, the ratio to the raw env of the same B,
+and the share of the loop's CPU time in the env's step, the guard, the node features, the actor and critic in the
+rollout, and the PPO update. ``torch`` runs on one thread, as the recipes do.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shlex
+import sys
+import time
+from contextlib import contextmanager
+from pathlib import Path
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import numpy as np  # noqa: E402
+
+PARTS = ("env step", "guard", "node features", "actor and critic", "PPO update", "other")
+
+
+class Timer:
+    """CPU seconds by part; ``wrap(obj, name, part)`` times a method of ``obj`` under ``part``."""
+
+    def __init__(self):
+        self.t = dict.fromkeys(PARTS, 0.0)
+        self._stack: list[str] = []
+
+    @contextmanager
+    def part(self, name: str):
+        t0 = time.process_time()
+        self._stack.append(name)
+        try:
+            yield
+        finally:
+            self._stack.pop()
+            dt = time.process_time() - t0
+            self.t[name] += dt
+            if self._stack:                       # nested: the outer part does not count it twice
+                self.t[self._stack[-1]] -= dt
+
+    def wrap(self, obj, method: str, name: str) -> None:
+        fn = getattr(obj, method)
+
+        def timed(*a, **k):
+            with self.part(name):
+                return fn(*a, **k)
+
+        setattr(obj, method, timed)
+
+
+def raw_rate(tasks: list[str], b: int, seconds: float, mask_mode: str) -> float:
+    """Env-steps per CPU-second of the raw mix, masked-random nodes."""
+    from training.task_mix import make_training_env
+
+    env = make_training_env(tasks, b, action_mode="waypoint", mask_mode=mask_mode, map_size=16)
+    env.reset(seed=0)
+    rng = np.random.default_rng(0)
+
+    def step():
+        m = env.action_masks().astype(bool)
+        env.step(np.argmax(np.where(m, rng.random(m.shape), -1.0), axis=2))
+
+    for _ in range(3):
+        step()
+    t0, n = time.process_time(), 0
+    while time.process_time() - t0 < seconds or n < 10:
+        step()
+        n += 1
+    rate = b * n / (time.process_time() - t0)
+    env.close()
+    return rate
+
+
+def loop_rate(recipe: str, b: int, guard: str, updates: int, num_steps: int) -> tuple[float, dict]:
+    """Env-steps per CPU-second of ``updates`` training updates of ``recipe`` at B = ``b`` with ``guard``, and the
+    CPU seconds by part."""
+    import torch
+
+    from covert_env.envs.safety_filter import SafetyFilteredVectorEnv
+    from training import mappo
+    from training.common import parse_args
+    from training.recipes import MAPPO_RECIPES
+    from training.shield import SeparationShield
+    from training.task_mix import make_training_env
+
+    torch.set_num_threads(1)
+    argv = ["--recipe", recipe, "--num-envs", str(b), "--num-steps", str(num_steps), "--progress-bar", "false",
+            "--separation-shield", str(guard == "shield").lower(), "--safety-filter", str(guard == "filter").lower()]
+    if guard != "shield":
+        argv += ["--viability-shield", "false", "--shield-lookahead", "false", "--viability-min-reach", "1"]
+    args = parse_args(mappo.Args, argv, description="", presets=MAPPO_RECIPES)
+    mappo.check_args(args)
+    np.random.seed(0)
+    torch.manual_seed(0)
+    env = make_training_env(mappo.task_list(args), b, action_mode="waypoint", mask_mode=args.mask_mode,
+                            map_size=args.map_size, max_cycles=args.max_cycles)
+    timer = Timer()
+    timer.wrap(env, "step", "env step")
+    if guard == "filter":
+        env = SafetyFilteredVectorEnv(env)
+        timer.wrap(env.safety, "filter", "guard")
+    s = mappo.sizes_of(args, env)
+    shield = None
+    if guard == "shield":
+        shield = SeparationShield(env.config.d_safe1 + args.shield_margin, args.shield_end_margin,
+                                  lookahead=args.shield_lookahead, min_reach=args.viability_min_reach)
+        timer.wrap(shield, "choose", "guard")
+    actor, critic, optim = mappo.make_networks(args, s)
+    agents = mappo.Agents(args, s, env, actor, critic, mappo.RunningNorm(), shield)
+    timer.wrap(agents, "node_feats", "node features")
+    timer.wrap(agents, "act", "actor and critic")
+    timer.wrap(agents, "value", "actor and critic")
+    buf, episodes = mappo.Rollout(s), mappo.Episodes(s)
+    lam = dict.fromkeys(s.constrained, 0.0)
+    obs, _ = env.reset(seed=0)
+    state = env.state()
+
+    def update():
+        nonlocal obs, state
+        with timer.part("other"):
+            obs, state = mappo.collect_rollout(agents, buf, episodes, obs, state, lam=lam)
+            adv, ret = mappo.advantages(buf, agents.value(obs, state), args.gamma, args.gae_lambda)
+        with timer.part("PPO update"):
+            mappo.ppo_update(agents, optim, buf, adv, ret)
+
+    update()                                                   # untimed: first scenes, allocations
+    timer.t = dict.fromkeys(PARTS, 0.0)
+    t0 = time.process_time()
+    for _ in range(updates):
+        update()
+    cpu = time.process_time() - t0
+    env.close()
+    return b * num_steps * updates / cpu, timer.t
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sizes", type=int, nargs="+", default=[16, 64, 256], help="B, copies (default 16 64 256)")
+    parser.add_argument("--guards", nargs="+", choices=["shield", "filter", "none"], default=["shield", "filter"])
+    parser.add_argument("--recipe", default="3uav-suite", help="the training.mappo recipe (default 3uav-suite)")
+    parser.add_argument("--updates", type=int, default=2, help="timed PPO updates per row (default 2)")
+    parser.add_argument("--num-steps", type=int, default=16, help="rollout slots per update (default 16)")
+    parser.add_argument("--seconds", type=float, default=4.0, help="CPU-seconds of the raw env per B (default 4)")
+    args = parser.parse_args(argv)
+    from training import mappo
+    from training.common import parse_args
+    from training.recipes import MAPPO_RECIPES
+
+    if args.recipe not in MAPPO_RECIPES:
+        parser.error(f"--recipe must be one of {', '.join(MAPPO_RECIPES)}, got {args.recipe!r}")
+    rec = MAPPO_RECIPES[args.recipe]
+    tasks = mappo.task_list(parse_args(mappo.Args, ["--recipe", args.recipe], description="", presets=MAPPO_RECIPES))
+    print("command:", shlex.join(["python", "benchmarks/training_throughput.py", *(argv or sys.argv[1:])]))
+    import covert_env
+
+    print(f"covert_env {covert_env.__version__}, recipe {args.recipe}: {len(tasks)} tasks, mask "
+          f"{rec.get('mask_mode', 'visible')}, load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs")
+    print("| B | loop | env-steps per CPU-second | / raw env | " + " | ".join(PARTS) + " |")
+    print("|---|---|---|---|" + "---|" * len(PARTS))
+    for b in args.sizes:
+        raw = raw_rate(tasks, b, args.seconds, rec.get("mask_mode", "visible"))
+        print(f"| {b} | raw env | {raw:,.0f} | 1.00 |" + " |" * len(PARTS), flush=True)
+        for guard in args.guards:
+            rate, parts = loop_rate(args.recipe, b, guard, args.updates, args.num_steps)
+            total = sum(parts.values())
+            print(f"| {b} | {guard} | {rate:,.0f} | {rate / raw:.3f} | "
+                  + " | ".join(f"{100 * parts[p] / total:.0f} %" for p in PARTS) + " |", flush=True)
+    print(f"load average at the end: {os.getloadavg()[0]:.1f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
