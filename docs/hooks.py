@@ -112,6 +112,36 @@ def on_page_markdown(markdown: str, page, config, files) -> str:
     return PLACEHOLDER.sub(fill, markdown)
 
 
+#: A Sphinx role in a docstring (``:class:`~a.b.C```), as the Markdown renderer leaves it in the HTML.
+SPHINX_ROLE = re.compile(r":(?:class|func|meth|mod|data|attr|exc|obj):<code>(~?)([^<]*)</code>")
+
+
+#: The single-UAV env's part of a page (its observation table is the single agent's).
+SINGLE_ENV = 'id="covert_env.envs.single.'
+
+
+def _observation_tables(html: str) -> str:
+    """The env docstrings' ``{OBSERVATION_TABLE}``, which the env modules fill at import (the docstrings are read
+    from the source here), as the tables ``observation_table`` makes."""
+    import markdown
+
+    from covert_env.envs.observation import observation_table
+
+    def table(single: bool) -> str:
+        return markdown.markdown(observation_table(single_agent=single), extensions=["tables"])
+
+    head, sep, tail = html.partition(SINGLE_ENV)
+    return head.replace("{OBSERVATION_TABLE}", table(False)) + sep + tail.replace("{OBSERVATION_TABLE}", table(True))
+
+
+def on_page_content(html: str, page, config, files) -> str:
+    """The docstrings' Sphinx roles as plain code (``~`` keeps the last name, as Sphinx shows it), and their
+    observation tables."""
+    html = SPHINX_ROLE.sub(lambda m: f"<code>{m.group(2).rsplit('.', 1)[-1] if m.group(1) else m.group(2)}</code>",
+                           html)
+    return _observation_tables(html) if "{OBSERVATION_TABLE}" in html else html
+
+
 def _png(draw) -> bytes:
     import matplotlib
 

@@ -70,6 +70,12 @@ def test_site_builds_strictly_with_every_page(site):
         assert (site / "images" / "families" / f"{family}.png").stat().st_size > 10_000
     board = (site / "leaderboards.html").read_text(encoding="utf-8")
     assert "score IQM" in board and "planner" in board and "<!-- generated" not in board
+    envs = (site / "environments.html").read_text(encoding="utf-8")
+    assert envs.count("own offset from the target") == 2, "the env docstrings' observation tables are missing"
+    for page in site.rglob("*.html"):
+        text = page.read_text(encoding="utf-8")
+        assert "{OBSERVATION_TABLE}" not in text and ":class:<code>" not in text, page
+        assert "Convert a string or number to a floating point number" not in text, f"{page}: float's docstring"
 
 
 def test_the_docs_have_code_blocks():
