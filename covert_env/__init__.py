@@ -22,14 +22,19 @@ from covert_env.trajectory import Trajectory
 __version__ = "0.10.0"
 
 # Environments are imported after the model: the model modules never import them.
-from covert_env import (  # noqa: E402
-    covert_sensing_v0,
-    covert_sensing_v1,
-    covert_sensing_v2,
-    covert_sensing_v3,
-    covert_sensing_v4,
-)
+from covert_env import covert_sensing_v4  # noqa: E402
 from covert_env.envs import env, parallel_env, raw_env, vector_env  # noqa: E402
+from covert_env.retired import RETIRED as _RETIRED  # noqa: E402
+
+
+def __getattr__(name: str):
+    """The retired entry points (``covert_env.covert_sensing_v0`` .. ``_v3``, :mod:`covert_env.retired`), imported
+    when first read."""
+    if name in _RETIRED:
+        import importlib
+
+        return importlib.import_module(f"covert_env.{name}")
+    raise AttributeError(f"module 'covert_env' has no attribute {name!r}")
 
 __all__ = ["Config", "Engine", "Polytope", "Road", "Scenario", "TargetTrack", "Terrain", "Trajectory",
            "covert_sensing_v0", "covert_sensing_v1", "covert_sensing_v2", "covert_sensing_v3", "covert_sensing_v4",
@@ -39,8 +44,8 @@ __all__ = ["Config", "Engine", "Polytope", "Road", "Scenario", "TargetTrack", "T
 def _register() -> None:
     """Register the Gymnasium ids (Gymnasium 1.x has no plugin entry point) and PettingZoo ids.
 
-    v4 is the env; the v1, v2 and v3 ids are registered to raise what changed (``covert_sensing_v1.V1_RETIRED``,
-    ``covert_sensing_v2.V2_RETIRED``, ``covert_sensing_v3.V3_RETIRED``), and v0 is not registered:
+    v4 is the env; the v1, v2 and v3 ids are registered to raise what changed (:data:`covert_env.retired.RETIRED`),
+    and v0 is not registered:
     ``gym.make("covert_env/CovertSensing-v0")`` raises Gymnasium's own ``DeprecatedEnv`` ("... is deprecated. Please
     use `covert_env/CovertSensing-v4` instead.")."""
     import gymnasium

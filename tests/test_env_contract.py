@@ -584,3 +584,26 @@ def test_kinematic_mask_passes_pettingzoo_and_gymnasium_checks():
     env = gym.make("covert_env/CovertSensingWaypoint-v4", mask_mode="kinematic", max_cycles=5)
     check_env(env.unwrapped)
     assert env.unwrapped.par.mask_mode == "kinematic"
+
+
+def test_retired_versions_come_from_one_table_and_load_on_demand():
+    """covert_env.retired.RETIRED is the one table: every retired module's constructors raise its entry, and
+    ``import covert_env`` imports none of them until one is read."""
+    import subprocess
+    import sys
+
+    import covert_env
+    from covert_env.retired import RETIRED
+
+    assert list(RETIRED) == [f"covert_sensing_v{v}" for v in range(4)]
+    for name, message in RETIRED.items():
+        module = getattr(covert_env, name)
+        for make in (module.env, module.parallel_env, module.raw_env):
+            with pytest.raises(RuntimeError) as err:
+                make(n_uavs=3)
+            assert str(err.value) == message and "covert_sensing_v4" in message
+    with pytest.raises(AttributeError, match="no attribute 'covert_sensing_v9'"):
+        covert_env.covert_sensing_v9       # noqa: B018
+    code = "import sys, covert_env; print(sorted(m for m in sys.modules if 'covert_sensing_v' in m))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "['covert_env.covert_sensing_v4']"

@@ -2,7 +2,7 @@
 
 ``3uav-ppo`` -- the documented 3-UAV parameter-shared PPO recipe: trains in <= 60 minutes on 2 CPU cores.
 
-    OMP_NUM_THREADS=1 python -m training.ppo_multi --recipe 3uav-ppo          # ~50 min wall clock, then saves
+    OMP_NUM_THREADS=1 python -m training.ppo_multi --recipe 3uav-ppo          # stops at its time budget, saves
     python -m training.evaluate --policies random hold-centre dp sb3:runs/<run> --trust-checkpoint --episodes 20
 
 Why these settings:
@@ -20,26 +20,12 @@ Why these settings:
   zone (``disguise_in_zone_only``). Without that, circling close to the target earns more disguise
   (|d alpha| is large near the target) than the zone penalty costs: a covertness-violating exploit.
 * Small MLP (128, 128, tanh), initial action std exp(-0.5): near-random actions fly away from the target
-  (random's zone-violation rate is ~97%), a narrower start helps the team find the zone sooner.
+  (random unicycle actions leave the zone in almost every slot), a narrower start helps the team find the zone
+  sooner.
 * Time budget: ``time_budget_minutes = 50`` stops training gracefully and saves; ``total_timesteps`` is an
   upper bound that the 2-core machine does not reach in 50 minutes.
 
-Measured with covert_env 0.1.0 and its lock-step SB3 adapter (seed 0, 2 shared CPU cores): 50.0 min,
-13,715,520 agent-steps (~4,570/s; a run on slower env code reached 3,658,800 at ~1,200/s). On the 20 held-out scenes
-1_000_000..1_000_019 (``outputs/leaderboard``; mean ± std over episodes):
-
-| policy | reward | blocked LoS (slots) | zone violations | disguise | path (m) | separation violations |
-|---|---|---|---|---|---|---|
-| random (unicycle) | -104.4 ± 13.1 | 0.451 | 0.978 | 20.2 | 1756 | 0.23 |
-| this recipe | 121.9 ± 15.0 | 0.014 | 0.022 | 23.6 | 1372 | 26.9 |
-| this recipe, shorter run (3.66 M steps) | 110.7 ± 7.5 | 0.005 | 0.019 | 21.8 | 1285 | 27.5 |
-| DP shadow-aware (waypoint) | 240.4 ± 2.7 | 0.000 | 0.000 | 38.6 | 2958 | 0.07 |
-
-Known weakness: the team flies bunched up (27 of 70 slots per UAV closer than d_safe1, min separation 0.5-0.7 m):
-staying in the zone is learned first and the separation penalty of 1 per slot is too weak against it. The DP
-planner's disguise (kappa ~39 vs ~24) is the rest of the reward gap. An exploratory 25-min run with
-``--separation-penalty 3`` (2.08 M steps) only reduced it to 21.1 slots and earned less (80.7 ± 6.0): not a fix at
-this budget.
+The runs of this recipe and what they scored: docs/training.md, "The 3-UAV PPO recipe".
 
 ``smoke`` -- a few thousand steps, for CI.
 """
@@ -68,8 +54,8 @@ RECIPES: dict[str, dict] = {
 #: measured runs).
 #: ``3uav-suite``: the team of the task suite. It trains on the training scenes of the suite's eight 3-UAV core
 #: tasks at once (two copies each, training.task_mix), with the kinematic mask (every reachable node: the team
-#: must learn the shadows), the node head reading the 16 x 16 visibility map under each node (without it the
-#: LoS cost did not fall in a 5-minute pilot; with it, it fell by two thirds), a Lagrange multiplier per
+#: must learn the shadows), the node head reading the 16 x 16 visibility map under each node (docs/training.md
+#: says what it is worth), a Lagrange multiplier per
 #: constraint (LoS at slot times, LoS along the path, the zone, separation) with a dual step of 1 and a bound of
 #: 4, the separation shield with its look-ahead and its viability rule (no node from which fewer than 10 nodes are
 #: reachable next slot, where another leaves 10); 45 minutes of wall clock (three seeds at once on 2 cores). The

@@ -2,12 +2,12 @@
 UAV may not choose a node whose path comes near a path a teammate has already chosen (eq. 2, d_safe1).
 
 Why a shield and not only a penalty: with one shared actor the UAVs of a team score the lattice nodes alike and
-converge on the same best node. With a separation penalty alone (1 per slot by default, or a Lagrangian
-multiplier), a MAPPO team keeps its UAVs apart in only about three of four slots (18 of 70 slots per UAV closer
-than d_safe1 for the unshielded ``pretrained:mappo`` of covert_env 0.3.0, on the held-out scenes). Eq. 2 is a
-hard constraint of the paper's problem, and the DP team meets it the same way: by priority negotiation, each UAV
-planning around the plans of the UAVs before it (``baselines.dp.DPTeamPlanner``). The shield is that negotiation
-for one slot: the team shares its chosen paths, as the DP team shares its plans.
+converge on the same best node. With a separation penalty alone (1 per slot by default, or a Lagrangian multiplier),
+a MAPPO team comes closer than d_safe1 in a large share of its slots
+(docs/decisions/learning.md#separation-shield-for-learned-teams has the figures). Eq. 2 is a hard constraint of the
+paper's problem, and the DP team meets it the same way: by priority negotiation, each UAV planning around the plans
+of the UAVs before it (``baselines.dp.DPTeamPlanner``). The shield is that negotiation for one slot: the team shares
+its chosen paths, as the DP team shares its plans.
 
 It acts on the action masks only, so it is part of the policy (training and evaluation use it alike, and PPO's
 probability ratios are taken under the masks the actions were sampled with); the environment is unchanged.

@@ -204,63 +204,19 @@ class CovertSensingParallelEnv(ConstructionSettings, ParallelEnv):
 
     ## Version History
 
-    * v4, covert_env 0.10.0: every UAV's pose is settled at each slot end on a grid of 2^-20 m and 2^-24 rad
-      (:func:`covert_env.flight.settle_pose`, docs/decisions/flight.md#settled-slot-end-poses), so that a seeded rollout
-      gives the same numbers on CPUs whose float64 ``arctan2``/``exp``/``arccos`` differ in the last bit (numpy with
-      and without AVX-512). The flight amplifies such a difference a few times per slot, and in v3 it changed
-      decisions within about thirty slots. Observations, rewards, costs, scenes and spaces are otherwise unchanged,
-      but seeded rollouts differ from v3's. ``covert_sensing_v3`` and the v3 ids raise an error that says this.
-    * v3, covert_env 0.9.0 (no number changed at the defaults): ``target_path=P`` appends the target's path
-      predicted over P slots to the observation and ``state()``, after the maps (the default, 0, leaves both as
-      they were).
-    * v3, covert_env 0.8.0 (no number changed): ``onward_reach(xy, theta)``, how many nodes UAVs ending this slot
-      at given poses may reach in the next (read-only; the viability rule of ``training.shield``).
-    * v3, covert_env 0.7.0: LoS lost between slot times counts. The reward has a term ``los_path``
-      (``-los_path_penalty`` times the share of the slot's flown path with LoS blocked, weight 1.0 by default), the
-      infos a cost ``cost_los_path`` (that share, also summed into ``cost``) and a flag ``los_path``; ``penalties``
-      has the key ``los_path``. A new argument, ``mask_mode="kinematic"``, masks by reachability only (the default
-      mask is unchanged). Observations, dynamics, scenes and the other terms and costs are unchanged bit for
-      bit: with ``los_path_penalty=0`` a seeded rollout's observations and rewards are v2's. ``covert_sensing_v2``
-      and the v2 ids raise an error that says this.
-    * v2, covert_env 0.6.0: random scenes (``scenario="random"``, ``Scenario.random``) are drawn by a batched
-      generator (:mod:`covert_env.generation`: B scenes per array operation, each a function of its seed alone),
-      so every random scene, its starts included, differs from v1's; the paper scene is unchanged. The waypoint
-      action mask, the observation maps and the start sampler read the planner's rule for the visible zone
-      (eq. 10, :func:`covert_env.visibility.visible_nodes`): the lattice's nodes are in the eroded zone by
-      construction (decided in the target frame), so the nodes on its boundary that v1's second, world-frame zone
-      test dropped by rounding are offered (on v1's held-out scenes 1,000,000-1,000,019 and training scenes 0-19:
-      1,000 of 1,777,160 node-slots), and LoS is decided with the polytopes grown by 1 µm
-      (:data:`~covert_env.visibility.SAFE_LOS_TOLERANCE`) instead of shrunk by 10 nm (no mask, map or start
-      changed on those scenes). With ``r_u`` below 1 µm the lattice leaves out the nodes on the zone's boundary,
-      which the rotation could round out of the zone (``zone.ZONE_MARGIN``). On a fixed scene (the paper's, a
-      ``Scenario``) seeded rollouts can differ from v1 in waypoint mode through the mask, in both modes through
-      the maps and the starts; rewards, costs and dynamics are unchanged. With a prediction error
-      (``config.prediction_error`` > 0), a waypoint action's node and the action mask are about the target's next
-      pose as predicted now (docs/decisions/model.md#prediction-error, and where the DP planner plans them); v1 placed
-      the node about the true next pose, which no policy sees when it acts (the DP team's waypoints then landed up
-      to 50 m from its plan). ``covert_sensing_v1`` and the v1 ids raise an error that says this.
-    * v1, covert_env 0.5.0 (no number of a valid seeded rollout changed): calls out of order raise alike in
-      every env kind (``render()`` before ``reset()`` returned None, ``step()`` after ``close()`` went on);
-      ``penalties`` items are validated; the AEC env checks an action at its agent's ``step()``; coordinates,
-      lengths and terrain sizes have finite bounds (:mod:`covert_env.config`).
-    * v1, covert_env 0.4.0 (no number changed): ``waypoint_paths(nodes)``, the paths the UAVs would fly to given
-      nodes in this slot (read-only), for policies that plan with the model (the separation shield).
-    * v1, covert_env 0.3.0 (no number changed, so the id stays v1): the env is the B = 1 view of
-      :class:`~covert_env.envs.vector.CovertSensingVectorEnv`; every observation, reward and info of a seeded
-      rollout is bit-identical to 0.2.0. ``env.engine`` is a live, read-only
-      :class:`~covert_env.envs.recorder.CopyView` (no ``reset``/``step``: place UAVs with a ``Scenario``);
-      ``reward_scale``, ``penalties`` and ``terminate_on_collision`` are validated when assigned; ``env.scenario``
-      before the first reset raises an error that is also an ``AttributeError``.
-    * v1 (covert_env 0.2.0): infos are flat scalars with the same keys and types at reset and every step
-      (``reward_terms[t]`` became ``reward_<t>``); constraint costs ``cost``, ``cost_los``, ``cost_zone``,
-      ``cost_separation``, ``cost_terrain``; with ``dict_obs=True`` the action mask is only in the
-      observation; ``max_cycles`` above ``config.n_slots`` is accepted (the episode ends with the route) and is
-      validated on assignment; ``dict_obs=True`` in unicycle mode is an error; starts on scenes whose visible
-      zone cannot hold the team use a documented fallback (:meth:`Scenario.sample_starts`; other scenes' starts
-      are unchanged); a waypoint dead behind the UAV turns right, as eq. 22 states (v0 turned left; reachable
-      only when W_max delta > pi, so no seeded result of the defaults changed). Observations and rewards
-      are otherwise unchanged.
-    * v0: initial release.
+    * v4 (covert_env 0.10.0): every UAV's pose is settled at each slot end on a fine grid
+      (docs/decisions/flight.md#settled-slot-end-poses), so that seeded rollouts give the same numbers on every CPU.
+    * v3 (covert_env 0.7.0): LoS lost along the flown path counts (``reward_los_path``, ``cost_los_path``,
+      ``los_path``); ``mask_mode="kinematic"``. 0.8.0 added ``onward_reach``, 0.9.0 ``target_path``; no number changed.
+    * v2 (covert_env 0.6.0): random scenes from the batched generator; the waypoint mask, maps and starts read eq. 10's
+      one rule; under a prediction error a waypoint is placed about the target's predicted pose.
+    * v1 (covert_env 0.2.0): flat infos with the same keys at reset and every step, constraint costs. 0.3.0 made the
+      env the B = 1 view of the vector env, 0.4.0 added ``waypoint_paths``, 0.5.0 the checks of calls out of order;
+      no number changed.
+    * v0 (covert_env 0.1.0): initial release.
+
+    What each version changed, and by how much: ``CHANGELOG.md``. The retired ids raise an error that says it
+    (:data:`covert_env.retired.RETIRED`).
     """
 
     metadata = {"name": "covert_sensing_v4", "render_modes": list(RENDER_MODES), "render_fps": 4,

@@ -82,25 +82,9 @@ class CovertSensingEnv(gym.Env):
 
     ## Version History
 
-    * v4, covert_env 0.10.0: every UAV's pose is settled at each slot end on a fine grid, as in the PettingZoo env
-      this one wraps (its Version History says why).
-    * v3, covert_env 0.9.0 (no number changed at the defaults): ``target_path=P`` appends the target's predicted
-      path to the observation, as in the PettingZoo env this one wraps.
-    * v3, covert_env 0.7.0: LoS lost along the flown path counts (``reward_los_path``, ``cost_los_path``,
-      ``los_path``), as in the PettingZoo env this one wraps (its Version History says what changed).
-    * v2, covert_env 0.6.0: random scenes from the batched generator and the waypoint mask of eq. 10's one rule,
-      as in the PettingZoo env this one wraps (its Version History,
-      :class:`~covert_env.envs.covert_sensing.CovertSensingParallelEnv`, says what changed and how much).
-    * v1 (covert_env 0.2.0): infos are flat scalars with the same keys and types at reset and every step
-      (``reward_terms[t]`` became ``reward_<t>``); constraint costs ``cost``, ``cost_los``, ``cost_zone``,
-      ``cost_separation``, ``cost_terrain``; with ``dict_obs=True`` the action mask is only in the
-      observation; ``max_cycles`` above ``config.n_slots`` is accepted (the episode ends with the route) and is
-      validated on assignment; ``dict_obs=True`` in unicycle mode is an error; starts on scenes whose visible
-      zone cannot hold the team use a documented fallback (:meth:`Scenario.sample_starts`; other scenes' starts
-      are unchanged); a waypoint dead behind the UAV turns right, as eq. 22 states (v0 turned left; reachable
-      only when W_max delta > pi, so no seeded result of the defaults changed). Observations and rewards
-      are otherwise unchanged.
-    * v0: initial release.
+    The PettingZoo env's it wraps (:class:`~covert_env.envs.covert_sensing.CovertSensingParallelEnv`): each version
+    of ``covert_env/CovertSensing-vN`` and ``covert_env/CovertSensingWaypoint-vN`` has the task and numbers of
+    ``covert_sensing_vN``. What each version changed: ``CHANGELOG.md``.
     """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 4}

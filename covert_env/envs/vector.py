@@ -159,23 +159,10 @@ class CovertSensingVectorEnv(ConstructionSettings, LiveSettings, CopyReaders, Wa
 
     ## Version History
 
-    * v4, covert_env 0.10.0: the task and numbers of ``covert_sensing_v4`` (every UAV's pose settled at each slot end
-      on a fine grid, so that seeded rollouts reproduce across CPUs).
-    * v3, covert_env 0.9.0 (no number changed at the defaults): ``target_path=P`` appends the target's predicted
-      path to the observation, as in the PettingZoo env (its Version History).
-    * v3, covert_env 0.8.0 (no number changed): ``onward_reach(xy, theta)``, how many nodes UAVs ending this slot
-      at given poses may reach in the next (read-only; the viability rule of ``training.shield``).
-    * v3, covert_env 0.7.0: the task and numbers of ``covert_sensing_v3`` (LoS along the flown path in the reward,
-      ``reward_los_path``, and the infos, ``cost_los_path`` and ``los_path``, computed for every copy and path sample
-      in one batched line-of-sight call).
-    * v2, covert_env 0.6.0: the task and numbers of ``covert_sensing_v2`` (random scenes from the batched
-      generator, :mod:`covert_env.generation`, drawn for every copy that needs one in one batch; the waypoint
-      mask, observation maps and start candidates of eq. 10's one rule, :func:`covert_env.visibility.visible_nodes`).
-    * v1: initial release (the task and numbers of ``covert_sensing_v1``). covert_env 0.3.0 added
-      ``autoreset_mode``, ``record`` and the copy readers; 0.4.0 added the read-only ``waypoint_paths``; 0.5.0
-      checks copy indices (``scene(-1)`` returned the last copy), raises on ``action_masks()`` before ``reset()``
-      and warns about unknown reset options instead of raising, as the parallel env does; the numbers are
-      unchanged.
+    The PettingZoo env's (:class:`~covert_env.envs.covert_sensing.CovertSensingParallelEnv`): each version of
+    ``covert_sensing_vector_vN`` has the task and numbers of ``covert_sensing_vN``. 0.3.0 added ``autoreset_mode``,
+    ``record`` and the copy readers, 0.4.0 ``waypoint_paths``, 0.8.0 ``onward_reach`` and 0.9.0 ``target_path``, with
+    no number changed. What each version changed: ``CHANGELOG.md``.
     """
 
     metadata = {"name": "covert_sensing_vector_v4", "autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
