@@ -167,6 +167,10 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--recipe must be one of {', '.join(MAPPO_RECIPES)}, got {args.recipe!r}")
     rec = MAPPO_RECIPES[args.recipe]
     tasks = mappo.task_list(parse_args(mappo.Args, ["--recipe", args.recipe], description="", presets=MAPPO_RECIPES))
+    bad = [b for b in args.sizes if b < 1 or b % max(len(tasks), 1)]
+    if bad:
+        parser.error(f"--sizes must be positive multiples of the recipe's {len(tasks)} tasks (each task gets as many "
+                     f"copies), got {bad}")
     print("command:", shlex.join(["python", "benchmarks/training_throughput.py", *(argv or sys.argv[1:])]))
     import covert_env
 

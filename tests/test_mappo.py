@@ -4,6 +4,7 @@ and resume, the Lagrangian flag, and the numpy actor of training.pretrained agai
 import json
 import math
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -157,6 +158,28 @@ def test_safety_filter_run_flies_through_the_filter_and_evaluates_with_it(tmp_pa
     assert row["separation_violations"] == 0 and row["terrain_violations"] == 0 and row["filter_team_slots"] > 0
     tb = list((run / "tb").glob("events.*"))
     assert tb, "no TensorBoard log"
+
+
+def test_training_throughput_benchmark_measures_every_guard(train_extra, capsys):
+    """benchmarks/training_throughput.py: a row per B for the raw env and per guard, with the loop's time by part
+    adding up to 100 %."""
+    import importlib.util
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "training_throughput.py"
+    spec = importlib.util.spec_from_file_location("training_throughput", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    with pytest.raises(SystemExit):
+        mod.main(["--sizes", "12"])
+    assert "--sizes must be positive multiples of the recipe's 8 tasks" in capsys.readouterr().err
+    assert mod.main(["--sizes", "8", "--updates", "1", "--num-steps", "2", "--seconds", "0.05",
+                     "--guards", "shield", "filter", "none"]) == 0
+    rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| 8 |")]
+    assert [r.split(" | ")[1] for r in rows] == ["raw env", "shield", "filter", "none"]
+    for r in rows[1:]:
+        shares = [float(x.strip(" %|")) for x in r.split(" | ")[4:]]
+        assert len(shares) == 6 and abs(sum(shares) - 100) <= 3, r
+    assert rows[3].split(" | ")[5].strip() == "0 %"                                  # no guard, no guard time
 
 
 @pytest.mark.slow

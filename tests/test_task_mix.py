@@ -137,6 +137,51 @@ def test_mix_of_two_lattices_maps_the_nodes():
         mix.waypoint_paths(np.full((2, 3, 1), -2))
 
 
+def test_mix_safety_state_and_filter_keep_each_copy_on_its_tasks_lattice():
+    """TaskMix.safety_state is its tasks' states on the mix's lattice (masks at their nodes' places, tops padded
+    with inf), available_nodes says which nodes each copy's task has, and the safety filter never flies a copy to
+    a node its task lacks, even where it looks beyond the masks."""
+    from covert_env.envs.safety_filter import SafetyFilter, SafetyFilteredVectorEnv
+
+    mix = TaskMix(["towers-3uav", "paper-3uav-deviating"], 2, action_mode="waypoint", mask_mode="kinematic")
+    dev = covert_env.vector_env(num_envs=1, task="paper-3uav-deviating", action_mode="waypoint",
+                                mask_mode="kinematic")
+    tow = covert_env.vector_env(num_envs=1, task="towers-3uav", action_mode="waypoint", mask_mode="kinematic")
+    mix.reset(seed=3)
+    tow.reset(seed=3)
+    dev.reset(seed=4)
+    at = np.abs(dev.lattice[:, None] - mix.lattice[None]).sum(-1).argmin(1)
+    state, own_t, own_d = mix.safety_state(2), tow.safety_state(2), dev.safety_state(2)
+    np.testing.assert_array_equal(state.masks[1][:, at], own_d.masks[0])
+    assert state.masks[1].sum() == own_d.masks.sum()
+    np.testing.assert_array_equal(state.masks[0], own_t.masks[0])
+    for name in ("xy", "theta", "q_next", "phi_next", "q_ahead", "phi_ahead", "slots_left", "slot"):
+        np.testing.assert_array_equal(getattr(state, name)[1], getattr(own_d, name)[0])
+        np.testing.assert_array_equal(getattr(state, name)[0], getattr(own_t, name)[0])
+    t = max(own_t.tops.shape[1], own_d.tops.shape[1])
+    assert state.tops.shape == (2, t, 3) and np.isinf(state.tops[1, own_d.tops.shape[1]:]).all()
+    avail = mix.available_nodes
+    assert avail.shape == (2, 577) and avail[0].all() and avail[1].sum() == 483 and avail[1, at].all()
+    # Looking beyond the masks (every stage but the last refused), the filter keeps to the available nodes.
+    flt = SafetyFilter(mix.config, mix.lattice)
+    flt._search = flt._search[-1:]                                                  # every lattice node
+    state = mix.safety_state(flt.depth)
+    proposed = np.array([[int(np.flatnonzero(state.masks[b, u])[0]) for u in range(3)] for b in range(2)])
+    out = flt.filter(state, proposed, available=avail)
+    assert avail[1, out[1]].all()
+    with pytest.raises(ValueError, match=r"available must be bools of shape \(2, 577\)"):
+        flt.filter(state, proposed, available=avail[:1])
+    # Through the vector wrapper, over whole episodes of masked-random proposals: no violation.
+    env = SafetyFilteredVectorEnv(mix)
+    env.reset(seed=5)
+    rng = np.random.default_rng(0)
+    for _ in range(25):
+        m = env.action_masks().astype(bool)
+        _, _, _, _, infos = env.step(np.argmax(np.where(m, rng.random(m.shape), -1.0), axis=2))
+        assert (infos["cost_separation"] == 0).all() and (infos["cost_terrain"] == 0).all()
+        assert avail[np.arange(2)[:, None], infos["shield_node"]].all()
+
+
 def test_mix_errors_name_the_problem():
     with pytest.raises(ValueError, match="distinct task names"):
         TaskMix(["paper-3uav", "paper-3uav"], 2)
