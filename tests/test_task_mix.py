@@ -180,6 +180,9 @@ def test_mix_safety_state_and_filter_keep_each_copy_on_its_tasks_lattice():
         _, _, _, _, infos = env.step(np.argmax(np.where(m, rng.random(m.shape), -1.0), axis=2))
         assert (infos["cost_separation"] == 0).all() and (infos["cost_terrain"] == 0).all()
         assert avail[np.arange(2)[:, None], infos["shield_node"]].all()
+        plan = env.safety._plan.nodes                                    # the backup plans (B, depth, U), -1: none
+        for b in range(2):
+            assert avail[b, plan[b][plan[b] >= 0]].all(), f"copy {b}'s backup plan leaves its task's lattice"
 
 
 def test_mix_errors_name_the_problem():

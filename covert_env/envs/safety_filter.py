@@ -247,7 +247,7 @@ class SafetyFilter:
                 break
             allowed = np.repeat(available[:, None], u, axis=1) if stage.widen else state.masks.copy()
             allowed[np.arange(b)[:, None], np.arange(u)[None], proposed] = True
-            pending &= ~self._certified(state, tops, allowed, pref, pending, out, plan, stage)
+            pending &= ~self._certified(state, tops, allowed, pref, pending, out, plan, stage, available)
         held = pending & self._plan.holds(state)                      # the backup plan's next move
         if held.any():
             out[held] = self._plan.nodes[held, 0]
@@ -264,7 +264,7 @@ class SafetyFilter:
         self.stats.widened += int((moved & off_mask).any(axis=1).sum())
         return out
 
-    def _certified(self, state, tops, allowed, pref, rows, out, plan, stage: _Stage) -> np.ndarray:
+    def _certified(self, state, tops, allowed, pref, rows, out, plan, stage: _Stage, available) -> np.ndarray:
         """Certified joint moves for the copies ``rows`` among ``stage.candidates`` (None: all) of the ``allowed``
         nodes per UAV; fills ``out`` and the next slots' backup ``plan``, returns the copies done."""
         b, u, _ = allowed.shape
@@ -282,7 +282,8 @@ class SafetyFilter:
             todo &= ~unsettled
             if not todo.any():
                 break
-            ok, plan_nodes, plan_starts, stuck = self._certificate(state, tops, idx, fl, choice, todo, stage)
+            ok, plan_nodes, plan_starts, stuck = self._certificate(state, tops, idx, fl, choice, todo, stage,
+                                                                   available)
             j = np.nonzero(ok)[0]
             out[idx[j]] = np.take_along_axis(nodes[j], choice[j][..., None], axis=2)[..., 0]
             plan.set(idx[j], state.slot[idx[j]] + 1, plan_starts[j], plan_nodes[j])
@@ -301,9 +302,10 @@ class SafetyFilter:
         result[idx[done]] = True
         return result
 
-    def _certificate(self, state, tops, idx, fl, choice, rows, stage: _Stage):
+    def _certificate(self, state, tops, idx, fl, choice, rows, stage: _Stage, available):
         """For the copies ``rows`` (of ``idx``) whose joint move ``choice`` is settled: a backup plan of safe joint
-        moves for the next ``depth`` slots (those the episode has) from where it ends. Returns ok (R,), the plan's
+        moves for the next ``depth`` slots (those the episode has) from where it ends, among the ``available``
+        nodes (B, L). Returns ok (R,), the plan's
         nodes (R, D, U) and start positions (R, D, U, 2), and per failed copy the UAV left stuck (R,)."""
         r, u = choice.shape
         plan_nodes, plan_starts = np.full((r, self.depth, u), -1), np.full((r, self.depth, u, 2), np.nan)
@@ -319,7 +321,7 @@ class SafetyFilter:
             plan_starts[j[sub], d] = xy[sub]
             q, phi = state.q_ahead[idx[j[sub]], d], state.phi_ahead[idx[j[sub]], d]
             nodes, good, ends, end_th, stuck_uav = self._safe_step(xy[sub], th[sub], q, phi, tops[idx[j[sub]]],
-                                                                   stage)
+                                                                   stage, available[idx[j[sub]]])
             plan_nodes[j[sub[good]], d] = nodes[good]
             xy[sub[good]], th[sub[good]] = ends[good], end_th[good]
             alive[sub[~good]] = False
@@ -328,15 +330,16 @@ class SafetyFilter:
         ok[j[alive]] = True
         return ok, plan_nodes, plan_starts, stuck
 
-    def _safe_step(self, xy, th, q, phi, tops, stage: _Stage):
-        """One slot of a backup plan from poses (R, U): a safe joint move among ``stage.certificate`` of the nodes
-        each UAV can reach (lattice at q, phi), the nodes that keep its place behind the target first, roomy ends
-        where there are.
+    def _safe_step(self, xy, th, q, phi, tops, stage: _Stage, available):
+        """One slot of a backup plan from poses (R, U): a safe joint move among ``stage.certificate`` of the
+        ``available`` nodes (R, L) each UAV can reach (lattice at q, phi), the nodes that keep its place behind the
+        target first, roomy ends where there are.
         Returns nodes (R, U), found (R,), end positions (R, U, 2) and headings (R, U), the stuck UAV (R,)."""
         r, u = th.shape
         lat = len(self.lattice)
-        reach = self._reach.reachable(xy, th, q, phi, self.lattice, exact=False)                  # (R, U, L)
-        reach[~reach.any(axis=2)] = True                 # no node reachable: best efforts toward every node
+        reach = self._reach.reachable(xy, th, q, phi, self.lattice, exact=False) & available[:, None]  # (R, U, L)
+        none = ~reach.any(axis=2)                        # no node reachable: best efforts toward every node
+        reach[none] = np.broadcast_to(available[:, None], reach.shape)[none]
         place = to_target_frame(xy - q[:, None], np.cos(phi)[:, None], np.sin(phi)[:, None])      # (R, U, 2)
         diff = self.lattice[None, None] - place[:, :, None]
         pref = np.hypot(diff[..., 0], diff[..., 1])
