@@ -65,11 +65,20 @@ class Timer:
         setattr(obj, method, timed)
 
 
-def raw_rate(tasks: list[str], b: int, seconds: float, mask_mode: str) -> float:
+def env_kwargs(args) -> dict:
+    """The env settings of the recipe's loop (``training.mappo.train``'s, for the mix of its tasks)."""
+    kw = dict(action_mode=args.action_mode, max_cycles=args.max_cycles, map_size=args.map_size,
+              mask_mode=args.mask_mode)
+    if args.target_path:
+        kw["target_path"] = args.target_path
+    return kw
+
+
+def raw_rate(tasks: list[str], b: int, seconds: float, kwargs: dict) -> float:
     """Env-steps per CPU-second of the raw mix, masked-random nodes."""
     from training.task_mix import make_training_env
 
-    env = make_training_env(tasks, b, action_mode="waypoint", mask_mode=mask_mode, map_size=16)
+    env = make_training_env(tasks, b, **kwargs)
     env.reset(seed=0)
     rng = np.random.default_rng(0)
 
@@ -109,11 +118,11 @@ def loop_rate(recipe: str, b: int, guard: str, updates: int, num_steps: int) -> 
     mappo.check_args(args)
     np.random.seed(0)
     torch.manual_seed(0)
-    env = make_training_env(mappo.task_list(args), b, action_mode="waypoint", mask_mode=args.mask_mode,
-                            map_size=args.map_size, max_cycles=args.max_cycles)
+    env = make_training_env(mappo.task_list(args), b, **env_kwargs(args))
     timer = Timer()
     timer.wrap(env, "step", "env step")
     if guard == "filter":
+        timer.wrap(env, "safety_state", "guard")                         # what the filter reads of the env
         env = SafetyFilteredVectorEnv(env)
         timer.wrap(env.safety, "filter", "guard")
     s = mappo.sizes_of(args, env)
@@ -166,7 +175,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.recipe not in MAPPO_RECIPES:
         parser.error(f"--recipe must be one of {', '.join(MAPPO_RECIPES)}, got {args.recipe!r}")
     rec = MAPPO_RECIPES[args.recipe]
-    tasks = mappo.task_list(parse_args(mappo.Args, ["--recipe", args.recipe], description="", presets=MAPPO_RECIPES))
+    recipe_args = parse_args(mappo.Args, ["--recipe", args.recipe], description="", presets=MAPPO_RECIPES)
+    tasks = mappo.task_list(recipe_args)
     bad = [b for b in args.sizes if b < 1 or b % max(len(tasks), 1)]
     if bad:
         parser.error(f"--sizes must be positive multiples of the recipe's {len(tasks)} tasks (each task gets as many "
@@ -179,7 +189,7 @@ def main(argv: list[str] | None = None) -> int:
     print("| B | loop | env-steps per CPU-second | / raw env | " + " | ".join(PARTS) + " |")
     print("|---|---|---|---|" + "---|" * len(PARTS))
     for b in args.sizes:
-        raw = raw_rate(tasks, b, args.seconds, rec.get("mask_mode", "visible"))
+        raw = raw_rate(tasks, b, args.seconds, env_kwargs(recipe_args))
         print(f"| {b} | raw env | {raw:,.0f} | 1.00 |" + " |" * len(PARTS), flush=True)
         for guard in args.guards:
             rate, parts = loop_rate(args.recipe, b, guard, args.updates, args.num_steps)

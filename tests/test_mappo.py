@@ -153,6 +153,7 @@ def test_safety_filter_run_flies_through_the_filter_and_evaluates_with_it(tmp_pa
     assert card["safety_filter"] is True and card["separation_shield"] is None
     pol, settings = load_policy(f"mappo:{run}", 3, trust_checkpoint=False)
     assert isinstance(pol, ShieldedPolicy) and settings["mask_mode"] == "kinematic"
+    assert pol.use_scores is False                        # alternatives ordered as in training, not by the logits
     assert load_policy(f"mappo:{run}+shield", 3)[0].__class__ is ShieldedPolicy          # not wrapped twice
     row = evaluate(pol, settings, 1, progress=False, env_kwargs={"task": "towers-3uav"})[0]
     assert row["separation_violations"] == 0 and row["terrain_violations"] == 0 and row["filter_team_slots"] > 0

@@ -292,3 +292,38 @@ def test_a_vector_env_through_the_filter_keeps_eqs_2_and_3():
     assert changed > 0 and venv.safety.stats.team_slots == 48
     with pytest.raises(ValueError, match="for waypoint teams, got an env with action_mode='unicycle'"):
         SafetyFilteredVectorEnv(covert_env.vector_env(num_envs=1, n_uavs=3))
+
+
+def test_a_coarse_check_includes_its_start():
+    """The backup plan's moves are checked on the coarse grid from their start on: the start is the end of a move
+    checked on the fine grid, with less room than the coarse grid's margin argument needs. Two UAVs whose slot
+    starts 5.1 m apart and who part at once pass every coarse instant after the start, but fail the check."""
+    par = covert_env.parallel_env(task="paper-3uav", action_mode="waypoint")
+    flt = SafetyFilter(par.config, par.lattice)
+    assert flt.certificate_samples == 21 and flt.samples == 201
+    times21 = flt.grids[21][0]
+    sep_need = flt.grids[21][1]
+    # Two straight flights at 40 m/s from 5.1 m apart, moving apart (sideways) at 12 m/s: apart by sample 1.
+    a = np.stack([40 * times21, np.zeros(21)], axis=1)
+    b = np.stack([40 * times21, 5.1 + 12 * times21], axis=1)
+    assert path_separation(a, b, first=1) >= sep_need > path_separation(a, b, first=0)
+    from covert_env.envs.joint_moves import Flights
+
+    par.reset(seed=3)
+    st = par.safety_state(flt.depth)
+    nodes = np.zeros((1, 3, 1), np.int64)
+    assert Flights(flt, st.xy, st.theta, st.q_next, st.phi_next, nodes, st.tops[:, :0], 21).first == 0
+    assert Flights(flt, st.xy, st.theta, st.q_next, st.phi_next, nodes, st.tops[:, :0], 201).first == 1
+
+
+def test_the_filter_refuses_a_proposal_outside_the_available_nodes():
+    par = covert_env.parallel_env(task="paper-3uav", action_mode="waypoint")
+    par.reset(seed=1)
+    flt = SafetyFilter(par.config, par.lattice)
+    state = par.safety_state(flt.depth)
+    proposed = np.array([[int(np.flatnonzero(m)[0]) for m in state.masks[0]]])
+    avail = np.ones((1, len(par.lattice)), bool)
+    avail[0, proposed[0, 1]] = False
+    with pytest.raises(ValueError, match=rf"copy 0's UAV 1 proposed node {proposed[0, 1]}, which is not among its "
+                                         "available nodes"):
+        flt.filter(state, proposed, available=avail)

@@ -297,8 +297,10 @@ def load_policy(spec: str, n_uavs: int, *, trust_checkpoint: bool = False) -> tu
             else:
                 pol = load_learned(path)
                 settings = dict(pol.env_settings)
-                if pol.card.get("safety_filter"):       # trained through the filter: it flies through it here too
-                    pol = ShieldedPolicy(pol)
+                if pol.card.get("safety_filter"):
+                    # Trained through the filter, it flies through it here too, its alternatives ordered as in
+                    # training (SafetyFilteredVectorEnv: by the distance to the proposal).
+                    pol = ShieldedPolicy(pol, use_scores=False)
         except ValueError as exc:
             raise UsageError(f"{spec}: {exc}") from None
     elif spec.startswith("rllib:"):

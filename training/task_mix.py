@@ -76,8 +76,10 @@ class TaskMix:
                                 (e.config.v_max, e.config.w_max, e.config.delta, e.path_samples),
                                 (first.config.v_max, first.config.w_max, first.config.delta, first.path_samples)),
                                # What the trainer reads from the mix's config and maps (node features, episodes).
-                               ("R2, d_safe1 and slots", (e.config.r2, e.config.d_safe1, e.config.n_slots),
-                                (first.config.r2, first.config.d_safe1, first.config.n_slots)),
+                               ("R2, d_safe1, d_safe2, altitude and slots",
+                                (e.config.r2, e.config.d_safe1, e.config.d_safe2, e.config.altitude, e.config.n_slots),
+                                (first.config.r2, first.config.d_safe1, first.config.d_safe2, first.config.altitude,
+                                 first.config.n_slots)),
                                ("map cells", e.map_offsets.tobytes(), first.map_offsets.tobytes())):
                 if a != b:
                     shown = "they differ" if isinstance(a, bytes) else f"{a} against {b}"

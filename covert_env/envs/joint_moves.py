@@ -18,16 +18,17 @@ __all__ = ["Flights", "Plan", "near_tops", "negotiate", "path_separation", "samp
 _FAR = 1e9
 
 
-def path_separation(paths: np.ndarray, others: np.ndarray) -> np.ndarray:
-    """Eq. 2's distance over a slot (:func:`~covert_env.separation.separation`) at the common instants after the
-    start (samples 1 to P - 1) of ``paths`` and ``others`` (..., P, 2), broadcast against each other."""
-    return separation(paths[..., 1:, :], others[..., 1:, :])
+def path_separation(paths: np.ndarray, others: np.ndarray, first: int = 1) -> np.ndarray:
+    """Eq. 2's distance over a slot (:func:`~covert_env.separation.separation`) at the common instants from sample
+    ``first`` on (1: after the start, which no choice changes) of ``paths`` and ``others`` (..., P, 2), broadcast
+    against each other."""
+    return separation(paths[..., first:, :], others[..., first:, :])
 
 
-def top_clearance_along(paths: np.ndarray, tops: np.ndarray, altitude: float) -> np.ndarray:
+def top_clearance_along(paths: np.ndarray, tops: np.ndarray, altitude: float, first: int = 1) -> np.ndarray:
     """Eq. 3's distance over a slot (:func:`~covert_env.metrics.top_clearance`): from UAVs at ``altitude`` flying
-    ``paths`` (N, M, P, 2) to the nearest of their copy's tops (N, T, 3), at the samples after the start; (N, M)."""
-    return top_clearance(paths[:, :, 1:], altitude, tops).min(axis=-1)
+    ``paths`` (N, M, P, 2) to the nearest of their copy's tops (N, T, 3), at the samples from ``first`` on; (N, M)."""
+    return top_clearance(paths[:, :, first:], altitude, tops).min(axis=-1)
 
 
 def sample_bounds(config, samples: int) -> tuple[float, float]:
@@ -67,6 +68,10 @@ class Flights:
     def __init__(self, flt, xy, theta, q, phi, nodes, tops, samples: int):
         c = flt.config
         times, self.sep_need, self.top_need = flt.grids[samples]
+        # The first instant checked. A flight starts where the last move ended, which was checked on the fine grid
+        # (sample_bounds of the filter's samples): a coarser grid asks more, so it checks its start as well, or the
+        # margin between its first two instants would rest on an end that lacks it.
+        self.first = 1 if samples == flt.samples else 0
         self.nodes = nodes                                                   # (B, U, M), -1: none
         ci, ui, mi = np.nonzero(nodes >= 0)
         b, u, m = nodes.shape
@@ -81,7 +86,8 @@ class Flights:
         self.clear[ci, ui, mi] = True
         self.roomy = self.clear.copy()          # and ends end_margin clear of the tops: room to turn away next slot
         if tops.shape[1] and len(ci):
-            gap = top_clearance_along(self.paths.reshape(b, u * m, -1, 2), tops, c.altitude).reshape(b, u, m)
+            gap = top_clearance_along(self.paths.reshape(b, u * m, -1, 2), tops, c.altitude,
+                                      self.first).reshape(b, u, m)
             self.clear &= gap >= self.top_need
             end = top_clearance(self.paths[:, :, :, -1], c.altitude, tops)                     # (B, U, M)
             self.roomy &= self.clear & (end >= c.d_safe2 + flt.end_margin)
@@ -91,7 +97,7 @@ class Flights:
         sub = object.__new__(Flights)
         for name in ("nodes", "paths", "end_theta", "clear", "roomy"):
             setattr(sub, name, getattr(self, name)[idx])
-        sub.sep_need, sub.top_need = self.sep_need, self.top_need
+        sub.sep_need, sub.top_need, sub.first = self.sep_need, self.top_need, self.first
         return sub
 
 
@@ -130,7 +136,7 @@ def negotiate(flt, fl: Flights, rank: np.ndarray, rows: np.ndarray, room: float 
             ok, cand = use[at, k], paths[at, k]                                          # (R, M), (R, M, P, 2)
             if i:
                 past = chosen[at[:, None], od[:, :i]]                                     # (R, i, P, 2)
-                gap = path_separation(cand[:, :, None], past[:, None])                   # (R, M, i)
+                gap = path_separation(cand[:, :, None], past[:, None], fl.first)         # (R, M, i)
                 ok &= (np.nan_to_num(gap, nan=np.inf) >= fl.sep_need).all(axis=2)
                 if room > 0:
                     end = cand[:, :, None, -1] - past[:, None, :, -1]                       # (R, M, i, 2)
@@ -166,9 +172,9 @@ def _repair(flt, fl: Flights, rank, usable, j: int, k: int, settled: np.ndarray,
         rest = settled[settled != h]
         ok_k, ok_h = usable[j, k].copy(), usable[j, h].copy()
         if len(rest):
-            ok_k &= (np.nan_to_num(path_separation(fl.paths[j, k][:, None], chosen[rest][None]), nan=np.inf)
+            ok_k &= (np.nan_to_num(path_separation(fl.paths[j, k][:, None], chosen[rest][None], fl.first), nan=np.inf)
                      >= d1).all(axis=1)
-            ok_h &= (np.nan_to_num(path_separation(fl.paths[j, h][:, None], chosen[rest][None]), nan=np.inf)
+            ok_h &= (np.nan_to_num(path_separation(fl.paths[j, h][:, None], chosen[rest][None], fl.first), nan=np.inf)
                      >= d1).all(axis=1)
         ck, ch = np.nonzero(ok_k)[0], np.nonzero(ok_h)[0]
         if not len(ck) or not len(ch):
@@ -184,7 +190,7 @@ def _repair(flt, fl: Flights, rank, usable, j: int, k: int, settled: np.ndarray,
         order = np.argsort(score, kind="stable")
         for start in range(0, len(order), 256):
             sel = order[start:start + 256]
-            exact = path_separation(fl.paths[j, k, ck[a[sel]]], fl.paths[j, h, ch[b[sel]]]) >= d1
+            exact = path_separation(fl.paths[j, k, ck[a[sel]]], fl.paths[j, h, ch[b[sel]]], fl.first) >= d1
             if exact.any():
                 first = sel[np.argmax(exact)]
                 pick[k], pick[h] = ck[a[first]], ch[b[first]]

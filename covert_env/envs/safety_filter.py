@@ -33,8 +33,9 @@ Per slot and copy, in order, the first that exists:
 The guarantee holds between the samples too: at the samples the filter asks for a little more than d_safe1 and
 d_safe2 (:func:`sample_bounds`: 7 mm and 1 mm more at 201 samples and the default kinematics, 0.7 m and 0.1 m at 21),
 enough that no flight can come closer in between. The backup plan's moves are checked at ``certificate_samples``
-instants (21 by default) in the first stages, and at ``samples`` in the stages with pair repair: either way a
-safe move, with more room asked at fewer instants.
+instants (21 by default) in the first stages, their start included (it was checked on the finer grid, with less
+room), and at ``samples`` in the stages with pair repair: either way a safe move, with more room asked at fewer
+instants.
 
 Work per slot and copy: O(U^2 M P) distances per negotiation among M candidates per UAV, the flights of the
 candidates, and per slot of the backup plan the same for its candidates. A copy whose proposals are kept costs
@@ -238,6 +239,11 @@ class SafetyFilter:
             raise ValueError(f"SafetyFilter.filter: available must be bools of shape {(b, len(self.lattice))} "
                              f"(copies, nodes), got {np.asarray(available).dtype} {np.shape(available)}")
         available = np.asarray(available)
+        off = ~available[np.arange(b)[:, None], proposed]
+        if off.any():
+            c, i = np.argwhere(off)[0]
+            raise ValueError(f"SafetyFilter.filter: copy {c}'s UAV {i} proposed node {proposed[c, i]}, which is not "
+                             "among its available nodes")
         tops = near_tops(state.tops, self.config.altitude, max(g[2] for g in self.grids.values()))
         pref = self._proposal_pref(proposed, scores)
         out, plan = proposed.copy(), Plan(b, u, self.depth)
@@ -391,11 +397,12 @@ class SafetyFilter:
 class ShieldedPolicy:
     """Any waypoint policy of the harness's interface (``reset(env, seed)``, ``act(observations, env)``) flown
     through a :class:`SafetyFilter` on the PettingZoo parallel env: the spec suffix ``+shield``. Where the policy
-    leaves its node scores in ``last_logits`` (U, L) (the learned teams of ``training.pretrained`` do), the filter
-    orders each UAV's alternatives by them; otherwise by the distance to the proposed node."""
+    leaves its node scores in ``last_logits`` (U, L) (the learned teams of ``training.pretrained`` do) and
+    ``use_scores`` is True, the filter orders each UAV's alternatives by them; otherwise by the distance to the
+    proposed node (as :class:`SafetyFilteredVectorEnv` does in training)."""
 
-    def __init__(self, policy, **filter_kw):
-        self.policy, self.filter_kw = policy, filter_kw
+    def __init__(self, policy, *, use_scores: bool = True, **filter_kw):
+        self.policy, self.filter_kw, self.use_scores = policy, filter_kw, use_scores
         self.name = f"{getattr(policy, 'name', 'policy')}+shield"
         self.env_settings = getattr(policy, "env_settings", None)
         self.safety: SafetyFilter | None = None
@@ -438,7 +445,7 @@ class ShieldedPolicy:
             raise ValueError(f"{self.name}: the policy acted for {sorted(acts)}, the team is {agents}; the filter "
                              "needs one node for every UAV")
         proposed = np.array([[int(acts[a]) for a in agents]])
-        scores = getattr(self.policy, "last_logits", None)
+        scores = getattr(self.policy, "last_logits", None) if self.use_scores else None
         if scores is not None and np.shape(scores) != (len(agents), len(par.lattice)):
             scores = None
         safe = self.safety.filter(par.safety_state(self.safety.depth), proposed,

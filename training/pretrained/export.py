@@ -188,6 +188,10 @@ def _scores(npz: Path, name: str, episodes: int, progress: bool) -> dict:
     else:
         pol = load_learned(npz)
         settings = pol.env_settings
+        if pol.card.get("safety_filter"):            # scored as the harness flies it: through the filter
+            from covert_env.envs.safety_filter import ShieldedPolicy
+
+            pol = ShieldedPolicy(pol, use_scores=False)
     rows = evaluate(pol, settings, episodes, HELD_OUT_OFFSET, progress=progress, label=name)
     rewards = np.array([r["reward"] for r in rows])
     point, lo, hi = stratified_bootstrap_ci(rewards[:, None], iqm, reps=5000)
