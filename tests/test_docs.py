@@ -50,12 +50,15 @@ BLOCKS = [(p, i, code) for p in _pages() for i, code in enumerate(_blocks(p))]
 
 @pytest.fixture(scope="session")
 def site(tmp_path_factory) -> Path:
-    if shutil.which("mkdocs") is None and not (Path(sys.executable).parent / "mkdocs").exists():
-        _missing('mkdocs is not installed: pip install -e ".[docs]"')
+    import importlib.util
+
+    for module in ("mkdocs", "material", "mkdocstrings_handlers.python"):
+        if importlib.util.find_spec(module.split(".")[0]) is None:
+            _missing(f'{module.split(".")[0]} is not installed: pip install -e ".[docs]"')
     out = tmp_path_factory.mktemp("site")
-    mkdocs = shutil.which("mkdocs") or str(Path(sys.executable).parent / "mkdocs")
-    run = subprocess.run([mkdocs, "build", "--strict", "-q", "-d", str(out)], cwd=ROOT, capture_output=True,
-                         text=True, env={**os.environ, "NO_MKDOCS_2_WARNING": "1"})
+    # This interpreter's mkdocs (the venv under test), not whichever is first on PATH.
+    run = subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "-q", "-d", str(out)], cwd=ROOT,
+                         capture_output=True, text=True, env={**os.environ, "NO_MKDOCS_2_WARNING": "1"})
     assert run.returncode == 0, f"mkdocs build --strict failed:\n{run.stdout}\n{run.stderr}"
     return out
 
