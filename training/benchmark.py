@@ -56,6 +56,7 @@ from covert_env.tasks import DEFAULT_TASKS, SUITE_VERSION, TASKS, TEST_SCENES, g
 from training import leaderboard
 from training.common import ordered_results
 from training.evaluate import COLUMNS, LEARNED_PREFIXES, evaluate, load_policy, split_seeds, summarise, write_outputs
+from training.provenance import code_commit
 from training.stats import iqm, mean, probability_of_improvement, stratified_bootstrap_ci
 from training.tiers import TIERS, spec_tier
 
@@ -383,7 +384,7 @@ def _main(args: argparse.Namespace, command: str) -> int:
     workers = args.jobs if args.ray_address is None else f"Ray at {args.ray_address}"
     meta = {"scenes": args.scenes, "jobs": workers, "seconds": time.perf_counter() - t0, "command": command,
             "tasks": [t.name for t in tasks], "policies": specs, "covert_env": covert_env.__version__,
-            "env": CovertSensingParallelEnv.metadata["name"]}
+            "env": CovertSensingParallelEnv.metadata["name"], "commit": code_commit()}
     write_suite(out, scored, ref, agg, meta, skipped)
     for p, a in agg["policies"].items():
         print(f"{p:28s} score IQM {_fmt(a['iqm'])}  zone viol. {a['zone_violation_rate']:.3f}  blocked LoS "

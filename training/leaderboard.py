@@ -38,12 +38,15 @@ COLUMNS = (("zone_violation_rate", "zone viol.", ".3f"), ("occlusion_rate", "blo
            ("terrain_violations", "terrain viol./UAV", ".3f"), ("min_separation", "min sep. (m)", ".1f"))
 
 
-def summary(results: dict, version: str | None = None, env_id: str | None = None) -> dict:
+def summary(results: dict, version: str | None = None, env_id: str | None = None, commit: str | None = None) -> dict:
     """The compact record of a suite run (``results.json`` of ``covert-env benchmark``) that the docs are made
-    from. ``version`` and ``env_id`` default to the run's meta (runs before they were recorded: give them)."""
+    from. ``version``, ``env_id`` and ``commit`` default to the run's meta (runs before they were recorded: give
+    them)."""
     meta = dict(results["meta"])
     meta.setdefault("covert_env", version)
     meta.setdefault("env", env_id)
+    if meta.get("commit") is None and commit:
+        meta["commit"] = commit
     if not meta["covert_env"] or not meta["env"]:
         raise ValueError("summary: the run's meta names no covert_env version or env id; pass version= and env_id=")
     cells = results["cells"]
@@ -96,7 +99,8 @@ def task_table(s: dict) -> str:
 def caption(s: dict) -> str:
     """What made the run: version, env, scenes and the command."""
     m = s["meta"]
-    return (f"covert_env {m['covert_env']}, `{m['env']}`, suite `{s['suite']}`: {len(m['tasks'])} tasks x "
+    at = f" (commit {m['commit'][:7]})" if m.get("commit") else ""
+    return (f"covert_env {m['covert_env']}{at}, `{m['env']}`, suite `{s['suite']}`: {len(m['tasks'])} tasks x "
             f"{m['scenes']} held-out scenes, `{m['command']}`")
 
 
@@ -140,7 +144,8 @@ def _replace_block(text: str, block: str) -> str:
     return head + block + rest.split(end, 1)[1]
 
 
-def publish(run: Path, root: Path = ROOT, version: str | None = None, env_id: str | None = None) -> Path:
+def publish(run: Path, root: Path = ROOT, version: str | None = None, env_id: str | None = None,
+            commit: str | None = None) -> Path:
     """Make a ``covert-env benchmark`` run the published one: its ``summary.json`` to ``docs/results/suite.json``,
     the profiles figure to ``docs/suite_profile.png``, the README's table. A run from before ``summary.json`` was
     written is summarised from its ``results.json``, with the ``version`` and ``env_id`` it was run on."""
@@ -149,7 +154,7 @@ def publish(run: Path, root: Path = ROOT, version: str | None = None, env_id: st
         s = json.loads(src.read_text())
     elif (run / "results.json").is_file():
         try:
-            s = summary(json.loads((run / "results.json").read_text()), version, env_id)
+            s = summary(json.loads((run / "results.json").read_text()), version, env_id, commit)
         except ValueError:
             raise UsageError(f"{run}: its results.json names no covert_env version or env id; pass "
                              "--covert-env-version and --env-id (what the run was measured on)") from None
@@ -179,6 +184,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--check", action="store_true", help="only check that the README shows the published run")
     parser.add_argument("--covert-env-version", help="for a run without summary.json: the version it ran on")
     parser.add_argument("--env-id", help="for a run without summary.json: the env id it ran on (covert_sensing_vN)")
+    parser.add_argument("--commit", help="for a run without summary.json: the commit it ran at")
     args = parser.parse_args(argv)
 
     def go() -> int:
@@ -188,7 +194,7 @@ def main(argv: list[str] | None = None) -> int:
             return 1 if problems else 0
         if args.run is None:
             raise UsageError("give a run folder to publish, or --check")
-        print(f"published {publish(args.run, version=args.covert_env_version, env_id=args.env_id)}")
+        print(f"published {publish(args.run, version=args.covert_env_version, env_id=args.env_id, commit=args.commit)}")
         return 0
 
     return run_main(parser, go)

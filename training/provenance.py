@@ -10,10 +10,12 @@ round differently, and the env and the planners are built so that such a differe
 from __future__ import annotations
 
 import platform
+import subprocess
+from pathlib import Path
 
 import numpy as np
 
-__all__ = ["numpy_cpu_dispatch", "platform_key", "platform_record"]
+__all__ = ["code_commit", "numpy_cpu_dispatch", "platform_key", "platform_record"]
 
 
 def numpy_cpu_dispatch() -> list[str]:
@@ -44,3 +46,14 @@ def platform_key(record: dict | None) -> tuple | None:
     if not isinstance(record, dict):
         return None
     return tuple(sorted((k, str(v)) for k, v in record.items() if k != "covert_env"))
+
+
+def code_commit() -> str:
+    """The commit of the code that measures, with ``-dirty`` when the tree has uncommitted changes (then the result
+    cannot be reproduced from the commit alone); "unknown" outside a git checkout."""
+    try:
+        out = subprocess.run(["git", "describe", "--always", "--abbrev=40", "--dirty"], capture_output=True,
+                             text=True, check=True, cwd=Path(__file__).resolve().parent)
+        return out.stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"

@@ -24,7 +24,6 @@ from __future__ import annotations
 import argparse
 import csv
 import json
-import subprocess
 import sys
 from pathlib import Path
 
@@ -35,21 +34,10 @@ from training.benchmark import CONSTRAINTS
 from training.evaluate import HELD_OUT_OFFSET, evaluate, summarise
 from training.pretrained import PRETRAINED_DIR, load_learned
 from training.pretrained.learned_cost import KIND, is_cost_planner_card, load_cost_planner
-from training.provenance import platform_record
+from training.provenance import code_commit, platform_record
 from training.stats import iqm, stratified_bootstrap_ci
 
 __all__ = ["export", "main", "rescore", "suite_rows"]
-
-
-def _commit() -> str:
-    """The commit of the code that scores, with ``-dirty`` when the tree has uncommitted changes (then the scores
-    cannot be reproduced from the commit alone); "unknown" outside a git checkout."""
-    try:
-        out = subprocess.run(["git", "describe", "--always", "--abbrev=40", "--dirty"], capture_output=True,
-                             text=True, check=True, cwd=Path(__file__).resolve().parent)
-        return out.stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
 
 
 def export(run: Path, name: str, episodes: int = 20, out_dir: Path = PRETRAINED_DIR, progress: bool = True,
@@ -78,7 +66,7 @@ def export(run: Path, name: str, episodes: int = 20, out_dir: Path = PRETRAINED_
             "viability_min_reach": meta.get("viability_min_reach"),
             "shield_lookahead": bool(meta.get("shield_lookahead", False)),
             "safety_filter": bool(meta.get("safety_filter", False)),
-            "covert_env_version": covert_env.__version__, "commit": _commit(),
+            "covert_env_version": covert_env.__version__, "commit": code_commit(),
             "recipe": {k: v for k, v in args.items() if k not in ("card", "resume", "runs_dir")},
             "training": {**summary, "run": run.name, "commit": training_commit or "unknown"}, "note": note}
     return _scored_card(npz, card, episodes, progress, suite)
@@ -99,7 +87,7 @@ def _export_cost_planner(run: Path, meta: dict, args: dict, name: str, episodes:
     card = {"name": name, **{k: meta[k] for k in ("kind", "planner", "params", "path_cost", "algorithm",
                                                   "env_kwargs")},
             "train_tasks": meta["tasks"], "env_id": CovertSensingVectorEnv.metadata["name"],
-            "covert_env_version": covert_env.__version__, "commit": _commit(),
+            "covert_env_version": covert_env.__version__, "commit": code_commit(),
             "recipe": {k: v for k, v in args.items() if k not in ("runs_dir", "progress_bar")},
             "training": {**meta["training"], **training_budget(meta["training"], meta["tasks"]), "run": run.name,
                          "commit": meta.get("commit", "unknown")}, "note": note}
@@ -175,7 +163,7 @@ def rescore(name: str, episodes: int | None = None, out_dir: Path = PRETRAINED_D
     if isinstance(card.get("suite"), dict):
         card["suite"] = {"env_id": card["suite"].get("env_id", card.get("env_id")), **card["suite"]}
     card.update(env_id=CovertSensingVectorEnv.metadata["name"], covert_env_version=covert_env.__version__,
-                commit=_commit())
+                commit=code_commit())
     card_path.write_text(json.dumps(card, indent=2))
     return card_path
 
