@@ -55,6 +55,12 @@ def _suite_tiers() -> str:
     return tier_table(_suite())
 
 
+def _suite_tiers_compact() -> str:
+    from training.leaderboard import tier_table
+
+    return tier_table(_suite(), compact=True)
+
+
 def _suite_tasks() -> str:
     from training.leaderboard import task_table
 
@@ -99,6 +105,7 @@ def _throughput_figure():
 
 #: What a placeholder may name.
 GENERATED = {"cards": _cards, "tasks": _tasks, "families": _families, "suite_tiers": _suite_tiers,
+             "suite_tiers_compact": _suite_tiers_compact,
              "suite_tasks": _suite_tasks, "suite_caption": _suite_caption, "throughput_caption": _throughput_caption}
 
 

@@ -50,6 +50,9 @@ def test_tier_table_groups_tiers_and_orders_by_score():
                                                 "`pretrained:mappo-suite`", "`random@waypoint`"]
     assert [r.split(" | ")[0] for r in rows] == ["| planner", "| planner", "| hybrid", "| learned", "| reference"]
     assert "| 1.000 [" in rows[0] and "| 0.000 [" in rows[-1]               # the best planner is 1, random 0
+    compact = leaderboard.tier_table(s, compact=True).splitlines()
+    assert "sep. viol./UAV" in compact[0] and "decision" not in compact[0] and "path share" not in compact[0]
+    assert len(compact) == len(rows) + 2
     assert "covert_env 0.10.0, `covert_sensing_v4`" in leaderboard.caption(s)
     assert "covert-env benchmark --scenes 3" in leaderboard.caption(s)
 

@@ -69,18 +69,25 @@ def _ordered(s: dict) -> list[str]:
                                                 -s["policies"][p]["iqm"][0]))
 
 
-def tier_table(s: dict) -> str:
+#: The columns of the compact table (the documentation's home page).
+COMPACT = ("zone_violation_rate", "separation_violations", "terrain_violations")
+
+
+def tier_table(s: dict, compact: bool = False) -> str:
     """One row per policy, grouped in tiers: the normalised score's IQM with its interval (1 = the run's best
-    planner on each task), the constraint rates and the median decision time."""
-    lines = ["| tier | policy | tasks | score IQM [95 % CI] | " + " | ".join(h for _, h, _ in COLUMNS)
-             + " | decision per slot (ms) |", "|---|---|---|---|" + "---|" * len(COLUMNS) + "---|"]
+    planner on each task), the constraint rates and the median decision time (``compact``: the zone, separation
+    and terrain rates only)."""
+    cols = [c for c in COLUMNS if not compact or c[0] in COMPACT]
+    lines = ["| tier | policy | tasks | score IQM [95 % CI] | " + " | ".join(h for _, h, _ in cols)
+             + ("" if compact else " | decision per slot (ms)") + " |",
+             "|---|---|---|---|" + "---|" * (len(cols) + (not compact))]
     for p in _ordered(s):
         a = s["policies"][p]
         lo, hi = a["iqm"][1], a["iqm"][2]
         t = a["decision_time_ms"]
         lines.append(f"| {a['tier']} | `{p}` | {len(a['tasks'])} | {a['iqm'][0]:.3f} [{lo:.3f}, {hi:.3f}] | "
-                     + " | ".join(format(a[k], f) for k, _, f in COLUMNS)
-                     + f" | {'-' if t is None else f'{t:.0f}'} |")
+                     + " | ".join(format(a[k], f) for k, _, f in cols)
+                     + ("" if compact else f" | {'-' if t is None else f'{t:.0f}'}") + " |")
     return "\n".join(lines)
 
 
