@@ -278,20 +278,9 @@ def _figures(out: Path, rows: list[dict], agg: dict) -> None:
     import matplotlib.pyplot as plt
 
     pols = list(agg["policies"])
-    scores = np.array([r["score"] for r in rows])
-    taus = np.linspace(min(-0.25, np.floor(4 * scores.min()) / 4), max(1.25, np.ceil(4 * scores.max()) / 4), 301)
-    fig, ax = plt.subplots(figsize=(7, 4.5))
-    for p in pols:
-        s = np.array([r["score"] for r in rows if r["policy"] == p])
-        ax.plot(taus, (s[:, None] > taus).mean(axis=0), label=p)
-    ax.set_xlabel("normalised score tau (0 = random@waypoint, 1 = best planner)")
-    ax.set_ylabel("share of (task, run, scene) scores > tau")
-    ax.set_title(f"Performance profiles ({SUITE_VERSION})")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(out / "performance_profile.png", dpi=110)
-    plt.close(fig)
+    leaderboard.draw_profiles({p: np.array([r["score"] for r in rows if r["policy"] == p]) for p in pols},
+                              {p: spec_tier(p) for p in pols}, f"Performance profiles ({SUITE_VERSION})",
+                              out / "performance_profile.png")
     m = np.full((len(pols), len(pols)), np.nan)
     for i, p in enumerate(pols):
         for j, q in enumerate(pols):

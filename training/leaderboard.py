@@ -23,7 +23,8 @@ import numpy as np
 from covert_env.command_line import UsageError, run_main
 from training.tiers import TIERS, spec_tier
 
-__all__ = ["README_MARKERS", "SUMMARY", "profile_figure", "publish", "summary", "task_table", "tier_table"]
+__all__ = ["README_MARKERS", "SUMMARY", "draw_profiles", "profile_figure", "publish", "summary", "task_table",
+           "tier_table"]
 
 ROOT = Path(__file__).resolve().parents[1]
 #: Where the published run lives in the repository.
@@ -111,31 +112,37 @@ def caption(s: dict) -> str:
             f"{m['scenes']} held-out scenes, `{m['command']}`")
 
 
-def profile_figure(s: dict, path: Path) -> None:
-    """The performance profiles (share of a policy's (task, run, scene) scores above tau) to ``path``."""
+def draw_profiles(scores: dict[str, np.ndarray], tiers: dict[str, str], title: str, path) -> None:
+    """Performance profiles to ``path``: per policy (in ``scores``' order), the share of its (task, run, scene)
+    normalised scores above tau, styled by its tier."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    scores = np.array([c[4] for c in s["cells"]])
-    taus = np.linspace(min(-0.25, np.floor(4 * scores.min()) / 4), max(1.25, np.ceil(4 * scores.max()) / 4), 301)
+    every = np.concatenate(list(scores.values()))
+    taus = np.linspace(min(-0.25, np.floor(4 * every.min()) / 4), max(1.25, np.ceil(4 * every.max()) / 4), 301)
     fig, ax = plt.subplots(figsize=(7, 4.5))
     styles = {"planner": "-", "hybrid": "--", "learned": "-.", "reference": ":"}
-    for p in _ordered(s):
-        mine = np.array([c[4] for c in s["cells"] if c[1] == p])
-        ax.plot(taus, (mine[:, None] > taus).mean(axis=0), styles[s["policies"][p]["tier"]],
-                label=f"{p} ({s['policies'][p]['tier']})")
+    for p, mine in scores.items():
+        ax.plot(taus, (np.asarray(mine)[:, None] > taus).mean(axis=0), styles[tiers[p]], label=f"{p} ({tiers[p]})")
     ax.set_xlabel("normalised score tau (0 = random@waypoint, 1 = the run's best planner)")
     ax.set_ylabel("share of (task, run, scene) scores > tau")
-    m = s["meta"]
-    ax.set_title(f"Performance profiles, {s['suite']} ({len(m['tasks'])} tasks), covert_env {m['covert_env']}, "
-                 f"{m['env']}", fontsize=9)
+    ax.set_title(title, fontsize=9)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def profile_figure(s: dict, path) -> None:
+    """The published run's performance profiles (:func:`draw_profiles`) to ``path``, titled with what made it."""
+    m = s["meta"]
+    scores = {p: np.array([c[4] for c in s["cells"] if c[1] == p]) for p in _ordered(s)}
+    draw_profiles(scores, {p: s["policies"][p]["tier"] for p in scores},
+                  f"Performance profiles, {s['suite']} ({len(m['tasks'])} tasks), covert_env {m['covert_env']}, "
+                  f"{m['env']}", path)
 
 
 def readme_block(s: dict) -> str:
