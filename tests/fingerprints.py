@@ -75,11 +75,14 @@ def _run_planners() -> dict[str, np.ndarray]:
     from baselines.policies import POLICIES, make_policy
 
     out = {}
-    for task in ("paper-3uav", "downtown-3uav"):
+    scenes = {"paper-3uav": dict(task="paper-3uav"), "downtown-3uav": dict(task="downtown-3uav"),
+              # the planner's line of sight to every possible true target (PossibleTargets)
+              "paper-prediction-error": dict(family="paper", n_uavs=3, config={"prediction_error": 2.0})}
+    for task, kw in scenes.items():
         for name in POLICIES:
             if not name.startswith("dp"):
                 continue
-            env = covert_env.parallel_env(task=task, action_mode="waypoint", max_cycles=4)
+            env = covert_env.parallel_env(**kw, action_mode="waypoint", max_cycles=4)
             pol = make_policy(name)
             obs, _ = env.reset(seed=21, options={"scene_seed": 21})
             pol.reset(env, 21)
