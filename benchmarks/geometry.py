@@ -24,8 +24,9 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
 from covert_env import Config, Road, TargetTrack, Terrain  # noqa: E402
+from covert_env.shadows import shadow_polygons  # noqa: E402
 from covert_env.terrain import Polytope  # noqa: E402
-from covert_env.visibility import line_of_sight, shadow_polygons  # noqa: E402
+from covert_env.visibility import line_of_sight  # noqa: E402
 from covert_env.zone import feasible_zone, visible_zone  # noqa: E402
 
 

@@ -11,7 +11,8 @@ import numpy as np
 
 from covert_env.roles import EngineView
 from covert_env.scenario import Scenario
-from covert_env.visibility import line_of_sight, shadow_polygons
+from covert_env.shadows import shadow_polygons
+from covert_env.visibility import line_of_sight
 from covert_env.zone import feasible_zone, visible_zone
 
 __all__ = ["scene_figure", "draw_top_view", "draw_3d_view", "zones_at", "shadow_share", "EpisodeRenderer",

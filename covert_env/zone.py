@@ -199,8 +199,8 @@ def visible_zone(zone: BaseGeometry, shadows) -> BaseGeometry:
 
     Args:
         zone: the (eroded) feasible zone, e.g. from :func:`feasible_zone`.
-        shadows: a geometry (e.g. :func:`~covert_env.visibility.shadow_union`) or an iterable of
-            polygons (e.g. :func:`~covert_env.visibility.shadow_polygons`).
+        shadows: a geometry (e.g. :func:`~covert_env.shadows.shadow_union`) or an iterable of
+            polygons (e.g. :func:`~covert_env.shadows.shadow_polygons`).
 
     Returns:
         A Polygon or MultiPolygon, possibly empty: shadows can split the zone or cover it.

@@ -12,17 +12,9 @@ from hypothesis import strategies as st
 from shapely.geometry import Point, Polygon
 
 from covert_env.config import Config
+from covert_env.shadows import shadow_h_min, shadow_polygons, shadow_union, shadow_union_cfg
 from covert_env.terrain import Polytope, Terrain
-from covert_env.visibility import (
-    LOS_TOLERANCE,
-    SAFE_LOS_TOLERANCE,
-    line_of_sight,
-    line_of_sight_rows,
-    shadow_h_min,
-    shadow_polygons,
-    shadow_union,
-    shadow_union_cfg,
-)
+from covert_env.visibility import LOS_TOLERANCE, SAFE_LOS_TOLERANCE, line_of_sight, line_of_sight_rows
 
 H = 80.0
 R2 = 100.0

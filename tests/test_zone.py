@@ -11,8 +11,9 @@ from shapely import affinity
 from shapely.geometry import Point, Polygon
 
 from covert_env.config import Config
+from covert_env.shadows import shadow_polygons, shadow_union, visible_zone_cfg
 from covert_env.terrain import Polytope, Terrain
-from covert_env.visibility import line_of_sight, shadow_polygons, shadow_union, visible_zone_cfg
+from covert_env.visibility import line_of_sight
 from covert_env.zone import (
     ARC_RESOLUTION,
     arc_error,

@@ -26,8 +26,9 @@ from covert_env.angles import wrap_angle
 from covert_env.config import Config
 from covert_env.dynamics import Manoeuvre, unicycle_arc
 from covert_env.separation import separation
+from covert_env.shadows import shadow_union_cfg
 from covert_env.terrain import Terrain
-from covert_env.visibility import SAFE_LOS_TOLERANCE, line_of_sight, shadow_union_cfg
+from covert_env.visibility import SAFE_LOS_TOLERANCE, line_of_sight
 from covert_env.zone import in_feasible_zone
 
 __all__ = ["FALLBACK_PENALTY", "PathChecker", "PathContext", "SHADOW_MARGIN", "record_circles", "separated"]

@@ -33,7 +33,9 @@ import weakref
 import numpy as np
 
 from covert_env.road import Road
+from covert_env.sight_kernel import blocked_segments
 from covert_env.terrain import Terrain
+from covert_env.visibility import terrain_arrays
 
 __all__ = ["ON_ROAD_TOL", "PossibleTargets", "SAMPLE_COVER", "clear_to_all"]
 
@@ -43,8 +45,6 @@ SAMPLE_COVER = 0.25
 #: Largest distance (m) of a predicted target position from the road given to :class:`PossibleTargets`
 #: (predictions are points of the road, up to round-off).
 ON_ROAD_TOL = 1e-6
-#: (sample, node, polytope) triples per broad-phase chunk (~8 MB per float array).
-_CHUNK = 1_000_000
 _RADII: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
@@ -125,8 +125,9 @@ def clear_to_all(terrain: Terrain, xy, altitude: float, targets, grow: float) ->
     """(L,) bool: the segments from every node ``xy`` (L, 2) at ``altitude`` to every target (S, 3) miss every
     polytope grown by ``grow`` >= 0 metres (in the conservative sense of the module docstring).
 
-    Broad phase: the segment's part lower than the grown top must pass within the grown footprint circle;
-    the (segment, polytope) pairs left are clipped exactly against the pushed-out faces (Cyrus-Beck).
+    The line-of-sight kernel (:func:`~covert_env.sight_kernel.blocked_segments`) with the faces pushed out by
+    ``grow`` (``tol = -grow``) and, as its per-pair test, the footprint circles of :func:`_plan_radii` widened by
+    ``grow`` below the tops raised by ``grow``: a pair is blocked where the segment meets both.
     """
     xy = np.asarray(xy, dtype=float).reshape(-1, 2)
     tq = np.asarray(targets, dtype=float).reshape(-1, 3)
@@ -137,45 +138,11 @@ def clear_to_all(terrain: Terrain, xy, altitude: float, targets, grow: float) ->
     n_nodes, m = len(xy), len(terrain)
     if m == 0 or n_nodes == 0:
         return np.ones(n_nodes, dtype=bool)
-    hs = terrain.halfspace_array
     centre = terrain.centroids_xy
-    radius = _plan_radii(terrain) + grow + 1e-9
-    # Parameter along UAV -> target from which the segment is below the grown top (the UAV is above the target).
-    s0 = np.clip((terrain.z_max[None, :] + grow - h) / (tq[:, 2, None] - h), 0.0, 1.0)          # (S, M)
-    blocked = np.zeros(n_nodes, dtype=bool)
-    step = max(1, _CHUNK // (n_nodes * m))
-    for c in range(0, len(tq), step):   # chunks of samples only bound memory; each chunk is vectorised
-        t = tq[c:c + step]
-        ex = t[:, None, 0] - xy[None, :, 0]                                        # (S, L)
-        ey = t[:, None, 1] - xy[None, :, 1]
-        s0c = s0[c:c + step, None, :]                                              # (S, 1, M)
-        # Distance from each footprint centre to the 2-D sub-segment [s0, 1] of the segment.
-        ax = xy[None, :, 0, None] + s0c * ex[..., None] - centre[:, 0]              # (S, L, M): start - centre
-        ay = xy[None, :, 1, None] + s0c * ey[..., None] - centre[:, 1]
-        bx, by = (1.0 - s0c) * ex[..., None], (1.0 - s0c) * ey[..., None]
-        b2 = bx * bx + by * by
-        w = np.clip(-(ax * bx + ay * by) / np.where(b2 > 0, b2, 1.0), 0.0, 1.0)
-        near = (ax + w * bx) ** 2 + (ay + w * by) ** 2 <= radius ** 2
-        si, li, mi = np.nonzero(near)
-        if len(si) == 0:
-            continue
-        face = hs[mi]                                                               # (P, F, 4)
-        u = np.column_stack([xy[li], np.full(len(li), h)])
-        num = np.einsum("pfi,pi->pf", face[..., :3], u) + face[..., 3] - grow
-        den = np.einsum("pfi,pi->pf", face[..., :3], t[si]) + face[..., 3] - grow - num
-        hit = _clip(num, den)
-        blocked[li[hit]] = True
-    return ~blocked
-
-
-def _clip(num: np.ndarray, den: np.ndarray) -> np.ndarray:
-    """Cyrus-Beck: does ``num + s den <= 0`` hold on every face for some s in [0, 1]? (P, F) -> (P,).
-
-    The same rule as :func:`covert_env.visibility.line_of_sight`: den == 0 gives s = -inf (num > 0: empty),
-    +inf (num < 0: no bound) or NaN (no bound, ignored by fmin)."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        s = -num / den
-    entering = den < 0
-    s_in = np.maximum(np.max(np.where(entering, s, 0.0), axis=1), 0.0)
-    s_out = np.minimum(np.fmin.reduce(np.where(entering, 1.0, s), axis=1), 1.0)
-    return s_in <= s_out
+    # Every (target, node) segment, grouped by target; growth 1 per polytope: circles and tops widened by grow.
+    points = np.broadcast_to(xy, (len(tq), n_nodes, 2)).reshape(-1, 2)
+    blocked = blocked_segments(terrain_arrays(terrain).hs[None], centre[None, :, 0], centre[None, :, 1],
+                               _plan_radii(terrain)[None], np.asarray(terrain.z_max, float)[None], np.ones((1, m)),
+                               tq, np.zeros(len(tq), np.int64), np.arange(len(tq) + 1) * n_nodes,
+                               points, h, -float(grow))
+    return ~blocked.reshape(len(tq), n_nodes).any(axis=0)

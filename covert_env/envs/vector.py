@@ -62,7 +62,7 @@ class CovertSensingVectorEnv(ConstructionSettings, LiveSettings, CopyReaders, Wa
 
     Copy ``i`` flies exactly what the parallel env flies for the same scene, starts and actions (tested, see
     Seeding): observations, rewards, costs and infos are bit-identical. (The parallel env is this env with B = 1;
-    every line-of-sight path runs the same clipping routine, :func:`~covert_env.visibility.clip_segments`.)
+    every line-of-sight question goes to one kernel, :func:`~covert_env.sight_kernel.blocked_segments`.)
 
     ## Action Space
 
