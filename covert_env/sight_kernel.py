@@ -57,6 +57,8 @@ def _kernel(hs, cx, cy, radius, z_top, growth, targets, rows, start, points, hei
             if not one_height and heights[i] < h_min:
                 h_min = heights[i]
         d_max = np.sqrt(d2_max)
+        above = h_min > qz
+        inv_hq = 1.0 / (h_min - qz) if above else 0.0
         # Per (target, polytope): within reach of the part of some segment lower than the top?
         n_keep = 0
         for m in range(n_m):
@@ -65,9 +67,9 @@ def _kernel(hs, cx, cy, radius, z_top, growth, targets, rows, start, points, hei
                 continue
             grow = growth[r, m] * -tol if tol < 0.0 else 0.0
             rad = (radius[r, m] + grow + 1e-9) * (1.0 + 1e-9)
-            if h_min > qz:
+            if above:
                 # Kept iff |c - q| - r <= reach, the reach of the segments' low parts (squared: no root).
-                low = (top + grow - qz) / (h_min - qz)
+                low = (top + grow - qz) * inv_hq
                 if low < 0.0:
                     low = 0.0
                 reach = d_max * low * (1.0 + 1e-9) + 1e-9 + rad
@@ -83,16 +85,14 @@ def _kernel(hs, cx, cy, radius, z_top, growth, targets, rows, start, points, hei
             ux, uy = points[i, 0], points[i, 1]
             uz = heights[0] if one_height else heights[i]
             ex, ey, dz = qx - ux, qy - uy, qz - uz
+            inv_dz = 1.0 / (dz if dz != 0.0 else -1e-300)
             for k in range(n_keep):
                 m = keep[k]
                 grow = growth[r, m] * -tol if tol < 0.0 else 0.0
                 rad = radius[r, m] + grow + 1e-9
                 # The parameter range [s0, s1] (s = 0 at the UAV) where the segment is lower than the grown top.
                 top = z_top[r, m] + grow
-                if dz == 0.0:
-                    sc = (top - uz) / -1e-300
-                else:
-                    sc = (top - uz) / dz
+                sc = (top - uz) * inv_dz
                 if dz <= 0.0:
                     s0, s1 = min(max(sc, 0.0), 1.0), 1.0
                 else:
