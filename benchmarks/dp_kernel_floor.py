@@ -1,7 +1,7 @@
 """How much a compiled kernel would gain on the DP planner's two hot spots (could a replan be 4x b549364's?).
 
-Run ``python benchmarks/dp_kernel_floor.py`` in an environment with numba (``pip install numba``; numba is *not*
-a covert_env dependency, and nothing in the package imports it). A 3-UAV team flies the paper scene at the
+Run ``python benchmarks/dp_kernel_floor.py`` (numba is a covert_env dependency: the line-of-sight kernel,
+:mod:`covert_env.sight_kernel`; the planner itself is numpy). A 3-UAV team flies the paper scene at the
 2 m grid (as ``benchmarks/dp.py``), and every call of the planner's two hot spots is recorded:
 
 * the dense table bound of a UAV's stage (``ForwardRecursion._node_bounds``: one 577 x 577 block per UAV and
@@ -36,7 +36,7 @@ import numpy as np  # noqa: E402
 try:
     import numba
 except ImportError:                       # pragma: no cover - depends on the environment
-    sys.exit("benchmarks/dp_kernel_floor.py needs numba (pip install numba); it is not a covert_env dependency")
+    sys.exit("benchmarks/dp_kernel_floor.py needs numba (pip install numba), a covert_env dependency")
 
 import baselines.dp.recursion as recursion  # noqa: E402
 import baselines.dp.transitions as transitions  # noqa: E402
