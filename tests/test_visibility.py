@@ -312,17 +312,70 @@ def test_config_wrappers():
     assert b.symmetric_difference(shadow_union(terrain, q, fixed.altitude, r, h_min=30.0)).area < 1e-9
 
 
+def all_pairs_clear(terrain: Terrain, u: np.ndarray, t: np.ndarray, tol: float) -> np.ndarray:
+    """An independent reference for the kernel: every (segment, polytope) pair clipped, no broad phase. Segments
+    ``u`` -> ``t`` (N, 3) each; the face values in the kernel's order, ``(n_x x + n_y y) + (n_z z + (d + tol))``,
+    and Cyrus-Beck on [0, 1] (den = 0: -inf outside, +inf or NaN no bound). (N,) True = clear."""
+    clear = np.ones(len(u), bool)
+    for p in terrain:
+        n = p.halfspaces                                                          # (F, 4)
+        dt = n[:, 3] + tol
+        v0 = (n[:, 0] * u[:, :1] + n[:, 1] * u[:, 1:2]) + (n[:, 2] * u[:, 2:] + dt)     # (N, F)
+        v1 = (n[:, 0] * t[:, :1] + n[:, 1] * t[:, 1:2]) + (n[:, 2] * t[:, 2:] + dt)
+        den = v1 - v0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = -v0 / den
+        s_in = np.where(den < 0, s, 0.0).max(axis=1, initial=0.0)
+        s_out = np.fmin.reduce(np.where(den < 0, 1.0, s), axis=1, initial=1.0)
+        clear &= ~(s_in <= s_out)
+    return clear
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), tol=st.sampled_from([LOS_TOLERANCE, SAFE_LOS_TOLERANCE, 0.0, -0.5, -2.0]),
+       layout=st.sampled_from(["one target", "per point", "rows", "small batches"]))
+def test_kernel_equals_the_all_pairs_clip(seed, tol, layout):
+    """The kernel's broad phases never change a result: every layout of the same segments decides each one as the
+    all-pairs clip does, for shrunk and grown polytopes, UAVs above, level with and below the target, and segments
+    that graze a face (points and targets on face planes)."""
+    rng = np.random.default_rng(seed)
+    terrain = random_terrain(rng)
+    q = random_target(rng)
+    pts = disk_points(rng, q, 300, radius=130.0)
+    alt = rng.choice([H, 40.0, q[2], 2.0], size=300)
+    if len(terrain):
+        # Grazing: put some points on a face plane of a polytope (z solved from the plane at the point's x, y).
+        f = terrain[0].halfspaces
+        k = int(np.argmax(np.abs(f[:, 2])))
+        alt[:30] = -(f[k, 0] * pts[:30, 0] + f[k, 1] * pts[:30, 1] + f[k, 3]) / f[k, 2]
+    want = all_pairs_clear(terrain, np.column_stack([pts, alt]), np.broadcast_to(q, (300, 3)), tol)
+    if layout == "one target":
+        got = line_of_sight(terrain, pts, alt, q, tol=tol)
+    elif layout == "per point":
+        got = line_of_sight(terrain, pts, alt, np.broadcast_to(q, (300, 3)) + 0.0, tol=tol)
+    elif layout == "rows":
+        same = alt == alt[0]
+        got = want.copy()
+        got[same] = line_of_sight_rows(terrain, pts[same][None], alt[0], q[None], tol=tol)[0]
+    else:
+        got = np.concatenate([line_of_sight(terrain, pts[i:i + 7], alt[i:i + 7], q, tol=tol)
+                              for i in range(0, 300, 7)])
+    np.testing.assert_array_equal(got, want)
+
+
 def test_small_input_path_equals_broad_phase_paths():
-    """Few points take the all-pairs path; it must agree with the broad-phase paths point for point."""
+    """Few points at a time and every point at once decide alike, also with a target per point."""
     rng = np.random.default_rng(11)
     for _ in range(40):
         terrain = random_terrain(rng)
         q = random_target(rng)
         pts = disk_points(rng, q, 600)
-        big = line_of_sight(terrain, pts, 80.0, q)                       # single-target broad phase
+        big = line_of_sight(terrain, pts, 80.0, q)
         per_point = line_of_sight(terrain, pts, 80.0, np.broadcast_to(q, pts.shape[:-1] + (3,)) + 0.0)
         small = np.concatenate([line_of_sight(terrain, pts[i:i + 5], 80.0, q) for i in range(0, 600, 5)])
         assert np.array_equal(small, big) and np.array_equal(per_point, big)
+        assert np.array_equal(big, all_pairs_clear(terrain, np.column_stack([pts, np.full(600, 80.0)]),
+                                                   np.broadcast_to(q, (600, 3)), LOS_TOLERANCE))
         assert (~big).any() or len(terrain) < 6
 
 
@@ -418,7 +471,7 @@ def test_terrain_rows_overwritten_rows_see_their_new_terrain():
 
 
 def test_terrain_rows_broad_phase_keeps_every_blocking_triple_in_degenerate_cases():
-    """TerrainRows' broad phase (cone + reach, per copy, UAV and polytope) never drops a triple the exact clip
+    """TerrainRows (the kernel's broad phases on a table of terrains) never drops a triple the exact clip
     blocks, also where its tests degenerate: a UAV right above the target (no bearing), a target inside a footprint
     or its circle (every bearing), a target at a padding polytope's (zero) centre on a row of fewer polytopes,
     and copies whose target is above the UAV plane (no reach bound). Each copy is compared with line_of_sight on
@@ -456,8 +509,8 @@ def test_terrain_rows_broad_phase_keeps_every_blocking_triple_in_degenerate_case
 @given(seed=st.integers(0, 2**31 - 1), samples=st.integers(1, 12), travel=st.sampled_from([0.0, 1.0, 10.0, 40.0]),
        spread=st.sampled_from([5.0, 60.0, 250.0]))
 def test_terrain_rows_paths_equal_line_of_sight_at_every_sample(seed, samples, travel, spread):
-    """TerrainRows.line_of_sight_paths (the env's LoS along the flown path, one slot-level broad phase for all its
-    samples) decides every sample as line_of_sight_rows' per-sample call, also where its slot tests degenerate:
+    """TerrainRows.line_of_sight_paths (the env's LoS along the flown path, its samples grouped by instant)
+    decides every sample as line_of_sight_rows' per-sample call, also in degenerate cases:
     UAV paths circling the target (bearings around +-pi), passing right above it, a target inside a footprint,
     a target whose height varies, copies whose target is above the UAV plane (the per-sample fallback), rows of
     fewer polytopes and an empty row (the next test checks that such paths do get blocked); no samples at all."""
@@ -514,13 +567,14 @@ def test_terrain_rows_paths_block_somewhere():
        altitude=st.sampled_from([H, 40.0]))
 def test_negative_tolerance_broad_phases_equal_the_all_pairs_clip(seed, tol, altitude):
     """A negative tolerance grows the polytopes (the planner's and the action mask's LoS): every broad phase must
-    grow its circles, tops and wedges with them, or it drops pairs the grown polytope blocks. Each path against
-    the all-pairs clip (5 points per call); a large growth makes a missed widening visible on most seeds."""
+    grow its circles and tops with them, or it drops pairs the grown polytope blocks. Each layout against
+    the all-pairs clip; a large growth makes a missed widening visible on most seeds."""
     rng = np.random.default_rng(seed)
     terrain = random_terrain(rng)
     q = random_target(rng)
     pts = disk_points(rng, q, 400, radius=130.0)
-    brute = np.concatenate([line_of_sight(terrain, pts[i:i + 5], altitude, q, tol=tol) for i in range(0, 400, 5)])
+    brute = all_pairs_clear(terrain, np.column_stack([pts, np.full(len(pts), altitude)]),
+                            np.broadcast_to(q, (len(pts), 3)), tol)
     single = line_of_sight(terrain, pts, altitude, q, tol=tol)
     general = line_of_sight(terrain, pts, altitude, np.broadcast_to(q, (len(pts), 3)) + 0.0, tol=tol)
     rows = line_of_sight_rows(terrain, pts.reshape(8, 50, 2), altitude, np.tile(q, (8, 1)), tol=tol).reshape(-1)
