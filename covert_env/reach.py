@@ -28,6 +28,7 @@ import functools
 import numpy as np
 
 from covert_env.dynamics import solve_manoeuvre
+from covert_env.zone import to_world
 
 __all__ = ["ReachTable", "reach_table"]
 
@@ -150,7 +151,6 @@ class ReachTable:
         the offsets per UAV, so the lattice is shared by every copy and all lookups' coordinates come from one
         (B U 2, 3) x (3, L) matrix product. Its rounding (well below a cell, also for a far UAV whose nodes all
         land beyond the table) is covered by the margin of a cell that certain cells keep."""
-        ct, st = np.cos(phi), np.sin(phi)
         # Per UAV: the target in the UAV's frame, in cells (a - a0) / h and lateral / h, and the rotation by
         # phi - theta scaled to cells (float64, then float32 for the product).
         dx, dy = q_xy[:, None, 0] - xy[..., 0], q_xy[:, None, 1] - xy[..., 1]
@@ -179,19 +179,11 @@ class ReachTable:
         if len(flat):
             bi, rest = np.divmod(flat, lab.shape[1] * lab.shape[2])
             ui, li = np.divmod(rest, lab.shape[2])
-            goals = _goals(q_xy[bi], ct[bi], st[bi], offsets[li])
+            goals = to_world(offsets[li][:, None], q_xy[bi], phi[bi])[:, 0]
             m = solve_manoeuvre(xy[bi, ui], theta[bi, ui], goals, v_max=self.v_max, w_max=self.w_max,
                                 delta=self.delta)
             out[bi, ui, li] = m.feasible
         return out
-
-
-def _goals(q_xy, c, s, offsets):
-    """``to_world(offsets, q_xy, phi)`` elementwise, with c, s = cos, sin(phi) given (the same arithmetic):
-    q_xy (..., 2), c, s (...), offsets (..., 2) broadcast together."""
-    x = q_xy[..., 0] + c * offsets[..., 0] - s * offsets[..., 1]
-    y = q_xy[..., 1] + s * offsets[..., 0] + c * offsets[..., 1]
-    return np.stack([x, y], axis=-1)
 
 
 @functools.lru_cache(maxsize=8)

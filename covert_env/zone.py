@@ -294,11 +294,16 @@ def to_target_frame(d, cs, sn) -> np.ndarray:
 
 
 def to_world(offsets, q_xy, phi) -> np.ndarray:
-    """World positions of target-frame offsets: ``q + R(phi) offset``.
+    """World positions of target-frame offsets: ``q + R(phi) offset``, batch-first.
+
+    The one target-frame-to-world transform of the library: the lattice's nodes and the maps' cells at every slot
+    of every scene, the waypoints the UAVs fly to, the reach table's exact goals.
 
     Args:
-        offsets: (L, 2) target-frame offsets.
-        q_xy: (..., 2) target position(s); phi: (...) heading(s), broadcast together.
+        offsets: (..., L, 2) target-frame offsets: L per target, e.g. one lattice (L, 2) shared by every target,
+            or (B, L, 2) a set per copy.
+        q_xy: (..., 2) target position(s); phi: (...) heading(s); their leading axes broadcast with the
+            offsets' (those before L).
 
     Returns:
         (..., L, 2); (L, 2) for one target.
@@ -307,8 +312,8 @@ def to_world(offsets, q_xy, phi) -> np.ndarray:
     q = np.asarray(q_xy, dtype=float)
     ph = np.asarray(phi, dtype=float)
     c, s = np.cos(ph)[..., None], np.sin(ph)[..., None]
-    x = q[..., 0, None] + c * off[:, 0] - s * off[:, 1]
-    y = q[..., 1, None] + s * off[:, 0] + c * off[:, 1]
+    x = q[..., 0, None] + c * off[..., 0] - s * off[..., 1]
+    y = q[..., 1, None] + s * off[..., 0] + c * off[..., 1]
     return np.stack([x, y], axis=-1)
 
 

@@ -556,7 +556,7 @@ def test_a_nul_byte_in_a_path_is_named():
 
 def test_terrain_sizes_are_refused_before_any_geometry_work(tmp_path):
     """A file with too many polytopes or vertices fails at once, naming the count and the bound."""
-    from covert_env.terrain import MAX_TERRAIN_VERTICES
+    from covert_env.polytope import MAX_TERRAIN_VERTICES
 
     path = tmp_path / "huge.geojson"
     path.write_text(json.dumps(_city(101)))                 # 10,201 buildings
@@ -765,7 +765,7 @@ def test_terrain_feasibility_checks_keep_workable_configs(kwargs):
 
 
 def test_footprint_vertex_bound_fails_fast_in_a_file(tmp_path):
-    from covert_env.terrain import MAX_FOOTPRINT_VERTICES
+    from covert_env.polytope import MAX_FOOTPRINT_VERTICES
 
     n = 2_000                                          # one footprint: the bound per footprint, not the terrain's
     ring = [[100 * math.cos(2 * math.pi * k / n), 100 * math.sin(2 * math.pi * k / n)] for k in range(n)]

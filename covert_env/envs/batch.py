@@ -28,7 +28,7 @@ COSTS = ("los", "los_path", "zone", "separation", "terrain")
 
 __all__ = ["COSTS", "MIN_SPEED_FRACTION", "OFFSET_CLIP", "REWARD_TERMS", "action_masks", "constraint_costs",
            "fly_to_goals",
-           "fly_waypoints", "own_features", "reward_terms", "to_world_batch",
+           "fly_waypoints", "own_features", "reward_terms",
            "unicycle_actions", "unicycle_controls", "waypoint_actions"]
 
 
@@ -100,16 +100,6 @@ def fly_to_goals(xy, theta, goals, c, times) -> np.ndarray:
     out[ci, ui, mi] = fly_waypoints(xy[ci, ui][:, None], theta[ci, ui][:, None], goals[ci, ui, mi][:, None], c,
                                     times)[0][:, 0]
     return out
-
-
-def to_world_batch(offsets, q_xy, phi) -> np.ndarray:
-    """World positions of target-frame ``offsets`` (B, ..., 2) for targets q_xy (B, 2), phi (B,): q + R(phi) o
-    (the same arithmetic as :func:`covert_env.zone.to_world`, one target per copy)."""
-    extra = (None,) * (offsets.ndim - 2)
-    c, s = np.cos(phi)[(slice(None),) + extra], np.sin(phi)[(slice(None),) + extra]
-    x = q_xy[(slice(None),) + extra + (0,)] + c * offsets[..., 0] - s * offsets[..., 1]
-    y = q_xy[(slice(None),) + extra + (1,)] + s * offsets[..., 0] + c * offsets[..., 1]
-    return np.stack([x, y], axis=-1)
 
 
 def action_masks(xy, theta, q_xy, phi, lattice, visible, table) -> np.ndarray:

@@ -11,6 +11,7 @@ from covert_env.envs import batch
 from covert_env.envs.waypoint_queries import SafetyState
 from covert_env.metrics import top_clearance
 from covert_env.separation import priority_negotiation, separation
+from covert_env.zone import to_world
 
 __all__ = ["Flights", "Plan", "near_tops", "negotiate", "path_separation", "sample_bounds", "top_clearance_along"]
 
@@ -78,7 +79,7 @@ class Flights:
         self.paths = np.full((b, u, m, len(times), 2), np.nan)
         self.end_theta = np.full((b, u, m), np.nan)
         if len(ci):
-            goals = batch.to_world_batch(flt.lattice[nodes[ci, ui, mi]][:, None], q[ci], phi[ci])   # (N, 1, 2)
+            goals = to_world(flt.lattice[nodes[ci, ui, mi]][:, None], q[ci], phi[ci])   # (N, 1, 2)
             path, end_theta, *_ = batch.fly_waypoints(xy[ci, ui][:, None], theta[ci, ui][:, None], goals, c, times)
             self.paths[ci, ui, mi] = path[:, 0]
             self.end_theta[ci, ui, mi] = wrap_heading(end_theta[:, 0])

@@ -21,7 +21,7 @@ from covert_env.flight import fly_arc
 from covert_env.metrics import moves_quantities
 from covert_env.reach import reach_table
 from covert_env.separation import nearest_teammate
-from covert_env.zone import zone_distance
+from covert_env.zone import to_world, zone_distance
 
 __all__ = ["AUTORESET_MODES", "CovertSensingVectorEnv", "vector_env", "INFO_BOOLS", "INFO_KEYS", "INFO_DTYPES",
            "MAX_NUM_ENVS", "MAX_SCENE_SEED"]
@@ -297,7 +297,7 @@ class CovertSensingVectorEnv(ConstructionSettings, LiveSettings, CopyReaders, Wa
                                          self.possible_agents)
             flagged = np.take_along_axis(self._masks, idx[..., None], axis=-1)[..., 0] == 0
             # The nodes are about the target's next pose as predicted now (what the mask and the planner use).
-            goals = batch.to_world_batch(self.lattice[idx], pool.q_next[rows, k, :2], pool.phi_next[rows, k])
+            goals = to_world(self.lattice[idx], pool.q_next[rows, k, :2], pool.phi_next[rows, k])
             path, end_theta, v, fallback, w = batch.fly_waypoints(xy0, th0, goals, c, self._times)
             flagged |= fallback
         end = path[..., -1, :].copy()

@@ -13,6 +13,7 @@ import numpy as np
 
 from covert_env.envs import batch
 from covert_env.envs.arguments import int_arg
+from covert_env.zone import to_world
 
 __all__ = ["SafetyState", "WaypointQueries"]
 
@@ -93,7 +94,7 @@ class WaypointQueries:
         pool, rows, k = self._pool, self._rows, self._k
         q0, q1 = pool.q[rows, k, :2], pool.q_next[rows, k, :2]
         turn = pool.phi_next[rows, k] - pool.phi[rows, k]
-        q2 = batch.to_world_batch((q1 - q0)[:, None], q1, turn)[:, 0]          # the displacement, turned, again
+        q2 = to_world((q1 - q0)[:, None], q1, turn)[:, 0]          # the displacement, turned, again
         phi2 = pool.phi_next[rows, k] + turn
         reach = self._reach.reachable(xy[ci, ui, mi][:, None], theta[ci, ui, mi][:, None], q2[ci], phi2[ci],
                                       self.lattice, exact=False)                                  # (N, 1, L)
@@ -135,6 +136,6 @@ class WaypointQueries:
         pool, rows, k = self._pool, self._rows, self._k
         ci, ui, mi = np.nonzero(nodes >= 0)                       # only the real (copy, UAV, node) triples
         out = np.full((*nodes.shape, 2), np.nan)
-        out[ci, ui, mi] = batch.to_world_batch(self.lattice[nodes[ci, ui, mi]][:, None],
-                                               pool.q_next[rows[ci], k[ci], :2], pool.phi_next[rows[ci], k[ci]])[:, 0]
+        out[ci, ui, mi] = to_world(self.lattice[nodes[ci, ui, mi]][:, None], pool.q_next[rows[ci], k[ci], :2],
+                                   pool.phi_next[rows[ci], k[ci]])[:, 0]
         return out
