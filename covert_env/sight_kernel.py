@@ -3,7 +3,7 @@
 Every line-of-sight question of the library -- the env at slot ends and along the flown paths, the observation
 maps, the waypoint lattice and the action masks, the planner's states and path checks, the metrics -- is a batch of
 segments, each from a UAV position ``p`` to a target position ``q``, each against the terrain of its scene. This
-module answers it once, for any batch, with one broad phase and one exact clip:
+module answers it once, for any batch, with one broad phase (per target, then per point) and one exact clip:
 
 * **Layout.** Segments are grouped by target: target j (``targets[j]``, the terrain in row ``rows[j]`` of a
   :class:`~covert_env.visibility.TerrainRows`) owns the points ``points[start[j]:start[j + 1]]``. A batch of copies,
@@ -18,10 +18,16 @@ module answers it once, for any batch, with one broad phase and one exact clip:
   bounds' minimum on ``[0, 1]``. Face values are summed in one fixed order, ``(n_x x + n_y y) + (n_z z + (d + tol))``,
   so a decision never depends on how the batch is laid out.
 
-Both broad phases are conservative (circles grown by 1 nm and 1e-9 relative, and by how far a negative ``tol``
-grows each polytope: :func:`~covert_env.visibility.growth_factors`): they only drop pairs the clip finds clear, so
-the result is the clip's alone. The kernel is compiled with numba (a loop per target, per polytope, per point, that
-stops at the first blocking polytope); it runs single-threaded and holds no state between calls.
+The broad phase is conservative (circles grown by 1 nm, and 1e-9 relative per target; tops raised by 1 nm; both
+grown by how far a negative ``tol`` grows each polytope, ``growth`` times ``-tol``, with ``growth`` from
+:func:`~covert_env.visibility.growth_factors`): it only drops pairs the clip finds clear, so the result is the
+clip's alone. (A caller that passes smaller growth factors makes the circle-and-top test part of the result: the
+planner's possible targets, :func:`baselines.dp.possible_targets.clear_to_all`, block a pair only where the segment
+meets both the pushed-out faces and the widened cylinder.)
+
+The kernel is compiled with numba (a loop per target, per polytope, per point, that stops at the first blocking
+polytope); it runs single-threaded and holds no state between calls. numba checks no bounds, so
+:func:`blocked_segments` checks every shape and index first.
 """
 
 from __future__ import annotations
@@ -47,7 +53,7 @@ def _kernel(hs, cx, cy, radius, z_top, growth, targets, rows, start, points, hei
         qx, qy, qz = targets[j, 0], targets[j, 1], targets[j, 2]
         # The target's points: their farthest horizontal distance and lowest height.
         d2_max = 0.0
-        h_min = heights[0]
+        h_min = heights[0] if one_height else heights[a]
         for i in range(a, b):
             dx = points[i, 0] - qx
             dy = points[i, 1] - qy
@@ -69,7 +75,7 @@ def _kernel(hs, cx, cy, radius, z_top, growth, targets, rows, start, points, hei
             rad = (radius[r, m] + grow + 1e-9) * (1.0 + 1e-9)
             if above:
                 # Kept iff |c - q| - r <= reach, the reach of the segments' low parts (squared: no root).
-                low = (top + grow - qz) * inv_hq
+                low = (top + grow + 1e-9 - qz) * inv_hq
                 if low < 0.0:
                     low = 0.0
                 reach = d_max * low * (1.0 + 1e-9) + 1e-9 + rad
@@ -91,7 +97,7 @@ def _kernel(hs, cx, cy, radius, z_top, growth, targets, rows, start, points, hei
                 grow = growth[r, m] * -tol if tol < 0.0 else 0.0
                 rad = radius[r, m] + grow + 1e-9
                 # The parameter range [s0, s1] (s = 0 at the UAV) where the segment is lower than the grown top.
-                top = z_top[r, m] + grow
+                top = z_top[r, m] + grow + 1e-9
                 sc = (top - uz) * inv_dz
                 if dz <= 0.0:
                     s0, s1 = min(max(sc, 0.0), 1.0), 1.0
@@ -151,16 +157,36 @@ def blocked_segments(hs: np.ndarray, cx: np.ndarray, cy: np.ndarray, radius: np.
     Returns:
         (N,) bool, True = blocked.
     """
-    out = np.zeros(len(points), dtype=bool)
-    heights = np.ascontiguousarray(np.atleast_1d(np.asarray(heights, dtype=np.float64)).reshape(-1))
+    hs, cx, cy, radius, z_top, growth, targets, points = (
+        _c(a, np.float64) for a in (hs, cx, cy, radius, z_top, growth, targets, points))
+    rows, start = _c(rows, np.int64), _c(start, np.int64)
+    heights = _c(np.atleast_1d(np.asarray(heights, dtype=np.float64)).reshape(-1), np.float64)
+    # numba checks no bounds: every index the kernel reads is checked here.
+    n_rows, n_m = hs.shape[:2] if hs.ndim == 4 else (-1, -1)
+    t = len(targets)
+    if hs.ndim != 4 or hs.shape[3] != 4 or any(a.shape != (n_rows, n_m) for a in (cx, cy, radius, z_top, growth)):
+        raise ValueError(f"blocked_segments: hs must be (R, M, F, 4) and the circles, tops and growth (R, M); got "
+                         f"{hs.shape}, {[a.shape for a in (cx, cy, radius, z_top, growth)]}")
+    if targets.shape != (t, 3) or rows.shape != (t,) or start.shape != (t + 1,) or points.ndim != 2 \
+            or points.shape[1] != 2:
+        raise ValueError(f"blocked_segments: targets must be (T, 3), rows (T,), start (T + 1,) and points (N, 2); "
+                         f"got {targets.shape}, {rows.shape}, {start.shape}, {points.shape}")
+    if start[0] != 0 or start[-1] != len(points) or np.any(np.diff(start) < 0):
+        raise ValueError(f"blocked_segments: start must rise from 0 to the number of points ({len(points)})")
+    if t and (rows.min() < 0 or rows.max() >= n_rows):
+        raise ValueError(f"blocked_segments: rows must lie in [0, {n_rows}), got {rows.min()} to {rows.max()}")
     if len(heights) not in (1, len(points)):
         raise ValueError(f"blocked_segments: heights must be one number or one per point ({len(points)}), "
                          f"got {len(heights)}")
-    if len(points) and hs.shape[1]:
-        _kernel(np.ascontiguousarray(hs, dtype=np.float64), np.ascontiguousarray(cx, dtype=np.float64),
-                np.ascontiguousarray(cy, dtype=np.float64), np.ascontiguousarray(radius, dtype=np.float64),
-                np.ascontiguousarray(z_top, dtype=np.float64), np.ascontiguousarray(growth, dtype=np.float64),
-                np.ascontiguousarray(targets, dtype=np.float64), np.ascontiguousarray(rows, dtype=np.int64),
-                np.ascontiguousarray(start, dtype=np.int64), np.ascontiguousarray(points, dtype=np.float64),
-                heights, float(tol), out)
+    out = np.zeros(len(points), dtype=bool)
+    if len(points) and n_m:
+        _kernel(hs, cx, cy, radius, z_top, growth, targets, rows, start, points, heights, float(tol), out)
     return out
+
+
+def _c(a, dtype) -> np.ndarray:
+    """``a`` as a C-contiguous, writable array of ``dtype`` (a copy only if needed): one compiled signature."""
+    a = np.asarray(a)
+    if a.dtype != dtype or not a.flags.c_contiguous or not a.flags.writeable:
+        a = np.array(a, dtype=dtype, order="C")
+    return a

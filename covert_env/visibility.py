@@ -2,8 +2,8 @@
 
 A UAV at ``p = (x, y, h)`` sees the target at ``q = (x_q, y_q, z_q)`` unless the segment between them meets the
 interior of some terrain polytope C_m (eq. 6). Every question of that kind goes to one kernel,
-:func:`covert_env.sight_kernel.blocked_segments` (one broad phase, one exact clip); this module lays the questions
-out for it:
+:func:`covert_env.sight_kernel.blocked_segments` (one broad phase, per target then per point, and one exact clip);
+this module lays the questions out for it:
 
 * one terrain (:func:`line_of_sight`, :func:`line_of_sight_rows`, :func:`visible_nodes`): the planner, the metrics,
   the start sampler and the pictures, with the terrain's padded arrays (:class:`TerrainArrays`, built once per

@@ -634,3 +634,30 @@ def test_visible_nodes_rows_on_generated_scenes_blocks_and_equals_visible_nodes(
     want = np.stack([visible_nodes(t, lattice, q[n], phi[n], c.altitude) for n, (t, _, _) in enumerate(worlds)])
     np.testing.assert_array_equal(got, want)
     assert 0.05 < (~got).mean() < 0.5
+
+
+def test_kernel_checks_its_layout_before_it_reads():
+    """numba checks no bounds: a layout that does not fit (points left over, a row beyond the table, shapes that
+    disagree) is refused with a clear error, and read-only or strided inputs give the same answer as copies."""
+    from covert_env.sight_kernel import blocked_segments
+    from covert_env.visibility import terrain_arrays
+
+    rng = np.random.default_rng(3)
+    terrain = random_terrain(rng, 6)
+    q = random_target(rng)
+    table = terrain_arrays(terrain).table
+    pts = disk_points(rng, q, 50)
+    args = (q[None], np.zeros(1, np.int64), np.array([0, 50]), pts, H, LOS_TOLERANCE)
+    want = blocked_segments(*table, *args)
+    for bad, match in [((q[None], np.zeros(1, np.int64), np.array([0, 40]), pts, H, LOS_TOLERANCE), "start"),
+                       ((q[None], np.ones(1, np.int64), np.array([0, 50]), pts, H, LOS_TOLERANCE), "rows"),
+                       ((q[None], np.zeros(2, np.int64), np.array([0, 50]), pts, H, LOS_TOLERANCE), "targets"),
+                       ((q[None], np.zeros(1, np.int64), np.array([0, 50]), pts, np.full(3, H), LOS_TOLERANCE),
+                        "heights")]:
+        with pytest.raises(ValueError, match=match):
+            blocked_segments(*table, *bad)
+    with pytest.raises(ValueError, match="hs must be"):
+        blocked_segments(table[0][0], *table[1:], *args)
+    frozen = np.broadcast_to(pts, (2, 50, 2))[0]                   # read-only view
+    assert np.array_equal(blocked_segments(*table, q[None], np.zeros(1, np.int64), np.array([0, 50]), frozen, H,
+                                           LOS_TOLERANCE), want)

@@ -132,6 +132,8 @@ def clear_to_all(terrain: Terrain, xy, altitude: float, targets, grow: float) ->
     xy = np.asarray(xy, dtype=float).reshape(-1, 2)
     tq = np.asarray(targets, dtype=float).reshape(-1, 3)
     h = float(altitude)
+    if not grow >= 0:
+        raise ValueError(f"clear_to_all: grow must be >= 0 (m), got {grow!r}")
     if not np.all(tq[:, 2] < h):
         raise ValueError(f"clear_to_all: the UAV altitude ({h:g} m) must be above every target height "
                          f"(highest {tq[:, 2].max():g} m)")
