@@ -244,8 +244,7 @@ class TerrainRows:
 
     Attributes (rows R, polytopes M, faces F):
         hs (R, M, F, 4): each polytope's half-spaces ``n . x + d <= 0``.
-        cx, cy, radius (R, M): plan-view enclosing circles; z_max (R, M): heights (-inf: no polytope); valid (R, M):
-            real polytopes.
+        cx, cy, radius (R, M): plan-view enclosing circles; z_max (R, M): heights (-inf: no polytope).
         growth (R, M): :func:`growth_factors` (how far a negative tolerance grows each polytope, per metre).
         top (R, M, 3): polytope top points (eq. 3), padded with inf.
     """
@@ -255,11 +254,10 @@ class TerrainRows:
         self.hs = np.zeros((0, 0, 1, 4))
         self.cx, self.cy, self.radius, self.growth = (np.zeros((0, 0)) for _ in range(4))
         self.z_max = np.zeros((0, 0))
-        self.valid = np.zeros((0, 0), bool)
         self.top = np.zeros((0, 0, 3))
 
     def __len__(self) -> int:
-        return len(self.valid)
+        return len(self.hs)
 
     def set_row(self, r: int, terrain: Terrain) -> None:
         """Write ``terrain`` into row r (growing the arrays as needed)."""
@@ -286,7 +284,6 @@ class TerrainRows:
         self.cx, self.cy = grown(self.cx, (n, mm), 0.0), grown(self.cy, (n, mm), 0.0)
         self.radius, self.z_max = grown(self.radius, (n, mm), 0.0), grown(self.z_max, (n, mm), -np.inf)
         self.growth = grown(self.growth, (n, mm), 0.0)
-        self.valid = grown(self.valid, (n, mm), False)
         self.top = grown(self.top, (n, mm, 3), np.inf)
         block = np.empty((len(rows), mm, ff, 4))
         block[...] = always
@@ -294,9 +291,9 @@ class TerrainRows:
         self.hs[rows] = block
         for a in (self.cx, self.cy, self.radius, self.growth):
             a[rows] = 0.0
-        self.z_max[rows], self.valid[rows], self.top[rows] = -np.inf, False, np.inf
+        self.z_max[rows], self.top[rows] = -np.inf, np.inf
         self.cx[rows, :m], self.cy[rows, :m] = centre[..., 0], centre[..., 1]
-        self.radius[rows, :m], self.z_max[rows, :m], self.valid[rows, :m] = radius, z_max, True
+        self.radius[rows, :m], self.z_max[rows, :m] = radius, z_max
         self.growth[rows, :m], self.top[rows, :m] = growth, top
 
     def blocked(self, targets: np.ndarray, rows: np.ndarray, start: np.ndarray, points: np.ndarray, heights,
@@ -347,7 +344,7 @@ def visible_nodes_rows(terrains: TerrainRows, rows, offsets, q, phi, altitude: f
     q, phi, off = np.asarray(q, float), np.asarray(phi, float), np.asarray(offsets, float)
     n_s, n_t = q.shape[:2]
     out = np.ones((n_s, n_t, len(off)), dtype=bool)
-    if out.size == 0 or terrains.valid.shape[1] == 0:
+    if out.size == 0 or terrains.hs.shape[1] == 0:
         return out
     if not float(altitude) > q[..., 2].max():
         raise ValueError(f"visible_nodes_rows: the altitude ({float(altitude):g} m) must be above every target")
