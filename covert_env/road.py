@@ -16,6 +16,7 @@ import numbers
 from dataclasses import dataclass
 from functools import cached_property
 
+import numba
 import numpy as np
 from shapely.geometry import LineString
 
@@ -146,29 +147,55 @@ def points_along_rows(points: np.ndarray, cumulative: np.ndarray, last: np.ndarr
     (R, K, 2), ``cumulative`` (R, K), whose last vertex is ``last[r]``: :meth:`Road.point_at` of each row's road,
     bit for bit (the same clamp, segment and interpolation), without gathering whole roads (the vector env's target
     between slot times). ``guess`` (B, 1) or (B, S): a segment index to walk from, e.g. the segment of the slot's
-    start; the walk takes a few passes when the guess is a few vertices off."""
-    k = cumulative.shape[1]
-    end = last[rows][:, None]
-    base = (rows * k)[:, None]
-    cl = cumulative.reshape(-1)
-    s = np.minimum(np.maximum(s, 0.0), cl[base + end])
-    i = np.broadcast_to(np.minimum(np.maximum(guess, 0), end), s.shape).copy()
-    # The last index with cl <= s (searchsorted's, as _segment_at finds it), then one short of the road's end.
-    while True:
-        high = cl[base + i] > s
-        if not high.any():
-            break
-        i -= high
-    while True:
-        low = (i < end) & (cl[base + np.minimum(i + 1, end)] <= s)
-        if not low.any():
-            break
-        i += low
-    i = np.minimum(np.maximum(i, 0), end - 1) + base
-    lo, hi = cl[i], cl[i + 1]
-    t = ((s - lo) / (hi - lo))[..., None]
-    p = points.reshape(-1, 2)
-    return p[i] * (1 - t) + p[i + 1] * t
+    start; the walk takes a few steps when the guess is a few vertices off."""
+    s = np.asarray(s, dtype=np.float64)
+    rows = np.asarray(rows, dtype=np.int64)
+    guess = np.ascontiguousarray(guess, dtype=np.int64)
+    if s.ndim != 2 or rows.shape != s.shape[:1] or guess.shape not in ((len(s), 1), s.shape):
+        raise ValueError(f"points_along_rows: s must be (B, S), rows (B,) and guess (B, 1) or (B, S); got "
+                         f"{s.shape}, {rows.shape}, {np.shape(guess)}")
+    n_rows, k = np.shape(cumulative)
+    if np.shape(points) != (n_rows, k, 2) or np.shape(last) != (n_rows,):
+        raise ValueError(f"points_along_rows: points must be (R, K, 2) and last (R,) with cumulative (R, K) "
+                         f"{(n_rows, k)}; got {np.shape(points)}, {np.shape(last)}")
+    # The kernel checks no bounds: every index it reads is checked here.
+    last = np.ascontiguousarray(last, dtype=np.int64)
+    if len(rows) and (rows.min() < 0 or rows.max() >= n_rows):
+        raise ValueError(f"points_along_rows: rows must lie in [0, {n_rows}), got {rows.min()} to {rows.max()}")
+    ends = last[rows]
+    if len(ends) and (ends.min() < 1 or ends.max() >= k):
+        raise ValueError(f"points_along_rows: the rows' last vertices must lie in [1, {k - 1}], got {ends.min()} to "
+                         f"{ends.max()}")
+    out = np.empty(s.shape + (2,))
+    _points_along_rows(np.ascontiguousarray(points, dtype=np.float64),
+                       np.ascontiguousarray(cumulative, dtype=np.float64), last, np.ascontiguousarray(rows),
+                       np.ascontiguousarray(s), guess, out)
+    return out
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _points_along_rows(points, cumulative, last, rows, s, guess, out):  # pragma: no cover
+    """:func:`points_along_rows` into ``out``, one sample at a time: the clamp, the walk to the last vertex with
+    ``cumulative <= s`` (searchsorted's, as :func:`_segment_at` finds it) and the interpolation, each written as
+    the numpy expression of :meth:`Road.point_at` (no fused multiply-add), so the result is bit for bit the same."""
+    one_guess = guess.shape[1] == 1
+    for b in range(s.shape[0]):
+        r = rows[b]
+        end = last[r]
+        cl = cumulative[r]
+        for j in range(s.shape[1]):
+            x = s[b, j]
+            x = x if x >= 0.0 else 0.0                      # np.maximum(s, 0.0), then np.minimum(., end)
+            x = x if x <= cl[end] else cl[end]
+            i = min(max(guess[b, 0 if one_guess else j], 0), end)
+            while i > 0 and cl[i] > x:
+                i -= 1
+            while i < end and cl[i + 1] <= x:
+                i += 1
+            i = min(max(i, 0), end - 1)
+            t = (x - cl[i]) / (cl[i + 1] - cl[i])
+            for c in range(2):
+                out[b, j, c] = points[r, i, c] * (1 - t) + points[r, i + 1, c] * t
 
 
 def headings_along(points: np.ndarray, cumulative: np.ndarray, s: np.ndarray) -> np.ndarray:

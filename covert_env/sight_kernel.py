@@ -171,9 +171,10 @@ def blocked_segments(hs: np.ndarray, cx: np.ndarray, cy: np.ndarray, radius: np.
             or points.shape[1] != 2:
         raise ValueError(f"blocked_segments: targets must be (T, 3), rows (T,), start (T + 1,) and points (N, 2); "
                          f"got {targets.shape}, {rows.shape}, {start.shape}, {points.shape}")
-    if start[0] != 0 or start[-1] != len(points) or np.any(np.diff(start) < 0):
+    bad = _layout_error(rows, start, n_rows, len(points))
+    if bad == 1:
         raise ValueError(f"blocked_segments: start must rise from 0 to the number of points ({len(points)})")
-    if t and (rows.min() < 0 or rows.max() >= n_rows):
+    if bad == 2:
         raise ValueError(f"blocked_segments: rows must lie in [0, {n_rows}), got {rows.min()} to {rows.max()}")
     if len(heights) not in (1, len(points)):
         raise ValueError(f"blocked_segments: heights must be one number or one per point ({len(points)}), "
@@ -182,6 +183,20 @@ def blocked_segments(hs: np.ndarray, cx: np.ndarray, cy: np.ndarray, radius: np.
     if len(points) and n_m:
         _kernel(hs, cx, cy, radius, z_top, growth, targets, rows, start, points, heights, float(tol), out)
     return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _layout_error(rows, start, n_rows, n_points):  # pragma: no cover
+    """0 if ``start`` rises from 0 to ``n_points`` and every row lies in ``[0, n_rows)``; 1 (start) or 2 (rows)
+    otherwise: the index checks of :func:`blocked_segments`, compiled (a few ns per target, not µs per call)."""
+    if start[0] != 0 or start[len(start) - 1] != n_points:
+        return 1
+    for j in range(len(rows)):
+        if start[j + 1] < start[j]:
+            return 1
+        if rows[j] < 0 or rows[j] >= n_rows:
+            return 2
+    return 0
 
 
 def _c(a, dtype) -> np.ndarray:

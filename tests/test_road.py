@@ -344,3 +344,20 @@ def test_points_along_padded_rows_equal_each_road(seed, n_roads, n_points, uneve
     got = points_along_rows(pts, cl, lengths - 1, rows, s, true + guess_off)
     for b, r in enumerate(rows):
         np.testing.assert_array_equal(got[b], Road(pts[r, :lengths[r]]).point_at(s[b]))
+
+
+def test_points_along_rows_checks_its_indices_before_the_kernel_reads():
+    """The compiled walk checks no bounds: a row, a last vertex or a guess of the wrong shape is refused first."""
+    from covert_env.road import points_along_rows
+
+    pts = np.cumsum(np.ones((2, 5, 2)), axis=1)
+    cl = np.cumsum(np.full((2, 5), 2 ** 0.5), axis=1) - 2 ** 0.5
+    s = np.array([[0.5, 1.0]])
+    good = points_along_rows(pts, cl, np.array([4, 4]), np.array([1]), s, np.array([[0]]))
+    np.testing.assert_array_equal(good[0], Road(pts[1]).point_at(s[0]))
+    with pytest.raises(ValueError, match="rows must lie in"):
+        points_along_rows(pts, cl, np.array([4, 4]), np.array([2]), s, np.array([[0]]))
+    with pytest.raises(ValueError, match="last vertices must lie in"):
+        points_along_rows(pts, cl, np.array([4, 5]), np.array([1]), s, np.array([[0]]))
+    with pytest.raises(ValueError, match="guess"):
+        points_along_rows(pts, cl, np.array([4, 4]), np.array([1]), s, np.zeros((1, 3), int))
