@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 
+import numba
 import numpy as np
 
 from covert_env.config import SCENE_ROAD_LEAD_IN, SCENE_ROAD_TAIL, Config
@@ -120,21 +121,69 @@ def _road_clear(centres: np.ndarray, scene: np.ndarray, idx: np.ndarray, roads: 
 
     Exact against the WINDOW segments on each side of its own; the rest of the road (where it comes back) through
     its coarse points: none closer than ``need + COARSE * ROAD_STEP / 2`` leaves every road point far enough, and
-    the few centres with a closer one are checked against every segment."""
-    n_seg = roads.shape[1] - 1
-    lo = np.clip(idx - WINDOW, 0, max(n_seg - 2 * WINDOW - 1, 0))
-    win = np.minimum(lo[:, None] + np.arange(2 * WINDOW + 1), n_seg - 1)              # (N, 2 WINDOW + 1)
-    a = roads[scene[:, None], win]
-    ok = _segment_distance(centres[:, None], a, roads[scene[:, None], win + 1]).min(axis=1) >= need
-    coarse_i = np.arange(0, roads.shape[1], COARSE)
-    # A road point outside the window lies within COARSE / 2 points of a coarse point that is not deep inside it.
-    far = (coarse_i[None] < lo[:, None] + COARSE) | (coarse_i[None] > lo[:, None] + 2 * WINDOW + 1 - COARSE)
-    d2 = np.where(far, ((roads[scene[:, None], coarse_i] - centres[:, None]) ** 2).sum(-1), np.inf).min(axis=1)
-    unsure = np.flatnonzero(ok & (d2 < (need + COARSE * ROAD_STEP / 2) ** 2))
-    for part in np.array_split(unsure, max(1, len(unsure) // 256)):                  # a few MB per chunk
-        r = roads[scene[part]]
-        ok[part] = _segment_distance(centres[part, None], r[:, :-1], r[:, 1:]).min(axis=1) >= need[part]
+    the few centres with a closer one are checked against every segment. One compiled loop per centre, which
+    stops at the first segment closer than ``need``; the distances are :func:`_segment_distance`'s, bit for bit."""
+    centres, roads, need = (np.ascontiguousarray(a, dtype=np.float64) for a in (centres, roads, need))
+    scene, idx = np.ascontiguousarray(scene, dtype=np.int64), np.ascontiguousarray(idx, dtype=np.int64)
+    n = len(centres)
+    if centres.shape != (n, 2) or scene.shape != (n,) or idx.shape != (n,) or need.shape != (n,) \
+            or roads.ndim != 3 or roads.shape[1] < 2 or roads.shape[2] != 2:
+        raise ValueError(f"_road_clear: centres (N, 2), scene, idx and need (N,), roads (B, P >= 2, 2); got "
+                         f"{centres.shape}, {scene.shape}, {idx.shape}, {need.shape}, {roads.shape}")
+    # The kernel checks no bounds: every index it reads is checked here.
+    if n and (scene.min() < 0 or scene.max() >= len(roads) or idx.min() < 0 or idx.max() > roads.shape[1] - 2):
+        raise ValueError(f"_road_clear: scene must lie in [0, {len(roads)}) and idx in [0, {roads.shape[1] - 2}]")
+    ok = np.empty(n, dtype=bool)
+    _road_clear_kernel(centres, scene, idx, roads, need, WINDOW, COARSE, COARSE * ROAD_STEP / 2, ok)
     return ok
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _distance_below(px, py, ax, ay, bx, by, need):  # pragma: no cover
+    """Whether the distance from (px, py) to segment a-b is below ``need``: :func:`_segment_distance`'s
+    arithmetic, term by term (no fused multiply-add)."""
+    abx, aby = bx - ax, by - ay
+    apx, apy = px - ax, py - ay
+    den = abx * abx + aby * aby
+    t = (apx * abx + apy * aby) / (den if den >= 1e-300 else 1e-300)
+    t = t if t >= 0.0 else 0.0                           # np.clip(., 0, 1): maximum, then minimum
+    t = t if t <= 1.0 else 1.0
+    dx, dy = apx - t * abx, apy - t * aby
+    return np.sqrt(dx * dx + dy * dy) < need
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _road_clear_kernel(centres, scene, idx, roads, need, window, coarse, slack, ok):  # pragma: no cover
+    """:func:`_road_clear` into ``ok``."""
+    n_seg = roads.shape[1] - 1
+    for n in range(len(centres)):
+        px, py = centres[n, 0], centres[n, 1]
+        road = roads[scene[n]]
+        lo = min(max(idx[n] - window, 0), max(n_seg - 2 * window - 1, 0))
+        clear = True
+        for w in range(2 * window + 1):                   # the window: exact
+            j = min(lo + w, n_seg - 1)
+            if _distance_below(px, py, road[j, 0], road[j, 1], road[j + 1, 0], road[j + 1, 1], need[n]):
+                clear = False
+                break
+        if clear:
+            # Outside the window, through the coarse points; a close one sends the centre to every segment.
+            reach = need[n] + slack
+            reach = reach * reach                        # numpy's ** 2
+            close = False
+            for ci in range(0, n_seg + 1, coarse):
+                if lo + coarse <= ci <= lo + 2 * window + 1 - coarse:
+                    continue
+                dx, dy = road[ci, 0] - px, road[ci, 1] - py
+                if dx * dx + dy * dy < reach:
+                    close = True
+                    break
+            if close:
+                for j in range(n_seg):
+                    if _distance_below(px, py, road[j, 0], road[j, 1], road[j + 1, 0], road[j + 1, 1], need[n]):
+                        clear = False
+                        break
+        ok[n] = clear
 
 
 def polygon_gap(p: np.ndarray, q: np.ndarray) -> np.ndarray:

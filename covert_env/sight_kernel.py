@@ -8,6 +8,9 @@ module answers it once, for any batch, with one broad phase (per target, then pe
 * **Layout.** Segments are grouped by target: target j (``targets[j]``, the terrain in row ``rows[j]`` of a
   :class:`~covert_env.visibility.TerrainRows`) owns the points ``points[start[j]:start[j + 1]]``. A batch of copies,
   slots, path instants or lattice nodes is one such flat layout; the callers build it with array operations.
+  :func:`blocked_offsets` is the layout of one set of target-frame offsets about every target (the maps, lattices
+  and start candidates of every slot of every scene): the kernel computes each target's points itself, term by
+  term as :func:`~covert_env.zone.to_world`, instead of reading (T, L, 2) of them from memory.
 * **Broad phase, per (target, polytope).** The part of a segment lower than a polytope's top lies within
   ``|p - q| (z_top - z_q) / (h - z_q)`` of the target (h the UAV's height, above the target); a polytope whose
   footprint circle is farther than that from every point's segment of the target is dropped for all of them.
@@ -35,107 +38,148 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["blocked_segments"]
+__all__ = ["blocked_offsets", "blocked_segments"]
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _kernel(hs, cx, cy, radius, z_top, growth, targets, rows, start, points, heights, tol, out):  # pragma: no cover
     """``out[i]`` = segment i is blocked; arguments as :func:`blocked_segments`."""
-    n_faces = hs.shape[2]
-    n_m = hs.shape[1]
     one_height = len(heights) == 1
-    keep = np.empty(n_m, dtype=np.int64)
+    keep = np.empty(hs.shape[1], dtype=np.int64)
     for j in range(len(targets)):
         a, b = start[j], start[j + 1]
         if a == b:
             continue
-        r = rows[j]
-        qx, qy, qz = targets[j, 0], targets[j, 1], targets[j, 2]
         # The target's points: their farthest horizontal distance and lowest height.
         d2_max = 0.0
         h_min = heights[0] if one_height else heights[a]
         for i in range(a, b):
-            dx = points[i, 0] - qx
-            dy = points[i, 1] - qy
+            dx = points[i, 0] - targets[j, 0]
+            dy = points[i, 1] - targets[j, 1]
             d2 = dx * dx + dy * dy
             if d2 > d2_max:
                 d2_max = d2
             if not one_height and heights[i] < h_min:
                 h_min = heights[i]
-        d_max = np.sqrt(d2_max)
-        above = h_min > qz
-        inv_hq = 1.0 / (h_min - qz) if above else 0.0
-        # Per (target, polytope): within reach of the part of some segment lower than the top?
-        n_keep = 0
-        for m in range(n_m):
-            top = z_top[r, m]
-            if top == -np.inf:                     # no polytope in this column of the row
-                continue
-            grow = growth[r, m] * -tol if tol < 0.0 else 0.0
-            rad = (radius[r, m] + grow + 1e-9) * (1.0 + 1e-9)
-            if above:
-                # Kept iff |c - q| - r <= reach, the reach of the segments' low parts (squared: no root).
-                low = (top + grow + 1e-9 - qz) * inv_hq
-                if low < 0.0:
-                    low = 0.0
-                reach = d_max * low * (1.0 + 1e-9) + 1e-9 + rad
-                gx = cx[r, m] - qx
-                gy = cy[r, m] - qy
-                if gx * gx + gy * gy > reach * reach * (1.0 + 1e-12):
-                    continue
-            keep[n_keep] = m
-            n_keep += 1
+        qx, qy, qz, r = targets[j, 0], targets[j, 1], targets[j, 2], rows[j]
+        n_keep = _near_polytopes(z_top, cx, cy, radius, growth, r, qx, qy, qz, np.sqrt(d2_max), h_min, tol, keep)
         if n_keep == 0:
             continue
         for i in range(a, b):
-            ux, uy = points[i, 0], points[i, 1]
             uz = heights[0] if one_height else heights[i]
-            ex, ey, dz = qx - ux, qy - uy, qz - uz
-            inv_dz = 1.0 / (dz if dz != 0.0 else -1e-300)
-            for k in range(n_keep):
-                m = keep[k]
-                grow = growth[r, m] * -tol if tol < 0.0 else 0.0
-                rad = radius[r, m] + grow + 1e-9
-                # The parameter range [s0, s1] (s = 0 at the UAV) where the segment is lower than the grown top.
-                top = z_top[r, m] + grow + 1e-9
-                sc = (top - uz) * inv_dz
-                if dz <= 0.0:
-                    s0, s1 = min(max(sc, 0.0), 1.0), 1.0
-                else:
-                    s0, s1 = 0.0, min(max(sc, 0.0), 1.0)
-                if not s1 > s0 - 1e-12:
-                    continue
-                # Its 2-D part must pass within the footprint circle.
-                acx = cx[r, m] - (ux + s0 * ex)
-                acy = cy[r, m] - (uy + s0 * ey)
-                abx, aby = (s1 - s0) * ex, (s1 - s0) * ey
-                ab2 = abx * abx + aby * aby
-                w = (acx * abx + acy * aby) / (ab2 if ab2 > 0 else 1.0)
-                w = min(max(w, 0.0), 1.0)
-                px, py = acx - w * abx, acy - w * aby
-                if px * px + py * py > rad * rad:
-                    continue
-                # The exact clip (Cyrus-Beck) against the polytope shrunk by tol.
-                s_in, s_out = 0.0, 1.0
-                for f in range(n_faces):
-                    nx, ny, nz = hs[r, m, f, 0], hs[r, m, f, 1], hs[r, m, f, 2]
-                    dt = hs[r, m, f, 3] + tol
-                    v0 = nx * ux + ny * uy
-                    v0 = v0 + (nz * uz + dt)
-                    v1 = nx * qx + ny * qy
-                    v1 = v1 + (nz * qz + dt)
-                    den = v1 - v0
-                    s = -v0 / den
-                    if den < 0.0:
-                        if s > s_in:
-                            s_in = s
-                    elif s < s_out:                 # den == 0: -inf (outside), +inf or NaN (no bound)
-                        s_out = s
-                    if s_in > s_out:
-                        break
-                if s_in <= s_out:
-                    out[i] = True
-                    break
+            if _point_blocked(hs, cx, cy, radius, z_top, growth, r, keep, n_keep, qx, qy, qz, points[i, 0],
+                              points[i, 1], uz, tol):
+                out[i] = True
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _kernel_offsets(hs, cx, cy, radius, z_top, growth, targets, rows, cos, sin, offsets, height, tol,
+                    out):  # pragma: no cover
+    """``out[j, l]`` = the segment from target j's offset l (in its frame, at ``height``) is blocked; arguments as
+    :func:`blocked_offsets`. The points are :func:`~covert_env.zone.to_world`'s, term by term."""
+    keep = np.empty(hs.shape[1], dtype=np.int64)
+    points = np.empty((len(offsets), 2))
+    for j in range(len(targets)):
+        qx, qy = targets[j, 0], targets[j, 1]
+        c, s = cos[j], sin[j]
+        d2_max = 0.0
+        for i in range(len(offsets)):
+            x = qx + c * offsets[i, 0] - s * offsets[i, 1]
+            y = qy + s * offsets[i, 0] + c * offsets[i, 1]
+            points[i, 0], points[i, 1] = x, y
+            dx, dy = x - qx, y - qy
+            d2 = dx * dx + dy * dy
+            if d2 > d2_max:
+                d2_max = d2
+        n_keep = _near_polytopes(z_top, cx, cy, radius, growth, rows[j], qx, qy, targets[j, 2], np.sqrt(d2_max),
+                                 height, tol, keep)
+        if n_keep == 0:
+            continue
+        for i in range(len(offsets)):
+            out[j, i] = _point_blocked(hs, cx, cy, radius, z_top, growth, rows[j], keep, n_keep, qx, qy,
+                                       targets[j, 2], points[i, 0], points[i, 1], height, tol)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _near_polytopes(z_top, cx, cy, radius, growth, r, qx, qy, qz, d_max, h_min, tol, keep):  # pragma: no cover
+    """The broad phase per (target, polytope): writes into ``keep`` the polytopes of row ``r`` within reach of the
+    low parts of segments from points at most ``d_max`` (horizontally) from ``target`` and at least ``h_min`` high;
+    returns how many."""
+    above = h_min > qz
+    inv_hq = 1.0 / (h_min - qz) if above else 0.0
+    n_keep = 0
+    for m in range(z_top.shape[1]):
+        top = z_top[r, m]
+        if top == -np.inf:                     # no polytope in this column of the row
+            continue
+        grow = growth[r, m] * -tol if tol < 0.0 else 0.0
+        rad = (radius[r, m] + grow + 1e-9) * (1.0 + 1e-9)
+        if above:
+            # Kept iff |c - q| - r <= reach, the reach of the segments' low parts (squared: no root).
+            low = (top + grow + 1e-9 - qz) * inv_hq
+            if low < 0.0:
+                low = 0.0
+            reach = d_max * low * (1.0 + 1e-9) + 1e-9 + rad
+            gx = cx[r, m] - qx
+            gy = cy[r, m] - qy
+            if gx * gx + gy * gy > reach * reach * (1.0 + 1e-12):
+                continue
+        keep[n_keep] = m
+        n_keep += 1
+    return n_keep
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _point_blocked(hs, cx, cy, radius, z_top, growth, r, keep, n_keep, qx, qy, qz, ux, uy, uz,
+                   tol):  # pragma: no cover
+    """Whether the segment from (ux, uy, uz) to ``target`` meets one of the polytopes ``keep[:n_keep]`` of row
+    ``r``: the broad phase per (point, polytope), then the exact clip."""
+    ex, ey, dz = qx - ux, qy - uy, qz - uz
+    inv_dz = 1.0 / (dz if dz != 0.0 else -1e-300)
+    for k in range(n_keep):
+        m = keep[k]
+        grow = growth[r, m] * -tol if tol < 0.0 else 0.0
+        rad = radius[r, m] + grow + 1e-9
+        # The parameter range [s0, s1] (s = 0 at the UAV) where the segment is lower than the grown top.
+        top = z_top[r, m] + grow + 1e-9
+        sc = (top - uz) * inv_dz
+        if dz <= 0.0:
+            s0, s1 = min(max(sc, 0.0), 1.0), 1.0
+        else:
+            s0, s1 = 0.0, min(max(sc, 0.0), 1.0)
+        if not s1 > s0 - 1e-12:
+            continue
+        # Its 2-D part must pass within the footprint circle.
+        acx = cx[r, m] - (ux + s0 * ex)
+        acy = cy[r, m] - (uy + s0 * ey)
+        abx, aby = (s1 - s0) * ex, (s1 - s0) * ey
+        ab2 = abx * abx + aby * aby
+        w = (acx * abx + acy * aby) / (ab2 if ab2 > 0 else 1.0)
+        w = min(max(w, 0.0), 1.0)
+        px, py = acx - w * abx, acy - w * aby
+        if px * px + py * py > rad * rad:
+            continue
+        # The exact clip (Cyrus-Beck) against the polytope shrunk by tol.
+        s_in, s_out = 0.0, 1.0
+        for f in range(hs.shape[2]):
+            nx, ny, nz = hs[r, m, f, 0], hs[r, m, f, 1], hs[r, m, f, 2]
+            dt = hs[r, m, f, 3] + tol
+            v0 = nx * ux + ny * uy
+            v0 = v0 + (nz * uz + dt)
+            v1 = nx * qx + ny * qy
+            v1 = v1 + (nz * qz + dt)
+            den = v1 - v0
+            s = -v0 / den
+            if den < 0.0:
+                if s > s_in:
+                    s_in = s
+            elif s < s_out:                 # den == 0: -inf (outside), +inf or NaN (no bound)
+                s_out = s
+            if s_in > s_out:
+                break
+        if s_in <= s_out:
+            return True
+    return False
 
 
 def blocked_segments(hs: np.ndarray, cx: np.ndarray, cy: np.ndarray, radius: np.ndarray, z_top: np.ndarray,
@@ -157,32 +201,76 @@ def blocked_segments(hs: np.ndarray, cx: np.ndarray, cy: np.ndarray, radius: np.
     Returns:
         (N,) bool, True = blocked.
     """
-    hs, cx, cy, radius, z_top, growth, targets, points = (
-        _c(a, np.float64) for a in (hs, cx, cy, radius, z_top, growth, targets, points))
-    rows, start = _c(rows, np.int64), _c(start, np.int64)
+    hs, cx, cy, radius, z_top, growth, targets, rows = _checked_terrain(
+        "blocked_segments", hs, cx, cy, radius, z_top, growth, targets, rows)
+    points, start = _c(points, np.float64), _c(start, np.int64)
     heights = _c(np.atleast_1d(np.asarray(heights, dtype=np.float64)).reshape(-1), np.float64)
-    # numba checks no bounds: every index the kernel reads is checked here.
-    n_rows, n_m = hs.shape[:2] if hs.ndim == 4 else (-1, -1)
-    t = len(targets)
-    if hs.ndim != 4 or hs.shape[3] != 4 or any(a.shape != (n_rows, n_m) for a in (cx, cy, radius, z_top, growth)):
-        raise ValueError(f"blocked_segments: hs must be (R, M, F, 4) and the circles, tops and growth (R, M); got "
-                         f"{hs.shape}, {[a.shape for a in (cx, cy, radius, z_top, growth)]}")
-    if targets.shape != (t, 3) or rows.shape != (t,) or start.shape != (t + 1,) or points.ndim != 2 \
-            or points.shape[1] != 2:
-        raise ValueError(f"blocked_segments: targets must be (T, 3), rows (T,), start (T + 1,) and points (N, 2); "
-                         f"got {targets.shape}, {rows.shape}, {start.shape}, {points.shape}")
-    bad = _layout_error(rows, start, n_rows, len(points))
-    if bad == 1:
+    if start.shape != (len(targets) + 1,) or points.ndim != 2 or points.shape[1] != 2:
+        raise ValueError(f"blocked_segments: start must be (T + 1,) and points (N, 2) with targets (T, 3); got "
+                         f"{start.shape}, {points.shape}, {targets.shape}")
+    if _layout_error(rows, start, len(hs), len(points)) == 1:
         raise ValueError(f"blocked_segments: start must rise from 0 to the number of points ({len(points)})")
-    if bad == 2:
-        raise ValueError(f"blocked_segments: rows must lie in [0, {n_rows}), got {rows.min()} to {rows.max()}")
     if len(heights) not in (1, len(points)):
         raise ValueError(f"blocked_segments: heights must be one number or one per point ({len(points)}), "
                          f"got {len(heights)}")
+    n_m = hs.shape[1]
     out = np.zeros(len(points), dtype=bool)
     if len(points) and n_m:
         _kernel(hs, cx, cy, radius, z_top, growth, targets, rows, start, points, heights, float(tol), out)
     return out
+
+
+def blocked_offsets(hs: np.ndarray, cx: np.ndarray, cy: np.ndarray, radius: np.ndarray, z_top: np.ndarray,
+                    growth: np.ndarray, targets: np.ndarray, rows: np.ndarray, phi: np.ndarray, offsets: np.ndarray,
+                    height: float, tol: float) -> np.ndarray:
+    """:func:`blocked_segments` of the same offsets about every target: the segment from each target j to the
+    point ``to_world(offsets, targets[j, :2], phi[j])`` at ``height``, without building the (T, L, 2) points (the
+    maps, lattices and start candidates of every slot of every scene).
+
+    Args:
+        hs, cx, cy, radius, z_top, growth: the terrain rows, as :func:`blocked_segments`.
+        targets: (T, 3) target positions; rows: (T,) the terrain row of each; phi: (T,) their headings.
+        offsets: (L, 2) target-frame offsets (x forward, y to the left).
+        height: the points' height; tol: as :func:`blocked_segments`.
+
+    Returns:
+        (T, L) bool, True = blocked; the same decisions as :func:`blocked_segments` on
+        :func:`~covert_env.zone.to_world`'s points, which the kernel computes term by term.
+    """
+    phi = _c(np.asarray(phi, dtype=np.float64).reshape(-1), np.float64)
+    offsets = _c(offsets, np.float64)
+    if offsets.ndim != 2 or offsets.shape[1] != 2 or phi.shape != (len(targets),):
+        raise ValueError(f"blocked_offsets: offsets must be (L, 2) and phi (T,) with targets (T, 3); got "
+                         f"{offsets.shape}, {phi.shape}, {np.shape(targets)}")
+    hs, cx, cy, radius, z_top, growth, targets, rows = _checked_terrain(
+        "blocked_offsets", hs, cx, cy, radius, z_top, growth, targets, rows)
+    n_t, n_l = len(targets), len(offsets)
+    height = np.asarray(height, dtype=np.float64)
+    if height.shape != ():
+        raise ValueError(f"blocked_offsets: height must be one number, got shape {height.shape}")
+    out = np.zeros((n_t, n_l), dtype=bool)
+    if out.size and hs.shape[1]:
+        _kernel_offsets(hs, cx, cy, radius, z_top, growth, targets, rows, np.cos(phi), np.sin(phi), offsets,
+                        float(height), float(tol), out)
+    return out
+
+
+def _checked_terrain(name, hs, cx, cy, radius, z_top, growth, targets, rows):
+    """The terrain rows, targets and their rows as the kernels read them (float64 or int64, C-contiguous), after
+    the checks numba does not make: shapes, and every row index within the terrain rows."""
+    hs, cx, cy, radius, z_top, growth, targets = (_c(a, np.float64) for a in (hs, cx, cy, radius, z_top, growth,
+                                                                             targets))
+    rows = _c(rows, np.int64)
+    n_rows, n_m = hs.shape[:2] if hs.ndim == 4 else (-1, -1)
+    if hs.ndim != 4 or hs.shape[3] != 4 or any(a.shape != (n_rows, n_m) for a in (cx, cy, radius, z_top, growth)):
+        raise ValueError(f"{name}: hs must be (R, M, F, 4) and the circles, tops and growth (R, M); got "
+                         f"{hs.shape}, {[a.shape for a in (cx, cy, radius, z_top, growth)]}")
+    t = len(targets)
+    if targets.shape != (t, 3) or rows.shape != (t,):
+        raise ValueError(f"{name}: targets must be (T, 3) and rows (T,); got {targets.shape}, {rows.shape}")
+    if _layout_error(rows, np.zeros(t + 1, np.int64), n_rows, 0) == 2:
+        raise ValueError(f"{name}: rows must lie in [0, {n_rows}), got {rows.min()} to {rows.max()}")
+    return hs, cx, cy, radius, z_top, growth, targets, rows
 
 
 @numba.njit(cache=True, nogil=True)

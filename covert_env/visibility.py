@@ -25,9 +25,8 @@ from functools import cached_property
 
 import numpy as np
 
-from covert_env.sight_kernel import blocked_segments
+from covert_env.sight_kernel import blocked_offsets, blocked_segments
 from covert_env.terrain import Terrain
-from covert_env.zone import to_world
 
 __all__ = [
     "LOS_TOLERANCE",
@@ -228,10 +227,13 @@ def visible_nodes(terrain: Terrain, offsets, q, phi, altitude: float, *,
         (L,) bool, or (S, L) for S targets; True = clear line of sight.
     """
     q = np.asarray(q, dtype=float)
-    xy = to_world(offsets, q[..., :2], phi)
-    if q.ndim == 1:
-        return line_of_sight(terrain, xy, altitude, q, tol=tol)
-    return line_of_sight_rows(terrain, xy, altitude, q, tol=tol)
+    phi = np.asarray(phi, dtype=float)
+    if q.shape[-1:] != (3,) or q.ndim > 2 or phi.ndim > q.ndim - 1:
+        raise ValueError(f"visible_nodes: q must be (3,) or (S, 3) and phi () or (S,); got {q.shape}, {phi.shape}")
+    targets = q.reshape(-1, 3)
+    blocked = blocked_offsets(*terrain_arrays(terrain).table, targets, np.zeros(len(targets), np.int64),
+                              np.broadcast_to(phi, q.shape[:-1]).reshape(-1), offsets, altitude, tol)
+    return ~blocked.reshape(q.shape[:-1] + (-1,))
 
 # ----------------------------------------------------------------------------- terrains as rows
 class TerrainRows:
@@ -348,14 +350,10 @@ def visible_nodes_rows(terrains: TerrainRows, rows, offsets, q, phi, altitude: f
         return out
     if not float(altitude) > q[..., 2].max():
         raise ValueError(f"visible_nodes_rows: the altitude ({float(altitude):g} m) must be above every target")
-    chunk = max(1, (1 << 20) // (n_t * len(off)))           # scenes per block: at most ~2^20 points (16 MB)
-    for a in range(0, n_s, chunk):
-        n = len(rows[a:a + chunk])
-        points = to_world(off, q[a:a + chunk, :, :2], phi[a:a + chunk])                        # (n, T, L, 2)
-        blocked = terrains.blocked(q[a:a + chunk].reshape(-1, 3), np.repeat(rows[a:a + chunk], n_t),
-                                   np.arange(n * n_t + 1) * len(off), points.reshape(-1, 2), altitude, tol)
-        out[a:a + chunk] = ~blocked.reshape(n, n_t, len(off))
-    return out
+    blocked = blocked_offsets(terrains.hs, terrains.cx, terrains.cy, terrains.radius, terrains.z_max,
+                              terrains.growth, q.reshape(-1, 3), np.repeat(rows, n_t), phi.reshape(-1), off,
+                              altitude, tol)
+    return ~blocked.reshape(out.shape)
 
 
 def grown(arr: np.ndarray, shape: tuple, fill) -> np.ndarray:

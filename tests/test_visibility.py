@@ -661,3 +661,48 @@ def test_kernel_checks_its_layout_before_it_reads():
     frozen = np.broadcast_to(pts, (2, 50, 2))[0]                   # read-only view
     assert np.array_equal(blocked_segments(*table, q[None], np.zeros(1, np.int64), np.array([0, 50]), frozen, H,
                                            LOS_TOLERANCE), want)
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), tol=st.sampled_from([SAFE_LOS_TOLERANCE, LOS_TOLERANCE, -0.5]),
+       altitude=st.sampled_from([H, 2.0]))
+def test_offsets_kernel_equals_the_kernel_on_to_world_points(seed, tol, altitude):
+    """blocked_offsets (the maps, lattices and start candidates: one set of target-frame offsets about every
+    target) decides every segment as blocked_segments does on to_world's points, and as the all-pairs clip; UAVs
+    above and below the targets, headings all round."""
+    from covert_env.sight_kernel import blocked_offsets, blocked_segments
+    from covert_env.visibility import terrain_arrays
+    from covert_env.zone import to_world
+
+    rng = np.random.default_rng(seed)
+    terrain = random_terrain(rng)
+    table = terrain_arrays(terrain).table
+    q = np.stack([random_target(rng) for _ in range(5)])
+    phi = rng.uniform(-4.0, 4.0, 5)
+    offsets = rng.uniform(-R2, R2, (60, 2))
+    got = blocked_offsets(*table, q, np.zeros(5, np.int64), phi, offsets, altitude, tol)
+    points = to_world(offsets, q[:, :2], phi)                                    # (5, 60, 2)
+    want = blocked_segments(*table, q, np.zeros(5, np.int64), np.arange(6) * 60, points.reshape(-1, 2), altitude,
+                            tol).reshape(5, 60)
+    np.testing.assert_array_equal(got, want)
+    brute = ~all_pairs_clear(terrain, np.column_stack([points.reshape(-1, 2), np.full(300, altitude)]),
+                             np.repeat(q, 60, axis=0), tol)
+    np.testing.assert_array_equal(got.reshape(-1), brute)
+
+
+def test_offsets_kernel_checks_its_inputs():
+    """Shapes that disagree and rows beyond the table are refused by name before the kernel reads."""
+    from covert_env.sight_kernel import blocked_offsets
+    from covert_env.visibility import terrain_arrays
+
+    rng = np.random.default_rng(4)
+    table = terrain_arrays(random_terrain(rng, 6)).table
+    q = random_target(rng)[None]
+    off = rng.uniform(-50, 50, (10, 2))
+    assert blocked_offsets(*table, q, np.zeros(1, np.int64), np.zeros(1), off, H, LOS_TOLERANCE).shape == (1, 10)
+    for args, match in [((q, np.ones(1, np.int64), np.zeros(1), off, H), "rows must lie"),
+                        ((q, np.zeros(1, np.int64), np.zeros(2), off, H), "phi"),
+                        ((q, np.zeros(1, np.int64), np.zeros(1), off[:, :1], H), "offsets"),
+                        ((q, np.zeros(1, np.int64), np.zeros(1), off, np.full(2, H)), "height")]:
+        with pytest.raises(ValueError, match=match):
+            blocked_offsets(*table, *args, LOS_TOLERANCE)
