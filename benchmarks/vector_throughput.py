@@ -178,7 +178,7 @@ PARTS = (
     ("  zone distance", "zone.py", "zone_distance"),
     ("observations (own features, rows)", "vector.py", "_obs_rows"),
     ("waypoint masks (action_masks)", "batch.py", "action_masks"),
-    ("  table lookups (ReachTable._lookup)", "reach.py", "_lookup"),
+    ("  table lookups (reach._lookup_labels)", "reach.py", "_lookup_labels"),
     ("solve_manoeuvre, all calls", "dynamics.py", "solve_manoeuvre"),
     ("automatic resets (_reset_copies)", "vector.py", "_reset_copies"),
     ("  new scenes (ScenePool.rows_of)", "scene_pool.py", "rows_of"),

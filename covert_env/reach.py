@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import functools
 
+import numba
 import numpy as np
 
 from covert_env.dynamics import solve_manoeuvre
@@ -33,9 +34,9 @@ from covert_env.zone import to_world
 __all__ = ["ReachTable", "reach_table"]
 
 INFEASIBLE, FEASIBLE, BOUNDARY = 0, 1, 2
+_MIXED = 3               # a coarse cell whose fine cells' labels differ (ReachTable.coarse_labels)
 _CELLS = 128            # coarse cells per V_max delta: 0.39 m at the paper's 50 m
 _REFINE = 8             # fine cells per coarse cell, solved only in the coarse boundary band: 0.05 m
-_BLOCK = 1 << 17        # lookups per block of ReachTable.reachable (about 1 MB of float32 coordinates)
 
 
 class ReachTable:
@@ -52,6 +53,8 @@ class ReachTable:
 
     def __init__(self, v_max: float, w_max: float, delta: float, cells: int = _CELLS, refine: int = _REFINE):
         self.v_max, self.w_max, self.delta = float(v_max), float(w_max), float(delta)
+        if not (isinstance(refine, int) and refine >= 1 and refine & (refine - 1) == 0):
+            raise ValueError(f"ReachTable: refine must be a power of two (1, 2, 4, 8, ...), got {refine!r}")
         reach = self.v_max * self.delta
         pad = 2
         self.a0 = -(reach + pad * reach / cells)
@@ -72,6 +75,13 @@ class ReachTable:
         self.shape = (na * refine, nb * refine)
         self.labels = self._labels(node, hf, check=False)
         self._flat = self.labels.reshape(-1)
+        # The lookup's first level: per coarse cell, the label all its fine cells share, else _MIXED (look the fine
+        # cell up). Most lookups end in this small table, which stays in the cache; the labels are the fine table's.
+        fine = np.pad(self.labels, ((0, -self.shape[0] % refine), (0, -self.shape[1] % refine)), mode="edge")
+        blocks = fine.reshape(fine.shape[0] // refine, refine, fine.shape[1] // refine, refine)
+        same = (blocks.min(axis=(1, 3)) == blocks.max(axis=(1, 3)))
+        self._shift = refine.bit_length() - 1
+        self.coarse_labels = np.where(same, blocks[:, 0, :, 0], _MIXED).astype(np.int8)
         self._nodes_key: tuple | None = None
         self._nodes_arr = np.zeros((3, 0), np.float32)
 
@@ -115,21 +125,6 @@ class ReachTable:
             self._nodes_arr = np.vstack([offsets.T, np.ones((1, len(offsets)))]).astype(np.float32)
         return self._nodes_arr
 
-    def _lookup(self, cell: np.ndarray) -> np.ndarray:
-        """Labels of the cells (2 n, L) float32: rows 2i, 2i+1 the coordinates (a - a0) / h and lateral / h."""
-        na, nb = self.shape
-        ia, ib = cell[0::2], cell[1::2]
-        np.clip(ia, 0, na - 1, out=ia)
-        np.abs(ib, out=ib)
-        np.clip(ib, 0, nb - 1, out=ib)                  # (np.clip: several times faster than np.minimum here)
-        # The flat cell index floor(ia) nb + floor(ib) in int32 (truncation is the floor of these non-negative
-        # numbers). Float32 rounding may move a point near a cell's edge into the neighbouring cell: harmless, as a
-        # certain cell's 3 x 3 neighbourhood shares its label.
-        idx = ia.astype(np.int32)
-        idx *= nb
-        idx += ib.astype(np.int32)
-        return self._flat.take(idx)
-
     def classify(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         """Labels (int8) of points ``a`` ahead, ``b >= 0`` to the side (any shape); beyond the table INFEASIBLE."""
         na, nb = self.shape
@@ -148,9 +143,9 @@ class ReachTable:
 
         The lookup works in float32 table units (cells): with ``o`` a node's offset in the target frame, its
         position in the frame of a UAV at (p, theta) is ``(q - p) . e_theta + R(phi - theta) o``, one affine map of
-        the offsets per UAV, so the lattice is shared by every copy and all lookups' coordinates come from one
-        (B U 2, 3) x (3, L) matrix product. Its rounding (well below a cell, also for a far UAV whose nodes all
-        land beyond the table) is covered by the margin of a cell that certain cells keep."""
+        the offsets per UAV, so the lattice is shared by every copy and one compiled loop maps and looks up every
+        (UAV, node) pair. Its rounding (well below a cell, also for a far UAV whose nodes all land beyond the
+        table) is covered by the margin of a cell that certain cells keep."""
         # Per UAV: the target in the UAV's frame, in cells (a - a0) / h and lateral / h, and the rotation by
         # phi - theta scaled to cells (float64, then float32 for the product).
         dx, dy = q_xy[:, None, 0] - xy[..., 0], q_xy[:, None, 1] - xy[..., 1]
@@ -162,16 +157,10 @@ class ReachTable:
         coef[..., 0, 2] = (c * dx + s * dy - self.a0) / self.h
         coef[..., 1, 0], coef[..., 1, 1] = sr, cr
         coef[..., 1, 2] = (c * dy - s * dx) / self.h
-        coef = coef.reshape(-1, 3)
         nodes = self._nodes(offsets)                                                           # (3, L)
         lab = np.empty(theta.shape + (len(offsets),), np.int8)
-        flat_lab = lab.reshape(-1, len(offsets))
-        # In blocks of about _BLOCK lookups: each step below is one pass over memory, and a block's arrays stay
-        # in the cache between the passes (at B = 1024 the whole batch's take twice as long). A fixed number of
-        # blocks per call, each one set of array operations.
-        rows = max(1, _BLOCK // len(offsets))
-        for s0 in range(0, len(flat_lab), rows):
-            flat_lab[s0:s0 + rows] = self._lookup(coef[2 * s0:2 * (s0 + rows)] @ nodes)
+        _lookup_labels(coef.reshape(-1, 2, 3), nodes, self.labels, self.coarse_labels, self._shift,
+                       lab.reshape(-1, len(offsets)))
         out = lab == FEASIBLE
         if not exact:
             return out
@@ -190,3 +179,33 @@ class ReachTable:
 def reach_table(v_max: float, w_max: float, delta: float) -> ReachTable:
     """The table for these limits, built once per process (about a second)."""
     return ReachTable(v_max, w_max, delta)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _lookup_labels(coef, nodes, labels, coarse, shift, out):  # pragma: no cover
+    """``out[r, l]``: the label of node l for UAV r, whose float32 map to table cells is ``coef[r]`` (2, 3) applied to
+    ``nodes[:, l]`` = ``[o_x, o_y, 1]`` (:meth:`ReachTable.reachable`). Coordinates are clipped to the table (the
+    lateral one taken as its absolute value first) and truncated to the cell. Float32 rounding may move a point near
+    a cell's edge into the neighbouring cell: harmless, as a certain cell's 3 x 3 neighbourhood shares its label.
+    The fine cell's label is read from ``coarse`` (its coarse cell's, ``2 ** shift`` fine cells a side) unless that
+    is ``_MIXED``: the same label, from a table of a few tens of kB."""
+    na, nb = labels.shape
+    cnb = coarse.shape[1]
+    flat, flat_coarse = labels.reshape(-1), coarse.reshape(-1)
+    top_a, top_b = np.float32(na - 1), np.float32(nb - 1)
+    zero = np.float32(0.0)
+    xs, ys = nodes[0].copy(), nodes[1].copy()
+    for r in range(coef.shape[0]):
+        a0, a1, a2 = coef[r, 0, 0], coef[r, 0, 1], coef[r, 0, 2]
+        b0, b1, b2 = coef[r, 1, 0], coef[r, 1, 1], coef[r, 1, 2]
+        row = out[r]
+        for j in range(len(xs)):
+            x, y = xs[j], ys[j]
+            ia = a0 * x + a1 * y + a2
+            ib = abs(b0 * x + b1 * y + b2)
+            ia = ia if ia > zero else zero                  # NaN -> 0: never an index outside the table
+            ia = ia if ia < top_a else top_a
+            ib = ib if ib < top_b else top_b                # NaN -> the last column
+            i, k = np.int32(ia), np.int32(ib)
+            label = flat_coarse[(i >> shift) * cnb + (k >> shift)]
+            row[j] = label if label != _MIXED else flat[i * nb + k]

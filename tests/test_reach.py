@@ -87,3 +87,30 @@ def test_a_coarser_table_is_still_exact():
     xy, theta = q[:, None] + rng.uniform(-20, 20, (200, 2, 2)), rng.uniform(0, 7, (200, 2))
     assert np.array_equal(table.reachable(xy, theta, q, phi, offsets),
                           _exact(xy, theta, q, phi, offsets, (50.0, 3.0, 1.0)))
+
+
+@pytest.mark.parametrize("limits", LIMITS)
+def test_the_coarse_level_holds_the_fine_labels(limits):
+    """The lookup's first level: a coarse cell's label, where it is not _MIXED, is every one of its fine cells'
+    label (so the two-level lookup reads the fine table's labels), and most coarse cells are not mixed."""
+    from covert_env.reach import _MIXED
+
+    table = reach_table(*limits)
+    r = 1 << table._shift
+    coarse = table.coarse_labels[np.arange(table.shape[0])[:, None] // r, np.arange(table.shape[1])[None] // r]
+    assert ((coarse == _MIXED) | (coarse == table.labels)).all()
+    assert (table.coarse_labels == _MIXED).mean() < 0.1
+
+
+def test_refine_must_be_a_power_of_two():
+    with pytest.raises(ValueError, match="refine must be a power of two"):
+        ReachTable(50.0, 3.0, 1.0, cells=16, refine=3)
+
+
+def test_a_nan_pose_reads_no_cell_outside_the_table():
+    """The compiled lookup clips NaN coordinates into the table (no read out of bounds) instead of failing."""
+    table = reach_table(50.0, 3.0, 1.0)
+    lattice = zone_lattice(Config())
+    got = table.reachable(np.full((1, 1, 2), np.nan), np.zeros((1, 1)), np.zeros((1, 2)), np.zeros(1), lattice,
+                          exact=False)
+    assert got.shape == (1, 1, len(lattice))
