@@ -4,9 +4,9 @@
 
 Both sides: 3 agents per env, ``n_copies`` env copies, one parameter-shared SB3 PPO with the 3-UAV recipe's
 hyperparameters (:mod:`training.recipes`), one torch thread, training included (collection + updates). Ours goes
-through :func:`training.vec_env.make_vec_env` (the batched adapter on the vector env); simple_spread through SuperSuit's
-``pettingzoo_env_to_vec_env_v1`` + ``concat_vec_envs_v1`` -- SuperSuit appears only here, as the thing to beat
-(``pip install supersuit``; skipped with a message if absent). Runs alternate (ours, theirs, ours, ...) so machine
+through :func:`training.sb3.vec_env.make_vec_env` (the batched adapter on the vector env); simple_spread through
+SuperSuit's ``pettingzoo_env_to_vec_env_v1`` + ``concat_vec_envs_v1`` -- SuperSuit appears only here, as the thing to
+beat (``pip install supersuit``; skipped with a message if absent). Runs alternate (ours, theirs, ours, ...) so machine
 load hits both alike; the best of ``repeats`` is reported. fps = agent-steps per second (SB3 timesteps).
 Prints the ratio ours / simple_spread (target >= 1).
 
@@ -31,7 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 def _ours(n_copies: int, **kw):
     from stable_baselines3.common.vec_env import VecMonitor
 
-    from training.vec_env import make_vec_env
+    from training.sb3.vec_env import make_vec_env
 
     return VecMonitor(make_vec_env(n_copies, dict(n_uavs=3, **kw)))
 
@@ -143,7 +143,7 @@ def main(argv=None) -> int:
     a, b = max(ours), max(theirs)
     paired = [x / y for x, y in zip(ours, theirs, strict=True)]
     print(f"SB3 PPO, 3 agents x {args.n_copies} copies, {args.timesteps} agent-steps, best of {args.repeats}:")
-    print(f"  covert_sensing_v4 via training.vec_env : {a:8.0f} agent-steps/s")
+    print(f"  covert_sensing_v4 via training.sb3.vec_env : {a:8.0f} agent-steps/s")
     print(f"  mpe2 simple_spread_v3 via SuperSuit    : {b:8.0f} agent-steps/s")
     print(f"  ratio ours / simple_spread = {a / b:.2f} (target >= 1)")
     # On a shared machine the load moves between runs; back-to-back pairs see about the same load.

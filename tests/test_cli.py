@@ -395,7 +395,8 @@ def test_cli_help_prints_each_default_once(name):
                 assert m.group(1).strip() == shown, (opt, blocks[opt])
 
 
-TRAINING_SCRIPTS = ["ppo_multi", "ppo_single", "sac_single", "maskable_ppo_single", "rllib_ppo", "mappo", "imitation"]
+TRAINING_SCRIPTS = ["sb3.ppo_multi", "sb3.ppo_single", "sb3.sac_single", "sb3.maskable_ppo_single", "rllib_ppo",
+                    "mappo", "imitation"]
 
 
 @pytest.mark.parametrize("script", TRAINING_SCRIPTS)
@@ -408,7 +409,7 @@ def test_training_help_prints_each_true_default_once(script):
     from training.common import build_parser as dataclass_parser
 
     module = importlib.import_module(f"training.{script}")
-    parser = dataclass_parser(module.Args, "x", getattr(module, "RECIPES", None) if script == "ppo_multi" else None)
+    parser = dataclass_parser(module.Args, "x", getattr(module, "RECIPES", None) if script == "sb3.ppo_multi" else None)
     blocks = _option_blocks(parser.format_help())
     for f in dataclasses.fields(module.Args):
         text = blocks["--" + f.name.replace("_", "-")]
@@ -597,15 +598,15 @@ def test_evaluate_names_a_built_in_policy_by_its_spec_as_the_suite_does(evaluate
 def _training_path_cases(tmp: Path) -> dict[str, tuple[str, list[str], str]]:
     """name -> (script, argv, regex of the error line after `error: `); folders under ``tmp``."""
     return {
-        "saved seed out of range": ("ppo_single", ["--resume", str(tmp / "neg_seed")],
+        "saved seed out of range": ("sb3.ppo_single", ["--resume", str(tmp / "neg_seed")],
                                     rf"--resume {re.escape(str(tmp / 'neg_seed'))}: .*args\.json: seed: must be an "
                                     r"integer >= 0, got -3"),
-        "saved args not json": ("sac_single", ["--resume", str(tmp / "broken")],
+        "saved args not json": ("sb3.sac_single", ["--resume", str(tmp / "broken")],
                                 r"--resume .*broken: .*args\.json: invalid JSON \(.*\)"),
-        "saved args a list": ("ppo_multi", ["--resume", str(tmp / "listed")],
+        "saved args a list": ("sb3.ppo_multi", ["--resume", str(tmp / "listed")],
                               r"--resume .*listed: .*args\.json: must be a JSON object \(a run's arguments\), "
                               r"got list"),
-        "saved net_arch of text": ("maskable_ppo_single", ["--resume", str(tmp / "net")],
+        "saved net_arch of text": ("sb3.maskable_ppo_single", ["--resume", str(tmp / "net")],
                                    r"--resume .*net: .*args\.json: net_arch must be a list of int, got \[64, 'x'\]"),
         "saved algo of another script": ("mappo", ["--resume", str(tmp / "other")],
                                          r"--resume .*other: .*args\.json: algo must be one of mappo, ippo, got "
@@ -614,7 +615,7 @@ def _training_path_cases(tmp: Path) -> dict[str, tuple[str, list[str], str]]:
             "mappo", ["--runs-dir", str(tmp / "runs"), "--run-name", "taken"],
             rf"--run-name {re.escape(str(tmp / 'runs' / 'taken'))}: .*args\.json is a directory, but the command "
             r"writes the file args\.json there; move it away or choose another --run-name"),
-        "runs dir under a file": ("ppo_single", ["--runs-dir", str(tmp / "a_file" / "runs")],
+        "runs dir under a file": ("sb3.ppo_single", ["--runs-dir", str(tmp / "a_file" / "runs")],
                                   r"--runs-dir .*: .*a_file is a file, not a folder"),
     }
 
@@ -649,8 +650,8 @@ def test_training_scripts_check_paths_and_saved_arguments_first(case, training_d
 
 @pytest.mark.skipif(not Path("/proc/self").is_dir(), reason="needs /proc")
 def test_training_runs_dir_on_a_read_only_filesystem(capsys):
-    from training import ppo_multi
     from training.common import parse_args
+    from training.sb3 import ppo_multi
 
     with pytest.raises(SystemExit) as exc:
         parse_args(ppo_multi.Args, ["--runs-dir", "/proc/covert_env_runs"])

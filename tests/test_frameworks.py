@@ -142,7 +142,7 @@ _CHECKS = {"sb3": _check_sb3, "rllib": _check_rllib, "torchrl": _check_torchrl, 
 def test_snippet(framework, code, tmp_path, monkeypatch):
     needs(FRAMEWORKS[framework])
     monkeypatch.chdir(tmp_path)                      # BenchMARL and SB3 write logs to the current folder
-    monkeypatch.syspath_prepend(str(ROOT))           # `from training.vec_env import ...`
+    monkeypatch.syspath_prepend(str(ROOT))           # `from training.sb3.vec_env import ...`
     ns: dict = {"__name__": f"snippet_{framework}"}
     exec(compile(code, f"<{framework} snippet>", "exec"), ns)
     _CHECKS[framework](ns)

@@ -17,7 +17,7 @@ from stable_baselines3 import PPO  # noqa: E402
 from stable_baselines3.common.vec_env import VecMonitor, VecNormalize  # noqa: E402
 
 from covert_env.envs.covert_sensing import CovertSensingParallelEnv  # noqa: E402
-from training.vec_env import ParallelEnvVecAdapter, make_vec_env  # noqa: E402
+from training.sb3.vec_env import ParallelEnvVecAdapter, make_vec_env  # noqa: E402
 
 torch.set_num_threads(1)
 
@@ -244,7 +244,7 @@ def test_action_masks_through_env_method():
 
 
 def test_reward_fn_shaping():
-    from training.ppo_multi import shaped_reward
+    from training.sb3.ppo_multi import shaped_reward
 
     venv = make_vec_env(1, SMALL, reward_fn=shaped_reward(True))
     venv.reset()
@@ -277,7 +277,7 @@ def _common(tmp_path):
 
 @pytest.mark.slow
 def test_ppo_multi_train_resume_evaluate(tmp_path):
-    from training import ppo_multi
+    from training.sb3 import ppo_multi
 
     run = ppo_multi.main(["--recipe", "smoke", *_common(tmp_path)])
     assert (run / "model.zip").exists() and (run / "vecnormalize.json").exists()
@@ -296,7 +296,7 @@ def test_ppo_multi_train_resume_evaluate(tmp_path):
 
 @pytest.mark.slow
 def test_ppo_single_train_evaluate(tmp_path):
-    from training import ppo_single
+    from training.sb3 import ppo_single
 
     run = ppo_single.main(["--total-timesteps", "2048", "--n-envs", "2", "--n-steps", "512", "--checkpoint-freq",
                            "1024", *_common(tmp_path)])
@@ -306,7 +306,7 @@ def test_ppo_single_train_evaluate(tmp_path):
 
 @pytest.mark.slow
 def test_sac_single_train_evaluate(tmp_path):
-    from training import sac_single
+    from training.sb3 import sac_single
 
     run = sac_single.main(["--total-timesteps", "1000", "--learning-starts", "500", "--batch-size", "64",
                            "--net-arch", "64", "64", "--checkpoint-freq", "500", *_common(tmp_path)])
@@ -316,7 +316,7 @@ def test_sac_single_train_evaluate(tmp_path):
 
 @pytest.mark.slow
 def test_maskable_ppo_single_train_evaluate(tmp_path):
-    from training import maskable_ppo_single
+    from training.sb3 import maskable_ppo_single
 
     run = maskable_ppo_single.main(["--total-timesteps", "2048", "--n-envs", "2", "--n-steps", "512",
                                     "--checkpoint-freq", "1024", *_common(tmp_path)])
@@ -326,8 +326,8 @@ def test_maskable_ppo_single_train_evaluate(tmp_path):
 
 
 def test_harness_rejects_team_size_mismatch(tmp_path):
-    from training import ppo_single
     from training.evaluate import load_policy
+    from training.sb3 import ppo_single
 
     run = ppo_single.main(["--total-timesteps", "256", "--n-envs", "1", "--n-steps", "256", "--batch-size", "64",
                            "--checkpoint-freq", "0", *_common(tmp_path)])
@@ -353,7 +353,7 @@ def test_rllib_one_iteration_and_harness(tmp_path):
 
 
 def test_time_budget_stops_and_saves(tmp_path):
-    from training import ppo_multi
+    from training.sb3 import ppo_multi
 
     run = ppo_multi.main(["--recipe", "smoke", *_common(tmp_path), "--total-timesteps", "1000000",
                           "--time-budget-minutes", "0.001", "--checkpoint-freq", "0"])
@@ -367,7 +367,7 @@ def test_progress_bar_ends_with_the_time_budget(tmp_path, monkeypatch):
     budget's; it ends full at the step where the budget stopped the run."""
     import tqdm.auto
 
-    from training import ppo_multi
+    from training.sb3 import ppo_multi
 
     seen, closed = [], []
 
@@ -416,7 +416,7 @@ def _raw_observations(n: int = 6) -> np.ndarray:
 
 
 def test_vecnormalize_json_round_trip_is_exact(tmp_path):
-    from training.vec_env import load_vecnormalize, read_vecnormalize, save_vecnormalize
+    from training.sb3.vec_env import load_vecnormalize, read_vecnormalize, save_vecnormalize
 
     vn = _trained_vecnormalize()
     path = save_vecnormalize(vn, tmp_path / "vecnormalize.json")
@@ -441,7 +441,7 @@ def test_vecnormalize_json_round_trip_is_exact(tmp_path):
 
 
 def test_vecnormalize_json_rejects_bad_files(tmp_path):
-    from training.vec_env import load_vecnormalize, read_vecnormalize, save_vecnormalize
+    from training.sb3.vec_env import load_vecnormalize, read_vecnormalize, save_vecnormalize
 
     vn = _trained_vecnormalize()
     good = json.loads(save_vecnormalize(vn, tmp_path / "ok.json").read_text())
@@ -506,9 +506,9 @@ def test_pickled_statistics_are_refused_with_the_conversion_command(tmp_path, mo
     import pickle
 
     from covert_env.cli import UsageError
-    from training.convert_vecnormalize import main as convert_main
     from training.evaluate import load_sb3
-    from training.vec_env import load_vecnormalize, read_vecnormalize
+    from training.sb3.convert_vecnormalize import main as convert_main
+    from training.sb3.vec_env import load_vecnormalize, read_vecnormalize
 
     run, model = _sb3_run(tmp_path)
     in_memory = model.get_vec_normalize_env()
@@ -660,8 +660,8 @@ def test_resume_of_an_sb3_run_needs_trust_checkpoint(tmp_path, capsys, monkeypat
     import stable_baselines3
 
     from covert_env.cli import UsageError
-    from training import ppo_single
     from training.common import train_single
+    from training.sb3 import ppo_single
 
     run = ppo_single.main(["--total-timesteps", "256", "--n-envs", "1", "--n-steps", "256", "--batch-size", "64",
                            "--checkpoint-freq", "0", *_common(tmp_path)])
@@ -689,8 +689,8 @@ def test_resume_of_an_sb3_run_needs_trust_checkpoint(tmp_path, capsys, monkeypat
 def test_convert_vecnormalize_needs_trust_checkpoint(tmp_path, capsys, monkeypatch):
     import pickle
 
-    from training.convert_vecnormalize import convert
-    from training.convert_vecnormalize import main as convert_main
+    from training.sb3.convert_vecnormalize import convert
+    from training.sb3.convert_vecnormalize import main as convert_main
 
     run, model = _sb3_run(tmp_path)
     model.get_vec_normalize_env().save(str(run / "vecnormalize.pkl"))

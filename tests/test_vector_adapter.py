@@ -9,8 +9,8 @@ from _extras import needs
 needs("stable_baselines3")
 
 from covert_env.envs.vector import INFO_KEYS  # noqa: E402
-from training.vec_env import make_vec_env  # noqa: E402
-from training.vector_adapter import make_vector_vec_env  # noqa: E402
+from training.sb3.vec_env import make_vec_env  # noqa: E402
+from training.sb3.vector_adapter import make_vector_vec_env  # noqa: E402
 
 
 @pytest.mark.parametrize("mode", ["unicycle", "waypoint"])

@@ -1,10 +1,11 @@
 """Training and evaluation for covert_env (layout: docs/development.md#layout).
 
-* :mod:`training.vec_env` -- :class:`~training.vec_env.ParallelEnvVecAdapter`, our small SB3 ``VecEnv``
-  over PettingZoo ParallelEnvs: copies x agents flattened, one shared policy (no SuperSuit);
-  :func:`~training.vec_env.make_vec_env` returns the batched one of :mod:`training.vector_adapter` for our env.
-* :mod:`training.ppo_multi` -- parameter-shared multi-agent PPO (the 3-UAV recipe of :mod:`training.recipes`).
-* :mod:`training.ppo_single`, :mod:`training.sac_single`, :mod:`training.maskable_ppo_single` -- single-UAV SB3.
+* :mod:`training.sb3` -- Stable-Baselines3: the scripts share their settings (:mod:`training.sb3.args`);
+  :mod:`training.sb3.ppo_multi` is parameter-shared multi-agent PPO (the 3-UAV recipe of :mod:`training.recipes`),
+  :mod:`training.sb3.ppo_single`, :mod:`training.sb3.sac_single` and :mod:`training.sb3.maskable_ppo_single` train
+  one UAV. :class:`~training.sb3.vec_env.ParallelEnvVecAdapter` is our small SB3 ``VecEnv`` over PettingZoo
+  ParallelEnvs (copies x agents flattened, one shared policy, no SuperSuit);
+  :func:`~training.sb3.vec_env.make_vec_env` returns the batched one of :mod:`training.sb3.vector_adapter` for our env.
 * :mod:`training.rllib_ppo` -- multi-agent PPO on RLlib (``[rllib]`` extra), one shared policy.
 * :mod:`training.mappo` -- MAPPO / IPPO on the batched ``covert_env.vector_env`` (the ``3uav-mappo`` recipe),
   with the separation shield of :mod:`training.shield`; :mod:`training.curves` draws its learning curves.

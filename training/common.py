@@ -2,12 +2,12 @@
 
 Every script keeps its own readable ``Args`` dataclass (CleanRL style); this module only turns it into a CLI whose
 ``--help`` shows each field's docstring, and :func:`make_callbacks` gives the SB3 callbacks every SB3 script uses
-(:mod:`training.callbacks`, imported only there: this module, and so every script's ``--help``, needs no SB3):
+(:mod:`training.sb3.callbacks`, imported only there: this module, and so every script's ``--help``, needs no SB3):
 
 * a tqdm progress bar (``mininterval`` 30 s when stdout is not a terminal, so logs stay small);
 * ``TimeBudgetCallback``: stops ``learn()`` gracefully after a wall-clock budget (the model is then saved);
 * SB3's ``CheckpointCallback`` every ``checkpoint_freq`` steps, with the VecNormalize statistics beside the model
-  as JSON (:func:`training.vec_env.save_vecnormalize`; nothing we write is a pickle, but SB3's ``model.zip``
+  as JSON (:func:`training.sb3.vec_env.save_vecnormalize`; nothing we write is a pickle, but SB3's ``model.zip``
   itself holds pickled parts, so ``--resume`` loads it only with ``--trust-checkpoint``: :mod:`training.trust`).
 
 Run layout (git-ignored ``runs/``)::
@@ -43,7 +43,7 @@ from covert_env.envs.vector import MAX_NUM_ENVS
 from training.trust import require_trust
 
 if TYPE_CHECKING:
-    from training.callbacks import TimeBudgetCallback
+    from training.sb3.callbacks import TimeBudgetCallback
 
 __all__ = ["parse_args", "run_name", "setup_torch", "make_callbacks", "latest_checkpoint", "ordered_results",
            "resume_checkpoint", "save_run", "field_docs", "build_parser", "save_final_vecnormalize", "train_single"]
@@ -306,7 +306,7 @@ def latest_checkpoint(run_dir: Path) -> tuple[Path, Path | None] | None:
     """The newest ``(model.zip, vecnormalize.json or None)`` in ``run_dir/checkpoints`` or the final model.
 
     A run of an older version with only pickled statistics (``.pkl``) gives the ``.pkl`` path, which
-    :func:`training.vec_env.load_vecnormalize` refuses with the command that converts it.
+    :func:`training.sb3.vec_env.load_vecnormalize` refuses with the command that converts it.
     """
     run_dir = Path(run_dir)
 
@@ -344,8 +344,8 @@ def resume_checkpoint(run_dir: Path, *, trust_checkpoint: bool = False) -> tuple
 def make_callbacks(run_dir: Path, algo: str, total_timesteps: int, num_envs: int, checkpoint_freq: int,
                    time_budget_minutes: float, progress_bar: bool = True) -> tuple[list, TimeBudgetCallback]:
     """Checkpoints every ``checkpoint_freq`` steps (with VecNormalize stats), a time budget and a progress bar
-    (the SB3 callbacks of :mod:`training.callbacks`)."""
-    from training.callbacks import JsonCheckpointCallback, TimeBudgetCallback, TqdmCallback
+    (the SB3 callbacks of :mod:`training.sb3.callbacks`)."""
+    from training.sb3.callbacks import JsonCheckpointCallback, TimeBudgetCallback, TqdmCallback
 
     budget = TimeBudgetCallback(time_budget_minutes)
     cbs: list = [budget]
@@ -359,7 +359,7 @@ def make_callbacks(run_dir: Path, algo: str, total_timesteps: int, num_envs: int
 
 def save_final_vecnormalize(model, run_dir: Path) -> Path | None:
     """``run_dir/vecnormalize.json`` with the statistics of the model's VecNormalize (if it has one)."""
-    from training.vec_env import save_vecnormalize
+    from training.sb3.vec_env import save_vecnormalize
 
     vn = model.get_vec_normalize_env()
     return save_vecnormalize(vn, Path(run_dir) / "vecnormalize.json") if vn is not None else None
@@ -391,7 +391,7 @@ def train_single(args: Any, algo: str, sb3_class: str, action_mode: str,
     from stable_baselines3.common.vec_env import VecNormalize
 
     import covert_env  # noqa: F401  (registers the Gymnasium ids)
-    from training.vec_env import load_vecnormalize
+    from training.sb3.vec_env import load_vecnormalize
 
     ckpt = None
     if args.resume:

@@ -16,7 +16,7 @@ Policy specs (``SPEC[@MODE][+shield]``, MODE = ``unicycle`` or ``waypoint`` pick
 * ``sb3:PATH``: an SB3 model (PPO, SAC, MaskablePPO) -- a run folder (its ``model.zip``) or a ``.zip``
   checkpoint; its ``args.json`` gives the env settings and the VecNormalize statistics beside the model
   (``vecnormalize.json``, read without pickle; older ``.pkl`` statistics are refused, see
-  :mod:`training.convert_vecnormalize`) are applied. Single-UAV models act for every UAV independently (each sees
+  :mod:`training.sb3.convert_vecnormalize`) are applied. Single-UAV models act for every UAV independently (each sees
   its own observation), so they need ``--n-uavs 1`` unless they were trained with the same team size.
 * ``rllib:PATH``: an RLlib checkpoint of :mod:`training.rllib_ppo`; inference runs in plain torch, no Ray
   cluster is started.
@@ -121,7 +121,7 @@ class SB3Policy:
     def __init__(self, model, norm=None, *, name: str = "sb3", env_settings: dict | None = None,
                  deterministic: bool = True):
         self.model = model
-        self.norm = norm                        # training.vec_env.NormStats or None
+        self.norm = norm                        # training.sb3.vec_env.NormStats or None
         self.name = name
         self.env_settings = env_settings or {}
         self.deterministic = deterministic
@@ -194,7 +194,7 @@ def load_sb3(path: str | Path, *, trust_checkpoint: bool = False) -> SB3Policy:
         raise UsageError(f"{args_json}: unknown sb3_class {cls_name!r} (PPO, SAC or MaskablePPO)")
     settings, env = run_env(meta.get("env_kwargs", {}), str(args_json or f"sb3:{path} (no args.json)"))
 
-    from training.vec_env import read_vecnormalize
+    from training.sb3.vec_env import read_vecnormalize
 
     norm = None
     if vn_path.exists():

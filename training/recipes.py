@@ -1,8 +1,8 @@
-"""Named training settings (documented recipes). ``python -m training.ppo_multi --recipe NAME``; flags override.
+"""Named training settings (documented recipes). ``python -m training.sb3.ppo_multi --recipe NAME``; flags override.
 
 ``3uav-ppo`` -- the documented 3-UAV parameter-shared PPO recipe: trains in <= 60 minutes on 2 CPU cores.
 
-    OMP_NUM_THREADS=1 python -m training.ppo_multi --recipe 3uav-ppo          # stops at its time budget, saves
+    OMP_NUM_THREADS=1 python -m training.sb3.ppo_multi --recipe 3uav-ppo          # stops at its time budget, saves
     python -m training.evaluate --policies random hold-centre dp sb3:runs/<run> --trust-checkpoint --episodes 20
 
 Why these settings:

@@ -1,7 +1,7 @@
 """Multi-agent PPO on RLlib (new API stack): one shared policy for every UAV, for training beyond one machine.
 
 Install the extra: ``pip install -e ".[rllib]"``. The env goes through RLlib's ``ParallelPettingZooEnv``; every agent
-maps to the module ``shared_policy`` (parameter sharing, as in :mod:`training.ppo_multi`).
+maps to the module ``shared_policy`` (parameter sharing, as in :mod:`training.sb3.ppo_multi`).
 
     PYTHONHASHSEED=0 OMP_NUM_THREADS=1 python -m training.rllib_ppo --iterations 200 --num-env-runners 2
     ray start --head                                        # or join an existing cluster:

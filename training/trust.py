@@ -3,7 +3,7 @@
 SB3 model files (``model.zip``, ``{algo}_{steps}_steps.zip``) keep the spaces, schedules and policy class as
 cloudpickle in their ``data`` entry, and RLlib checkpoints are pickled too: loading one runs whatever code it
 carries. So every loader of such a file (``evaluate --policies sb3:/rllib:``, the training scripts' ``--resume``,
-:mod:`training.convert_vecnormalize`) refuses unless asked, as ``torch.load`` now loads weights only by default.
+:mod:`training.sb3.convert_vecnormalize`) refuses unless asked, as ``torch.load`` now loads weights only by default.
 What the project writes itself needs no opt-in: JSON (configs, args, VecNormalize statistics, model cards) and
 ``.npz`` weights read with ``allow_pickle=False`` (``mappo:PATH``, ``pretrained:NAME``, MAPPO's ``--resume``).
 

@@ -1,12 +1,12 @@
 """One-off conversion of VecNormalize statistics pickled by older covert_env versions to the JSON the scripts write.
 
-    python -m training.convert_vecnormalize --trust-checkpoint runs/<run>   # every .pkl of the run and its checkpoints
-    python -m training.convert_vecnormalize --trust-checkpoint runs/<run>/vecnormalize.pkl
+    python -m training.sb3.convert_vecnormalize --trust-checkpoint runs/<run>   # every .pkl of the run, its checkpoints
+    python -m training.sb3.convert_vecnormalize --trust-checkpoint runs/<run>/vecnormalize.pkl
 
 Unpickling a file can run any code it contains: the files are unpickled only with ``--trust-checkpoint``
 (``trust_checkpoint=True`` in :func:`convert`), for files you made yourself or otherwise trust.
 Nothing else in covert_env loads a ``.pkl`` (training resumes and ``evaluate --policies sb3:...`` read the
-``.json`` written here, :func:`training.vec_env.read_vecnormalize`). Each ``X.pkl`` gives ``X.json`` beside it;
+``.json`` written here, :func:`training.sb3.vec_env.read_vecnormalize`). Each ``X.pkl`` gives ``X.json`` beside it;
 the ``.pkl`` is left in place.
 """
 
@@ -23,7 +23,7 @@ from training.trust import require_trust
 def convert(pkl: Path, *, trust_checkpoint: bool = False) -> Path:
     """Unpickle the trusted VecNormalize file ``pkl`` and write its statistics to ``pkl.with_suffix('.json')``.
     Refused (:func:`training.trust.require_trust`) unless ``trust_checkpoint=True``."""
-    from training.vec_env import save_vecnormalize  # needs SB3 (the [train] extra)
+    from training.sb3.vec_env import save_vecnormalize  # needs SB3 (the [train] extra)
 
     require_trust(pkl, "a pickled VecNormalize file", trust_checkpoint)
     with open(pkl, "rb") as f:
@@ -34,7 +34,7 @@ def convert(pkl: Path, *, trust_checkpoint: bool = False) -> Path:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m training.convert_vecnormalize", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(prog="python -m training.sb3.convert_vecnormalize", description=__doc__.split("\n")[0])
     p.add_argument("paths", nargs="+", help="a pickled VecNormalize file (.pkl) or a run folder (all its .pkl)")
     p.add_argument("--trust-checkpoint", action="store_true",
                    help="unpickle the files (required): unpickling runs any code a file carries, so pass this only "

@@ -1,10 +1,10 @@
 """Parameter-shared multi-agent PPO on the covert_env PettingZoo env (SB3, our own VecEnv adapter, no SuperSuit).
 
-One policy acts for every UAV of every env copy: :class:`training.vec_env.ParallelEnvVecAdapter` flattens
+One policy acts for every UAV of every env copy: :class:`training.sb3.vec_env.ParallelEnvVecAdapter` flattens
 ``n_copies x n_uavs`` agents into SB3 rows. Timesteps count agent-steps (rows), as in SB3.
 
-    OMP_NUM_THREADS=1 python -m training.ppo_multi --recipe 3uav-ppo            # the documented recipe
-    python -m training.ppo_multi --recipe 3uav-ppo --resume runs/<run> --trust-checkpoint   # from the last checkpoint
+    OMP_NUM_THREADS=1 python -m training.sb3.ppo_multi --recipe 3uav-ppo            # the documented recipe
+    python -m training.sb3.ppo_multi --recipe 3uav-ppo --resume runs/<run> --trust-checkpoint   # the last checkpoint
     tensorboard --logdir runs
 
 Outputs in ``runs/{env}__ppo_multi__{seed}__{time}/`` (see :mod:`training.common`). Evaluate with
@@ -29,26 +29,37 @@ from training.common import (
     setup_torch,
 )
 from training.recipes import RECIPES
+from training.sb3.args import PPOArgs
 
 ALGO = "ppo_multi"
 
 
 @dataclass
-class Args:
+class Args(PPOArgs):
     env_id: str = "covert_sensing_v4"
     """name of the env in run names (the PettingZoo env covert_env.parallel_env)"""
-    seed: int = 0
-    """seed of the env copies, the policy and the action sampling"""
+    total_timesteps: int = 20_000_000
+    """upper bound on agent-steps (the time budget usually stops training first)"""
+    time_budget_minutes: float = 50.0
+    n_steps: int = 256
+    """rollout length per SB3 env row (a rollout has n_steps * n_copies * n_uavs samples)"""
+    batch_size: int = 1024
+    gamma: float = 0.97
+    """discount factor (also used by VecNormalize's reward scaling)"""
+    net_arch: tuple[int, ...] = (128, 128)
+    """hidden layers of the policy and value MLPs (separate networks)"""
+    norm_reward: bool = True
+    """VecNormalize rewards (by the running std of the discounted return)"""
+    checkpoint_freq: int = 500_000
+    """save model + VecNormalize statistics every this many agent-steps (0: never)"""
+    resume: str = ""
+    """a run folder to continue from its newest checkpoint (same settings)"""
     n_uavs: int = 3
     """UAVs per env copy (all share one policy)"""
     n_copies: int = 8
     """env copies; SB3 sees n_copies * n_uavs envs"""
     action_mode: str = "unicycle"
     """'unicycle' (continuous (v, omega)) or 'waypoint' (discrete lattice, plain PPO without masks)"""
-    max_cycles: int = 70
-    """episode length in slots (70 = the whole route)"""
-    scene_pool: int = 10_000
-    """training scene seeds are drawn from range(scene_pool); evaluation uses seeds >= 1_000_000"""
     los_penalty: float = 2.0
     """training reward: penalty per slot with blocked LoS (the env's own is 1)"""
     zone_penalty: float = 2.0
@@ -57,53 +68,12 @@ class Args:
     """training reward: penalty per slot closer than d_safe1 to a teammate"""
     disguise_in_zone_only: bool = True
     """training reward: count the disguise bonus only while inside the zone (blocks the circle-the-target exploit)"""
-    total_timesteps: int = 20_000_000
-    """upper bound on agent-steps (the time budget usually stops training first)"""
-    time_budget_minutes: float = 50.0
-    """stop gracefully after this much wall-clock training time and save (0: no budget)"""
-    learning_rate: float = 3e-4
-    """Adam learning rate"""
-    n_steps: int = 256
-    """rollout length per SB3 env row (a rollout has n_steps * n_copies * n_uavs samples)"""
-    batch_size: int = 1024
-    """minibatch size"""
-    n_epochs: int = 5
-    """PPO epochs per rollout"""
-    gamma: float = 0.97
-    """discount factor (also used by VecNormalize's reward scaling)"""
-    gae_lambda: float = 0.95
-    """GAE lambda"""
-    clip_range: float = 0.2
-    """PPO clip range"""
-    ent_coef: float = 0.0
-    """entropy bonus"""
     vf_coef: float = 0.5
     """value-loss coefficient"""
     max_grad_norm: float = 0.5
     """gradient clipping"""
-    net_arch: tuple[int, ...] = (128, 128)
-    """hidden layers of the policy and value MLPs (separate networks)"""
     log_std_init: float = -0.5
     """initial log standard deviation of the Gaussian policy (unicycle mode)"""
-    norm_obs: bool = True
-    """VecNormalize observations"""
-    norm_reward: bool = True
-    """VecNormalize rewards (by the running std of the discounted return)"""
-    checkpoint_freq: int = 500_000
-    """save model + VecNormalize statistics every this many agent-steps (0: never)"""
-    runs_dir: str = "runs"
-    """folder of the runs (git-ignored)"""
-    run_name: str = ""
-    """run folder name; empty: {env}__ppo_multi__{seed}__{time}"""
-    resume: str = ""
-    """a run folder to continue from its newest checkpoint (same settings)"""
-    trust_checkpoint: bool = False
-    """allow --resume to load the run's SB3 checkpoint (.zip), which holds pickles that run any code they carry:
-    only for a run from a source you trust"""
-    torch_threads: int = 1
-    """torch threads (1: 2 threads on 2 busy cores can be 50x slower)"""
-    progress_bar: bool = True
-    """show a tqdm progress bar"""
     verbose: int = 1
     """1: print a short progress line every 10 rollouts"""
 
@@ -173,7 +143,7 @@ def train(args: Args) -> Path:
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import VecMonitor, VecNormalize
 
-    from training.vec_env import load_vecnormalize, make_vec_env
+    from training.sb3.vec_env import load_vecnormalize, make_vec_env
 
     ckpt = None
     if args.resume:

@@ -13,7 +13,7 @@ import time
 from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
 
 from training.budget import expected_steps
-from training.vec_env import save_vecnormalize
+from training.sb3.vec_env import save_vecnormalize
 
 __all__ = ["TimeBudgetCallback", "TqdmCallback", "JsonCheckpointCallback"]
 

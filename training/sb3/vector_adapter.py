@@ -1,6 +1,6 @@
 """An SB3 ``VecEnv`` on :class:`~covert_env.envs.vector.CovertSensingVectorEnv`: B copies x U agents, one process.
 
-The same contract as :class:`training.vec_env.ParallelEnvVecAdapter` (row ``j * U + i`` is agent ``i`` of copy
+The same contract as :class:`training.sb3.vec_env.ParallelEnvVecAdapter` (row ``j * U + i`` is agent ``i`` of copy
 ``j``, parameter sharing, ``terminal_observation`` and ``TimeLimit.truncated`` at episode ends, the next episode's
 first observation returned at once, ``reward_fn`` shaping, ``env_method("action_masks")`` for MaskablePPO), with
 the same results for the same seed (tested): ``VecEnv.seed(s)`` gives copy ``j`` the seed ``s + j * U``, exactly
@@ -128,6 +128,6 @@ def _rows(infos: dict, n: int) -> list[dict]:
 def make_vector_vec_env(n_copies: int, env_kwargs: dict | None = None,
                         reward_fn: Callable[[float, dict], float] | None = None) -> VectorEnvVecAdapter:
     """``n_copies`` copies of the covert_env env built with ``env_kwargs`` as one vector env, flattened for a shared
-    SB3 policy (the drop-in for :func:`training.vec_env.make_vec_env`)."""
+    SB3 policy (the drop-in for :func:`training.sb3.vec_env.make_vec_env`)."""
     return VectorEnvVecAdapter(CovertSensingVectorEnv(num_envs=n_copies, **dict(env_kwargs or {})), reward_fn=reward_fn)
 

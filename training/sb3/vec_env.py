@@ -17,7 +17,7 @@ bootstraps nothing at the end of our 70-slot route. This adapter is ~150 lines a
 * ``reward_fn(reward, info) -> float`` (optional) reshapes the per-agent reward for training only.
 * ``env_method("action_masks")`` returns each row's waypoint action mask (for MaskablePPO).
 * Copies are stepped one by one: this adapter is for any ParallelEnv (e.g. mpe2's, in ``benchmarks/sb3_fps.py``).
-  Our own env has a batched one: :func:`make_vec_env` returns :class:`training.vector_adapter.VectorEnvVecAdapter`
+  Our own env has a batched one: :func:`make_vec_env` returns :class:`training.sb3.vector_adapter.VectorEnvVecAdapter`
   on :class:`covert_env.envs.vector.CovertSensingVectorEnv` (every copy in one batch of array operations, the same
   results for the same seed, tested).
 
@@ -26,7 +26,7 @@ Works under ``VecMonitor`` (episode statistics per agent row) and ``VecNormalize
 VecNormalize statistics are saved as JSON, not pickled (:func:`save_vecnormalize`, :func:`load_vecnormalize`,
 :func:`read_vecnormalize`): a run folder holds ``vecnormalize.json`` beside ``model.zip``. Loading a file never
 runs code from it; ``.pkl`` statistics of older runs are refused (convert a trusted one explicitly with
-``python -m training.convert_vecnormalize --trust-checkpoint PATH``).
+``python -m training.sb3.convert_vecnormalize --trust-checkpoint PATH``).
 """
 
 from __future__ import annotations
@@ -185,8 +185,8 @@ class ParallelEnvVecAdapter(VecEnv):
 def make_vec_env(n_copies: int, env_kwargs: dict | None = None,
                  reward_fn: Callable[[float, dict], float] | None = None):
     """``n_copies`` copies of the covert_env env built with ``env_kwargs``, flattened for a shared SB3 policy: the
-    batched :class:`training.vector_adapter.VectorEnvVecAdapter` (one vector env of ``n_copies`` copies)."""
-    from training.vector_adapter import make_vector_vec_env
+    batched :class:`training.sb3.vector_adapter.VectorEnvVecAdapter` (one vector env of ``n_copies`` copies)."""
+    from training.sb3.vector_adapter import make_vector_vec_env
 
     return make_vector_vec_env(n_copies, env_kwargs, reward_fn=reward_fn)
 
@@ -259,7 +259,7 @@ def _refuse_pickle(path: Path) -> None:
         raise ValueError(
             f"{path}: VecNormalize statistics pickled by an older covert_env; they are not loaded, since unpickling "
             f"a file can run any code. If you trust the file, convert it once with "
-            f"`python -m training.convert_vecnormalize --trust-checkpoint {path}` (writes "
+            f"`python -m training.sb3.convert_vecnormalize --trust-checkpoint {path}` (writes "
             f"{path.with_suffix('.json').name} beside it)")
 
 

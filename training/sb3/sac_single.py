@@ -1,7 +1,7 @@
 """Single-UAV SAC on ``gym.make("covert_env/CovertSensing-v4")`` (SB3, continuous (v, omega) actions).
 
-    OMP_NUM_THREADS=1 python -m training.sac_single --total-timesteps 300000
-    python -m training.sac_single --resume runs/<run> --trust-checkpoint   # continue from the newest checkpoint
+    OMP_NUM_THREADS=1 python -m training.sb3.sac_single --total-timesteps 300000
+    python -m training.sb3.sac_single --resume runs/<run> --trust-checkpoint   # continue from the newest checkpoint
     python -m training.evaluate --n-uavs 1 --policies random dp sb3:runs/<run> --trust-checkpoint
 
 Outputs in ``runs/{env}__sac_single__{seed}__{time}/`` (model.zip, vecnormalize.json, checkpoints/, tb/, args.json).
@@ -15,63 +15,34 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from training.common import parse_args, train_single
+from training.sb3.args import SB3Args
 
 ALGO = "sac_single"
 
 
 @dataclass
-class Args:
-    env_id: str = "covert_env/CovertSensing-v4"
-    """Gymnasium id of the single-UAV env"""
-    seed: int = 0
-    """seed of the envs, the policy and the action sampling"""
-    n_envs: int = 1
-    """parallel env copies (in-process DummyVecEnv)"""
-    max_cycles: int = 70
-    """episode length in slots (70 = the whole route)"""
-    scene_pool: int = 10_000
-    """training scene seeds are drawn from range(scene_pool); evaluation uses seeds >= 1_000_000"""
+class Args(SB3Args):
     total_timesteps: int = 300_000
-    """training steps"""
-    time_budget_minutes: float = 0.0
-    """stop gracefully after this much wall-clock training time and save (0: no budget)"""
     learning_rate: float = 3e-4
     """Adam learning rate (actor, critics and entropy coefficient)"""
+    batch_size: int = 256
+    net_arch: tuple[int, ...] = (256, 256)
+    """hidden layers of the actor and critics"""
+    norm_reward: bool = False
+    """VecNormalize rewards (off for SAC: its entropy tuning works on the raw scale)"""
+    checkpoint_freq: int = 50_000
+    n_envs: int = 1
+    """parallel env copies (in-process DummyVecEnv)"""
     buffer_size: int = 300_000
     """replay buffer size"""
     learning_starts: int = 5_000
     """random-action steps before learning starts"""
-    batch_size: int = 256
-    """minibatch size"""
-    gamma: float = 0.97
-    """discount factor"""
     tau: float = 0.005
     """target network soft-update rate"""
     train_freq: int = 1
     """gradient updates every this many env steps"""
     gradient_steps: int = 1
     """gradient steps per update"""
-    net_arch: tuple[int, ...] = (256, 256)
-    """hidden layers of the actor and critics"""
-    norm_obs: bool = True
-    """VecNormalize observations"""
-    norm_reward: bool = False
-    """VecNormalize rewards (off for SAC: its entropy tuning works on the raw scale)"""
-    checkpoint_freq: int = 50_000
-    """save model + VecNormalize statistics every this many steps (0: never)"""
-    runs_dir: str = "runs"
-    """folder of the runs (git-ignored)"""
-    run_name: str = ""
-    """run folder name; empty: {env}__sac_single__{seed}__{time}"""
-    resume: str = ""
-    """a run folder to continue from its newest checkpoint"""
-    trust_checkpoint: bool = False
-    """allow --resume to load the run's SB3 checkpoint (.zip), which holds pickles that run any code they carry:
-    only for a run from a source you trust"""
-    torch_threads: int = 1
-    """torch threads (1: 2 threads on 2 busy cores can be 50x slower)"""
-    progress_bar: bool = True
-    """show a tqdm progress bar"""
 
 
 def train(args: Args) -> Path:
