@@ -464,7 +464,8 @@ def test_vecnormalize_json_rejects_bad_files(tmp_path):
 
 def _sb3_run(tmp_path, name="run"):
     """A tiny trained PPO run folder as the scripts write it: model.zip, vecnormalize.json, args.json."""
-    from training.common import save_final_vecnormalize, save_run
+    from training.common import save_run
+    from training.sb3.run import save_final_vecnormalize
 
     run = tmp_path / name
     vn = _trained_vecnormalize()
@@ -660,8 +661,8 @@ def test_resume_of_an_sb3_run_needs_trust_checkpoint(tmp_path, capsys, monkeypat
     import stable_baselines3
 
     from covert_env.cli import UsageError
-    from training.common import train_single
     from training.sb3 import ppo_single
+    from training.sb3.run import train_single
 
     run = ppo_single.main(["--total-timesteps", "256", "--n-envs", "1", "--n-steps", "256", "--batch-size", "64",
                            "--checkpoint-freq", "0", *_common(tmp_path)])

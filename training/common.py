@@ -1,23 +1,11 @@
-"""Shared plumbing of the SB3 scripts: dataclass -> argparse, run names, callbacks, checkpoints and resume.
+"""What every training script shares: its dataclass as a command line, run folders, checkpoints and resume.
 
-Every script keeps its own readable ``Args`` dataclass (CleanRL style); this module only turns it into a CLI whose
-``--help`` shows each field's docstring, and :func:`make_callbacks` gives the SB3 callbacks every SB3 script uses
-(:mod:`training.sb3.callbacks`, imported only there: this module, and so every script's ``--help``, needs no SB3):
-
-* a tqdm progress bar (``mininterval`` 30 s when stdout is not a terminal, so logs stay small);
-* ``TimeBudgetCallback``: stops ``learn()`` gracefully after a wall-clock budget (the model is then saved);
-* SB3's ``CheckpointCallback`` every ``checkpoint_freq`` steps, with the VecNormalize statistics beside the model
-  as JSON (:func:`training.sb3.vec_env.save_vecnormalize`; nothing we write is a pickle, but SB3's ``model.zip``
-  itself holds pickled parts, so ``--resume`` loads it only with ``--trust-checkpoint``: :mod:`training.trust`).
-
-Run layout (git-ignored ``runs/``)::
-
-    runs/{env}__{algo}__{seed}__{time}/
-        args.json            # the exact arguments (the harness reads env settings from here)
-        model.zip            # final model
-        vecnormalize.json    # VecNormalize statistics of the final model (if used)
-        checkpoints/         # {algo}_{steps}_steps.zip + {algo}_vecnormalize_{steps}_steps.json
-        tb/                  # TensorBoard logs
+Every script keeps its own readable ``Args`` dataclass (CleanRL style); :func:`parse_args` turns it into a CLI whose
+``--help`` shows each field's docstring and whose values are checked before anything runs. A run lives in
+``runs/{env}__{algo}__{seed}__{time}/`` (git-ignored) with its ``args.json`` (:func:`save_run`); ``--resume``
+continues it from its newest checkpoint (:func:`resume_checkpoint`; an SB3 ``model.zip`` holds pickled parts, so it
+is loaded only with ``--trust-checkpoint``: :mod:`training.trust`). The SB3 run itself is
+:func:`training.sb3.run.train_sb3`.
 """
 
 from __future__ import annotations
@@ -27,14 +15,13 @@ import ast
 import dataclasses
 import inspect
 import json
-import os
 import re
 import sys
 import textwrap
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from covert_env.command_line import UsageError, float_range, int_range, non_negative_int, output_dir, positive_int
 from covert_env.config import MAX_N_UAVS, Config, read_json
@@ -42,11 +29,8 @@ from covert_env.envs.settings import MAX_SCENE_POOL
 from covert_env.envs.vector import MAX_NUM_ENVS
 from training.trust import require_trust
 
-if TYPE_CHECKING:
-    from training.sb3.callbacks import TimeBudgetCallback
-
-__all__ = ["parse_args", "run_name", "setup_torch", "make_callbacks", "latest_checkpoint", "ordered_results",
-           "resume_checkpoint", "save_run", "field_docs", "build_parser", "save_final_vecnormalize", "train_single"]
+__all__ = ["parse_args", "run_name", "setup_torch", "latest_checkpoint", "ordered_results", "resume_checkpoint",
+           "resumed_args", "save_run", "field_docs", "build_parser"]
 
 
 def setup_torch(threads: int = 1) -> None:
@@ -339,92 +323,6 @@ def resume_checkpoint(run_dir: Path, *, trust_checkpoint: bool = False) -> tuple
     if ckpt is not None:
         require_trust(ckpt[0], "an SB3 model", trust_checkpoint)
     return ckpt
-
-
-def make_callbacks(run_dir: Path, algo: str, total_timesteps: int, num_envs: int, checkpoint_freq: int,
-                   time_budget_minutes: float, progress_bar: bool = True) -> tuple[list, TimeBudgetCallback]:
-    """Checkpoints every ``checkpoint_freq`` steps (with VecNormalize stats), a time budget and a progress bar
-    (the SB3 callbacks of :mod:`training.sb3.callbacks`)."""
-    from training.sb3.callbacks import JsonCheckpointCallback, TimeBudgetCallback, TqdmCallback
-
-    budget = TimeBudgetCallback(time_budget_minutes)
-    cbs: list = [budget]
-    if checkpoint_freq > 0:
-        cbs.append(JsonCheckpointCallback(save_freq=max(checkpoint_freq // num_envs, 1),
-                                          save_path=str(Path(run_dir) / "checkpoints"), name_prefix=algo))
-    if progress_bar:
-        cbs.append(TqdmCallback(total_timesteps, time_budget_minutes))
-    return cbs, budget
-
-
-def save_final_vecnormalize(model, run_dir: Path) -> Path | None:
-    """``run_dir/vecnormalize.json`` with the statistics of the model's VecNormalize (if it has one)."""
-    from training.sb3.vec_env import save_vecnormalize
-
-    vn = model.get_vec_normalize_env()
-    return save_vecnormalize(vn, Path(run_dir) / "vecnormalize.json") if vn is not None else None
-
-
-def env_flag(name: str, default: str) -> str:
-    return os.environ.get(name, default)
-
-
-def train_single(args: Any, algo: str, sb3_class: str, action_mode: str,
-                 build: Callable[[Any, Any, str], Any]) -> Path:
-    """The single-UAV SB3 scripts' whole run, around the one thing that differs,
-    ``build(args, venv, tensorboard_log)`` (the new model with the script's hyper-parameters):
-
-    run folder (or ``--resume``: the saved settings, the newest checkpoint and its VecNormalize statistics),
-    ``args.json`` with the env settings the harness reads, ``n_envs`` seeded copies of ``args.env_id``
-    (``make_vec_env``), VecNormalize (``norm_obs``/``norm_reward``), ``learn`` with the callbacks of
-    :func:`make_callbacks`, then ``model.zip``, ``vecnormalize.json`` and ``train_summary.json``.
-    ``sb3_class`` is ``"PPO"``, ``"SAC"`` (stable_baselines3) or ``"MaskablePPO"`` (sb3_contrib).
-    """
-    setup_torch(args.torch_threads)
-    if sb3_class == "MaskablePPO":
-        from sb3_contrib import MaskablePPO as cls
-    else:
-        import stable_baselines3
-
-        cls = getattr(stable_baselines3, sb3_class)
-    from stable_baselines3.common.env_util import make_vec_env
-    from stable_baselines3.common.vec_env import VecNormalize
-
-    import covert_env  # noqa: F401  (registers the Gymnasium ids)
-    from training.sb3.vec_env import load_vecnormalize
-
-    ckpt = None
-    if args.resume:
-        run_dir = Path(args.resume)
-        ckpt = resume_checkpoint(run_dir, trust_checkpoint=args.trust_checkpoint)
-        args = resumed_args(args, run_dir)
-    else:
-        run_dir = Path(args.runs_dir) / (args.run_name or run_name(args.env_id, algo, args.seed))
-    ekw = dict(max_cycles=args.max_cycles, scene_pool=args.scene_pool)
-    save_run(run_dir, args, {"algo": algo, "sb3_class": sb3_class, "multi_agent": False,
-                             "env_kwargs": {**ekw, "n_uavs": 1, "action_mode": action_mode}})
-    venv = make_vec_env(args.env_id, n_envs=args.n_envs, seed=args.seed, env_kwargs=ekw)
-    if ckpt is not None:
-        venv = load_vecnormalize(ckpt[1], venv) if ckpt[1] else venv
-        model = cls.load(str(ckpt[0]), env=venv, device="cpu")
-        print(f"resumed from {ckpt[0]} at {model.num_timesteps} steps", flush=True)
-    else:
-        if args.norm_obs or args.norm_reward:
-            venv = VecNormalize(venv, norm_obs=args.norm_obs, norm_reward=args.norm_reward, gamma=args.gamma)
-        model = build(args, venv, str(run_dir / "tb"))
-    cbs, budget = make_callbacks(run_dir, algo, args.total_timesteps, venv.num_envs, args.checkpoint_freq,
-                                 args.time_budget_minutes, args.progress_bar)
-    t0 = time.monotonic()
-    model.learn(max(args.total_timesteps - model.num_timesteps, 0), callback=cbs, tb_log_name=algo,
-                reset_num_timesteps=ckpt is None)
-    model.save(run_dir / "model.zip")
-    save_final_vecnormalize(model, run_dir)
-    info = {"timesteps": int(model.num_timesteps), "train_minutes": round((time.monotonic() - t0) / 60, 2),
-            "stopped_by_time_budget": budget.stopped}
-    (run_dir / "train_summary.json").write_text(json.dumps(info, indent=2))
-    print(f"saved {run_dir / 'model.zip'}: {info}", flush=True)
-    venv.close()
-    return run_dir
 
 
 def ordered_results(fn: Callable, work: list[tuple], jobs: int = 1, on_result: Callable | None = None) -> list:

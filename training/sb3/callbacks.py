@@ -1,4 +1,4 @@
-"""The SB3 callbacks of the SB3 scripts (:func:`training.common.make_callbacks` builds them): a time budget, a
+"""The SB3 callbacks of the SB3 scripts (:func:`training.sb3.run.make_callbacks` builds them): a time budget, a
 progress bar and checkpoints with JSON VecNormalize statistics.
 
 This module imports Stable-Baselines3 (the ``train`` extra); :mod:`training.common` imports it only when a run

@@ -15,8 +15,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from training.common import parse_args, train_single
+from training.common import parse_args
 from training.sb3.args import PPOArgs
+from training.sb3.run import train_single
 
 ALGO = "maskable_ppo_single"
 
@@ -33,7 +34,7 @@ class Args(PPOArgs):
 
 
 def train(args: Args) -> Path:
-    """Train and save (the shared run of :func:`training.common.train_single`); returns the run folder."""
+    """Train and save (the shared run of :func:`training.sb3.run.train_single`); returns the run folder."""
     def build(args, venv, tb):
         from sb3_contrib import MaskablePPO
 

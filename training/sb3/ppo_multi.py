@@ -13,23 +13,14 @@ Outputs in ``runs/{env}__ppo_multi__{seed}__{time}/`` (see :mod:`training.common
 
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from training.common import (
-    make_callbacks,
-    parse_args,
-    resume_checkpoint,
-    resumed_args,
-    run_name,
-    save_final_vecnormalize,
-    save_run,
-    setup_torch,
-)
+from training.common import parse_args
 from training.recipes import RECIPES
 from training.sb3.args import PPOArgs
+from training.sb3.run import train_sb3
 
 ALGO = "ppo_multi"
 
@@ -139,55 +130,28 @@ def _info_stats_callback(verbose: int):
 def train(args: Args) -> Path:
     """Train (or resume) and return the run folder (holding model.zip, vecnormalize.json, args.json).
     Resuming from an SB3 checkpoint (pickled) needs ``args.trust_checkpoint``."""
-    setup_torch(args.torch_threads)
-    from stable_baselines3 import PPO
-    from stable_baselines3.common.vec_env import VecMonitor, VecNormalize
+    def make_venv(args):
+        from stable_baselines3.common.vec_env import VecMonitor
 
-    from training.sb3.vec_env import load_vecnormalize, make_vec_env
+        from training.sb3.vec_env import make_vec_env
 
-    ckpt = None
-    if args.resume:
-        run_dir = Path(args.resume)
-        ckpt = resume_checkpoint(run_dir, trust_checkpoint=args.trust_checkpoint)
-        args = resumed_args(args, run_dir)
-    else:
-        run_dir = Path(args.runs_dir) / (args.run_name or run_name(args.env_id, ALGO, args.seed))
-    ekw = env_kwargs(args)
-    save_run(run_dir, args, {"algo": ALGO, "sb3_class": "PPO", "multi_agent": True, "env_kwargs": ekw})
+        return VecMonitor(make_vec_env(args.n_copies, env_kwargs(args),
+                                       reward_fn=shaped_reward(args.disguise_in_zone_only)))
 
-    venv = VecMonitor(make_vec_env(args.n_copies, ekw, reward_fn=shaped_reward(args.disguise_in_zone_only)))
-    if ckpt is not None:
-        model_path, vn_path = ckpt
-        venv = load_vecnormalize(vn_path, venv) if vn_path else venv
-        model = PPO.load(str(model_path), env=venv, device="cpu")
-        print(f"resumed from {model_path} at {model.num_timesteps} steps", flush=True)
-    else:
-        if args.norm_obs or args.norm_reward:
-            venv = VecNormalize(venv, norm_obs=args.norm_obs, norm_reward=args.norm_reward, gamma=args.gamma,
-                                clip_obs=10.0, clip_reward=10.0)
+    def build(args, venv, tensorboard_log):
+        from stable_baselines3 import PPO
+
         policy_kwargs = dict(net_arch=dict(pi=list(args.net_arch), vf=list(args.net_arch)))
         if args.action_mode == "unicycle":
             policy_kwargs["log_std_init"] = args.log_std_init
-        model = PPO("MlpPolicy", venv, learning_rate=args.learning_rate, n_steps=args.n_steps,
-                    batch_size=args.batch_size, n_epochs=args.n_epochs, gamma=args.gamma, gae_lambda=args.gae_lambda,
-                    clip_range=args.clip_range, ent_coef=args.ent_coef, vf_coef=args.vf_coef,
-                    max_grad_norm=args.max_grad_norm, policy_kwargs=policy_kwargs, seed=args.seed, device="cpu",
-                    tensorboard_log=str(run_dir / "tb"), verbose=0)
-    remaining = max(args.total_timesteps - model.num_timesteps, 0)
-    cbs, budget = make_callbacks(run_dir, ALGO, args.total_timesteps, venv.num_envs, args.checkpoint_freq,
-                                 args.time_budget_minutes, args.progress_bar)
-    cbs.append(_info_stats_callback(args.verbose))
-    t0 = time.monotonic()
-    model.learn(remaining, callback=cbs, tb_log_name=ALGO, reset_num_timesteps=ckpt is None)
-    minutes = (time.monotonic() - t0) / 60
-    model.save(run_dir / "model.zip")
-    save_final_vecnormalize(model, run_dir)
-    info = {"timesteps": int(model.num_timesteps), "train_minutes": round(minutes, 2),
-            "stopped_by_time_budget": budget.stopped}
-    (run_dir / "train_summary.json").write_text(json.dumps(info, indent=2))
-    print(f"saved {run_dir / 'model.zip'}: {info}", flush=True)
-    venv.close()
-    return run_dir
+        return PPO("MlpPolicy", venv, learning_rate=args.learning_rate, n_steps=args.n_steps,
+                   batch_size=args.batch_size, n_epochs=args.n_epochs, gamma=args.gamma, gae_lambda=args.gae_lambda,
+                   clip_range=args.clip_range, ent_coef=args.ent_coef, vf_coef=args.vf_coef,
+                   max_grad_norm=args.max_grad_norm, policy_kwargs=policy_kwargs, seed=args.seed, device="cpu",
+                   tensorboard_log=tensorboard_log, verbose=0)
+
+    return train_sb3(args, ALGO, "PPO", lambda args: {"multi_agent": True, "env_kwargs": env_kwargs(args)},
+                     make_venv, build, callbacks=lambda args: [_info_stats_callback(args.verbose)])
 
 
 def main(argv: list[str] | None = None) -> Path:
