@@ -84,6 +84,7 @@ from covert_env.angles import TWO_PI, wrap_heading
 __all__ = [
     "Manoeuvre",
     "fly_manoeuvre",
+    "manoeuvre_feasible",
     "solve_manoeuvre",
     "unicycle_arc",
     "unicycle_heading",
@@ -280,17 +281,15 @@ def _phi(a, b, d2, r):
     return L * (L * L + r * b) / (r * r) + a
 
 
-def _solve_turn(a, b, d, d2, wd, r_max):
-    """Smallest root r of eq. 29 for left-frame goals (b >= 0, not dead ahead). Returns (ok, r).
+def _root_bracket(a, b, d, d2, wd, r_max):
+    """The left-frame goals (b >= 0, not dead ahead) for which eq. 29 has a root: ``(idx, lo, hi)``, their indices
+    and a sign-change bracket holding the smallest root (F(lo) >= 0 >= F(hi)). All arrays are 1-D of equal length.
 
-    All arrays are 1-D of equal length; the work shrinks to the still-unconverged entries each iteration.
-    """
-    n = a.shape[0]
-    ok = np.zeros(n, dtype=bool)
-    r_out = np.full(n, np.nan)
-    if n == 0:
-        return ok, r_out
-
+    A bracketed goal is feasible: the safeguarded Newton iteration of :func:`_solve_turn` converges on it (each
+    step at most halves the one before, or bisects), so ``_root_bracket`` alone decides feasibility."""
+    empty = np.zeros(0, np.intp)
+    if a.shape[0] == 0:
+        return empty, a[:0], a[:0]
     # Bracket [lo, hi]: lo from "path >= |g - p|" (so F(lo) >= 0), hi from the turning circle and V_max.
     lo = d / wd
     r_c = np.where(b > 0, d2 / (2.0 * np.where(b > 0, b, 1.0)), np.inf)
@@ -325,12 +324,25 @@ def _solve_turn(a, b, d, d2, wd, r_max):
 
     idx = np.flatnonzero(alive)
     if idx.size == 0:
-        return ok, r_out
-    a, b, d2, lo, hi = a[idx], b[idx], d2[idx], lo[idx], hi[idx]
-    f_hi, _, _ = _F(a, b, d2, hi, wd)
+        return idx, lo[idx], hi[idx]
+    f_hi, _, _ = _F(a[idx], b[idx], d2[idx], hi[idx], wd)
     # F(hi) > 0: even the largest admissible radius cannot cover the path in one slot -> infeasible.
-    keep = f_hi <= 0
-    idx, a, b, d2, lo, hi = idx[keep], a[keep], b[keep], d2[keep], lo[keep], hi[keep]
+    idx = idx[f_hi <= 0]
+    return idx, lo[idx], hi[idx]
+
+
+def _solve_turn(a, b, d, d2, wd, r_max):
+    """Smallest root r of eq. 29 for left-frame goals (b >= 0, not dead ahead). Returns (ok, r).
+
+    All arrays are 1-D of equal length; the work shrinks to the still-unconverged entries each iteration.
+    """
+    n = a.shape[0]
+    ok = np.zeros(n, dtype=bool)
+    r_out = np.full(n, np.nan)
+    idx, lo, hi = _root_bracket(a, b, d, d2, wd, r_max)
+    if idx.size == 0:
+        return ok, r_out
+    a, b, d2 = a[idx], b[idx], d2[idx]
 
     # Safeguarded Newton ("rtsafe"): start at lo, the straight-line estimate, exact for small turns.
     x = lo.copy()
@@ -446,6 +458,36 @@ class Manoeuvre:
         return np.stack([np.where(in_turn, x1, x2), np.where(in_turn, y1, y2)], axis=-1)
 
 
+def _uav_frame(P, TH, G, v_max: float, delta: float):
+    """The goals ``G`` (n, 2) in the frames of the poses ``P`` (n, 2), ``TH`` (n,): ``cos`` and ``sin`` of the
+    headings, the forward offset ``a``, the signed lateral offset ``cross`` (> 0 on the left) and ``b = |cross|``,
+    ``d2`` and ``d = |g - p|``; ``usable`` (``d`` in (MIN_GOAL_DISTANCE, V_max delta]: the path is at least the
+    chord, which prunes most far-away pairs) and ``straight`` (usable, dead ahead: no turn)."""
+    c, s = np.cos(TH), np.sin(TH)
+    rx, ry = G[:, 0] - P[:, 0], G[:, 1] - P[:, 1]
+    a = c * rx + s * ry
+    cross = c * ry - s * rx
+    b = np.abs(cross)
+    d2 = a * a + b * b
+    d = np.sqrt(d2)
+    usable = np.isfinite(d) & (d > MIN_GOAL_DISTANCE) & (d <= v_max * delta)
+    straight = usable & (a > 0) & (b <= _STRAIGHT_REL * d)
+    return c, s, a, cross, b, d2, d, usable, straight
+
+
+def manoeuvre_feasible(p, theta, goals, *, v_max: float, w_max: float, delta: float) -> np.ndarray:
+    """``solve_manoeuvre(p, theta, goals, ...).feasible`` of flat batches (``p`` (n, 2), ``theta`` (n,), ``goals``
+    (n, 2), limits already checked), without solving for the speed: a goal is feasible iff it is dead ahead or
+    eq. 29 has a root bracket (:func:`_root_bracket`). What the waypoint masks and the reach table ask."""
+    with np.errstate(all="ignore"):
+        _, _, a, _, b, d2, d, usable, straight = _uav_frame(p, theta, goals, v_max, delta)
+        feasible = straight.copy()
+        ti = np.flatnonzero(usable & ~straight)
+        idx, _, _ = _root_bracket(a[ti], b[ti], d[ti], d2[ti], w_max * delta, v_max / w_max)
+        feasible[ti[idx]] = True
+    return feasible
+
+
 def solve_manoeuvre(p, theta, goals, *, v_max: float = 50.0, w_max: float = 3.0,
                     delta: float = 1.0) -> Manoeuvre:
     """Turn-then-straight manoeuvres from poses ``(p, theta)`` to waypoints ``goals`` (eqs. 22-29).
@@ -488,17 +530,8 @@ def solve_manoeuvre(p, theta, goals, *, v_max: float = 50.0, w_max: float = 3.0,
     n = TH.shape[0]
 
     with np.errstate(all="ignore"):
-        c, s = np.cos(TH), np.sin(TH)
-        rx, ry = G[:, 0] - P[:, 0], G[:, 1] - P[:, 1]
-        a = c * rx + s * ry  # forward offset
-        cross = c * ry - s * rx  # lateral offset, > 0 on the left
-        b = np.abs(cross)
-        d2 = a * a + b * b
-        d = np.sqrt(d2)
+        c, s, a, cross, b, d2, d, usable, straight = _uav_frame(P, TH, G, v_max, delta)
         wd = w_max * delta
-        # d <= v_max delta is necessary (the path is at least the chord); it prunes most far-away pairs.
-        usable = np.isfinite(d) & (d > MIN_GOAL_DISTANCE) & (d <= v_max * delta)
-        straight = usable & (a > 0) & (b <= _STRAIGHT_REL * d)
         turn = _turn_side(cross)
         turn[straight] = 0
 

@@ -4,8 +4,9 @@ Whether :func:`~covert_env.dynamics.solve_manoeuvre` finds a manoeuvre depends o
 the UAV's frame: ``a`` ahead and ``b = |lateral|`` to the side (the manoeuvre is mirror-symmetric). So the
 feasible set is one region of the (a, b) half-plane per (V_max, W_max, delta), tabulated here once on a grid of
 cells labelled *feasible*, *infeasible* or *near the boundary*. A query looks its cell up; only points in
-boundary cells are solved exactly (by ``solve_manoeuvre`` itself, on the same inputs), so the answer is exactly
-``solve_manoeuvre(...).feasible``, at a fraction of the root finding.
+boundary cells are solved exactly (by :func:`~covert_env.dynamics.manoeuvre_feasible`, ``solve_manoeuvre``'s own
+test on the same inputs, without the speed), so the answer is exactly ``solve_manoeuvre(...).feasible``, at a
+fraction of the root finding.
 
 A cell is labelled feasible or infeasible only when every grid node of the 3 x 3 cells around it agrees (and, on
 the coarse level, a finer check of the cell's centre and edge midpoints agrees too): the region's boundary is a few
@@ -28,7 +29,7 @@ import functools
 import numba
 import numpy as np
 
-from covert_env.dynamics import solve_manoeuvre
+from covert_env.dynamics import manoeuvre_feasible
 from covert_env.zone import to_world
 
 __all__ = ["ReachTable", "reach_table"]
@@ -86,9 +87,10 @@ class ReachTable:
         self._nodes_arr = np.zeros((3, 0), np.float32)
 
     def _feasible(self, a, b) -> np.ndarray:
-        m = solve_manoeuvre(np.zeros(2), 0.0, np.stack([a, b], axis=-1), v_max=self.v_max, w_max=self.w_max,
-                            delta=self.delta)
-        return np.asarray(m.feasible, bool)
+        goals = np.stack([a, b], axis=-1).reshape(-1, 2)
+        ok = manoeuvre_feasible(np.zeros((len(goals), 2)), np.zeros(len(goals)), goals, v_max=self.v_max,
+                                w_max=self.w_max, delta=self.delta)
+        return ok.reshape(np.shape(a))
 
     def _feasible_nodes(self, h: float, na: int, nb: int) -> np.ndarray:
         return self._feasible(*np.meshgrid(self.a0 + np.arange(na + 1) * h, np.arange(nb + 1) * h, indexing="ij"))
@@ -169,9 +171,8 @@ class ReachTable:
             bi, rest = np.divmod(flat, lab.shape[1] * lab.shape[2])
             ui, li = np.divmod(rest, lab.shape[2])
             goals = to_world(offsets[li][:, None], q_xy[bi], phi[bi])[:, 0]
-            m = solve_manoeuvre(xy[bi, ui], theta[bi, ui], goals, v_max=self.v_max, w_max=self.w_max,
-                                delta=self.delta)
-            out[bi, ui, li] = m.feasible
+            out[bi, ui, li] = manoeuvre_feasible(xy[bi, ui], theta[bi, ui], goals, v_max=self.v_max,
+                                                 w_max=self.w_max, delta=self.delta)
         return out
 
 

@@ -477,3 +477,28 @@ def test_points_follow_path_at_constant_speed():
     assert np.all(steps <= m.v[f][:, None] / 400 * (1 + 1e-9))
     np.testing.assert_allclose(steps.sum(axis=1), m.length[f], rtol=1e-4)
     assert isinstance(m, Manoeuvre)
+
+
+@pytest.mark.parametrize("limits", [(50.0, 3.0, 1.0), (30.0, 5.0, 1.0), (50.0, 1.0, 0.5)])
+def test_manoeuvre_feasible_is_solve_manoeuvres_feasibility(limits):
+    """The masks' test (a root bracket of eq. 29, no speed solved) decides every goal as solve_manoeuvre does: ahead,
+    behind (two roots when W_max delta > pi), dead ahead, at the start, at the slot's reach, far away."""
+    from covert_env.dynamics import manoeuvre_feasible
+
+    v_max, w_max, delta = limits
+    rng = np.random.default_rng(21)
+    n = 30_000
+    reach = v_max * delta
+    p = rng.uniform(-100, 100, (n, 2))
+    theta = rng.uniform(-7, 7, n)
+    g = p + rng.uniform(-1.2 * reach, 1.2 * reach, (n, 2))
+    g[:300] = p[:300]                                                   # at the start
+    ahead = np.stack([np.cos(theta[300:600]), np.sin(theta[300:600])], axis=-1)
+    g[300:600] = p[300:600] + rng.uniform(0, 1.1 * reach, (300, 1)) * ahead            # dead ahead
+    rim = g[600:1600] - p[600:1600]
+    g[600:1600] = p[600:1600] + rim * (reach * (1 + rng.uniform(-1e-12, 1e-12, (1000, 1)))
+                                       / np.linalg.norm(rim, axis=1, keepdims=True))   # at the reach
+    want = solve_manoeuvre(p, theta, g, v_max=v_max, w_max=w_max, delta=delta).feasible
+    got = manoeuvre_feasible(p, theta, g, v_max=v_max, w_max=w_max, delta=delta)
+    assert got.dtype == bool and np.array_equal(got, want)
+    assert 0.05 < want.mean() < 0.95
