@@ -35,10 +35,13 @@ polytope); it runs single-threaded and holds no state between calls. numba check
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numba
 import numpy as np
 
-__all__ = ["blocked_offsets", "blocked_segments"]
+__all__ = ["TerrainTable", "blocked_offsets", "blocked_segments", "offsets_blocked", "segments_blocked",
+           "terrain_table"]
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -201,22 +204,30 @@ def blocked_segments(hs: np.ndarray, cx: np.ndarray, cy: np.ndarray, radius: np.
     Returns:
         (N,) bool, True = blocked.
     """
-    hs, cx, cy, radius, z_top, growth, targets, rows = _checked_terrain(
-        "blocked_segments", hs, cx, cy, radius, z_top, growth, targets, rows)
+    return segments_blocked(terrain_table(hs, cx, cy, radius, z_top, growth), targets, rows, start, points, heights,
+                            tol)
+
+
+def segments_blocked(table: TerrainTable, targets: np.ndarray, rows: np.ndarray, start: np.ndarray,
+                     points: np.ndarray, heights, tol: float) -> np.ndarray:
+    """:func:`blocked_segments` on a :class:`TerrainTable` (the terrain arrays checked once, read by many calls)."""
+    if not isinstance(table, TerrainTable):
+        raise TypeError(f"segments_blocked: table must be a TerrainTable (terrain_table(...)), got "
+                        f"{type(table).__name__}")
+    targets, rows = _checked_targets("blocked_segments", table, targets, rows)
     points, start = _c(points, np.float64), _c(start, np.int64)
     heights = _c(np.atleast_1d(np.asarray(heights, dtype=np.float64)).reshape(-1), np.float64)
     if start.shape != (len(targets) + 1,) or points.ndim != 2 or points.shape[1] != 2:
         raise ValueError(f"blocked_segments: start must be (T + 1,) and points (N, 2) with targets (T, 3); got "
                          f"{start.shape}, {points.shape}, {targets.shape}")
-    if _layout_error(rows, start, len(hs), len(points)) == 1:
+    if _layout_error(rows, start, len(table.hs), len(points)) == 1:
         raise ValueError(f"blocked_segments: start must rise from 0 to the number of points ({len(points)})")
     if len(heights) not in (1, len(points)):
         raise ValueError(f"blocked_segments: heights must be one number or one per point ({len(points)}), "
                          f"got {len(heights)}")
-    n_m = hs.shape[1]
     out = np.zeros(len(points), dtype=bool)
-    if len(points) and n_m:
-        _kernel(hs, cx, cy, radius, z_top, growth, targets, rows, start, points, heights, float(tol), out)
+    if len(points) and table.hs.shape[1]:
+        _kernel(*table, targets, rows, start, points, heights, float(tol), out)
     return out
 
 
@@ -237,40 +248,64 @@ def blocked_offsets(hs: np.ndarray, cx: np.ndarray, cy: np.ndarray, radius: np.n
         (T, L) bool, True = blocked; the same decisions as :func:`blocked_segments` on
         :func:`~covert_env.zone.to_world`'s points, which the kernel computes term by term.
     """
+    return offsets_blocked(terrain_table(hs, cx, cy, radius, z_top, growth), targets, rows, phi, offsets, height,
+                           tol)
+
+
+def offsets_blocked(table: TerrainTable, targets: np.ndarray, rows: np.ndarray, phi: np.ndarray,
+                    offsets: np.ndarray, height: float, tol: float) -> np.ndarray:
+    """:func:`blocked_offsets` on a :class:`TerrainTable` (the terrain arrays checked once, read by many calls)."""
+    if not isinstance(table, TerrainTable):
+        raise TypeError(f"offsets_blocked: table must be a TerrainTable (terrain_table(...)), got "
+                        f"{type(table).__name__}")
     phi = _c(np.asarray(phi, dtype=np.float64).reshape(-1), np.float64)
     offsets = _c(offsets, np.float64)
     if offsets.ndim != 2 or offsets.shape[1] != 2 or phi.shape != (len(targets),):
         raise ValueError(f"blocked_offsets: offsets must be (L, 2) and phi (T,) with targets (T, 3); got "
                          f"{offsets.shape}, {phi.shape}, {np.shape(targets)}")
-    hs, cx, cy, radius, z_top, growth, targets, rows = _checked_terrain(
-        "blocked_offsets", hs, cx, cy, radius, z_top, growth, targets, rows)
-    n_t, n_l = len(targets), len(offsets)
+    targets, rows = _checked_targets("blocked_offsets", table, targets, rows)
     height = np.asarray(height, dtype=np.float64)
     if height.shape != ():
         raise ValueError(f"blocked_offsets: height must be one number, got shape {height.shape}")
-    out = np.zeros((n_t, n_l), dtype=bool)
-    if out.size and hs.shape[1]:
-        _kernel_offsets(hs, cx, cy, radius, z_top, growth, targets, rows, np.cos(phi), np.sin(phi), offsets,
-                        float(height), float(tol), out)
+    out = np.zeros((len(targets), len(offsets)), dtype=bool)
+    if out.size and table.hs.shape[1]:
+        _kernel_offsets(*table, targets, rows, np.cos(phi), np.sin(phi), offsets, float(height), float(tol), out)
     return out
 
 
-def _checked_terrain(name, hs, cx, cy, radius, z_top, growth, targets, rows):
-    """The terrain rows, targets and their rows as the kernels read them (float64 or int64, C-contiguous), after
-    the checks numba does not make: shapes, and every row index within the terrain rows."""
-    hs, cx, cy, radius, z_top, growth, targets = (_c(a, np.float64) for a in (hs, cx, cy, radius, z_top, growth,
-                                                                             targets))
-    rows = _c(rows, np.int64)
+class TerrainTable(NamedTuple):
+    """The terrain rows as the kernels read them (float64, C-contiguous), their shapes checked:
+    :func:`terrain_table` builds it; a holder of terrain rows keeps one while its arrays stay the same
+    (:class:`~covert_env.visibility.TerrainRows`), so a call checks only its own targets and points."""
+
+    hs: np.ndarray
+    cx: np.ndarray
+    cy: np.ndarray
+    radius: np.ndarray
+    z_top: np.ndarray
+    growth: np.ndarray
+
+
+def terrain_table(hs, cx, cy, radius, z_top, growth) -> TerrainTable:
+    """The :class:`TerrainTable` of these arrays (copies only where a dtype or layout differs), after the shape
+    checks numba does not make: ``hs`` (R, M, F, 4), the others (R, M)."""
+    hs, cx, cy, radius, z_top, growth = (_c(a, np.float64) for a in (hs, cx, cy, radius, z_top, growth))
     n_rows, n_m = hs.shape[:2] if hs.ndim == 4 else (-1, -1)
     if hs.ndim != 4 or hs.shape[3] != 4 or any(a.shape != (n_rows, n_m) for a in (cx, cy, radius, z_top, growth)):
-        raise ValueError(f"{name}: hs must be (R, M, F, 4) and the circles, tops and growth (R, M); got "
+        raise ValueError(f"terrain_table: hs must be (R, M, F, 4) and the circles, tops and growth (R, M); got "
                          f"{hs.shape}, {[a.shape for a in (cx, cy, radius, z_top, growth)]}")
+    return TerrainTable(hs, cx, cy, radius, z_top, growth)
+
+
+def _checked_targets(name, table: TerrainTable, targets, rows):
+    """The targets (T, 3) and their rows (T,) as the kernels read them, every row within the table."""
+    targets, rows = _c(targets, np.float64), _c(rows, np.int64)
     t = len(targets)
     if targets.shape != (t, 3) or rows.shape != (t,):
         raise ValueError(f"{name}: targets must be (T, 3) and rows (T,); got {targets.shape}, {rows.shape}")
-    if _layout_error(rows, np.zeros(t + 1, np.int64), n_rows, 0) == 2:
-        raise ValueError(f"{name}: rows must lie in [0, {n_rows}), got {rows.min()} to {rows.max()}")
-    return hs, cx, cy, radius, z_top, growth, targets, rows
+    if _layout_error(rows, np.zeros(t + 1, np.int64), len(table.hs), 0) == 2:
+        raise ValueError(f"{name}: rows must lie in [0, {len(table.hs)}), got {rows.min()} to {rows.max()}")
+    return targets, rows
 
 
 @numba.njit(cache=True, nogil=True)

@@ -25,7 +25,7 @@ from functools import cached_property
 
 import numpy as np
 
-from covert_env.sight_kernel import blocked_offsets, blocked_segments
+from covert_env.sight_kernel import TerrainTable, offsets_blocked, segments_blocked, terrain_table
 from covert_env.terrain import Terrain
 
 __all__ = [
@@ -82,11 +82,11 @@ class TerrainArrays:  # noqa: B903
         return growth_factors(self.hs, self.verts)
 
     @cached_property
-    def table(self) -> tuple:
-        """The terrain as the one row of a table, in :func:`~covert_env.sight_kernel.blocked_segments`' argument
-        order: half-spaces (1, M, F, 4), circle centres x and y, radii, tops and growth factors (1, M)."""
-        return tuple(np.ascontiguousarray(a[None]) for a in
-                     (self.hs, self.centre[:, 0], self.centre[:, 1], self.radius, self.z_max, self.growth_factor))
+    def table(self) -> TerrainTable:
+        """The terrain as the one row of a checked :class:`~covert_env.sight_kernel.TerrainTable`: half-spaces
+        (1, M, F, 4), circle centres x and y, radii, tops and growth factors (1, M)."""
+        return terrain_table(*(a[None] for a in (self.hs, self.centre[:, 0], self.centre[:, 1], self.radius,
+                                                 self.z_max, self.growth_factor)))
 
 
 def growth_factors(hs: np.ndarray, verts: np.ndarray) -> np.ndarray:
@@ -177,7 +177,7 @@ def line_of_sight(terrain: Terrain, uav_xy, altitude, target_xyz, *,
         targets, start = target.reshape(1, 3), np.array([0, n])
     else:                               # each point its own target
         targets, start = np.broadcast_to(target, shape + (3,)).reshape(-1, 3), np.arange(n + 1)
-    blocked = blocked_segments(*terrain_arrays(terrain).table, targets, np.zeros(len(targets), np.int64), start,
+    blocked = segments_blocked(terrain_arrays(terrain).table, targets, np.zeros(len(targets), np.int64), start,
                                points, heights, tol)
     return ~blocked.reshape(shape)
 
@@ -201,7 +201,7 @@ def line_of_sight_rows(terrain: Terrain, uav_xy, altitude: float, target_xyz, *,
     n_rows, n_pts = xy.shape[:2]
     if len(terrain) == 0 or xy.size == 0:
         return np.ones((n_rows, n_pts), dtype=bool)
-    blocked = blocked_segments(*terrain_arrays(terrain).table, q, np.zeros(n_rows, np.int64),
+    blocked = segments_blocked(terrain_arrays(terrain).table, q, np.zeros(n_rows, np.int64),
                                np.arange(n_rows + 1) * n_pts, xy.reshape(-1, 2), altitude, tol)
     return ~blocked.reshape(n_rows, n_pts)
 
@@ -231,7 +231,7 @@ def visible_nodes(terrain: Terrain, offsets, q, phi, altitude: float, *,
     if q.shape[-1:] != (3,) or q.ndim > 2 or phi.ndim > q.ndim - 1:
         raise ValueError(f"visible_nodes: q must be (3,) or (S, 3) and phi () or (S,); got {q.shape}, {phi.shape}")
     targets = q.reshape(-1, 3)
-    blocked = blocked_offsets(*terrain_arrays(terrain).table, targets, np.zeros(len(targets), np.int64),
+    blocked = offsets_blocked(terrain_arrays(terrain).table, targets, np.zeros(len(targets), np.int64),
                               np.broadcast_to(phi, q.shape[:-1]).reshape(-1), offsets, altitude, tol)
     return ~blocked.reshape(q.shape[:-1] + (-1,))
 
@@ -257,9 +257,19 @@ class TerrainRows:
         self.cx, self.cy, self.radius, self.growth = (np.zeros((0, 0)) for _ in range(4))
         self.z_max = np.zeros((0, 0))
         self.top = np.zeros((0, 0, 3))
+        self._table: TerrainTable | None = None
 
     def __len__(self) -> int:
         return len(self.hs)
+
+    @property
+    def table(self) -> TerrainTable:
+        """The rows as a checked :class:`~covert_env.sight_kernel.TerrainTable`, the same arrays (kept until an
+        array is replaced: :meth:`set_rows` grows them by replacing, and writes rows in place)."""
+        arrays = (self.hs, self.cx, self.cy, self.radius, self.z_max, self.growth)
+        if self._table is None or any(a is not b for a, b in zip(arrays, self._table, strict=True)):
+            self._table = terrain_table(*arrays)
+        return self._table
 
     def set_row(self, r: int, terrain: Terrain) -> None:
         """Write ``terrain`` into row r (growing the arrays as needed)."""
@@ -303,8 +313,7 @@ class TerrainRows:
         """:func:`~covert_env.sight_kernel.blocked_segments` on these terrains: target j (``targets`` (T, 3)) in row
         ``rows[j]`` owns the points ``points[start[j]:start[j + 1]]`` ((N, 2), at ``heights``: one or (N,));
         (N,) True = blocked."""
-        return blocked_segments(self.hs, self.cx, self.cy, self.radius, self.z_max, self.growth, targets, rows,
-                                start, points, heights, tol)
+        return segments_blocked(self.table, targets, rows, start, points, heights, tol)
 
     def line_of_sight(self, rows: np.ndarray, uav_xy: np.ndarray, altitude: float, target_xyz: np.ndarray,
                       *, tol: float = LOS_TOLERANCE) -> np.ndarray:
@@ -350,8 +359,7 @@ def visible_nodes_rows(terrains: TerrainRows, rows, offsets, q, phi, altitude: f
         return out
     if not float(altitude) > q[..., 2].max():
         raise ValueError(f"visible_nodes_rows: the altitude ({float(altitude):g} m) must be above every target")
-    blocked = blocked_offsets(terrains.hs, terrains.cx, terrains.cy, terrains.radius, terrains.z_max,
-                              terrains.growth, q.reshape(-1, 3), np.repeat(rows, n_t), phi.reshape(-1), off,
+    blocked = offsets_blocked(terrains.table, q.reshape(-1, 3), np.repeat(rows, n_t), phi.reshape(-1), off,
                               altitude, tol)
     return ~blocked.reshape(out.shape)
 

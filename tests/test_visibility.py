@@ -706,3 +706,27 @@ def test_offsets_kernel_checks_its_inputs():
                         ((q, np.zeros(1, np.int64), np.zeros(1), off, np.full(2, H)), "height")]:
         with pytest.raises(ValueError, match=match):
             blocked_offsets(*table, *args, LOS_TOLERANCE)
+
+
+def test_terrain_rows_table_follows_its_rows():
+    """TerrainRows keeps one checked TerrainTable while its arrays stay the same, a new one after set_row grows
+    them, and answers as the terrain itself; a table not from terrain_table is refused."""
+    from covert_env.sight_kernel import segments_blocked
+    from covert_env.visibility import TerrainRows
+
+    rng = np.random.default_rng(8)
+    rows = TerrainRows(capacity=4)
+    rows.set_row(0, random_terrain(rng, 3))
+    first = rows.table
+    assert rows.table is first
+    big = random_terrain(rng, 12)
+    rows.set_row(2, big)                                            # more rows and polytopes: arrays replaced
+    second = rows.table
+    assert second is not first and second.hs is rows.hs and second.hs.shape[:2] == (3, 12)
+    q = random_target(rng)
+    pts = disk_points(rng, q, 200)
+    got = rows.line_of_sight(np.array([2]), pts[None], H, q[None])[0]
+    np.testing.assert_array_equal(got, line_of_sight(big, pts, H, q))
+    assert 0 < (~got).sum() < len(got)
+    with pytest.raises(TypeError, match="TerrainTable"):
+        segments_blocked(tuple(second), q[None], np.zeros(1, np.int64), np.array([0, 200]), pts, H, LOS_TOLERANCE)
