@@ -282,14 +282,11 @@ def _phi(a, b, d2, r):
 
 
 def _root_bracket(a, b, d, d2, wd, r_max):
-    """The left-frame goals (b >= 0, not dead ahead) for which eq. 29 has a root: ``(idx, lo, hi)``, their indices
-    and a sign-change bracket holding the smallest root (F(lo) >= 0 >= F(hi)). All arrays are 1-D of equal length.
-
-    A bracketed goal is feasible: the safeguarded Newton iteration of :func:`_solve_turn` converges on it (each
-    step at most halves the one before, or bisects), so ``_root_bracket`` alone decides feasibility."""
-    empty = np.zeros(0, np.intp)
+    """The left-frame goals (b >= 0, not dead ahead; 1-D arrays) for which eq. 29 has a root: their indices and a
+    sign-change bracket [lo, hi] of the smallest root. It decides feasibility alone: the safeguarded Newton
+    iteration of :func:`_solve_turn` converges on every bracket (each step halves the one before, or bisects)."""
     if a.shape[0] == 0:
-        return empty, a[:0], a[:0]
+        return np.zeros(0, np.intp), a, a
     # Bracket [lo, hi]: lo from "path >= |g - p|" (so F(lo) >= 0), hi from the turning circle and V_max.
     lo = d / wd
     r_c = np.where(b > 0, d2 / (2.0 * np.where(b > 0, b, 1.0)), np.inf)
@@ -459,10 +456,9 @@ class Manoeuvre:
 
 
 def _uav_frame(P, TH, G, v_max: float, delta: float):
-    """The goals ``G`` (n, 2) in the frames of the poses ``P`` (n, 2), ``TH`` (n,): ``cos`` and ``sin`` of the
-    headings, the forward offset ``a``, the signed lateral offset ``cross`` (> 0 on the left) and ``b = |cross|``,
-    ``d2`` and ``d = |g - p|``; ``usable`` (``d`` in (MIN_GOAL_DISTANCE, V_max delta]: the path is at least the
-    chord, which prunes most far-away pairs) and ``straight`` (usable, dead ahead: no turn)."""
+    """Goals ``G`` (n, 2) in the frames of poses ``P`` (n, 2), ``TH`` (n,): cos, sin, forward offset ``a``, lateral
+    ``cross`` (> 0 left), ``b = |cross|``, ``d2``, ``d = |g - p|``, ``usable`` (d in (MIN_GOAL_DISTANCE, V_max
+    delta]: the path is at least the chord) and ``straight`` (usable and dead ahead: no turn)."""
     c, s = np.cos(TH), np.sin(TH)
     rx, ry = G[:, 0] - P[:, 0], G[:, 1] - P[:, 1]
     a = c * rx + s * ry
@@ -481,11 +477,9 @@ def manoeuvre_feasible(p, theta, goals, *, v_max: float, w_max: float, delta: fl
     eq. 29 has a root bracket (:func:`_root_bracket`). What the waypoint masks and the reach table ask."""
     with np.errstate(all="ignore"):
         _, _, a, _, b, d2, d, usable, straight = _uav_frame(p, theta, goals, v_max, delta)
-        feasible = straight.copy()
         ti = np.flatnonzero(usable & ~straight)
-        idx, _, _ = _root_bracket(a[ti], b[ti], d[ti], d2[ti], w_max * delta, v_max / w_max)
-        feasible[ti[idx]] = True
-    return feasible
+        straight[ti[_root_bracket(a[ti], b[ti], d[ti], d2[ti], w_max * delta, v_max / w_max)[0]]] = True
+    return straight
 
 
 def solve_manoeuvre(p, theta, goals, *, v_max: float = 50.0, w_max: float = 3.0,
