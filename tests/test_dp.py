@@ -728,3 +728,52 @@ def test_stage_pair_disguise_is_eq_11_in_float32():
     want = -c.lam * disguise(a.alpha[None, :], b.alpha[:, None], a.d[None, :], b.d[:, None], c.eta)
     assert got.dtype == np.float32 and got.shape == want.shape
     np.testing.assert_allclose(got, want, rtol=2e-6, atol=2e-3 * c.lam)
+
+
+@pytest.mark.parametrize("shared", [False, True])
+@pytest.mark.parametrize("ctg_dtype", [None, np.float64, np.float32])
+def test_compiled_dense_bound_equals_its_array_form(shared, ctg_dtype):
+    """The recursion's dense bound and round 0 (recursion._bound_rows) are the array operations they replace, to the
+    bit: the float32 cells, the table's gather, the float32 sums in their order, the cut by the cost-to-go in its
+    dtype, each target's smallest bound and the (target, source) pairs within FIRST_BAND of it, in C order."""
+    from baselines.dp.recursion import _bound_rows
+    from baselines.dp.selection import FIRST_BAND
+
+    rng = np.random.default_rng(5 + shared)
+    n, cells = 40, 500
+    base = rng.uniform(50, 450, (n, n)).astype(np.float32)
+    heading = rng.uniform(-40, 40, n).astype(np.float32)
+    table_lb = rng.uniform(0, 60, cells).astype(np.float32)
+    table_lb[::17] = np.inf                                          # unreachable cells
+    disguise = rng.uniform(0, 30, (n, n)).astype(np.float32)
+    pen = rng.uniform(0, 5, n).astype(np.float32)
+    both = (disguise + pen[:, None]).astype(np.float32)
+    cost_grid = rng.uniform(0, 300, n).astype(np.float32)
+    cost_grid[rng.random(n) < 0.3] = np.inf                          # absent sources
+    ctg = None if ctg_dtype is None else rng.uniform(0, 100, n).astype(ctg_dtype)
+    thr = np.float32(380.0)
+
+    want = table_lb.take((base - heading).astype(np.int32))           # the array form, step by step
+    if shared:
+        want += both
+    else:
+        want += disguise
+        want += pen[:, None]
+    want += cost_grid
+    if ctg is not None:
+        want[want + ctg[:, None] > thr] = np.inf
+    colmin = want.min(axis=1)
+    cut = np.where(np.isfinite(colmin), colmin + FIRST_BAND, -np.inf)
+    t_want, s_want = np.nonzero(want <= cut[:, None])
+
+    out, got_min = np.empty((n, n), np.float32), np.empty(n, np.float32)
+    cand_t, cand_s = np.empty(n * n, np.int64), np.empty(n * n, np.int64)
+    k = _bound_rows(base, heading, table_lb, disguise, pen, both if shared else np.zeros((0, 0), np.float32), shared,
+                    cost_grid, np.zeros(0) if ctg is None else ctg, ctg is not None, thr, 0, n, out, got_min, cand_t,
+                    cand_s)
+    assert np.array_equal(out, want) and np.array_equal(got_min, colmin)
+    assert np.array_equal(cand_t[:k], t_want) and np.array_equal(cand_s[:k], s_want)
+    assert 0 < k < n * n and np.isinf(out).any()
+    base[3, 4], cost_grid[4] = 1e6, 10.0                             # a cell beyond the table, of a state
+    assert _bound_rows(base, heading, table_lb, disguise, pen, both, shared, cost_grid, np.zeros(0), False, thr, 0,
+                       n, out, got_min, cand_t, cand_s) == -1

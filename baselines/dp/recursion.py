@@ -13,11 +13,12 @@ from __future__ import annotations
 import os
 from concurrent.futures import ThreadPoolExecutor
 
+import numba
 import numpy as np
 
 from baselines.dp.lattice import StageCache
 from baselines.dp.path_checks import PathChecker
-from baselines.dp.selection import BOUND_TOL, first_round, nonzero_indices, select_per_bin, select_per_node
+from baselines.dp.selection import BOUND_TOL, FIRST_BAND, nonzero_indices, select_per_bin, select_per_node
 from baselines.dp.states import Layer, Problem, SolveCounts
 from baselines.dp.table import ManoeuvreBoundsTable
 from baselines.dp.transitions import SolvedTransitions, solve_transitions
@@ -30,8 +31,6 @@ __all__ = ["ForwardRecursion", "backtrack"]
 OPEN_ROUNDS_CONSTRAINED = 2
 #: Entries per chunk of the binned variant's dense bound (~16 MB of float32).
 CHUNK = 1 << 22
-#: Entries per chunk of the inherited variant's bound passes (256 KB of int32 indices: stays in L2).
-BOUND_CHUNK = 1 << 16
 
 
 def _bound_threads() -> int:
@@ -47,7 +46,7 @@ def _bound_threads() -> int:
 
 
 #: Threads that compute the inherited variant's dense bound (read once, from ``COVERT_DP_THREADS``). A
-#: team replan spends about a third of its time there, in large numpy operations that release the GIL, so
+#: team replan spends much of its time there, in compiled passes that release the GIL, so
 #: 2 threads can use both cores of an idle 2-core machine for it; on a busy machine they only add switching
 #: (a 3-UAV replan's wall time rose from 70 to 85 ms at load 4.5), hence the default of 1.
 BOUND_THREADS = _bound_threads()
@@ -148,8 +147,8 @@ class ForwardRecursion:
         Returns ``(lb, rowmap, colmin, first)``: (blocks, L, L) bounds per UAV present, indexed [block, target
         b, source a] (selection scans per target node, so a target's bounds are one contiguous row); the layer
         row of each (block, a); and round 0 of :func:`select_per_node` (:func:`first_round`), found while the
-        bounds are in cache. With ``BOUND_THREADS`` > 1 the targets are split between threads (numpy releases
-        the GIL in these large array operations); the result does not depend on the split.
+        bounds are in cache: one compiled pass per target (:func:`_bound_rows`). With ``BOUND_THREADS`` > 1 the
+        targets are split between threads (the pass releases the GIL); the result does not depend on the split.
         """
         tab = self.table
         # Lay every UAV's states out on the full node grid (absent rows have J = inf), so the cached (L, L)
@@ -171,33 +170,21 @@ class ForwardRecursion:
         lb = np.empty((nb, L, L), np.float32)
         colmin = np.empty((nb, L), np.float32)
         thr = None if cost_to_go_j is None else (upper_bound[uav] + BOUND_TOL).astype(np.float32)
-        step = max(1, BOUND_CHUNK // L)
+        no_shared = np.zeros((0, 0), np.float32)
+        ctg = np.zeros(0) if cost_to_go_j is None else np.ascontiguousarray(cost_to_go_j)
 
         def rows(b, t0, t1):
-            """Bounds into targets t0..t1 of block b, with their round-0 candidates (selection.first_round)."""
-            # Chunks of targets small enough that the cell indices and the bounds stay in cache between the
-            # passes (the gather from the 3 MB table is the costly part; its temporaries should not add to
-            # it). A target's bounds lie in one chunk, so its first-round candidates are found there too.
-            cell = np.empty((min(step, t1 - t0), L), np.int32)
-            found = []
-            for c0 in range(t0, t1, step):
-                c1 = min(c0 + step, t1)
-                cb, out = cell[:c1 - c0], lb[b, c0:c1]
-                # float32 difference truncated to int32 on output: the cells of (base - heading).astype(int32).
-                np.subtract(base[c0:c1], heading_cells[b], out=cb, casting="unsafe")
-                np.take(tab.lb, cb, out=out)
-                if shared is None:
-                    out += disguise[c0:c1]
-                    out += pen[uav[b], c0:c1, None]
-                else:
-                    out += shared[c0:c1]
-                out += cost_grid[b]
-                if thr is not None:
-                    # Transitions whose every completion costs more than the known plan cannot matter.
-                    out[out + cost_to_go_j[c0:c1, None] > thr[b]] = np.inf
-                c, r = first_round(out, colmin[b, c0:c1])
-                found.append((np.full(c.size, b), c + c0, r))
-            return found
+            """Bounds into targets t0..t1 of block b, with their round-0 candidates (selection.first_round), in one
+            compiled pass per target (the gather from the 3 MB table is the costly part)."""
+            n = (t1 - t0) * L
+            cand_t, cand_s = np.empty(n, np.int64), np.empty(n, np.int64)
+            k = _bound_rows(base, heading_cells[b], tab.lb, disguise, pen[uav[b] if shared is None else 0],
+                            no_shared if shared is None else shared, shared is not None, cost_grid[b], ctg,
+                            thr is not None, np.float32(0.0 if thr is None else thr[b]), t0, t1, lb[b], colmin[b],
+                            cand_t, cand_s)
+            if k < 0:
+                raise IndexError(f"the manoeuvre table's bound: a cell index outside the table ({len(tab.lb)} cells)")
+            return [(np.full(k, b), cand_t[:k], cand_s[:k])]
 
         # Every block's targets in BOUND_THREADS contiguous ranges; the results are joined in (block, target)
         # order whatever thread computed them, so they are those of the serial loop.
@@ -266,3 +253,53 @@ def backtrack(layers: list[Layer], i: int, depth: int, stages) -> dict:
         wp[j] = stages[j].xy[nodes[j]]
     return dict(nodes=nodes, waypoints=wp, headings=head, speeds=v, stage_costs=g, cost=float(np.sum(g[:depth])),
                 depth=int(depth))
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _bound_rows(base, heading, table_lb, disguise, pen, shared, use_shared, cost_grid, ctg, use_ctg, thr, t0, t1,
+                out, colmin, cand_t, cand_s):  # pragma: no cover
+    """The dense bound into targets ``t0..t1`` of one block and round 0 of the selection, as
+    ``ForwardRecursion._node_bounds`` defines them, term by term in its order and dtypes (float32 sums; the cut by
+    ``thr`` in the cost-to-go's dtype): ``out[t, s]`` = table bound of cell ``int32(base[t, s] - heading[s])`` +
+    disguise (+ penalty) + ``cost_grid[s]``; ``colmin[t]`` its smallest; the (target, source) pairs within
+    ``FIRST_BAND`` of it, in C order, into ``cand_t``, ``cand_s``. Returns how many, or -1 for a cell outside the
+    table (``np.take`` raises there). A source without a state (``cost_grid`` inf) is inf without its gather (its
+    heading cell is 0, so its cell lies in the table)."""
+    n_cells = table_lb.shape[0]
+    band = np.float32(FIRST_BAND)
+    k = 0
+    for t in range(t0, t1):
+        row = out[t]
+        best = np.float32(np.inf)
+        nan = False
+        for s in range(row.shape[0]):
+            if cost_grid[s] == np.inf:                  # no state at this source: the sum is inf whatever the rest
+                row[s] = np.inf
+                continue
+            cell = np.int32(base[t, s] - heading[s])
+            if cell < 0 or cell >= n_cells:
+                return -1
+            v = table_lb[cell]
+            if use_shared:
+                v = v + shared[t, s]
+            else:
+                v = v + disguise[t, s]
+                v = v + pen[t]
+            v = v + cost_grid[s]
+            if use_ctg and v + ctg[t] > thr:
+                v = np.float32(np.inf)
+            row[s] = v
+            if v != v:
+                nan = True
+            elif v < best:
+                best = v
+        best = np.float32(np.nan) if nan else best          # np.min propagates NaN
+        colmin[t] = best
+        if np.isfinite(best):
+            cut = best + band
+            for s in range(row.shape[0]):
+                if row[s] <= cut:
+                    cand_t[k] = t
+                    cand_s[k] = s
+                    k += 1
+    return k
