@@ -78,8 +78,7 @@ class ReachTable:
         self._flat = self.labels.reshape(-1)
         # The lookup's first level: per coarse cell, the label all its fine cells share, else _MIXED (look the fine
         # cell up). Most lookups end in this small table, which stays in the cache; the labels are the fine table's.
-        fine = np.pad(self.labels, ((0, -self.shape[0] % refine), (0, -self.shape[1] % refine)), mode="edge")
-        blocks = fine.reshape(fine.shape[0] // refine, refine, fine.shape[1] // refine, refine)
+        blocks = self.labels.reshape(na, refine, nb, refine)                      # self.shape = (na, nb) * refine
         same = (blocks.min(axis=(1, 3)) == blocks.max(axis=(1, 3)))
         self._shift = refine.bit_length() - 1
         self.coarse_labels = np.where(same, blocks[:, 0, :, 0], _MIXED).astype(np.int8)
