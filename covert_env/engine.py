@@ -26,13 +26,14 @@ from covert_env.angles import wrap_heading
 from covert_env.config import MAX_N_UAVS, check_coordinates, short_repr
 from covert_env.flight import check_unicycle, fly_arc, fly_turn_straight, waypoint_controls
 from covert_env.metrics import SlotQuantities, moves_quantities
+from covert_env.roles import TargetReads
 from covert_env.scenario import Scenario, valid_start_shapes
 from covert_env.trajectory import Trajectory
 
 __all__ = ["Engine", "MAX_PATH_SAMPLES"]
 
 
-class Engine:
+class Engine(TargetReads):
     """Advance a :class:`Scenario` slot by slot and record the episode.
 
     What the planner, the renderer and the policies read of it (``k``, ``uav_xy``, ``predict``, ``trajectory``,
@@ -105,20 +106,6 @@ class Engine:
     def done(self) -> bool:
         """True once the episode's ``config.n_slots`` slots have been flown."""
         return self.k >= self.config.n_slots
-
-    @property
-    def target_xyz(self) -> np.ndarray:
-        """q[k], the target's current position (x, y, z)."""
-        return self.track.position(self.k)
-
-    @property
-    def target_phi(self) -> float:
-        """phi[k], the target's current heading."""
-        return float(self.track.heading(self.k))
-
-    def predict(self, horizon: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """Predicted target (positions (N, 3), headings (N,)) for slots k+1..k+N (N = config.horizon)."""
-        return self.track.predict(self.k, self.config.horizon if horizon is None else horizon)
 
     # ------------------------------------------------------------------ stepping
     def step(self, *, unicycle=None, waypoints=None, decision_time=None, infeasible=None) -> SlotQuantities:

@@ -26,7 +26,7 @@ if TYPE_CHECKING:
     from covert_env.terrain import Terrain
     from covert_env.trajectory import Trajectory
 
-__all__ = ["EngineView", "PolytopeTops", "TerrainPerCopy"]
+__all__ = ["EngineView", "PolytopeTops", "TargetReads", "TerrainPerCopy"]
 
 
 @runtime_checkable
@@ -51,6 +51,26 @@ class TerrainPerCopy(Protocol):
         """(N, U) clear LoS (eq. 6) from UAVs ``uav_xy`` (N, U, 2) at ``altitude`` to one target per copy,
         ``target_xyz`` (N, 1, 3), copy b against its own terrain only."""
         ...
+
+
+class TargetReads:
+    """The target's pose and predictions, read from ``track`` at slot ``k`` (``config.horizon`` slots ahead by
+    default): what :class:`~covert_env.engine.Engine` and :class:`~covert_env.envs.recorder.CopyView` share of
+    :class:`EngineView`."""
+
+    @property
+    def target_xyz(self) -> np.ndarray:
+        """(3,) q[k], the target's position."""
+        return self.track.position(self.k)
+
+    @property
+    def target_phi(self) -> float:
+        """phi[k], the target's heading."""
+        return float(self.track.heading(self.k))
+
+    def predict(self, horizon: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Predicted target positions (N, 3) and headings (N,) for slots k+1..k+N (N = ``config.horizon``)."""
+        return self.track.predict(self.k, self.config.horizon if horizon is None else horizon)
 
 
 @runtime_checkable

@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from covert_env.envs.arguments import int_arg
+from covert_env.roles import TargetReads
 from covert_env.scenario import Scenario
 from covert_env.trajectory import Trajectory
 
@@ -55,7 +56,7 @@ class EpisodeRecorder:
             infeasible=self.infeasible[i, :k].copy(), decision_time=np.full((k, u), np.nan))
 
 
-class CopyView:
+class CopyView(TargetReads):
     """Copy ``i`` of a :class:`~covert_env.envs.vector.CovertSensingVectorEnv`, read as an engine (read-only).
 
     An :class:`~covert_env.roles.EngineView`, as :class:`~covert_env.engine.Engine` is: ``k``, ``uav_xy``,
@@ -96,14 +97,6 @@ class CopyView:
         return self._venv.scene(self._i).terrain
 
     @property
-    def target_xyz(self) -> np.ndarray:
-        return self.track.position(self.k)
-
-    @property
-    def target_phi(self) -> float:
-        return float(self.track.heading(self.k))
-
-    @property
     def done(self) -> bool:
         """True once the copy's episode has flown ``episode_length`` slots (``max_cycles`` or the route's end)."""
         return self.k >= self._venv.episode_length
@@ -112,10 +105,6 @@ class CopyView:
     def positions(self) -> np.ndarray:
         """(k + 1, U, 2) the UAVs' positions at slot times 0..k."""
         return self.trajectory().uav_xy
-
-    def predict(self, horizon: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """Predicted target (positions (N, 3), headings (N,)) for slots k+1..k+N (N = config.horizon)."""
-        return self.track.predict(self.k, self.config.horizon if horizon is None else horizon)
 
     def trajectory(self) -> Trajectory:
         return self._venv.trajectory(self._i)
