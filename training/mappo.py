@@ -686,8 +686,8 @@ def ppo_update(agents: Agents, optim, buf: Rollout, adv: np.ndarray, returns: np
         perm = np.random.permutation(N)
         for start in range(0, N, mb):
             idx = perm[start:start + mb]
-            d = actor.dist(f_x[idx], None if f_feats is None else f_feats[idx],
-                           torch.from_numpy(f_mask[idx]) if s.waypoint else None)
+            d = actor.dist(f_x[idx], f_feats, torch.from_numpy(f_mask[idx]) if s.waypoint else None,
+                           None if f_feats is None else idx)         # the rows read the rollout's features
             a = torch.from_numpy(f_act[idx])
             new_logp = d.log_prob(a) if s.waypoint else d.log_prob(a).sum(-1)
             entropy = d.entropy() if s.waypoint else d.entropy().sum(-1)

@@ -7,8 +7,11 @@ arguments and recipes) needs no torch. Learned teams run without torch, in
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 from torch import nn
+
+from training.node_head import node_scores
 
 __all__ = ["Actor", "Critic", "layer", "masked_categorical"]
 
@@ -50,25 +53,30 @@ class Actor(nn.Module):
             self.mean = layer(hidden, n_actions, std=0.01)
             self.log_std = nn.Parameter(torch.full((n_actions,), float(log_std_init)))
 
-    def logits(self, obs, feats=None, mask=None):
-        """Node logits (waypoint heads); with ``mask``, the node head scores only the allowed nodes (about
-        two in five: the same values at a fraction of the cost) and the others get -1e8."""
+    def logits(self, obs, feats=None, mask=None, sample_of=None):
+        """Node logits (waypoint heads). ``feats`` are the node features, one sample per row, or with
+        ``sample_of`` (an int array, one per row) a store of samples that the rows name. With ``mask``, the node
+        head scores only the allowed nodes (:func:`training.node_head.node_scores`) and the others get -1e8."""
         h = self.trunk(obs)
         if self.head != "node":
             return self.flat(h)
         if mask is None:
-            z = torch.relu(self.node_obs(h)[:, None, :] + self.node_feat(feats))
+            f = feats if sample_of is None else feats[torch.as_tensor(sample_of)]
+            z = torch.relu(self.node_obs(h)[:, None, :] + self.node_feat(f))
             return self.node_out(z)[..., 0]
         rows, nodes = mask.nonzero(as_tuple=True)
-        z = torch.relu(self.node_obs(h)[rows] + self.node_feat(feats[rows, nodes]))
-        return torch.full(mask.shape, -1e8).index_put((rows, nodes), self.node_out(z)[:, 0])
+        store = feats.numpy() if isinstance(feats, torch.Tensor) else feats
+        sample_of = np.arange(len(mask)) if sample_of is None else np.asarray(sample_of, np.int64)
+        scores = node_scores(self.node_obs(h), self.node_feat, self.node_out, np.ascontiguousarray(store, np.float32),
+                             sample_of, rows.numpy(), nodes.numpy())
+        return torch.full(mask.shape, -1e8).index_put((rows, nodes), scores)
 
-    def dist(self, obs, feats=None, mask=None):
+    def dist(self, obs, feats=None, mask=None, sample_of=None):
         """The action distribution: a masked categorical over the nodes, or the unicycle's Gaussian."""
         if self.head == "gaussian":
             mean = self.mean(self.trunk(obs))
             return torch.distributions.Normal(mean, self.log_std.exp().expand_as(mean))
-        return masked_categorical(self.logits(obs, feats, mask), mask)
+        return masked_categorical(self.logits(obs, feats, mask, sample_of), mask)
 
 
 class Critic(nn.Module):
