@@ -16,6 +16,7 @@ from hypothesis.extra.numpy import arrays
 import covert_env
 from baselines.policies import RandomPolicy
 from covert_env.command_line import UsageError
+from covert_env.envs.joint_moves import clear_along
 from covert_env.envs.safety_filter import SafetyFilter, ShieldedPolicy, path_separation, top_clearance_along
 from covert_env.metrics import top_clearance
 from covert_env.separation import team_separation
@@ -41,6 +42,17 @@ def test_top_clearance_along_is_the_metric_at_every_sample(paths, tops):
     want = np.array([[min(np.sqrt((p[t, 0] - x) ** 2 + (p[t, 1] - y) ** 2 + (80.0 - z) ** 2)
                           for t in range(1, 5) for x, y, z in tops[i]) for p in paths[i]] for i in range(2)])
     np.testing.assert_allclose(got, want, rtol=1e-12)
+
+
+@settings(max_examples=60, deadline=None)
+@given(arrays(float, (3, 4, 6, 2), elements=coords), arrays(float, (3, 5, 3), elements=st.floats(-200, 70)),
+       st.integers(0, 1), st.sampled_from([0, 1, 2]), st.floats(0.0, 50.0))
+def test_clear_along_is_the_clearance_compared_with_the_need(paths, tops, first, nan_at, need):
+    paths[0, 1, 3] = np.nan                                          # a NaN sample is never clear
+    # Needs exactly at some flight's clearance: the boundary answers as the metric does (>= is clear).
+    gap = top_clearance_along(paths, tops, 80.0, first)
+    for n in (need, float(gap[nan_at, 2]), float(np.nextafter(gap[nan_at, 3], 0.0))):
+        np.testing.assert_array_equal(clear_along(paths, tops, 80.0, n, first), gap >= n)
 
 
 def _fly(task: str, seed: int, *, record_state: bool = False):

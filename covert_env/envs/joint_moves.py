@@ -4,6 +4,7 @@ plans."""
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 from covert_env.angles import wrap_heading
@@ -13,7 +14,8 @@ from covert_env.metrics import top_clearance
 from covert_env.separation import priority_negotiation, separation
 from covert_env.zone import to_world
 
-__all__ = ["Flights", "Plan", "near_tops", "negotiate", "path_separation", "sample_bounds", "top_clearance_along"]
+__all__ = ["Flights", "Plan", "clear_along", "near_tops", "negotiate", "path_separation", "sample_bounds",
+           "separated_from", "top_clearance_along"]
 
 #: Far-away stand-in for padded polytope tops (m below the plane): never within d_safe2 of a UAV.
 _FAR = 1e9
@@ -30,6 +32,80 @@ def top_clearance_along(paths: np.ndarray, tops: np.ndarray, altitude: float, fi
     """Eq. 3's distance over a slot (:func:`~covert_env.metrics.top_clearance`): from UAVs at ``altitude`` flying
     ``paths`` (N, M, P, 2) to the nearest of their copy's tops (N, T, 3), at the samples from ``first`` on; (N, M)."""
     return top_clearance(paths[:, :, first:], altitude, tops).min(axis=-1)
+
+
+def separated_from(cand: np.ndarray, past: np.ndarray, need: float, first: int, ok: np.ndarray) -> None:
+    """``ok &=`` eq. 2 at ``need`` over a slot: candidates ``cand`` (R, M, P, 2) of each copy against the paths
+    ``past`` (R, I, P, 2) settled before them; a pair with a NaN sample (no path) counts as separated. The same
+    answer as ``(nan_to_num(path_separation(cand[:, :, None], past[:, None], first), nan=inf) >= need).all(2)``
+    without the (R, M, I, P) distances: a pair stops at its first sample within ``need``."""
+    if past.shape[1]:
+        _separated_from(np.ascontiguousarray(cand, np.float64), np.ascontiguousarray(past, np.float64), float(need),
+                        int(first), ok)
+
+
+@numba.njit(cache=True, nogil=True)
+def _separated_from(cand, past, need, first, ok):
+    """:func:`separated_from`'s loop. A distance well away from ``need`` is settled by its square; one near it is
+    compared as ``hypot(dx, dy) >= need``, eq. 2's own test (:func:`~covert_env.separation.separation`). A pair too
+    close still reads its remaining samples for a NaN, which makes it separated (the metric's NaN rule)."""
+    r, m, p = cand.shape[:3]
+    lo2, hi2 = (need * (1.0 - 1e-9)) ** 2, (need * (1.0 + 1e-9)) ** 2
+    for i in range(r):
+        for j in range(m):
+            if not ok[i, j]:
+                continue
+            for q in range(past.shape[1]):
+                close, nan = False, False
+                for s in range(first, p):
+                    dx = cand[i, j, s, 0] - past[i, q, s, 0]
+                    dy = cand[i, j, s, 1] - past[i, q, s, 1]
+                    if dx != dx or dy != dy:
+                        nan = True
+                        break
+                    if not close:
+                        d2 = dx * dx + dy * dy
+                        if d2 < lo2 or (d2 < hi2 and not np.hypot(dx, dy) >= need):
+                            close = True
+                if close and not nan:
+                    ok[i, j] = False
+                    break
+
+
+def clear_along(paths: np.ndarray, tops: np.ndarray, altitude: float, need: float, first: int = 1) -> np.ndarray:
+    """Whether :func:`top_clearance_along` is at least ``need``: (N, M) bool, the same answer (NaN samples are not
+    clear) without the (N, M, P, T) distances: a flight stops at its first sample within ``need`` of a top."""
+    paths = np.ascontiguousarray(paths, np.float64)
+    out = np.empty(paths.shape[:2], bool)
+    _clear_along(paths, np.ascontiguousarray(tops, np.float64), float(altitude), float(need), int(first), out)
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _clear_along(paths, tops, altitude, need, first, out):
+    """:func:`clear_along`'s loop. Each squared distance is summed as :func:`~covert_env.metrics.top_clearance`
+    sums it; one well below ``need ** 2`` settles the flight, one near it is compared as ``sqrt(d2) < need``, the
+    metric's own test (the square root is monotone and correctly rounded)."""
+    n, m, p = paths.shape[:3]
+    near2 = (need * (1.0 + 1e-9)) ** 2
+    for i in range(n):
+        for j in range(m):
+            ok = True
+            for s in range(first, p):
+                x, y = paths[i, j, s, 0], paths[i, j, s, 1]
+                for t in range(tops.shape[1]):
+                    dx = x - tops[i, t, 0]
+                    dy = y - tops[i, t, 1]
+                    dz = altitude - tops[i, t, 2]
+                    d2 = dx * dx
+                    d2 += dy * dy
+                    d2 += dz * dz
+                    if not d2 >= near2 and not np.sqrt(d2) >= need:
+                        ok = False
+                        break
+                if not ok:
+                    break
+            out[i, j] = ok
 
 
 def sample_bounds(config, samples: int) -> tuple[float, float]:
@@ -87,9 +163,8 @@ class Flights:
         self.clear[ci, ui, mi] = True
         self.roomy = self.clear.copy()          # and ends end_margin clear of the tops: room to turn away next slot
         if tops.shape[1] and len(ci):
-            gap = top_clearance_along(self.paths.reshape(b, u * m, -1, 2), tops, c.altitude,
+            self.clear &= clear_along(self.paths.reshape(b, u * m, -1, 2), tops, c.altitude, self.top_need,
                                       self.first).reshape(b, u, m)
-            self.clear &= gap >= self.top_need
             end = top_clearance(self.paths[:, :, :, -1], c.altitude, tops)                     # (B, U, M)
             self.roomy &= self.clear & (end >= c.d_safe2 + flt.end_margin)
 
@@ -137,8 +212,7 @@ def negotiate(flt, fl: Flights, rank: np.ndarray, rows: np.ndarray, room: float 
             ok, cand = use[at, k], paths[at, k]                                          # (R, M), (R, M, P, 2)
             if i:
                 past = chosen[at[:, None], od[:, :i]]                                     # (R, i, P, 2)
-                gap = path_separation(cand[:, :, None], past[:, None], fl.first)         # (R, M, i)
-                ok &= (np.nan_to_num(gap, nan=np.inf) >= fl.sep_need).all(axis=2)
+                separated_from(cand, past, fl.sep_need, fl.first, ok)
                 if room > 0:
                     end = cand[:, :, None, -1] - past[:, None, :, -1]                       # (R, M, i, 2)
                     roomy = ok & (np.nan_to_num(np.hypot(end[..., 0], end[..., 1]), nan=np.inf)
