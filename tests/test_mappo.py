@@ -14,7 +14,7 @@ torch = needs("torch")
 
 from covert_env.envs.observation import field_slices  # noqa: E402
 from training import mappo  # noqa: E402
-from training.mappo_networks import Actor  # noqa: E402
+from training.mappo.networks import Actor  # noqa: E402
 from training.pretrained import (  # noqa: E402
     N_MAP_FEATURES,
     N_OWN_FEATURES,

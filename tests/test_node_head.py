@@ -1,4 +1,5 @@
-"""The node head's compiled scores (training.node_head): the torch arithmetic it replaces, values and gradients."""
+"""The node head's compiled scores (training.mappo.node_head): the torch arithmetic they replace, values and
+gradients."""
 
 from __future__ import annotations
 
@@ -7,8 +8,8 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from training.mappo_networks import Actor  # noqa: E402
-from training.node_head import node_scores  # noqa: E402
+from training.mappo.networks import Actor  # noqa: E402
+from training.mappo.node_head import node_scores  # noqa: E402
 
 
 def _reference(actor, obs, store, sample_of, mask):

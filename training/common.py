@@ -118,6 +118,10 @@ def _show_default(v: Any) -> str:
 
 
 def _prog(cls: type) -> str | None:
+    """``python -m MODULE``: the settings class's ``PROG`` if it has one (settings kept in a package's submodule),
+    else the module that defines it."""
+    if getattr(cls, "PROG", None):
+        return cls.PROG
     spec = getattr(sys.modules.get(cls.__module__), "__spec__", None)
     return f"python -m {spec.name}" if spec is not None and spec.name else None
 

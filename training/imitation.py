@@ -7,7 +7,7 @@
 The planner (``--teacher``, :mod:`baselines.policies`) flies training scenes of the recipe's tasks (run ``--seed s``
 takes scenes ``s * 1000 + i`` of ``covert_env.tasks.Task.train_seeds``, never a held-out one). Every slot, each
 UAV's observation, its action mask and the planner's node are recorded. The actor of the MAPPO recipe
-(:mod:`training.mappo_networks`, the same architecture, node features and card) is then trained to pick the
+(:mod:`training.mappo.networks`, the same architecture, node features and card) is then trained to pick the
 planner's node under the mask: cross-entropy of the masked categorical, Adam, minibatches from one task at a time,
 since the node features depend on the task's lattice. The mask is the recipe's (``kinematic`` for ``3uav-suite``:
 every reachable node), so whatever shadow the actor avoids it read from its observation; the planner never picks a

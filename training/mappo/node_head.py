@@ -1,6 +1,6 @@
 """The node head's scores of the allowed nodes, forward and backward in one compiled pass each.
 
-The waypoint actor's node head (:class:`training.mappo_networks.Actor`) scores node ``n`` of row ``r`` as
+The waypoint actor's node head (:class:`training.mappo.networks.Actor`) scores node ``n`` of row ``r`` as
 
     logit[r, n] = w . relu(a[r] + W f[r, n]) + b,
 

@@ -11,7 +11,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from training.node_head import node_scores
+from training.mappo.node_head import node_scores
 
 __all__ = ["Actor", "Critic", "layer", "masked_categorical"]
 
@@ -56,7 +56,7 @@ class Actor(nn.Module):
     def logits(self, obs, feats=None, mask=None, sample_of=None):
         """Node logits (waypoint heads). ``feats`` are the node features, one sample per row, or with
         ``sample_of`` (an int array, one per row) a store of samples that the rows name. With ``mask``, the node
-        head scores only the allowed nodes (:func:`training.node_head.node_scores`) and the others get -1e8."""
+        head scores only the allowed nodes (:func:`training.mappo.node_head.node_scores`) and the others get -1e8."""
         h = self.trunk(obs)
         if self.head != "node":
             return self.flat(h)
