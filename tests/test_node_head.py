@@ -5,8 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from _extras import needs
 
-torch = pytest.importorskip("torch")
+torch = needs("torch")
 
 from training.mappo.networks import Actor  # noqa: E402
 from training.mappo.node_head import node_scores  # noqa: E402
