@@ -58,12 +58,14 @@ from covert_env.ties import first_argmin
 from covert_env.zone import to_world
 
 __all__ = [
+    "ALIASES",
     "DPPolicy",
     "HoldZoneCentrePolicy",
     "POLICIES",
     "Policy",
     "RandomPolicy",
     "arc_action",
+    "builtin_policy",
     "make_policy",
     "parallel_env_of",
     "run_episode",
@@ -292,6 +294,19 @@ POLICIES = {
     "random": lambda **kw: RandomPolicy(**kw),
     "hold-centre": lambda **kw: HoldZoneCentrePolicy(**kw),
 }
+
+
+ALIASES = {"heuristic": "hold-centre"}
+"""Other names of built-in policies: alias -> the name in :data:`POLICIES`."""
+
+
+def builtin_policy(spec: str, n_uavs: int, *, trust_checkpoint: bool = False) -> tuple[Policy, dict]:
+    """The factory of the built-in policy specs (a name of :data:`POLICIES` or :data:`ALIASES`; entry point group
+    ``covert_env.policies``, :mod:`covert_env.evaluation.registry`): the policy and its env settings. The planners
+    act in waypoint mode, where they act exactly as planned; ``random`` and ``hold-centre`` in unicycle mode, the
+    action space of the learned continuous policies. ``trust_checkpoint`` is not needed: nothing is unpickled."""
+    name = ALIASES.get(spec, spec)
+    return make_policy(name), {"n_uavs": n_uavs, "action_mode": "waypoint" if name.startswith("dp") else "unicycle"}
 
 
 def make_policy(name: str, **kwargs) -> Policy:
