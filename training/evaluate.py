@@ -59,7 +59,7 @@ from pathlib import Path
 
 import numpy as np
 
-from baselines.policies import ALIASES, POLICIES, run_episode
+from baselines.policies import ALIASES, POLICIES
 from covert_env.command_line import (
     MAX_SCENES,
     UsageError,
@@ -69,11 +69,11 @@ from covert_env.command_line import (
     run_main,
 )
 from covert_env.envs.covert_sensing import CovertSensingParallelEnv
-from covert_env.envs.safety_filter import ShieldedPolicy
 from covert_env.envs.vector import MAX_SCENE_SEED
+from covert_env.evaluation.episodes import COLUMNS, HELD_OUT_OFFSET, evaluate, summarise
 from covert_env.evaluation.registry import from_files
 from covert_env.evaluation.specs import SHIELD_SUFFIX, load_policy, split_seeds
-from covert_env.families import FAMILIES, HELD_OUT_SEEDS
+from covert_env.families import FAMILIES
 from covert_env.scene_set import SceneSet
 from covert_env.tasks import get_task
 from training.runs import read_run_json
@@ -81,101 +81,6 @@ from training.stats import iqm, probability_of_improvement, stratified_bootstrap
 from training.tiers import TIERS, spec_tier
 
 __all__ = ["main", "load_policy", "evaluate", "split_seeds", "COLUMNS", "HELD_OUT_OFFSET"]
-
-HELD_OUT_OFFSET = HELD_OUT_SEEDS.start
-
-#: (key, header, format) of the leaderboard columns; keys are metric names of covert_env.metrics or "reward".
-COLUMNS = [
-    ("reward", "episode reward", "{:.1f}"),
-    ("occlusion_rate", "blocked LoS at slots", "{:.3f}"),
-    ("occlusion_rate_path", "blocked LoS along path", "{:.3f}"),
-    ("blocked_path_share", "share of path with blocked LoS", "{:.3f}"),
-    ("zone_violation_rate", "zone violations", "{:.3f}"),
-    ("mean_disguise", "disguise kappa", "{:.1f}"),
-    ("path_length", "path length (m)", "{:.0f}"),
-    ("separation_violations", "separation violations", "{:.2f}"),
-    ("min_separation", "min separation (m)", "{:.1f}"),
-    ("terrain_violations", "terrain violations", "{:.2f}"),
-    ("decision_time_ms", "decision time per slot (ms)", "{:.2f}"),
-]
-
-
-
-# ---------------------------------------------------------------------- evaluation
-def _team_row(result: dict) -> dict:
-    """Team mean of the per-UAV metrics of one episode (``min_separation``: the team's smallest, a minimum as the
-    name says), plus the mean episode reward over UAVs."""
-    ms = result["metrics"]
-    row = {k: float(np.mean([m[k] for m in ms])) for k in ms[0]}
-    row["min_separation"] = float(min(m["min_separation"] for m in ms))
-    row["reward"] = float(np.mean(list(result["return"].values())))
-    return row
-
-
-def _filter_counts(policy) -> dict:
-    """A ``+shield`` policy's safety-filter counts of the episode just flown (``filter_changed``,
-    ``filter_infeasible``, ...: the episodes' CSV columns); {} for other policies."""
-    if not isinstance(policy, ShieldedPolicy):
-        return {}
-    return {f"filter_{k}": v for k, v in policy.episode_counts().items()}
-
-
-def evaluate(policy, settings: dict, episodes: int, seed_offset: int = HELD_OUT_OFFSET,
-             env_kwargs: dict | None = None, progress: bool = True, label: str | None = None,
-             scenes: SceneSet | None = None) -> list[dict]:
-    """Run ``policy`` on held-out scenes ``seed_offset + i`` (or on the first ``episodes`` scenes of ``scenes``, each
-    reset with its seed, or its index for a hand-made set) and return one metrics row per episode."""
-    kw = dict(env_kwargs or {})
-    kw.update(n_uavs=settings["n_uavs"], action_mode=settings["action_mode"])
-    for key in ("map_size", "mask_mode", "target_path"):
-        if key in settings:
-            kw[key] = settings[key]
-    if scenes is not None:
-        return _evaluate_set(policy, kw, scenes, episodes, progress, label)
-    env = CovertSensingParallelEnv(**kw)
-    rows = []
-    for i in _episodes(episodes, progress, label or getattr(policy, "name", "policy")):
-        s = seed_offset + i
-        res = run_episode(policy, env, seed=s, options={"scene_seed": s})
-        row = _team_row(res) | _filter_counts(policy)
-        row["scene_seed"] = s
-        rows.append(row)
-    env.close()
-    return rows
-
-
-def _episodes(episodes: int, progress: bool, label: str):
-    """``range(episodes)``, with a progress bar on stderr named ``label`` if asked."""
-    if not progress:
-        return range(episodes)
-    from tqdm.auto import tqdm
-
-    return tqdm(range(episodes), desc=label, leave=False, file=sys.stderr,
-                mininterval=1.0 if sys.stderr.isatty() else 30.0)
-
-
-def _evaluate_set(policy, kw: dict, scenes: SceneSet, episodes: int, progress: bool, label: str | None) -> list[dict]:
-    """:func:`evaluate` on a scene set: one env per scene (a scene is the env's fixed scenario)."""
-    kw.pop("family", None)
-    rows = []
-    for i in _episodes(episodes, progress, label or getattr(policy, "name", "policy")):
-        s = scenes.seeds[i] if scenes.seeds is not None else i
-        env = CovertSensingParallelEnv(scenario=scenes[i], **kw)
-        row = _team_row(run_episode(policy, env, seed=s)) | _filter_counts(policy)
-        row["scene_seed"] = s
-        rows.append(row)
-        env.close()
-    return rows
-
-
-def summarise(rows: list[dict]) -> dict:
-    out = {}
-    for key, _, _ in COLUMNS:
-        v = np.array([r[key] for r in rows], float)
-        v = v[np.isfinite(v)]
-        out[key] = (float(v.mean()) if len(v) else math.nan, float(v.std()) if len(v) else math.nan)
-    return out
-
 
 def write_outputs(results: dict[str, dict], out: Path, meta: dict) -> None:
     out.mkdir(parents=True, exist_ok=True)
