@@ -39,48 +39,37 @@ Policies:
 * :class:`HoldZoneCentrePolicy` -- heads for the centre of the feasible zone behind the target, every slot:
   covert-naive (no disguise) but always in the zone when it can be reached.
 
-:func:`run_episode` runs any of them to the end and scores the episode with
-:func:`covert_env.metrics.episode_metrics`, the code every policy is scored with.
+:func:`run_episode` (:mod:`covert_env.evaluation.episodes`, imported here) runs any of them to the end and scores
+the episode with :func:`covert_env.metrics.episode_metrics`, the code every policy is scored with.
 """
 
 from __future__ import annotations
 
 import math
-import time
 from typing import Any
 
 import numpy as np
 
 from baselines.dp import DPPlanner, DPTeamPlanner, TeamPlan
 from covert_env.envs.batch import MIN_SPEED_FRACTION  # the env's unicycle action scaling, inverted below
-from covert_env.metrics import episode_metrics
+from covert_env.evaluation.episodes import parallel_env_of, run_episode
 from covert_env.ties import first_argmin
 from covert_env.zone import to_world
 
 __all__ = [
+    "ALIASES",
     "DPPolicy",
     "HoldZoneCentrePolicy",
     "POLICIES",
     "Policy",
     "RandomPolicy",
     "arc_action",
+    "builtin_policy",
     "make_policy",
     "parallel_env_of",
     "run_episode",
 ]
 
-
-
-def parallel_env_of(env) -> tuple[Any, str | None]:
-    """The parallel env behind ``env`` and, for a Gymnasium single-UAV env, its agent's name (else None)."""
-    if hasattr(env, "engine") and hasattr(env, "possible_agents"):
-        return env, None
-    inner = getattr(env, "unwrapped", env)
-    par = getattr(inner, "par", None)
-    if par is None:
-        raise TypeError(f"{type(env).__name__} is neither a CovertSensingParallelEnv nor a covert_env "
-                        "Gymnasium env (no .unwrapped.par)")
-    return par, par.possible_agents[0]
 
 
 def arc_action(xy, theta, goal, config) -> np.ndarray:
@@ -294,49 +283,22 @@ POLICIES = {
 }
 
 
+ALIASES = {"heuristic": "hold-centre"}
+"""Other names of built-in policies: alias -> the name in :data:`POLICIES`."""
+
+
+def builtin_policy(spec: str, n_uavs: int, *, trust_checkpoint: bool = False) -> tuple[Policy, dict]:
+    """The factory of the built-in policy specs (a name of :data:`POLICIES` or :data:`ALIASES`; entry point group
+    ``covert_env.policies``, :mod:`covert_env.evaluation.registry`): the policy and its env settings. The planners
+    act in waypoint mode, where they act exactly as planned; ``random`` and ``hold-centre`` in unicycle mode, the
+    action space of the learned continuous policies. ``trust_checkpoint`` is not needed: nothing is unpickled."""
+    name = ALIASES.get(spec, spec)
+    return make_policy(name), {"n_uavs": n_uavs, "action_mode": "waypoint" if name.startswith("dp") else "unicycle"}
+
+
 def make_policy(name: str, **kwargs) -> Policy:
     """A policy by name: one of :data:`POLICIES` (``dp``, ``dp-path``, ``dp-blind``, ``dp-binned``, ``random``,
     ``hold-centre``)."""
     if name not in POLICIES:
         raise ValueError(f"unknown policy {name!r}; choose one of {sorted(POLICIES)}")
     return POLICIES[name](**kwargs)
-
-
-def run_episode(policy: Policy, env, *, seed: int | None = None, options: dict | None = None) -> dict:
-    """Reset ``env``, run ``policy`` to the end of the episode and score it.
-
-    Returns:
-        dict with ``trajectory`` (:class:`~covert_env.trajectory.Trajectory` recorded by the engine),
-        ``metrics`` (one dict per UAV, :func:`covert_env.metrics.episode_metrics`, with the measured
-        ``decision_time_ms`` of ``act`` split over the UAVs), ``return`` (sum of rewards per agent) and
-        ``steps``.
-    """
-    par, single = parallel_env_of(env)           # first: a wrong env is named before anything runs
-    obs, _ = env.reset(seed=seed, options=options)
-    policy.reset(env, seed)
-    agents = list(par.possible_agents)
-    total = {a: 0.0 for a in agents}
-    times = []
-    steps = 0
-    while True:
-        t0 = time.perf_counter()
-        act = policy.act(obs, env)
-        times.append(time.perf_counter() - t0)
-        if single is not None:
-            obs, r, term, trunc, _ = env.step(act)
-            total[single] += float(r)
-            done = term or trunc
-        else:
-            obs, r, term, trunc, _ = env.step(act)
-            for a, v in r.items():
-                total[a] += float(v)
-            done = not par.agents
-        steps += 1
-        if done:
-            break
-    traj = par.engine.trajectory()
-    metrics = episode_metrics(traj, par.scenario.terrain, par.config)
-    per_uav_ms = 1e3 * float(np.mean(times)) / len(agents)
-    for m in metrics:
-        m["decision_time_ms"] = per_uav_ms
-    return {"trajectory": traj, "metrics": metrics, "return": total, "steps": steps}

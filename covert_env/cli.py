@@ -10,8 +10,11 @@
     covert-env scene-set --family downtown --scenes 20 --out downtown20.json   # scenes as data, to share
     covert-env list                                          # the tasks, families, policies and shipped weights
 
-``reproduce``, ``evaluate``, ``benchmark`` and ``list`` live in ``baselines`` and ``training`` (imported only when
-called).
+``scene`` and ``scene-set`` are this module's. ``reproduce``, ``animate``, ``evaluate``, ``benchmark`` and ``list``
+are provided by the packages above covert_env, through the entry point group ``covert_env.commands``
+(:data:`COMMANDS_GROUP`, declared in ``pyproject.toml``): each names a ``main(argv, prog)`` that parses its own
+arguments, ``--help`` included. The core package imports none of them by name; a command is loaded only when it
+runs.
 
 Mistakes in the command line or in the files it names (a missing or invalid ``--config``, or one that is not a
 regular file; an unknown policy; an ``--out`` that is a file where a folder is expected, or that cannot be written,
@@ -26,6 +29,7 @@ that ``covert-env --help`` answers at once.
 from __future__ import annotations
 
 import argparse
+import importlib.metadata
 import sys
 
 # Re-exported: the helpers lived here, and user scripts import them from covert_env.cli.
@@ -78,30 +82,10 @@ def _scene(args: argparse.Namespace) -> int:
     return 0
 
 
-# ---------------------------------------------------------------------- covert-env animate
-def _animate(args: argparse.Namespace) -> int:
-    config = load_config(args.config) if args.config is not None else Config()
-    n_slots = config.n_slots if args.slots is None else args.slots
-    if n_slots > config.n_slots:
-        of = " (n_slots of --config)" if args.config is not None else ""
-        raise UsageError(f"--slots must be in [1, {config.n_slots}]{of}, got {n_slots}")
-    out = output_file(args.out, suffixes=("gif",))
-
-    import matplotlib
-
-    matplotlib.use("Agg")
-    from baselines.reproduce import write_gif
-
-    info = write_gif(out, n_uavs=args.uavs, method=args.method, n_slots=n_slots,
-                     frames_per_slot=args.frames_per_slot, size=args.size, dpi=args.dpi, fps=args.fps, config=config)
-    print(f"wrote {out} ({info['bytes'] / 1024:.0f} KiB, {info['frames']} frames, {info['slots']} slots)")
-    return 0
-
-
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="covert-env", description=__doc__.split("\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
-    # Listed for --help; main() forwards their arguments to baselines.reproduce / training.evaluate.
+    # Listed for --help; main() hands their arguments to the provided command (COMMANDS_GROUP).
     sub.add_parser("reproduce", help="run the paper's experiments (DP shadow-aware vs shadow-blind), "
                                      "write figures and metrics (see: covert-env reproduce --help)")
     sub.add_parser("evaluate", help="score policies on held-out scenes and write a leaderboard "
@@ -124,27 +108,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--dpi", type=int_range(10, MAX_DPI), default=110,
                    help=f"resolution, in [10, {MAX_DPI}] (default: 110)")
     p.set_defaults(func=_scene, subparser=p)
-    p = sub.add_parser("animate", help="fly the DP team on the paper scene and write an animated GIF",
-                       description="Fly the DP team planner on the paper scene and write an animated GIF (top view "
-                                   "following the target: zone, shadows, visible zone, lines of sight).")
-    p.add_argument("--out", default="outputs/dp_team.gif",
-                   help="GIF file to write (its folder is created); the README's is docs/dp_team.gif "
-                        "(default: outputs/dp_team.gif)")
-    p.add_argument("--uavs", type=int_range(1, 3), default=3, help="team size, in [1, 3] (default: 3)")
-    p.add_argument("--method", choices=("aware", "blind"), default="aware",
-                   help="aware: the paper's shadow-aware planner; blind: the earlier one (default: aware)")
-    p.add_argument("--slots", type=positive_int, default=None,
-                   help="slots to fly, in [1, n_slots] (default: n_slots of the config, 70 with the paper's "
-                        "parameters)")
-    p.add_argument("--frames-per-slot", type=int_range(1, 10), default=2,
-                   help="frames per slot, in [1, 10] (default: 2)")
-    p.add_argument("--size", type=int_range(100, 2000), default=420,
-                   help="frame width and height in pixels, in [100, 2000] (default: 420)")
-    p.add_argument("--dpi", type=int_range(10, MAX_DPI), default=70, help=f"resolution, in [10, {MAX_DPI}] "
-                   "(default: 70)")
-    p.add_argument("--fps", type=int_range(1, 50), default=6, help="frames per second, in [1, 50] (default: 6)")
-    p.add_argument("--config", default=None, help="a Config JSON file (default: the paper's parameters)")
-    p.set_defaults(func=_animate, subparser=p)
+    sub.add_parser("animate", help="fly the DP team on the paper scene and write an animated GIF")
     p = sub.add_parser("scene-set", help="write a scene family's held-out scenes to a JSON file (covert_env.scene_set)",
                        description="Write a scene family's first held-out scenes (or given seeds) to one JSON file: "
                                    "terrain, road, target track and starts, read back bit for bit by "
@@ -157,6 +121,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--n-uavs", type=int_range(1, 64), default=3, help="team size of the starts (default: 3)")
     p.add_argument("--out", required=True, help="JSON file to write (its folder is created)")
     p.set_defaults(func=_scene_set, subparser=p)
+    for name in provided_commands():
+        if name not in sub.choices:
+            sub.add_parser(name, help=f"(see: covert-env {name} --help)")
     return parser
 
 
@@ -178,18 +145,31 @@ def _scene_set(args: argparse.Namespace) -> int:
     return 0
 
 
-_FORWARDED = {"reproduce": "baselines.reproduce", "evaluate": "training.evaluate", "benchmark": "training.benchmark",
-              "list": "training.catalogue"}
+#: The entry point group of the subcommands provided by the packages above covert_env: NAME = "module:main", where
+#: ``main(argv, prog)`` parses ``argv`` (``--help`` included), names itself ``prog`` and returns an exit status.
+COMMANDS_GROUP = "covert_env.commands"
+#: The provided subcommands this distribution declares (``covert-env --help`` lists them with its own help lines).
+DECLARED_COMMANDS = ("reproduce", "animate", "evaluate", "benchmark", "list")
+#: The subcommands of this module, which never look up COMMANDS_GROUP.
+OWN_COMMANDS = ("scene", "scene-set")
+
+
+def provided_commands() -> dict[str, importlib.metadata.EntryPoint]:
+    """Subcommand name -> its entry point, from the installed metadata (not loaded: nothing is imported)."""
+    return {ep.name: ep for ep in importlib.metadata.entry_points(group=COMMANDS_GROUP)}
 
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
-    if argv and argv[0] in _FORWARDED:
-        # Forward everything (including --help) to the subcommand's own parser, under our name.
-        import importlib
-
-        module = importlib.import_module(_FORWARDED[argv[0]])
-        return module.main(argv[1:], prog=f"covert-env {argv[0]}") or 0
+    if argv and not argv[0].startswith("-") and argv[0] not in OWN_COMMANDS:
+        commands = provided_commands()
+        if argv[0] in commands:
+            # Everything after the name (including --help) goes to the command's own parser, under our name.
+            return commands[argv[0]].load()(argv[1:], prog=f"covert-env {argv[0]}") or 0
+        if argv[0] in DECLARED_COMMANDS:
+            installed = ", ".join(sorted(commands)) or "none"
+            build_parser().error(f"the {argv[0]} command is not in the installed metadata (entry point group "
+                                 f"{COMMANDS_GROUP} has: {installed}); reinstall covert_env (pip install -e .)")
     args = build_parser().parse_args(argv)
     return run_main(args.subparser, lambda: args.func(args))
 

@@ -121,7 +121,9 @@ def test_parser_defaults_and_usage_errors(capsys):
 
 def test_animate_default_out_is_not_the_tracked_gif():
     """`covert-env animate` alone writes into the git-ignored outputs/, not over the README's docs/dp_team.gif."""
-    args = build_parser().parse_args(["animate"])
+    from baselines.animate import build_parser as animate_parser
+
+    args = animate_parser().parse_args([])
     assert args.out == "outputs/dp_team.gif"
 
 
@@ -329,6 +331,31 @@ def test_output_checks_leave_nothing_behind(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a", "x.png"]
 
 
+def test_provided_commands_come_from_the_entry_points(monkeypatch, capsys):
+    """A subcommand of the entry point group runs with the arguments after its name and our prog; a declared one
+    missing from the installed metadata is one error line naming the group."""
+    import types
+
+    import covert_env.cli as cli
+
+    seen = []
+
+    def hello(argv, prog):
+        seen.append((argv, prog))
+        return 3
+
+    monkeypatch.setattr(cli, "provided_commands", lambda: {"hello": types.SimpleNamespace(load=lambda: hello)})
+    assert main(["hello", "--x", "1"]) == 3
+    assert seen == [(["--x", "1"], "covert-env hello")]
+    assert "hello" in build_parser().format_help()                       # listed by covert-env --help
+    with pytest.raises(SystemExit) as exc:
+        main(["reproduce", "--help"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "the reproduce command is not in the installed metadata (entry point group covert_env.commands has: " \
+           "hello)" in err
+
+
 def test_genuine_bugs_keep_their_traceback(tmp_path, monkeypatch):
     """Only UsageError is turned into an error line: an unexpected ValueError inside a command propagates."""
     import covert_env.render
@@ -367,12 +394,13 @@ def _option_blocks(help_text: str) -> dict[str, str]:
 
 
 def _parsers():
+    from baselines.animate import build_parser as animate_parser
     from baselines.reproduce import build_parser as reproduce_parser
     from training.benchmark import build_parser as benchmark_parser
     from training.evaluate import build_parser as evaluate_parser
 
     yield "scene", build_parser()._subparsers._group_actions[0].choices["scene"]
-    yield "animate", build_parser()._subparsers._group_actions[0].choices["animate"]
+    yield "animate", animate_parser()
     yield "reproduce", reproduce_parser()
     yield "evaluate", evaluate_parser()
     yield "benchmark", benchmark_parser()

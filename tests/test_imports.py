@@ -2,11 +2,17 @@
 
 Every ``import`` of a project module counts, at module level or inside a function: a cycle hidden in a function
 still means two modules that cannot be read (or loaded) one before the other. An import of ``pkg.sub`` counts as
-an edge to ``pkg.sub`` (Python loads ``pkg`` first anyway, and every module depends on its package)."""
+an edge to ``pkg.sub`` (Python loads ``pkg`` first anyway, and every module depends on its package).
+
+A module named in a string (``importlib.import_module("training.evaluate")``, an ``"module:function"`` reference)
+is an import too: covert_env's code holds no such string of a higher package. What the higher packages provide to
+covert_env (the ``covert-env`` subcommands, the policies) they declare as entry points in ``pyproject.toml``."""
 
 from __future__ import annotations
 
 import ast
+import importlib.metadata
+import re
 from pathlib import Path
 
 import pytest
@@ -111,7 +117,76 @@ def test_layers(low, high):
     """The model and its envs never import the planner or training; the planner never imports training."""
     bad = sorted((m, t) for m, ts in import_graph().items() if m.split(".")[0] == low
                  for t in ts if t.split(".")[0] == high)
-    if (low, high) == ("covert_env", "baselines"):
-        # The CLI's subcommands run the planner; they are imported only when such a subcommand runs.
-        bad = [(m, t) for m, t in bad if m != "covert_env.cli"]
     assert bad == []
+
+
+#: A module of a higher package named in a string: ``training``, ``training.evaluate``, ``baselines.dp:DPPlanner``.
+HIGHER_MODULE = re.compile(r"(?<![\w.])(baselines|training)(\.\w+)*(:\w+)?")
+
+
+def _docstrings(tree: ast.Module) -> set[int]:
+    """The ids of the module's, classes' and functions' docstring nodes (prose, which may cite any module)."""
+    out = set()
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)) and node.body:
+            first = node.body[0]
+            if isinstance(first, ast.Expr) and isinstance(first.value, ast.Constant):
+                out.add(id(first.value))
+    return out
+
+
+def module_strings(path: Path, packages: tuple[str, ...] = ("baselines", "training")) -> list[tuple[int, str]]:
+    """(line, string) of every string constant of the file's code (docstrings left out) that is a module name, or a
+    ``module:attribute`` reference, of one of ``packages``."""
+    tree = ast.parse(path.read_text(), str(path))
+    skip = _docstrings(tree)
+    out = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Constant) and isinstance(node.value, str) and id(node) not in skip:
+            m = HIGHER_MODULE.fullmatch(node.value.strip())
+            if m and m.group(1) in packages:
+                out.append((node.lineno, node.value))
+    return out
+
+
+def test_the_string_check_finds_planted_module_names(tmp_path):
+    f = tmp_path / "m.py"
+    f.write_text('"""Cites training.evaluate in prose."""\nimport importlib\n'
+                 'X = {"evaluate": "training.evaluate", "animate": "baselines.animate:main"}\n'
+                 'importlib.import_module("baselines")\nY = "training scenes"\n')
+    assert module_strings(f) == [(3, "training.evaluate"), (3, "baselines.animate:main"), (4, "baselines")]
+
+
+@pytest.mark.parametrize("high", ["baselines", "training"])
+def test_covert_env_names_no_higher_module_in_code(high):
+    """No import by string either: covert_env (the CLI included) finds the higher packages' commands and policies
+    through entry points, never by a module name of its own."""
+    bad = [(str(path.relative_to(ROOT)), line, text) for path in sorted((ROOT / "covert_env").rglob("*.py"))
+           for line, text in module_strings(path, (high,))]
+    assert bad == []
+
+
+def _declared_entry_points() -> dict[str, dict[str, str]]:
+    tomllib = pytest.importorskip("tomllib", reason="tomllib: Python >= 3.11")
+    return tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["entry-points"]
+
+
+def test_the_declared_entry_points_point_up_and_are_installed():
+    """The entry points covert_env reads are declared by the packages above it, and the installed metadata holds
+    them (after editing pyproject.toml: pip install -e . again)."""
+    declared = _declared_entry_points()
+    assert "covert_env.commands" in declared
+    for group, entries in declared.items():
+        assert group.startswith("covert_env."), group
+        for name, value in entries.items():
+            assert value.split(".")[0] in ("baselines", "training"), (group, name, value)
+        installed = {ep.name: ep.value for ep in importlib.metadata.entry_points(group=group)}
+        assert installed == entries, (f"the installed metadata of {group} differs from pyproject.toml: "
+                                      f"reinstall (pip install -e .)")
+
+
+def test_every_declared_entry_point_loads():
+    for group, entries in _declared_entry_points().items():
+        for name in entries:
+            (ep,) = importlib.metadata.entry_points(group=group, name=name)
+            assert callable(ep.load()), (group, name)

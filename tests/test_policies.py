@@ -146,6 +146,57 @@ def test_make_policy_names():
         parallel_env_of(object())
 
 
+def test_the_registry_names_every_built_in_policy_and_prefix():
+    """The entry point group covert_env.policies holds the built-in names (and aliases) of baselines.policies and the
+    file prefixes of training, and nothing else."""
+    from baselines.policies import ALIASES, POLICIES
+    from covert_env.evaluation.registry import registered_policies, spec_forms
+
+    assert set(registered_policies()) == {*POLICIES, *ALIASES, "sb3", "rllib", "mappo", "pretrained"}
+    assert spec_forms() == [*sorted([*POLICIES, *ALIASES]), "mappo:PATH", "pretrained:NAME", "rllib:PATH", "sb3:PATH"]
+
+
+@pytest.mark.parametrize("spec", ["oracle", "sb3", "dp:runs/a", "nope:x", "oracle@waypoint+shield"])
+def test_an_unknown_spec_lists_the_registered_forms(spec):
+    from covert_env.command_line import UsageError
+    from covert_env.evaluation.specs import load_policy
+
+    bare = spec.removesuffix("+shield").split("@")[0]
+    with pytest.raises(UsageError, match=rf"unknown policy '{bare}'; use one of dp, dp-binned, .*, random, "
+                                         r"mappo:PATH, pretrained:NAME, rllib:PATH or sb3:PATH$"):
+        load_policy(spec, 3)
+
+
+def test_a_registered_policy_loads_through_its_spec(monkeypatch):
+    """A package adds a policy by declaring an entry point; the spec grammar (@MODE, +shield, seed groups, team
+    size) applies to it as to the built-in ones."""
+    import types
+
+    from covert_env.command_line import UsageError
+    from covert_env.envs.safety_filter import ShieldedPolicy
+    from covert_env.evaluation import registry, specs
+
+    def mine(spec, n_uavs, *, trust_checkpoint=False):
+        return RandomPolicy(), {"n_uavs": 2, "action_mode": "waypoint", "source": spec}
+
+    mine.argument = "PATH"
+    monkeypatch.setattr(registry, "registered_policies",
+                        lambda: {"mine": types.SimpleNamespace(load=lambda: mine)})
+    pol, settings = specs.load_policy("mine:a/b+shield", 2)
+    assert isinstance(pol, ShieldedPolicy) and settings == {"n_uavs": 2, "action_mode": "waypoint",
+                                                            "source": "mine:a/b"}
+    assert specs.split_seeds("mine:a,b@waypoint") == ["mine:a@waypoint", "mine:b@waypoint"]
+    with pytest.raises(UsageError, match="mine:a was trained in waypoint mode; it cannot act in unicycle mode"):
+        specs.load_policy("mine:a@unicycle", 2)
+    with pytest.raises(UsageError, match="mine:a acts for teams of 2 UAV"):
+        specs.load_policy("mine:a", 3)
+    with pytest.raises(UsageError, match="unknown policy 'dp'; use one of mine:PATH$"):
+        specs.load_policy("dp", 3)
+    monkeypatch.setattr(registry, "registered_policies", dict)
+    with pytest.raises(UsageError, match="no policy is registered .*covert_env.policies.*pip install -e"):
+        specs.load_policy("dp", 3)
+
+
 def _team_actions(env, pol, seed: int, scene_seed: int, after_act=None) -> list[list[int]]:
     """Every slot's actions of ``pol`` over one episode of ``env`` (scene ``scene_seed``), in agent order."""
     obs, _ = env.reset(seed=seed, options={"scene_seed": scene_seed})

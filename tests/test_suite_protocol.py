@@ -133,11 +133,11 @@ def test_task_table_per_task_intervals_and_improvement_over_the_best_planner():
 def test_an_episode_row_reports_the_teams_smallest_separation():
     """Rows average the per-UAV metrics, but a minimum stays a minimum: two UAVs 2.9 m apart and one 5.6 m from
     both give a row of 2.9 m, not the mean of 3.8 m."""
-    from training.evaluate import _team_row
+    from covert_env.evaluation.episodes import team_row
 
     ms = [{"min_separation": 5.6, "separation_violations": 0}, {"min_separation": 2.9, "separation_violations": 1},
           {"min_separation": 2.9, "separation_violations": 1}]
-    row = _team_row({"metrics": ms, "return": {"a": 1.0, "b": 2.0, "c": 3.0}})
+    row = team_row({"metrics": ms, "return": {"a": 1.0, "b": 2.0, "c": 3.0}})
     assert row["min_separation"] == 2.9
     assert row["separation_violations"] == pytest.approx(2 / 3) and row["reward"] == 2.0
 

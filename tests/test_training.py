@@ -480,7 +480,7 @@ def _sb3_run(tmp_path, name="run"):
 def test_evaluation_normalises_like_the_training_vecnormalize(tmp_path, monkeypatch):
     import pickle
 
-    from training.evaluate import load_sb3
+    from training.learned_policies import load_sb3
 
     run, model = _sb3_run(tmp_path)
     in_memory = model.get_vec_normalize_env()
@@ -507,7 +507,7 @@ def test_pickled_statistics_are_refused_with_the_conversion_command(tmp_path, mo
     import pickle
 
     from covert_env.cli import UsageError
-    from training.evaluate import load_sb3
+    from training.learned_policies import load_sb3
     from training.sb3.convert_vecnormalize import main as convert_main
     from training.sb3.vec_env import load_vecnormalize, read_vecnormalize
 

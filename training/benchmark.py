@@ -52,10 +52,11 @@ import numpy as np
 import covert_env
 from covert_env.command_line import MAX_SCENES, UsageError, int_range, output_dir, positive_int, run_main
 from covert_env.envs.covert_sensing import CovertSensingParallelEnv
+from covert_env.evaluation.registry import from_files
 from covert_env.tasks import DEFAULT_TASKS, SUITE_VERSION, TASKS, TEST_SCENES, get_task, resolve_tasks
 from training import leaderboard
 from training.common import ordered_results
-from training.evaluate import COLUMNS, LEARNED_PREFIXES, evaluate, load_policy, split_seeds, summarise, write_outputs
+from training.evaluate import COLUMNS, evaluate, load_policy, split_seeds, summarise, write_outputs
 from training.provenance import code_commit
 from training.stats import iqm, mean, probability_of_improvement, stratified_bootstrap_ci
 from training.tiers import TIERS, spec_tier
@@ -350,7 +351,7 @@ def _main(args: argparse.Namespace, command: str) -> int:
                 settings = [load_policy(m, t.n_uavs, trust_checkpoint=args.trust_checkpoint)[1]
                             for m in split_seeds(spec)]
             except UsageError as exc:
-                if spec.startswith(LEARNED_PREFIXES) and "acts for teams of" in str(exc):
+                if from_files(spec) and "acts for teams of" in str(exc):
                     skipped.setdefault(spec, []).append(t.name)
                     continue
                 raise UsageError(f"--policies: {exc}") from None

@@ -31,10 +31,9 @@ def _families() -> list[str]:
 
 
 def _policies() -> list[str]:
-    from baselines.policies import POLICIES
-    from training.evaluate import BUILTIN_ALIASES
+    from baselines.policies import ALIASES, POLICIES
 
-    alias = {v: k for k, v in BUILTIN_ALIASES.items()}
+    alias = {v: k for k, v in ALIASES.items()}
     names = [f"{n} (or {alias[n]})" if n in alias else n for n in POLICIES]
     return ["Policies (covert-env evaluate / benchmark --policies SPEC, optionally SPEC@unicycle or SPEC@waypoint):",
             f"  built in: {', '.join(names)}",

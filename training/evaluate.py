@@ -4,10 +4,12 @@
     python -m training.evaluate --policies random sb3:runs/<run> --trust-checkpoint
     python -m training.evaluate --trust-checkpoint --policies sb3:runs/<run>/checkpoints/ppo_multi_500000_steps.zip
     python -m training.evaluate --policies dp rllib:runs/<rllib-run>/checkpoint --trust-checkpoint
-    covert-env evaluate ...                          # the same (forwards to training.evaluate.main)
+    covert-env evaluate ...                          # the same (the command covert_env.commands names)
 
-Policy specs (``SPEC[@MODE][+shield]``, MODE = ``unicycle`` or ``waypoint`` picks the env's action mode;
-``+shield`` flies a waypoint policy through the safety filter, :mod:`covert_env.envs.safety_filter`):
+Policy specs (``SPEC[@MODE][+shield]``, :mod:`covert_env.evaluation.specs`; MODE = ``unicycle`` or ``waypoint``
+picks the env's action mode; ``+shield`` flies a waypoint policy through the safety filter,
+:mod:`covert_env.envs.safety_filter`). Each NAME and PREFIX is an entry point of the group ``covert_env.policies``
+(:mod:`covert_env.evaluation.registry`); the learned ones are loaded by :mod:`training.learned_policies`:
 
 * ``dp`` (shadow-aware, the paper's method), ``dp-blind`` (shadow-blind), ``dp-binned``, ``random``,
   ``hold-centre`` (alias ``heuristic``): :mod:`baselines.policies`. DP defaults to waypoint mode, where it acts
@@ -22,7 +24,7 @@ Policy specs (``SPEC[@MODE][+shield]``, MODE = ``unicycle`` or ``waypoint`` pick
   cluster is started.
 * SB3 ``.zip`` files and RLlib checkpoints hold pickles, which run any code they carry when loaded: ``sb3:`` and
   ``rllib:`` specs are refused unless ``--trust-checkpoint`` is given (``trust_checkpoint=True`` in
-  :func:`load_policy`), only for files from a source you trust (:mod:`training.trust`).
+  :func:`~covert_env.evaluation.specs.load_policy`), only for files from a source you trust (:mod:`training.trust`).
 * ``mappo:PATH``: a MAPPO/IPPO actor of :mod:`training.mappo` -- a run folder (its ``model.npz`` and
   ``model.json``) or ``NAME.npz`` with its card ``NAME.json``; ``pretrained:NAME``: the weights shipped in
   ``training/pretrained/`` (``pretrained:mappo``). Both run in numpy (no torch, no pickle): :mod:`training.pretrained`.
@@ -47,7 +49,6 @@ per policy and episode) and ``comparison.png`` into ``--out`` (default ``outputs
 from __future__ import annotations
 
 import argparse
-import contextlib
 import csv
 import hashlib
 import json
@@ -55,11 +56,10 @@ import math
 import sys
 import time
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
-from baselines.policies import POLICIES, make_policy, parallel_env_of, run_episode
+from baselines.policies import ALIASES, POLICIES
 from covert_env.command_line import (
     MAX_SCENES,
     UsageError,
@@ -69,339 +69,18 @@ from covert_env.command_line import (
     run_main,
 )
 from covert_env.envs.covert_sensing import CovertSensingParallelEnv
-from covert_env.envs.safety_filter import ShieldedPolicy
 from covert_env.envs.vector import MAX_SCENE_SEED
-from covert_env.families import FAMILIES, HELD_OUT_SEEDS
+from covert_env.evaluation.episodes import COLUMNS, HELD_OUT_OFFSET, evaluate, summarise
+from covert_env.evaluation.registry import from_files
+from covert_env.evaluation.specs import SHIELD_SUFFIX, load_policy, split_seeds
+from covert_env.families import FAMILIES
 from covert_env.scene_set import SceneSet
 from covert_env.tasks import get_task
-from training.pretrained import PRETRAINED_DIR, load_learned, pretrained_names
-from training.pretrained.learned_cost import is_cost_planner_card, load_cost_planner
-from training.rllib_ppo import load_policy as load_rllib
-from training.runs import read_run_json, run_env
+from training.runs import read_run_json
 from training.stats import iqm, probability_of_improvement, stratified_bootstrap_ci
 from training.tiers import TIERS, spec_tier
-from training.trust import require_trust
 
-#: The spec suffix that flies a waypoint policy through the safety filter.
-SHIELD_SUFFIX = "+shield"
-
-__all__ = ["main", "load_policy", "evaluate", "split_seeds", "SB3Policy", "COLUMNS", "HELD_OUT_OFFSET"]
-
-HELD_OUT_OFFSET = HELD_OUT_SEEDS.start
-
-#: (key, header, format) of the leaderboard columns; keys are metric names of covert_env.metrics or "reward".
-COLUMNS = [
-    ("reward", "episode reward", "{:.1f}"),
-    ("occlusion_rate", "blocked LoS at slots", "{:.3f}"),
-    ("occlusion_rate_path", "blocked LoS along path", "{:.3f}"),
-    ("blocked_path_share", "share of path with blocked LoS", "{:.3f}"),
-    ("zone_violation_rate", "zone violations", "{:.3f}"),
-    ("mean_disguise", "disguise kappa", "{:.1f}"),
-    ("path_length", "path length (m)", "{:.0f}"),
-    ("separation_violations", "separation violations", "{:.2f}"),
-    ("min_separation", "min separation (m)", "{:.1f}"),
-    ("terrain_violations", "terrain violations", "{:.2f}"),
-    ("decision_time_ms", "decision time per slot (ms)", "{:.2f}"),
-]
-
-BUILTIN_ALIASES = {"heuristic": "hold-centre"}
-#: Spec prefixes of learned policies (their results are never cached: the weights behind a path may change).
-LEARNED_PREFIXES = ("sb3:", "rllib:", "mappo:", "pretrained:")
-
-
-# ---------------------------------------------------------------------- learned policies
-class SB3Policy:
-    """An SB3 model behind the common policy interface (``reset(env, seed)``, ``act(observations, env)``).
-
-    Observations of the agents still flying are stacked, normalised with the saved VecNormalize statistics and
-    passed to ``model.predict(deterministic=True)`` in one batch (parameter sharing); MaskablePPO also gets the
-    env's action masks.
-    """
-
-    def __init__(self, model, norm=None, *, name: str = "sb3", env_settings: dict | None = None,
-                 deterministic: bool = True):
-        self.model = model
-        self.norm = norm                        # training.sb3.vec_env.NormStats or None
-        self.name = name
-        self.env_settings = env_settings or {}
-        self.deterministic = deterministic
-        self.masked = type(model).__name__ == "MaskablePPO"
-
-    def reset(self, env, seed: int | None = None) -> None:
-        pass
-
-    def _par(self, env):
-        return parallel_env_of(env)
-
-    def act(self, observations, env):
-        par, single = self._par(env)
-        agents = [a for a in par.possible_agents if a in par.agents]
-        obs_d = observations if single is None else {single: observations}
-        obs = np.stack([np.asarray(obs_d[a], np.float32) for a in agents])
-        if self.norm is not None:
-            obs = self.norm.normalize_obs(obs)
-        kw = {}
-        if self.masked:
-            kw["action_masks"] = np.stack([par.action_mask(a).astype(bool) for a in agents])
-        actions, _ = self.model.predict(obs, deterministic=self.deterministic, **kw)
-        out = {a: (int(actions[i]) if np.ndim(actions[i]) == 0 else np.asarray(actions[i]))
-               for i, a in enumerate(agents)}
-        return out[single] if single is not None else out
-
-
-def _space_text(space) -> str:
-    return f"Discrete({space.n})" if hasattr(space, "n") else f"a Box of shape {tuple(space.shape)}"
-
-
-def _find_args_json(path: Path) -> Path | None:
-    for d in [path if path.is_dir() else path.parent, *(path if path.is_dir() else path.parent).parents][:3]:
-        if (d / "args.json").exists():
-            return d / "args.json"
-    return None
-
-
-def vecnormalize_path(model_path: Path) -> Path:
-    """The VecNormalize statistics beside an SB3 model: ``vecnormalize.json`` of a run folder's ``model.zip``, or
-    ``{algo}_vecnormalize_{steps}_steps.json`` of a ``CheckpointCallback`` checkpoint ``{algo}_{steps}_steps.zip``."""
-    name = model_path.name
-    if name.endswith("_steps.zip"):                              # CheckpointCallback naming
-        head, steps = name[: -len("_steps.zip")].rsplit("_", 1)
-        return model_path.parent / f"{head}_vecnormalize_{steps}_steps.json"
-    return model_path.parent / "vecnormalize.json"
-
-
-def load_sb3(path: str | Path, *, trust_checkpoint: bool = False) -> SB3Policy:
-    """Load an SB3 run folder or checkpoint (.zip) with its VecNormalize statistics (JSON) and env settings.
-
-    The model ``.zip`` is loaded by SB3, which unpickles parts of it: without ``trust_checkpoint=True`` it is
-    refused (:func:`training.trust.require_trust`) before anything is read. Statistics pickled by older versions
-    (``.pkl``) are refused with the command that converts them.
-    """
-    path = Path(path)
-    model_path = path / "model.zip" if path.is_dir() else path
-    if not model_path.is_file():
-        raise UsageError(f"no SB3 model at {model_path} (expected a run folder holding model.zip, or a .zip)")
-    require_trust(model_path, "an SB3 model", trust_checkpoint)
-    vn_path = vecnormalize_path(model_path)
-    if not vn_path.exists() and vn_path.with_suffix(".pkl").exists():
-        vn_path = vn_path.with_suffix(".pkl")                    # refused below, with the conversion command
-    args_json = _find_args_json(path)
-    meta = read_run_json(args_json, "run arguments") if args_json else {}
-    if not isinstance(meta, dict):
-        raise UsageError(f"{args_json}: must be a JSON object (a run's arguments), got {type(meta).__name__}")
-    cls_name = meta.get("sb3_class", "PPO")
-    if cls_name not in ("PPO", "SAC", "MaskablePPO"):
-        raise UsageError(f"{args_json}: unknown sb3_class {cls_name!r} (PPO, SAC or MaskablePPO)")
-    settings, env = run_env(meta.get("env_kwargs", {}), str(args_json or f"sb3:{path} (no args.json)"))
-
-    from training.sb3.vec_env import read_vecnormalize
-
-    norm = None
-    if vn_path.exists():
-        try:
-            norm = read_vecnormalize(vn_path)
-        except (OSError, ValueError) as exc:
-            raise UsageError(str(exc)) from None
-        norm = norm if norm.norm_obs else None
-
-    import torch
-
-    torch.set_num_threads(1)
-    if cls_name == "MaskablePPO":
-        from sb3_contrib import MaskablePPO as cls
-    else:
-        import stable_baselines3
-
-        cls = getattr(stable_baselines3, cls_name)
-    try:
-        model = cls.load(str(model_path), device="cpu")
-    except (ValueError, KeyError, OSError, EOFError, AssertionError) as exc:
-        # Not a zip, or a zip that is not an SB3 model (SB3 asserts "No data found in the saved file").
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        reason = first.removeprefix("Error: ")
-        raise UsageError(f"sb3:{path}: {model_path} is not a loadable {cls_name} model ({reason})") from None
-    if norm is not None and norm.obs_mean.shape != model.observation_space.shape:
-        raise UsageError(f"{vn_path}: statistics of observations of shape {norm.obs_mean.shape}, but {model_path} "
-                         f"takes observations of shape {model.observation_space.shape}")
-    agent = env.possible_agents[0]
-    for kind, space, wanted in (("observations", model.observation_space, env.observation_space(agent)),
-                                ("actions", model.action_space, env.action_space(agent))):
-        if _space_text(space) != _space_text(wanted):
-            raise UsageError(f"sb3:{path}: {model_path} takes {kind} as {_space_text(space)}, but the env of its "
-                             f"settings ({args_json or 'defaults, no args.json'}: n_uavs={settings['n_uavs']}, "
-                             f"action_mode={settings['action_mode']}, map_size={settings['map_size']}) has "
-                             f"{_space_text(wanted)}")
-    env.close()
-    label = meta.get("algo", cls_name.lower())
-    if path.is_dir():
-        name = f"{label} ({path.name})"
-    elif path.parent.name == "checkpoints":
-        steps = path.stem.rsplit("_", 2)[-2] if path.stem.endswith("_steps") else path.stem
-        name = f"{label} ({path.parent.parent.name} @ {steps} steps)"
-    else:
-        name = f"{label} ({path.parent.name}/{path.name})"
-    return SB3Policy(model, norm, name=name, env_settings=settings)
-
-
-@contextlib.contextmanager
-def _extra(module: str, extra: str):
-    """A missing optional dependency ``module`` as a :class:`~covert_env.command_line.UsageError` naming the extra."""
-    try:
-        yield
-    except ModuleNotFoundError as exc:
-        if exc.name is None or exc.name.split(".")[0] != module:
-            raise
-
-        raise UsageError(f"this policy needs {module}, which is not installed: pip install -e \".[{extra}]\"") \
-            from None
-
-
-def load_policy(spec: str, n_uavs: int, *, trust_checkpoint: bool = False) -> tuple[Any, dict]:
-    """A policy object and its env settings (``n_uavs``, ``action_mode``) from a spec (see the module docstring).
-
-    A bad spec (unknown name or mode, missing path, team size or action mode that do not fit) raises
-    :class:`covert_env.command_line.UsageError` (a ``ValueError``) naming it, and so do ``sb3:`` and ``rllib:`` specs
-    (pickled checkpoints) unless ``trust_checkpoint=True``. A spec ending in ``+shield`` flies the policy through
-    the safety filter (:class:`covert_env.envs.safety_filter.ShieldedPolicy`; waypoint teams only).
-    """
-    if spec.endswith(SHIELD_SUFFIX):
-        inner = spec[:-len(SHIELD_SUFFIX)]
-        pol, settings = load_policy(inner, n_uavs, trust_checkpoint=trust_checkpoint)
-        if settings["action_mode"] != "waypoint":
-            raise UsageError(f"{spec}: the safety filter is for waypoint teams, and {inner} acts in "
-                             f"{settings['action_mode']} mode (use {inner.split('@')[0]}@waypoint{SHIELD_SUFFIX})")
-        return (pol if isinstance(pol, ShieldedPolicy) else ShieldedPolicy(pol)), settings
-    mode = None
-    if "@" in spec:
-        spec, mode = spec.rsplit("@", 1)
-        if mode not in ("unicycle", "waypoint"):
-            raise UsageError(f"unknown action mode {mode!r} in policy spec {spec}@{mode} (use @unicycle or @waypoint)")
-    if spec.startswith("sb3:"):
-        with _extra("stable_baselines3", "train"), _extra("sb3_contrib", "train"), _extra("torch", "train"):
-            pol = load_sb3(spec[4:], trust_checkpoint=trust_checkpoint)
-        settings = dict(pol.env_settings)
-    elif spec.startswith(("mappo:", "pretrained:")):
-        if spec.startswith("pretrained:"):
-            name = spec[len("pretrained:"):]
-            if name not in pretrained_names():
-                shipped = ", ".join(pretrained_names()) or "none"
-                raise UsageError(f"no pretrained weights {name!r} (shipped: {shipped})")
-            path = PRETRAINED_DIR / f"{name}.npz"
-        else:
-            path = Path(spec[len("mappo:"):])
-        try:
-            if is_cost_planner_card(path):
-                # The planner with a learned cost: it plans for any team size, like the planners.
-                pol = load_cost_planner(path)
-                settings = {"n_uavs": n_uavs, **pol.env_settings}
-            else:
-                pol = load_learned(path)
-                settings = dict(pol.env_settings)
-                if pol.card.get("safety_filter"):
-                    # Trained through the filter, it flies through it here too, its alternatives ordered as in
-                    # training (SafetyFilteredVectorEnv: by the distance to the proposal).
-                    pol = ShieldedPolicy(pol, use_scores=False)
-        except ValueError as exc:
-            raise UsageError(f"{spec}: {exc}") from None
-    elif spec.startswith("rllib:"):
-        if not (Path(spec[6:]) / "learner_group").is_dir():
-            raise UsageError(f"no RLlib checkpoint at {spec[6:]} (expected a training.rllib_ppo checkpoint folder)")
-        require_trust(spec[6:], "an RLlib checkpoint", trust_checkpoint)
-        with _extra("ray", "rllib"):
-            pol = load_rllib(spec[6:], trust_checkpoint=True)
-        settings = dict(pol.env_settings)
-    else:
-        name = BUILTIN_ALIASES.get(spec, spec)
-        if name not in POLICIES:
-            raise UsageError(f"unknown policy {spec!r}; use one of {', '.join(sorted([*POLICIES, *BUILTIN_ALIASES]))}"
-                             ", sb3:PATH, rllib:PATH, mappo:PATH or pretrained:NAME")
-        pol = make_policy(name)
-        settings = {"n_uavs": n_uavs, "action_mode": "waypoint" if name.startswith("dp") else "unicycle"}
-    if mode is not None:
-        if spec.startswith(LEARNED_PREFIXES) and mode != settings["action_mode"]:
-            raise UsageError(f"{spec} was trained in {settings['action_mode']} mode; it cannot act in {mode} mode")
-        settings["action_mode"] = mode
-    if settings["n_uavs"] != n_uavs:
-        raise UsageError(f"{spec} acts for teams of {settings['n_uavs']} UAV(s) but --n-uavs is {n_uavs}; "
-                         f"pass --n-uavs {settings['n_uavs']}")
-    return pol, settings
-
-
-# ---------------------------------------------------------------------- evaluation
-def _team_row(result: dict) -> dict:
-    """Team mean of the per-UAV metrics of one episode (``min_separation``: the team's smallest, a minimum as the
-    name says), plus the mean episode reward over UAVs."""
-    ms = result["metrics"]
-    row = {k: float(np.mean([m[k] for m in ms])) for k in ms[0]}
-    row["min_separation"] = float(min(m["min_separation"] for m in ms))
-    row["reward"] = float(np.mean(list(result["return"].values())))
-    return row
-
-
-def _filter_counts(policy) -> dict:
-    """A ``+shield`` policy's safety-filter counts of the episode just flown (``filter_changed``,
-    ``filter_infeasible``, ...: the episodes' CSV columns); {} for other policies."""
-    if not isinstance(policy, ShieldedPolicy):
-        return {}
-    return {f"filter_{k}": v for k, v in policy.episode_counts().items()}
-
-
-def evaluate(policy, settings: dict, episodes: int, seed_offset: int = HELD_OUT_OFFSET,
-             env_kwargs: dict | None = None, progress: bool = True, label: str | None = None,
-             scenes: SceneSet | None = None) -> list[dict]:
-    """Run ``policy`` on held-out scenes ``seed_offset + i`` (or on the first ``episodes`` scenes of ``scenes``, each
-    reset with its seed, or its index for a hand-made set) and return one metrics row per episode."""
-    kw = dict(env_kwargs or {})
-    kw.update(n_uavs=settings["n_uavs"], action_mode=settings["action_mode"])
-    for key in ("map_size", "mask_mode", "target_path"):
-        if key in settings:
-            kw[key] = settings[key]
-    if scenes is not None:
-        return _evaluate_set(policy, kw, scenes, episodes, progress, label)
-    env = CovertSensingParallelEnv(**kw)
-    rows = []
-    for i in _episodes(episodes, progress, label or getattr(policy, "name", "policy")):
-        s = seed_offset + i
-        res = run_episode(policy, env, seed=s, options={"scene_seed": s})
-        row = _team_row(res) | _filter_counts(policy)
-        row["scene_seed"] = s
-        rows.append(row)
-    env.close()
-    return rows
-
-
-def _episodes(episodes: int, progress: bool, label: str):
-    """``range(episodes)``, with a progress bar on stderr named ``label`` if asked."""
-    if not progress:
-        return range(episodes)
-    from tqdm.auto import tqdm
-
-    return tqdm(range(episodes), desc=label, leave=False, file=sys.stderr,
-                mininterval=1.0 if sys.stderr.isatty() else 30.0)
-
-
-def _evaluate_set(policy, kw: dict, scenes: SceneSet, episodes: int, progress: bool, label: str | None) -> list[dict]:
-    """:func:`evaluate` on a scene set: one env per scene (a scene is the env's fixed scenario)."""
-    kw.pop("family", None)
-    rows = []
-    for i in _episodes(episodes, progress, label or getattr(policy, "name", "policy")):
-        s = scenes.seeds[i] if scenes.seeds is not None else i
-        env = CovertSensingParallelEnv(scenario=scenes[i], **kw)
-        row = _team_row(run_episode(policy, env, seed=s)) | _filter_counts(policy)
-        row["scene_seed"] = s
-        rows.append(row)
-        env.close()
-    return rows
-
-
-def summarise(rows: list[dict]) -> dict:
-    out = {}
-    for key, _, _ in COLUMNS:
-        v = np.array([r[key] for r in rows], float)
-        v = v[np.isfinite(v)]
-        out[key] = (float(v.mean()) if len(v) else math.nan, float(v.std()) if len(v) else math.nan)
-    return out
-
+__all__ = ["main", "load_policy", "evaluate", "split_seeds", "COLUMNS", "HELD_OUT_OFFSET"]
 
 def write_outputs(results: dict[str, dict], out: Path, meta: dict) -> None:
     out.mkdir(parents=True, exist_ok=True)
@@ -445,20 +124,6 @@ def write_outputs(results: dict[str, dict], out: Path, meta: dict) -> None:
     lines += ["", f"Command: `{meta['command']}`", ""]
     (out / "leaderboard.md").write_text("\n".join(lines))
     _figure(results, out / "comparison.png")
-
-
-def split_seeds(spec: str) -> list[str]:
-    """The member specs of a seed group ``PREFIX:PATH1,PATH2[@MODE][+shield]`` (a one-element list for any other
-    spec)."""
-    if not spec.startswith(LEARNED_PREFIXES) or "," not in spec:
-        return [spec]
-    shield = SHIELD_SUFFIX if spec.endswith(SHIELD_SUFFIX) else ""
-    prefix, rest = spec[:len(spec) - len(shield)].split(":", 1)
-    mode = ""
-    if "@" in rest:
-        rest, mode = rest.rsplit("@", 1)
-        mode = "@" + mode
-    return [f"{prefix}:{part}{mode}{shield}" for part in rest.split(",") if part]
 
 
 def _reward_matrix(r: dict) -> np.ndarray:
@@ -531,7 +196,7 @@ def build_parser(prog: str = "python -m training.evaluate") -> argparse.Argument
     p = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n")[0],
                                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     p.add_argument("--policies", nargs="+", default=["random", "hold-centre", "dp", "dp-blind"],
-                   help=f"policy specs: {', '.join(POLICIES)}, {', '.join(BUILTIN_ALIASES)} (= hold-centre), "
+                   help=f"policy specs: {', '.join(POLICIES)}, {', '.join(ALIASES)} (= hold-centre), "
                         "sb3:PATH, rllib:PATH, mappo:PATH, pretrained:NAME, each optionally @unicycle or @waypoint "
                         "(covert-env list)")
     p.add_argument("--episodes", type=int_range(1, MAX_SCENES), default=20,
@@ -677,7 +342,7 @@ def _main(args: argparse.Namespace, command: str) -> int:
     scenes = _scene_set(args)
     if scenes is None:
         _check_team(args.n_uavs, args.seed_offset, env_kwargs)
-    caches = {spec: _cache_name(spec, args) for spec in args.policies if not spec.startswith(LEARNED_PREFIXES)}
+    caches = {spec: _cache_name(spec, args) for spec in args.policies if not from_files(spec)}
     outputs = {"files": (*OUTPUT_FILES, *caches.values()), "folders": ("cache",) if caches else ()}
     output_dir(args.out, create=False, **outputs)
     # Every spec is loaded before any evaluation: a bad one fails at once, not after the others have run.

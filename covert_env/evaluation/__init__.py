@@ -1,0 +1,11 @@
+"""Evaluation of policies on held-out scenes, shared by ``covert-env evaluate`` and ``covert-env benchmark``.
+
+* :mod:`covert_env.evaluation.registry` -- the policies a spec can name: the entry point group
+  ``covert_env.policies``, which the packages providing policies (the planners, the learned teams) fill.
+* :mod:`covert_env.evaluation.specs` -- policy specs ``SPEC[@MODE][+shield]`` and seed groups, resolved to a policy
+  and its env settings.
+* :mod:`covert_env.evaluation.episodes` -- a policy flown through held-out scenes (or a scene set), one row of
+  metrics per episode (:func:`~covert_env.evaluation.episodes.run_episode`, ``evaluate``, ``summarise``, ``COLUMNS``).
+
+This package imports no package above covert_env: it reaches policies only through the registry.
+"""
