@@ -297,12 +297,13 @@ def test_unwritable_out_fails_before_the_run(case, capsys, monkeypatch):
     """/proc and /sys refuse new files even to root, for whom os.access says yes: the output folder is probed by
     writing a temporary file, before any planning or evaluation runs (those are replaced by a failure here)."""
     import baselines.reproduce
+    import baselines.reproduce.command
     import training.evaluate
 
     def ran(*a, **k):
         raise AssertionError("the run started before --out was checked")
 
-    monkeypatch.setattr(baselines.reproduce, "_run_all", ran)
+    monkeypatch.setattr(baselines.reproduce.command, "run_all", ran)
     monkeypatch.setattr(baselines.reproduce, "write_gif", ran)
     monkeypatch.setattr(training.evaluate, "evaluate", ran)
     argv, expected = READ_ONLY_OUTS[case]

@@ -10,14 +10,13 @@ from baselines.reproduce import (
     QUICK_POOL,
     QUICK_SCENES,
     QUICK_SLOTS,
-    _aggregate,
-    _markdown,
     bootstrap_ci,
     figure_slot,
     make_scenario,
     most_shadowed_scenes,
     zone_shadow_shares,
 )
+from baselines.reproduce.report import aggregate, metrics_markdown
 from covert_env.config import Config
 
 
@@ -121,11 +120,11 @@ def test_metrics_md_has_a_confidence_interval_for_every_held_out_rate():
     records = (_records("aware", "paper", 1, [0], [0]) + _records("blind", "paper", 1, [0], [2])
                + _records("aware", "heldout", 1, seeds, [0, 0, 0, 0])
                + _records("blind", "heldout", 1, seeds, [0, 1, 2, 5]))
-    rows = _aggregate(records)
+    rows = aggregate(records)
     blind = next(r for r in rows if r["scene"] == "heldout" and r["method"] == "blind")
     assert blind["rate_occlusion"] == pytest.approx(0.2)         # (0 + 1 + 2 + 5) / 40 UAV-slots
     assert blind["rate_occlusion_ci"] == bootstrap_ci([0.0, 0.1, 0.2, 0.5])
-    text = _markdown(rows, records, Config(), 1.0, False, [], (0.0, 0.0))
+    text = metrics_markdown(rows, records, Config(), 1.0, False, [], (0.0, 0.0))
     line = next(ln for ln in text.splitlines() if ln.startswith("| heldout | 1 | blind |"))
     lo, hi = blind["rate_occlusion_ci"]
     assert f"0.200 [{lo:.3f}, {hi:.3f}]" in line
@@ -199,13 +198,15 @@ def test_sensitivity_table_one_row_per_value():
 # ---------------------------------------------------------------------- figures
 def test_figures_are_written_from_tiny_runs(tmp_path):
     """Every figure of a 1-UAV paper pair and 2 held-out scenes (3 slots) is drawn and saved as a PNG."""
-    from baselines.reproduce import RunSpec, _figures, _run_job
+    from baselines.reproduce import RunSpec
+    from baselines.reproduce.figures import write_figures
+    from baselines.reproduce.runs import run_job
 
     cfg = Config()
     specs = [RunSpec("paper", 0, 1, m, 3) for m in ("aware", "blind")]
     specs += [RunSpec("random", HELDOUT_SEED_BASE + i, 1, m, 3) for i in (2, 18) for m in ("aware", "blind")]
-    results = {(s.kind, s.seed, s.n_uavs, s.method): _run_job((s, cfg.to_dict())) for s in specs}
-    names = _figures(tmp_path, results, cfg, jobs=1)
+    results = {(s.kind, s.seed, s.n_uavs, s.method): run_job((s, cfg.to_dict())) for s in specs}
+    names = write_figures(tmp_path, results, cfg, jobs=1)
     assert names == ["fig08_trajectories_1uav.png", "fig09_los_1uav.png", "fig10_zones_1uav.png",
                      "fig11_disguise_1uav.png", "fig_heldout.png", "fig_los_between_slots.png"]
     for n in names:
