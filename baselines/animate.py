@@ -21,7 +21,7 @@ from covert_env.command_line import (
     positive_int,
     run_main,
 )
-from covert_env.config import Config
+from covert_env.world.config import Config
 
 __all__ = ["build_parser", "main"]
 

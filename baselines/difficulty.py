@@ -3,16 +3,16 @@
     python -m baselines.difficulty [--families sparse paper ...] [--scenes 10] [--slots 70] [--jobs 2]
                                    [--out outputs/difficulty]
 
-Per family (:mod:`covert_env.families`), on its first ``--scenes`` held-out scenes, 3 UAVs, slots 1..``--slots``:
+Per family (:mod:`covert_env.world.families`), on its first ``--scenes`` held-out scenes, 3 UAVs, slots 1..``--slots``:
 
 * **zone in shadow**: the share of the eroded zone's lattice nodes that do not see the target (eq. 10,
-  :func:`covert_env.visibility.visible_nodes`), mean over slots and scenes; **slots > 25 %**: the share of slots
+  :func:`covert_env.world.visibility.visible_nodes`), mean over slots and scenes; **slots > 25 %**: the share of slots
   with more than a quarter of it shadowed;
 * **eq. 3 binds**: the share of slots where some lattice node lies within d_safe2 of a polytope top (the planner
   must avoid it; on other slots eq. 3 removes nothing);
 * **blocked LoS** of the shadow-blind DP team (the method of [1]) and the shadow-aware one (the paper's), at slot
   times and along the flown paths: the share of UAV-slots (``occlusion_rate`` and ``occlusion_rate_path`` of
-  :func:`covert_env.metrics.episode_metrics`).
+  :func:`covert_env.world.metrics.episode_metrics`).
 
 Writes ``difficulty.md`` (the table, the command, the wall time) and ``difficulty.json`` into ``--out`` and prints
 the table. The planner runs take most of the time (about 7 s per 3-UAV episode and planner on the paper family);
@@ -30,11 +30,11 @@ import numpy as np
 
 from baselines.reproduce import RunSpec, make_scenario, run_pairs
 from covert_env.command_line import UsageError, int_range, output_dir, positive_int, run_main
-from covert_env.config import Config
-from covert_env.families import FAMILIES, HELD_OUT_SEEDS, family_config
-from covert_env.metrics import terrain_clearance
-from covert_env.visibility import visible_nodes
-from covert_env.zone import to_world, zone_lattice
+from covert_env.geometry.zone import to_world, zone_lattice
+from covert_env.world.config import Config
+from covert_env.world.families import FAMILIES, HELD_OUT_SEEDS, family_config
+from covert_env.world.metrics import terrain_clearance
+from covert_env.world.visibility import visible_nodes
 
 __all__ = ["COLUMNS", "geometry", "main", "measure"]
 

@@ -40,7 +40,7 @@ Policies:
   covert-naive (no disguise) but always in the zone when it can be reached.
 
 :func:`run_episode` (:mod:`covert_env.evaluation.episodes`, imported here) runs any of them to the end and scores
-the episode with :func:`covert_env.metrics.episode_metrics`, the code every policy is scored with.
+the episode with :func:`covert_env.world.metrics.episode_metrics`, the code every policy is scored with.
 """
 
 from __future__ import annotations
@@ -53,8 +53,8 @@ import numpy as np
 from baselines.dp import DPPlanner, DPTeamPlanner, TeamPlan
 from covert_env.envs.batch import MIN_SPEED_FRACTION  # the env's unicycle action scaling, inverted below
 from covert_env.evaluation.episodes import parallel_env_of, run_episode
-from covert_env.ties import first_argmin
-from covert_env.zone import to_world
+from covert_env.geometry.ties import first_argmin
+from covert_env.geometry.zone import to_world
 
 __all__ = [
     "ALIASES",

@@ -34,9 +34,9 @@ import numpy as np
 
 from baselines.intervals import bootstrap_ci
 from baselines.rollout import rollout
-from covert_env.config import Config
-from covert_env.metrics import slot_quantities
-from covert_env.scenario import Scenario
+from covert_env.world.config import Config
+from covert_env.world.metrics import slot_quantities
+from covert_env.world.scenario import Scenario
 
 __all__ = ["BOUND", "QUICK_SCENES", "QUICK_SLOTS", "SCENES", "ZONE_TOL", "fly", "prediction_study", "study_figure",
            "study_markdown", "variants", "write_study"]

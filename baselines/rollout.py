@@ -1,4 +1,4 @@
-"""The DP team planner flown through a scenario on an :class:`~covert_env.engine.Engine`: what ``reproduce``, the
+"""The DP team planner flown through a scenario on an :class:`~covert_env.world.engine.Engine`: what ``reproduce``, the
 prediction study and the planner's tests fly."""
 
 from __future__ import annotations
@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 
 from baselines.dp import DPPlanner, DPTeamPlanner
-from covert_env.engine import Engine
-from covert_env.scenario import Scenario
+from covert_env.world.engine import Engine
+from covert_env.world.scenario import Scenario
 
 __all__ = ["rollout"]
 

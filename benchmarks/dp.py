@@ -44,7 +44,7 @@ import numpy as np  # noqa: E402
 
 from baselines.dp import DPPlanner, DPTeamPlanner, brute_force_plan, evaluate_plan  # noqa: E402
 from covert_env import Config, Engine, Scenario  # noqa: E402
-from covert_env.zone import to_world, zone_lattice  # noqa: E402
+from covert_env.geometry.zone import to_world, zone_lattice  # noqa: E402
 
 
 def bench(grid: float, n_uavs: int, heading: str, slots: int, bins: int = 16) -> dict:

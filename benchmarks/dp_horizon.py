@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 import covert_env
-from covert_env.tasks import get_task
+from covert_env.world.tasks import get_task
 from training.common import ordered_results
 
 TERMS = ("disguise", "path", "los", "los_path", "zone", "separation", "terrain")

@@ -1,7 +1,7 @@
 """How much a compiled kernel would gain on the DP planner's two hot spots (could a replan be 4x b549364's?).
 
 Run ``python benchmarks/dp_kernel_floor.py`` (numba is a covert_env dependency: the line-of-sight kernel,
-:mod:`covert_env.sight_kernel`; the planner itself is numpy). A 3-UAV team flies the paper scene at the
+:mod:`covert_env.geometry.sight_kernel`; the planner itself is numpy). A 3-UAV team flies the paper scene at the
 2 m grid (as ``benchmarks/dp.py``), and every call of the planner's two hot spots is recorded:
 
 * the dense table bound of a UAV's stage (``ForwardRecursion._node_bounds``: one 577 x 577 block per UAV and
@@ -43,7 +43,7 @@ import baselines.dp.transitions as transitions  # noqa: E402
 from baselines.dp import DPPlanner, DPTeamPlanner  # noqa: E402
 from baselines.dp.selection import FIRST_BAND  # noqa: E402
 from covert_env import Config, Engine, Scenario  # noqa: E402
-from covert_env.dynamics import solve_manoeuvre  # noqa: E402
+from covert_env.geometry.dynamics import solve_manoeuvre  # noqa: E402
 
 TWO_PI = 2.0 * math.pi
 
@@ -90,7 +90,7 @@ def _phi(a, b, d2, r):
 
 @numba.njit(cache=False)
 def _newton_terms(a, b, d2, x, wd):
-    """Eq. 29 as F(r) and dF/dr at r = x (covert_env.dynamics._F and _dF)."""
+    """Eq. 29 as F(r) and dF/dr at r = x (covert_env.geometry.dynamics._F and _dF)."""
     lat = _lateral(d2, b, x)
     tau = _tau(a, b, x, lat)
     return x * tau + lat - wd * x, tau + (lat * (x - b) - a * x) / (lat * lat + x * x) - wd
@@ -98,7 +98,7 @@ def _newton_terms(a, b, d2, x, wd):
 
 @numba.njit(cache=False)
 def scalar_solve(p, theta, g, v_max, w_max, delta, v_out, head_out):
-    """covert_env.dynamics.solve_manoeuvre's speed and final heading, one element at a time (same steps)."""
+    """covert_env.geometry.dynamics.solve_manoeuvre's speed and final heading, one element at a time (same steps)."""
     wd, r_max = w_max * delta, v_max / w_max
     for i in range(theta.size):
         v_out[i] = np.nan

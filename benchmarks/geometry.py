@@ -24,10 +24,10 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
 from covert_env import Config, Road, TargetTrack, Terrain  # noqa: E402
-from covert_env.shadows import shadow_polygons  # noqa: E402
-from covert_env.terrain import Polytope  # noqa: E402
-from covert_env.visibility import line_of_sight  # noqa: E402
-from covert_env.zone import feasible_zone, visible_zone  # noqa: E402
+from covert_env.geometry.zone import feasible_zone, visible_zone  # noqa: E402
+from covert_env.world.shadows import shadow_polygons  # noqa: E402
+from covert_env.world.terrain import Polytope  # noqa: E402
+from covert_env.world.visibility import line_of_sight  # noqa: E402
 
 
 def _fallback_polytope(rng: np.random.Generator, centre: np.ndarray, radius: float) -> Polytope:
@@ -118,7 +118,7 @@ def main(argv: list[str] | None = None) -> int:
 
     cfg = Config()
     if args.seed is None:
-        from covert_env.scenario import Scenario
+        from covert_env.world.scenario import Scenario
 
         scenario = Scenario.paper(cfg)
         terrain, track, source = scenario.terrain, scenario.track, "Scenario.paper"

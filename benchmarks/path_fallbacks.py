@@ -5,7 +5,7 @@
 Flies the policy on the task's first ``--scenes`` held-out scenes (the suite's cells), records the status of every
 UAV's first planned move (``ok``, ``truncated``, ``fallback``: no reachable node keeps the constraints, or
 ``safety``: the team's separation layer moved it; see ``baselines.dp.plan.DPPlan``), and tallies the UAV-slots whose
-flown path has blocked LoS (the metric ``blocked_path_share`` > 0, :mod:`covert_env.metrics`) by that status. The
+flown path has blocked LoS (the metric ``blocked_path_share`` > 0, :mod:`covert_env.world.metrics`) by that status. The
 planner's own check covers every sample the metric takes (its 21 per slot contain the env's 11), so a planned move
 that loses LoS would be a bug; fallbacks are the planner's best effort where no allowed move exists.
 """
@@ -21,8 +21,8 @@ from tqdm import tqdm
 
 import covert_env
 from baselines.policies import make_policy
-from covert_env.metrics import slot_quantities
-from covert_env.tasks import TASKS, get_task
+from covert_env.world.metrics import slot_quantities
+from covert_env.world.tasks import TASKS, get_task
 
 
 def tally(task_name: str, scenes: int, policy: str = "dp-path", progress: bool = True) -> dict:

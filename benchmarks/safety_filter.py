@@ -33,9 +33,9 @@ from tqdm import tqdm
 import covert_env
 from baselines.policies import make_policy
 from covert_env.envs.safety_filter import FilterStats, SafetyFilteredVectorEnv, ShieldedPolicy
-from covert_env.metrics import top_clearance
-from covert_env.separation import team_separation
-from covert_env.tasks import TASKS, get_task
+from covert_env.geometry.separation import team_separation
+from covert_env.world.metrics import top_clearance
+from covert_env.world.tasks import TASKS, get_task
 
 COLUMNS = ("team_slots", "sep_slots", "terrain_slots", "min_sep", "changed", "widened", "backups", "uncertified",
            "infeasible", "silent")

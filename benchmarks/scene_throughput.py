@@ -20,7 +20,7 @@ lattice visibility (``ScenePool._lattice_visible``, waypoint mode), the start ca
 scene build, and the reset outside it. ``--functions N``
 also prints the N functions by own time.
 
-Families come from ``covert_env.families.FAMILIES``, flown with ``vector_env(num_envs=B, n_uavs=3, family=NAME)``.
+Families come from ``covert_env.world.families.FAMILIES``, flown with ``vector_env(num_envs=B, n_uavs=3, family=NAME)``.
 The command line is printed first.
 """
 
@@ -55,7 +55,7 @@ PARTS = (
 
 def families(names: list[str] | None) -> list[tuple[str, dict]]:
     """(name, vector_env keyword arguments) of the families to measure (all of them without ``names``)."""
-    from covert_env.families import FAMILIES
+    from covert_env.world.families import FAMILIES
 
     found = [(name, {"family": name}) for name in FAMILIES]
     if names:

@@ -12,12 +12,15 @@ Uneven Terrain", Remote Sensing 16(22):4273, 2024. The environments are thin ada
     genv = gym.make("covert_env/CovertSensing-v4")               # Gymnasium, one UAV
 """
 
-from covert_env.config import Config
-from covert_env.engine import Engine
-from covert_env.road import Road, TargetTrack
-from covert_env.scenario import Scenario
-from covert_env.terrain import Polytope, Terrain
-from covert_env.trajectory import Trajectory
+import sys
+
+from covert_env.moved import MovedModules as _MovedModules
+from covert_env.world.config import Config
+from covert_env.world.engine import Engine
+from covert_env.world.road import Road, TargetTrack
+from covert_env.world.scenario import Scenario
+from covert_env.world.terrain import Polytope, Terrain
+from covert_env.world.trajectory import Trajectory
 
 __version__ = "0.10.0"
 
@@ -25,6 +28,9 @@ __version__ = "0.10.0"
 from covert_env import covert_sensing_v4  # noqa: E402
 from covert_env.envs import env, parallel_env, raw_env, vector_env  # noqa: E402
 from covert_env.retired import RETIRED as _RETIRED  # noqa: E402
+
+if not any(isinstance(f, _MovedModules) for f in sys.meta_path):       # the old module paths (covert_env.moved)
+    sys.meta_path.append(_MovedModules())
 
 
 def __getattr__(name: str):

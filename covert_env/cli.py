@@ -48,9 +48,9 @@ from covert_env.command_line import (  # noqa: F401
     regular_file,
     run_main,
 )
-from covert_env.config import Config
-from covert_env.families import FAMILIES
-from covert_env.scenario import Scenario
+from covert_env.world.config import Config
+from covert_env.world.families import FAMILIES
+from covert_env.world.scenario import Scenario
 
 __all__ = ["main", "build_parser"]
 
@@ -109,7 +109,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"resolution, in [10, {MAX_DPI}] (default: 110)")
     p.set_defaults(func=_scene, subparser=p)
     sub.add_parser("animate", help="fly the DP team on the paper scene and write an animated GIF")
-    p = sub.add_parser("scene-set", help="write a scene family's held-out scenes to a JSON file (covert_env.scene_set)",
+    p = sub.add_parser("scene-set",
+                       help="write a scene family's held-out scenes to a JSON file (covert_env.world.scene_set)",
                        description="Write a scene family's first held-out scenes (or given seeds) to one JSON file: "
                                    "terrain, road, target track and starts, read back bit for bit by "
                                    "SceneSet.load and by covert-env evaluate --scene-set.")
@@ -128,7 +129,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _scene_set(args: argparse.Namespace) -> int:
-    from covert_env.scene_set import SceneSet
+    from covert_env.world.scene_set import SceneSet
 
     if args.scenes is not None and args.seeds is not None:
         raise UsageError(f"--scenes {args.scenes} and --seeds {' '.join(map(str, args.seeds))}: give the number of "

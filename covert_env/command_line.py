@@ -3,7 +3,7 @@ files a command reads and writes, and :class:`UsageError`, the one exception a c
 line and exit status 2 (:func:`run_main`).
 
 ``covert_env.cli``, ``baselines.reproduce``, ``training.evaluate`` and the training scripts import it; it imports
-only the model's :mod:`covert_env.config`, so no command line imports another.
+only the model's :mod:`covert_env.world.config`, so no command line imports another.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import stat as stat_
 from collections.abc import Callable
 from pathlib import Path
 
-from covert_env.config import Config, file_kind
+from covert_env.world.config import Config, file_kind
 
 __all__ = ["MAX_DPI", "MAX_JOBS", "MAX_SCENES", "UsageError", "float_range", "int_range", "load_config",
            "non_negative_int", "output_dir", "output_file", "positive_int", "regular_file", "run_main"]

@@ -9,11 +9,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from covert_env.roles import EngineView
-from covert_env.scenario import Scenario
-from covert_env.shadows import shadow_polygons
-from covert_env.visibility import line_of_sight
-from covert_env.zone import feasible_zone, visible_zone
+from covert_env.geometry.zone import feasible_zone, visible_zone
+from covert_env.world.roles import EngineView
+from covert_env.world.scenario import Scenario
+from covert_env.world.shadows import shadow_polygons
+from covert_env.world.visibility import line_of_sight
 
 __all__ = ["scene_figure", "draw_top_view", "draw_3d_view", "zones_at", "shadow_share", "EpisodeRenderer",
            "fill_geometry", "outline_geometry",
@@ -196,7 +196,7 @@ def scene_figure(scenario: Scenario, k: int = 0, uav_xy=None, trails=None):
 
 
 class EpisodeRenderer:
-    """Draws frames of a running episode, an :class:`~covert_env.roles.EngineView` (top view with trails, or 3D).
+    """Draws frames of a running episode, an :class:`~covert_env.world.roles.EngineView` (top view with trails, or 3D).
 
     ``human=False`` renders off-screen with the Agg canvas and returns uint8 H x W x 3 frames;
     ``human=True`` opens a matplotlib window lazily and updates it.

@@ -26,7 +26,7 @@ RETIRED: dict[str, str] = {
         "covert_sensing_v1 was replaced by covert_sensing_v2 in covert_env 0.6.0: random scenes come from a new, "
         "batched generator (every random scene differs; the paper scene does not), and the waypoint action mask, "
         "the observation maps and the start sampler read the planner's rule for the visible zone (eq. 10, "
-        "covert_env.visibility.visible_nodes): lattice nodes on the eroded zone's boundary, which v1 dropped by "
+        "covert_env.world.visibility.visible_nodes): lattice nodes on the eroded zone's boundary, which v1 dropped by "
         "rounding, are offered, and line of sight is decided with the polytopes grown by 1 micrometre. Seeded "
         "rollouts on random scenes differ; on the paper scene or a given Scenario they can (waypoint masks; in "
         "both modes the maps and starts where a sight line grazes a polytope); rewards and costs are unchanged, "

@@ -2,7 +2,7 @@
 
 * ``<!-- generated: NAME -->`` on a page is replaced by the table or list NAME (:data:`GENERATED`): the suite's
   leaderboard from ``docs/results/suite.json`` (the run published by ``python -m training.leaderboard``), the
-  shipped cards from ``training/pretrained/*.json``, the task list from ``covert_env.tasks``.
+  shipped cards from ``training/pretrained/*.json``, the task list from ``covert_env.world.tasks``.
 * Generated files: ``changelog.md`` (the repository's ``CHANGELOG.md``), ``images/families/<family>.png`` (one
   held-out scene of each family, drawn by ``covert_env.render.scene_figure``), ``images/suite_profile.png``
   (the published run's performance profiles, drawn by ``training.leaderboard.profile_figure``) and
@@ -34,7 +34,7 @@ def _cards() -> str:
 
 
 def _tasks() -> str:
-    from covert_env.tasks import DEFAULT_TASKS, TASKS
+    from covert_env.world.tasks import DEFAULT_TASKS, TASKS
 
     lines = ["| task | family | UAVs | target | core |", "|---|---|---|---|---|"]
     lines += [f"| `{t.name}` | {t.family} | {t.n_uavs} | {t.target} | {'yes' if t.name in DEFAULT_TASKS else ''} |"
@@ -43,7 +43,7 @@ def _tasks() -> str:
 
 
 def _families() -> str:
-    from covert_env.families import FAMILIES
+    from covert_env.world.families import FAMILIES
 
     return "\n".join(f"### `{name}`\n\n{fam.description}.\n\n![A held-out scene of the {name} family]"
                      f"(images/families/{name}.png)\n" for name, fam in FAMILIES.items())
@@ -164,8 +164,8 @@ def _png(draw) -> bytes:
 
 def _family_figure(name: str):
     import covert_env
-    from covert_env.families import HELD_OUT_SEEDS
     from covert_env.render import scene_figure
+    from covert_env.world.families import HELD_OUT_SEEDS
 
     env = covert_env.parallel_env(task=f"{name}-3uav")
     seed = HELD_OUT_SEEDS.start
@@ -178,7 +178,7 @@ def _family_figure(name: str):
 
 
 def on_files(files, config):
-    from covert_env.families import FAMILIES
+    from covert_env.world.families import FAMILIES
     from training.leaderboard import profile_figure
 
     files.append(File.generated(config, "changelog.md", content=(ROOT / "CHANGELOG.md").read_text(encoding="utf-8")))

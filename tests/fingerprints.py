@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 import covert_env
-from covert_env.tasks import FAMILIES
+from covert_env.world.tasks import FAMILIES
 
 REFERENCE = Path(__file__).parent / "data" / "fingerprints.json"
 STEPS = 12           # steps per env case (max_cycles 8: every case crosses an automatic reset)

@@ -1,4 +1,4 @@
-"""covert_env.angles: the intervals (-pi, pi] and [0, 2 pi), their ends, arrays and float32."""
+"""covert_env.geometry.angles: the intervals (-pi, pi] and [0, 2 pi), their ends, arrays and float32."""
 
 import math
 
@@ -6,7 +6,7 @@ import numpy as np
 from hypothesis import given
 from hypothesis import strategies as st
 
-from covert_env.angles import TWO_PI, abs_wrapped, wrap_angle, wrap_heading
+from covert_env.geometry.angles import TWO_PI, abs_wrapped, wrap_angle, wrap_heading
 
 
 def test_wrap_angle_keeps_pi_and_moves_minus_pi():

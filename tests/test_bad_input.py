@@ -14,12 +14,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from covert_env.config import MAX_LATTICE, Config
-from covert_env.road import Road, TargetTrack
-from covert_env.scenario import Scenario, sample_starts_on
-from covert_env.terrain import Polytope, Terrain, _first_overlap
-from covert_env.visibility import line_of_sight
-from covert_env.zone import grid_nodes, in_feasible_zone, lattice_offsets, lattice_size
+from covert_env.geometry.zone import grid_nodes, in_feasible_zone, lattice_offsets, lattice_size
+from covert_env.world.config import MAX_LATTICE, Config
+from covert_env.world.road import Road, TargetTrack
+from covert_env.world.scenario import Scenario, sample_starts_on
+from covert_env.world.terrain import Polytope, Terrain, _first_overlap
+from covert_env.world.visibility import line_of_sight
 
 SQUARE = [[0.0, 0.0], [10.0, 0.0], [10.0, 10.0], [0.0, 10.0]]
 
@@ -120,7 +120,7 @@ def test_lattice_offsets_refuses_a_huge_lattice(r2, step):
 
 
 def test_config_check_does_not_fill_the_shared_lattice_cache():
-    from covert_env.zone import _lattice
+    from covert_env.geometry.zone import _lattice
 
     before = _lattice.cache_info().currsize
     Config(grid_step=1.7, r2=101.0)
@@ -172,7 +172,7 @@ def _read_in_a_child(path: str, timeout: float = 60.0):
     import subprocess
     import sys
 
-    code = ("import sys\nfrom covert_env.config import Config\nfrom covert_env.terrain import Terrain\n"
+    code = ("import sys\nfrom covert_env.world.config import Config\nfrom covert_env.world.terrain import Terrain\n"
             "for load in (Config.from_json, Terrain.load):\n"
             "    try:\n        load(sys.argv[1])\n    except (OSError, ValueError) as exc:\n"
             "        print(type(exc).__name__, exc)\n")
@@ -200,7 +200,7 @@ def test_json_files_that_are_not_regular_files_are_refused_without_reading(tmp_p
 
 
 def test_json_files_beyond_the_size_cap_are_refused_before_reading(tmp_path):
-    from covert_env.config import MAX_JSON_BYTES, read_json
+    from covert_env.world.config import MAX_JSON_BYTES, read_json
 
     big = tmp_path / "big.json"
     with open(big, "wb") as f:                               # sparse: no disk space, no time
@@ -556,7 +556,7 @@ def test_a_nul_byte_in_a_path_is_named():
 
 def test_terrain_sizes_are_refused_before_any_geometry_work(tmp_path):
     """A file with too many polytopes or vertices fails at once, naming the count and the bound."""
-    from covert_env.polytope import MAX_TERRAIN_VERTICES
+    from covert_env.world.polytope import MAX_TERRAIN_VERTICES
 
     path = tmp_path / "huge.geojson"
     path.write_text(json.dumps(_city(101)))                 # 10,201 buildings
@@ -639,7 +639,7 @@ def test_rtree_overlap_check_matches_the_pairwise_definition(seed):
 
 # ----------------------------------------------------------------------------- config, scenario, terrain, track, engine
 def _engine():
-    from covert_env.engine import Engine
+    from covert_env.world.engine import Engine
 
     return Engine(Scenario.paper(Config(n_slots=10)))
 
@@ -675,9 +675,9 @@ BOUNDARY_CASES = {
     "terrain load None": (lambda: Terrain.load(None), TypeError, r"Terrain\.load: path must be a str or pathlib\.Path"),
     "terrain load int": (lambda: Terrain.load(5), TypeError, r"Terrain\.load: path .* got 5 \(int\)"),
     "terrain load empty": (lambda: Terrain.load(""), ValueError, r"Terrain\.load: path is empty"),
-    "engine scenario string": (lambda: __import__("covert_env.engine").engine.Engine("abc"), TypeError,
+    "engine scenario string": (lambda: __import__("covert_env.world.engine").world.engine.Engine("abc"), TypeError,
                                r"Engine: scenario must be a Scenario .* got 'abc' \(str\)"),
-    "engine scenario None": (lambda: __import__("covert_env.engine").engine.Engine(None), TypeError,
+    "engine scenario None": (lambda: __import__("covert_env.world.engine").world.engine.Engine(None), TypeError,
                              r"Engine: scenario must be a Scenario"),
     "track n_slots huge": (lambda: TargetTrack.constant(Road.random(0), 10.0, 10**9), ValueError,
                            r"TargetTrack\.constant: n_slots must be an integer >= 1 and <= 20000, got 1000000000"),
@@ -694,7 +694,7 @@ def test_boundaries_reject(make, exc, pattern):
 
 @pytest.mark.parametrize("value", [2.5, "11", None, 10**9, 1, True])
 def test_engine_path_samples_is_an_integer_in_range(value):
-    from covert_env.engine import Engine
+    from covert_env.world.engine import Engine
 
     with pytest.raises(ValueError, match=r"Engine\.path_samples must be an integer in \[2, 1000\], got"):
         Engine(Scenario.paper(Config(n_slots=10)), path_samples=value)
@@ -733,7 +733,7 @@ def test_engine_reset_rejects(xy, theta, pattern):
 
 
 def test_engine_accepts_a_flat_single_uav_and_numpy_counts():
-    from covert_env.engine import Engine
+    from covert_env.world.engine import Engine
 
     e = Engine(Scenario.paper(Config(n_slots=10), n_uavs=1), path_samples=np.int64(5))
     e.step(unicycle=[10.0, 0.0])
@@ -750,7 +750,7 @@ def test_sample_starts_takes_an_int_seed_like_its_generator():
 
 def test_scenario_team_may_differ_from_the_config_default():
     """Documented rule: a scenario's team is len(uav_xy); config.n_uavs is only the constructors' default."""
-    from covert_env.engine import Engine
+    from covert_env.world.engine import Engine
 
     p = Scenario.paper(Config(n_slots=10))
     sc = Scenario(p.config, p.terrain, p.track, p.uav_xy[:2], p.uav_theta[:2])
@@ -765,7 +765,7 @@ def test_terrain_feasibility_checks_keep_workable_configs(kwargs):
 
 
 def test_footprint_vertex_bound_fails_fast_in_a_file(tmp_path):
-    from covert_env.polytope import MAX_FOOTPRINT_VERTICES
+    from covert_env.world.polytope import MAX_FOOTPRINT_VERTICES
 
     n = 2_000                                          # one footprint: the bound per footprint, not the terrain's
     ring = [[100 * math.cos(2 * math.pi * k / n), 100 * math.sin(2 * math.pi * k / n)] for k in range(n)]

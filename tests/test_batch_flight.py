@@ -1,4 +1,4 @@
-"""covert_env.flight computes the reference numbers bit for bit: waypoint controls, the best-effort fallback
+"""covert_env.geometry.flight computes the reference numbers bit for bit: waypoint controls, the best-effort fallback
 (against the plain 17 x 17 grid search below), the turn-then-straight path and the held-control arc (against two
 ``unicycle_step`` arcs per sample, below), while computing each sine and cosine once per distinct value."""
 
@@ -7,9 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from covert_env import flight
-from covert_env.config import Config
-from covert_env.dynamics import solve_manoeuvre, unicycle_step
+from covert_env.geometry import flight
+from covert_env.geometry.dynamics import solve_manoeuvre, unicycle_step
+from covert_env.world.config import Config
 
 #: The paper's limits, and others whose products round (delta = 1 makes many orders of operations exact).
 CONFIGS = [Config(), Config(delta=0.7, v_max=37.0, w_max=2.3)]

@@ -20,7 +20,7 @@ import pytest  # noqa: E402
 from _extras import needs  # noqa: E402
 
 from covert_env.cli import build_parser, main  # noqa: E402
-from covert_env.config import Config  # noqa: E402
+from covert_env.world.config import Config  # noqa: E402
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
@@ -713,8 +713,8 @@ def test_scene_set_refuses_scenes_beside_seeds(tmp_path, capsys):
 def test_list_shows_what_the_commands_accept(capsys):
     """covert-env list: every task, family, built-in policy (dp-path too) and shipped weight with its tier."""
     from baselines.policies import POLICIES
-    from covert_env.families import FAMILIES
-    from covert_env.tasks import TASKS
+    from covert_env.world.families import FAMILIES
+    from covert_env.world.tasks import TASKS
     from training.pretrained import pretrained_names
 
     assert main(["list"]) == 0

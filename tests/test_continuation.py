@@ -113,7 +113,7 @@ def test_a_teammate_makes_way_when_no_move_of_its_own_leaves_room():
 
 def test_room_is_the_best_separated_move_next_slot():
     """``_room`` against a brute force over the next slot's nodes: the largest smallest gap to a teammate's move."""
-    from covert_env.dynamics import solve_manoeuvre
+    from covert_env.geometry.dynamics import solve_manoeuvre
 
     c = Config()
     sc = Scenario.paper(c, 3)

@@ -6,8 +6,8 @@ import numpy as np
 from hypothesis import given
 from hypothesis import strategies as st
 
-from covert_env.angles import wrap_angle
-from covert_env.cost import disguise, stage_cost, uav_target_angle, uav_target_distance
+from covert_env.geometry.angles import wrap_angle
+from covert_env.geometry.cost import disguise, stage_cost, uav_target_angle, uav_target_distance
 
 angles = st.floats(-50, 50, allow_nan=False)
 

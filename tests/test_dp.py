@@ -14,12 +14,12 @@ import pytest
 from baselines.dp import DPPlanner, DPTeamPlanner, brute_force_plan, evaluate_plan, manoeuvre_bounds_table
 from baselines.reproduce import HELDOUT_SEED_BASE, make_scenario, rollout
 from covert_env import Config, Engine, Road, Scenario, TargetTrack, Terrain
-from covert_env.angles import wrap_angle
-from covert_env.cost import uav_target_angle, uav_target_distance
-from covert_env.dynamics import solve_manoeuvre
-from covert_env.metrics import episode_metrics, slot_quantities
-from covert_env.terrain import Polytope
-from covert_env.zone import to_world, zone_lattice
+from covert_env.geometry.angles import wrap_angle
+from covert_env.geometry.cost import uav_target_angle, uav_target_distance
+from covert_env.geometry.dynamics import solve_manoeuvre
+from covert_env.geometry.zone import to_world, zone_lattice
+from covert_env.world.metrics import episode_metrics, slot_quantities
+from covert_env.world.terrain import Polytope
 
 TWO_PI = 2 * np.pi
 
@@ -97,11 +97,11 @@ def test_table_bounds_hold_against_exact_manoeuvres():
 
 
 def test_planner_stage_costs_are_the_models_stage_cost():
-    """One home for eq. 18: every planned stage cost is covert_env.cost.stage_cost of the planned manoeuvre
+    """One home for eq. 18: every planned stage cost is covert_env.geometry.cost.stage_cost of the planned manoeuvre
     (bit for bit), and the planner's float32 disguise bound per node pair is -lambda times
-    covert_env.cost.disguise (eq. 11) to float32 rounding."""
+    covert_env.geometry.cost.disguise (eq. 11) to float32 rounding."""
     from baselines.dp.lattice import StageCache
-    from covert_env.cost import disguise, stage_cost
+    from covert_env.geometry.cost import disguise, stage_cost
 
     c = Config()
     sc = Scenario.paper(c)
@@ -716,8 +716,8 @@ def test_planner_rejects_bad_arguments():
 
 def test_stage_pair_disguise_is_eq_11_in_float32():
     """The planner's bounds hold the disguise part of eq. 18 for every node pair, computed in float32 in place (S x
-    S arrays); it must be -lambda times covert_env.cost.disguise (eq. 11's one home) to float32 rounding."""
-    from covert_env.cost import disguise
+    S arrays); it must be -lambda times covert_env.geometry.cost.disguise (eq. 11's one home) to float32 rounding."""
+    from covert_env.geometry.cost import disguise
 
     sc = Scenario.random(1_000_001)
     c, track = sc.config, sc.track

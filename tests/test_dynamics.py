@@ -1,4 +1,4 @@
-"""covert_env.dynamics: exact unicycle steps and the turn-then-straight manoeuvre (eqs. 1, 7, 22-29).
+"""covert_env.geometry.dynamics: exact unicycle steps and the turn-then-straight manoeuvre (eqs. 1, 7, 22-29).
 
 The references here are independent of the module: a fine RK4 integration of eq. 1, and a literal
 evaluation of the paper's tangent-point construction (eqs. 23-28) on a dense grid of speeds.
@@ -11,7 +11,14 @@ import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from covert_env.dynamics import Manoeuvre, fly_manoeuvre, solve_manoeuvre, unicycle_arc, unicycle_path, unicycle_step
+from covert_env.geometry.dynamics import (
+    Manoeuvre,
+    fly_manoeuvre,
+    solve_manoeuvre,
+    unicycle_arc,
+    unicycle_path,
+    unicycle_step,
+)
 
 TWO_PI = 2 * np.pi
 
@@ -483,7 +490,7 @@ def test_points_follow_path_at_constant_speed():
 def test_manoeuvre_feasible_is_solve_manoeuvres_feasibility(limits):
     """The masks' test (a root bracket of eq. 29, no speed solved) decides every goal as solve_manoeuvre does: ahead,
     behind (two roots when W_max delta > pi), dead ahead, at the start, at the slot's reach, far away."""
-    from covert_env.dynamics import manoeuvre_feasible
+    from covert_env.geometry.dynamics import manoeuvre_feasible
 
     v_max, w_max, delta = limits
     rng = np.random.default_rng(21)

@@ -1,7 +1,7 @@
-"""covert_env.engine: one slot of physics at a time, recorded as a Trajectory.
+"""covert_env.world.engine: one slot of physics at a time, recorded as a Trajectory.
 
-References: :func:`covert_env.dynamics.unicycle_step` (itself tested against RK4) for unicycle slots,
-:func:`covert_env.dynamics.solve_manoeuvre` for which waypoints are feasible and where they lead.
+References: :func:`covert_env.geometry.dynamics.unicycle_step` (itself tested against RK4) for unicycle slots,
+:func:`covert_env.geometry.dynamics.solve_manoeuvre` for which waypoints are feasible and where they lead.
 """
 
 from __future__ import annotations
@@ -13,12 +13,12 @@ import math
 import numpy as np
 import pytest
 
-from covert_env.config import Config
-from covert_env.dynamics import solve_manoeuvre, unicycle_step
-from covert_env.engine import Engine
-from covert_env.flight import HEADING_GRID, POSITION_GRID
-from covert_env.scenario import Scenario
-from covert_env.trajectory import Trajectory
+from covert_env.geometry.dynamics import solve_manoeuvre, unicycle_step
+from covert_env.geometry.flight import HEADING_GRID, POSITION_GRID
+from covert_env.world.config import Config
+from covert_env.world.engine import Engine
+from covert_env.world.scenario import Scenario
+from covert_env.world.trajectory import Trajectory
 
 TWO_PI = 2 * math.pi
 
@@ -410,7 +410,7 @@ def test_empty_trajectory_round_trip_keeps_shapes(paper):
 def test_fallback_is_the_closest_constant_control(paper, offset):
     """An unreachable waypoint (behind, inside the turning circle, too far) is flown by the admissible
     constant control that ends closest to it: no control on a fine grid ends much closer."""
-    from covert_env.dynamics import unicycle_step
+    from covert_env.geometry.dynamics import unicycle_step
 
     eng = Engine(paper)
     c = paper.config
@@ -440,7 +440,7 @@ def test_env_episode_is_the_engines(mode):
     Engine records when flown with the same controls or waypoints (masked-out and unreachable ones included)."""
     import covert_env
     from covert_env.envs.batch import unicycle_controls
-    from covert_env.zone import to_world
+    from covert_env.geometry.zone import to_world
 
     env = covert_env.parallel_env(n_uavs=3, action_mode=mode, path_samples=7)
     env.reset(seed=4)

@@ -489,7 +489,7 @@ def test_path_los_cost_is_the_episode_metric(kw):
     """cost_los_path and los_path of every step are the episode metrics' blocked_path_share and los_path of the
     recorded flight (tests/test_metrics.py checks those against a dense resampling of the path), the reward's
     los_path term is -los_path_penalty times the cost, and the target between slot times is the track's."""
-    from covert_env.metrics import slot_quantities
+    from covert_env.world.metrics import slot_quantities
 
     env = covert_env.parallel_env(n_uavs=3, action_mode="waypoint", los_path_penalty=2.5, **kw)
     _, infos = env.reset(seed=4)

@@ -248,7 +248,7 @@ def test_waypoint_actions_land_on_lattice_node():
     mask = infos["uav_0"]["action_mask"]
     idx = int(np.flatnonzero(mask)[len(np.flatnonzero(mask)) // 2])
     q1, phi1 = env.engine.predict(1)
-    goal = covert_env.zone.to_world(env.lattice[idx:idx + 1], q1[0, :2], float(phi1[0]))[0]
+    goal = covert_env.geometry.zone.to_world(env.lattice[idx:idx + 1], q1[0, :2], float(phi1[0]))[0]
     env.step({"uav_0": idx})
     assert np.allclose(env.engine.uav_xy[0], goal, atol=1e-6)
     gym_env = gym.make("covert_env/CovertSensingWaypoint-v4", scenario="paper")
@@ -261,11 +261,11 @@ def test_scripted_zone_centre_beats_random():
     def centre_policy(env):
         c = env.config
         q1, phi1 = env.engine.predict(1)
-        centre = covert_env.zone.to_world(np.array([[-(c.r1 + c.r2) / 2, 0.0]]), q1[0, :2], float(phi1[0]))[0]
+        centre = covert_env.geometry.zone.to_world(np.array([[-(c.r1 + c.r2) / 2, 0.0]]), q1[0, :2], float(phi1[0]))[0]
         acts = {}
         for i, a in enumerate(env.agents):
             rel = centre - env.engine.uav_xy[i]
-            bearing = covert_env.angles.wrap_angle(np.arctan2(rel[1], rel[0]) - env.engine.uav_theta[i])
+            bearing = covert_env.geometry.angles.wrap_angle(np.arctan2(rel[1], rel[0]) - env.engine.uav_theta[i])
             v = min(np.hypot(*rel) / c.delta, c.v_max)
             acts[a] = np.array([2 * (v / c.v_max - 0.01) / 0.99 - 1, np.clip(bearing / c.w_max, -1, 1)])
         return acts
@@ -354,8 +354,8 @@ def test_episode_gif(tmp_path):
 def test_visibility_maps_match_exact_per_cell_check(scene_seed):
     """The observation maps (computed for many slots in one batched call) equal, cell by cell, "in the
     eroded zone (eq. 4) and clear LoS (eq. 6)" evaluated at that slot's target pose."""
-    from covert_env.visibility import line_of_sight
-    from covert_env.zone import in_feasible_zone, to_world
+    from covert_env.geometry.zone import in_feasible_zone, to_world
+    from covert_env.world.visibility import line_of_sight
 
     env = covert_sensing_v4.parallel_env(n_uavs=2, map_size=10)
     obs, _ = env.reset(seed=0, options={"scene_seed": scene_seed})
@@ -383,9 +383,9 @@ def test_visibility_maps_match_exact_per_cell_check(scene_seed):
 def test_starts_scene_seed_and_random_starts():
     """options={"scene_seed": s} flies Scenario.random(s)'s own starts; random_starts draws them from the env
     seed (any team size, fixed scenarios too); env.scenario always holds the starts actually flown."""
-    from covert_env.scenario import Scenario
-    from covert_env.visibility import line_of_sight
-    from covert_env.zone import in_feasible_zone
+    from covert_env.geometry.zone import in_feasible_zone
+    from covert_env.world.scenario import Scenario
+    from covert_env.world.visibility import line_of_sight
 
     env = covert_sensing_v4.parallel_env(n_uavs=3)
     env.reset(seed=1, options={"scene_seed": 42})
@@ -412,9 +412,9 @@ def test_starts_scene_seed_and_random_starts():
 def test_shortest_allowed_track_runs_to_the_end():
     """A scenario whose track has exactly n_slots + horizon slots (the minimum Scenario accepts): the last
     observation looks one slot past the track's end, clamped like TargetTrack.position."""
-    from covert_env.config import Config
-    from covert_env.road import Road, TargetTrack
-    from covert_env.scenario import Scenario
+    from covert_env.world.config import Config
+    from covert_env.world.road import Road, TargetTrack
+    from covert_env.world.scenario import Scenario
 
     base = Scenario.paper(Config())
     c = base.config.replace(n_slots=10, horizon=1)

@@ -12,7 +12,7 @@ from baselines.dp.safety import _FirstSlot
 from baselines.policies import DPPolicy
 from covert_env import Config, Scenario
 from covert_env.envs.covert_sensing import CovertSensingParallelEnv
-from covert_env.separation import separation
+from covert_env.geometry.separation import separation
 from training.pretrained.learned_cost import load_cost_planner
 
 #: Slot 28 of held-out scene 1,000,002 of downtown-3uav-deviating, flown by a learned path cost (one seed's, stage 1

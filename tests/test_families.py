@@ -1,4 +1,4 @@
-"""Scene families (covert_env.families): valid presets whose scenes keep the generator's documented invariants,
+"""Scene families (covert_env.world.families): valid presets whose scenes keep the generator's documented invariants,
 selectable by name in every env kind and in the harness, reproducible across processes."""
 
 from __future__ import annotations
@@ -16,10 +16,10 @@ import shapely
 import covert_env
 from covert_env import Config, Scenario
 from covert_env.envs.settings import MAX_SCENE_POOL
-from covert_env.families import FAMILIES, HELD_OUT_SEEDS, TRAIN_SEEDS, family_config, scene_family
-from covert_env.metrics import terrain_clearance
-from covert_env.separation import team_separation
-from covert_env.zone import in_feasible_zone, to_world, zone_lattice
+from covert_env.geometry.separation import team_separation
+from covert_env.geometry.zone import in_feasible_zone, to_world, zone_lattice
+from covert_env.world.families import FAMILIES, HELD_OUT_SEEDS, TRAIN_SEEDS, family_config, scene_family
+from covert_env.world.metrics import terrain_clearance
 
 #: Scenes checked per family: the first and last training seeds and the first held-out one.
 SEEDS = (TRAIN_SEEDS.start, TRAIN_SEEDS.stop - 1, HELD_OUT_SEEDS.start)
@@ -118,7 +118,7 @@ def test_a_family_keeps_the_callers_other_fields():
 
 def test_family_scenes_are_reproducible_across_processes():
     """A family's scene from a seed is the same in another interpreter with another hash seed."""
-    code = ("import json, numpy as np; from covert_env import Scenario; from covert_env.families import "
+    code = ("import json, numpy as np; from covert_env import Scenario; from covert_env.world.families import "
             "family_config; sc = Scenario.random(1_000_001, family_config('downtown')); "
             "print(json.dumps([np.round(p.vertices, 9).tolist() for p in sc.terrain] + [sc.uav_xy.tolist()]))")
     runs = [subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,

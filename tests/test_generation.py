@@ -1,4 +1,4 @@
-"""Batched scene generation (covert_env.generation): counter-based draws, scenes independent of their batch and
+"""Batched scene generation (covert_env.world.generation): counter-based draws, scenes independent of their batch and
 process, the exact footprint gap, and the generator's invariants on every polytope (against shapely)."""
 
 from __future__ import annotations
@@ -15,10 +15,10 @@ from hypothesis import strategies as st
 from shapely.geometry import LineString, Polygon
 
 from covert_env import Config, Scenario
-from covert_env.families import family_config
-from covert_env.generation import MIN_GAP, polygon_gap, random_roads, random_terrains, uniforms
-from covert_env.scenario import random_worlds
-from covert_env.terrain import Polytope, Terrain
+from covert_env.world.families import family_config
+from covert_env.world.generation import MIN_GAP, polygon_gap, random_roads, random_terrains, uniforms
+from covert_env.world.scenario import random_worlds
+from covert_env.world.terrain import Polytope, Terrain
 
 
 def test_uniforms_are_a_function_of_seed_stream_and_index():
@@ -28,7 +28,7 @@ def test_uniforms_are_a_function_of_seed_stream_and_index():
     assert not np.array_equal(a[0], a[1]) and not np.array_equal(a[0], uniforms([5], 4, 1000)[0])
     np.testing.assert_array_equal(uniforms([5], 3, 10)[0], a[0, :10])       # a prefix of the same stream
     assert abs(a.mean() - 0.5) < 0.02 and abs(a.std() - 12 ** -0.5) < 0.02
-    code = "from covert_env.generation import uniforms; print(uniforms([123456789], 7, 4).tolist())"
+    code = "from covert_env.world.generation import uniforms; print(uniforms([123456789], 7, 4).tolist())"
     runs = {subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
                            env={**os.environ, "PYTHONHASHSEED": str(h)}).stdout for h in (1, 2)}
     assert runs == {str(uniforms([123456789], 7, 4).tolist()) + "\n"}
@@ -109,7 +109,7 @@ def test_a_scene_that_cannot_be_filled_is_named():
 def test_batched_faces_and_line_of_sight_arrays_describe_the_polytopes():
     """The faces the batch computes equal each polytope's convex hull's (1e-8), and the line-of-sight arrays it
     registers for a scene decide every sight line as arrays rebuilt from the polytopes do."""
-    from covert_env.visibility import line_of_sight
+    from covert_env.world.visibility import line_of_sight
 
     c = family_config("downtown")
     terrain, track, _ = random_worlds([1_000_004], c)[0]
@@ -133,7 +133,7 @@ def test_batched_faces_and_line_of_sight_arrays_describe_the_polytopes():
 def test_road_clearance_test_equals_the_exact_distance(seed, curvature):
     """The windowed and coarse road test decides as the distance to every segment does, also where a sharply
     turning road comes back near a proposal (far along the road, outside its window)."""
-    from covert_env.generation import ROAD_STEP, _road_clear, _segment_distance
+    from covert_env.world.generation import ROAD_STEP, _road_clear, _segment_distance
 
     c = Config(road_max_curvature=curvature)
     roads = random_roads([seed, seed + 1], c)

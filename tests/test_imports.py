@@ -120,6 +120,43 @@ def test_layers(low, high):
     assert bad == []
 
 
+#: covert_env's model, floor by floor: each subpackage imports only itself and the floors below it.
+MODEL_FLOORS = ("covert_env.geometry", "covert_env.world")
+
+
+@pytest.mark.parametrize("floor", range(len(MODEL_FLOORS)))
+def test_the_model_is_in_floors(floor):
+    """covert_env.geometry (scene-free geometry) imports nothing else of covert_env; covert_env.world (the scenes and
+    their measures) imports geometry; neither imports the environments, the evaluation or the command line."""
+    own, allowed = MODEL_FLOORS[floor], MODEL_FLOORS[: floor + 1]
+    graph = import_graph()
+    members = [m for m in graph if m == own or m.startswith(own + ".")]
+    assert len(members) > 1, own
+    bad = sorted((m, t) for m in members for t in graph[m]
+                 if t.split(".")[0] == "covert_env" and not any(t == a or t.startswith(a + ".") for a in allowed))
+    assert bad == []
+
+
+def test_the_old_module_paths_give_the_moved_modules(recwarn):
+    """``covert_env.zone``, ``covert_env.config``, ... (covert_env.moved): the module at its new place, with a
+    DeprecationWarning naming both."""
+    import importlib
+    import sys
+
+    from covert_env.moved import MOVED
+
+    for leaf, pkg in MOVED.items():
+        sys.modules.pop(f"covert_env.{leaf}", None)                  # an earlier import of the old path: again
+        assert (ROOT / "covert_env" / pkg / f"{leaf}.py").is_file(), leaf
+        assert not (ROOT / "covert_env" / f"{leaf}.py").exists(), leaf
+        old = importlib.import_module(f"covert_env.{leaf}")
+        assert old is importlib.import_module(f"covert_env.{pkg}.{leaf}")
+    from covert_env.config import Config  # noqa: F401  (the from-import form too)
+
+    said = [str(w.message) for w in recwarn if issubclass(w.category, DeprecationWarning)]
+    assert any("covert_env.zone moved to covert_env.geometry.zone" in m for m in said), said
+
+
 #: A module of a higher package named in a string: ``training``, ``training.evaluate``, ``baselines.dp:DPPlanner``.
 HIGHER_MODULE = re.compile(r"(?<![\w.])(baselines|training)(\.\w+)*(:\w+)?")
 

@@ -16,12 +16,12 @@ from baselines.dp.clearance import take_manoeuvres
 from baselines.dp.path_checks import SHADOW_MARGIN
 from baselines.reproduce import HELDOUT_SEED_BASE, make_scenario
 from covert_env import Config, Scenario, Terrain
-from covert_env.angles import wrap_angle
-from covert_env.cost import uav_target_angle, uav_target_distance
-from covert_env.dynamics import solve_manoeuvre
-from covert_env.tasks import get_task
-from covert_env.visibility import SAFE_LOS_TOLERANCE, line_of_sight
-from covert_env.zone import to_world, zone_lattice
+from covert_env.geometry.angles import wrap_angle
+from covert_env.geometry.cost import uav_target_angle, uav_target_distance
+from covert_env.geometry.dynamics import solve_manoeuvre
+from covert_env.geometry.zone import to_world, zone_lattice
+from covert_env.world.tasks import get_task
+from covert_env.world.visibility import SAFE_LOS_TOLERANCE, line_of_sight
 from training.pretrained.learned_cost import load_cost_planner, path_cost_of
 
 P = 21  # the planner's path samples per slot

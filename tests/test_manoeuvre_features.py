@@ -9,8 +9,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import covert_env
-from covert_env.dynamics import solve_manoeuvre
 from covert_env.envs.observation import field_slices
+from covert_env.geometry.dynamics import solve_manoeuvre
 from training.pretrained import (
     N_MANOEUVRE_FEATURES,
     N_MAP_FEATURES,

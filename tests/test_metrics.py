@@ -1,10 +1,10 @@
-"""covert_env.metrics: per-slot quantities and per-UAV episode metrics on hand-built trajectories.
+"""covert_env.world.metrics: per-slot quantities and per-UAV episode metrics on hand-built trajectories.
 
 The world here is tiny and hand-checked: a target at the origin (z = 1.5 m, heading +x) and, where
 needed, one box building 50 m tall between it and the UAVs (x in [-20, -10], y in [-3, 3]). Seen from
 a UAV at (-60, y, 80), the sight line crosses the box iff |y| < 18 m (it leaves through the face
 x = -10 at y / 6). Expected values are computed
-with plain math, not with covert_env.cost.
+with plain math, not with covert_env.geometry.cost.
 """
 
 from __future__ import annotations
@@ -14,13 +14,13 @@ import math
 import numpy as np
 import pytest
 
-from covert_env.config import Config
-from covert_env.engine import Engine
-from covert_env.metrics import METRIC_DESCRIPTIONS, episode_metrics, slot_quantities
-from covert_env.scenario import Scenario
-from covert_env.terrain import Polytope, Terrain
-from covert_env.trajectory import Trajectory
-from covert_env.visibility import line_of_sight
+from covert_env.world.config import Config
+from covert_env.world.engine import Engine
+from covert_env.world.metrics import METRIC_DESCRIPTIONS, episode_metrics, slot_quantities
+from covert_env.world.scenario import Scenario
+from covert_env.world.terrain import Polytope, Terrain
+from covert_env.world.trajectory import Trajectory
+from covert_env.world.visibility import line_of_sight
 
 CFG = Config()                  # eta 55, lam 10, d_safe1 5, d_safe2 10, h 80, R1 55, R2 100, mu pi/4
 BOX = Polytope.prism([[-20.0, -3.0], [-10.0, -3.0], [-10.0, 3.0], [-20.0, 3.0]], 50.0)
@@ -311,8 +311,8 @@ def test_blocked_path_share_against_a_dense_resampling_of_the_flown_path():
     201 points per slot (the same flight: the planner does not read the samples) gives nearly the same share."""
     from baselines.policies import make_policy, run_episode
     from covert_env.envs.covert_sensing import CovertSensingParallelEnv
-    from covert_env.metrics import slot_quantities
-    from covert_env.visibility import line_of_sight
+    from covert_env.world.metrics import slot_quantities
+    from covert_env.world.visibility import line_of_sight
 
     shares = {}
     for samples in (11, 201):

@@ -18,8 +18,8 @@ from baselines.policies import (
 )
 from baselines.reproduce import HELDOUT_SEED_BASE, make_scenario, rollout
 from covert_env import Config
-from covert_env.dynamics import solve_manoeuvre, unicycle_step
-from covert_env.zone import to_world
+from covert_env.geometry.dynamics import solve_manoeuvre, unicycle_step
+from covert_env.geometry.zone import to_world
 
 CFG = Config(n_slots=8)
 

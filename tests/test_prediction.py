@@ -16,8 +16,8 @@ from shapely.geometry import Point
 
 from baselines.dp import DPTeamPlanner
 from covert_env import Config, Engine, Road, Scenario, TargetTrack
-from covert_env.road import speed_noise_offsets
-from covert_env.zone import in_feasible_zone, to_world, zone_lattice
+from covert_env.geometry.zone import in_feasible_zone, to_world, zone_lattice
+from covert_env.world.road import speed_noise_offsets
 
 BOUND = 4.0
 
@@ -237,8 +237,8 @@ def test_widened_visibility_covers_every_position_along_the_road():
     sees all 401 road points within the margin (2 cm apart) with the planner's own LoS check; it drops more
     nodes than the prediction-only check somewhere, and with one target and no growth it is line_of_sight."""
     from baselines.dp.possible_targets import PossibleTargets, clear_to_all
-    from covert_env.visibility import SAFE_LOS_TOLERANCE as VISIBILITY_TOL
-    from covert_env.visibility import line_of_sight
+    from covert_env.world.visibility import SAFE_LOS_TOLERANCE as VISIBILITY_TOL
+    from covert_env.world.visibility import line_of_sight
 
     c = Config(prediction_error=BOUND, r_u=BOUND)
     off = zone_lattice(c)
@@ -264,7 +264,7 @@ def test_disk_without_a_road_is_more_cautious_than_the_road_piece():
     """Without a road the possible positions are eq. 5's disk: every node it keeps, the road piece keeps too,
     and it drops some the road piece keeps; its samples stay within the margin plus their covering radius."""
     from baselines.dp.possible_targets import PossibleTargets
-    from covert_env.visibility import SAFE_LOS_TOLERANCE as VISIBILITY_TOL
+    from covert_env.world.visibility import SAFE_LOS_TOLERANCE as VISIBILITY_TOL
 
     c = Config(prediction_error=BOUND, r_u=BOUND)
     off = zone_lattice(c)
@@ -299,8 +299,8 @@ def test_possible_targets_refuse_a_prediction_off_their_road_and_bad_margins():
 
 def test_planner_margin_rule_and_the_paper_setting_unchanged():
     from baselines.dp import DPPlanner
-    from covert_env.visibility import SAFE_LOS_TOLERANCE as VISIBILITY_TOL
-    from covert_env.visibility import line_of_sight
+    from covert_env.world.visibility import SAFE_LOS_TOLERANCE as VISIBILITY_TOL
+    from covert_env.world.visibility import line_of_sight
 
     sc = Scenario.random(1_000_000, Config())
     paper = DPPlanner(Config(), sc.terrain, road=sc.track.road)

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from covert_env.config import Config
-from covert_env.dynamics import solve_manoeuvre
-from covert_env.reach import BOUNDARY, FEASIBLE, INFEASIBLE, ReachTable, reach_table
-from covert_env.zone import to_world, zone_lattice
+from covert_env.geometry.dynamics import solve_manoeuvre
+from covert_env.geometry.reach import BOUNDARY, FEASIBLE, INFEASIBLE, ReachTable, reach_table
+from covert_env.geometry.zone import to_world, zone_lattice
+from covert_env.world.config import Config
 
 LIMITS = [(50.0, 3.0, 1.0), (30.0, 5.0, 1.0), (50.0, 1.0, 0.5)]   # W_max delta > pi: two roots behind the UAV
 
@@ -93,7 +93,7 @@ def test_a_coarser_table_is_still_exact():
 def test_the_coarse_level_holds_the_fine_labels(limits):
     """The lookup's first level: a coarse cell's label, where it is not _MIXED, is every one of its fine cells'
     label (so the two-level lookup reads the fine table's labels), and most coarse cells are not mixed."""
-    from covert_env.reach import _MIXED
+    from covert_env.geometry.reach import _MIXED
 
     table = reach_table(*limits)
     r = 1 << table._shift

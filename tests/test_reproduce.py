@@ -17,7 +17,7 @@ from baselines.reproduce import (
     zone_shadow_shares,
 )
 from baselines.reproduce.report import aggregate, metrics_markdown
-from covert_env.config import Config
+from covert_env.world.config import Config
 
 
 # ---------------------------------------------------------------------- bootstrap
@@ -149,7 +149,7 @@ def test_quick_scenes_show_the_blind_planner_losing_los():
     """On --quick's held-out scenes the 1-UAV shadow-blind planner loses LoS at a slot time; the aware one does
     not (on slots it did not flag infeasible)."""
     from baselines.reproduce import rollout
-    from covert_env.metrics import slot_quantities
+    from covert_env.world.metrics import slot_quantities
 
     cfg = Config()
     blocked = {"blind": 0, "aware": 0}

@@ -1,4 +1,4 @@
-"""covert_env.road: the road centreline (arc-length parametrisation) and the target's track on it.
+"""covert_env.world.road: the road centreline (arc-length parametrisation) and the target's track on it.
 
 References are independent of the module: vertices and segment directions of hand-made polylines,
 shapely's distance, and the arc-length definition of the speed profile.
@@ -14,7 +14,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from shapely.geometry import Point
 
-from covert_env.road import Road, TargetTrack
+from covert_env.world.road import Road, TargetTrack
 
 # A polyline with segments of length 10, 5 and 5 (a 3-4-5 diagonal last), headings 0, pi/2, atan2(4, 3).
 POLY = np.array([[0.0, 0.0], [10.0, 0.0], [10.0, 5.0], [13.0, 9.0]])
@@ -297,7 +297,7 @@ def test_many_roads_at_once_equal_each_road(seed, n_roads, n_points, uneven):
     """points_along / headings_along on N roads at once (the scene pool's tracks) give each road's Road.point_at and
     heading_at bit for bit, on roads of uneven spacing (the batched segment search starts from a guess and must
     still find searchsorted's segment), at vertices, at both ends and beyond them (clamped)."""
-    from covert_env.road import cumulative_lengths, headings_along, points_along
+    from covert_env.world.road import cumulative_lengths, headings_along, points_along
 
     rng = np.random.default_rng(seed)
     steps = rng.exponential(3.0, (n_roads, n_points - 1, 2)) + 1e-3
@@ -322,7 +322,7 @@ def test_points_along_padded_rows_equal_each_road(seed, n_roads, n_points, uneve
     """points_along_rows (the vector env's target between slot times: roads as padded rows of different lengths,
     copies gathering their row) gives each road's Road.point_at bit for bit, from any starting guess, at vertices,
     at both ends and beyond them (clamped to the row's own road, not the padding)."""
-    from covert_env.road import cumulative_lengths, points_along_rows, segments_at
+    from covert_env.world.road import cumulative_lengths, points_along_rows, segments_at
 
     rng = np.random.default_rng(seed)
     lengths = rng.integers(2, n_points + 1, n_roads)
@@ -348,7 +348,7 @@ def test_points_along_padded_rows_equal_each_road(seed, n_roads, n_points, uneve
 
 def test_points_along_rows_checks_its_indices_before_the_kernel_reads():
     """The compiled walk checks no bounds: a row, a last vertex or a guess of the wrong shape is refused first."""
-    from covert_env.road import points_along_rows
+    from covert_env.world.road import points_along_rows
 
     pts = np.cumsum(np.ones((2, 5, 2)), axis=1)
     cl = np.cumsum(np.full((2, 5), 2 ** 0.5), axis=1) - 2 ** 0.5

@@ -1,5 +1,5 @@
-"""The protocols of covert_env.roles: the classes that play each role have its members (with signatures that accept
-the protocol's calls), and an object missing one does not play it."""
+"""The protocols of covert_env.world.roles: the classes that play each role have its members (with signatures that
+accept the protocol's calls), and an object missing one does not play it."""
 
 from __future__ import annotations
 
@@ -10,9 +10,9 @@ import pytest
 
 import covert_env
 from covert_env import Config, Engine, Scenario, Terrain
-from covert_env.metrics import terrain_clearance
-from covert_env.roles import EngineView, PolytopeTops, TerrainPerCopy
-from covert_env.visibility import line_of_sight
+from covert_env.world.metrics import terrain_clearance
+from covert_env.world.roles import EngineView, PolytopeTops, TerrainPerCopy
+from covert_env.world.visibility import line_of_sight
 
 
 def _members(proto) -> tuple[list[str], list[str]]:

@@ -18,8 +18,8 @@ from baselines.policies import RandomPolicy
 from covert_env.command_line import UsageError
 from covert_env.envs.joint_moves import clear_along
 from covert_env.envs.safety_filter import SafetyFilter, ShieldedPolicy, path_separation, top_clearance_along
-from covert_env.metrics import top_clearance
-from covert_env.separation import team_separation
+from covert_env.geometry.separation import team_separation
+from covert_env.world.metrics import top_clearance
 from training.evaluate import evaluate, load_policy, split_seeds
 
 coords = st.floats(-200.0, 200.0, allow_nan=False)
@@ -267,9 +267,9 @@ def test_a_shielded_learned_team_keeps_its_name_and_mode(tmp_path):
 def test_the_sample_bounds_keep_eqs_2_and_3_between_the_samples(n, xy, theta, v, w, top):
     """Whatever two flights do (constant speed, turn rate within w_max, as every slot's flight), distances of at
     least sample_bounds at n instants keep d_safe1 and d_safe2 at every instant in between."""
-    from covert_env.config import Config
     from covert_env.envs.safety_filter import sample_bounds
-    from covert_env.flight import fly_arc
+    from covert_env.geometry.flight import fly_arc
+    from covert_env.world.config import Config
 
     c = Config()
     sep_need, top_need = sample_bounds(c, n)

@@ -1,4 +1,4 @@
-"""covert_env.scenario: the paper preset (§3) and seeded random scenes."""
+"""covert_env.world.scenario: the paper preset (§3) and seeded random scenes."""
 
 from __future__ import annotations
 
@@ -7,12 +7,12 @@ import math
 import numpy as np
 import pytest
 
-from covert_env.config import Config
-from covert_env.road import Road, TargetTrack
-from covert_env.scenario import PAPER_UAV_STARTS, Scenario
-from covert_env.terrain import Terrain
-from covert_env.visibility import line_of_sight
-from covert_env.zone import grid_nodes, in_feasible_zone
+from covert_env.geometry.zone import grid_nodes, in_feasible_zone
+from covert_env.world.config import Config
+from covert_env.world.road import Road, TargetTrack
+from covert_env.world.scenario import PAPER_UAV_STARTS, Scenario
+from covert_env.world.terrain import Terrain
+from covert_env.world.visibility import line_of_sight
 
 PAPER_XY = np.array([[40.0, 10.0], [60.0, 0.0], [50.0, -10.0]])
 PAPER_THETA = np.array([2 * math.pi, math.pi, math.pi / 2])
@@ -215,7 +215,7 @@ def test_scenario_normalises_start_arrays():
 
 def _pick_one_by_one(c, nodes, visible, shadowed, rng, u):
     """The start rule written sequentially (steps 1-4 of Scenario.sample_starts, one copy at a time)."""
-    from covert_env.zone import SPREAD_MARGIN, spread_nodes, zone_lattice
+    from covert_env.geometry.zone import SPREAD_MARGIN, spread_nodes, zone_lattice
 
     order = visible[rng.permutation(len(visible))]
     picked = spread_nodes(nodes, order, 2 * c.d_safe1, u)
@@ -233,7 +233,7 @@ def test_starts_of_many_copies_are_each_copys_sequential_picks():
     """pick_starts_many (the vector env's reset: step 1 for every copy at once) gives each copy the starts of the
     sequential rule with its own generator, also for copies whose visible nodes are too few or none (the fallbacks),
     and leaves each generator where the sequential rule leaves it."""
-    from covert_env.scenario import pick_starts_many, start_candidates
+    from covert_env.world.scenario import pick_starts_many, start_candidates
 
     c = Config()
     worlds = [Scenario.random_world(s, c) for s in range(8)]

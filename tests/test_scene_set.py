@@ -1,4 +1,4 @@
-"""Scene sets as data (covert_env.scene_set): a family's scenes saved and loaded bit for bit, bad files named, and
+"""Scene sets as data (covert_env.world.scene_set): a family's scenes saved and loaded bit for bit, bad files named, and
 the harness flying a set exactly as it flies the family's held-out seeds."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import pytest
 
 import covert_env
 from covert_env.cli import main as cli_main
-from covert_env.scene_set import SceneSet
+from covert_env.world.scene_set import SceneSet
 
 
 @pytest.fixture(scope="module")

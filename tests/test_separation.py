@@ -1,4 +1,4 @@
-"""covert_env.separation: eq. 2 (the one function that measures it) and the team's priority negotiation."""
+"""covert_env.geometry.separation: eq. 2 (the one function that measures it) and the team's priority negotiation."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from covert_env.separation import nearest_teammate, priority_negotiation, separation, team_separation
+from covert_env.geometry.separation import nearest_teammate, priority_negotiation, separation, team_separation
 
 
 def _closest(a, b):

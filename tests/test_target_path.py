@@ -12,9 +12,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import covert_env
-from covert_env.config import Config
 from covert_env.envs.observation import field_slices, observation_table
-from covert_env.scenario import Scenario
+from covert_env.world.config import Config
+from covert_env.world.scenario import Scenario
 
 
 @pytest.fixture(autouse=True)

@@ -1,4 +1,4 @@
-"""The task suite (covert_env.tasks): names, configs, fixed scenes, and every env kind built from a task."""
+"""The task suite (covert_env.world.tasks): names, configs, fixed scenes, and every env kind built from a task."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import pytest
 
 import covert_env
 from covert_env import Config
-from covert_env.families import FAMILIES, HELD_OUT_SEEDS, TRAIN_SEEDS, family_config
-from covert_env.tasks import DEFAULT_TASKS, DEVIATION, TASKS, TEAM_SIZES, TEST_SCENES, get_task, resolve_tasks
+from covert_env.world.families import FAMILIES, HELD_OUT_SEEDS, TRAIN_SEEDS, family_config
+from covert_env.world.tasks import DEFAULT_TASKS, DEVIATION, TASKS, TEAM_SIZES, TEST_SCENES, get_task, resolve_tasks
 
 
 def test_every_family_team_size_and_target_is_a_task_with_its_config():

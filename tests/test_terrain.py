@@ -1,4 +1,4 @@
-"""Tests for covert_env.terrain: validation, the random generator, GeoJSON I/O and queries."""
+"""Tests for covert_env.world.terrain: validation, the random generator, GeoJSON I/O and queries."""
 
 from __future__ import annotations
 
@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 from shapely.geometry import Point, Polygon
 
-from covert_env.config import Config
-from covert_env.road import Road
-from covert_env.terrain import Polytope, Terrain, _check_polytope
+from covert_env.world.config import Config
+from covert_env.world.road import Road
+from covert_env.world.terrain import Polytope, Terrain, _check_polytope
 
 SQUARE = np.array([[0.0, 0.0], [10.0, 0.0], [10.0, 10.0], [0.0, 10.0]])
 

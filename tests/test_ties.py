@@ -1,4 +1,4 @@
-"""covert_env.ties: argmin and argmax whose choice does not hinge on the last bit
+"""covert_env.geometry.ties: argmin and argmax whose choice does not hinge on the last bit
 (docs/decisions/flight.md#settled-slot-end-poses)."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from covert_env.ties import TIE_RTOL_FLOAT32, TIE_RTOL_FLOAT64, first_argmax, first_argmin, tie_tolerance
+from covert_env.geometry.ties import TIE_RTOL_FLOAT32, TIE_RTOL_FLOAT64, first_argmax, first_argmin, tie_tolerance
 
 values = st.lists(st.floats(-1e6, 1e6, allow_nan=False), min_size=1, max_size=40)
 

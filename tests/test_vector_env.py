@@ -9,7 +9,7 @@ import pytest
 import covert_env
 from covert_env import Config
 from covert_env.envs.vector import INFO_KEYS
-from covert_env.scenario import Scenario
+from covert_env.world.scenario import Scenario
 
 
 def _actions(venv, rng):
@@ -222,7 +222,7 @@ def test_bad_arguments_and_calls():
 
 # ---------------------------------------------------------------------- the scene pool's batched geometry
 def test_pool_line_of_sight_equals_line_of_sight_per_copy():
-    from covert_env.visibility import line_of_sight
+    from covert_env.world.visibility import line_of_sight
 
     venv = covert_env.vector_env(num_envs=6, n_uavs=2)
     venv.reset(options={"scene_seed": [1, 2, 3, 4, 5, 1]})

@@ -11,10 +11,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from shapely.geometry import Point, Polygon
 
-from covert_env.config import Config
-from covert_env.shadows import shadow_h_min, shadow_polygons, shadow_union, shadow_union_cfg
-from covert_env.terrain import Polytope, Terrain
-from covert_env.visibility import LOS_TOLERANCE, SAFE_LOS_TOLERANCE, line_of_sight, line_of_sight_rows
+from covert_env.world.config import Config
+from covert_env.world.shadows import shadow_h_min, shadow_polygons, shadow_union, shadow_union_cfg
+from covert_env.world.terrain import Polytope, Terrain
+from covert_env.world.visibility import LOS_TOLERANCE, SAFE_LOS_TOLERANCE, line_of_sight, line_of_sight_rows
 
 H = 80.0
 R2 = 100.0
@@ -408,7 +408,7 @@ def _rotated_box(cx, cy, a, w, h, z):
 def _grazing_segments(rng, key, terrain, n):
     """n segments (UAV xy, target xyz) lying, to rounding, in a random shrunk side face plane of ``key`` (polytope 0
     of ``terrain``): the cases where two summation orders of the face value decide differently."""
-    from covert_env.visibility import LOS_TOLERANCE, terrain_arrays
+    from covert_env.world.visibility import LOS_TOLERANCE, terrain_arrays
 
     hs = terrain_arrays(terrain).hs[0]
     side = [i for i in range(len(hs)) if abs(hs[i, 2]) < 1e-12 and np.any(hs[i, :3])]
@@ -424,7 +424,7 @@ def test_terrain_rows_equal_line_of_sight_per_copy_also_on_grazing_segments():
     """TerrainRows (the vector env's batched LoS, one terrain per row, copies pointing at rows) clips with the
     same face values as line_of_sight, so it decides exactly alike, also segments lying (to rounding) in a shrunk
     face plane; padding (rows of fewer polytopes or faces, an empty terrain) never blocks."""
-    from covert_env.visibility import TerrainRows
+    from covert_env.world.visibility import TerrainRows
 
     rng = np.random.default_rng(3)
     rows = TerrainRows(capacity=8)
@@ -451,7 +451,7 @@ def test_terrain_rows_overwritten_rows_see_their_new_terrain():
     """Rows of a TerrainRows are overwritten as scenes enter and leave the vector env's pool (and grow to more
     polytopes and faces): each LoS call sees every row's current terrain, as line_of_sight does, and each row's
     polytope tops (eq. 3) are its terrain's, padded with inf."""
-    from covert_env.visibility import TerrainRows
+    from covert_env.world.visibility import TerrainRows
 
     rng = np.random.default_rng(0)
     rows, current = TerrainRows(capacity=16), {}
@@ -476,7 +476,7 @@ def test_terrain_rows_broad_phase_keeps_every_blocking_triple_in_degenerate_case
     or its circle (every bearing), a target at a padding polytope's (zero) centre on a row of fewer polytopes,
     and copies whose target is above the UAV plane (no reach bound). Each copy is compared with line_of_sight on
     its own terrain, and blocked results must occur (the comparison is not all-clear)."""
-    from covert_env.visibility import TerrainRows, terrain_arrays
+    from covert_env.world.visibility import TerrainRows, terrain_arrays
 
     rng = np.random.default_rng(11)
     terrains = [random_terrain(rng, 16), random_terrain(rng, 4), random_terrain(rng, 9)]
@@ -514,7 +514,7 @@ def test_terrain_rows_paths_equal_line_of_sight_at_every_sample(seed, samples, t
     UAV paths circling the target (bearings around +-pi), passing right above it, a target inside a footprint,
     a target whose height varies, copies whose target is above the UAV plane (the per-sample fallback), rows of
     fewer polytopes and an empty row (the next test checks that such paths do get blocked); no samples at all."""
-    from covert_env.visibility import TerrainRows, terrain_arrays
+    from covert_env.world.visibility import TerrainRows, terrain_arrays
 
     rng = np.random.default_rng(seed)
     terrains = [random_terrain(rng, 16), Terrain(), random_terrain(rng, 5), random_terrain(rng, 12)]
@@ -552,7 +552,7 @@ def test_terrain_rows_paths_equal_line_of_sight_at_every_sample(seed, samples, t
 
 def test_terrain_rows_paths_block_somewhere():
     """The comparison above is not all-clear: on its scenes, paths behind buildings are blocked."""
-    from covert_env.visibility import TerrainRows
+    from covert_env.world.visibility import TerrainRows
 
     rng = np.random.default_rng(5)
     rows = TerrainRows(capacity=2)
@@ -592,8 +592,8 @@ def test_visible_nodes_rows_equal_visible_nodes_per_scene(seed, tol):
     """The scene pool's batched eq. 10 (many scenes and slots per call) decides every node as visible_nodes does
     scene by scene, on rows of different polytope counts (padding), rows overwritten by smaller terrains, targets
     inside a footprint's circle, and grown polytopes (a broad phase that forgot the growth drops blocked nodes)."""
-    from covert_env.visibility import TerrainRows, terrain_arrays, visible_nodes, visible_nodes_rows
-    from covert_env.zone import zone_lattice
+    from covert_env.geometry.zone import zone_lattice
+    from covert_env.world.visibility import TerrainRows, terrain_arrays, visible_nodes, visible_nodes_rows
 
     rng = np.random.default_rng(seed)
     c = Config()
@@ -617,10 +617,10 @@ def test_visible_nodes_rows_equal_visible_nodes_per_scene(seed, tol):
 def test_visible_nodes_rows_on_generated_scenes_blocks_and_equals_visible_nodes():
     """On the batched generator's scenes of the most shadowed family, over whole tracks: the same decisions as
     visible_nodes scene by scene, and shadows occur (the comparison is not all-clear)."""
-    from covert_env.families import family_config
-    from covert_env.scenario import random_worlds
-    from covert_env.visibility import TerrainRows, visible_nodes, visible_nodes_rows
-    from covert_env.zone import zone_lattice
+    from covert_env.geometry.zone import zone_lattice
+    from covert_env.world.families import family_config
+    from covert_env.world.scenario import random_worlds
+    from covert_env.world.visibility import TerrainRows, visible_nodes, visible_nodes_rows
 
     c = family_config("downtown")
     worlds = random_worlds(range(10, 16), c)
@@ -639,8 +639,8 @@ def test_visible_nodes_rows_on_generated_scenes_blocks_and_equals_visible_nodes(
 def test_kernel_checks_its_layout_before_it_reads():
     """numba checks no bounds: a layout that does not fit (points left over, a row beyond the table, shapes that
     disagree) is refused with a clear error, and read-only or strided inputs give the same answer as copies."""
-    from covert_env.sight_kernel import blocked_segments
-    from covert_env.visibility import terrain_arrays
+    from covert_env.geometry.sight_kernel import blocked_segments
+    from covert_env.world.visibility import terrain_arrays
 
     rng = np.random.default_rng(3)
     terrain = random_terrain(rng, 6)
@@ -670,9 +670,9 @@ def test_offsets_kernel_equals_the_kernel_on_to_world_points(seed, tol, altitude
     """blocked_offsets (the maps, lattices and start candidates: one set of target-frame offsets about every
     target) decides every segment as blocked_segments does on to_world's points, and as the all-pairs clip; UAVs
     above and below the targets, headings all round."""
-    from covert_env.sight_kernel import blocked_offsets, blocked_segments
-    from covert_env.visibility import terrain_arrays
-    from covert_env.zone import to_world
+    from covert_env.geometry.sight_kernel import blocked_offsets, blocked_segments
+    from covert_env.geometry.zone import to_world
+    from covert_env.world.visibility import terrain_arrays
 
     rng = np.random.default_rng(seed)
     terrain = random_terrain(rng)
@@ -692,8 +692,8 @@ def test_offsets_kernel_equals_the_kernel_on_to_world_points(seed, tol, altitude
 
 def test_offsets_kernel_checks_its_inputs():
     """Shapes that disagree and rows beyond the table are refused by name before the kernel reads."""
-    from covert_env.sight_kernel import blocked_offsets
-    from covert_env.visibility import terrain_arrays
+    from covert_env.geometry.sight_kernel import blocked_offsets
+    from covert_env.world.visibility import terrain_arrays
 
     rng = np.random.default_rng(4)
     table = terrain_arrays(random_terrain(rng, 6)).table
@@ -711,8 +711,8 @@ def test_offsets_kernel_checks_its_inputs():
 def test_terrain_rows_table_follows_its_rows():
     """TerrainRows keeps one checked TerrainTable while its arrays stay the same, a new one after set_row grows
     them, and answers as the terrain itself; a table not from terrain_table is refused."""
-    from covert_env.sight_kernel import segments_blocked
-    from covert_env.visibility import TerrainRows
+    from covert_env.geometry.sight_kernel import segments_blocked
+    from covert_env.world.visibility import TerrainRows
 
     rng = np.random.default_rng(8)
     rows = TerrainRows(capacity=4)

@@ -1,5 +1,5 @@
-"""Eq. 10 on the waypoint lattice has one home, :func:`covert_env.visibility.visible_nodes`: the env's action mask,
-its observation maps, the start sampler and the DP planner's states all read it."""
+"""Eq. 10 on the waypoint lattice has one home, :func:`covert_env.world.visibility.visible_nodes`: the env's action
+mask, its observation maps, the start sampler and the DP planner's states all read it."""
 
 from __future__ import annotations
 
@@ -11,10 +11,10 @@ from covert_env import Config, Polytope, Scenario, Terrain
 from covert_env.envs.observation import shared_block_slices
 from covert_env.envs.scene_pool import ScenePool
 from covert_env.envs.settings import EnvSettings
-from covert_env.families import family_config
-from covert_env.scenario import start_candidates
-from covert_env.visibility import LOS_TOLERANCE, line_of_sight, visible_nodes
-from covert_env.zone import in_feasible_zone, to_world, zone_distance, zone_lattice
+from covert_env.geometry.zone import in_feasible_zone, to_world, zone_distance, zone_lattice
+from covert_env.world.families import family_config
+from covert_env.world.scenario import start_candidates
+from covert_env.world.visibility import LOS_TOLERANCE, line_of_sight, visible_nodes
 
 
 def _pool(sc: Scenario) -> tuple[ScenePool, int]:

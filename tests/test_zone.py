@@ -10,11 +10,7 @@ import shapely
 from shapely import affinity
 from shapely.geometry import Point, Polygon
 
-from covert_env.config import Config
-from covert_env.shadows import shadow_polygons, shadow_union, visible_zone_cfg
-from covert_env.terrain import Polytope, Terrain
-from covert_env.visibility import line_of_sight
-from covert_env.zone import (
+from covert_env.geometry.zone import (
     ARC_RESOLUTION,
     arc_error,
     feasible_zone,
@@ -28,6 +24,10 @@ from covert_env.zone import (
     zone_distance,
     zone_mask,
 )
+from covert_env.world.config import Config
+from covert_env.world.shadows import shadow_polygons, shadow_union, visible_zone_cfg
+from covert_env.world.terrain import Polytope, Terrain
+from covert_env.world.visibility import line_of_sight
 
 R1, R2, MU = 55.0, 100.0, math.pi / 4
 PHIS = [0.3, -2.0, math.pi, -math.pi + 1e-3, math.pi - 1e-9]   # incl. zones straddling the +-pi cut

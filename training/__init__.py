@@ -13,7 +13,7 @@
 * :mod:`training.dp_cost` -- the DP planner's cost for LoS lost along the path, learned with CEM
   (``pretrained:dp-cost``, loaded by :mod:`training.pretrained.learned_cost`).
 * :mod:`training.evaluate` -- ``python -m training.evaluate``: every policy on the same held-out seeds,
-  scored by :func:`covert_env.metrics.episode_metrics`, written to ``leaderboard.md`` / ``.csv`` and a figure;
+  scored by :func:`covert_env.world.metrics.episode_metrics`, written to ``leaderboard.md`` / ``.csv`` and a figure;
   :mod:`training.stats` gives its IQM and bootstrap intervals.
 
 Outputs go to the git-ignored ``runs/`` (training) and ``outputs/`` (evaluation) folders.

@@ -4,13 +4,13 @@
     covert-env benchmark --tasks paper-3uav downtown-3uav --policies dp dp-path random@waypoint --scenes 3
     covert-env benchmark --tasks core --policies dp random@waypoint pretrained:mappo --out outputs/suite
 
-Tasks are names of :mod:`covert_env.tasks` (``core``: :data:`~covert_env.tasks.DEFAULT_TASKS`, ``all``: every
-task); policies are the harness's specs (:mod:`training.evaluate`: ``dp``, ``dp-path``, ``dp-blind``,
+Tasks are names of :mod:`covert_env.world.tasks` (``core``: :data:`~covert_env.world.tasks.DEFAULT_TASKS`, ``all``:
+every task); policies are the harness's specs (:mod:`training.evaluate`: ``dp``, ``dp-path``, ``dp-blind``,
 ``dp-binned``, ``random``, ``hold-centre``, ``pretrained:NAME``, ``mappo:``/``sb3:``/``rllib:`` paths, seed groups
 ``PREFIX:PATH1,PATH2`` whose members are the runs). A learned policy acts for one team size: it is scored on the
 tasks of that size only (said in the output). Each cell flies one held-out scene of the task (its first
 ``--scenes`` test scenes, from their own seeded starts) under the env's default reward, scored by
-:func:`covert_env.metrics.episode_metrics`.
+:func:`covert_env.world.metrics.episode_metrics`.
 
 The protocol, fixed so that two users' runs compare (defaults: :data:`DEFAULT_POLICIES`, ``--scenes``
 :data:`DEFAULT_SCENES`):
@@ -53,7 +53,7 @@ import covert_env
 from covert_env.command_line import MAX_SCENES, UsageError, int_range, output_dir, positive_int, run_main
 from covert_env.envs.covert_sensing import CovertSensingParallelEnv
 from covert_env.evaluation.registry import from_files
-from covert_env.tasks import DEFAULT_TASKS, SUITE_VERSION, TASKS, TEST_SCENES, get_task, resolve_tasks
+from covert_env.world.tasks import DEFAULT_TASKS, SUITE_VERSION, TASKS, TEST_SCENES, get_task, resolve_tasks
 from training import leaderboard
 from training.common import ordered_results
 from training.evaluate import COLUMNS, evaluate, load_policy, split_seeds, summarise, write_outputs
@@ -69,7 +69,7 @@ DEFAULT_SCENES = 5
 """Test scenes per task by default (the first of the task's held-out scenes)."""
 REFERENCE = "random@waypoint"
 """The policy whose mean reward is a task's score 0 (masked-random waypoints)."""
-#: The constraint rates reported beside every score (keys of covert_env.metrics.episode_metrics).
+#: The constraint rates reported beside every score (keys of covert_env.world.metrics.episode_metrics).
 CONSTRAINTS = (("zone_violation_rate", "zone viol."), ("occlusion_rate", "blocked LoS, slots"),
                ("occlusion_rate_path", "blocked LoS, path"), ("blocked_path_share", "path share blocked"),
                ("separation_violations", "sep. viol./UAV"),
@@ -305,8 +305,8 @@ def build_parser(prog: str = "python -m training.benchmark") -> argparse.Argumen
     p = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n")[0],
                                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     p.add_argument("--tasks", nargs="+", default=["core"],
-                   help=f"task names of covert_env.tasks, or the groups 'core' (the protocol's {len(DEFAULT_TASKS)} "
-                        f"tasks) and 'all' ({len(TASKS)})")
+                   help=f"task names of covert_env.world.tasks, or the groups 'core' (the protocol's "
+                        f"{len(DEFAULT_TASKS)} tasks) and 'all' ({len(TASKS)})")
     p.add_argument("--policies", nargs="+", default=list(DEFAULT_POLICIES),
                    help=f"policy specs (as covert-env evaluate); at least one dp* planner (a dp*+shield planner "
                         f"counts: the best planner of the run is each task's score 1); {REFERENCE} is always run")

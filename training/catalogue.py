@@ -11,8 +11,8 @@ import argparse
 import os
 import sys
 
-from covert_env.families import FAMILIES
-from covert_env.tasks import DEFAULT_TASKS, SUITE_VERSION, TASKS
+from covert_env.world.families import FAMILIES
+from covert_env.world.tasks import DEFAULT_TASKS, SUITE_VERSION, TASKS
 from training.tiers import TIERS, spec_tier, tier_of
 
 __all__ = ["TIERS", "build_parser", "main", "spec_tier", "tier_of", "weights_table"]

@@ -24,9 +24,9 @@ from pathlib import Path
 from typing import Any
 
 from covert_env.command_line import UsageError, float_range, int_range, non_negative_int, output_dir, positive_int
-from covert_env.config import MAX_N_UAVS, Config, read_json
 from covert_env.envs.settings import MAX_SCENE_POOL
 from covert_env.envs.vector import MAX_NUM_ENVS
+from covert_env.world.config import MAX_N_UAVS, Config, read_json
 from training.trust import require_trust
 
 __all__ = ["parse_args", "run_name", "setup_torch", "latest_checkpoint", "ordered_results", "resume_checkpoint",
@@ -163,6 +163,19 @@ def build_parser(cls: type, description: str | None = None, presets: dict[str, d
         kw["help"] = f"{help_} ({extra}default: {_show_default(default).replace('%', '%%')})".lstrip()
         p.add_argument("--" + f.name.replace("_", "-"), dest=f.name, **kw)
     return p
+
+
+def checked_main(cls: type, argv: list[str] | None, *, description: str, check: Callable[[Any], None],
+                 run: Callable[[Any], Any], presets: dict[str, dict] | None = None):
+    """A training script's ``main``: :func:`parse_args` into ``cls``, then ``check`` the settings (a ``ValueError``
+    exits with status 2 and one line, ``python -m MODULE: error: ...``, before anything runs), then ``run`` them."""
+    args = parse_args(cls, argv, description=description, presets=presets)
+    try:
+        check(args)
+    except ValueError as exc:
+        print(f"{_prog(cls)}: error: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
+    return run(args)
 
 
 def parse_args(cls: type, argv: list[str] | None = None, description: str | None = None,

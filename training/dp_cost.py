@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from covert_env.tasks import get_task
+from covert_env.world.tasks import get_task
 from training.common import ordered_results, parse_args, save_run
 from training.pretrained.learned_cost import KIND, path_cost_of
 

@@ -42,7 +42,7 @@ start poses. The env uses its DEFAULT reward settings, whatever a policy was tra
 comparable across rows (it is the mean over UAVs of the episode return).
 
 Writes ``leaderboard.md``, ``leaderboard.csv`` (mean and std over episodes of the team-mean per-UAV metrics of
-:func:`covert_env.metrics.episode_metrics`; for ``min_separation`` the team's smallest), ``episodes.csv`` (one row
+:func:`covert_env.world.metrics.episode_metrics`; for ``min_separation`` the team's smallest), ``episodes.csv`` (one row
 per policy and episode) and ``comparison.png`` into ``--out`` (default ``outputs/leaderboard``).
 """
 
@@ -73,9 +73,9 @@ from covert_env.envs.vector import MAX_SCENE_SEED
 from covert_env.evaluation.episodes import COLUMNS, HELD_OUT_OFFSET, evaluate, summarise
 from covert_env.evaluation.registry import from_files
 from covert_env.evaluation.specs import SHIELD_SUFFIX, load_policy, split_seeds
-from covert_env.families import FAMILIES
-from covert_env.scene_set import SceneSet
-from covert_env.tasks import get_task
+from covert_env.world.families import FAMILIES
+from covert_env.world.scene_set import SceneSet
+from covert_env.world.tasks import get_task
 from training.runs import read_run_json
 from training.stats import iqm, probability_of_improvement, stratified_bootstrap_ci
 from training.tiers import TIERS, spec_tier
@@ -107,7 +107,7 @@ def write_outputs(results: dict[str, dict], out: Path, meta: dict) -> None:
              f"{family})")
     lines = [f"# Leaderboard: {meta['episodes']} {where}, {meta['n_uavs']} UAV(s)", "",
              "Tiers, by what a team reads to act: " + "; ".join(TIERS.values()) + ".", "",
-             "Mean ± std over episodes of the team-mean per-UAV metrics (covert_env.metrics.episode_metrics; "
+             "Mean ± std over episodes of the team-mean per-UAV metrics (covert_env.world.metrics.episode_metrics; "
              "min separation: the team's smallest); "
              "episode reward = env default reward, mean over UAVs. Lower is better except reward, disguise and "
              "min separation.", "",
@@ -205,12 +205,12 @@ def build_parser(prog: str = "python -m training.evaluate") -> argparse.Argument
     p.add_argument("--seed-offset", type=int_range(0, MAX_SCENE_SEED - MAX_SCENES), default=HELD_OUT_OFFSET,
                    help=f"first held-out scene seed, in [0, {MAX_SCENE_SEED - MAX_SCENES}]")
     p.add_argument("--family", choices=list(FAMILIES), default="paper",
-                   help="scene family (covert_env.families) of the held-out scenes")
+                   help="scene family (covert_env.world.families) of the held-out scenes")
     p.add_argument("--task", metavar="NAME", default=argparse.SUPPRESS,                # none: --family
-                   help="a task of the suite (covert_env.tasks, e.g. downtown-3uav-deviating): its family, team and "
-                        "target; not with --family, and --n-uavs must agree")
+                   help="a task of the suite (covert_env.world.tasks, e.g. downtown-3uav-deviating): its family, team "
+                        "and target; not with --family, and --n-uavs must agree")
     p.add_argument("--scene-set", metavar="FILE", default=argparse.SUPPRESS,            # none: held-out seeds
-                   help="fly the first --episodes scenes of this scene set file (covert_env.scene_set; "
+                   help="fly the first --episodes scenes of this scene set file (covert_env.world.scene_set; "
                         "covert-env scene-set writes one) instead of held-out seeds; not with --family or "
                         "--seed-offset")
     p.add_argument("--out", default="outputs/leaderboard", help="output folder (git-ignored outputs/)")

@@ -5,7 +5,7 @@
     OMP_NUM_THREADS=1 python -m training.mappo --recipe 3uav-suite --init-actor runs/<run> # fine-tune it with RL
 
 The planner (``--teacher``, :mod:`baselines.policies`) flies training scenes of the recipe's tasks (run ``--seed s``
-takes scenes ``s * 1000 + i`` of ``covert_env.tasks.Task.train_seeds``, never a held-out one). Every slot, each
+takes scenes ``s * 1000 + i`` of ``covert_env.world.tasks.Task.train_seeds``, never a held-out one). Every slot, each
 UAV's observation, its action mask and the planner's node are recorded. The actor of the MAPPO recipe
 (:mod:`training.mappo.networks`, the same architecture, node features and card) is then trained to pick the
 planner's node under the mask: cross-entropy of the masked categorical, Adam, minibatches from one task at a time,
@@ -39,9 +39,9 @@ from pathlib import Path
 import numpy as np
 
 import covert_env
-from covert_env.families import TRAIN_SEEDS
-from covert_env.tasks import get_task
-from training.common import _ranges, ordered_results, parse_args, run_name, save_run, setup_torch
+from covert_env.world.families import TRAIN_SEEDS
+from covert_env.world.tasks import get_task
+from training.common import _ranges, checked_main, ordered_results, run_name, save_run, setup_torch
 
 __all__ = ["Args", "teacher_episode", "collect", "train"]
 
@@ -345,13 +345,7 @@ def check_args(args: Args) -> None:
 
 
 def main(argv: list[str] | None = None) -> Path:
-    args = parse_args(Args, argv, description=__doc__.split("\n")[0])
-    try:
-        check_args(args)
-    except ValueError as exc:
-        print(f"python -m training.imitation: error: {exc}", file=sys.stderr)
-        raise SystemExit(2) from None
-    return train(args)
+    return checked_main(Args, argv, description=__doc__.split("\n")[0], check=check_args, run=train)
 
 
 if __name__ == "__main__":

@@ -8,8 +8,8 @@ from pathlib import Path
 from typing import Any
 
 from covert_env.command_line import UsageError
-from covert_env.config import read_json
 from covert_env.envs.covert_sensing import CovertSensingParallelEnv
+from covert_env.world.config import read_json
 
 __all__ = ["read_run_json", "run_env"]
 
@@ -21,6 +21,19 @@ def read_run_json(path: Path, what: str) -> Any:
         return read_json(path, what)
     except (OSError, ValueError) as exc:
         raise UsageError(str(exc)) from None
+
+
+def weights_and_card(path: str | Path, what: str, producer: str) -> tuple[Path, Path, Any]:
+    """The weights ``NAME.npz`` (or a run folder's ``model.npz``) at ``path``, its card beside it and the card read:
+    ``(npz, card_path, card)``. A missing file is a ``ValueError`` naming ``what`` (e.g. "learned actor") and the
+    ``producer`` whose run folders hold them; an unreadable card a :class:`~covert_env.command_line.UsageError`."""
+    path = Path(path)
+    npz = path / "model.npz" if path.is_dir() else path
+    card_path = npz.with_suffix(".json")
+    if not npz.is_file() or not card_path.is_file():
+        raise ValueError(f"no {what} at {path} (expected NAME.npz with NAME.json beside it, or a {producer} run "
+                         "folder holding model.npz and model.json)")
+    return npz, card_path, read_run_json(card_path, "model card")
 
 
 def run_env(env_kwargs: Any, where: str, n_uavs: int = 1) -> tuple[dict, Any]:

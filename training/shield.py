@@ -24,8 +24,8 @@ probability ratios are taken under the masks the actions were sampled with); the
   is a node whose path ends closer than ``min_distance + end_margin`` to a teammate's end, where another node
   is left: the next slot then starts with room to part (most dead ends start from cramped ends). If that leaves no node,
   the team tries again with that UAV choosing first (the DP team's order rule,
-  :func:`covert_env.separation.priority_negotiation`: each UAV promoted at most once, at most U tries; the UAVs fly
-  at up to 50 m/s with a bounded turn rate, so a teammate's path can cut off every path of a UAV that chose after
+  :func:`covert_env.geometry.separation.priority_negotiation`: each UAV promoted at most once, at most U tries; the UAVs
+  fly at up to 50 m/s with a bounded turn rate, so a teammate's path can cut off every path of a UAV that chose after
   it). If every try leaves some UAV without a node, the last try stands and that UAV chooses among the nodes whose
   paths come least close (the shield never leaves a UAV without an action); such team choices are counted in
   ``fallbacks``.
@@ -65,7 +65,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from covert_env.separation import priority_negotiation, separation
+from covert_env.geometry.separation import priority_negotiation, separation
 
 __all__ = ["SeparationShield", "end_poses", "leaves_room"]
 

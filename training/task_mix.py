@@ -4,7 +4,7 @@
 with ``num_envs / len(tasks)`` copies each and concatenates them along the copy axis: ``reset``, ``step``,
 ``action_masks``, ``waypoint_paths`` and ``state`` take and return ``(B, ...)`` arrays as one vector env does, the
 copies of task i being rows ``i * b : (i + 1) * b``. Every copy draws its scenes from its own task's training
-scenes (:attr:`covert_env.tasks.Task.train_seeds`), so a team trained on the mix sees every family in every
+scenes (:attr:`covert_env.world.tasks.Task.train_seeds`), so a team trained on the mix sees every family in every
 rollout.
 
 The tasks must agree on what the actor and the batch see: team size, observation and state widths and action
@@ -45,7 +45,7 @@ class TaskMix:
     """Vector envs of several tasks as one batch of ``num_envs`` copies (module docstring).
 
     Args:
-        tasks: suite task names (:data:`covert_env.tasks.TASKS`), at least one, no repeats.
+        tasks: suite task names (:data:`covert_env.world.tasks.TASKS`), at least one, no repeats.
         num_envs: copies in all; a multiple of ``len(tasks)`` (each task gets as many).
         **kwargs: passed to every task's ``covert_env.vector_env`` (``action_mode``, ``mask_mode``, ``map_size``,
             ``max_cycles``, ...; not ``task``, ``n_uavs`` or ``scene_pool``: the task sets them).

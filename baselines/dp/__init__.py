@@ -4,8 +4,8 @@
 
 At slot k every UAV i plans the next N slots (N = ``config.horizon``). Its states at stage j = 1..N
 are grid nodes of the zone around the predicted target pose q[k+j], phi[k+j]: the offsets of
-:func:`covert_env.zone.zone_lattice` (spacing ``grid_step``, the eroded zone of eq. 5) placed with
-:func:`covert_env.zone.to_world`. The *same* lattice is the action set of the waypoint environments, so
+:func:`covert_env.geometry.zone.zone_lattice` (spacing ``grid_step``, the eroded zone of eq. 5) placed with
+:func:`covert_env.geometry.zone.to_world`. The *same* lattice is the action set of the waypoint environments, so
 a node index is an action. The allowed nodes are
 
 * ``shadow_aware=True`` (the paper's method): nodes of the visible zone F[k+j] (eq. 10), i.e. eroded zone
@@ -25,7 +25,7 @@ The cost of moving from node a at stage j to node b at stage j+1 is the stage co
     c_ab = g = v delta - lambda eta |wrap(alpha_b - alpha_a)| - lambda |d_b - d_a|,
 
 with alpha, d (eqs. 12-13) measured against the target's pose at each stage and v the speed of the
-turn-then-straight manoeuvre (eqs. 22-29, :func:`covert_env.dynamics.solve_manoeuvre`) that flies from
+turn-then-straight manoeuvre (eqs. 22-29, :func:`covert_env.geometry.dynamics.solve_manoeuvre`) that flies from
 a (with the heading the UAV has there) to b in one slot; c_ab = inf when no manoeuvre exists. The
 forward recursion is eqs. 19-20, ``J_0(b) = c_sb`` from the start s and
 ``J_j(b) = min_a (c_ab + J_{j-1}(a))``; a virtual final state f with ``c_af = 0`` (eq. 21) makes the
@@ -95,7 +95,7 @@ The planner never raises for lack of a plan. In order:
    penalty, and leaving the zone between slots is tolerated. ``status="fallback"``.
 3. If no zone node at all is reachable in one slot: the waypoint is the zone node nearest to the UAV
    (a visible one if one is as near), which the engine flies as its documented best effort (the
-   admissible constant control ending closest to it, see :class:`covert_env.engine.Engine`); that flight
+   admissible constant control ending closest to it, see :class:`covert_env.world.engine.Engine`); that flight
    does not end on the node, so eq. 3 is checked along it (the nearest node whose best effort keeps clear).
    ``status="fallback"``.
 
@@ -117,7 +117,7 @@ replaces, in priority order, the conflicting UAV's first move by its best one-sl
 distance to every higher-priority UAV's first move (``status="safety"``), all checked on the paths the engine
 will fly (a fallback's best effort included); when the priority order leaves some UAV no such move (a fast
 teammate sweeping past), that UAV is promoted to the front and the layer runs again (each UAV at most once,
-at most U orders: :func:`covert_env.separation.priority_negotiation`). The work is polynomial in U
+at most U orders: :func:`covert_env.geometry.separation.priority_negotiation`). The work is polynomial in U
 (``TeamPlan.work``, docs/model.md#team-negotiation).
 
 ## Caching

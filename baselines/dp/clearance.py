@@ -5,7 +5,7 @@ than ``h - d_safe2`` can violate eq. 3, and around such a top the excluded posit
 disk of radius ``sqrt(d_safe2^2 - (h - z)^2)``. The random generator caps heights at ``h - d_safe2``, so
 there the check excludes nothing and costs nothing; a loaded terrain (a mast, a tower) may have such tops.
 Nodes are checked at the node, manoeuvres at their ``path_samples`` instants (the engine's metrics count
-slot ends, :func:`covert_env.metrics.slot_quantities`).
+slot ends, :func:`covert_env.world.metrics.slot_quantities`).
 """
 
 from __future__ import annotations
@@ -14,9 +14,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from covert_env.dynamics import Manoeuvre
-from covert_env.metrics import top_clearance
-from covert_env.terrain import Terrain
+from covert_env.geometry.dynamics import Manoeuvre
+from covert_env.world.metrics import top_clearance
+from covert_env.world.terrain import Terrain
 
 __all__ = ["TerrainClearance", "take_manoeuvres"]
 
@@ -44,7 +44,7 @@ class TerrainClearance:
     def distance(self, xy) -> np.ndarray:
         """(...) 3D distance from positions (..., 2) at altitude h to the nearest top that matters (inf if none).
 
-        The metrics' computation (:func:`covert_env.metrics.top_clearance`) on these tops, so they agree at the
+        The metrics' computation (:func:`covert_env.world.metrics.top_clearance`) on these tops, so they agree at the
         boundary: the other tops are d_safe2 or farther from every position.
         """
         return top_clearance(np.asarray(xy, float), self.altitude, self.tall_tops)

@@ -6,8 +6,8 @@ import numpy as np
 
 from baselines.dp.lattice import Stage
 from baselines.dp.path_checks import FALLBACK_PENALTY
-from covert_env.config import Config
-from covert_env.ties import first_argmin
+from covert_env.geometry.ties import first_argmin
+from covert_env.world.config import Config
 
 __all__ = ["fallback_penalties", "nearest_zone_node", "nearness"]
 

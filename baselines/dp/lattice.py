@@ -1,6 +1,6 @@
 """The planner's states: the zone lattice placed at each predicted target pose, and node-pair quantities.
 
-A :class:`Stage` is the lattice of :func:`covert_env.zone.zone_lattice` (the waypoint actions) placed at
+A :class:`Stage` is the lattice of :func:`covert_env.geometry.zone.zone_lattice` (the waypoint actions) placed at
 one predicted target pose q[k+j], phi[k+j]: world positions, alpha and d (eqs. 12-13) and line of sight
 (eq. 6; under a prediction error, to every true position it allows: :mod:`baselines.dp.possible_targets`).
 A :class:`StagePair` holds what the transitions between two consecutive stages share whatever the UAV:
@@ -16,11 +16,11 @@ import numpy as np
 
 from baselines.dp.possible_targets import PossibleTargets
 from baselines.dp.table import ManoeuvreBoundsTable
-from covert_env.angles import abs_wrapped
-from covert_env.cost import uav_target_angle, uav_target_distance
-from covert_env.terrain import Terrain
-from covert_env.visibility import SAFE_LOS_TOLERANCE, visible_nodes
-from covert_env.zone import to_world
+from covert_env.geometry.angles import abs_wrapped
+from covert_env.geometry.cost import uav_target_angle, uav_target_distance
+from covert_env.geometry.zone import to_world
+from covert_env.world.terrain import Terrain
+from covert_env.world.visibility import SAFE_LOS_TOLERANCE, visible_nodes
 
 __all__ = ["Stage", "StageCache", "StagePair"]
 
@@ -41,7 +41,7 @@ class Stage:
         self._visible = None
 
     def visible(self, terrain: Terrain, altitude: float, targets: PossibleTargets | None = None) -> np.ndarray:
-        """(L,) the visible nodes at this slot (eq. 10, :func:`~covert_env.visibility.visible_nodes`, as the
+        """(L,) the visible nodes at this slot (eq. 10, :func:`~covert_env.world.visibility.visible_nodes`, as the
         waypoint action mask); every lattice node is in the eroded zone by construction.
 
         ``targets``: None checks the predicted target q only (eq. 10 as the paper states it); otherwise every
@@ -61,8 +61,8 @@ class StagePair:
     """Quantities of every node pair between two consecutive stages that do not depend on the UAV.
 
     disguise: float32 (L, L) [source a, target b], ``-lambda (eta |d alpha| + |d d|)``, the disguise part of
-        eq. 18 (:func:`covert_env.cost.disguise` in float32: it feeds bounds only, exact costs come from
-        :func:`covert_env.cost.stage_cost`).
+        eq. 18 (:func:`covert_env.geometry.cost.disguise` in float32: it feeds bounds only, exact costs come from
+        :func:`covert_env.geometry.cost.stage_cost`).
     table_base: float32 (L, L) [a, b], :meth:`ManoeuvreBoundsTable.base_index` of b - a.
     heading_free_bound: float32 (L, L) [a, b], ``disguise + chord`` (inf beyond V_max delta), a lower bound
         on c_ab whatever the heading.

@@ -22,14 +22,14 @@ import numpy as np
 import shapely
 
 from baselines.dp.clearance import TerrainClearance, take_manoeuvres
-from covert_env.angles import wrap_angle
-from covert_env.config import Config
-from covert_env.dynamics import Manoeuvre, unicycle_arc
-from covert_env.separation import separation
-from covert_env.shadows import shadow_union_cfg
-from covert_env.terrain import Terrain
-from covert_env.visibility import SAFE_LOS_TOLERANCE, line_of_sight
-from covert_env.zone import in_feasible_zone
+from covert_env.geometry.angles import wrap_angle
+from covert_env.geometry.dynamics import Manoeuvre, unicycle_arc
+from covert_env.geometry.separation import separation
+from covert_env.geometry.zone import in_feasible_zone
+from covert_env.world.config import Config
+from covert_env.world.shadows import shadow_union_cfg
+from covert_env.world.terrain import Terrain
+from covert_env.world.visibility import SAFE_LOS_TOLERANCE, line_of_sight
 
 __all__ = ["FALLBACK_PENALTY", "PathChecker", "PathContext", "SHADOW_MARGIN", "record_circles", "separated"]
 

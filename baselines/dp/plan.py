@@ -9,8 +9,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from covert_env.dynamics import Manoeuvre, solve_manoeuvre
 from covert_env.envs.batch import fly_waypoints
+from covert_env.geometry.dynamics import Manoeuvre, solve_manoeuvre
 
 __all__ = ["DPPlan", "TeamPlan", "flown_paths"]
 
@@ -101,8 +101,8 @@ class DPPlan:
 def flown_paths(xy, theta, goals, limits, n: int) -> np.ndarray:
     """(K, n, 2) the paths the engine flies in one slot from poses ``xy`` (K, 2), ``theta`` (K,) to waypoints
     ``goals`` (K, 2), at n equally spaced instants (the start first): the manoeuvre (eqs. 22-29) where the waypoint
-    is reachable, else the engine's best effort (:func:`covert_env.flight.waypoint_controls`). ``limits``: anything
-    with ``v_max``, ``w_max`` and ``delta`` (a :class:`~covert_env.config.Config`, a :class:`DPPlan`)."""
+    is reachable, else the engine's best effort (:func:`covert_env.geometry.flight.waypoint_controls`). ``limits``:
+    anything with ``v_max``, ``w_max`` and ``delta`` (a :class:`~covert_env.world.config.Config`, a :class:`DPPlan`)."""
     times = np.linspace(0.0, 1.0, n) * limits.delta                   # the engine's sample times
     xy, theta, goals = (np.asarray(a, float) for a in (xy, theta, goals))
     return fly_waypoints(xy.reshape(-1, 2), theta.reshape(-1), goals.reshape(-1, 2), limits, times)[0]

@@ -15,13 +15,13 @@ from baselines.dp.possible_targets import PossibleTargets
 from baselines.dp.recursion import ForwardRecursion, backtrack
 from baselines.dp.states import Layer, Problem, SolveCounts, batch_layers, best_cost, depths, layers_of
 from baselines.dp.table import manoeuvre_bounds_table
-from covert_env.angles import wrap_heading
-from covert_env.config import MAX_HORIZON, Config
-from covert_env.cost import uav_target_angle, uav_target_distance
-from covert_env.engine import MAX_PATH_SAMPLES
-from covert_env.road import Road
-from covert_env.terrain import Terrain
-from covert_env.zone import zone_lattice
+from covert_env.geometry.angles import wrap_heading
+from covert_env.geometry.cost import uav_target_angle, uav_target_distance
+from covert_env.geometry.zone import zone_lattice
+from covert_env.world.config import MAX_HORIZON, Config
+from covert_env.world.engine import MAX_PATH_SAMPLES
+from covert_env.world.road import Road
+from covert_env.world.terrain import Terrain
 
 __all__ = ["DPPlanner", "HEADING_MODES"]
 
@@ -89,10 +89,10 @@ class DPPlanner:
         if not isinstance(config, Config):
             raise TypeError(f"DPPlanner: config must be a covert_env.Config, got {type(config).__name__}")
         if not isinstance(terrain, Terrain):
-            raise TypeError(f"DPPlanner: terrain must be a covert_env.terrain.Terrain (Terrain() for none), got "
+            raise TypeError(f"DPPlanner: terrain must be a covert_env.world.terrain.Terrain (Terrain() for none), got "
                             f"{type(terrain).__name__}")
         if road is not None and not isinstance(road, Road):
-            raise TypeError(f"DPPlanner: road must be None or a covert_env.road.Road, got {type(road).__name__}")
+            raise TypeError(f"DPPlanner: road must be None or a covert_env.world.road.Road, got {type(road).__name__}")
         if heading not in HEADING_MODES:
             raise ValueError(f"DPPlanner: heading must be one of {HEADING_MODES}, got {heading!r}")
         for name, value, low, high in (("heading_bins", heading_bins, 1, 360), ("path_samples", path_samples, 2,

@@ -32,10 +32,10 @@ import weakref
 
 import numpy as np
 
-from covert_env.road import Road
-from covert_env.sight_kernel import blocked_segments
-from covert_env.terrain import Terrain
-from covert_env.visibility import terrain_arrays
+from covert_env.geometry.sight_kernel import blocked_segments
+from covert_env.world.road import Road
+from covert_env.world.terrain import Terrain
+from covert_env.world.visibility import terrain_arrays
 
 __all__ = ["ON_ROAD_TOL", "PossibleTargets", "SAMPLE_COVER", "clear_to_all"]
 
@@ -74,7 +74,8 @@ class PossibleTargets:
                     or not (np.isfinite(v) and v > 0):
                 raise ValueError(f"PossibleTargets: {name} must be a finite number > 0 (m), got {v!r}")
         if road is not None and not isinstance(road, Road):
-            raise TypeError(f"PossibleTargets: road must be a covert_env.road.Road or None, got {type(road).__name__}")
+            raise TypeError(f"PossibleTargets: road must be a covert_env.world.road.Road or None, got "
+                            f"{type(road).__name__}")
         self.margin, self.road, self.cover = float(margin), road, float(cover)
         if road is None:
             g = np.sqrt(2.0) * self.cover
@@ -99,7 +100,8 @@ class PossibleTargets:
 
     def visible(self, terrain: Terrain, xy: np.ndarray, altitude: float, q, tol: float) -> np.ndarray:
         """(L,) bool: the line of sight from each node ``xy`` (L, 2) at ``altitude`` is clear to every possible
-        true position of a target predicted at ``q``; ``tol`` as in :func:`covert_env.visibility.line_of_sight`."""
+        true position of a target predicted at ``q``; ``tol`` as in
+        :func:`covert_env.world.visibility.line_of_sight`."""
         return clear_to_all(terrain, xy, altitude, self.samples(q), self.cover - tol)
 
 
@@ -125,7 +127,7 @@ def clear_to_all(terrain: Terrain, xy, altitude: float, targets, grow: float) ->
     """(L,) bool: the segments from every node ``xy`` (L, 2) at ``altitude`` to every target (S, 3) miss every
     polytope grown by ``grow`` >= 0 metres (in the conservative sense of the module docstring).
 
-    The line-of-sight kernel (:func:`~covert_env.sight_kernel.blocked_segments`) with the faces pushed out by
+    The line-of-sight kernel (:func:`~covert_env.geometry.sight_kernel.blocked_segments`) with the faces pushed out by
     ``grow`` (``tol = -grow``) and, as its per-pair test, the footprint circles of :func:`_plan_radii` widened by
     ``grow`` below the tops raised by ``grow``: a pair is blocked where the segment meets both.
     """

@@ -22,8 +22,8 @@ from baselines.dp.selection import BOUND_TOL, FIRST_BAND, nonzero_indices, selec
 from baselines.dp.states import Layer, Problem, SolveCounts
 from baselines.dp.table import ManoeuvreBoundsTable
 from baselines.dp.transitions import SolvedTransitions, solve_transitions
-from covert_env.config import Config
-from covert_env.ties import first_argmin
+from covert_env.geometry.ties import first_argmin
+from covert_env.world.config import Config
 
 __all__ = ["ForwardRecursion", "backtrack"]
 

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from covert_env.angles import wrap_angle
-from covert_env.config import Config
-from covert_env.cost import uav_target_angle, uav_target_distance
-from covert_env.dynamics import solve_manoeuvre
-from covert_env.ties import first_argmin
-from covert_env.zone import to_world, zone_lattice
+from covert_env.geometry.angles import wrap_angle
+from covert_env.geometry.cost import uav_target_angle, uav_target_distance
+from covert_env.geometry.dynamics import solve_manoeuvre
+from covert_env.geometry.ties import first_argmin
+from covert_env.geometry.zone import to_world, zone_lattice
+from covert_env.world.config import Config
 
 __all__ = ["brute_force_plan", "evaluate_plan"]
 

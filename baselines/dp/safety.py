@@ -11,10 +11,10 @@ from baselines.dp.fallback import nearness
 from baselines.dp.path_checks import FALLBACK_PENALTY
 from baselines.dp.plan import DPPlan, flown_paths
 from baselines.dp.transitions import transition_costs
-from covert_env.cost import uav_target_angle, uav_target_distance
-from covert_env.dynamics import solve_manoeuvre
-from covert_env.separation import priority_negotiation, separation
-from covert_env.ties import first_argmax, first_argmin, tie_tolerance
+from covert_env.geometry.cost import uav_target_angle, uav_target_distance
+from covert_env.geometry.dynamics import solve_manoeuvre
+from covert_env.geometry.separation import priority_negotiation, separation
+from covert_env.geometry.ties import first_argmax, first_argmin, tie_tolerance
 
 __all__ = ["secure_first_moves"]
 
@@ -53,7 +53,7 @@ def secure_first_moves(team, plans, *, xy, th, target_xyz, target_phi, target_pa
 
     Every path here is the one the engine will fly: a plan's first move as :meth:`DPPlan.path_points` gives it
     (a best-effort fallback included), a candidate move as its manoeuvre. In the order of
-    :func:`~covert_env.separation.priority_negotiation`, a UAV keeps its plan if its first move keeps
+    :func:`~covert_env.geometry.separation.priority_negotiation`, a UAV keeps its plan if its first move keeps
     ``d_safe1 + separation_margin`` from those of the UAVs already settled, at every sample; otherwise it takes,
     among all lattice nodes of the next slot (solved exactly from its pose), the separated move to an allowed
     (visible) node with the lowest stage cost (eq. 18), else to any node (flagged infeasible). A UAV that can
@@ -289,7 +289,7 @@ class _FirstSlot:
         return None
 
     def negotiate(self) -> dict:
-        """Moves per UAV in the order that stands after :func:`~covert_env.separation.priority_negotiation`; if
+        """Moves per UAV in the order that stands after :func:`~covert_env.geometry.separation.priority_negotiation`; if
         that order leaves a UAV without a separated move and the team escapes, that order settled again with the
         escape (so the escape acts only where no order separates the team with the UAVs' own candidates)."""
         settled: dict = {}

@@ -13,7 +13,7 @@ import numpy as np
 from baselines.dp.states import Layer
 from baselines.dp.table import ManoeuvreBoundsTable
 from baselines.dp.transitions import SolvedTransitions
-from covert_env.angles import TWO_PI
+from covert_env.geometry.angles import TWO_PI
 
 __all__ = ["BOUND_TOL", "first_round", "nonzero_indices", "select_per_bin", "select_per_node"]
 

@@ -1,10 +1,10 @@
 """Bounds on the turn-then-straight manoeuvre (eqs. 22-29), tabulated in the UAV's own frame.
 
 The planner uses them only to bound transitions and decide which ones to solve exactly; every cost it
-returns comes from the exact solver (:func:`covert_env.dynamics.solve_manoeuvre`).
+returns comes from the exact solver (:func:`covert_env.geometry.dynamics.solve_manoeuvre`).
 
-Not the model's reach table (:class:`covert_env.reach.ReachTable`), although both tabulate the same solver in the
-UAV's frame: that one answers *whether* a waypoint is reachable, exactly (it solves the points near the boundary
+Not the model's reach table (:class:`covert_env.geometry.reach.ReachTable`), although both tabulate the same solver in
+the UAV's frame: that one answers *whether* a waypoint is reachable, exactly (it solves the points near the boundary
 of the reachable set), for the env's action masks; this one gives, per (range, bearing) cell, a lower bound on the
 path length (eq. 18's energy term) and an interval of the heading change, which the planner's selection of
 transitions needs and the reach table does not hold. Its own reachability is coarser: a cell none of whose corners
@@ -19,8 +19,8 @@ from functools import lru_cache
 
 import numpy as np
 
-from covert_env.angles import TWO_PI, wrap_angle, wrap_heading
-from covert_env.dynamics import solve_manoeuvre
+from covert_env.geometry.angles import TWO_PI, wrap_angle, wrap_heading
+from covert_env.geometry.dynamics import solve_manoeuvre
 
 __all__ = ["ManoeuvreBoundsTable", "manoeuvre_bounds_table"]
 

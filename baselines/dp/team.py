@@ -11,9 +11,9 @@ from baselines.dp.continuation import secure_continuations
 from baselines.dp.plan import TeamPlan
 from baselines.dp.planner import DPPlanner
 from baselines.dp.safety import secure_first_moves
-from covert_env.angles import wrap_angle
-from covert_env.roles import EngineView
-from covert_env.separation import separation
+from covert_env.geometry.angles import wrap_angle
+from covert_env.geometry.separation import separation
+from covert_env.world.roles import EngineView
 
 __all__ = ["Conflict", "DPTeamPlanner", "WORK_COUNTERS", "extrapolate_target"]
 
@@ -163,8 +163,8 @@ class DPTeamPlanner:
         return avoid
 
     def plan_engine(self, engine: EngineView, horizon: int | None = None, known_slots: int | None = None) -> TeamPlan:
-        """:meth:`plan` for the current state of an engine (:class:`covert_env.engine.Engine`, or a vector env's
-        copy: any :class:`covert_env.roles.EngineView`), from its track's predictions over ``horizon`` slots
+        """:meth:`plan` for the current state of an engine (:class:`covert_env.world.engine.Engine`, or a vector env's
+        copy: any :class:`covert_env.world.roles.EngineView`), from its track's predictions over ``horizon`` slots
         (default the config's N; at most N, since the route is built for the config's horizon). With
         ``known_slots`` k, only the first k predicted slots are read and the rest extrapolated from them
         (:func:`extrapolate_target`): a planner that sees as far ahead as the default observation (k = 1)."""

@@ -2,7 +2,7 @@
 
 A transition a -> b is flown by the turn-then-straight manoeuvre (eqs. 22-29); its cost is the stage
 cost of eq. 18, ``g = v delta - lambda kappa`` with ``kappa = eta |wrap(alpha_b - alpha_a)| + |d_b - d_a|``
-(eq. 11), computed by :func:`covert_env.cost.stage_cost` (the model's one definition), or inf when no
+(eq. 11), computed by :func:`covert_env.geometry.cost.stage_cost` (the model's one definition), or inf when no
 manoeuvre exists or a check along it fails (:mod:`baselines.dp.path_checks`, eq. 3 by
 :mod:`baselines.dp.clearance`).
 """
@@ -13,17 +13,18 @@ import numpy as np
 
 from baselines.dp.path_checks import PathChecker, record_circles, separated
 from baselines.dp.states import Layer, Problem, SolveCounts
-from covert_env.angles import TWO_PI, wrap_heading
-from covert_env.config import Config
-from covert_env.cost import stage_cost
-from covert_env.dynamics import Manoeuvre, solve_manoeuvre
-from covert_env.ties import tie_tolerance
+from covert_env.geometry.angles import TWO_PI, wrap_heading
+from covert_env.geometry.cost import stage_cost
+from covert_env.geometry.dynamics import Manoeuvre, solve_manoeuvre
+from covert_env.geometry.ties import tie_tolerance
+from covert_env.world.config import Config
 
 __all__ = ["SolvedTransitions", "solve_transitions", "transition_costs"]
 
 
 def transition_costs(config: Config, m: Manoeuvre, ok, alpha_from, d_from, alpha_to, d_to) -> np.ndarray:
-    """Stage costs g (eq. 18, :func:`covert_env.cost.stage_cost`) of the manoeuvres ``m``; inf where not ``ok``.
+    """Stage costs g (eq. 18, :func:`covert_env.geometry.cost.stage_cost`) of the manoeuvres ``m``; inf where not
+    ``ok``.
 
     alpha and d (eqs. 12-13) at both ends of every transition broadcast against the manoeuvres.
     """
@@ -106,7 +107,7 @@ class SolvedTransitions:
         rows, nodes, cost, head, v, g = rows[ok], nodes[ok], cost[ok], head[ok], v[ok], g[ok]
         key = self._key(rows, nodes, head, bins)
         # Sort by (key, cost): every key's cheapest row comes first, and layers come out sorted by uav. Rows within
-        # the tie tolerance of that cost tie (covert_env.ties), and a tie goes to the row solved first.
+        # the tie tolerance of that cost tie (covert_env.geometry.ties), and a tie goes to the row solved first.
         order = np.lexsort((cost, key))
         ks, cs = key[order], cost[order]
         starts = np.flatnonzero(np.concatenate([[True], ks[1:] != ks[:-1]]))

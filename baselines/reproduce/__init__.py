@@ -10,8 +10,8 @@ V_max = 50 m/s, W_max = 3 rad/s, eta = 55, lambda = 10, 70 slots):
 3. the shadow-aware planner with ``check_path=True`` ("aware-path") on the held-out scenes, which also
    keeps the line of sight between slot times (1 UAV by default; ``--path-uavs 1 3`` adds 3 UAVs).
 
-Every run drives a :class:`covert_env.engine.Engine` exactly as the waypoint environment does (same
-scenario, same lattice nodes as waypoints), and is scored by :func:`covert_env.metrics.episode_metrics`.
+Every run drives a :class:`covert_env.world.engine.Engine` exactly as the waypoint environment does (same
+scenario, same lattice nodes as waypoints), and is scored by :func:`covert_env.world.metrics.episode_metrics`.
 
 Outputs in ``--out``:
 

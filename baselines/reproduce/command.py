@@ -26,8 +26,8 @@ from covert_env.command_line import (
     positive_int,
     run_main,
 )
-from covert_env.config import Config
-from covert_env.families import FAMILIES, family_config
+from covert_env.world.config import Config
+from covert_env.world.families import FAMILIES, family_config
 
 
 def output_files(args: argparse.Namespace) -> tuple[str, ...]:
@@ -68,7 +68,7 @@ def build_parser(prog: str = "covert-env reproduce") -> argparse.ArgumentParser:
                    help="DP heading variant: inherited is the paper's (default: inherited)")
     p.add_argument("--config", default=None, help="a Config JSON file (default: the paper's parameters)")
     p.add_argument("--family", choices=list(FAMILIES), default=None,
-                   help="scene family (covert_env.families) of the held-out scenes; the paper scene stays the "
+                   help="scene family (covert_env.world.families) of the held-out scenes; the paper scene stays the "
                         "paper's (default: the config's generator fields, which are the paper family's unless "
                         "--config changes them)")
     p.add_argument("--prediction-study", action="store_true",

@@ -11,7 +11,7 @@ import numpy as np
 from baselines.intervals import bootstrap_ci
 from baselines.reproduce.runs import HELDOUT_SEED_BASE, METHODS, figure_slot, make_scenario, zone_shadow_shares
 from baselines.rollout import rollout
-from covert_env.config import Config
+from covert_env.geometry.zone import feasible_zone, to_world, zone_lattice
 from covert_env.render import (
     TERRAIN_COLOR,
     UAV_COLORS,
@@ -23,9 +23,9 @@ from covert_env.render import (
     save_episode_gif,
     zones_at,
 )
-from covert_env.scenario import Scenario
-from covert_env.visibility import visible_nodes
-from covert_env.zone import feasible_zone, to_world, zone_lattice
+from covert_env.world.config import Config
+from covert_env.world.scenario import Scenario
+from covert_env.world.visibility import visible_nodes
 
 NAMES = {"aware": "shadow-aware (paper)", "blind": "shadow-blind [1]", "aware-path": "aware + path check"}
 COLORS = {"aware": "tab:blue", "blind": "tab:red", "aware-path": "tab:green"}

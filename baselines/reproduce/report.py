@@ -9,7 +9,7 @@ import numpy as np
 
 from baselines.intervals import BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, bootstrap_ci
 from baselines.reproduce.runs import METHODS, QUICK_POOL, QUICK_SLOTS
-from covert_env.config import Config
+from covert_env.world.config import Config
 
 #: The rates of metrics.md: key, column title, value of one UAV's record (per UAV-slot unless said).
 RATES = (
@@ -100,8 +100,8 @@ def metrics_markdown(rows: list[dict], records: list[dict], config: Config, elap
     ]
     families = sorted({r["family"] for r in records if r.get("family")})
     if families:
-        lines.append(f"Held-out scenes of scene family {', '.join(families)} (covert_env.families); the paper scene "
-                     "is the paper's.")
+        lines.append(f"Held-out scenes of scene family {', '.join(families)} (covert_env.world.families); the paper "
+                     "scene is the paper's.")
     if quick:
         lines.append(f"QUICK: held-out scenes = those of the first {QUICK_POOL} whose zone is most in shadow over "
                      "the flown slots (`most_shadowed_scenes`), so rates here are NOT representative of random "
@@ -174,7 +174,7 @@ def metrics_markdown(rows: list[dict], records: list[dict], config: Config, elap
               "(docs/model.md#metrics); *future "
               "conflicts left*: conflicts in later, not yet flown slots still present when the negotiation hit its "
               "round limit, summed over replans (the flown slot is always separated). Metric definitions: "
-              "`covert_env.metrics.METRIC_DESCRIPTIONS`.", ""]
+              "`covert_env.world.metrics.METRIC_DESCRIPTIONS`.", ""]
     if timing:
         lines += ["## Where the time went", "",
                   f"Runs (planner + metrics, {timing['jobs']} worker process{'es' if timing['jobs'] > 1 else ''}): "

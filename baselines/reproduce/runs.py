@@ -10,13 +10,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from baselines.rollout import rollout
-from covert_env.config import Config
-from covert_env.families import HELD_OUT_SEEDS, family_config
-from covert_env.metrics import episode_metrics, slot_quantities
 from covert_env.render import (
     shadow_share,
 )
-from covert_env.scenario import Scenario
+from covert_env.world.config import Config
+from covert_env.world.families import HELD_OUT_SEEDS, family_config
+from covert_env.world.metrics import episode_metrics, slot_quantities
+from covert_env.world.scenario import Scenario
 
 #: Held-out scene seeds are HELDOUT_SEED_BASE + i (outside any training pool of the environments).
 HELDOUT_SEED_BASE = HELD_OUT_SEEDS.start
@@ -31,7 +31,7 @@ METHODS = {
 @dataclass(frozen=True)
 class RunSpec:
     """One episode: scene kind ("paper" or "random"), scene seed, team size, method (key of METHODS); a random
-    scene of scene family ``family`` (:mod:`covert_env.families`; None: the config as given)."""
+    scene of scene family ``family`` (:mod:`covert_env.world.families`; None: the config as given)."""
 
     kind: str
     seed: int

@@ -8,7 +8,7 @@ import numpy as np
 
 from baselines.reproduce.report import scene_values
 from baselines.reproduce.runs import HELDOUT_SEED_BASE, QUICK_POOL, RunSpec, most_shadowed_scenes, run_pairs
-from covert_env.config import Config
+from covert_env.world.config import Config
 
 #: ``--sensitivity``: scenes (the most shadowed of the first QUICK_POOL held-out ones), slots, and the values
 #: tried for each parameter (one parameter varied at a time, the others at the config's values).

@@ -2,21 +2,21 @@
 
 Pure functions on batch-first arrays ``(B, U, ...)``, no Python loop over copies, UAVs or lattice nodes: the
 vector env (:mod:`covert_env.envs.vector`) is a thin state holder around them. They use the model's own
-functions (:func:`~covert_env.metrics.moves_quantities`, the manoeuvre solver, the reachability table) with the
-batch as their leading axes, and fly with :mod:`covert_env.flight`, the engine's flight (tests/test_batch_flight.py
-checks it against the plain integration bit for bit), so a copy computes exactly what the parallel env
-computes for the same scene, starts and actions. Written with numpy calls that have direct torch counterparts, so a
-torch backend is a port.
+functions (:func:`~covert_env.world.metrics.moves_quantities`, the manoeuvre solver, the reachability table) with the
+batch as their leading axes, and fly with :mod:`covert_env.geometry.flight`, the engine's flight
+(tests/test_batch_flight.py checks it against the plain integration bit for bit), so a copy computes exactly what the
+parallel env computes for the same scene, starts and actions. Written with numpy calls that have direct torch
+counterparts, so a torch backend is a port.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from covert_env.config import short_repr
 from covert_env.envs.observation import OFFSET_CLIP, OWN_SIZE, OWN_SLICES
-from covert_env.flight import fly_turn_straight, waypoint_controls
-from covert_env.zone import to_target_frame
+from covert_env.geometry.flight import fly_turn_straight, waypoint_controls
+from covert_env.geometry.zone import to_target_frame
+from covert_env.world.config import short_repr
 
 #: Smallest commanded speed as a fraction of V_max: the unicycle needs v > 0 (eq. 1).
 MIN_SPEED_FRACTION = 0.01
@@ -105,7 +105,7 @@ def fly_to_goals(xy, theta, goals, c, times) -> np.ndarray:
 def action_masks(xy, theta, q_xy, phi, lattice, visible, table) -> np.ndarray:
     """Waypoint masks (B, U, L) int8: the ``lattice`` nodes (L, 2) placed at the targets q_xy (B, 2), phi (B,) of
     slot k+1, reachable in one slot from the poses (B, U) (``table``: the config's
-    :class:`~covert_env.reach.ReachTable`, exactly ``solve_manoeuvre``'s answer) and ``visible`` (B, L) there
+    :class:`~covert_env.geometry.reach.ReachTable`, exactly ``solve_manoeuvre``'s answer) and ``visible`` (B, L) there
     (None: reachable only, the kinematic mask); where no node qualifies the reachable ones, and where none is
     reachable all."""
     reach = table.reachable(xy, theta, q_xy, phi, lattice)

@@ -18,14 +18,14 @@ from gymnasium.vector import AutoresetMode
 from pettingzoo import ParallelEnv
 from pettingzoo.utils import parallel_to_aec, wrappers
 
-from covert_env.config import Config
 from covert_env.envs.arguments import ConstructionSettings, int_arg, reset_options
 from covert_env.envs.observation import observation_table
 from covert_env.envs.recorder import CopyView
 from covert_env.envs.settings import ACTION_MODES, MAX_PATH_SAMPLES, MAX_SCENE_POOL, RENDER_MODES, EnvSettings
 from covert_env.envs.vector import INFO_KEYS, MAX_SCENE_SEED, CovertSensingVectorEnv
 from covert_env.render import EpisodeRenderer
-from covert_env.scenario import Scenario
+from covert_env.world.config import Config
+from covert_env.world.scenario import Scenario
 
 __all__ = ["CovertSensingParallelEnv", "env", "parallel_env", "raw_env", "ACTION_MODES", "MAX_PATH_SAMPLES",
            "MAX_SCENE_POOL"]
@@ -69,7 +69,7 @@ class CovertSensingParallelEnv(ConstructionSettings, ParallelEnv):
     in both. If no node qualifies, reachable nodes are unmasked, and if none is reachable every node is, so a
     masked sampler always has a choice. A masked-out but reachable node is flown exactly and flagged
     ``infos[agent]["infeasible"]``; an unreachable one is flown as a best effort (the admissible constant
-    (v, omega) ending closest to it, see :mod:`covert_env.engine`) and flagged too.
+    (v, omega) ending closest to it, see :mod:`covert_env.world.engine`) and flagged too.
 
     ## Observation Space
 
@@ -153,7 +153,7 @@ class CovertSensingParallelEnv(ConstructionSettings, ParallelEnv):
     the same RNG: distinct visible-zone nodes, ``2 d_safe1`` apart, with uniform headings.
     ``options={"scene_seed": s}`` picks the scene and then uses ``Scenario.random(s)``'s own starts,
     exactly what the evaluation harness and ``reproduce`` fly (evaluate on seeds outside the pool).
-    A :class:`~covert_env.scenario.Scenario` instance may also be passed.
+    A :class:`~covert_env.world.scenario.Scenario` instance may also be passed.
     ``random_starts=True`` samples the starts from the env's RNG for every scenario.
     After a reset, ``env.scenario`` is the scene with the starts actually flown in this episode.
 
@@ -173,7 +173,7 @@ class CovertSensingParallelEnv(ConstructionSettings, ParallelEnv):
 
     ## Arguments
 
-    * ``config``: a :class:`~covert_env.config.Config` or dict (paper defaults).
+    * ``config``: a :class:`~covert_env.world.config.Config` or dict (paper defaults).
     * ``n_uavs``: team size U (default ``config.n_uavs``).
     * ``scenario``: ``"random"``, ``"paper"`` or a ``Scenario``.
     * ``action_mode``: ``"unicycle"`` or ``"waypoint"``.
@@ -195,10 +195,10 @@ class CovertSensingParallelEnv(ConstructionSettings, ParallelEnv):
     * ``path_samples``: samples per slot for LoS/separation checks along the path (default 11, in [2, 1000]; each
       sample is a line-of-sight test per UAV and step).
     * ``random_starts``: sample start poses from the env's RNG even for a fixed scenario.
-    * ``family``: a scene family's name (:mod:`covert_env.families`: ``"sparse"``, ``"paper"``, ``"winding"``,
+    * ``family``: a scene family's name (:mod:`covert_env.world.families`: ``"sparse"``, ``"paper"``, ``"winding"``,
       ``"dense"``, ``"downtown"``, ``"towers"``), whose generator fields are set on ``config``; with
       ``scenario="random"`` only. None (default): the config as given (at its defaults, the ``paper`` family).
-    * ``task``: a task of the suite (:mod:`covert_env.tasks`, e.g. ``"downtown-3uav"``,
+    * ``task``: a task of the suite (:mod:`covert_env.world.tasks`, e.g. ``"downtown-3uav"``,
       ``"paper-3uav-deviating"``): its family, team size and target behaviour set on ``config``;
       ``family`` and ``n_uavs``, if given too, must agree with it.
 
@@ -245,9 +245,9 @@ class CovertSensingParallelEnv(ConstructionSettings, ParallelEnv):
         self.config, self.scenario_spec, self.action_mode = s.config, s.scenario, s.action_mode
         self.render_mode, self.map_size, self.dict_obs = s.render_mode, s.map_size, s.dict_obs
         self.scene_pool, self.path_samples, self.random_starts = s.scene_pool, s.path_samples, s.random_starts
-        #: The scene family's name (:mod:`covert_env.families`), or None for the config as given.
+        #: The scene family's name (:mod:`covert_env.world.families`), or None for the config as given.
         self.family = s.family
-        #: The suite task's name (:mod:`covert_env.tasks`), or None.
+        #: The suite task's name (:mod:`covert_env.world.tasks`), or None.
         self.task = s.task
         #: What the waypoint action mask allows: ``"visible"`` or ``"kinematic"`` (see Action Space).
         self.mask_mode = s.mask_mode

@@ -7,12 +7,12 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from covert_env.angles import wrap_heading
 from covert_env.envs import batch
 from covert_env.envs.waypoint_queries import SafetyState
-from covert_env.metrics import top_clearance
-from covert_env.separation import priority_negotiation, separation
-from covert_env.zone import to_world
+from covert_env.geometry.angles import wrap_heading
+from covert_env.geometry.separation import priority_negotiation, separation
+from covert_env.geometry.zone import to_world
+from covert_env.world.metrics import top_clearance
 
 __all__ = ["Flights", "Plan", "clear_along", "near_tops", "negotiate", "path_separation", "sample_bounds",
            "separated_from", "top_clearance_along"]
@@ -22,14 +22,14 @@ _FAR = 1e9
 
 
 def path_separation(paths: np.ndarray, others: np.ndarray, first: int = 1) -> np.ndarray:
-    """Eq. 2's distance over a slot (:func:`~covert_env.separation.separation`) at the common instants from sample
-    ``first`` on (1: after the start, which no choice changes) of ``paths`` and ``others`` (..., P, 2), broadcast
+    """Eq. 2's distance over a slot (:func:`~covert_env.geometry.separation.separation`) at the common instants from
+    sample ``first`` on (1: after the start, which no choice changes) of ``paths`` and ``others`` (..., P, 2), broadcast
     against each other."""
     return separation(paths[..., first:, :], others[..., first:, :])
 
 
 def top_clearance_along(paths: np.ndarray, tops: np.ndarray, altitude: float, first: int = 1) -> np.ndarray:
-    """Eq. 3's distance over a slot (:func:`~covert_env.metrics.top_clearance`): from UAVs at ``altitude`` flying
+    """Eq. 3's distance over a slot (:func:`~covert_env.world.metrics.top_clearance`): from UAVs at ``altitude`` flying
     ``paths`` (N, M, P, 2) to the nearest of their copy's tops (N, T, 3), at the samples from ``first`` on; (N, M)."""
     return top_clearance(paths[:, :, first:], altitude, tops).min(axis=-1)
 
@@ -47,8 +47,8 @@ def separated_from(cand: np.ndarray, past: np.ndarray, need: float, first: int, 
 @numba.njit(cache=True, nogil=True)
 def _separated_from(cand, past, need, first, ok):
     """:func:`separated_from`'s loop. A distance well away from ``need`` is settled by its square; one near it is
-    compared as ``hypot(dx, dy) >= need``, eq. 2's own test (:func:`~covert_env.separation.separation`). A pair too
-    close still reads its remaining samples for a NaN, which makes it separated (the metric's NaN rule)."""
+    compared as ``hypot(dx, dy) >= need``, eq. 2's own test (:func:`~covert_env.geometry.separation.separation`). A pair
+    too close still reads its remaining samples for a NaN, which makes it separated (the metric's NaN rule)."""
     r, m, p = cand.shape[:3]
     lo2, hi2 = (need * (1.0 - 1e-9)) ** 2, (need * (1.0 + 1e-9)) ** 2
     for i in range(r):
@@ -83,7 +83,7 @@ def clear_along(paths: np.ndarray, tops: np.ndarray, altitude: float, need: floa
 
 @numba.njit(cache=True, nogil=True)
 def _clear_along(paths, tops, altitude, need, first, out):
-    """:func:`clear_along`'s loop. Each squared distance is summed as :func:`~covert_env.metrics.top_clearance`
+    """:func:`clear_along`'s loop. Each squared distance is summed as :func:`~covert_env.world.metrics.top_clearance`
     sums it; one well below ``need ** 2`` settles the flight, one near it is compared as ``sqrt(d2) < need``, the
     metric's own test (the square root is monotone and correctly rounded)."""
     n, m, p = paths.shape[:3]

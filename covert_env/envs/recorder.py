@@ -1,9 +1,9 @@
 """The episodes a vector env's copies are flying, recorded for the metrics, and one copy seen as an engine.
 
-:class:`EpisodeRecorder` keeps, per copy, what :class:`~covert_env.engine.Engine` records (positions, headings,
+:class:`EpisodeRecorder` keeps, per copy, what :class:`~covert_env.world.engine.Engine` records (positions, headings,
 path samples, speeds, turn rates, fallback flags) in preallocated arrays written by one array operation per step,
-and turns a copy's episode into a :class:`~covert_env.trajectory.Trajectory`: the metrics of
-:mod:`covert_env.metrics` score the envs' episodes and the engine's alike. :class:`CopyView` reads copy i of a
+and turns a copy's episode into a :class:`~covert_env.world.trajectory.Trajectory`: the metrics of
+:mod:`covert_env.world.metrics` score the envs' episodes and the engine's alike. :class:`CopyView` reads copy i of a
 vector env in the engine's terms (``k``, ``uav_xy``, ``predict``, ``trajectory``, ...), so the DP planner, the
 renderer and the evaluation harness drive an env exactly as they drive an engine.
 """
@@ -13,9 +13,9 @@ from __future__ import annotations
 import numpy as np
 
 from covert_env.envs.arguments import int_arg
-from covert_env.roles import TargetReads
-from covert_env.scenario import Scenario
-from covert_env.trajectory import Trajectory
+from covert_env.world.roles import TargetReads
+from covert_env.world.scenario import Scenario
+from covert_env.world.trajectory import Trajectory
 
 __all__ = ["CopyReaders", "CopyView", "EpisodeRecorder"]
 
@@ -59,7 +59,7 @@ class EpisodeRecorder:
 class CopyView(TargetReads):
     """Copy ``i`` of a :class:`~covert_env.envs.vector.CovertSensingVectorEnv`, read as an engine (read-only).
 
-    An :class:`~covert_env.roles.EngineView`, as :class:`~covert_env.engine.Engine` is: ``k``, ``uav_xy``,
+    An :class:`~covert_env.world.roles.EngineView`, as :class:`~covert_env.world.engine.Engine` is: ``k``, ``uav_xy``,
     ``uav_theta``, ``positions`` (every slot so far), ``target_xyz``, ``target_phi``, ``predict``, ``track``,
     ``terrain``, ``config``, ``path_samples``, ``done`` and ``trajectory()`` (``positions`` and ``trajectory()``
     need ``record=True``).
@@ -147,7 +147,7 @@ class CopyReaders:
         return self._pool.cache(self._rows[i]).parts
 
     def scenario(self, i: int) -> Scenario:
-        """The :class:`~covert_env.scenario.Scenario` of copy i's episode, with the starts actually flown."""
+        """The :class:`~covert_env.world.scenario.Scenario` of copy i's episode, with the starts actually flown."""
         i = self._copy("scenario()", i)
         cache = self._pool.cache(self._rows[i])
         if not self._drawn[i]:
@@ -157,7 +157,7 @@ class CopyReaders:
                         name=w.name)
 
     def trajectory(self, i: int) -> Trajectory:
-        """Copy i's episode so far as a :class:`~covert_env.trajectory.Trajectory` (needs ``record=True``)."""
+        """Copy i's episode so far as a :class:`~covert_env.world.trajectory.Trajectory` (needs ``record=True``)."""
         if self._recorder is None:
             raise RuntimeError("trajectory() needs the vector env built with record=True")
         i = self._copy("trajectory()", i)

@@ -14,8 +14,8 @@ as it was checked: where a later slot finds no certified move, the plan's next m
 Per slot and copy, in order, the first that exists:
 
 1. a certified joint move among a few of the allowed nodes (the env's masks) per UAV, found by priority
-   negotiation (:func:`~covert_env.separation.priority_negotiation`): each UAV takes its most preferred node that
-   is clear of the tops and separated from the paths already settled, the proposal first. The search widens in
+   negotiation (:func:`~covert_env.geometry.separation.priority_negotiation`): each UAV takes its most preferred node
+   that is clear of the tops and separated from the paths already settled, the proposal first. The search widens in
    stages, each for the copies the one before left without a certified move: the proposals alone (their
    certificate tries the 2 nodes per UAV and later slot that keep its place behind the target best); 8 nodes
    per UAV (certificates over 8); ``candidates`` nodes (certificates over ``certificate_candidates``, then over
@@ -61,8 +61,8 @@ from covert_env.envs.joint_moves import (
     top_clearance_along,
 )
 from covert_env.envs.waypoint_queries import SafetyState
-from covert_env.reach import reach_table
-from covert_env.zone import to_target_frame
+from covert_env.geometry.reach import reach_table
+from covert_env.geometry.zone import to_target_frame
 
 __all__ = ["FilterStats", "SafetyFilter", "SafetyFilteredVectorEnv", "ShieldedPolicy", "path_separation",
            "sample_bounds", "top_clearance_along"]
@@ -99,7 +99,7 @@ class SafetyFilter:
     """Keeps eqs. 2 and 3 along the flown path for any waypoint team (see the module docstring).
 
     Args:
-        config: the env's :class:`~covert_env.config.Config`; lattice: its waypoint lattice (L, 2).
+        config: the env's :class:`~covert_env.world.config.Config`; lattice: its waypoint lattice (L, 2).
         samples: instants per slot at which eqs. 2 and 3 are checked (start and end included), >= 2.
         certificate_samples: the same for the backup plan's moves in the first stages, in [2, samples]; default
             21 (``samples`` if fewer).

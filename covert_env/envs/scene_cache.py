@@ -4,7 +4,7 @@ observation's shared blocks with their visibility maps, the lattice's visibility
 A :class:`SceneBatch` holds N scenes as arrays (terrain arrays and tracks: the batched generator's random scenes,
 or one given scenario); the vector env's :class:`~covert_env.envs.scene_pool.ScenePool` writes them into its rows
 and computes their per-slot quantities with one batched line-of-sight call each
-(:func:`~covert_env.visibility.visible_nodes_rows`). A :class:`SceneCache` builds one scene's objects (terrain,
+(:func:`~covert_env.world.visibility.visible_nodes_rows`). A :class:`SceneCache` builds one scene's objects (terrain,
 track, seeded starts) only when asked for them (``VectorEnv.scene``, ``scenario``).
 """
 
@@ -15,13 +15,13 @@ from functools import cached_property
 
 import numpy as np
 
-from covert_env.config import Config
 from covert_env.envs.observation import FIELDS, SHARED, shared_block_slices
-from covert_env.metrics import top_clearance
-from covert_env.road import cumulative_lengths
-from covert_env.scenario import Scenario, random_scene_arrays, sample_starts_on
-from covert_env.visibility import terrain_arrays
-from covert_env.zone import to_target_frame, to_world
+from covert_env.geometry.zone import to_target_frame, to_world
+from covert_env.world.config import Config
+from covert_env.world.metrics import top_clearance
+from covert_env.world.road import cumulative_lengths
+from covert_env.world.scenario import Scenario, random_scene_arrays, sample_starts_on
+from covert_env.world.visibility import terrain_arrays
 
 __all__ = ["SceneBatch", "SceneCache", "World", "shared_blocks", "start_nodes"]
 
@@ -36,7 +36,7 @@ class SceneBatch:
     Attributes:
         keys: the scenes' pool keys; config.
         hs (N, M, F, 4), centre (N, M, 2), radius (N, M), z_max (N, M), top (N, M, 3), growth (N, M): the terrains
-            (:meth:`TerrainRows.set_rows <covert_env.visibility.TerrainRows.set_rows>`).
+            (:meth:`TerrainRows.set_rows <covert_env.world.visibility.TerrainRows.set_rows>`).
         q (N, T, 3), phi (N, T): the target's true track; q_next (N, T, 3), phi_next (N, T): slot k + 1 as predicted
             at slot k (row n: the track's end), as ``TargetTrack.next_predicted``; exact: the prediction is the truth.
             q_ahead (N, T, H, 3), phi_ahead (N, T, H): slots k + 1..k + H as predicted at slot k (H =
@@ -59,7 +59,7 @@ class SceneBatch:
 
     @classmethod
     def random(cls, seeds, config: Config) -> SceneBatch:
-        """The random scenes ``seeds`` (:func:`~covert_env.scenario.random_scene_arrays`, one batch). Without
+        """The random scenes ``seeds`` (:func:`~covert_env.world.scenario.random_scene_arrays`, one batch). Without
         prediction error the tracks are computed for all scenes at once; with it, each track draws its own speed
         noise from its scene's seed (a generator per scene, so a loop over the scenes)."""
         a = random_scene_arrays(seeds, config)
@@ -122,7 +122,7 @@ def start_nodes(config: Config, lattice: np.ndarray, q0: np.ndarray, phi0: np.nd
                 top: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The zone lattice at slot 0 of N scenes, (N, L, 2) world positions, and which nodes are at least d_safe2 from
     every polytope top ``top`` (N, M, 3) (eq. 3), (N, L): with the nodes' visibility, what
-    :func:`~covert_env.scenario.start_candidates` gives per scene."""
+    :func:`~covert_env.world.scenario.start_candidates` gives per scene."""
     nodes = to_world(lattice, q0[:, :2], phi0)
     clear = np.ones(nodes.shape[:2], dtype=bool)
     # Only a top within d_safe2 (+ 1 µm, above rounding) below the flight plane can be that close; the others are

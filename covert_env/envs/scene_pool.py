@@ -3,11 +3,11 @@
 Everything that depends only on the scene and the slot (the target's track, the observation's shared block with
 its visibility maps, which lattice nodes are visible, the start candidates) is computed when scenes enter the
 pool, for all the scenes a reset needs at once (:class:`~covert_env.envs.scene_cache.SceneBatch`, one batched
-line-of-sight call per quantity, :func:`~covert_env.visibility.visible_nodes_rows`), and stored in arrays
+line-of-sight call per quantity, :func:`~covert_env.world.visibility.visible_nodes_rows`), and stored in arrays
 ``(R, ...)``: every copy and reset sees the same numbers. A copy of the vector env only holds its row index: every
 per-step quantity is a gather ``array[rows, slots]``, one array operation for the whole batch.
 
-The terrains are rows of a :class:`~covert_env.visibility.TerrainRows` (padded half-spaces, footprint circles and
+The terrains are rows of a :class:`~covert_env.world.visibility.TerrainRows` (padded half-spaces, footprint circles and
 tops per row), whose batched line of sight clips with the same routine as every other LoS path. Scene objects
 (terrain, track) are built only when asked for (:meth:`ScenePool.cache`).
 """
@@ -20,11 +20,11 @@ import numpy as np
 
 from covert_env.envs.observation import shared_block_size
 from covert_env.envs.scene_cache import SceneBatch, SceneCache, shared_blocks, start_nodes
-from covert_env.metrics import terrain_clearance
-from covert_env.road import points_along_rows, segments_at
-from covert_env.scenario import Scenario, pick_starts_many
-from covert_env.visibility import LOS_TOLERANCE, TerrainRows, grown, visible_nodes_rows
-from covert_env.zone import zone_lattice
+from covert_env.geometry.zone import zone_lattice
+from covert_env.world.metrics import terrain_clearance
+from covert_env.world.road import points_along_rows, segments_at
+from covert_env.world.scenario import Scenario, pick_starts_many
+from covert_env.world.visibility import LOS_TOLERANCE, TerrainRows, grown, visible_nodes_rows
 
 __all__ = ["ScenePool"]
 
@@ -47,14 +47,14 @@ class ScenePool:
         blocks (R, T, D) float32: the observation's shared block per slot
             (:func:`~covert_env.envs.scene_cache.shared_blocks`).
         lattice_ok (R, T, L) bool: row k, the lattice nodes visible at slot k as predicted at slot k - 1 (eq. 10,
-            :func:`~covert_env.visibility.visible_nodes`; the action mask of slot k - 1's move; waypoint mode only).
-        start_xy (R, L0, 2), start_visible (R, L0), start_clear (R, L0): the zone lattice at slot 0, its nodes'
+            :func:`~covert_env.world.visibility.visible_nodes`; the action mask of slot k - 1's move; waypoint mode
+        only). start_xy (R, L0, 2), start_visible (R, L0), start_clear (R, L0): the zone lattice at slot 0, its nodes'
             visibility and clearance of the tops (eq. 3): what the starts are drawn from.
         roads (R, K, 2), road_lengths (R, K), road_last (R,): each scene's road (padded; its last vertex
             ``road_last``) and the arc length at each vertex; arc (R, T), arc_segment (R, T): the target's arc
             length at each slot and the road segment it lies on; target_z (R,): the filmed point's height. What
             :meth:`target_between` reads.
-        terrains: the scenes' terrains, row r the scene's (:class:`~covert_env.visibility.TerrainRows`).
+        terrains: the scenes' terrains, row r the scene's (:class:`~covert_env.world.visibility.TerrainRows`).
         top (R, M, 3): polytope top points (eq. 3), padded with inf; centre (R, M, 2), radius (R, M): footprint
         circles (views of ``terrains``).
     """
@@ -149,7 +149,7 @@ class ScenePool:
         first, so a pool of B scenes works). A copy's scene is ``scene_seeds[n]`` or, for ``scenario="random"``,
         a seed drawn from its generator in ``range(scene_pool)``; its starts are drawn from the generator
         (``draw_starts``) or the scene's own seeded ones (a new generator of its seed, as ``Scenario.random``),
-        both by :func:`~covert_env.scenario.pick_starts_many` on the pool's start candidates. Returns the starts
+        both by :func:`~covert_env.world.scenario.pick_starts_many` on the pool's start candidates. Returns the starts
         ``(len(idx), U, 2)`` and headings ``(len(idx), U)``. The missing scenes are built as one batch;
         drawing is the one per-copy step of a reset (a few µs per copy, once per episode): every copy has its own
         generator.
@@ -265,7 +265,7 @@ class ScenePool:
                       *, tol: float = LOS_TOLERANCE) -> np.ndarray:
         """Clear LoS (eq. 6) from UAVs ``uav_xy`` (B, U, 2) at ``altitude`` to targets ``target_xyz`` (B, 3), copy
         b against the terrain of scene row ``rows[b]``; (B, U) bool (:meth:`TerrainRows.line_of_sight
-        <covert_env.visibility.TerrainRows.line_of_sight>`)."""
+        <covert_env.world.visibility.TerrainRows.line_of_sight>`)."""
         return self.terrains.line_of_sight(rows, uav_xy, altitude, target_xyz, tol=tol)
 
     def target_between(self, rows: np.ndarray, k: np.ndarray, fractions: np.ndarray) -> np.ndarray:
@@ -280,7 +280,7 @@ class ScenePool:
                            fractions: np.ndarray) -> np.ndarray:
         """(B, U, F) clear LoS (eq. 6) from the path samples ``path_xy`` (B, U, F, 2) of slot k[b] to the target at
         the same instants (``fractions`` (F,) of the slot), copy b against its own scene: one batched call
-        (:meth:`TerrainRows.line_of_sight_paths <covert_env.visibility.TerrainRows.line_of_sight_paths>`)."""
+        (:meth:`TerrainRows.line_of_sight_paths <covert_env.world.visibility.TerrainRows.line_of_sight_paths>`)."""
         target = self.target_between(rows, k, fractions)
         return self.terrains.line_of_sight_paths(rows, path_xy, altitude, target)
 
@@ -290,7 +290,8 @@ class ScenePool:
 
     def copy_terrains(self, rows: np.ndarray) -> _CopyTerrains:
         """The terrain of each copy, copy b flying scene row ``rows[b]``: what
-        :func:`~covert_env.metrics.moves_quantities` and :func:`~covert_env.metrics.terrain_clearance` read."""
+        :func:`~covert_env.world.metrics.moves_quantities` and :func:`~covert_env.world.metrics.terrain_clearance`
+        read."""
         return _CopyTerrains(self, rows)
 
 

@@ -11,14 +11,14 @@ from collections.abc import Mapping
 import numpy as np
 from gymnasium import spaces
 
-from covert_env.config import Config
-from covert_env.engine import MAX_PATH_SAMPLES
 from covert_env.envs.arguments import bool_arg, int_arg, number_arg
 from covert_env.envs.observation import ObservationLayout
-from covert_env.families import TRAIN_SEEDS, family_config
-from covert_env.scenario import PAPER_UAV_STARTS, Scenario
-from covert_env.tasks import get_task
-from covert_env.zone import in_feasible_zone, lattice_offsets, zone_lattice
+from covert_env.geometry.zone import in_feasible_zone, lattice_offsets, zone_lattice
+from covert_env.world.config import Config
+from covert_env.world.engine import MAX_PATH_SAMPLES
+from covert_env.world.families import TRAIN_SEEDS, family_config
+from covert_env.world.scenario import PAPER_UAV_STARTS, Scenario
+from covert_env.world.tasks import get_task
 
 __all__ = ["ACTION_MODES", "EnvSettings", "LiveSettings", "MASK_MODES", "MAX_PATH_SAMPLES", "MAX_SCENE_POOL",
            "PENALTIES", "RENDER_MODES", "PenaltyWeights", "check_penalties", "check_reward_scale"]

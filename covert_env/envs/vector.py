@@ -9,19 +9,19 @@ import numpy as np
 from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
-from covert_env.angles import wrap_heading
-from covert_env.config import short_repr
 from covert_env.envs import batch
 from covert_env.envs.arguments import ConstructionSettings, int_arg, reset_options
 from covert_env.envs.recorder import CopyReaders, EpisodeRecorder
 from covert_env.envs.scene_pool import ScenePool
 from covert_env.envs.settings import EnvSettings, LiveSettings, check_penalties
 from covert_env.envs.waypoint_queries import WaypointQueries
-from covert_env.flight import fly_arc
-from covert_env.metrics import moves_quantities
-from covert_env.reach import reach_table
-from covert_env.separation import nearest_teammate
-from covert_env.zone import to_world, zone_distance
+from covert_env.geometry.angles import wrap_heading
+from covert_env.geometry.flight import fly_arc
+from covert_env.geometry.reach import reach_table
+from covert_env.geometry.separation import nearest_teammate
+from covert_env.geometry.zone import to_world, zone_distance
+from covert_env.world.config import short_repr
+from covert_env.world.metrics import moves_quantities
 
 __all__ = ["AUTORESET_MODES", "CovertSensingVectorEnv", "vector_env", "INFO_BOOLS", "INFO_KEYS", "INFO_DTYPES",
            "MAX_NUM_ENVS", "MAX_SCENE_SEED"]
@@ -62,7 +62,7 @@ class CovertSensingVectorEnv(ConstructionSettings, LiveSettings, CopyReaders, Wa
 
     Copy ``i`` flies exactly what the parallel env flies for the same scene, starts and actions (tested, see
     Seeding): observations, rewards, costs and infos are bit-identical. (The parallel env is this env with B = 1;
-    every line-of-sight question goes to one kernel, :func:`~covert_env.sight_kernel.blocked_segments`.)
+    every line-of-sight question goes to one kernel, :func:`~covert_env.geometry.sight_kernel.blocked_segments`.)
 
     ## Action Space
 
@@ -84,7 +84,7 @@ class CovertSensingVectorEnv(ConstructionSettings, LiveSettings, CopyReaders, Wa
     node both reachable and visible allows the reachable nodes, and a row whose UAV can reach no node is all ones
     (about 5 % of UAV-slots under a random masked policy); a node taken there is flown as a best effort (the
     admissible constant (v, omega) ending closest to it) and flagged ``infos["infeasible"]``. Reachability
-    comes from :class:`~covert_env.reach.ReachTable` (a table in the UAV's frame; only nodes near its boundary
+    comes from :class:`~covert_env.geometry.reach.ReachTable` (a table in the UAV's frame; only nodes near its boundary
     are solved), which gives exactly ``solve_manoeuvre``'s answer. ``waypoint_paths(nodes)`` returns the paths
     the UAVs would fly to given nodes in this slot (read-only; what the separation shield of
     ``training.shield`` tests), and ``onward_reach(xy, theta)`` how many nodes a UAV ending the slot at a given
@@ -154,7 +154,7 @@ class CovertSensingVectorEnv(ConstructionSettings, LiveSettings, CopyReaders, Wa
 
     ``slots`` (B,), ``uav_xy`` (B, U, 2) and ``uav_theta`` (B, U) (read-only), ``scene(i)`` (terrain and track),
     ``scenario(i)`` (with the starts flown), ``trajectory(i)`` (with ``record=True``) and ``copy_view(i)``, which
-    reads copy i in the terms of :class:`~covert_env.engine.Engine` (``k``, ``uav_xy``, ``predict``, ...), so the
+    reads copy i in the terms of :class:`~covert_env.world.engine.Engine` (``k``, ``uav_xy``, ``predict``, ...), so the
     DP planner and the evaluation harness can drive a copy as they drive an engine.
 
     ## Version History

@@ -13,7 +13,7 @@ import numpy as np
 
 from covert_env.envs import batch
 from covert_env.envs.arguments import int_arg
-from covert_env.zone import to_world
+from covert_env.geometry.zone import to_world
 
 __all__ = ["SafetyState", "WaypointQueries"]
 
@@ -67,8 +67,8 @@ class WaypointQueries:
 
         The next slot's nodes are placed at the target two slots ahead: its pose predicted for slot k+1, driven on
         for one more slot with the same displacement and turn (a constant-speed, constant-curvature guess; the env
-        keeps one slot of prediction). Reachability is :class:`~covert_env.reach.ReachTable`'s lookup without the
-        manoeuvre solver: the nodes in its boundary cells count as unreachable, so the count is a lower bound
+        keeps one slot of prediction). Reachability is :class:`~covert_env.geometry.reach.ReachTable`'s lookup without
+        the manoeuvre solver: the nodes in its boundary cells count as unreachable, so the count is a lower bound
         (within a cell of the reach boundary). A UAV with a count of 0 reaches no node next slot, or only nodes
         at the edge of its reach: it is about to leave the zone. A read-only query (waypoint mode, after
         ``reset()``) for policies that look one slot ahead: the viability rule of ``training.shield`` tests the

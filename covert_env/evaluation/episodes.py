@@ -7,9 +7,9 @@ Every policy has a ``name`` and two methods::
 
 ``env`` is the PettingZoo :class:`~covert_env.envs.covert_sensing.CovertSensingParallelEnv` or a Gymnasium single-UAV
 env of covert_env (the parallel env inside is ``env.unwrapped.par``). :func:`run_episode` flies one episode and scores
-it with :func:`covert_env.metrics.episode_metrics`, the code every policy is scored with; :func:`evaluate` flies the
-held-out scenes ``seed_offset + i`` (or a scene set's) and gives one row per episode, with the :data:`COLUMNS` of the
-leaderboards; :func:`summarise` their mean and std.
+it with :func:`covert_env.world.metrics.episode_metrics`, the code every policy is scored with; :func:`evaluate` flies
+the held-out scenes ``seed_offset + i`` (or a scene set's) and gives one row per episode, with the :data:`COLUMNS` of
+the leaderboards; :func:`summarise` their mean and std.
 """
 
 from __future__ import annotations
@@ -23,16 +23,16 @@ import numpy as np
 
 from covert_env.envs.covert_sensing import CovertSensingParallelEnv
 from covert_env.envs.safety_filter import ShieldedPolicy
-from covert_env.families import HELD_OUT_SEEDS
-from covert_env.metrics import episode_metrics
-from covert_env.scene_set import SceneSet
+from covert_env.world.families import HELD_OUT_SEEDS
+from covert_env.world.metrics import episode_metrics
+from covert_env.world.scene_set import SceneSet
 
 __all__ = ["COLUMNS", "HELD_OUT_OFFSET", "evaluate", "parallel_env_of", "run_episode", "summarise", "team_row"]
 
 HELD_OUT_OFFSET = HELD_OUT_SEEDS.start
 """The first held-out scene seed (episode i flies scene ``HELD_OUT_OFFSET + i``)."""
 
-#: (key, header, format) of the leaderboard columns; keys are metric names of covert_env.metrics or "reward".
+#: (key, header, format) of the leaderboard columns; keys are metric names of covert_env.world.metrics or "reward".
 COLUMNS = [
     ("reward", "episode reward", "{:.1f}"),
     ("occlusion_rate", "blocked LoS at slots", "{:.3f}"),
@@ -64,8 +64,8 @@ def run_episode(policy, env, *, seed: int | None = None, options: dict | None = 
     """Reset ``env``, run ``policy`` to the end of the episode and score it.
 
     Returns:
-        dict with ``trajectory`` (:class:`~covert_env.trajectory.Trajectory` recorded by the engine),
-        ``metrics`` (one dict per UAV, :func:`covert_env.metrics.episode_metrics`, with the measured
+        dict with ``trajectory`` (:class:`~covert_env.world.trajectory.Trajectory` recorded by the engine),
+        ``metrics`` (one dict per UAV, :func:`covert_env.world.metrics.episode_metrics`, with the measured
         ``decision_time_ms`` of ``act`` split over the UAVs), ``return`` (sum of rewards per agent) and
         ``steps``.
     """

@@ -30,7 +30,7 @@ under ``("uav", "info")`` and BenchMARL logs its mean per iteration (``collectio
 
 The default task config is :class:`TaskConfig` (shipped in Python, not in BenchMARL's yaml folder);
 ``get_task(config={...})`` overrides fields, e.g. ``{"n_uavs": 1, "max_cycles": 40}``, or picks a task of the
-suite, ``{"suite_task": "downtown-3uav"}`` (:mod:`covert_env.tasks`: family, team and target).
+suite, ``{"suite_task": "downtown-3uav"}`` (:mod:`covert_env.world.tasks`: family, team and target).
 ``CovertSensingTask.UNICYCLE.get_from_yaml(path)`` reads a yaml file with the same fields.
 :func:`register` also makes the tasks known to BenchMARL's hydra runner as ``task=covert_sensing/unicycle``
 and ``task=covert_sensing/waypoint``; this module runs it::
@@ -73,9 +73,9 @@ class TaskConfig:
 
     #: team size U; ``None``: the config's (3 UAVs by default) or the suite task's
     n_uavs: int | None = None
-    #: a task of the suite (:mod:`covert_env.tasks`, e.g. ``"downtown-3uav"``): its family, team and target
+    #: a task of the suite (:mod:`covert_env.world.tasks`, e.g. ``"downtown-3uav"``): its family, team and target
     suite_task: str | None = None
-    #: a scene family (:mod:`covert_env.families`, e.g. ``"dense"``) when no ``suite_task`` is given
+    #: a scene family (:mod:`covert_env.world.families`, e.g. ``"dense"``) when no ``suite_task`` is given
     family: str | None = None
     #: ``"random"`` (a training scene per reset) or ``"paper"``
     scenario: str = "random"

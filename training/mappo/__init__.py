@@ -56,10 +56,9 @@ Env steps count copy-slots (one step of one env copy, all its UAVs); agent-steps
 from __future__ import annotations
 
 import importlib
-import sys
 from pathlib import Path
 
-from training.common import parse_args
+from training.common import checked_main
 from training.mappo.args import Args, actor_fields, check_args, constraint_limits, init_actor_fits, task_list
 from training.pretrained import PRETRAINED_DIR
 from training.recipes import MAPPO_RECIPES
@@ -89,12 +88,12 @@ def __getattr__(name: str):
 def main(argv: list[str] | None = None) -> Path:
     """``python -m training.mappo``: parse and check the flags (a bad one exits with status 2 and names it), then
     train; returns the run folder."""
-    args = parse_args(Args, argv, description=__doc__.split("\n")[0], presets=MAPPO_RECIPES)
-    try:
-        check_args(args)
-    except ValueError as exc:
-        print(f"python -m training.mappo: error: {exc}", file=sys.stderr)
-        raise SystemExit(2) from None
+    return checked_main(Args, argv, description=__doc__.split("\n")[0], check=check_args, run=_train,
+                        presets=MAPPO_RECIPES)
+
+
+def _train(args: Args) -> Path:
+    """The loop, imported here: it needs torch, the flags' checks do not."""
     from training.mappo.train import train
 
     return train(args)

@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import ClassVar
 
 from covert_env.envs.batch import COSTS
-from covert_env.tasks import TASKS
+from covert_env.world.tasks import TASKS
 from training.pretrained import PRETRAINED_DIR, load_learned, pretrained_names
 
 __all__ = ["Args", "actor_fields", "check_args", "constraint_limits", "init_actor_fits", "task_list"]

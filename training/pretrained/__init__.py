@@ -30,12 +30,12 @@ from pathlib import Path
 import numpy as np
 
 from baselines.policies import parallel_env_of
-from covert_env.angles import wrap_angle
-from covert_env.dynamics import solve_manoeuvre
 from covert_env.envs.observation import field_slices
 from covert_env.envs.settings import EnvSettings
-from covert_env.ties import first_argmax
-from training.runs import read_run_json, run_env
+from covert_env.geometry.angles import wrap_angle
+from covert_env.geometry.dynamics import solve_manoeuvre
+from covert_env.geometry.ties import first_argmax
+from training.runs import run_env, weights_and_card
 from training.shield import SeparationShield
 
 __all__ = ["node_features", "map_at", "manoeuvre_features", "n_node_features", "NumpyActor", "LearnedPolicy",
@@ -319,12 +319,7 @@ def load_learned(path: str | Path) -> LearnedPolicy:
     against that env's observation and action sizes (:func:`check_weights`), so that a wrong file fails here and
     not inside an episode."""
     path = Path(path)
-    npz = path / "model.npz" if path.is_dir() else path
-    card_path = npz.with_suffix(".json")
-    if not npz.is_file() or not card_path.is_file():
-        raise ValueError(f"no learned actor at {path} (expected NAME.npz with NAME.json beside it, or a "
-                         "training.mappo run folder holding model.npz and model.json)")
-    card = read_run_json(card_path, "model card")
+    npz, card_path, card = weights_and_card(path, "learned actor", "training.mappo")
     try:
         spec, ekw = card["actor"], card["env_kwargs"]
         if not isinstance(spec, dict) or spec.get("head") not in ("node", "flat", "gaussian") \

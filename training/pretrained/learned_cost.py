@@ -27,8 +27,8 @@ from pathlib import Path
 import numpy as np
 
 from baselines.policies import DPPolicy
-from covert_env.config import Config
-from training.runs import read_run_json
+from covert_env.world.config import Config
+from training.runs import read_run_json, weights_and_card
 
 __all__ = ["KIND", "is_cost_planner_card", "load_cost_planner", "path_cost_of"]
 
@@ -66,12 +66,7 @@ def load_cost_planner(path: str | Path) -> DPPolicy:
     a :mod:`training.dp_cost` run folder). ``env_settings`` gives the env it acts in (waypoint mode). Raises
     ``ValueError`` naming the file and the field on anything malformed."""
     path = Path(path)
-    npz = path / "model.npz" if path.is_dir() else path
-    card_path = npz.with_suffix(".json")
-    if not npz.is_file() or not card_path.is_file():
-        raise ValueError(f"no learned-cost planner at {path} (expected NAME.npz with NAME.json beside it, or a "
-                         "training.dp_cost run folder holding model.npz and model.json)")
-    card = read_run_json(card_path, "model card")
+    npz, card_path, card = weights_and_card(path, "learned-cost planner", "training.dp_cost")
     if not isinstance(card, dict) or card.get("kind") != KIND:
         raise ValueError(f"{card_path}: not the card of a learned-cost planner (kind must be {KIND!r})")
     from training.pretrained import check_env_kwargs  # the package imports this module

@@ -42,7 +42,7 @@ import numpy as np
 from gymnasium import spaces
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvObs, VecEnvStepReturn
 
-from covert_env.config import read_json
+from covert_env.world.config import read_json
 
 __all__ = ["ParallelEnvVecAdapter", "make_vec_env", "save_vecnormalize", "load_vecnormalize", "read_vecnormalize",
            "vecnormalize_state", "NormStats", "VECNORMALIZE_FORMAT"]

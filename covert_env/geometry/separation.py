@@ -3,7 +3,7 @@
 The UAVs fly in one plane (z = h), so eq. 2 is a distance in that plane, measured between two UAVs at the same
 instant. :func:`separation` computes it for paths sampled at common instants; everything that measures or
 enforces eq. 2 calls it with its own batch axes: the metrics and rewards (:func:`team_separation`,
-:func:`nearest_teammate`), the start placement (:func:`covert_env.zone.spread_nodes`), the DP team's conflicts,
+:func:`nearest_teammate`), the start placement (:func:`covert_env.geometry.zone.spread_nodes`), the DP team's conflicts,
 negotiation records and safety layer (``baselines.dp``), and the learned teams' shield (``training.shield``).
 
 :func:`priority_negotiation` is the one order rule of a team that settles its UAVs' moves one after another

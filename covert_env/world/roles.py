@@ -4,11 +4,11 @@
 * :class:`TerrainPerCopy`: one terrain per copy of a batch of moves, what the per-step quantities read of the vector
   env's copies (line of sight, eq. 6, and the tops, eq. 3, row b for copy b).
 * :class:`EngineView`: one episode read at its current slot k, what the DP team, the renderer and the policies
-  read of an :class:`~covert_env.engine.Engine` or of a vector env's copy
+  read of an :class:`~covert_env.world.engine.Engine` or of a vector env's copy
   (:class:`~covert_env.envs.recorder.CopyView`).
 
-One scene's terrain has no protocol: everywhere it is a :class:`~covert_env.terrain.Terrain` (the geometry
-caches its padded arrays per Terrain object, :func:`covert_env.visibility.terrain_arrays`).
+One scene's terrain has no protocol: everywhere it is a :class:`~covert_env.world.terrain.Terrain` (the geometry
+caches its padded arrays per Terrain object, :func:`covert_env.world.visibility.terrain_arrays`).
 
 The protocols are ``runtime_checkable``, so ``isinstance`` tells whether an object has every member (not their
 signatures); tests/test_roles.py checks that the classes playing each role do.
@@ -21,17 +21,17 @@ from typing import TYPE_CHECKING, Protocol, runtime_checkable
 if TYPE_CHECKING:
     import numpy as np
 
-    from covert_env.config import Config
-    from covert_env.road import TargetTrack
-    from covert_env.terrain import Terrain
-    from covert_env.trajectory import Trajectory
+    from covert_env.world.config import Config
+    from covert_env.world.road import TargetTrack
+    from covert_env.world.terrain import Terrain
+    from covert_env.world.trajectory import Trajectory
 
 __all__ = ["EngineView", "PolytopeTops", "TargetReads", "TerrainPerCopy"]
 
 
 @runtime_checkable
 class PolytopeTops(Protocol):
-    """The highest point of every polytope C_m (eq. 3): a :class:`~covert_env.terrain.Terrain` (M, 3), or one
+    """The highest point of every polytope C_m (eq. 3): a :class:`~covert_env.world.terrain.Terrain` (M, 3), or one
     terrain per row of a batch (N, M, 3), padded with inf where a row has fewer polytopes."""
 
     highest_points: np.ndarray
@@ -55,7 +55,7 @@ class TerrainPerCopy(Protocol):
 
 class TargetReads:
     """The target's pose and predictions, read from ``track`` at slot ``k`` (``config.horizon`` slots ahead by
-    default): what :class:`~covert_env.engine.Engine` and :class:`~covert_env.envs.recorder.CopyView` share of
+    default): what :class:`~covert_env.world.engine.Engine` and :class:`~covert_env.envs.recorder.CopyView` share of
     :class:`EngineView`."""
 
     @property
@@ -77,7 +77,7 @@ class TargetReads:
 class EngineView(Protocol):
     """One episode of one scene, read at its current slot k (read-only).
 
-    :class:`~covert_env.engine.Engine` and :class:`~covert_env.envs.recorder.CopyView` (a vector env's copy, the
+    :class:`~covert_env.world.engine.Engine` and :class:`~covert_env.envs.recorder.CopyView` (a vector env's copy, the
     parallel env's ``env.engine``) play it; :meth:`trajectory` and :attr:`positions` of a copy need ``record=True``.
     """
 

@@ -3,8 +3,8 @@
 A UAV at ``p = (x, y, h)`` sees the target at ``q = (x_q, y_q, z_q)`` unless the segment between them
 meets the interior of some terrain polytope C_m (eq. 6). Seen from the target, each polytope casts on
 the UAV plane z = h a *shadow* S_m: the set of UAV positions whose line of sight it blocks (eqs. 8-9).
-The feasible zone minus the union of the shadows is the visible zone (eq. 10, :mod:`covert_env.zone`). The
-environments and the planner decide visibility with the line of sight itself (:mod:`covert_env.visibility`); the
+The feasible zone minus the union of the shadows is the visible zone (eq. 10, :mod:`covert_env.geometry.zone`). The
+environments and the planner decide visibility with the line of sight itself (:mod:`covert_env.world.visibility`); the
 shadows are the pictures (:mod:`covert_env.render`) and the tested equivalence (a point is blocked iff it lies in a
 shadow).
 
@@ -42,9 +42,9 @@ import shapely
 from shapely.geometry import Polygon
 from shapely.geometry.base import BaseGeometry
 
-from covert_env.terrain import Terrain
-from covert_env.visibility import terrain_arrays
-from covert_env.zone import ARC_RESOLUTION, feasible_zone_cfg, visible_zone
+from covert_env.geometry.zone import ARC_RESOLUTION, feasible_zone_cfg, visible_zone
+from covert_env.world.terrain import Terrain
+from covert_env.world.visibility import terrain_arrays
 
 __all__ = ["shadow_h_min", "shadow_polygons", "shadow_union", "shadow_union_cfg", "visible_zone_cfg"]
 

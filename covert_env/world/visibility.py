@@ -2,7 +2,8 @@
 
 A UAV at ``p = (x, y, h)`` sees the target at ``q = (x_q, y_q, z_q)`` unless the segment between them meets the
 interior of some terrain polytope C_m (eq. 6). Every question of that kind goes to one kernel,
-:func:`covert_env.sight_kernel.blocked_segments` (one broad phase, per target then per point, and one exact clip);
+:func:`covert_env.geometry.sight_kernel.blocked_segments` (one broad phase, per target then per point, and one exact
+clip);
 this module lays the questions out for it:
 
 * one terrain (:func:`line_of_sight`, :func:`line_of_sight_rows`, :func:`visible_nodes`): the planner, the metrics,
@@ -14,7 +15,7 @@ this module lays the questions out for it:
 Touching a face, an edge or a vertex is clear: the polytopes are shrunk by :data:`LOS_TOLERANCE`. Where a line of
 sight is promised ahead (the lattice, the masks, the planner), they are grown by 1 µm instead
 (:data:`SAFE_LOS_TOLERANCE`). The shadows these polytopes cast on the UAV plane (eqs. 8-9) are in
-:mod:`covert_env.shadows`.
+:mod:`covert_env.world.shadows`.
 """
 
 from __future__ import annotations
@@ -25,8 +26,8 @@ from functools import cached_property
 
 import numpy as np
 
-from covert_env.sight_kernel import TerrainTable, offsets_blocked, segments_blocked, terrain_table
-from covert_env.terrain import Terrain
+from covert_env.geometry.sight_kernel import TerrainTable, offsets_blocked, segments_blocked, terrain_table
+from covert_env.world.terrain import Terrain
 
 __all__ = [
     "LOS_TOLERANCE",
@@ -83,7 +84,7 @@ class TerrainArrays:  # noqa: B903
 
     @cached_property
     def table(self) -> TerrainTable:
-        """The terrain as the one row of a checked :class:`~covert_env.sight_kernel.TerrainTable`: half-spaces
+        """The terrain as the one row of a checked :class:`~covert_env.geometry.sight_kernel.TerrainTable`: half-spaces
         (1, M, F, 4), circle centres x and y, radii, tops and growth factors (1, M)."""
         return terrain_table(*(a[None] for a in (self.hs, self.centre[:, 0], self.centre[:, 1], self.radius,
                                                  self.z_max, self.growth_factor)))
@@ -143,7 +144,7 @@ def line_of_sight(terrain: Terrain, uav_xy, altitude, target_xyz, *,
 
     The segment from the UAV ``(x, y, altitude)`` to the target ``(x_q, y_q, z_q)`` is blocked iff it meets the
     interior of some polytope C_m, shrunk by ``tol`` metres (:data:`LOS_TOLERANCE`: touching a face, an edge or a
-    vertex is clear). The kernel (:func:`~covert_env.sight_kernel.blocked_segments`) keeps only the (point,
+    vertex is clear). The kernel (:func:`~covert_env.geometry.sight_kernel.blocked_segments`) keeps only the (point,
     polytope) pairs whose segment's part lower than the polytope's top passes near its footprint, and clips those
     exactly (Cyrus-Beck in 3D).
 
@@ -212,7 +213,7 @@ def visible_nodes(terrain: Terrain, offsets, q, phi, altitude: float, *,
 
     The one rule behind the planner's states, the waypoint action mask, the observation maps and the start
     sampler. ``offsets`` are target-frame offsets inside the eroded zone (the lattice's nodes,
-    :func:`~covert_env.zone.zone_lattice`, or the maps' cells): zone membership is decided once in the target's
+    :func:`~covert_env.geometry.zone.zone_lattice`, or the maps' cells): zone membership is decided once in the target's
     frame, so it does not depend on the rounding of the rotation to the world; visibility is the line of sight
     (eq. 6) at :data:`SAFE_LOS_TOLERANCE`, which equals "outside every shadow" by the tested invariant.
 
@@ -264,7 +265,7 @@ class TerrainRows:
 
     @property
     def table(self) -> TerrainTable:
-        """The rows as a checked :class:`~covert_env.sight_kernel.TerrainTable`, the same arrays (kept until an
+        """The rows as a checked :class:`~covert_env.geometry.sight_kernel.TerrainTable`, the same arrays (kept until an
         array is replaced: :meth:`set_rows` grows them by replacing, and writes rows in place)."""
         arrays = (self.hs, self.cx, self.cy, self.radius, self.z_max, self.growth)
         if self._table is None or any(a is not b for a, b in zip(arrays, self._table, strict=True)):
@@ -310,9 +311,9 @@ class TerrainRows:
 
     def blocked(self, targets: np.ndarray, rows: np.ndarray, start: np.ndarray, points: np.ndarray, heights,
                 tol: float) -> np.ndarray:
-        """:func:`~covert_env.sight_kernel.blocked_segments` on these terrains: target j (``targets`` (T, 3)) in row
-        ``rows[j]`` owns the points ``points[start[j]:start[j + 1]]`` ((N, 2), at ``heights``: one or (N,));
-        (N,) True = blocked."""
+        """:func:`~covert_env.geometry.sight_kernel.blocked_segments` on these terrains: target j (``targets``
+        (T, 3)) in row ``rows[j]`` owns the points ``points[start[j]:start[j + 1]]`` ((N, 2), at ``heights``: one
+        or (N,)); (N,) True = blocked."""
         return segments_blocked(self.table, targets, rows, start, points, heights, tol)
 
     def line_of_sight(self, rows: np.ndarray, uav_xy: np.ndarray, altitude: float, target_xyz: np.ndarray,
@@ -339,8 +340,8 @@ def visible_nodes_rows(terrains: TerrainRows, rows, offsets, q, phi, altitude: f
                        tol: float = SAFE_LOS_TOLERANCE) -> np.ndarray:
     """:func:`visible_nodes` of N scenes at T target poses each, scene n the terrain in row ``rows[n]`` of
     ``terrains``: the vector env's scene pool computes the maps, start candidates and lattice visibility of every
-    scene a reset builds in one call. The same points (:func:`~covert_env.zone.to_world`) and the same kernel as
-    :func:`visible_nodes`, hence the same decisions scene by scene.
+    scene a reset builds in one call. The same points (:func:`~covert_env.geometry.zone.to_world`) and the same kernel
+    as :func:`visible_nodes`, hence the same decisions scene by scene.
 
     Args:
         terrains: the scenes' terrains; rows: (N,) their rows.

@@ -1,6 +1,6 @@
 """A scene set as data: a family's scenes written to one JSON file, so two labs compare on the exact same scenes.
 
-    from covert_env.scene_set import SceneSet
+    from covert_env.world.scene_set import SceneSet
     scenes = SceneSet.generate("downtown", 20)              # its first 20 held-out scenes
     scenes.save("downtown20.json")
     same = SceneSet.load("downtown20.json")                 # bit-identical scenarios: the same scores
@@ -31,16 +31,16 @@ from pathlib import Path
 
 import numpy as np
 
-from covert_env.config import Config, read_json
-from covert_env.families import FAMILIES, HELD_OUT_SEEDS, family_config, scene_family
-from covert_env.road import Road, TargetTrack
-from covert_env.scenario import Scenario
-from covert_env.terrain import Terrain
+from covert_env.world.config import Config, read_json
+from covert_env.world.families import FAMILIES, HELD_OUT_SEEDS, family_config, scene_family
+from covert_env.world.road import Road, TargetTrack
+from covert_env.world.scenario import Scenario
+from covert_env.world.terrain import Terrain
 
 __all__ = ["FORMAT", "MAX_SCENES", "SceneSet"]
 
 #: The file's ``format`` and ``version`` fields.
-FORMAT = ("covert_env.scene_set", 1)
+FORMAT = ("covert_env.world.scene_set", 1)
 #: Most scenes in one set (a file is also capped at 64 MiB by the JSON reader).
 MAX_SCENES = 100_000
 #: Scene seeds are integers in [0, MAX_SEED] (what numpy's generators take, as int64).
@@ -55,7 +55,7 @@ class SceneSet(Sequence):
 
     Args:
         scenarios: the scenes, all with the same config.
-        family: the scene family's name (:mod:`covert_env.families`), if drawn from one.
+        family: the scene family's name (:mod:`covert_env.world.families`), if drawn from one.
         seeds: the scene seed of each scenario, if drawn (``Scenario.random(seed, config)``).
     """
 

@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from covert_env.zone import MAX_LATTICE, lattice_size, zone_capacity
+from covert_env.geometry.zone import MAX_LATTICE, lattice_size, zone_capacity
 
 __all__ = ["Config", "check_coordinates", "short_repr", "polytope_capacity", "scene_road_length", "MAX_COORDINATE",
            "MAX_HORIZON", "MAX_LATTICE", "MAX_LENGTH", "MAX_N_POLYTOPES", "MAX_N_SLOTS", "MAX_N_UAVS", "MAX_ROUTE",
@@ -138,7 +138,7 @@ class Config:
     # --- discretisation and shadows -----------------------------------------------------------
     grid_step: float = 2.0
     """(decided) Spacing (m) of the grid nodes / waypoint lattice in the target's frame. The lattice's
-    bounding box (:func:`covert_env.zone.lattice_size`) must have <= 200_000 nodes (975 by default)
+    bounding box (:func:`covert_env.geometry.zone.lattice_size`) must have <= 200_000 nodes (975 by default)
     and the eroded zone at least one node (more: see ``d_safe1``)."""
     h_min: float | None = None
     """Shadow truncation height (m, eq. 9). None (default) picks it per polytope so that the

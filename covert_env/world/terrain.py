@@ -1,6 +1,6 @@
 """Terrain: M convex polytopes C_m (buildings, hills) standing on flat ground z = 0 (paper §2.1, Fig. 2).
 
-Each polytope (:class:`covert_env.polytope.Polytope`) is the convex hull of a base polygon Q_m at z = 0 (convex,
+Each polytope (:class:`covert_env.world.polytope.Polytope`) is the convex hull of a base polygon Q_m at z = 0 (convex,
 counter-clockwise) and a top polygon D_m with the same number of vertices, each with its own height z > 0 (a top
 may be slanted). Geometry code uses the half-space form ``n . x + d <= 0`` of every polytope, padded into arrays so
 that line-of-sight tests vectorise over polytopes and faces.
@@ -31,16 +31,16 @@ import numpy as np
 import shapely
 from shapely.geometry import Polygon
 
-from covert_env.config import MAX_N_POLYTOPES, Config, read_json, short_repr
-from covert_env.generation import BUILDING_SHRINK, HILL_FRACTION, HILL_SHRINK, HILL_TILT, MIN_GAP
-from covert_env.polytope import Polytope, _check_altitude, _check_polytope, _check_size, _first_overlap
-from covert_env.road import Road
+from covert_env.world.config import MAX_N_POLYTOPES, Config, read_json, short_repr
+from covert_env.world.generation import BUILDING_SHRINK, HILL_FRACTION, HILL_SHRINK, HILL_TILT, MIN_GAP
+from covert_env.world.polytope import Polytope, _check_altitude, _check_polytope, _check_size, _first_overlap
+from covert_env.world.road import Road
 
 __all__ = ["Polytope", "Terrain"]
 
 
 # ---------------------------------------------------------------------------------- random generator
-# The generators' shared rules (one home: covert_env.generation).
+# The generators' shared rules (one home: covert_env.world.generation).
 _MIN_GAP, _HILL_FRACTION = MIN_GAP, HILL_FRACTION
 _BUILDING_SHRINK, _HILL_SHRINK, _HILL_TILT = BUILDING_SHRINK, HILL_SHRINK, HILL_TILT
 _MAX_TRIES = 400
@@ -329,7 +329,7 @@ class Terrain:
         distinct vertices as [x, y, z], same count and order as the footprint's distinct vertices).
         The polytope is the hull of footprint and top. Rings may be clockwise (they are reoriented).
         With ``altitude`` every height must be < altitude. At most ``MAX_N_POLYTOPES`` (10,000) features
-        and :data:`~covert_env.polytope.MAX_TERRAIN_VERTICES` (100,000) footprint vertices, checked before any is
+        and :data:`~covert_env.world.polytope.MAX_TERRAIN_VERTICES` (100,000) footprint vertices, checked before any is
         parsed; every coordinate within ``MAX_COORDINATE`` (1,000 km). Errors are ValueErrors naming the feature
         (index, and ``id`` or ``properties.name`` when given) and the field.
         """

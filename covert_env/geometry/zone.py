@@ -20,7 +20,7 @@ phi + pi)::
 
 Both membership tests here use that exact form; polygons approximate the arcs by chords.
 
-Visible zone (eq. 10). ``F = Phi_gamma minus the union of the shadows`` (:mod:`covert_env.visibility`).
+Visible zone (eq. 10). ``F = Phi_gamma minus the union of the shadows`` (:mod:`covert_env.world.visibility`).
 
 Lattice. The planner's nodes and the environment's waypoint actions are one fixed lattice of offsets in
 the target's frame (x forward along phi, y to the left), spacing ``step``, covering the sector's bounding
@@ -41,8 +41,8 @@ import shapely
 from shapely.geometry import Polygon
 from shapely.geometry.base import BaseGeometry
 
-from covert_env.angles import wrap_angle
-from covert_env.separation import separation
+from covert_env.geometry.angles import wrap_angle
+from covert_env.geometry.separation import separation
 
 MAX_LATTICE = 200_000
 """Most nodes of the waypoint lattice's bounding box (:func:`lattice_size`), about
@@ -199,8 +199,8 @@ def visible_zone(zone: BaseGeometry, shadows) -> BaseGeometry:
 
     Args:
         zone: the (eroded) feasible zone, e.g. from :func:`feasible_zone`.
-        shadows: a geometry (e.g. :func:`~covert_env.shadows.shadow_union`) or an iterable of
-            polygons (e.g. :func:`~covert_env.shadows.shadow_polygons`).
+        shadows: a geometry (e.g. :func:`~covert_env.world.shadows.shadow_union`) or an iterable of
+            polygons (e.g. :func:`~covert_env.world.shadows.shadow_polygons`).
 
     Returns:
         A Polygon or MultiPolygon, possibly empty: shadows can split the zone or cover it.

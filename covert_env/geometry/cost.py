@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from covert_env.angles import wrap_angle
+from covert_env.geometry.angles import wrap_angle
 
 __all__ = ["uav_target_angle", "uav_target_distance", "disguise", "stage_cost"]
 

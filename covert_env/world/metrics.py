@@ -17,14 +17,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from covert_env.config import Config
-from covert_env.cost import disguise, stage_cost, uav_target_angle, uav_target_distance
-from covert_env.roles import PolytopeTops, TerrainPerCopy
-from covert_env.separation import nearest_teammate, team_separation
-from covert_env.terrain import Terrain
-from covert_env.trajectory import Trajectory
-from covert_env.visibility import line_of_sight
-from covert_env.zone import zone_distance
+from covert_env.geometry.cost import disguise, stage_cost, uav_target_angle, uav_target_distance
+from covert_env.geometry.separation import nearest_teammate, team_separation
+from covert_env.geometry.zone import zone_distance
+from covert_env.world.config import Config
+from covert_env.world.roles import PolytopeTops, TerrainPerCopy
+from covert_env.world.terrain import Terrain
+from covert_env.world.trajectory import Trajectory
+from covert_env.world.visibility import line_of_sight
 
 __all__ = ["SlotQuantities", "slot_quantities", "moves_quantities", "episode_metrics", "nearest_teammate",
            "terrain_clearance", "top_clearance", "METRIC_DESCRIPTIONS"]
@@ -48,7 +48,7 @@ class SlotQuantities:
         path_length: distance flown, v delta.
         separation: distance to the nearest teammate at the end of the slot, eq. 2 (inf with one UAV).
         separation_path: nearest-teammate distance over the samples along the path (synchronous), eq. 2
-            (:func:`covert_env.separation.team_separation`).
+            (:func:`covert_env.geometry.separation.team_separation`).
         terrain_clearance: distance from the UAV to the nearest polytope top point, eq. 3 (inf if none).
     """
 
@@ -71,7 +71,7 @@ def terrain_clearance(xy: np.ndarray, altitude: float, terrain: PolytopeTops) ->
     """(..., 2) -> (...) distance from (x, y, h) to the nearest polytope highest point (eq. 3).
 
     ``terrain``: a :class:`Terrain`, or one terrain per row of the leading axis (``highest_points`` (N, M, 3),
-    e.g. a :class:`~covert_env.roles.TerrainPerCopy`: the vector env's copies): :func:`top_clearance` of its
+    e.g. a :class:`~covert_env.world.roles.TerrainPerCopy`: the vector env's copies): :func:`top_clearance` of its
     ``highest_points``."""
     return top_clearance(xy, altitude, terrain.highest_points)
 
@@ -122,7 +122,8 @@ def moves_quantities(start_xy, end_xy, *, target_start, phi_start, target_end, p
         path_xy: (*B, U, P, 2) samples along each move; path_length: (*B, U).
         target_path_xyz: (*B, P, 3) the target at the same instants, or None to skip LoS along the path
             (``los_path`` is then NaN).
-        terrain: a :class:`Terrain` for every move, or a :class:`~covert_env.roles.TerrainPerCopy`, one terrain per
+        terrain: a :class:`Terrain` for every move, or a :class:`~covert_env.world.roles.TerrainPerCopy`, one terrain
+        per
             move (B = (N,), the vector env's copies), whose line of sight takes one target per move:
             ``target_path_xyz`` must then be None.
     """

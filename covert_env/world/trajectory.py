@@ -1,7 +1,7 @@
 """A recorded episode: everything the metrics need, and nothing a policy could fake.
 
 The engine writes one :class:`Trajectory` per episode, whatever drives the UAVs (the DP planner, a
-trained agent, a random policy); :mod:`covert_env.metrics` scores it. It saves to and loads from
+trained agent, a random policy); :mod:`covert_env.world.metrics` scores it. It saves to and loads from
 plain JSON.
 """
 

@@ -8,7 +8,7 @@ Two tools live here:
 
 * :func:`unicycle_arc` integrates the unicycle **exactly** for constant ``(v, omega)``: the path is a
   circular arc (a segment when ``omega = 0``). It is eq. 1's one home: :func:`unicycle_step`,
-  :func:`unicycle_path`, :meth:`Manoeuvre.points` and the batched flight of :mod:`covert_env.flight` all call
+  :func:`unicycle_path`, :meth:`Manoeuvre.points` and the batched flight of :mod:`covert_env.geometry.flight` all call
   it. The paper's discrete model (eq. 7) is one explicit Euler step; over a whole slot of ``delta = 1 s`` at
   ``omega = 3 rad/s`` that step would put the UAV tens of metres from where the kinematics actually take it,
   so we never use it.
@@ -79,7 +79,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from covert_env.angles import TWO_PI, wrap_heading
+from covert_env.geometry.angles import TWO_PI, wrap_heading
 
 __all__ = [
     "Manoeuvre",
@@ -149,7 +149,7 @@ def unicycle_arc(x, y, theta, v, omega, dt, *, out=None, heading: bool = True):
 
     Returns:
         ``(x1, y1, theta1)``: the position, and the heading :func:`unicycle_heading` unwrapped
-        (:func:`~covert_env.angles.wrap_heading` brings it into ``[0, 2 pi)``).
+        (:func:`~covert_env.geometry.angles.wrap_heading` brings it into ``[0, 2 pi)``).
     """
     if np.ndim(omega) == 0 and omega == 0:
         chord = v * dt

@@ -1,6 +1,6 @@
 """Scene families: named presets of the random scene generator, from open country to street canyons.
 
-A benchmark is its scenes. Each family is a set of :class:`~covert_env.config.Config` fields of the generator
+A benchmark is its scenes. Each family is a set of :class:`~covert_env.world.config.Config` fields of the generator
 (how many polytopes, how large and tall, how close to the road, how sharply the road turns); a scene of a family is
 ``Scenario.random(seed, family.config())``. Select one by name wherever scenes are drawn::
 
@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any
 
-from covert_env.config import Config
+from covert_env.world.config import Config
 
 __all__ = ["FAMILIES", "HELD_OUT_SEEDS", "SceneFamily", "TRAIN_SEEDS", "family_config", "scene_family"]
 

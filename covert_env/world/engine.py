@@ -1,9 +1,9 @@
 """The world: terrain, the target on its road, and the UAV team, advanced one slot at a time.
 
-One scene's world, flown with :mod:`covert_env.flight` and scored with
-:func:`~covert_env.metrics.moves_quantities`: the functions the vector env (and so every env) flies and scores its
+One scene's world, flown with :mod:`covert_env.geometry.flight` and scored with
+:func:`~covert_env.world.metrics.moves_quantities`: the functions the vector env (and so every env) flies and scores its
 B copies with, so a DP rollout on an engine and an env rollout are the same arithmetic (tested), and every
-episode ends as a :class:`~covert_env.trajectory.Trajectory` that :mod:`covert_env.metrics` scores.
+episode ends as a :class:`~covert_env.world.trajectory.Trajectory` that :mod:`covert_env.world.metrics` scores.
 
 Each UAV's move over a slot is either
 
@@ -22,13 +22,13 @@ import math
 
 import numpy as np
 
-from covert_env.angles import wrap_heading
-from covert_env.config import MAX_N_UAVS, check_coordinates, short_repr
-from covert_env.flight import check_unicycle, fly_arc, fly_turn_straight, waypoint_controls
-from covert_env.metrics import SlotQuantities, moves_quantities
-from covert_env.roles import TargetReads
-from covert_env.scenario import Scenario, valid_start_shapes
-from covert_env.trajectory import Trajectory
+from covert_env.geometry.angles import wrap_heading
+from covert_env.geometry.flight import check_unicycle, fly_arc, fly_turn_straight, waypoint_controls
+from covert_env.world.config import MAX_N_UAVS, check_coordinates, short_repr
+from covert_env.world.metrics import SlotQuantities, moves_quantities
+from covert_env.world.roles import TargetReads
+from covert_env.world.scenario import Scenario, valid_start_shapes
+from covert_env.world.trajectory import Trajectory
 
 __all__ = ["Engine", "MAX_PATH_SAMPLES"]
 
@@ -37,7 +37,7 @@ class Engine(TargetReads):
     """Advance a :class:`Scenario` slot by slot and record the episode.
 
     What the planner, the renderer and the policies read of it (``k``, ``uav_xy``, ``predict``, ``trajectory``,
-    ...) is :class:`~covert_env.roles.EngineView`, which a vector env's copy plays too.
+    ...) is :class:`~covert_env.world.roles.EngineView`, which a vector env's copy plays too.
 
     Args:
         scenario: the world and the start poses (a :class:`Scenario`; TypeError otherwise).

@@ -2,7 +2,7 @@
 
 The target follows a known route (a polyline) at a speed profile. The planner at slot k sees the
 predicted positions q[k+1..k+N]; the prediction error is bounded by a disk gamma(q) of radius r_u
-(eq. 5), which the feasible zone absorbs by erosion (see :mod:`covert_env.zone`).
+(eq. 5), which the feasible zone absorbs by erosion (see :mod:`covert_env.geometry.zone`).
 
 By default the prediction is the truth (the paper's setting). :meth:`TargetTrack.with_speed_noise`
 makes a track whose true speed deviates from the nominal profile the tracker assumes, within a bound
@@ -20,7 +20,7 @@ import numba
 import numpy as np
 from shapely.geometry import LineString
 
-from covert_env.config import MAX_HORIZON, MAX_N_SLOTS, MAX_ROUTE, MAX_SPEED, check_coordinates, short_repr
+from covert_env.world.config import MAX_HORIZON, MAX_N_SLOTS, MAX_ROUTE, MAX_SPEED, check_coordinates, short_repr
 
 __all__ = ["Road", "TargetTrack", "arc_lengths", "cumulative_lengths", "headings_along", "points_along",
            "points_along_rows", "segments_at", "speed_noise_offsets"]

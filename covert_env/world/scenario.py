@@ -13,14 +13,21 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from covert_env.config import MAX_N_UAVS, SCENE_ROAD_LEAD_IN, SCENE_ROAD_TAIL, Config, check_coordinates, short_repr
-from covert_env.generation import frustum_faces, random_roads, random_terrains
-from covert_env.metrics import terrain_clearance
-from covert_env.road import Road, TargetTrack, arc_lengths, cumulative_lengths, headings_along, points_along
-from covert_env.separation import separation
-from covert_env.terrain import Polytope, Terrain
-from covert_env.visibility import TerrainArrays, growth_factors, register_terrain_arrays, visible_nodes
-from covert_env.zone import SPREAD_MARGIN, spread_nodes, to_world, zone_lattice
+from covert_env.geometry.separation import separation
+from covert_env.geometry.zone import SPREAD_MARGIN, spread_nodes, to_world, zone_lattice
+from covert_env.world.config import (
+    MAX_N_UAVS,
+    SCENE_ROAD_LEAD_IN,
+    SCENE_ROAD_TAIL,
+    Config,
+    check_coordinates,
+    short_repr,
+)
+from covert_env.world.generation import frustum_faces, random_roads, random_terrains
+from covert_env.world.metrics import terrain_clearance
+from covert_env.world.road import Road, TargetTrack, arc_lengths, cumulative_lengths, headings_along, points_along
+from covert_env.world.terrain import Polytope, Terrain
+from covert_env.world.visibility import TerrainArrays, growth_factors, register_terrain_arrays, visible_nodes
 
 __all__ = ["Scenario", "PAPER_UAV_STARTS", "PAPER_SEED", "SceneArrays", "pick_starts", "pick_starts_many",
            "random_scene_arrays", "random_worlds", "sample_starts_on", "start_candidates", "valid_start_shapes"]
@@ -46,7 +53,7 @@ class Scenario:
             rules out the operational plane near it.
         track: the target's true motion (road + speed profile), at least ``n_slots + horizon`` slots
             long, with ``delta`` and ``z`` equal to the config's ``delta`` and ``target_height``. Its
-            :meth:`~covert_env.road.TargetTrack.predict` is what planners and observations see; with
+            :meth:`~covert_env.world.road.TargetTrack.predict` is what planners and observations see; with
             ``config.prediction_error`` > 0 the constructors :meth:`paper` and :meth:`random` give it
             bounded speed noise (a hand-built track is taken as given).
         uav_xy: (U, 2) start positions; uav_theta: (U,) start headings (rad).
@@ -140,7 +147,7 @@ class Scenario:
     def random(cls, seed: int, config: Config | None = None, n_uavs: int | None = None) -> Scenario:
         """A random scene: road, terrain and UAV starts drawn from ``seed``.
 
-        Road and terrain come from the batched generator (:mod:`covert_env.generation`), the starts from
+        Road and terrain come from the batched generator (:mod:`covert_env.world.generation`), the starts from
         ``np.random.default_rng(seed)``: a scene is the same whether drawn alone or with others (the environments
         draw the scenes a reset needs in one batch, :func:`random_worlds`). Starts are distinct grid nodes of the
         eroded zone at slot 0 with clear LoS, at least ``2 d_safe1`` apart, with headings drawn uniformly (with the
@@ -204,10 +211,10 @@ class SceneArrays:
 
     Attributes (scenes N, polytopes M, vertices V):
         seeds (N,); roads (N, P, 2): the road points; base (N, M, V, 2), top (N, M, V, 3), n_vertices (N, M): the
-        polytopes (:class:`~covert_env.generation.TerrainBatch`); hs (N, M, V + 2, 4): their half-spaces; centre
+        polytopes (:class:`~covert_env.world.generation.TerrainBatch`); hs (N, M, V + 2, 4): their half-spaces; centre
         (N, M, 2), radius (N, M): footprint circles; verts (N, M, 2 V, 3): base and top vertices; z_max (N, M);
         highest (N, M, 3): each polytope's highest top vertex (eq. 3, the first on ties); growth (N, M):
-        :func:`~covert_env.visibility.growth_factors`.
+        :func:`~covert_env.world.visibility.growth_factors`.
     """
 
     def __init__(self, seeds, roads, batch, config: Config):
@@ -273,7 +280,7 @@ class SceneArrays:
 
 def random_scene_arrays(seeds, config: Config) -> SceneArrays:
     """The roads and terrains of the random scenes ``seeds`` as arrays, drawn as one batch
-    (:mod:`covert_env.generation`): each scene is the same whatever batch it is drawn in."""
+    (:mod:`covert_env.world.generation`): each scene is the same whatever batch it is drawn in."""
     seeds = [int(s) for s in seeds]
     roads = random_roads(seeds, config, start=np.asarray(PAPER_TARGET_START, float) - (_ROAD_LEAD_IN, 0.0))
     return SceneArrays(seeds, roads, random_terrains(seeds, roads, config), config)
@@ -313,9 +320,9 @@ def pick_starts(c: Config, nodes: np.ndarray, visible: np.ndarray, shadowed: np.
 def pick_starts_many(c: Config, nodes: np.ndarray, visible: list, shadowed: list, rngs: list, u: int,
                      names: list) -> tuple[np.ndarray, np.ndarray]:
     """:func:`pick_starts` of B copies, each with its own generator: ``nodes`` (B, L, 2), and per copy the indices
-    of its ``visible`` and ``shadowed`` candidates. Step 1's greedy pick (:func:`~covert_env.zone.spread_nodes`) runs
-    for all copies at once, with the same picks; a copy that needs the fallbacks takes them alone. Returns (B, U, 2)
-    positions and (B, U) headings."""
+    of its ``visible`` and ``shadowed`` candidates. Step 1's greedy pick
+    (:func:`~covert_env.geometry.zone.spread_nodes`) runs for all copies at once, with the same picks; a copy that needs
+    the fallbacks takes them alone. Returns (B, U, 2) positions and (B, U) headings."""
     b = len(rngs)
     orders = [vis[rng.permutation(len(vis))] for vis, rng in zip(visible, rngs, strict=True)]
     lens = np.array([len(o) for o in orders], dtype=np.intp)

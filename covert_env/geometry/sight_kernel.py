@@ -6,11 +6,11 @@ segments, each from a UAV position ``p`` to a target position ``q``, each agains
 module answers it once, for any batch, with one broad phase (per target, then per point) and one exact clip:
 
 * **Layout.** Segments are grouped by target: target j (``targets[j]``, the terrain in row ``rows[j]`` of a
-  :class:`~covert_env.visibility.TerrainRows`) owns the points ``points[start[j]:start[j + 1]]``. A batch of copies,
-  slots, path instants or lattice nodes is one such flat layout; the callers build it with array operations.
+  :class:`~covert_env.world.visibility.TerrainRows`) owns the points ``points[start[j]:start[j + 1]]``. A batch of
+  copies, slots, path instants or lattice nodes is one such flat layout; the callers build it with array operations.
   :func:`blocked_offsets` is the layout of one set of target-frame offsets about every target (the maps, lattices
   and start candidates of every slot of every scene): the kernel computes each target's points itself, term by
-  term as :func:`~covert_env.zone.to_world`, instead of reading (T, L, 2) of them from memory.
+  term as :func:`~covert_env.geometry.zone.to_world`, instead of reading (T, L, 2) of them from memory.
 * **Broad phase, per (target, polytope).** The part of a segment lower than a polytope's top lies within
   ``|p - q| (z_top - z_q) / (h - z_q)`` of the target (h the UAV's height, above the target); a polytope whose
   footprint circle is farther than that from every point's segment of the target is dropped for all of them.
@@ -23,7 +23,7 @@ module answers it once, for any batch, with one broad phase (per target, then pe
 
 The broad phase is conservative (circles grown by 1 nm, and 1e-9 relative per target; tops raised by 1 nm; both
 grown by how far a negative ``tol`` grows each polytope, ``growth`` times ``-tol``, with ``growth`` from
-:func:`~covert_env.visibility.growth_factors`): it only drops pairs the clip finds clear, so the result is the
+:func:`~covert_env.world.visibility.growth_factors`): it only drops pairs the clip finds clear, so the result is the
 clip's alone. (A caller that passes smaller growth factors makes the circle-and-top test part of the result: the
 planner's possible targets, :func:`baselines.dp.possible_targets.clear_to_all`, block a pair only where the segment
 meets both the pushed-out faces and the widened cylinder.)
@@ -79,7 +79,7 @@ def _kernel(hs, cx, cy, radius, z_top, growth, targets, rows, start, points, hei
 def _kernel_offsets(hs, cx, cy, radius, z_top, growth, targets, rows, cos, sin, offsets, height, tol,
                     out):  # pragma: no cover
     """``out[j, l]`` = the segment from target j's offset l (in its frame, at ``height``) is blocked; arguments as
-    :func:`blocked_offsets`. The points are :func:`~covert_env.zone.to_world`'s, term by term."""
+    :func:`blocked_offsets`. The points are :func:`~covert_env.geometry.zone.to_world`'s, term by term."""
     keep = np.empty(hs.shape[1], dtype=np.int64)
     points = np.empty((len(offsets), 2))
     for j in range(len(targets)):
@@ -194,12 +194,12 @@ def blocked_segments(hs: np.ndarray, cx: np.ndarray, cy: np.ndarray, radius: np.
         hs: (R, M, F, 4) the polytopes' half-spaces ``n . x + d <= 0`` per terrain row, padded with always-true
             faces (``0 . x - 1``).
         cx, cy, radius: (R, M) their plan-view enclosing circles; z_top: (R, M) their heights (-inf: no polytope).
-        growth: (R, M) :func:`~covert_env.visibility.growth_factors` (used when ``tol < 0``).
+        growth: (R, M) :func:`~covert_env.world.visibility.growth_factors` (used when ``tol < 0``).
         targets: (T, 3) target positions; rows: (T,) the terrain row of each target.
         start: (T + 1,) target j owns the points ``start[j]:start[j + 1]``.
         points: (N, 2) UAV horizontal positions; heights: their heights, one number or (N,).
         tol: shrink distance (m) of the polytopes (negative: grown), see
-            :data:`~covert_env.visibility.LOS_TOLERANCE`.
+            :data:`~covert_env.world.visibility.LOS_TOLERANCE`.
 
     Returns:
         (N,) bool, True = blocked.
@@ -246,7 +246,7 @@ def blocked_offsets(hs: np.ndarray, cx: np.ndarray, cy: np.ndarray, radius: np.n
 
     Returns:
         (T, L) bool, True = blocked; the same decisions as :func:`blocked_segments` on
-        :func:`~covert_env.zone.to_world`'s points, which the kernel computes term by term.
+        :func:`~covert_env.geometry.zone.to_world`'s points, which the kernel computes term by term.
     """
     return offsets_blocked(terrain_table(hs, cx, cy, radius, z_top, growth), targets, rows, phi, offsets, height,
                            tol)
@@ -276,7 +276,7 @@ def offsets_blocked(table: TerrainTable, targets: np.ndarray, rows: np.ndarray, 
 class TerrainTable(NamedTuple):
     """The terrain rows as the kernels read them (float64, C-contiguous), their shapes checked:
     :func:`terrain_table` builds it; a holder of terrain rows keeps one while its arrays stay the same
-    (:class:`~covert_env.visibility.TerrainRows`), so a call checks only its own targets and points."""
+    (:class:`~covert_env.world.visibility.TerrainRows`), so a call checks only its own targets and points."""
 
     hs: np.ndarray
     cx: np.ndarray

@@ -2,7 +2,7 @@
 
 A polytope is the convex hull of a base polygon Q_m at z = 0 (convex, counter-clockwise) and a top polygon D_m with
 the same number of vertices, each with its own height z > 0 (a top may be slanted). Line of sight (eq. 6) and
-clearance (eq. 3) use its half-space form ``n . x + d <= 0``; a terrain (:class:`covert_env.terrain.Terrain`) is a
+clearance (eq. 3) use its half-space form ``n . x + d <= 0``; a terrain (:class:`covert_env.world.terrain.Terrain`) is a
 set of non-overlapping polytopes.
 """
 
@@ -18,7 +18,7 @@ import shapely
 from scipy.spatial import ConvexHull
 from shapely.geometry import LinearRing, Polygon
 
-from covert_env.config import MAX_N_POLYTOPES, check_coordinates, short_repr
+from covert_env.world.config import MAX_N_POLYTOPES, check_coordinates, short_repr
 
 __all__ = ["MAX_FOOTPRINT_VERTICES", "MAX_TERRAIN_VERTICES", "Polytope"]
 

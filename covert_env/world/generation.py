@@ -22,7 +22,7 @@ import math
 import numba
 import numpy as np
 
-from covert_env.config import SCENE_ROAD_LEAD_IN, SCENE_ROAD_TAIL, Config
+from covert_env.world.config import SCENE_ROAD_LEAD_IN, SCENE_ROAD_TAIL, Config
 
 __all__ = ["MIN_GAP", "ROAD_STEP", "TerrainBatch", "frustum_faces", "polygon_gap", "random_roads", "random_terrains",
            "uniforms"]
@@ -79,7 +79,7 @@ def random_roads(seeds, config: Config, start=(-20.0, 0.0), heading: float = 0.0
     The heading integrates a smooth random curvature: four sinusoids of wavelengths 150-600 m, scaled so that the
     largest |curvature| is ``config.road_max_curvature`` times U(0.4, 1); straight for the first
     ``straight_start`` metres, then eased in over 40 m. The road is the scenario's length
-    (:func:`~covert_env.config.scene_road_length`)."""
+    (:func:`~covert_env.world.config.scene_road_length`)."""
     c = config
     travel = c.target_speed * c.delta * (c.n_slots + c.horizon + 1)
     length = SCENE_ROAD_LEAD_IN + travel + SCENE_ROAD_TAIL

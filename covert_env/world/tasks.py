@@ -1,14 +1,14 @@
 """The task suite: named tasks over scene families x team size x target behaviour, each with fixed scenes.
 
-A task is what a benchmark row is measured on: a scene family (:mod:`covert_env.families`), a team size and how
+A task is what a benchmark row is measured on: a scene family (:mod:`covert_env.world.families`), a team size and how
 the target drives. Pass its name wherever an env is made, or to the suite protocol::
 
     covert_env.parallel_env(task="downtown-3uav")            # PettingZoo; also env(), vector_env(), gym.make
     covert-env benchmark --tasks core --policies dp dp-blind random --out outputs/suite
 
 Names are ``{family}-{U}uav`` (nominal target) or ``{family}-{U}uav-deviating``. Every task trains on the family's
-training scenes (:data:`~covert_env.families.TRAIN_SEEDS`) and is scored on its first :data:`TEST_SCENES`
-held-out scenes (:data:`~covert_env.families.HELD_OUT_SEEDS`), each flown from its own seeded starts.
+training scenes (:data:`~covert_env.world.families.TRAIN_SEEDS`) and is scored on its first :data:`TEST_SCENES`
+held-out scenes (:data:`~covert_env.world.families.HELD_OUT_SEEDS`), each flown from its own seeded starts.
 
 =============  ========================================================================================================
 target         what it is
@@ -31,8 +31,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from types import MappingProxyType
 
-from covert_env.config import Config
-from covert_env.families import FAMILIES, HELD_OUT_SEEDS, TRAIN_SEEDS, family_config
+from covert_env.world.config import Config
+from covert_env.world.families import FAMILIES, HELD_OUT_SEEDS, TRAIN_SEEDS, family_config
 
 __all__ = ["DEFAULT_TASKS", "DEVIATION", "SUITE_VERSION", "TASKS", "TEAM_SIZES", "TEST_SCENES", "Task", "get_task",
            "resolve_tasks"]
@@ -44,7 +44,7 @@ TEAM_SIZES = (1, 3, 6)
 DEVIATION = 4.0
 """Largest deviation (m) of the ``deviating`` tasks' target from its prediction (and the zone's erosion r_u)."""
 TEST_SCENES = 20
-"""Held-out scenes per task (the first of :data:`~covert_env.families.HELD_OUT_SEEDS`)."""
+"""Held-out scenes per task (the first of :data:`~covert_env.world.families.HELD_OUT_SEEDS`)."""
 # The nominal target names its prediction error too, so that a config with another one clashes with the task.
 _TARGETS = {"nominal": {"prediction_error": 0.0}, "deviating": {"prediction_error": DEVIATION, "r_u": DEVIATION}}
 

@@ -3,19 +3,19 @@
 The engine (one scene) and the vector env (B scenes) fly their UAVs with these functions, so both fly the same
 arithmetic. :func:`fly_arc` (a control held for the slot), :func:`fly_turn_straight` (the manoeuvre) and
 :func:`closest_constant_control` (the fallback's grid search) fly eq. 1 through
-:func:`~covert_env.dynamics.unicycle_arc`, shaping its arguments so that each sine and cosine is computed once per
-distinct value (tests/test_batch_flight.py checks them against the plain per-sample integration, bit for bit).
+:func:`~covert_env.geometry.dynamics.unicycle_arc`, shaping its arguments so that each sine and cosine is computed once
+per distinct value (tests/test_batch_flight.py checks them against the plain per-sample integration, bit for bit).
 A UAV's move over a slot is either a unicycle control (v, omega) held for the whole slot (eq. 1, integrated
 exactly) or the turn-then-straight manoeuvre to a waypoint (eqs. 22-29); a waypoint the manoeuvre cannot reach is
-flown as the closest admissible constant control and flagged (see :mod:`covert_env.engine`).
+flown as the closest admissible constant control and flagged (see :mod:`covert_env.world.engine`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from covert_env.angles import TWO_PI, wrap_heading
-from covert_env.dynamics import solve_manoeuvre, unicycle_arc, unicycle_heading
+from covert_env.geometry.angles import TWO_PI, wrap_heading
+from covert_env.geometry.dynamics import solve_manoeuvre, unicycle_arc, unicycle_heading
 
 __all__ = ["HEADING_GRID", "POSITION_GRID", "check_unicycle", "closest_constant_control", "fly_arc",
            "fly_turn_straight", "settle_pose", "waypoint_controls"]
@@ -42,7 +42,7 @@ def check_unicycle(ctl: np.ndarray, c) -> None:
 
 def fly_arc(xy, theta, v, w, times):
     """Path samples (B, U, P, 2) at ``times`` (P,) and end headings (B, U) in [0, 2 pi) for controls held for the
-    slot: :func:`~covert_env.dynamics.unicycle_arc` per sample, written into the path in place (the arrays are
+    slot: :func:`~covert_env.geometry.dynamics.unicycle_arc` per sample, written into the path in place (the arrays are
     B U P: at B = 1024 every temporary spills the cache), with the exact start as sample 0."""
     path = np.empty(theta.shape + (len(times), 2))
     path[..., 0, :] = xy
@@ -88,7 +88,7 @@ def waypoint_controls(xy, theta, goals, c):
 
 def closest_constant_control(xy, theta, goals, c):
     """Best effort for unreachable waypoints: the admissible constant (v, omega) whose exact end point
-    (:func:`~covert_env.dynamics.unicycle_arc` over the slot) lies closest to the waypoint, on a 17 x 17 grid
+    (:func:`~covert_env.geometry.dynamics.unicycle_arc` over the slot) lies closest to the waypoint, on a 17 x 17 grid
     refined twice around the best; (K,) each for (K, 2) poses and goals.
 
     Speeds (K, 17, 1) against turn rates (K, 1, 17): the arc's turn-dependent factors are computed once per grid
@@ -118,7 +118,7 @@ def fly_turn_straight(xy, theta, v, w, t_turn, times):
     """Turn at (v, w) for ``t_turn``, then straight at v: path samples (B, U, P, 2) at ``times`` (P,) from poses
     (B, U), and the end headings (B, U) in [0, 2 pi).
 
-    Two :func:`~covert_env.dynamics.unicycle_arc` legs per sample, as the engine flies them, with each sine and
+    Two :func:`~covert_env.geometry.dynamics.unicycle_arc` legs per sample, as the engine flies them, with each sine and
     cosine computed once per distinct value: after the turn every sample shares the turn's end pose and the
     straight leg's heading, and before it the straight leg has length 0. Sample 0 is the exact start."""
     p = len(times)

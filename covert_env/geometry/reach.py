@@ -1,11 +1,11 @@
 """Which waypoints the turn-then-straight manoeuvre reaches in one slot, from a table in the UAV's frame.
 
-Whether :func:`~covert_env.dynamics.solve_manoeuvre` finds a manoeuvre depends only on the waypoint's position in
-the UAV's frame: ``a`` ahead and ``b = |lateral|`` to the side (the manoeuvre is mirror-symmetric). So the
+Whether :func:`~covert_env.geometry.dynamics.solve_manoeuvre` finds a manoeuvre depends only on the waypoint's position
+in the UAV's frame: ``a`` ahead and ``b = |lateral|`` to the side (the manoeuvre is mirror-symmetric). So the
 feasible set is one region of the (a, b) half-plane per (V_max, W_max, delta), tabulated here once on a grid of
 cells labelled *feasible*, *infeasible* or *near the boundary*. A query looks its cell up; only points in
-boundary cells are solved exactly (by :func:`~covert_env.dynamics.manoeuvre_feasible`, ``solve_manoeuvre``'s own
-test on the same inputs, without the speed), so the answer is exactly ``solve_manoeuvre(...).feasible``, at a
+boundary cells are solved exactly (by :func:`~covert_env.geometry.dynamics.manoeuvre_feasible`, ``solve_manoeuvre``'s
+own test on the same inputs, without the speed), so the answer is exactly ``solve_manoeuvre(...).feasible``, at a
 fraction of the root finding.
 
 A cell is labelled feasible or infeasible only when every grid node of the 3 x 3 cells around it agrees (and, on
@@ -29,8 +29,8 @@ import functools
 import numba
 import numpy as np
 
-from covert_env.dynamics import manoeuvre_feasible
-from covert_env.zone import to_world
+from covert_env.geometry.dynamics import manoeuvre_feasible
+from covert_env.geometry.zone import to_world
 
 __all__ = ["ReachTable", "reach_table"]
 
@@ -138,7 +138,7 @@ class ReachTable:
         """(B, U, L) bool: ``solve_manoeuvre(xy[b, u], theta[b, u], goal[b, l], ...).feasible`` for poses ``xy``
         (B, U, 2), ``theta`` (B, U) and the goals ``to_world(offsets, q_xy[b], phi[b])`` (offsets (L, 2), targets
         q_xy (B, 2), phi (B,)): table lookups, then the exact solver on the points in boundary cells (their goals
-        computed exactly as :func:`~covert_env.zone.to_world` does, the only goals ever built in float64).
+        computed exactly as :func:`~covert_env.geometry.zone.to_world` does, the only goals ever built in float64).
         ``exact=False`` skips the solver: points in boundary cells count as unreachable (a subset, within a cell
         of the exact set).
 
