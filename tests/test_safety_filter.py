@@ -16,7 +16,7 @@ from hypothesis.extra.numpy import arrays
 import covert_env
 from baselines.policies import RandomPolicy
 from covert_env.command_line import UsageError
-from covert_env.envs.joint_moves import clear_along
+from covert_env.envs.joint_moves import _first_separated_pair, clear_along, separated_from
 from covert_env.envs.safety_filter import SafetyFilter, ShieldedPolicy, path_separation, top_clearance_along
 from covert_env.geometry.separation import team_separation
 from covert_env.world.metrics import top_clearance
@@ -53,6 +53,25 @@ def test_clear_along_is_the_clearance_compared_with_the_need(paths, tops, first,
     gap = top_clearance_along(paths, tops, 80.0, first)
     for n in (need, float(gap[nan_at, 2]), float(np.nextafter(gap[nan_at, 3], 0.0))):
         np.testing.assert_array_equal(clear_along(paths, tops, 80.0, n, first), gap >= n)
+
+
+@settings(max_examples=60, deadline=None)
+@given(arrays(float, (4, 9, 2), elements=st.floats(-30, 30)), arrays(float, (3, 9, 2), elements=st.floats(-30, 30)),
+       arrays(float, (3, 5, 9, 2), elements=st.floats(-30, 30)), st.integers(0, 1), st.floats(1.0, 20.0))
+def test_the_repair_and_negotiation_kernels_are_eq_2_written_out(a, b, c, first, need):
+    a[1, 4] = np.nan                                                  # a NaN sample: too close in a repair pair
+    c[0, 1, 5] = np.nan                                               # ... and separated in the negotiation
+    # The pair repair's rule: separated at every fourth sample from the start and at every sample from `first`.
+    want = [n for n in range(len(a) * len(b))
+            if (path_separation(a[n // 3][None, ::4], b[n % 3][None, ::4], 0) >= need).all()
+            and (path_separation(a[n // 3][None], b[n % 3][None], first) >= need).all()]
+    order = np.arange(len(a) * len(b))[::-1].copy()                  # the last pair is the best-ranked
+    assert _first_separated_pair(a, b, order, need, first) == (want[-1] if want else -1)
+    # The negotiation's rule: each candidate against the settled paths, a NaN sample counting as separated.
+    ok = np.ones((3, 5), bool)
+    separated_from(c, b[:, None].repeat(2, axis=1), need, first, ok)
+    gap = np.nan_to_num(path_separation(c[:, :, None], b[:, None, None].repeat(2, axis=2), first), nan=np.inf)
+    np.testing.assert_array_equal(ok, (gap >= need).all(axis=2))
 
 
 def _fly(task: str, seed: int, *, record_state: bool = False):

@@ -239,39 +239,54 @@ def negotiate(flt, fl: Flights, rank: np.ndarray, rows: np.ndarray, room: float 
 def _repair(flt, fl: Flights, rank, usable, j: int, k: int, settled: np.ndarray, pick, chosen) -> bool:
     """Copy ``j``'s UAV ``k`` has no move separated from the ``settled`` UAVs: re-choose it together with one of
     them (every pair of their candidates, the nearest settled UAV first); the copy's ``pick`` (U,) and ``chosen``
-    paths (U, P, 2) change in place.
-    Pairs are screened at every fourth sample, then checked at all of them, the best-ranked pair first."""
+    paths (U, P, 2) change in place. The pair taken is the best-ranked one separated at every fourth sample from the
+    start and at every sample from ``first`` (:func:`_first_separated_pair`)."""
     d1 = fl.sep_need
     near = np.hypot(*(fl.paths[j, k, 0, 0] - chosen[settled, 0]).T) if len(settled) else np.zeros(0)
     for h in settled[np.argsort(near, kind="stable")]:
         rest = settled[settled != h]
-        ok_k, ok_h = usable[j, k].copy(), usable[j, h].copy()
+        ok_k, ok_h = usable[j, k][None].copy(), usable[j, h][None].copy()
         if len(rest):
-            ok_k &= (np.nan_to_num(path_separation(fl.paths[j, k][:, None], chosen[rest][None], fl.first), nan=np.inf)
-                     >= d1).all(axis=1)
-            ok_h &= (np.nan_to_num(path_separation(fl.paths[j, h][:, None], chosen[rest][None], fl.first), nan=np.inf)
-                     >= d1).all(axis=1)
-        ck, ch = np.nonzero(ok_k)[0], np.nonzero(ok_h)[0]
+            separated_from(fl.paths[j, k][None], chosen[rest][None], d1, fl.first, ok_k)
+            separated_from(fl.paths[j, h][None], chosen[rest][None], d1, fl.first, ok_h)
+        ck, ch = np.nonzero(ok_k[0])[0], np.nonzero(ok_h[0])[0]
         if not len(ck) or not len(ch):
             continue
-        # The screen in blocks of candidates of k (every pair at once is L^2 P / 4 floats: 500 MB at L = 577).
-        blocks = [np.nonzero(path_separation(fl.paths[j, k, ck[c0:c0 + 64]][:, None, ::4],
-                                             fl.paths[j, h, ch][None, :, ::4]) >= d1) for c0 in range(0, len(ck), 64)]
-        a = np.concatenate([blk[0] + 64 * n for n, blk in enumerate(blocks)])
-        b = np.concatenate([blk[1] for blk in blocks])
-        if not len(a):
-            continue
-        score = rank[j, k, ck[a]] + rank[j, h, ch[b]]
+        # Every pair, the best-ranked first (ties in the order of (k's candidate, h's candidate)).
+        score = (rank[j, k, ck][:, None] + rank[j, h, ch][None]).reshape(-1)
         order = np.argsort(score, kind="stable")
-        for start in range(0, len(order), 256):
-            sel = order[start:start + 256]
-            exact = path_separation(fl.paths[j, k, ck[a[sel]]], fl.paths[j, h, ch[b[sel]]], fl.first) >= d1
-            if exact.any():
-                first = sel[np.argmax(exact)]
-                pick[k], pick[h] = ck[a[first]], ch[b[first]]
-                chosen[k], chosen[h] = fl.paths[j, k, pick[k]], fl.paths[j, h, pick[h]]
-                return True
+        found = _first_separated_pair(fl.paths[j, k, ck], fl.paths[j, h, ch], order, d1, fl.first)
+        if found >= 0:
+            pick[k], pick[h] = ck[found // len(ch)], ch[found % len(ch)]
+            chosen[k], chosen[h] = fl.paths[j, k, pick[k]], fl.paths[j, h, pick[h]]
+            return True
     return False
+
+
+@numba.njit(cache=True, nogil=True)
+def _first_separated_pair(a, b, order, need, first):
+    """The first pair ``order[i]`` (pair ``n`` is ``a[n // len(b)]`` with ``b[n % len(b)]``, paths (P, 2)) whose
+    distance is at least ``need`` at every fourth sample from 0 and at every sample from ``first``; -1 if none.
+    Compared as eq. 2 compares (``hypot(dx, dy) >= need``, a NaN sample is too close); a square well away from
+    ``need ** 2`` settles a sample without the square root."""
+    nb, p = b.shape[0], a.shape[1]
+    lo2, hi2 = (need * (1.0 - 1e-9)) ** 2, (need * (1.0 + 1e-9)) ** 2
+    for i in range(len(order)):
+        n = order[i]
+        u, v = n // nb, n % nb
+        ok = True
+        for s in range(p):
+            if s % 4 != 0 and s < first:
+                continue
+            dx = a[u, s, 0] - b[v, s, 0]
+            dy = a[u, s, 1] - b[v, s, 1]
+            d2 = dx * dx + dy * dy
+            if not d2 >= hi2 and (d2 < lo2 or not np.hypot(dx, dy) >= need):
+                ok = False
+                break
+        if ok:
+            return n
+    return -1
 
 
 class Plan:
