@@ -32,19 +32,25 @@ __all__ = ["COSTS", "MIN_SPEED_FRACTION", "OFFSET_CLIP", "REWARD_TERMS", "action
            "unicycle_actions", "unicycle_controls", "waypoint_actions"]
 
 
-def unicycle_actions(actions, shape: tuple[int, int], agents) -> np.ndarray:
-    """Box actions (B, U, 2) as floats, checked: numbers, the shape, finite (errors name the copy and agent)."""
-    shape = shape + (2,)
+def _action_array(actions, shape: tuple, mode: str, layout: str, kinds: str) -> np.ndarray:
+    """``actions`` as an array of numbers of ``shape``; a ragged nesting, another dtype or shape is an error that
+    names the ``mode``, the ``layout`` of the shape and the ``kinds`` of number expected."""
     try:
         a = np.asarray(actions)
     except ValueError:                      # ragged nesting: no array of any shape
-        raise ValueError(f"unicycle actions must have shape {shape} (copies, agents, 2), got a ragged nesting "
+        raise ValueError(f"{mode} actions must have shape {shape} ({layout}), got a ragged nesting "
                          f"{short_repr(actions)}") from None
     if a.dtype.kind not in "iuf":
-        raise TypeError(f"unicycle actions must be numbers (speed, turn rate) in [-1, 1], got dtype {a.dtype}")
+        raise TypeError(f"{mode} actions must be {kinds}, got dtype {a.dtype}")
     if a.shape != shape:
-        raise ValueError(f"unicycle actions must have shape {shape} (copies, agents, 2), got {a.shape}")
-    a = a.astype(float, copy=False)
+        raise ValueError(f"{mode} actions must have shape {shape} ({layout}), got {a.shape}")
+    return a
+
+
+def unicycle_actions(actions, shape: tuple[int, int], agents) -> np.ndarray:
+    """Box actions (B, U, 2) as floats, checked: numbers, the shape, finite (errors name the copy and agent)."""
+    a = _action_array(actions, shape + (2,), "unicycle", "copies, agents, 2",
+                      "numbers (speed, turn rate) in [-1, 1]").astype(float, copy=False)
     bad = ~np.isfinite(a).all(axis=-1)
     if bad.any():
         j, i = np.argwhere(bad)[0]
@@ -54,15 +60,7 @@ def unicycle_actions(actions, shape: tuple[int, int], agents) -> np.ndarray:
 
 def waypoint_actions(actions, shape: tuple[int, int], n: int, agents) -> np.ndarray:
     """Lattice indices (B, U) as int64, checked: numbers, the shape, integers in [0, n) (errors name copy, agent)."""
-    try:
-        a = np.asarray(actions)
-    except ValueError:
-        raise ValueError(f"waypoint actions must have shape {shape} (copies, agents), got a ragged nesting "
-                         f"{short_repr(actions)}") from None
-    if a.dtype.kind not in "iuf":
-        raise TypeError(f"waypoint actions must be integers (lattice node indices), got dtype {a.dtype}")
-    if a.shape != shape:
-        raise ValueError(f"waypoint actions must have shape {shape} (copies, agents), got {a.shape}")
+    a = _action_array(actions, shape, "waypoint", "copies, agents", "integers (lattice node indices)")
     with np.errstate(invalid="ignore"):
         ok = np.isfinite(a) & (a == np.round(a)) & (a >= 0) & (a < n)
     if not ok.all():
