@@ -9,7 +9,7 @@ with ``a[r]`` the trunk's projection of the row's observation (``node_obs``), ``
 layer. Written with torch, one PPO minibatch of a few thousand rows with some 250 allowed nodes each makes
 several tensors of (rows x nodes x hidden) floats (the gathered features, the pre-activations, their gradients):
 memory traffic, not arithmetic, bounds it. :func:`node_scores` does the same arithmetic pair by pair in a compiled
-loop that keeps one hidden vector in registers, and recomputes it in the backward pass instead of storing it.
+loop that holds one pair's hidden vector at a time, and recomputes it in the backward pass instead of storing it.
 
 The features stay where the rollout stored them, ``(samples, L, F)``; each row names its sample (``sample_of``),
 so a minibatch reads them without copying.
