@@ -510,7 +510,7 @@ def test_path_los_cost_is_the_episode_metric(kw):
     if "family" in kw:
         assert q.blocked_path_share.mean() > 0.005            # random waypoints do lose LoS between slots here
     vec, f = env._vec, np.linspace(0.0, 1.0, env.path_samples)
-    got = vec._pool.target_between(vec._rows, np.array([5]), f)
+    got = vec._pool.target_between(vec.copies.rows, np.array([5]), f)
     np.testing.assert_array_equal(got[0], env.engine.track.position_between(5, f))
 
 
@@ -548,8 +548,8 @@ def test_kinematic_mask_is_the_reachable_set_and_contains_the_visible_mask():
     extra = 0
     for _ in range(20):
         mv, mk = vis.action_masks(), kin.action_masks()
-        pool, rows, k = kin._pool, kin._rows, kin._k
-        reach = kin._reach.reachable(kin._xy, kin._theta, pool.q_next[rows, k, :2], pool.phi_next[rows, k],
+        pool, rows, k = kin._pool, kin.copies.rows, kin.copies.k
+        reach = kin._reach.reachable(kin.copies.xy, kin.copies.theta, pool.q_next[rows, k, :2], pool.phi_next[rows, k],
                                      kin.lattice)
         rows_any = reach.any(axis=-1)
         np.testing.assert_array_equal(mk[rows_any].astype(bool), reach[rows_any])

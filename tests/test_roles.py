@@ -75,7 +75,7 @@ def test_terrains_play_their_roles():
 
     venv = covert_env.vector_env(num_envs=3, n_uavs=2)
     venv.reset(options={"scene_seed": [1, 2, 1]})
-    pool, rows = venv._pool, venv._rows
+    pool, rows = venv._pool, venv.copies.rows
     copies = pool.copy_terrains(rows)
     assert_plays(copies, TerrainPerCopy)
     assert_plays(copies, PolytopeTops)

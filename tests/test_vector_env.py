@@ -226,7 +226,7 @@ def test_pool_line_of_sight_equals_line_of_sight_per_copy():
 
     venv = covert_env.vector_env(num_envs=6, n_uavs=2)
     venv.reset(options={"scene_seed": [1, 2, 3, 4, 5, 1]})
-    pool, rows, rng = venv._pool, venv._rows, np.random.default_rng(3)
+    pool, rows, rng = venv._pool, venv.copies.rows, np.random.default_rng(3)
     blocked = 0
     near_polytope = pool.centre[rows, 0] + rng.uniform(-1, 1, (6, 2)) * pool.radius[rows, 0, None]
     for k in (0, 20, 45, "near a polytope"):      # the last: targets inside a footprint's enclosing circle
@@ -251,7 +251,7 @@ def test_starts_fallback_equals_the_parallel_env():
     _run_side_by_side(kw, b=6, steps=5)
     venv = covert_env.vector_env(num_envs=6, **kw)
     venv.reset(seed=11)
-    xy = venv._xy
+    xy = venv.copies.xy
     gaps = np.hypot(*(xy[:, :, None] - xy[:, None]).transpose(3, 0, 1, 2)) + np.eye(3) * 1e9
     assert (gaps.min(axis=(1, 2)) < 50.0).any() and (gaps >= 25.0 - 1e-9).all()
 

@@ -112,48 +112,48 @@ class CopyView(TargetReads):
 
 class CopyReaders:
     """The vector env's readers of its copies: slots, poses, scenes, episodes and :class:`CopyView` (a base of
-    :class:`~covert_env.envs.vector.CovertSensingVectorEnv`, whose ``num_envs`` and batch state ``_started``, ``_k``,
-    ``_xy``, ``_theta``, ``_rows``, ``_pool``, ``_drawn``, ``_start_xy``, ``_start_theta`` and ``_recorder`` they
-    read). The readers of one copy check its index and ``require_running``; ``started``, ``slots``, ``uav_xy`` and
-    ``uav_theta`` read the arrays as they are (zeros before the first ``reset()``)."""
+    :class:`~covert_env.envs.vector.CovertSensingVectorEnv`; they read its ``num_envs``, its batch state ``copies``
+    (:class:`~covert_env.envs.copies.Copies`), its scene pool ``_pool`` and its episodes ``_recorder``). The readers
+    of one copy check its index and ``require_running``; ``started``, ``slots``, ``uav_xy`` and ``uav_theta`` read
+    the arrays as they are (zeros before the first ``reset()``)."""
 
     @property
     def started(self) -> bool:
         """True once ``reset()`` has been called."""
-        return self._started
+        return self.copies.started
 
     @property
     def slots(self) -> np.ndarray:
         """(B,) the slot k each copy has reached."""
-        return self._k.copy()
+        return self.copies.k.copy()
 
     @property
     def uav_xy(self) -> np.ndarray:
         """(B, U, 2) the UAVs' positions (read-only view)."""
-        out = self._xy.view()
+        out = self.copies.xy.view()
         out.flags.writeable = False
         return out
 
     @property
     def uav_theta(self) -> np.ndarray:
         """(B, U) the UAVs' headings in [0, 2 pi) (read-only view)."""
-        out = self._theta.view()
+        out = self.copies.theta.view()
         out.flags.writeable = False
         return out
 
     def scene(self, i: int):
         """The scene copy i flies (``config``, ``terrain``, ``track``, ``name``), without starts."""
         i = self._copy("scene()", i)
-        return self._pool.cache(self._rows[i]).parts
+        return self._pool.cache(self.copies.rows[i]).parts
 
     def scenario(self, i: int) -> Scenario:
         """The :class:`~covert_env.world.scenario.Scenario` of copy i's episode, with the starts actually flown."""
         i = self._copy("scenario()", i)
-        cache = self._pool.cache(self._rows[i])
-        if not self._drawn[i]:
+        cache = self._pool.cache(self.copies.rows[i])
+        if not self.copies.drawn[i]:
             return cache.seeded_scenario()
         w = cache.parts
-        return Scenario(w.config, w.terrain, w.track, self._start_xy[i].copy(), self._start_theta[i].copy(),
+        return Scenario(w.config, w.terrain, w.track, self.copies.start_xy[i].copy(), self.copies.start_theta[i].copy(),
                         name=w.name)
 
     def trajectory(self, i: int) -> Trajectory:
@@ -161,7 +161,7 @@ class CopyReaders:
         if self._recorder is None:
             raise RuntimeError("trajectory() needs the vector env built with record=True")
         i = self._copy("trajectory()", i)
-        return self._recorder.trajectory(i, int(self._k[i]), self.scene(i).track)
+        return self._recorder.trajectory(i, int(self.copies.k[i]), self.scene(i).track)
 
     def copy_view(self, i: int) -> CopyView:
         """Copy i read as an engine (:class:`~covert_env.envs.recorder.CopyView`), after ``reset()``."""

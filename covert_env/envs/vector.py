@@ -11,6 +11,7 @@ from gymnasium.vector.utils import batch_space
 
 from covert_env.envs import batch
 from covert_env.envs.arguments import ConstructionSettings, int_arg, reset_options
+from covert_env.envs.copies import Copies
 from covert_env.envs.recorder import CopyReaders, EpisodeRecorder
 from covert_env.envs.scene_pool import ScenePool
 from covert_env.envs.settings import EnvSettings, LiveSettings, check_penalties
@@ -219,15 +220,8 @@ class CovertSensingVectorEnv(ConstructionSettings, LiveSettings, CopyReaders, Wa
         self._fractions = np.linspace(0.0, 1.0, self.path_samples)[1:]        # of the slot, after its start
         self._rngs: list[np.random.Generator] | None = None
         self.copy_seeds: np.ndarray | None = None
-        self._rows = np.full(b, -1)
-        self._k = np.zeros(b, dtype=np.int64)
-        self._xy, self._theta = np.zeros((b, u, 2)), np.zeros((b, u))
-        self._start_xy, self._start_theta = np.zeros((b, u, 2)), np.zeros((b, u))
-        self._drawn, self._ended = np.zeros(b, bool), np.zeros(b, bool)
-        self._speed, self._zone = np.zeros((b, u)), np.zeros((b, u))
-        self._los = np.zeros((b, u), bool)
-        self._masks = np.ones((b, u, len(self.lattice) if self.action_mode == "waypoint" else 2), np.int8)
-        self._started = False
+        #: Where the copies stand (:class:`~covert_env.envs.copies.Copies`): what step and reset write.
+        self.copies = Copies.empty(b, u, len(self.lattice) if self.action_mode == "waypoint" else 2)
         self._own: np.ndarray | None = None                 # own features of the whole batch, until a state change
         self._recorder = EpisodeRecorder(b, u, c.n_slots, self.path_samples) if record else None
         self._reach = reach_table(c.v_max, c.w_max, c.delta) if self.action_mode == "waypoint" else None
@@ -253,7 +247,7 @@ class CovertSensingVectorEnv(ConstructionSettings, LiveSettings, CopyReaders, Wa
         if mask is None:
             chosen = np.arange(b)
         else:
-            if not self._started or seed is not None:
+            if not self.copies.started or seed is not None:
                 raise ValueError("reset(options={'reset_mask': ...}) resets some copies of a running batch, from "
                                  "their own generators: call a full reset(seed=...) first, and not with it")
             chosen = np.flatnonzero(mask)
@@ -266,7 +260,7 @@ class CovertSensingVectorEnv(ConstructionSettings, LiveSettings, CopyReaders, Wa
         elif self._rngs is None:
             self._rngs = [gymnasium.utils.seeding.np_random(None)[0] for _ in range(b)]
         self._reset_copies(chosen, scene_seeds)
-        self._started = True
+        self.copies.started = True
         self._update_masks()
         infos = self._reset_infos(chosen)
         if mask is not None:
@@ -280,12 +274,12 @@ class CovertSensingVectorEnv(ConstructionSettings, LiveSettings, CopyReaders, Wa
     def step(self, actions):
         """One slot in every copy; returns ``(obs, rewards, terminations, truncations, infos)`` (class docstring)."""
         self.require_running("step()")
-        if self._ended.any():
-            raise RuntimeError(f"step(): the episodes of copies {np.flatnonzero(self._ended).tolist()} ended "
+        if self.copies.ended.any():
+            raise RuntimeError(f"step(): the episodes of copies {np.flatnonzero(self.copies.ended).tolist()} ended "
                                "(autoreset_mode DISABLED) or failed to reset; reset them "
                                "(reset(options={'reset_mask': ...}))")
-        c, pool, rows, k = self.config, self._pool, self._rows, self._k
-        xy0, th0 = self._xy, self._theta
+        c, pool, rows, k = self.config, self._pool, self.copies.rows, self.copies.k
+        xy0, th0 = self.copies.xy, self.copies.theta
         q1, phi1 = pool.q[rows, k + 1], pool.phi[rows, k + 1]
         if self.action_mode == "unicycle":
             act = batch.unicycle_actions(actions, (self.num_envs, len(self.possible_agents)), self.possible_agents)
@@ -295,7 +289,7 @@ class CovertSensingVectorEnv(ConstructionSettings, LiveSettings, CopyReaders, Wa
         else:
             idx = batch.waypoint_actions(actions, (self.num_envs, len(self.possible_agents)), len(self.lattice),
                                          self.possible_agents)
-            flagged = np.take_along_axis(self._masks, idx[..., None], axis=-1)[..., 0] == 0
+            flagged = np.take_along_axis(self.copies.masks, idx[..., None], axis=-1)[..., 0] == 0
             # The nodes are about the target's next pose as predicted now (what the mask and the planner use).
             goals = to_world(self.lattice[idx], pool.q_next[rows, k, :2], pool.phi_next[rows, k])
             path, end_theta, v, fallback, w = batch.fly_waypoints(xy0, th0, goals, c, self._times)
@@ -311,19 +305,20 @@ class CovertSensingVectorEnv(ConstructionSettings, LiveSettings, CopyReaders, Wa
         costs = batch.constraint_costs(quant, c)
         terms = batch.reward_terms(quant, costs, c, self.reward_scale, self.penalties)
         rewards = terms.sum(axis=0)
-        self._k, self._own = k + 1, None
-        self._xy, self._theta = end, wrap_heading(end_theta)
+        self.copies.k, self._own = k + 1, None
+        self.copies.xy, self.copies.theta = end, wrap_heading(end_theta)
         if self._recorder is not None:
-            self._recorder.record(k, path, end_theta=self._theta, v=v, w=w, flagged=flagged, delta=c.delta)
-        self._speed, self._los, self._zone = quant.path_length / c.delta, quant.los, quant.zone_distance
+            self._recorder.record(k, path, end_theta=self.copies.theta, v=v, w=w, flagged=flagged, delta=c.delta)
+        self.copies.speed, self.copies.los = quant.path_length / c.delta, quant.los
+        self.copies.zone = quant.zone_distance
         term = (quant.separation_path < c.d_safe1).any(axis=1) & self.terminate_on_collision
-        trunc = (self._k >= self.episode_length) & ~term
+        trunc = (self.copies.k >= self.episode_length) & ~term
 
-        infos = _step_infos(self._k, quant, flagged, self._speed, terms, costs)
+        infos = _step_infos(self.copies.k, quant, flagged, self.copies.speed, terms, costs)
         obs = self._obs_rows()
         done = term | trunc
         if done.any() and self.metadata["autoreset_mode"] == AutoresetMode.DISABLED:
-            self._ended |= done
+            self.copies.ended |= done
         elif done.any():
             ended = np.flatnonzero(done)
             infos = {key: infos[key].copy() for key in INFO_KEYS}
@@ -347,12 +342,12 @@ class CovertSensingVectorEnv(ConstructionSettings, LiveSettings, CopyReaders, Wa
         """(B, U, L) int8 waypoint masks (1 = allowed); all ones (B, U, 2) in unicycle mode. Known after
         ``reset()``: before it (or after ``close()``) a RuntimeError, as in the parallel env."""
         self.require_running("action_masks()")
-        return self._masks.copy()
+        return self.copies.masks.copy()
 
     def state(self) -> np.ndarray:
         """(B, S) float32 global state, row b the parallel env's ``state()`` of copy b."""
         self.require_running("state()")
-        return self.layout.state(self._own_features(), self._pool.blocks[self._rows, self._slots()],
+        return self.layout.state(self._own_features(), self._pool.blocks[self.copies.rows, self._slots()],
                                  self._remaining())
 
     def close(self) -> None:
@@ -363,50 +358,51 @@ class CovertSensingVectorEnv(ConstructionSettings, LiveSettings, CopyReaders, Wa
         """A RuntimeError naming ``what`` before the first ``reset()`` or after ``close()``."""
         if self._pool is None:
             raise RuntimeError(f"{what} called after close(); make a new env")
-        if not self._started:
+        if not self.copies.started:
             raise RuntimeError(f"{what} called before reset(); call reset() first")
 
     # ------------------------------------------------------------------ internals
     def _reset_copies(self, idx: np.ndarray, scene_seeds) -> None:
         """Put copies ``idx`` at slot 0 of a new episode: scenes and starts drawn per copy (class docstring)."""
-        c, pool = self.config, self._pool
+        c, pool, cp = self.config, self._pool, self.copies
         draw = self.random_starts or (self.scenario_spec == "random" and scene_seeds is None)
         try:
-            xy, theta = pool.draw_episodes(self._rows, idx, [self._rngs[j] for j in idx], scene_seeds,
+            xy, theta = pool.draw_episodes(cp.rows, idx, [self._rngs[j] for j in idx], scene_seeds,
                                            self.scene_pool, draw, len(self.possible_agents))
         except Exception:
             # A scene that failed to build leaves these copies without one: they must be reset before a step.
-            self._rows[idx] = np.maximum(self._rows[idx], 0)
-            self._ended[idx] = True
+            cp.rows[idx] = np.maximum(cp.rows[idx], 0)
+            cp.ended[idx] = True
             raise
-        rows = self._rows[idx]
+        rows = cp.rows[idx]
         q, phi = pool.q[rows, 0], pool.phi[rows, 0]
         self._own = None
-        self._xy[idx], self._theta[idx] = xy, wrap_heading(theta)
-        self._start_xy[idx], self._start_theta[idx], self._drawn[idx], self._ended[idx] = xy, theta, draw, False
+        cp.xy[idx], cp.theta[idx] = xy, wrap_heading(theta)
+        cp.start_xy[idx], cp.start_theta[idx], cp.drawn[idx], cp.ended[idx] = xy, theta, draw, False
         if self._recorder is not None:
-            self._recorder.start(idx, xy, self._theta[idx])
-        self._k[idx], self._speed[idx] = 0, 0.0
-        self._los[idx] = pool.line_of_sight(rows, xy, c.altitude, q)
-        self._zone[idx] = zone_distance(xy, q[:, None, :2], phi[:, None], c.r1, c.r2, c.mu)
+            self._recorder.start(idx, xy, cp.theta[idx])
+        cp.k[idx], cp.speed[idx] = 0, 0.0
+        cp.los[idx] = pool.line_of_sight(rows, xy, c.altitude, q)
+        cp.zone[idx] = zone_distance(xy, q[:, None, :2], phi[:, None], c.r1, c.r2, c.mu)
 
     def _reset_infos(self, idx: np.ndarray) -> dict[str, np.ndarray]:
         """Infos of copies ``idx`` at slot 0: no slot flown (0 for rewards, costs, motion), the starts' LoS, zone,
         separation and clearance (the parallel env's reset infos)."""
-        u, xy = len(self.possible_agents), self._xy[idx]
+        cp = self.copies
+        u, xy = len(self.possible_agents), cp.xy[idx]
         out = {key: np.zeros((len(idx), u)) for key in INFO_KEYS}
-        out.update(slot=np.zeros((len(idx), u), np.int64), los=self._los[idx].copy(), los_path=self._los[idx].copy(),
-                   in_zone=self._zone[idx] <= 0,
+        out.update(slot=np.zeros((len(idx), u), np.int64), los=cp.los[idx].copy(), los_path=cp.los[idx].copy(),
+                   in_zone=cp.zone[idx] <= 0,
                    infeasible=np.zeros((len(idx), u), bool), separation=nearest_teammate(xy),
-                   terrain_clearance=self._pool.terrain_clearance(self._rows[idx], xy, self.config.altitude))
+                   terrain_clearance=self._pool.terrain_clearance(self.copies.rows[idx], xy, self.config.altitude))
         return {key: out[key] for key in INFO_KEYS}
 
     def _slots(self, idx=slice(None)) -> np.ndarray:
-        return np.minimum(self._k[idx], self._pool.q.shape[1] - 1)
+        return np.minimum(self.copies.k[idx], self._pool.q.shape[1] - 1)
 
     def _remaining(self, idx=slice(None)) -> np.ndarray:
         length = self.episode_length
-        return np.maximum(length - self._k[idx], 0) / length
+        return np.maximum(length - self.copies.k[idx], 0) / length
 
     def _own_features(self, idx=slice(None)) -> np.ndarray:
         # The whole batch's are kept until the state changes: observations and state() (every step for centralised
@@ -414,29 +410,31 @@ class CovertSensingVectorEnv(ConstructionSettings, LiveSettings, CopyReaders, Wa
         whole = isinstance(idx, slice) and idx == slice(None)
         if whole and self._own is not None:
             return self._own
-        rows, ks = self._rows[idx], self._slots(idx)
-        own = batch.own_features(self._xy[idx], self._theta[idx], self._pool.q[rows, ks], self._pool.phi[rows, ks],
-                                 self._speed[idx], self._los[idx], self._zone[idx], self.config)
+        cp = self.copies
+        rows, ks = cp.rows[idx], self._slots(idx)
+        own = batch.own_features(cp.xy[idx], cp.theta[idx], self._pool.q[rows, ks], self._pool.phi[rows, ks],
+                                 cp.speed[idx], cp.los[idx], cp.zone[idx], self.config)
         if whole:
             self._own = own
         return own
 
     def _obs_rows(self, idx=slice(None)) -> np.ndarray:
-        shared = self._pool.blocks[self._rows[idx], self._slots(idx)]
+        shared = self._pool.blocks[self.copies.rows[idx], self._slots(idx)]
         return self.layout.observations(self._own_features(idx), shared, self._remaining(idx))
 
     def _observation(self, rows: np.ndarray):
         if self.dict_obs:
-            return {"observation": rows, "action_mask": self._masks.copy()}
+            return {"observation": rows, "action_mask": self.copies.masks.copy()}
         return rows
 
     def _update_masks(self) -> None:
         if self.action_mode != "waypoint":
             return
-        pool, rows, k = self._pool, self._rows, self._k
+        pool, cp = self._pool, self.copies
+        rows, k = cp.rows, cp.k
         visible = pool.lattice_ok[rows, k + 1] if self.mask_mode == "visible" else None
-        self._masks = batch.action_masks(self._xy, self._theta, pool.q_next[rows, k, :2], pool.phi_next[rows, k],
-                                         self.lattice, visible, self._reach)
+        cp.masks = batch.action_masks(cp.xy, cp.theta, pool.q_next[rows, k, :2], pool.phi_next[rows, k], self.lattice,
+                                      visible, self._reach)
 
 
 def _step_infos(k, quant, flagged, speed, terms, costs) -> dict[str, np.ndarray]:

@@ -38,8 +38,9 @@ class WaypointQueries:
     """The vector env's waypoint queries (a base of :class:`~covert_env.envs.vector.CovertSensingVectorEnv`).
 
     They read the env's ``action_mode``, ``num_envs``, ``possible_agents``, ``lattice`` and ``config``, its batch
-    state ``_xy``, ``_theta`` (B, U), ``_k`` (B,) and ``_rows`` (B,) into the scene pool ``_pool``, the reach table
-    ``_reach`` and the sample times ``_times`` of a slot; each checks the waypoint mode and ``require_running``.
+    state ``copies`` (:class:`~covert_env.envs.copies.Copies`: poses, slots, scene rows, masks), the scene pool
+    ``_pool``, the reach table ``_reach`` and the sample times ``_times`` of a slot; each checks the waypoint mode
+    and ``require_running``.
     """
 
     def waypoint_paths(self, nodes) -> np.ndarray:
@@ -54,7 +55,7 @@ class WaypointQueries:
         if nodes.shape[2] > len(self.lattice):
             raise ValueError(f"waypoint_paths(): at most {len(self.lattice)} nodes per UAV (the lattice's), got "
                              f"M = {nodes.shape[2]}")
-        return batch.fly_to_goals(self._xy, self._theta, self._goals(nodes), self.config, self._times)
+        return batch.fly_to_goals(self.copies.xy, self.copies.theta, self._goals(nodes), self.config, self._times)
 
     def waypoint_goals(self, nodes) -> np.ndarray:
         """Where lattice ``nodes`` ``(B, U, M)`` lie at slot k+1: ``(B, U, M, 2)`` (world frame, m), the waypoints
@@ -91,7 +92,7 @@ class WaypointQueries:
         ci, ui, mi = np.nonzero(~(np.isnan(xy).any(axis=-1) | np.isnan(theta)))
         if len(ci) == 0:
             return out
-        pool, rows, k = self._pool, self._rows, self._k
+        pool, rows, k = self._pool, self.copies.rows, self.copies.k
         q0, q1 = pool.q[rows, k, :2], pool.q_next[rows, k, :2]
         turn = pool.phi_next[rows, k] - pool.phi[rows, k]
         q2 = to_world((q1 - q0)[:, None], q1, turn)[:, 0]          # the displacement, turned, again
@@ -110,12 +111,12 @@ class WaypointQueries:
             raise RuntimeError("safety_state() is for action_mode='waypoint'")
         self.require_running("safety_state()")
         depth = int_arg("depth", depth, 1, 1000)
-        pool, rows, k = self._pool, self._rows, self._k
+        pool, rows, k = self._pool, self.copies.rows, self.copies.k
         ahead = np.minimum(k[:, None] + np.arange(1, depth + 1), pool.q_next.shape[1] - 1)        # (B, D)
-        return SafetyState(self._xy.copy(), self._theta.copy(), pool.q_next[rows, k, :2].copy(),
+        return SafetyState(self.copies.xy.copy(), self.copies.theta.copy(), pool.q_next[rows, k, :2].copy(),
                            pool.phi_next[rows, k].copy(), pool.q_next[rows[:, None], ahead, :2],
                            pool.phi_next[rows[:, None], ahead], self.episode_length - k - 1,
-                           pool.top[rows].copy(), self._masks.astype(bool), k.copy())
+                           pool.top[rows].copy(), self.copies.masks.astype(bool), k.copy())
 
     def _checked_nodes(self, what: str, nodes) -> np.ndarray:
         """Node indices ``(B, U, M)`` (-1: none) checked for ``what``: waypoint mode, running, shape, type, range."""
@@ -133,7 +134,7 @@ class WaypointQueries:
         return nodes
 
     def _goals(self, nodes: np.ndarray) -> np.ndarray:
-        pool, rows, k = self._pool, self._rows, self._k
+        pool, rows, k = self._pool, self.copies.rows, self.copies.k
         ci, ui, mi = np.nonzero(nodes >= 0)                       # only the real (copy, UAV, node) triples
         out = np.full((*nodes.shape, 2), np.nan)
         out[ci, ui, mi] = to_world(self.lattice[nodes[ci, ui, mi]][:, None], pool.q_next[rows[ci], k[ci], :2],
