@@ -10,7 +10,6 @@ import pytest
 from baselines.dp import DPPlanner, DPTeamPlanner
 from baselines.dp.continuation import _end_pose, _room
 from baselines.dp.safety import _clear_of, _FirstSlot
-from baselines.policies import DPPolicy
 from covert_env import Config, Scenario
 from covert_env.envs.covert_sensing import CovertSensingParallelEnv
 from training.pretrained.learned_cost import load_cost_planner
@@ -148,15 +147,6 @@ def test_plans_past_the_first_slot_are_left_alone():
     assert all(p.depth == c.horizon for p in plain.plans)
     assert np.array_equal(ahead.nodes, plain.nodes)
     assert team.stats["continuation_solves"] == 0
-
-
-@pytest.mark.parametrize("bad", [1, "yes", None])
-def test_the_option_must_be_a_bool(bad):
-    c = Config()
-    with pytest.raises(ValueError, match="separated_continuation must be True or False"):
-        DPTeamPlanner(DPPlanner(c, Scenario.paper(c, 1).terrain), separated_continuation=bad)
-    with pytest.raises(ValueError, match="DPPolicy: separated_continuation must be True or False"):
-        DPPolicy(separated_continuation=bad)
 
 
 def test_a_card_turns_the_look_ahead_on_and_old_cards_fly_without(tmp_path):

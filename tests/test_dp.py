@@ -10,6 +10,7 @@ import math
 
 import numpy as np
 import pytest
+from _dense_dp import dense_dp
 
 from baselines.dp import DPPlanner, DPTeamPlanner, brute_force_plan, evaluate_plan, manoeuvre_bounds_table
 from baselines.reproduce import HELDOUT_SEED_BASE, make_scenario, rollout
@@ -29,45 +30,6 @@ def targets(scenario: Scenario, k: int):
     n = scenario.config.horizon
     ks = np.arange(k, k + n + 1)
     return scenario.track.position(ks), np.asarray(scenario.track.heading(ks))
-
-
-def dense_dp(config, start, theta, tq, tphi, allowed, bins):
-    """Reference: eqs. 19-21 with every transition solved exactly; states (node, heading bin) keep the
-    exact heading of their best arrival (bins = 1: the paper's inherited heading)."""
-    c = config
-    lat = zone_lattice(c)
-    n = len(tq) - 1
-    xy = [to_world(lat, tq[j, :2], tphi[j]) for j in range(1, n + 1)]
-    al = [uav_target_angle(xy[j - 1], tq[j, :2], tphi[j]) for j in range(1, n + 1)]
-    dd = [uav_target_distance(xy[j - 1], tq[j, :2]) for j in range(1, n + 1)]
-    a0, d0 = uav_target_angle(start, tq[0, :2], tphi[0]), uav_target_distance(start, tq[0, :2])
-
-    def g(length, aa, ab, da, db):
-        return length - c.lam * (c.eta * np.abs(wrap_angle(ab - aa)) + np.abs(db - da))
-
-    cols = np.flatnonzero(allowed[0])
-    m = solve_manoeuvre(start, theta, xy[0][cols], v_max=c.v_max, w_max=c.w_max, delta=c.delta)
-    ok = np.asarray(m.feasible)
-    node, th, J = cols[ok], np.asarray(m.heading_after)[ok], g(m.length, a0, al[0][cols], d0, dd[0][cols])[ok]
-    hist = node[:, None]
-    for j in range(1, n):
-        cols = np.flatnonzero(allowed[j])
-        m = solve_manoeuvre(xy[j - 1][node][:, None], th[:, None], xy[j][cols][None], v_max=c.v_max,
-                            w_max=c.w_max, delta=c.delta)
-        cost = J[:, None] + g(m.length, al[j - 1][node][:, None], al[j][cols][None], dd[j - 1][node][:, None],
-                              dd[j][cols][None])
-        r, q = np.nonzero(np.asarray(m.feasible))
-        if r.size == 0:
-            return np.inf, None
-        head = np.asarray(m.heading_after)[r, q]
-        key = cols[q] * bins + (np.floor(np.mod(head, TWO_PI) * bins / TWO_PI).astype(int) % bins)
-        order = np.lexsort((cost[r, q], key))
-        first = np.concatenate([[True], key[order][1:] != key[order][:-1]])
-        w = order[first]
-        node, th, J = cols[q[w]], head[w], cost[r[w], q[w]]
-        hist = np.column_stack([hist[r[w]], node])
-    best = int(np.argmin(J))
-    return float(J[best]), hist[best]
 
 
 # ------------------------------------------------------------------------------------ the table

@@ -309,58 +309,36 @@ def test_v0_ids_fail_with_a_clear_message():
     assert covert_env.covert_sensing_v4.parallel_env(n_uavs=2).metadata["name"] == "covert_sensing_v4"
 
 
-def test_v1_ids_fail_with_what_changed_in_v2():
-    """v1's waypoint mask differs from v2's on the zone's eroded boundary: every v1 entry point says so."""
+RETIRED = {
+    1: r"replaced by covert_sensing_v2 in covert_env 0\.6\.0: random scenes come from a new.*eq\. 10.*"
+       r"Use covert_env\.covert_sensing_v4 \(or covert_env\.parallel_env, gym\.make\('covert_env/CovertSensing-v4'\)",
+    2: r"replaced by covert_sensing_v3 in covert_env 0\.7\.0: line of sight lost between slot times"
+       r".*los_path_penalty=0",
+    3: r"replaced by covert_sensing_v4 in covert_env 0\.10\.0: every UAV's pose is settled at each slot end.*"
+       r"pip install 'covert_env<0\.10' for v3",
+}
+"""What each retired version's entry points say: what changed in the next version and where to get the old one."""
+
+
+@pytest.mark.parametrize("version", sorted(RETIRED))
+def test_retired_ids_fail_with_what_changed(version):
+    """Every entry point of a retired version (Gymnasium ids, PettingZoo's makers and the module's functions) raises
+    the same message: what the next version changed, and how to get the old behaviour."""
+    import importlib
+
     import pettingzoo
 
-    from covert_env import covert_sensing_v1
-
-    changed = (r"replaced by covert_sensing_v2 in covert_env 0\.6\.0: random scenes come from a new.*eq\. 10.*"
-               r"Use covert_env\.covert_sensing_v4 \(or covert_env\.parallel_env, "
-               r"gym\.make\('covert_env/CovertSensing-v4'\)")
-    for env_id in ("covert_env/CovertSensing-v1", "covert_env/CovertSensingWaypoint-v1"):
+    module = importlib.import_module(f"covert_env.covert_sensing_v{version}")
+    changed = RETIRED[version]
+    for env_id in (f"covert_env/CovertSensing-v{version}", f"covert_env/CovertSensingWaypoint-v{version}"):
         with pytest.raises(RuntimeError, match=changed):
             gym.make(env_id)
-    for make in (covert_sensing_v1.parallel_env, covert_sensing_v1.env, covert_sensing_v1.raw_env,
-                 lambda **kw: pettingzoo.make("parallel", "covert_env/CovertSensing-v1", **kw)):
+    for make in (module.parallel_env, module.env, module.raw_env,
+                 lambda **kw: pettingzoo.make("parallel", f"covert_env/CovertSensing-v{version}", **kw),
+                 lambda **kw: pettingzoo.make("aec", f"covert_env/CovertSensing-v{version}", **kw)):
         with pytest.raises(RuntimeError, match=changed):
             make(n_uavs=3)
     assert covert_env.vector_env(num_envs=1).metadata["name"] == "covert_sensing_vector_v4"
-
-
-def test_v2_ids_fail_with_what_changed_in_v3():
-    """v3's reward counts LoS lost along the path: every v2 entry point says so, and how to get v2's rewards."""
-    import pettingzoo
-
-    from covert_env import covert_sensing_v2
-
-    changed = (r"replaced by covert_sensing_v3 in covert_env 0\.7\.0: line of sight lost between slot times"
-               r".*los_path_penalty=0")
-    for env_id in ("covert_env/CovertSensing-v2", "covert_env/CovertSensingWaypoint-v2"):
-        with pytest.raises(RuntimeError, match=changed):
-            gym.make(env_id)
-    for make in (covert_sensing_v2.parallel_env, covert_sensing_v2.env, covert_sensing_v2.raw_env,
-                 lambda **kw: pettingzoo.make("parallel", "covert_env/CovertSensing-v2", **kw)):
-        with pytest.raises(RuntimeError, match=changed):
-            make(n_uavs=3)
-
-
-def test_v3_ids_fail_with_what_changed_in_v4():
-    """v4 settles the slot-end poses: every v3 entry point says so, and where to get v3."""
-    import pettingzoo
-
-    from covert_env import covert_sensing_v3
-
-    changed = (r"replaced by covert_sensing_v4 in covert_env 0\.10\.0: every UAV's pose is settled at each slot end.*"
-               r"pip install 'covert_env<0\.10' for v3")
-    for env_id in ("covert_env/CovertSensing-v3", "covert_env/CovertSensingWaypoint-v3"):
-        with pytest.raises(RuntimeError, match=changed):
-            gym.make(env_id)
-    for make in (covert_sensing_v3.parallel_env, covert_sensing_v3.env, covert_sensing_v3.raw_env,
-                 lambda **kw: pettingzoo.make("parallel", "covert_env/CovertSensing-v3", **kw),
-                 lambda **kw: pettingzoo.make("aec", "covert_env/CovertSensing-v3", **kw)):
-        with pytest.raises(RuntimeError, match=changed):
-            make(n_uavs=3)
 
 
 # ---------------------------------------------------------------------- costs against independent geometry

@@ -156,13 +156,16 @@ def test_where_nothing_separates_the_most_separated_move_counts_the_best_efforts
     assert stuck == 1 and moves == {0: None, 1: _Move(0, True, False)}
 
 
+@pytest.mark.parametrize("option", ["best_effort_escape", "separated_continuation"])
 @pytest.mark.parametrize("bad", [1, "yes", None])
-def test_the_option_must_be_a_bool(bad):
+def test_the_safety_options_must_be_bools(option, bad):
+    """The team planner's and the policy's safety options (the escape, the separated look-ahead) refuse a non-bool,
+    naming the option."""
     c = Config()
-    with pytest.raises(ValueError, match="best_effort_escape must be True or False"):
-        DPTeamPlanner(DPPlanner(c, Scenario.paper(c, 1).terrain), best_effort_escape=bad)
-    with pytest.raises(ValueError, match="DPPolicy: best_effort_escape must be True or False"):
-        DPPolicy(best_effort_escape=bad)
+    with pytest.raises(ValueError, match=f"{option} must be True or False"):
+        DPTeamPlanner(DPPlanner(c, Scenario.paper(c, 1).terrain), **{option: bad})
+    with pytest.raises(ValueError, match=f"DPPolicy: {option} must be True or False"):
+        DPPolicy(**{option: bad})
 
 
 def test_a_card_turns_the_escape_on_and_old_cards_fly_without(tmp_path):

@@ -8,6 +8,7 @@ import json
 import numpy as np
 import pytest
 import shapely
+from _dense_dp import dense_dp
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
@@ -16,10 +17,8 @@ from baselines.dp.clearance import take_manoeuvres
 from baselines.dp.path_checks import SHADOW_MARGIN
 from baselines.reproduce import HELDOUT_SEED_BASE, make_scenario
 from covert_env import Config, Scenario, Terrain
-from covert_env.geometry.angles import wrap_angle
-from covert_env.geometry.cost import uav_target_angle, uav_target_distance
 from covert_env.geometry.dynamics import solve_manoeuvre
-from covert_env.geometry.zone import to_world, zone_lattice
+from covert_env.geometry.zone import to_world
 from covert_env.world.tasks import get_task
 from covert_env.world.visibility import SAFE_LOS_TOLERANCE, line_of_sight
 from training.pretrained.learned_cost import load_cost_planner, path_cost_of
@@ -143,44 +142,13 @@ def test_blocked_share_counts_what_a_building_hides():
 def _dense_path_cost_dp(config, terrain, start, theta, tq, tphi, allowed, path_cost, ctx):
     """Reference: eqs. 19-21 with the inherited heading, every transition solved exactly, each charged
     ``path_cost[j]`` times its exact blocked share (LoS checked at every sample with eq. 6)."""
-    c = config
-    lat = zone_lattice(c)
-    n = len(tq) - 1
-    xy = [to_world(lat, tq[j, :2], tphi[j]) for j in range(1, n + 1)]
-    al = [uav_target_angle(xy[j - 1], tq[j, :2], tphi[j]) for j in range(1, n + 1)]
-    dd = [uav_target_distance(xy[j - 1], tq[j, :2]) for j in range(1, n + 1)]
-    a0, d0 = uav_target_angle(start, tq[0, :2], tphi[0]), uav_target_distance(start, tq[0, :2])
+    def charged(j, m, feasible):
+        share = np.zeros(feasible.shape)
+        share[feasible] = _blocked_share_reference(terrain, config, take_manoeuvres(m, np.flatnonzero(feasible)),
+                                                   ctx.target[j, 1:])
+        return path_cost[j] * share
 
-    def g(length, aa, ab, da, db):
-        return length - c.lam * (c.eta * np.abs(wrap_angle(ab - aa)) + np.abs(db - da))
-
-    cols = np.flatnonzero(allowed[0])
-    m = solve_manoeuvre(start, theta, xy[0][cols], v_max=c.v_max, w_max=c.w_max, delta=c.delta)
-    ok = np.asarray(m.feasible)
-    cost = g(m.length, a0, al[0][cols], d0, dd[0][cols])
-    cost = cost + path_cost[0] * _blocked_share_reference(terrain, c, m, ctx.target[0, 1:])
-    node, th, J = cols[ok], np.asarray(m.heading_after)[ok], cost[ok]
-    hist = node[:, None]
-    for j in range(1, n):
-        cols = np.flatnonzero(allowed[j])
-        m = solve_manoeuvre(xy[j - 1][node][:, None], th[:, None], xy[j][cols][None], v_max=c.v_max,
-                            w_max=c.w_max, delta=c.delta)
-        cost = J[:, None] + g(m.length, al[j - 1][node][:, None], al[j][cols][None], dd[j - 1][node][:, None],
-                              dd[j][cols][None])
-        feas = np.asarray(m.feasible)
-        share = np.zeros(feas.shape)
-        r, q = np.nonzero(feas)
-        share[r, q] = _blocked_share_reference(terrain, c, take_manoeuvres(m, np.flatnonzero(feas.ravel())),
-                                               ctx.target[j, 1:])
-        cost = cost + path_cost[j] * share
-        head = np.asarray(m.heading_after)[r, q]
-        order = np.lexsort((cost[r, q], cols[q]))
-        first = np.concatenate([[True], cols[q][order][1:] != cols[q][order][:-1]])
-        w = order[first]
-        node, th, J = cols[q[w]], head[w], cost[r[w], q[w]]
-        hist = np.column_stack([hist[r[w]], node])
-    best = int(np.argmin(J))
-    return float(J[best]), hist[best]
+    return dense_dp(config, start, theta, tq, tphi, allowed, 1, extra_cost=charged)
 
 
 def test_path_cost_dp_equals_the_dense_reference_and_changes_the_plan():

@@ -40,6 +40,7 @@ import numpy as np
 from covert_env.world.tasks import get_task
 from training.common import ordered_results, parse_args, save_run
 from training.pretrained.learned_cost import KIND, path_cost_of
+from training.run_args import RunArgs
 
 __all__ = ["Args", "episode_return", "main"]
 
@@ -49,7 +50,7 @@ SUITE_3UAV = ("sparse-3uav,paper-3uav,winding-3uav,dense-3uav,downtown-3uav,towe
 
 
 @dataclass
-class Args:
+class Args(RunArgs):
     seed: int = 0
     """seed of the scenes drawn and of the candidates"""
     tasks: str = SUITE_3UAV
@@ -91,12 +92,6 @@ class Args:
     shadow-aware"""
     jobs: int = 2
     """worker processes for the episodes"""
-    runs_dir: str = "runs"
-    """where the run folder goes"""
-    run_name: str = ""
-    """run folder name (default {tasks}__dp_cost__{seed}__{time})"""
-    progress_bar: bool = True
-    """a progress bar on stderr"""
     plot: str = ""
     """instead of learning: comma-separated run folders whose curves (return over the paper's planner, blocked path
     share, per iteration) are drawn into plot_out"""

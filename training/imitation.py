@@ -42,6 +42,7 @@ import covert_env
 from covert_env.world.families import TRAIN_SEEDS
 from covert_env.world.tasks import get_task
 from training.common import _ranges, checked_main, ordered_results, run_name, save_run, setup_torch
+from training.run_args import RunArgs
 
 __all__ = ["Args", "teacher_episode", "collect", "train"]
 
@@ -50,7 +51,7 @@ SCENES_PER_SEED = 1000
 
 
 @dataclass
-class Args:
+class Args(RunArgs):
     recipe: str = "3uav-suite"
     """the training.mappo recipe whose actor, tasks, env settings and shield the cloned team takes"""
     teacher: str = "dp"
@@ -75,14 +76,8 @@ class Args:
     """seeds torch, the minibatch order, and picks the scenes (seed * 1000 + i of the training scenes, seed < 1000)"""
     jobs: int = 2
     """processes flying the planner"""
-    run_name: str = ""
-    """run folder name (default {env}__bc-dp__{seed}__{time})"""
-    runs_dir: str = "runs"
-    """where run folders go"""
     torch_threads: int = 1
     """torch threads"""
-    progress_bar: bool = True
-    """show progress bars on stderr"""
 
 
 def mappo_args(recipe: str):

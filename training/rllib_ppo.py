@@ -54,6 +54,7 @@ from baselines.policies import parallel_env_of
 from covert_env.command_line import UsageError
 from covert_env.envs.covert_sensing import CovertSensingParallelEnv
 from training.common import parse_args, resumed_args, run_name, save_run, setup_torch
+from training.run_args import TrainingArgs
 from training.runs import read_run_json, run_env
 from training.trust import require_trust
 
@@ -63,7 +64,7 @@ MODULE_ID = "shared_policy"
 
 
 @dataclass
-class Args:
+class Args(TrainingArgs):
     env_id: str = ENV_NAME
     """name of the env in run names and the Ray env registry"""
     seed: int = 0
@@ -72,18 +73,12 @@ class Args:
     """UAVs per env (all share one policy)"""
     action_mode: str = "unicycle"
     """'unicycle' (continuous, the supported mode) or 'waypoint'"""
-    max_cycles: int = 70
-    """episode length in slots"""
-    scene_pool: int = 10_000
-    """training scene seeds are drawn from range(scene_pool)"""
     los_penalty: float = 2.0
     """training reward: penalty per slot with blocked LoS (as the SB3 recipe)"""
     zone_penalty: float = 2.0
     """training reward: base penalty per slot outside the feasible zone (as the SB3 recipe)"""
     iterations: int = 100
     """training iterations (algo.train() calls)"""
-    time_budget_minutes: float = 0.0
-    """stop after the iteration that crosses this wall-clock budget and save (0: no budget)"""
     num_env_runners: int = 1
     """remote env-runner actors (0: sample in the driver process)"""
     num_envs_per_env_runner: int = 1
@@ -109,17 +104,11 @@ class Args:
     """hidden layers of the shared policy/value MLP"""
     checkpoint_every: int = 10
     """save a checkpoint every this many iterations (0: only at the end)"""
-    runs_dir: str = "runs"
-    """folder of the runs (git-ignored)"""
-    run_name: str = ""
-    """run folder name; empty: {env}__rllib_ppo__{seed}__{time}"""
     resume: str = ""
     """a checkpoint folder to continue from (pickled: needs --trust-checkpoint)"""
     trust_checkpoint: bool = False
     """allow --resume to load the checkpoint, which is pickled and runs any code it carries: only for a
     checkpoint from a source you trust"""
-    progress_bar: bool = True
-    """show a tqdm progress bar over iterations"""
 
 
 def env_kwargs(args: Args) -> dict:
@@ -161,7 +150,7 @@ def train(args: Args) -> Path:
     ``args.trust_checkpoint``."""
     if args.resume:
         require_trust(args.resume, "an RLlib checkpoint", args.trust_checkpoint)
-    setup_torch(1)
+    setup_torch(args.torch_threads)
     import ray
     from ray.tune.registry import register_env
 

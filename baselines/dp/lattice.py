@@ -145,24 +145,19 @@ class StageCache:
     def stage(self, q, phi) -> Stage:
         q = np.asarray(q, dtype=float).reshape(3)
         key = (q.tobytes(), float(phi))
-        st = self._stages.get(key)
-        if st is None:
-            st = Stage(key, q.copy(), float(phi), self.lattice)
-            self._stages[key] = st
-            while len(self._stages) > self.size:
-                self._stages.popitem(last=False)
-        else:
-            self._stages.move_to_end(key)
-        return st
+        return self._recent(self._stages, key, lambda: Stage(key, q.copy(), float(phi), self.lattice))
 
     def pair(self, a: Stage, b: Stage) -> StagePair:
-        key = (a.key, b.key)
-        p = self._pairs.get(key)
-        if p is None:
-            p = StagePair(a, b, self.lam, self.eta, self.table)
-            self._pairs[key] = p
-            while len(self._pairs) > self.size:
-                self._pairs.popitem(last=False)
+        return self._recent(self._pairs, (a.key, b.key), lambda: StagePair(a, b, self.lam, self.eta, self.table))
+
+    def _recent(self, cache: OrderedDict, key, make):
+        """``cache[key]``, made by ``make()`` if absent, marked as the most recently used; the least recently used
+        entries beyond ``size`` are dropped."""
+        value = cache.get(key)
+        if value is None:
+            value = cache[key] = make()
+            while len(cache) > self.size:
+                cache.popitem(last=False)
         else:
-            self._pairs.move_to_end(key)
-        return p
+            cache.move_to_end(key)
+        return value

@@ -137,16 +137,18 @@ def _check_polytope(base, top, base_name: str = "base",
     return b, t
 
 
-def _check_altitude(top: np.ndarray, altitude: float | None, top_name: str = "top") -> None:
+def _check_altitude(top: np.ndarray, altitude: float | None, top_name: str = "top", where: str = "") -> None:
+    """ValueError unless every vertex of ``top`` is lower than ``altitude`` (None: no check); ``where`` prefixes
+    the message (``"Polytope: "``)."""
     if altitude is None:
         return
     # A NaN altitude would make every comparison false and pass every polytope.
     if isinstance(altitude, bool) or not isinstance(altitude, numbers.Real) or not 0 < altitude < math.inf:
-        raise ValueError(f"altitude must be a positive finite number or None, got {altitude!r}")
+        raise ValueError(f"{where}altitude must be a positive finite number or None, got {altitude!r}")
     high = top[:, 2] >= altitude
     if high.any():
         j = int(np.argmax(high))
-        raise ValueError(f"{top_name} vertex {j} has z = {top[j, 2]:g} >= altitude h = {altitude:g}; "
+        raise ValueError(f"{where}{top_name} vertex {j} has z = {top[j, 2]:g} >= altitude h = {altitude:g}; "
                          f"polytopes must be lower than the flight altitude")
 
 
@@ -264,10 +266,7 @@ class Polytope:
 
     def validate(self, altitude: float | None = None) -> Polytope:
         """Check the heights against the flight altitude h (all top z < h); return self."""
-        try:
-            _check_altitude(self.top, altitude)
-        except ValueError as exc:
-            raise ValueError(f"Polytope: {exc}") from None
+        _check_altitude(self.top, altitude, where="Polytope: ")
         return self
 
     @property

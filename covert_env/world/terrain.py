@@ -230,10 +230,7 @@ class Terrain:
     def validate(self, altitude: float | None = None) -> Terrain:
         """Check every polytope is lower than the flight altitude h; return self."""
         for i, p in enumerate(self.polytopes):
-            try:
-                _check_altitude(p.top, altitude)
-            except ValueError as exc:
-                raise ValueError(f"Terrain: polytope {i}: {exc}") from None
+            _check_altitude(p.top, altitude, where=f"Terrain: polytope {i}: ")
         return self
 
     # ------------------------------------------------------------------ random generator (paper §3)

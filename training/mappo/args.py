@@ -12,19 +12,18 @@ from typing import ClassVar
 from covert_env.envs.batch import COSTS
 from covert_env.world.tasks import TASKS
 from training.pretrained import PRETRAINED_DIR, load_learned, pretrained_names
+from training.run_args import TrainingArgs
 
 __all__ = ["Args", "actor_fields", "check_args", "constraint_limits", "init_actor_fits", "task_list"]
 
 
 @dataclass
-class Args:
+class Args(TrainingArgs):
     PROG: ClassVar[str] = "python -m training.mappo"         # the command line's name in --help and errors
     algo: str = "mappo"
     """'mappo' (critic on the centralised state() and the agent's id) or 'ippo' (critic on the agent's obs)"""
     env_id: str = "covert_sensing_vector_v4"
     """name of the env in run names (covert_env.vector_env)"""
-    seed: int = 0
-    """seed of numpy, torch and the env copies (their scenes, starts and the action sampling)"""
     n_uavs: int = 3
     """UAVs per env copy (one shared actor)"""
     num_envs: int = 16
@@ -52,14 +51,8 @@ class Args:
     gets num_envs / its count copies; training.task_mix: the mix acts on the largest lattice, which must hold every
     other task's nodes, as a nominal lattice holds its deviating task's); empty: random scenes of the paper family
     (scene_pool)"""
-    max_cycles: int = 70
-    """episode length in slots (70 = the whole route)"""
-    scene_pool: int = 10_000
-    """training scene seeds are drawn from range(scene_pool); evaluation uses seeds >= 1_000_000"""
     total_timesteps: int = 50_000_000
     """env steps (copy-slots) to train for; the time budget usually stops first"""
-    time_budget_minutes: float = 0.0
-    """stop gracefully after this much wall-clock training time and save (0: no budget)"""
     learning_rate: float = 3e-4
     """Adam learning rate of actor and critic"""
     anneal_lr: bool = False
@@ -144,14 +137,8 @@ class Args:
     otherwise move the loaded actor at random)"""
     checkpoint_every: int = 200_000
     """save a checkpoint every this many env steps (0: only at the end)"""
-    runs_dir: str = "runs"
-    """folder of the runs (git-ignored)"""
-    run_name: str = ""
-    """run folder name; empty: {env}__{algo}__{seed}__{time}"""
     resume: str = ""
     """a run folder to continue from its newest checkpoint"""
-    torch_threads: int = 1
-    """torch threads (1: 2 threads on 2 busy cores can be 50x slower)"""
     progress_bar: bool = True
     """show a tqdm progress bar over env steps; its total and ETA are where the run is expected to stop (the time
     budget's end at the rate so far, or total_timesteps, whichever comes first)"""

@@ -9,25 +9,19 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from training.run_args import TrainingArgs
+
 __all__ = ["PPOArgs", "SB3Args"]
 
 
 @dataclass
-class SB3Args:
-    """The run, the env and the learner settings of every SB3 script."""
+class SB3Args(TrainingArgs):
+    """:class:`~training.run_args.TrainingArgs` and the env and learner settings of every SB3 script."""
 
     env_id: str = "covert_env/CovertSensing-v4"
     """Gymnasium id of the single-UAV env"""
-    seed: int = 0
-    """seed of the envs, the policy and the action sampling"""
-    max_cycles: int = 70
-    """episode length in slots (70 = the whole route)"""
-    scene_pool: int = 10_000
-    """training scene seeds are drawn from range(scene_pool); evaluation uses seeds >= 1_000_000"""
     total_timesteps: int = 1_000_000
     """training steps"""
-    time_budget_minutes: float = 0.0
-    """stop gracefully after this much wall-clock training time and save (0: no budget)"""
     learning_rate: float = 3e-4
     """Adam learning rate"""
     batch_size: int = 512
@@ -42,19 +36,11 @@ class SB3Args:
     """VecNormalize rewards"""
     checkpoint_freq: int = 100_000
     """save model + VecNormalize statistics every this many steps (0: never)"""
-    runs_dir: str = "runs"
-    """folder of the runs (git-ignored)"""
-    run_name: str = ""
-    """run folder name; empty: {env}__{algo}__{seed}__{time}"""
     resume: str = ""
     """a run folder to continue from its newest checkpoint"""
     trust_checkpoint: bool = False
     """allow --resume to load the run's SB3 checkpoint (.zip), which holds pickles that run any code they carry:
     only for a run from a source you trust"""
-    torch_threads: int = 1
-    """torch threads (1: 2 threads on 2 busy cores can be 50x slower)"""
-    progress_bar: bool = True
-    """show a tqdm progress bar"""
 
 
 @dataclass
