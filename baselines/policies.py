@@ -296,6 +296,10 @@ def builtin_policy(spec: str, n_uavs: int, *, trust_checkpoint: bool = False) ->
     return make_policy(name), {"n_uavs": n_uavs, "action_mode": "waypoint" if name.startswith("dp") else "unicycle"}
 
 
+# Its tier on the leaderboards (covert_env.evaluation.tiers): the planners read the terrain and the target's route.
+builtin_policy.tier = lambda spec: "planner" if ALIASES.get(spec, spec).startswith("dp") else "reference"
+
+
 def make_policy(name: str, **kwargs) -> Policy:
     """A policy by name: one of :data:`POLICIES` (``dp``, ``dp-path``, ``dp-blind``, ``dp-binned``, ``random``,
     ``hold-centre``)."""

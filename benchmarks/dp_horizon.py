@@ -7,8 +7,8 @@
 Each policy flies the first ``--scenes`` held-out scenes of every task (the suite's scenes, seeds
 ``Task.test_seeds``). The DP team plans over the first h slots of the target's predictions
 (``DPPolicy(horizon=h)``); h = ``config.horizon`` (5) is the paper's planner. A learned team acts as the harness
-runs it (``training.evaluate.load_policy``: a harness spec, the card's mask and shield). The table gives the mean
-episode reward per UAV and its terms (``infos[agent]["reward_<term>"]``, docs/decisions/environments.md
+runs it (``covert_env.evaluation.specs.load_policy``: a harness spec, the card's mask and shield). The table gives
+the mean episode reward per UAV and its terms (``infos[agent]["reward_<term>"]``, docs/decisions/environments.md
 "Environment rewards"): the disguise bonus, the path cost and each penalty. The horizon at which the planner's
 reward passes a learned team's says how far ahead the team acts as if it planned.
 
@@ -30,8 +30,8 @@ from pathlib import Path
 import numpy as np
 
 import covert_env
+from covert_env.command_line import ordered_results
 from covert_env.world.tasks import get_task
-from training.common import ordered_results
 
 TERMS = ("disguise", "path", "los", "los_path", "zone", "separation", "terrain")
 CORE = ("sparse-3uav", "paper-3uav", "winding-3uav", "dense-3uav", "downtown-3uav", "towers-3uav",
@@ -41,7 +41,7 @@ CORE = ("sparse-3uav", "paper-3uav", "winding-3uav", "dense-3uav", "downtown-3ua
 def episode_terms(spec: str, task: str, seed: int) -> dict:
     """One episode's reward per UAV and its terms, summed over slots and averaged over the team."""
     from baselines.policies import DPPolicy
-    from training.evaluate import load_policy
+    from covert_env.evaluation.evaluate import load_policy
 
     if spec.startswith("dp-h"):
         h, _, known = spec.removeprefix("dp-h").partition("-k")
@@ -98,7 +98,7 @@ def main(argv: list[str] | None = None) -> int:
                 "targets lie on the road; an extrapolated path leaves it)")
     if a.jobs < 1:
         p.error(f"--jobs {a.jobs}: must be >= 1")
-    from training.evaluate import load_policy
+    from covert_env.evaluation.evaluate import load_policy
 
     for spec in a.learned:                      # a wrong spec, file or team size fails here, before any episode
         for t in {get_task(t).n_uavs: t for t in a.tasks}.values():        # one task per team size

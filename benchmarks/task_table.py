@@ -8,7 +8,7 @@ The suite's ``suite.md`` aggregates over tasks; a target stated per task ("on ev
 bootstrap interval over runs x scenes (one stratum: the task), the constraint rates (zone violations, blocked LoS
 at slot times and along the path, the blocked share of the path, separation-violation slots per UAV, the smallest
 separation), and P(policy > the task's best planner), the Mann-Whitney probability over their (run, scene) scores
-(:mod:`training.stats`). The best planner is the ``dp*`` policy with the highest mean score on the task.
+(:mod:`covert_env.evaluation.stats`). The best planner is the ``dp*`` policy with the highest mean score on the task.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from training.stats import iqm, probability_of_improvement, stratified_bootstrap_ci  # noqa: E402
+from covert_env.evaluation.stats import iqm, probability_of_improvement, stratified_bootstrap_ci  # noqa: E402
 
 RATES = (("zone_violation_rate", "zone"), ("occlusion_rate", "LoS slots"), ("occlusion_rate_path", "LoS path"),
          ("blocked_path_share", "path share"), ("separation_violations", "sep./UAV"))

@@ -10,8 +10,9 @@
     covert-env scene-set --family downtown --scenes 20 --out downtown20.json   # scenes as data, to share
     covert-env list                                          # the tasks, families, policies and shipped weights
 
-``scene`` and ``scene-set`` are this module's. ``reproduce``, ``animate``, ``evaluate``, ``benchmark`` and ``list``
-are provided by the packages above covert_env, through the entry point group ``covert_env.commands``
+``scene`` and ``scene-set`` are this module's; ``evaluate`` and ``benchmark`` are :mod:`covert_env.evaluation`'s.
+``reproduce``, ``animate`` and ``list`` are provided by the packages above covert_env, through the entry point group
+``covert_env.commands``
 (:data:`COMMANDS_GROUP`, declared in ``pyproject.toml``): each names a ``main(argv, prog)`` that parses its own
 arguments, ``--help`` included. The core package imports none of them by name; a command is loaded only when it
 runs.
@@ -29,6 +30,7 @@ that ``covert-env --help`` answers at once.
 from __future__ import annotations
 
 import argparse
+import importlib
 import importlib.metadata
 import sys
 
@@ -150,9 +152,11 @@ def _scene_set(args: argparse.Namespace) -> int:
 #: ``main(argv, prog)`` parses ``argv`` (``--help`` included), names itself ``prog`` and returns an exit status.
 COMMANDS_GROUP = "covert_env.commands"
 #: The provided subcommands this distribution declares (``covert-env --help`` lists them with its own help lines).
-DECLARED_COMMANDS = ("reproduce", "animate", "evaluate", "benchmark", "list")
+DECLARED_COMMANDS = ("reproduce", "animate", "list")
 #: The subcommands of this module, which never look up COMMANDS_GROUP.
 OWN_COMMANDS = ("scene", "scene-set")
+#: The subcommands of covert_env's evaluation package: name -> the module whose ``main(argv, prog)`` runs it.
+EVALUATION_COMMANDS = {"evaluate": "covert_env.evaluation.evaluate", "benchmark": "covert_env.evaluation.benchmark"}
 
 
 def provided_commands() -> dict[str, importlib.metadata.EntryPoint]:
@@ -162,6 +166,10 @@ def provided_commands() -> dict[str, importlib.metadata.EntryPoint]:
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
+    if argv and argv[0] in EVALUATION_COMMANDS:
+        # Everything after the name (including --help) goes to the command's own parser, under our name.
+        main_of = importlib.import_module(EVALUATION_COMMANDS[argv[0]]).main
+        return main_of(argv[1:], prog=f"covert-env {argv[0]}") or 0
     if argv and not argv[0].startswith("-") and argv[0] not in OWN_COMMANDS:
         commands = provided_commands()
         if argv[0] in commands:

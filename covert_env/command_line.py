@@ -2,8 +2,10 @@
 files a command reads and writes, and :class:`UsageError`, the one exception a command turns into one ``error:``
 line and exit status 2 (:func:`run_main`).
 
-``covert_env.cli``, ``baselines.reproduce``, ``training.evaluate`` and the training scripts import it; it imports
-only the model's :mod:`covert_env.world.config`, so no command line imports another.
+It also runs a command's work items in order, in this process or on a pool (:func:`ordered_results`), and reads
+the JSON files a command is given (:func:`read_run_json`). ``covert_env.cli``, ``baselines.reproduce``, the
+evaluation commands and the training scripts import it; it imports only the model's :mod:`covert_env.world.config`,
+so no command line imports another.
 """
 
 from __future__ import annotations
@@ -13,17 +15,19 @@ import math
 import stat as stat_
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
-from covert_env.world.config import Config, file_kind
+from covert_env.world.config import Config, file_kind, read_json
 
 __all__ = ["MAX_DPI", "MAX_JOBS", "MAX_SCENES", "UsageError", "float_range", "int_range", "load_config",
-           "non_negative_int", "output_dir", "output_file", "positive_int", "regular_file", "run_main"]
+           "non_negative_int", "ordered_results", "output_dir", "output_file", "positive_int", "read_run_json",
+           "regular_file", "run_main"]
 
 
 class UsageError(ValueError):
     """A mistake in the command line or in a file it names: printed as one ``error:`` line, exit status 2.
 
-    A ``ValueError``, so library callers (``training.evaluate.load_policy`` ...) can catch it as one."""
+    A ``ValueError``, so library callers (``covert_env.evaluation.evaluate.load_policy`` ...) can catch it as one."""
 
 
 # ---------------------------------------------------------------------- argparse type= functions
@@ -236,3 +240,40 @@ def run_main(parser: argparse.ArgumentParser, fn: Callable[[], int | None]) -> i
         return fn() or 0
     except UsageError as exc:
         parser.error(str(exc))
+
+
+def read_run_json(path: Path, what: str) -> Any:
+    """A JSON file of a run (``args.json``, a model card, a cache), with every problem -- missing, not a regular
+    file, too large, not UTF-8, invalid JSON -- as a :class:`~covert_env.command_line.UsageError` naming the file."""
+    try:
+        return read_json(path, what)
+    except (OSError, ValueError) as exc:
+        raise UsageError(str(exc)) from None
+
+
+def ordered_results(fn: Callable, work: list[tuple], jobs: int = 1, on_result: Callable | None = None) -> list:
+    """``[fn(*w) for w in work]``, in that order, in this process (``jobs`` = 1) or on a pool of ``jobs`` spawned
+    processes (a clean interpreter each, whatever the parent imported: torch, threads). ``on_result`` is called
+    after each result, in order (a progress bar's update). The first failure cancels the work still queued and
+    raises, so a bad input fails at once rather than after every other item has run."""
+    out = []
+    if jobs == 1:
+        for w in work:
+            out.append(fn(*w))
+            if on_result is not None:
+                on_result()
+        return out
+    from concurrent.futures import ProcessPoolExecutor
+    from multiprocessing import get_context
+
+    with ProcessPoolExecutor(max_workers=jobs, mp_context=get_context("spawn")) as pool:
+        futures = [pool.submit(fn, *w) for w in work]
+        try:
+            for f in futures:
+                out.append(f.result())
+                if on_result is not None:
+                    on_result()
+        except BaseException:
+            pool.shutdown(cancel_futures=True)
+            raise
+    return out

@@ -1,11 +1,11 @@
 """mkdocs hooks: the site's generated parts, made from the repository at build time (nothing here is hand-copied).
 
 * ``<!-- generated: NAME -->`` on a page is replaced by the table or list NAME (:data:`GENERATED`): the suite's
-  leaderboard from ``docs/results/suite.json`` (the run published by ``python -m training.leaderboard``), the
+  leaderboard from ``docs/results/suite.json`` (the run published by ``python -m covert_env.evaluation.leaderboard``), the
   shipped cards from ``training/pretrained/*.json``, the task list from ``covert_env.world.tasks``.
 * Generated files: ``changelog.md`` (the repository's ``CHANGELOG.md``), ``images/families/<family>.png`` (one
   held-out scene of each family, drawn by ``covert_env.render.scene_figure``), ``images/suite_profile.png``
-  (the published run's performance profiles, drawn by ``training.leaderboard.profile_figure``) and
+  (the published run's performance profiles, drawn by ``covert_env.evaluation.leaderboard.profile_figure``) and
   ``images/throughput.png`` (env-steps per second against B, from ``docs/results/throughput.json``, which
   ``benchmarks/vector_throughput.py --json`` writes).
 """
@@ -50,25 +50,25 @@ def _families() -> str:
 
 
 def _suite_tiers() -> str:
-    from training.leaderboard import tier_table
+    from covert_env.evaluation.leaderboard import tier_table
 
     return tier_table(_suite())
 
 
 def _suite_tiers_compact() -> str:
-    from training.leaderboard import tier_table
+    from covert_env.evaluation.leaderboard import tier_table
 
     return tier_table(_suite(), compact=True)
 
 
 def _suite_tasks() -> str:
-    from training.leaderboard import task_table
+    from covert_env.evaluation.leaderboard import task_table
 
     return task_table(_suite())
 
 
 def _suite_caption() -> str:
-    from training.leaderboard import caption
+    from covert_env.evaluation.leaderboard import caption
 
     return f"*{caption(_suite())}.*"
 
@@ -179,7 +179,7 @@ def _family_figure(name: str):
 
 def on_files(files, config):
     from covert_env.world.families import FAMILIES
-    from training.leaderboard import profile_figure
+    from covert_env.evaluation.leaderboard import profile_figure
 
     files.append(File.generated(config, "changelog.md", content=(ROOT / "CHANGELOG.md").read_text(encoding="utf-8")))
     for name in FAMILIES:

@@ -298,14 +298,14 @@ def test_unwritable_out_fails_before_the_run(case, capsys, monkeypatch):
     writing a temporary file, before any planning or evaluation runs (those are replaced by a failure here)."""
     import baselines.reproduce
     import baselines.reproduce.command
-    import training.evaluate
+    import covert_env.evaluation.evaluate
 
     def ran(*a, **k):
         raise AssertionError("the run started before --out was checked")
 
     monkeypatch.setattr(baselines.reproduce.command, "run_all", ran)
     monkeypatch.setattr(baselines.reproduce, "write_gif", ran)
-    monkeypatch.setattr(training.evaluate, "evaluate", ran)
+    monkeypatch.setattr(covert_env.evaluation.evaluate, "evaluate", ran)
     argv, expected = READ_ONLY_OUTS[case]
     with pytest.raises(SystemExit) as exc:
         main(argv)
@@ -397,8 +397,8 @@ def _option_blocks(help_text: str) -> dict[str, str]:
 def _parsers():
     from baselines.animate import build_parser as animate_parser
     from baselines.reproduce import build_parser as reproduce_parser
-    from training.benchmark import build_parser as benchmark_parser
-    from training.evaluate import build_parser as evaluate_parser
+    from covert_env.evaluation.benchmark import build_parser as benchmark_parser
+    from covert_env.evaluation.evaluate import build_parser as evaluate_parser
 
     yield "scene", build_parser()._subparsers._group_actions[0].choices["scene"]
     yield "animate", animate_parser()
@@ -542,7 +542,7 @@ def _evaluate_file_cases(tmp: Path) -> dict[str, tuple[list[str], str]]:
 
 @pytest.fixture
 def evaluate_files(tmp_path):
-    from training.evaluate import COLUMNS
+    from covert_env.evaluation.evaluate import COLUMNS
 
     good = [{"scene_seed": 1_000_000 + i, **{k: 1.0 for k, _, _ in COLUMNS}} for i in range(2)]
     for out, text in [("lb", json.dumps(good)[:40]), ("lb2", json.dumps([{**good[0], "scene_seed": 5}, good[1]])),
@@ -561,12 +561,12 @@ def evaluate_files(tmp_path):
 
 @pytest.mark.parametrize("case", list(_evaluate_file_cases(Path("/tmp"))))
 def test_evaluate_file_errors_name_the_file_and_field(case, evaluate_files, capsys, monkeypatch):
-    import training.evaluate
+    import covert_env.evaluation.evaluate
 
     def ran(*a, **k):
         raise AssertionError("evaluation started before the files were checked")
 
-    monkeypatch.setattr(training.evaluate, "evaluate", ran)
+    monkeypatch.setattr(covert_env.evaluation.evaluate, "evaluate", ran)
     argv, pattern = _evaluate_file_cases(evaluate_files)[case]
     with pytest.raises(SystemExit) as exc:
         main(["evaluate", *argv])
@@ -594,9 +594,10 @@ def test_resume_needs_the_run_folder_itself(tmp_path, capsys, monkeypatch):
 
 
 def test_evaluate_reuses_a_sound_cache(evaluate_files, capsys, monkeypatch):
-    import training.evaluate
+    import covert_env.evaluation.evaluate
 
-    monkeypatch.setattr(training.evaluate, "evaluate", lambda *a, **k: (_ for _ in ()).throw(AssertionError("ran")))
+    monkeypatch.setattr(covert_env.evaluation.evaluate, "evaluate",
+                        lambda *a, **k: (_ for _ in ()).throw(AssertionError("ran")))
     cache = evaluate_files / "lb3" / "cache" / "random__2__1000000__3.json"
     rows = json.loads(cache.read_text())
     rows[1]["reward"] = 2.0
@@ -608,9 +609,10 @@ def test_evaluate_reuses_a_sound_cache(evaluate_files, capsys, monkeypatch):
 
 def test_evaluate_names_a_built_in_policy_by_its_spec_as_the_suite_does(evaluate_files, monkeypatch):
     """leaderboard.md and suite.md name the paper's planner alike: dp (its planner label is dp-aware-inherited)."""
-    import training.evaluate
+    import covert_env.evaluation.evaluate
 
-    monkeypatch.setattr(training.evaluate, "evaluate", lambda *a, **k: (_ for _ in ()).throw(AssertionError("ran")))
+    monkeypatch.setattr(covert_env.evaluation.evaluate, "evaluate",
+                        lambda *a, **k: (_ for _ in ()).throw(AssertionError("ran")))
     rows = json.loads((evaluate_files / "lb3" / "cache" / "random__2__1000000__3.json").read_text())
     rows[1]["reward"] = 2.0
     cache = evaluate_files / "dp" / "cache" / "dp__2__1000000__3.json"
@@ -693,7 +695,7 @@ def test_training_runs_dir_on_a_read_only_filesystem(capsys):
 def test_ordered_results_keep_the_order_and_raise_the_first_failure(jobs):
     """training.common.ordered_results: results in the order of the work, one callback per result, and a failing
     item raises its own error (in this process or from a spawned worker)."""
-    from training.common import ordered_results
+    from covert_env.command_line import ordered_results
 
     seen = []
     assert ordered_results(int, [("3",), ("1",), ("2",)], jobs, lambda: seen.append(1)) == [3, 1, 2]

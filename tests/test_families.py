@@ -34,7 +34,7 @@ def _max_curvature(road) -> float:
 
 def test_seed_ranges_are_disjoint_and_the_envs_and_harness_use_them():
     from baselines.reproduce import HELDOUT_SEED_BASE
-    from training.evaluate import HELD_OUT_OFFSET
+    from covert_env.evaluation.evaluate import HELD_OUT_OFFSET
 
     assert TRAIN_SEEDS.stop <= HELD_OUT_SEEDS.start
     assert MAX_SCENE_POOL == len(TRAIN_SEEDS) and HELD_OUT_OFFSET == HELDOUT_SEED_BASE == HELD_OUT_SEEDS.start
@@ -127,7 +127,7 @@ def test_family_scenes_are_reproducible_across_processes():
 
 
 def test_the_harness_takes_a_family(tmp_path):
-    from training.evaluate import main
+    from covert_env.evaluation.evaluate import main
 
     assert main(["--policies", "random@waypoint", "--episodes", "1", "--family", "towers", "--no-progress",
                  "--out", str(tmp_path / "lb")]) == 0

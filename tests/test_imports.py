@@ -4,7 +4,7 @@ Every ``import`` of a project module counts, at module level or inside a functio
 still means two modules that cannot be read (or loaded) one before the other. An import of ``pkg.sub`` counts as
 an edge to ``pkg.sub`` (Python loads ``pkg`` first anyway, and every module depends on its package).
 
-A module named in a string (``importlib.import_module("training.evaluate")``, an ``"module:function"`` reference)
+A module named in a string (``importlib.import_module("training.mappo")``, an ``"module:function"`` reference)
 is an import too: covert_env's code holds no such string of a higher package. What the higher packages provide to
 covert_env (the ``covert-env`` subcommands, the policies) they declare as entry points in ``pyproject.toml``."""
 
@@ -138,26 +138,38 @@ def test_the_model_is_in_floors(floor):
 
 
 def test_the_old_module_paths_give_the_moved_modules(recwarn):
-    """``covert_env.zone``, ``covert_env.config``, ... (covert_env.moved): the module at its new place, with a
-    DeprecationWarning naming both."""
+    """``covert_env.zone``, ``covert_env.config``, ``training.evaluate``, ... (covert_env.moved): the module at its
+    new place, with a DeprecationWarning naming both."""
     import importlib
     import sys
 
     from covert_env.moved import MOVED
 
-    for leaf, pkg in MOVED.items():
-        sys.modules.pop(f"covert_env.{leaf}", None)                  # an earlier import of the old path: again
-        assert (ROOT / "covert_env" / pkg / f"{leaf}.py").is_file(), leaf
-        assert not (ROOT / "covert_env" / f"{leaf}.py").exists(), leaf
-        old = importlib.import_module(f"covert_env.{leaf}")
-        assert old is importlib.import_module(f"covert_env.{pkg}.{leaf}")
+    for old, new in MOVED.items():
+        sys.modules.pop(old, None)                                    # an earlier import of the old path: again
+        assert (ROOT / (new.replace(".", "/") + ".py")).is_file(), new
+        assert not (ROOT / (old.replace(".", "/") + ".py")).exists(), old
+        assert importlib.import_module(old) is importlib.import_module(new)
     from covert_env.config import Config  # noqa: F401  (the from-import form too)
 
     said = [str(w.message) for w in recwarn if issubclass(w.category, DeprecationWarning)]
     assert any("covert_env.zone moved to covert_env.geometry.zone" in m for m in said), said
+    assert any("training.evaluate moved to covert_env.evaluation.evaluate" in m for m in said), said
 
 
-#: A module of a higher package named in a string: ``training``, ``training.evaluate``, ``baselines.dp:DPPlanner``.
+def test_python_m_runs_a_moved_module():
+    """``python -m training.evaluate --help`` runs the moved module as __main__ (with its own __file__), and warns."""
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-W", "always", "-m", "training.leaderboard", "--help"], cwd=ROOT,
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.startswith("usage: python -m covert_env.evaluation.leaderboard")
+    assert "training.leaderboard moved to covert_env.evaluation.leaderboard" in out.stderr
+
+
+#: A module of a higher package named in a string: ``training``, ``training.mappo``, ``baselines.dp:DPPlanner``.
 HIGHER_MODULE = re.compile(r"(?<![\w.])(baselines|training)(\.\w+)*(:\w+)?")
 
 
@@ -188,10 +200,10 @@ def module_strings(path: Path, packages: tuple[str, ...] = ("baselines", "traini
 
 def test_the_string_check_finds_planted_module_names(tmp_path):
     f = tmp_path / "m.py"
-    f.write_text('"""Cites training.evaluate in prose."""\nimport importlib\n'
-                 'X = {"evaluate": "training.evaluate", "animate": "baselines.animate:main"}\n'
+    f.write_text('"""Cites training.mappo in prose."""\nimport importlib\n'
+                 'X = {"mappo": "training.mappo", "animate": "baselines.animate:main"}\n'
                  'importlib.import_module("baselines")\nY = "training scenes"\n')
-    assert module_strings(f) == [(3, "training.evaluate"), (3, "baselines.animate:main"), (4, "baselines")]
+    assert module_strings(f) == [(3, "training.mappo"), (3, "baselines.animate:main"), (4, "baselines")]
 
 
 @pytest.mark.parametrize("high", ["baselines", "training"])

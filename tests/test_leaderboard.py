@@ -1,5 +1,5 @@
-"""The leaderboard the README and the documentation site show (training.leaderboard): made from a suite run, in
-tiers, published into a repository and checked against it."""
+"""The leaderboard the README and the documentation site show (covert_env.evaluation.leaderboard): made from a suite
+run, in tiers, published into a repository and checked against it."""
 
 from __future__ import annotations
 
@@ -9,9 +9,9 @@ from pathlib import Path
 import pytest
 
 from covert_env.command_line import UsageError
-from training import leaderboard
-from training.benchmark import aggregate, normalised_scores
-from training.evaluate import COLUMNS
+from covert_env.evaluation import leaderboard
+from covert_env.evaluation.benchmark import aggregate, normalised_scores
+from covert_env.evaluation.evaluate import COLUMNS
 
 ROOT = Path(__file__).resolve().parents[1]
 

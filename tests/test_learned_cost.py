@@ -265,8 +265,8 @@ def test_loader_rejects_a_missing_card(tmp_path):
 def test_dp_cost_learns_and_writes_a_loadable_run(tmp_path):
     """One iteration of two candidates on one scene of one task: the curve compares with the paper's planner on the
     same episode, the card's path_cost is the mean's, and the harness loads the run folder as a planner."""
+    from covert_env.evaluation.evaluate import load_policy
     from training.dp_cost import main
-    from training.evaluate import load_policy
 
     run = main(["--iterations", "1", "--population", "2", "--elite", "1", "--tasks", "paper-3uav", "--jobs", "1",
                 "--runs-dir", str(tmp_path), "--run-name", "r", "--progress-bar", "false"])

@@ -89,7 +89,7 @@ def test_smoke_run_checkpoint_resume(tmp_path, algo, mode, train_extra):
 
 
 def test_lagrangian_raises_lambda_and_harness_scores_the_run(tmp_path, train_extra):
-    from training.evaluate import evaluate, load_policy
+    from covert_env.evaluation.evaluate import evaluate, load_policy
 
     run = mappo.main([*TINY, "--lagrangian", "true", "--cost-limit", "0", "--lagrange-lr", "1", "--n-uavs", "2",
                       "--agent-id", "true", "--separation-shield", "false",
@@ -117,7 +117,7 @@ def test_shielded_run_records_the_shield_and_evaluates_with_it(tmp_path, train_e
     """The recipe's shield: on by default in the waypoint mode, written to the card, used by the harness (a
     separation violation only in a slot where it found no separated nodes: its fallbacks); off in the unicycle
     mode."""
-    from training.evaluate import evaluate, load_policy
+    from covert_env.evaluation.evaluate import evaluate, load_policy
     from training.recipes import MAPPO_RECIPES
 
     assert MAPPO_RECIPES["3uav-mappo"]["separation_shield"] is True
@@ -141,7 +141,7 @@ def test_safety_filter_run_flies_through_the_filter_and_evaluates_with_it(tmp_pa
     """--safety-filter: the env flies the filter's nodes (a task mix too), the card says so, and the harness flies
     the team through the same filter: no separation or terrain violation on the flown path."""
     from covert_env.envs.safety_filter import ShieldedPolicy
-    from training.evaluate import evaluate, load_policy
+    from covert_env.evaluation.evaluate import evaluate, load_policy
 
     with pytest.raises(SystemExit):
         mappo.main([*TINY, "--safety-filter", "true", "--total-timesteps", "16"])
@@ -186,7 +186,7 @@ def test_training_throughput_benchmark_measures_every_guard(train_extra, capsys)
 @pytest.mark.slow
 def test_seed_group_is_one_leaderboard_row(tmp_path, train_extra):
     """``mappo:RUN1,RUN2``: both runs on the same scenes, one row, its IQM interval over seeds x scenes."""
-    from training.evaluate import _reward_matrix, main, split_seeds
+    from covert_env.evaluation.evaluate import _reward_matrix, main, split_seeds
 
     runs = [mappo.main([*TINY, "--seed", str(s), "--total-timesteps", "16", "--runs-dir", str(tmp_path),
                         "--run-name", f"s{s}"]) for s in (0, 1)]
@@ -546,7 +546,7 @@ def test_target_path_run_card_harness_and_widening(tmp_path, train_extra):
     assert card["env_kwargs"]["target_path"] == 3
     pol = load_learned(run)
     assert pol.env_settings["target_path"] == 3
-    from training.evaluate import evaluate
+    from covert_env.evaluation.evaluate import evaluate
 
     rows = evaluate(pol, pol.env_settings, 1, env_kwargs={"max_cycles": 3}, progress=False)
     assert len(rows) == 1 and np.isfinite(rows[0]["reward"])

@@ -11,24 +11,24 @@ import numpy as np
 import pytest
 
 from covert_env.command_line import UsageError
-from training.evaluate import evaluate, load_policy, main
+from covert_env.evaluation.evaluate import evaluate, load_policy, main
+from covert_env.evaluation.provenance import numpy_cpu_dispatch, platform_key, platform_record
+from covert_env.evaluation.stats import iqm
 from training.pretrained import N_OWN_FEATURES, pretrained_names
 from training.pretrained import PRETRAINED_DIR as PRETRAINED
 from training.pretrained.export import export
-from training.provenance import numpy_cpu_dispatch, platform_key, platform_record
-from training.stats import iqm
 
 N_SCENES = 3        # scenes replayed per shipped card in the slow test (a few seconds each in waypoint mode)
 #: Largest relative difference of a replayed scene's reward from its card's on another platform (another CPU
-#: dispatch of numpy or other library versions: training.provenance). On the card's own platform: none.
+#: dispatch of numpy or other library versions: covert_env.evaluation.provenance). On the card's own platform: none.
 REPLAY_RTOL = 1e-6
 #: The fast subset's replay: the cheapest card, one scene.
 FAST_CARD = "mappo-suite"
 
 _REPLAY = """
 import json, sys
-from training.evaluate import evaluate, load_policy
-from training.provenance import platform_record
+from covert_env.evaluation.evaluate import evaluate, load_policy
+from covert_env.evaluation.provenance import platform_record
 pol, settings = load_policy("pretrained:" + sys.argv[1], 3)
 rows = evaluate(pol, settings, int(sys.argv[2]), progress=False)
 print(json.dumps({"platform": platform_record(), "rewards": {str(r["scene_seed"]): r["reward"] for r in rows}}))

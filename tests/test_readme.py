@@ -1,5 +1,5 @@
 """The README: its Python snippets run as written, it stays short (at most 200 lines), its links lead to files of
-the repository, and its leaderboard is the published suite run's (python -m training.leaderboard --check).
+the repository, and its leaderboard is the published suite run's (python -m covert_env.evaluation.leaderboard --check).
 The documentation site's pages are tested in tests/test_docs.py."""
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ def test_readme_links_lead_to_files():
 
 
 def test_readme_leaderboard_is_the_published_run():
-    from training.leaderboard import check
+    from covert_env.evaluation.leaderboard import check
 
     assert check() == []
 

@@ -18,9 +18,9 @@ from baselines.policies import RandomPolicy
 from covert_env.command_line import UsageError
 from covert_env.envs.joint_moves import _first_separated_pair, clear_along, separated_from
 from covert_env.envs.safety_filter import SafetyFilter, ShieldedPolicy, path_separation, top_clearance_along
+from covert_env.evaluation.evaluate import evaluate, load_policy, split_seeds
 from covert_env.geometry.separation import team_separation
 from covert_env.world.metrics import top_clearance
-from training.evaluate import evaluate, load_policy, split_seeds
 
 coords = st.floats(-200.0, 200.0, allow_nan=False)
 
@@ -265,7 +265,7 @@ def test_candidates_follow_the_proposal_then_the_policys_scores():
 
 
 def test_a_shielded_learned_team_keeps_its_name_and_mode(tmp_path):
-    from training.evaluate import main
+    from covert_env.evaluation.evaluate import main
 
     assert main(["--policies", "pretrained:mappo@waypoint+shield", "--episodes", "1", "--out", str(tmp_path),
                  "--no-progress"]) == 0

@@ -79,7 +79,7 @@ def test_generate_checks_its_arguments():
 
 
 def test_the_cli_writes_a_set_the_harness_flies_as_the_family(tmp_path, capsys):
-    from training.evaluate import main
+    from covert_env.evaluation.evaluate import main
 
     path = tmp_path / "sets" / "dense1.json"
     assert cli_main(["scene-set", "--family", "dense", "--scenes", "1", "--out", str(path)]) == 0

@@ -1,9 +1,10 @@
-"""training.stats against hand-computed cases (rliable's definitions: IQM, stratified bootstrap, P(X > Y))."""
+"""covert_env.evaluation.stats against hand-computed cases (rliable's definitions: IQM, stratified bootstrap,
+P(X > Y))."""
 
 import numpy as np
 import pytest
 
-from training.stats import iqm, mean, poi_ci, probability_of_improvement, stratified_bootstrap_ci
+from covert_env.evaluation.stats import iqm, mean, poi_ci, probability_of_improvement, stratified_bootstrap_ci
 
 
 def test_iqm_hand_computed():

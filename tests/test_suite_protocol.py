@@ -1,4 +1,5 @@
-"""The suite protocol (training.benchmark): normalised scores, aggregates, marl-eval output, workers, CLI errors."""
+"""The suite protocol (covert_env.evaluation.benchmark): normalised scores, aggregates, marl-eval output, workers,
+CLI errors."""
 
 from __future__ import annotations
 
@@ -8,8 +9,8 @@ import numpy as np
 import pytest
 from _extras import needs
 
-from training.benchmark import REFERENCE, aggregate, main, marl_eval, normalised_scores, run_cells
-from training.evaluate import COLUMNS
+from covert_env.evaluation.benchmark import REFERENCE, aggregate, main, marl_eval, normalised_scores, run_cells
+from covert_env.evaluation.evaluate import COLUMNS
 
 
 def _rows(table: dict) -> list[dict]:
@@ -144,7 +145,7 @@ def test_an_episode_row_reports_the_teams_smallest_separation():
 
 def test_every_policy_spec_has_a_tier():
     """The leaderboards' three tiers (and the references): what a team reads to act decides its tier."""
-    from training.tiers import TIERS, spec_tier
+    from covert_env.evaluation.tiers import TIERS, spec_tier
 
     assert list(TIERS) == ["planner", "hybrid", "learned", "reference"]
     cases = {"dp": "planner", "dp-binned@waypoint+shield": "planner", "pretrained:dp-cost": "hybrid",

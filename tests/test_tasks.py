@@ -81,7 +81,7 @@ def test_resolve_tasks_expands_groups_in_order_without_repeats():
 def test_the_harness_flies_a_task_on_its_held_out_scenes(tmp_path, capsys):
     """covert-env evaluate --task: the task's family, team and target on its test scenes; conflicting flags are one
     usage error each."""
-    from training.evaluate import main
+    from covert_env.evaluation.evaluate import main
 
     out = tmp_path / "lb"
     assert main(["--task", "towers-1uav-deviating", "--policies", "hold-centre", "--episodes", "2", "--out", str(out),

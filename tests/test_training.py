@@ -258,7 +258,7 @@ def test_reward_fn_shaping():
 
 # ---------------------------------------------------------------------- scripts + harness
 def _evaluate(tmp_path, spec, n_uavs, extra=()):
-    from training.evaluate import main as evaluate_main
+    from covert_env.evaluation.evaluate import main as evaluate_main
 
     out = tmp_path / "lb"
     assert evaluate_main(["--policies", "random", spec, *extra, "--episodes", "1", "--n-uavs", str(n_uavs),
@@ -326,7 +326,7 @@ def test_maskable_ppo_single_train_evaluate(tmp_path):
 
 
 def test_harness_rejects_team_size_mismatch(tmp_path):
-    from training.evaluate import load_policy
+    from covert_env.evaluation.evaluate import load_policy
     from training.sb3 import ppo_single
 
     run = ppo_single.main(["--total-timesteps", "256", "--n-envs", "1", "--n-steps", "256", "--batch-size", "64",
@@ -614,7 +614,7 @@ def test_load_policy_trust_checkpoint_is_the_only_way_in(tmp_path, monkeypatch):
     import stable_baselines3
 
     from covert_env.cli import UsageError
-    from training.evaluate import load_policy
+    from covert_env.evaluation.evaluate import load_policy
 
     marker = tmp_path / "payload_ran"
     run = _payload_model(tmp_path, marker)
@@ -713,7 +713,7 @@ def test_convert_vecnormalize_needs_trust_checkpoint(tmp_path, capsys, monkeypat
 ])
 def test_sb3_model_that_does_not_fit_its_args_json_is_named(tmp_path, env_kwargs, pattern):
     from covert_env.cli import UsageError
-    from training.evaluate import load_policy
+    from covert_env.evaluation.evaluate import load_policy
 
     run, _ = _sb3_run(tmp_path)
     meta = json.loads((run / "args.json").read_text())

@@ -12,9 +12,11 @@
 * :mod:`training.pretrained` -- the learned actor in numpy and the shipped weights (``pretrained:mappo``).
 * :mod:`training.dp_cost` -- the DP planner's cost for LoS lost along the path, learned with CEM
   (``pretrained:dp-cost``, loaded by :mod:`training.pretrained.learned_cost`).
-* :mod:`training.evaluate` -- ``python -m training.evaluate``: every policy on the same held-out seeds,
+* :mod:`covert_env.evaluation.evaluate` -- ``covert-env evaluate``: every policy on the same held-out seeds,
   scored by :func:`covert_env.world.metrics.episode_metrics`, written to ``leaderboard.md`` / ``.csv`` and a figure;
-  :mod:`training.stats` gives its IQM and bootstrap intervals.
+  :mod:`covert_env.evaluation.stats` gives its IQM and bootstrap intervals.
 
 Outputs go to the git-ignored ``runs/`` (training) and ``outputs/`` (evaluation) folders.
 """
+
+import covert_env  # noqa: E402, F401  (its finder serves the modules that moved to covert_env.evaluation: covert_env.moved)

@@ -11,13 +11,21 @@ import argparse
 import os
 import sys
 
+from covert_env.evaluation.tiers import TIERS
 from covert_env.world.families import FAMILIES
 from covert_env.world.tasks import DEFAULT_TASKS, SUITE_VERSION, TASKS
-from training.tiers import TIERS, spec_tier, tier_of
 
-__all__ = ["TIERS", "build_parser", "main", "spec_tier", "tier_of", "weights_table"]
+__all__ = ["build_parser", "main", "tier_of", "weights_table"]
 
 SECTIONS = ("tasks", "families", "policies", "weights")
+
+
+def tier_of(card: dict) -> str:
+    """A shipped card's tier (:data:`~covert_env.evaluation.tiers.TIERS`): ``hybrid`` for a planner with a learned
+    cost, ``learned`` for an actor that acts from observations."""
+    from training.pretrained.learned_cost import KIND
+
+    return "hybrid" if card.get("kind") == KIND else "learned"
 def _tasks() -> list[str]:
     lines = [f"Tasks ({SUITE_VERSION}; --task NAME, covert-env benchmark --tasks NAME ... | core | all; * = core):"]
     for t in TASKS.values():
@@ -44,8 +52,8 @@ def _policies() -> list[str]:
 
 
 def _weights() -> list[str]:
+    from covert_env.command_line import read_run_json
     from training.pretrained import PRETRAINED_DIR, pretrained_names
-    from training.runs import read_run_json
 
     lines = ["Shipped weights (pretrained:NAME; cards in training/pretrained/NAME.json; reward IQM [95 % interval] on "
              "the held-out paper scenes):",
@@ -63,8 +71,8 @@ def weights_table() -> str:
     """The shipped weights as a markdown table (the documentation's cards page): tier, algorithm, the env and
     version a card's scores were measured on, the team size, the training budget and the reward on the held-out
     paper scenes."""
+    from covert_env.command_line import read_run_json
     from training.pretrained import PRETRAINED_DIR, pretrained_names
-    from training.runs import read_run_json
 
     lines = ["| `pretrained:NAME` | tier | algorithm | scored on | UAVs | trained | reward IQM [95 % CI], held-out "
              "paper scenes |", "|---|---|---|---|---|---|---|"]

@@ -29,7 +29,7 @@ from covert_env.envs.vector import MAX_NUM_ENVS
 from covert_env.world.config import MAX_N_UAVS, Config, read_json
 from training.trust import require_trust
 
-__all__ = ["parse_args", "run_name", "setup_torch", "latest_checkpoint", "ordered_results", "resume_checkpoint",
+__all__ = ["parse_args", "run_name", "setup_torch", "latest_checkpoint", "resume_checkpoint",
            "resumed_args", "save_run", "field_docs", "build_parser"]
 
 
@@ -340,31 +340,3 @@ def resume_checkpoint(run_dir: Path, *, trust_checkpoint: bool = False) -> tuple
     if ckpt is not None:
         require_trust(ckpt[0], "an SB3 model", trust_checkpoint)
     return ckpt
-
-
-def ordered_results(fn: Callable, work: list[tuple], jobs: int = 1, on_result: Callable | None = None) -> list:
-    """``[fn(*w) for w in work]``, in that order, in this process (``jobs`` = 1) or on a pool of ``jobs`` spawned
-    processes (a clean interpreter each, whatever the parent imported: torch, threads). ``on_result`` is called
-    after each result, in order (a progress bar's update). The first failure cancels the work still queued and
-    raises, so a bad input fails at once rather than after every other item has run."""
-    out = []
-    if jobs == 1:
-        for w in work:
-            out.append(fn(*w))
-            if on_result is not None:
-                on_result()
-        return out
-    from concurrent.futures import ProcessPoolExecutor
-    from multiprocessing import get_context
-
-    with ProcessPoolExecutor(max_workers=jobs, mp_context=get_context("spawn")) as pool:
-        futures = [pool.submit(fn, *w) for w in work]
-        try:
-            for f in futures:
-                out.append(f.result())
-                if on_result is not None:
-                    on_result()
-        except BaseException:
-            pool.shutdown(cancel_futures=True)
-            raise
-    return out

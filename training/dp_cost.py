@@ -37,8 +37,9 @@ from pathlib import Path
 
 import numpy as np
 
+from covert_env.command_line import ordered_results
 from covert_env.world.tasks import get_task
-from training.common import ordered_results, parse_args, save_run
+from training.common import parse_args, save_run
 from training.pretrained.learned_cost import KIND, path_cost_of
 from training.run_args import RunArgs
 

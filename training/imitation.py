@@ -1,7 +1,7 @@
 """Behaviour cloning of the DP planner: a learned team's actor that starts where the paper's planner is.
 
     OMP_NUM_THREADS=1 python -m training.imitation --recipe 3uav-suite --seed 0          # 12 min on 2 cores
-    python -m training.benchmark --policies dp mappo:runs/<run>                           # score it on the suite
+    covert-env benchmark --policies dp mappo:runs/<run>                           # score it on the suite
     OMP_NUM_THREADS=1 python -m training.mappo --recipe 3uav-suite --init-actor runs/<run> # fine-tune it with RL
 
 The planner (``--teacher``, :mod:`baselines.policies`) flies training scenes of the recipe's tasks (run ``--seed s``
@@ -39,9 +39,10 @@ from pathlib import Path
 import numpy as np
 
 import covert_env
+from covert_env.command_line import ordered_results
 from covert_env.world.families import TRAIN_SEEDS
 from covert_env.world.tasks import get_task
-from training.common import _ranges, checked_main, ordered_results, run_name, save_run, setup_torch
+from training.common import _ranges, checked_main, run_name, save_run, setup_torch
 from training.run_args import RunArgs
 
 __all__ = ["Args", "teacher_episode", "collect", "train"]

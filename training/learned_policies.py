@@ -28,12 +28,12 @@ from typing import Any
 import numpy as np
 
 from baselines.policies import parallel_env_of
-from covert_env.command_line import UsageError
+from covert_env.command_line import UsageError, read_run_json
 from covert_env.envs.safety_filter import ShieldedPolicy
 from training.pretrained import PRETRAINED_DIR, load_learned, pretrained_names
 from training.pretrained.learned_cost import is_cost_planner_card, load_cost_planner
 from training.rllib_ppo import load_policy as load_rllib
-from training.runs import read_run_json, run_env
+from training.runs import run_env
 from training.trust import require_trust
 
 __all__ = ["SB3Policy", "load_sb3", "mappo_policy", "pretrained_policy", "rllib_policy", "sb3_policy",
@@ -220,8 +220,18 @@ def pretrained_policy(spec: str, n_uavs: int, *, trust_checkpoint: bool = False)
     return _numpy_policy(spec, PRETRAINED_DIR / f"{name}.npz", n_uavs)
 
 
+def card_tier(path: Path) -> str:
+    """The tier of the weights at ``path`` (:mod:`covert_env.evaluation.tiers`): ``hybrid`` for the planner with a
+    learned cost, ``learned`` for an actor that acts from observations."""
+    return "hybrid" if is_cost_planner_card(path) else "learned"
+
+
 sb3_policy.argument = rllib_policy.argument = mappo_policy.argument = "PATH"
 pretrained_policy.argument = "NAME"
+# A seed group's tier is its first run's.
+sb3_policy.tier = rllib_policy.tier = "learned"
+mappo_policy.tier = lambda spec: card_tier(Path(spec[len("mappo:"):].split(",")[0]))
+pretrained_policy.tier = lambda spec: card_tier(PRETRAINED_DIR / f"{spec[len('pretrained:'):].split(',')[0]}.npz")
 
 
 def _numpy_policy(spec: str, path: Path, n_uavs: int) -> tuple[Any, dict]:

@@ -3,7 +3,7 @@
 ``3uav-ppo`` -- the documented 3-UAV parameter-shared PPO recipe: trains in <= 60 minutes on 2 CPU cores.
 
     OMP_NUM_THREADS=1 python -m training.sb3.ppo_multi --recipe 3uav-ppo          # stops at its time budget, saves
-    python -m training.evaluate --policies random hold-centre dp sb3:runs/<run> --trust-checkpoint --episodes 20
+    covert-env evaluate --policies random hold-centre dp sb3:runs/<run> --trust-checkpoint --episodes 20
 
 Why these settings:
 

@@ -7,7 +7,7 @@ maps to the module ``shared_policy`` (parameter sharing, as in :mod:`training.sb
     ray start --head                                        # or join an existing cluster:
     PYTHONHASHSEED=0 python -m training.rllib_ppo --address auto --num-env-runners 16
     python -m training.rllib_ppo --resume runs/<run>/checkpoint --trust-checkpoint --iterations 100
-    python -m training.evaluate --policies random dp rllib:runs/<run>/checkpoint --trust-checkpoint
+    covert-env evaluate --policies random dp rllib:runs/<run>/checkpoint --trust-checkpoint
 
 Checkpoints: ``runs/{env}__rllib_ppo__{seed}__{time}/checkpoint`` (``Algorithm.save_to_path``), with
 ``args.json`` beside it. They are pickled: ``--resume`` and :func:`load_policy` load one only with
@@ -51,11 +51,11 @@ from pathlib import Path
 import numpy as np
 
 from baselines.policies import parallel_env_of
-from covert_env.command_line import UsageError
+from covert_env.command_line import UsageError, read_run_json
 from covert_env.envs.covert_sensing import CovertSensingParallelEnv
 from training.common import parse_args, resumed_args, run_name, save_run, setup_torch
 from training.run_args import TrainingArgs
-from training.runs import read_run_json, run_env
+from training.runs import run_env
 from training.trust import require_trust
 
 ALGO = "rllib_ppo"

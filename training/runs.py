@@ -7,20 +7,10 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from covert_env.command_line import UsageError
+from covert_env.command_line import UsageError, read_run_json
 from covert_env.envs.covert_sensing import CovertSensingParallelEnv
-from covert_env.world.config import read_json
 
-__all__ = ["read_run_json", "run_env"]
-
-
-def read_run_json(path: Path, what: str) -> Any:
-    """A JSON file of a run (``args.json``, a model card, a cache), with every problem -- missing, not a regular
-    file, too large, not UTF-8, invalid JSON -- as a :class:`~covert_env.command_line.UsageError` naming the file."""
-    try:
-        return read_json(path, what)
-    except (OSError, ValueError) as exc:
-        raise UsageError(str(exc)) from None
+__all__ = ["run_env", "weights_and_card"]
 
 
 def weights_and_card(path: str | Path, what: str, producer: str) -> tuple[Path, Path, Any]:

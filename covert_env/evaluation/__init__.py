@@ -6,6 +6,14 @@
   and its env settings.
 * :mod:`covert_env.evaluation.episodes` -- a policy flown through held-out scenes (or a scene set), one row of
   metrics per episode (:func:`~covert_env.evaluation.episodes.run_episode`, ``evaluate``, ``summarise``, ``COLUMNS``).
+* :mod:`covert_env.evaluation.evaluate` -- ``covert-env evaluate``: the harness, a leaderboard of policies on the
+  same held-out scenes.
+* :mod:`covert_env.evaluation.benchmark` -- ``covert-env benchmark``: the task suite's protocol (normalised scores,
+  IQM with intervals, profiles).
+* :mod:`covert_env.evaluation.tiers` -- the leaderboards' tiers, declared by each policy's factory.
+* :mod:`covert_env.evaluation.stats` -- IQM, stratified bootstrap, probability of improvement (rliable's methods).
+* :mod:`covert_env.evaluation.leaderboard` -- the suite's leaderboard published into the README and the docs.
+* :mod:`covert_env.evaluation.provenance` -- where scores were measured: platform, library versions, commit.
 
 This package imports no package above covert_env: it reaches policies only through the registry.
 """

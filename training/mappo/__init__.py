@@ -4,7 +4,7 @@
     OMP_NUM_THREADS=1 python -m training.mappo --algo mappo --action-mode waypoint --time-budget-minutes 55
     OMP_NUM_THREADS=1 python -m training.mappo --algo ippo --action-mode unicycle
     python -m training.mappo --resume runs/<run>                  # continue from the newest checkpoint
-    python -m training.evaluate --policies dp random@waypoint mappo:runs/<run>
+    covert-env evaluate --policies dp random@waypoint mappo:runs/<run>
     tensorboard --logdir runs
 
 The modules, in the order the loop runs them: ``args`` (the settings and their checks); ``agents`` (the networks of

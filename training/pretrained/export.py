@@ -6,11 +6,11 @@
 
 The card holds what a reader needs to trust and reproduce the weights: the algorithm, the run's arguments (the
 recipe) and training summary (env steps, wall time), the repository commit, the env's id and covert_env's
-version, and the scores of the harness (:mod:`training.evaluate`, env default reward) on the held-out scenes
-1_000_000 .. 1_000_000 + episodes - 1: mean ± std over scenes, IQM with a 95 % bootstrap interval over scenes
-(:mod:`training.stats`; one training seed, so the scenes are the resampled runs), the paper's metrics, and the
-reward of each scene (``tests/test_pretrained.py`` replays them and compares), and the platform and library
-versions that measured them (``platform``, :mod:`training.provenance`).
+version, and the scores of the harness (:mod:`covert_env.evaluation.evaluate`, env default reward) on the held-out
+scenes 1_000_000 .. 1_000_000 + episodes - 1: mean ± std over scenes, IQM with a 95 % bootstrap interval over scenes
+(:mod:`covert_env.evaluation.stats`; one training seed, so the scenes are the resampled runs), the paper's metrics,
+and the reward of each scene (``tests/test_pretrained.py`` replays them and compares), and the platform and library
+versions that measured them (``platform``, :mod:`covert_env.evaluation.provenance`).
 
 ``constraints`` states each constraint's rate on those scenes (the paper's constraints: the zone, eq. 4; LoS at
 slot times, eq. 6, and along the flown path; separation, eq. 2; terrain, eq. 3). With ``--suite``, ``suite`` adds
@@ -30,12 +30,12 @@ from pathlib import Path
 import numpy as np
 
 import covert_env
-from training.benchmark import CONSTRAINTS
-from training.evaluate import HELD_OUT_OFFSET, evaluate, summarise
+from covert_env.evaluation.benchmark import CONSTRAINTS
+from covert_env.evaluation.evaluate import HELD_OUT_OFFSET, evaluate, summarise
+from covert_env.evaluation.provenance import code_commit, platform_record
+from covert_env.evaluation.stats import iqm, stratified_bootstrap_ci
 from training.pretrained import PRETRAINED_DIR, load_learned
 from training.pretrained.learned_cost import KIND, is_cost_planner_card, load_cost_planner
-from training.provenance import code_commit, platform_record
-from training.stats import iqm, stratified_bootstrap_ci
 
 __all__ = ["export", "main", "rescore", "suite_rows"]
 

@@ -27,8 +27,9 @@ from pathlib import Path
 import numpy as np
 
 from baselines.policies import DPPolicy
+from covert_env.command_line import read_run_json
 from covert_env.world.config import Config
-from training.runs import read_run_json, weights_and_card
+from training.runs import weights_and_card
 
 __all__ = ["KIND", "is_cost_planner_card", "load_cost_planner", "path_cost_of"]
 

@@ -5,7 +5,7 @@ slot and in the visible zone (eq. 10), and MaskablePPO never samples a masked no
 
     OMP_NUM_THREADS=1 python -m training.sb3.maskable_ppo_single --total-timesteps 500000
     python -m training.sb3.maskable_ppo_single --resume runs/<run> --trust-checkpoint
-    python -m training.evaluate --n-uavs 1 --policies random@waypoint dp sb3:runs/<run> --trust-checkpoint
+    covert-env evaluate --n-uavs 1 --policies random@waypoint dp sb3:runs/<run> --trust-checkpoint
 
 Outputs in ``runs/{env}__maskable_ppo_single__{seed}__{time}/`` (model.zip, vecnormalize.json, checkpoints/, tb/).
 """

@@ -8,7 +8,7 @@ One policy acts for every UAV of every env copy: :class:`training.sb3.vec_env.Pa
     tensorboard --logdir runs
 
 Outputs in ``runs/{env}__ppo_multi__{seed}__{time}/`` (see :mod:`training.common`). Evaluate with
-``python -m training.evaluate --policies random dp sb3:runs/<run> --trust-checkpoint``.
+``covert-env evaluate --policies random dp sb3:runs/<run> --trust-checkpoint``.
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
     OMP_NUM_THREADS=1 python -m training.sb3.ppo_single --total-timesteps 1000000
     python -m training.sb3.ppo_single --resume runs/<run> --trust-checkpoint   # continue from the newest checkpoint
-    python -m training.evaluate --n-uavs 1 --policies random dp sb3:runs/<run> --trust-checkpoint
+    covert-env evaluate --n-uavs 1 --policies random dp sb3:runs/<run> --trust-checkpoint
 
 Outputs in ``runs/{env}__ppo_single__{seed}__{time}/`` (model.zip, vecnormalize.json, checkpoints/, tb/, args.json).
 """

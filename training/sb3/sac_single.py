@@ -2,7 +2,7 @@
 
     OMP_NUM_THREADS=1 python -m training.sb3.sac_single --total-timesteps 300000
     python -m training.sb3.sac_single --resume runs/<run> --trust-checkpoint   # continue from the newest checkpoint
-    python -m training.evaluate --n-uavs 1 --policies random dp sb3:runs/<run> --trust-checkpoint
+    covert-env evaluate --n-uavs 1 --policies random dp sb3:runs/<run> --trust-checkpoint
 
 Outputs in ``runs/{env}__sac_single__{seed}__{time}/`` (model.zip, vecnormalize.json, checkpoints/, tb/, args.json).
 The replay buffer is not checkpointed (it is large); ``--resume`` restarts with an empty buffer and refills it

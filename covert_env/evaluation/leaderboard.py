@@ -1,8 +1,8 @@
 """The suite's leaderboard as the README and the documentation site show it, generated from a run of
 ``covert-env benchmark`` so that a re-run updates them.
 
-    python -m training.leaderboard outputs/suite          # publish a run: docs/results/suite.json, the figure, README
-    python -m training.leaderboard --check                # the README's table is the published run's
+    python -m covert_env.evaluation.leaderboard outputs/suite   # publish a run: docs/results/suite.json, figure, README
+    python -m covert_env.evaluation.leaderboard --check         # the README's table is the published run's
 
 ``covert-env benchmark`` writes ``summary.json`` beside its other outputs: the run's meta (command, covert_env
 version, env id), the reference rewards, each policy's aggregate with its tier and median decision time, the mean
@@ -21,16 +21,17 @@ from pathlib import Path
 import numpy as np
 
 from covert_env.command_line import UsageError, run_main
-from training.tiers import TIERS, spec_tier
+from covert_env.evaluation.tiers import TIERS, spec_tier
 
 __all__ = ["README_MARKERS", "SUMMARY", "draw_profiles", "profile_figure", "publish", "summary", "task_table",
            "tier_table"]
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]          # the checkout this module runs from
 #: Where the published run lives in the repository.
 SUMMARY = ROOT / "docs" / "results" / "suite.json"
 #: The README's generated block lies between these two lines.
-README_MARKERS = ("<!-- leaderboard:start (python -m training.leaderboard) -->", "<!-- leaderboard:end -->")
+README_MARKERS = ("<!-- leaderboard:start (python -m covert_env.evaluation.leaderboard) -->",
+                  "<!-- leaderboard:end -->")
 #: Tiers in the order the tables show them.
 ORDER = tuple(TIERS)
 #: (summary key, column header, format) of the constraint columns.
@@ -187,13 +188,15 @@ def check(root: Path = ROOT) -> list[str]:
     """What differs between the README's block and the published run (empty: nothing)."""
     s = json.loads((root / "docs" / "results" / "suite.json").read_text())
     text = (root / "README.md").read_text(encoding="utf-8")
-    return [] if _replace_block(text, readme_block(s)) == text else ["README.md: the leaderboard block is not the "
-                                                                     "published run's; python -m training.leaderboard "
-                                                                     "RUN publishes one"]
+    if _replace_block(text, readme_block(s)) == text:
+        return []
+    return ["README.md: the leaderboard block is not the published run's; python -m covert_env.evaluation.leaderboard "
+            "RUN publishes one"]
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m training.leaderboard", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m covert_env.evaluation.leaderboard",
+                                     description=__doc__.splitlines()[0])
     parser.add_argument("run", nargs="?", type=Path, help="a covert-env benchmark output folder to publish")
     parser.add_argument("--check", action="store_true", help="only check that the README shows the published run")
     parser.add_argument("--covert-env-version", help="for a run without summary.json: the version it ran on")

@@ -1,10 +1,10 @@
 """The evaluation harness: every policy on the same held-out scenes, scored by the shared metrics code.
 
-    python -m training.evaluate --policies random hold-centre dp dp-blind pretrained:mappo --episodes 20
-    python -m training.evaluate --policies random sb3:runs/<run> --trust-checkpoint
-    python -m training.evaluate --trust-checkpoint --policies sb3:runs/<run>/checkpoints/ppo_multi_500000_steps.zip
-    python -m training.evaluate --policies dp rllib:runs/<rllib-run>/checkpoint --trust-checkpoint
-    covert-env evaluate ...                          # the same (the command covert_env.commands names)
+    covert-env evaluate --policies random hold-centre dp dp-blind pretrained:mappo --episodes 20
+    covert-env evaluate --policies random sb3:runs/<run> --trust-checkpoint
+    covert-env evaluate --trust-checkpoint --policies sb3:runs/<run>/checkpoints/ppo_multi_500000_steps.zip
+    covert-env evaluate --policies dp rllib:runs/<rllib-run>/checkpoint --trust-checkpoint
+    python -m covert_env.evaluation.evaluate ...     # the same
 
 Policy specs (``SPEC[@MODE][+shield]``, :mod:`covert_env.evaluation.specs`; MODE = ``unicycle`` or ``waypoint``
 picks the env's action mode; ``+shield`` flies a waypoint policy through the safety filter,
@@ -59,26 +59,25 @@ from pathlib import Path
 
 import numpy as np
 
-from baselines.policies import ALIASES, POLICIES
 from covert_env.command_line import (
     MAX_SCENES,
     UsageError,
     int_range,
     output_dir,
     positive_int,
+    read_run_json,
     run_main,
 )
 from covert_env.envs.covert_sensing import CovertSensingParallelEnv
 from covert_env.envs.vector import MAX_SCENE_SEED
 from covert_env.evaluation.episodes import COLUMNS, HELD_OUT_OFFSET, evaluate, summarise
-from covert_env.evaluation.registry import from_files
+from covert_env.evaluation.registry import from_files, registered_policies
 from covert_env.evaluation.specs import SHIELD_SUFFIX, load_policy, split_seeds
+from covert_env.evaluation.stats import iqm, probability_of_improvement, stratified_bootstrap_ci
+from covert_env.evaluation.tiers import TIERS, spec_tier
 from covert_env.world.families import FAMILIES
 from covert_env.world.scene_set import SceneSet
 from covert_env.world.tasks import get_task
-from training.runs import read_run_json
-from training.stats import iqm, probability_of_improvement, stratified_bootstrap_ci
-from training.tiers import TIERS, spec_tier
 
 __all__ = ["main", "load_policy", "evaluate", "split_seeds", "COLUMNS", "HELD_OUT_OFFSET"]
 
@@ -140,7 +139,7 @@ def _reward_matrix(r: dict) -> np.ndarray:
 
 def _robust_lines(results: dict[str, dict]) -> list[str]:
     """The episode reward's interquartile mean with its 95 % bootstrap interval, and the probability of
-    improvement over the DP planner (rliable's definitions, :mod:`training.stats`).
+    improvement over the DP planner (rliable's definitions, :mod:`covert_env.evaluation.stats`).
 
     A seed group's rewards are a (seeds, scenes) matrix: the interval resamples the seeds within each scene
     (stratified by scene) and P(X > DP) is the Mann-Whitney statistic per scene, averaged over scenes. A single
@@ -148,7 +147,8 @@ def _robust_lines(results: dict[str, dict]) -> list[str]:
     dp = next((r for r in results.values() if r.get("spec", "").split("@")[0] == "dp"), None)
     lines = ["", "Episode reward: interquartile mean with its 95 % stratified-bootstrap interval (over seeds x scenes "
              "for seed groups, over scenes for single runs)"
-             + (", and P(reward > DP shadow-aware's) on the same scenes" if dp else "") + " (training.stats).", "",
+             + (", and P(reward > DP shadow-aware's) on the same scenes" if dp else "")
+             + " (covert_env.evaluation.stats).", "",
              "| policy | runs | reward IQM [95 % CI] |" + (" P(> DP) |" if dp else ""),
              "|---|---|---|" + ("---|" if dp else "")]
     for name, r in results.items():
@@ -191,14 +191,14 @@ def _figure(results: dict[str, dict], path: Path) -> None:
     plt.close(fig)
 
 
-def build_parser(prog: str = "python -m training.evaluate") -> argparse.ArgumentParser:
+def build_parser(prog: str = "python -m covert_env.evaluation.evaluate") -> argparse.ArgumentParser:
 
     p = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n")[0],
                                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     p.add_argument("--policies", nargs="+", default=["random", "hold-centre", "dp", "dp-blind"],
-                   help=f"policy specs: {', '.join(POLICIES)}, {', '.join(ALIASES)} (= hold-centre), "
-                        "sb3:PATH, rllib:PATH, mappo:PATH, pretrained:NAME, each optionally @unicycle or @waypoint "
-                        "(covert-env list)")
+                   help="policy specs: a registered NAME or PREFIX:ARGUMENT "
+                        f"({', '.join(sorted(registered_policies()))}; covert-env list describes them), each "
+                        "optionally @unicycle or @waypoint, and +shield for a waypoint policy")
     p.add_argument("--episodes", type=int_range(1, MAX_SCENES), default=20,
                    help=f"held-out scenes per policy, in [1, {MAX_SCENES}]")
     p.add_argument("--n-uavs", type=positive_int, default=3, help="team size, >= 1")
@@ -225,7 +225,7 @@ def build_parser(prog: str = "python -m training.evaluate") -> argparse.Argument
     return p
 
 
-def main(argv: list[str] | None = None, prog: str = "python -m training.evaluate") -> int:
+def main(argv: list[str] | None = None, prog: str = "python -m covert_env.evaluation.evaluate") -> int:
     """The harness's command line (``prog``: the name in usage and error lines, ``covert-env evaluate`` from
     :mod:`covert_env.command_line`). Mistakes in the arguments exit with status 2 and one error line."""
 

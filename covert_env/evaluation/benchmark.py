@@ -5,7 +5,7 @@
     covert-env benchmark --tasks core --policies dp random@waypoint pretrained:mappo --out outputs/suite
 
 Tasks are names of :mod:`covert_env.world.tasks` (``core``: :data:`~covert_env.world.tasks.DEFAULT_TASKS`, ``all``:
-every task); policies are the harness's specs (:mod:`training.evaluate`: ``dp``, ``dp-path``, ``dp-blind``,
+every task); policies are the harness's specs (:mod:`covert_env.evaluation.evaluate`: ``dp``, ``dp-path``, ``dp-blind``,
 ``dp-binned``, ``random``, ``hold-centre``, ``pretrained:NAME``, ``mappo:``/``sb3:``/``rllib:`` paths, seed groups
 ``PREFIX:PATH1,PATH2`` whose members are the runs). A learned policy acts for one team size: it is scored on the
 tasks of that size only (said in the output). Each cell flies one held-out scene of the task (its first
@@ -20,14 +20,14 @@ The protocol, fixed so that two users' runs compare (defaults: :data:`DEFAULT_PO
   mean of the ``dp*`` policies of the run (at least one is required) on that task. So 0 is random, 1 the best
   planner.
 * **Aggregate** per policy over the tasks it was scored on: the IQM of the normalised scores with its 95 %
-  stratified-bootstrap interval (strata = tasks, resampled = runs x scenes, :mod:`training.stats`), the mean, and
-  the constraint rates beside it (zone violations, blocked LoS at slot times and along the flown path, separation
-  and terrain violations per UAV, the smallest separation).
+  stratified-bootstrap interval (strata = tasks, resampled = runs x scenes, :mod:`covert_env.evaluation.stats`), the
+  mean, and the constraint rates beside it (zone violations, blocked LoS at slot times and along the flown path,
+  separation and terrain violations per UAV, the smallest separation).
 * **Performance profile** (``performance_profile.png``): the share of a policy's (task, run, scene) scores above
   tau, for tau from -0.25 (or the lowest score) to 1.25 (or the highest). **Probability of improvement**
   (``improvement.png``): P(X > Y) over the tasks both were scored on (Mann-Whitney per task, averaged).
 * Raw results: ``cells.csv`` (one row per cell), ``results.json``, ``summary.json`` (what the README and the
-  documentation show, :mod:`training.leaderboard`) and ``marl_eval.json`` (marl-eval's raw-data
+  documentation show, :mod:`covert_env.evaluation.leaderboard`) and ``marl_eval.json`` (marl-eval's raw-data
   layout: environment, task, algorithm, ``run_i``, one evaluation step with per-scene lists and
   ``absolute_metrics``). Per-task leaderboards: ``tasks/<task>/leaderboard.md`` (the harness's tables).
 
@@ -50,16 +50,23 @@ from pathlib import Path
 import numpy as np
 
 import covert_env
-from covert_env.command_line import MAX_SCENES, UsageError, int_range, output_dir, positive_int, run_main
+from covert_env.command_line import (
+    MAX_SCENES,
+    UsageError,
+    int_range,
+    ordered_results,
+    output_dir,
+    positive_int,
+    run_main,
+)
 from covert_env.envs.covert_sensing import CovertSensingParallelEnv
+from covert_env.evaluation import leaderboard
+from covert_env.evaluation.evaluate import COLUMNS, evaluate, load_policy, split_seeds, summarise, write_outputs
+from covert_env.evaluation.provenance import code_commit
 from covert_env.evaluation.registry import from_files
+from covert_env.evaluation.stats import iqm, mean, probability_of_improvement, stratified_bootstrap_ci
+from covert_env.evaluation.tiers import TIERS, spec_tier
 from covert_env.world.tasks import DEFAULT_TASKS, SUITE_VERSION, TASKS, TEST_SCENES, get_task, resolve_tasks
-from training import leaderboard
-from training.common import ordered_results
-from training.evaluate import COLUMNS, evaluate, load_policy, split_seeds, summarise, write_outputs
-from training.provenance import code_commit
-from training.stats import iqm, mean, probability_of_improvement, stratified_bootstrap_ci
-from training.tiers import TIERS, spec_tier
 
 __all__ = ["DEFAULT_POLICIES", "DEFAULT_SCENES", "REFERENCE", "aggregate", "main", "normalised_scores", "run_cells"]
 
@@ -252,7 +259,7 @@ def write_suite(out: Path, rows: list[dict], ref: dict, agg: dict, meta: dict, s
                                                   "aggregate": agg, "cells": rows}, indent=1))
     (out / "marl_eval.json").write_text(json.dumps(marl_eval(rows)))
     results = {"suite": SUITE_VERSION, "meta": meta, "reference": ref, "aggregate": agg, "cells": rows}
-    if "covert_env" in meta:                                   # what the docs are made from (training.leaderboard)
+    if "covert_env" in meta:                                   # what the docs are made from (leaderboard.py)
         (out / "summary.json").write_text(json.dumps(leaderboard.summary(results), indent=1))
     _figures(out, rows, agg)
     for task in ref:
@@ -260,7 +267,7 @@ def write_suite(out: Path, rows: list[dict], ref: dict, agg: dict, meta: dict, s
 
 
 def _task_leaderboard(folder: Path, task, rows: list[dict], meta: dict) -> None:
-    """The harness's leaderboard files (:func:`training.evaluate.write_outputs`) of one task."""
+    """The harness's leaderboard files (:func:`covert_env.evaluation.evaluate.write_outputs`) of one task."""
     results = {}
     for p in dict.fromkeys(r["policy"] for r in rows):
         mine = [r for r in rows if r["policy"] == p]
@@ -301,7 +308,7 @@ def _figures(out: Path, rows: list[dict], agg: dict) -> None:
 
 
 # ---------------------------------------------------------------------- command line
-def build_parser(prog: str = "python -m training.benchmark") -> argparse.ArgumentParser:
+def build_parser(prog: str = "python -m covert_env.evaluation.benchmark") -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n")[0],
                                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     p.add_argument("--tasks", nargs="+", default=["core"],
@@ -323,7 +330,7 @@ def build_parser(prog: str = "python -m training.benchmark") -> argparse.Argumen
     return p
 
 
-def main(argv: list[str] | None = None, prog: str = "python -m training.benchmark") -> int:
+def main(argv: list[str] | None = None, prog: str = "python -m covert_env.evaluation.benchmark") -> int:
     """The protocol's command line (``covert-env benchmark``); bad arguments exit with status 2 and one line."""
     parser = build_parser(prog)
     args = parser.parse_args(argv)
