@@ -10,9 +10,9 @@ import pytest
 from baselines.dp import DPPlanner, DPTeamPlanner
 from baselines.dp.continuation import _end_pose, _room
 from baselines.dp.safety import _clear_of, _FirstSlot
+from baselines.learned_cost import load_cost_planner
 from covert_env import Config, Scenario
 from covert_env.envs.covert_sensing import CovertSensingParallelEnv
-from training.pretrained.learned_cost import load_cost_planner
 
 #: Slot 62 of held-out scene 1,000,002 of downtown-3uav, flown by a learned path cost (one seed's, stage 1 first):
 #: the negotiation leaves uav_2 a plan of depth 1 that ends 6.3 m from uav_1, the two flying at each other. Without

@@ -9,11 +9,11 @@ import pytest
 
 from baselines.dp import DPPlanner, DPTeamPlanner
 from baselines.dp.safety import _FirstSlot
+from baselines.learned_cost import load_cost_planner
 from baselines.policies import DPPolicy
 from covert_env import Config, Scenario
 from covert_env.envs.covert_sensing import CovertSensingParallelEnv
 from covert_env.geometry.separation import separation
-from training.pretrained.learned_cost import load_cost_planner
 
 #: Slot 28 of held-out scene 1,000,002 of downtown-3uav-deviating, flown by a learned path cost (one seed's, stage 1
 #: first) with the look-ahead. The target left its prediction: uav_0 reaches no node of the next slot (a best

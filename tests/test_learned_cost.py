@@ -15,13 +15,13 @@ from hypothesis import strategies as st
 from baselines.dp import DPPlanner
 from baselines.dp.clearance import take_manoeuvres
 from baselines.dp.path_checks import SHADOW_MARGIN
+from baselines.learned_cost import load_cost_planner, path_cost_of
 from baselines.reproduce import HELDOUT_SEED_BASE, make_scenario
 from covert_env import Config, Scenario, Terrain
 from covert_env.geometry.dynamics import solve_manoeuvre
 from covert_env.geometry.zone import to_world
 from covert_env.world.tasks import get_task
 from covert_env.world.visibility import SAFE_LOS_TOLERANCE, line_of_sight
-from training.pretrained.learned_cost import load_cost_planner, path_cost_of
 
 P = 21  # the planner's path samples per slot
 

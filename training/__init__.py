@@ -11,7 +11,7 @@
   with the separation shield of :mod:`training.shield`; :mod:`training.curves` draws its learning curves.
 * :mod:`training.pretrained` -- the learned actor in numpy and the shipped weights (``pretrained:mappo``).
 * :mod:`training.dp_cost` -- the DP planner's cost for LoS lost along the path, learned with CEM
-  (``pretrained:dp-cost``, loaded by :mod:`training.pretrained.learned_cost`).
+  (``pretrained:dp-cost``, loaded by :mod:`baselines.learned_cost`).
 * :mod:`covert_env.evaluation.evaluate` -- ``covert-env evaluate``: every policy on the same held-out seeds,
   scored by :func:`covert_env.world.metrics.episode_metrics`, written to ``leaderboard.md`` / ``.csv`` and a figure;
   :mod:`covert_env.evaluation.stats` gives its IQM and bootstrap intervals.

@@ -23,7 +23,7 @@ SECTIONS = ("tasks", "families", "policies", "weights")
 def tier_of(card: dict) -> str:
     """A shipped card's tier (:data:`~covert_env.evaluation.tiers.TIERS`): ``hybrid`` for a planner with a learned
     cost, ``learned`` for an actor that acts from observations."""
-    from training.pretrained.learned_cost import KIND
+    from baselines.learned_cost import KIND
 
     return "hybrid" if card.get("kind") == KIND else "learned"
 def _tasks() -> list[str]:

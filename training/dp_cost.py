@@ -8,7 +8,7 @@
 The paper's planner keeps LoS at slot times; between them it is blind, and the env's reward charges the share of the
 flown path without LoS (``reward_los_path``). This script learns how much the planner's search should charge for
 that share (:class:`~baselines.dp.DPPlanner`'s ``path_cost``): per stage j of the horizon,
-``path_cost[j] = 100 scale decay^j`` m (:func:`~training.pretrained.learned_cost.path_cost_of`; 100 m is what the
+``path_cost[j] = 100 scale decay^j`` m (:func:`~baselines.learned_cost.path_cost_of`; 100 m is what the
 reward charges for a slot fully blocked). Two numbers, learned from episode returns on the training scenes:
 
 * every iteration draws ``scenes_per_task`` training scenes per task (``task.train_seeds``, below ``scene_pool``), and
@@ -37,10 +37,10 @@ from pathlib import Path
 
 import numpy as np
 
+from baselines.learned_cost import KIND, path_cost_of
 from covert_env.command_line import ordered_results
 from covert_env.world.tasks import get_task
 from training.common import parse_args, save_run
-from training.pretrained.learned_cost import KIND, path_cost_of
 from training.run_args import RunArgs
 
 __all__ = ["Args", "episode_return", "main"]

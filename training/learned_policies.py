@@ -15,7 +15,7 @@
 * ``mappo:PATH``: a MAPPO/IPPO actor of :mod:`training.mappo` -- a run folder (its ``model.npz`` and
   ``model.json``) or ``NAME.npz`` with its card ``NAME.json``; ``pretrained:NAME``: the weights shipped in
   ``training/pretrained/``. Both run in numpy (no torch, no pickle): :mod:`training.pretrained`. A card of ``kind``
-  ``dp-cost`` is the planner with a learned cost (:mod:`training.pretrained.learned_cost`): it plans for any team
+  ``dp-cost`` is the planner with a learned cost (:mod:`baselines.learned_cost`): it plans for any team
   size in waypoint mode.
 """
 
@@ -27,11 +27,11 @@ from typing import Any
 
 import numpy as np
 
+from baselines.learned_cost import is_cost_planner_card, load_cost_planner
 from baselines.policies import parallel_env_of
 from covert_env.command_line import UsageError, read_run_json
 from covert_env.envs.safety_filter import ShieldedPolicy
 from training.pretrained import PRETRAINED_DIR, load_learned, pretrained_names
-from training.pretrained.learned_cost import is_cost_planner_card, load_cost_planner
 from training.rllib_ppo import load_policy as load_rllib
 from training.runs import run_env
 from training.trust import require_trust

@@ -4,26 +4,12 @@ file and the field."""
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
-from covert_env.command_line import UsageError, read_run_json
+from covert_env.command_line import UsageError
 from covert_env.envs.covert_sensing import CovertSensingParallelEnv
 
-__all__ = ["run_env", "weights_and_card"]
-
-
-def weights_and_card(path: str | Path, what: str, producer: str) -> tuple[Path, Path, Any]:
-    """The weights ``NAME.npz`` (or a run folder's ``model.npz``) at ``path``, its card beside it and the card read:
-    ``(npz, card_path, card)``. A missing file is a ``ValueError`` naming ``what`` (e.g. "learned actor") and the
-    ``producer`` whose run folders hold them; an unreadable card a :class:`~covert_env.command_line.UsageError`."""
-    path = Path(path)
-    npz = path / "model.npz" if path.is_dir() else path
-    card_path = npz.with_suffix(".json")
-    if not npz.is_file() or not card_path.is_file():
-        raise ValueError(f"no {what} at {path} (expected NAME.npz with NAME.json beside it, or a {producer} run "
-                         "folder holding model.npz and model.json)")
-    return npz, card_path, read_run_json(card_path, "model card")
+__all__ = ["run_env"]
 
 
 def run_env(env_kwargs: Any, where: str, n_uavs: int = 1) -> tuple[dict, Any]:

@@ -28,7 +28,7 @@ picks the env's action mode; ``+shield`` flies a waypoint policy through the saf
 * ``mappo:PATH``: a MAPPO/IPPO actor of :mod:`training.mappo` -- a run folder (its ``model.npz`` and
   ``model.json``) or ``NAME.npz`` with its card ``NAME.json``; ``pretrained:NAME``: the weights shipped in
   ``training/pretrained/`` (``pretrained:mappo``). Both run in numpy (no torch, no pickle): :mod:`training.pretrained`.
-  A card of ``kind`` ``dp-cost`` is the planner with a learned cost (:mod:`training.pretrained.learned_cost`,
+  A card of ``kind`` ``dp-cost`` is the planner with a learned cost (:mod:`baselines.learned_cost`,
   ``pretrained:dp-cost``, ``pretrained:dp-cost-binned``, a :mod:`training.dp_cost` run folder): it plans for any
   team size in waypoint mode.
 * **Training seeds as one row**: ``PREFIX:PATH1,PATH2,...`` (``mappo:``, ``sb3:``, ``rllib:``) evaluates each run

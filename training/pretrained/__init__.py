@@ -31,11 +31,11 @@ import numpy as np
 
 from baselines.policies import parallel_env_of
 from covert_env.envs.observation import field_slices
-from covert_env.envs.settings import EnvSettings
+from covert_env.evaluation.cards import check_env_kwargs, weights_and_card
 from covert_env.geometry.angles import wrap_angle
 from covert_env.geometry.dynamics import solve_manoeuvre
 from covert_env.geometry.ties import first_argmax
-from training.runs import run_env, weights_and_card
+from training.runs import run_env
 from training.shield import SeparationShield
 
 __all__ = ["node_features", "map_at", "manoeuvre_features", "n_node_features", "NumpyActor", "LearnedPolicy",
@@ -281,21 +281,6 @@ class LearnedPolicy:
 MAPPO_ENV_KWARGS = ("n_uavs", "action_mode", "max_cycles", "scene_pool", "map_size", "mask_mode", "target_path")
 ACTOR_FIELDS = ("head", "hidden", "node_hidden", "n_feat", "obs_dim", "n_actions", "agent_id", "node_map",
                 "node_manoeuvre")
-
-
-def check_env_kwargs(ekw, allowed: tuple[str, ...], card_path) -> None:
-    """A card's ``env_kwargs``: only ``allowed`` fields, each valid for the env (its own checks, types included: no
-    string is read as a number). A ``ValueError`` names the card, the field and the value."""
-    if not isinstance(ekw, dict):
-        raise ValueError(f"{card_path}: env_kwargs must be a JSON object, got {type(ekw).__name__}")
-    unknown = sorted(set(ekw) - set(allowed))
-    if unknown:
-        raise ValueError(f"{card_path}: env_kwargs has unknown fields {unknown}; a card's env_kwargs are "
-                         f"{list(allowed)}")
-    try:
-        EnvSettings(**ekw)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{card_path}: env_kwargs: {exc}") from None
 
 
 def pretrained_path(name) -> Path:

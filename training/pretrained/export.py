@@ -30,12 +30,12 @@ from pathlib import Path
 import numpy as np
 
 import covert_env
+from baselines.learned_cost import KIND, is_cost_planner_card, load_cost_planner
 from covert_env.evaluation.benchmark import CONSTRAINTS
 from covert_env.evaluation.evaluate import HELD_OUT_OFFSET, evaluate, summarise
 from covert_env.evaluation.provenance import code_commit, platform_record
 from covert_env.evaluation.stats import iqm, stratified_bootstrap_ci
 from training.pretrained import PRETRAINED_DIR, load_learned
-from training.pretrained.learned_cost import KIND, is_cost_planner_card, load_cost_planner
 
 __all__ = ["export", "main", "rescore", "suite_rows"]
 
