@@ -15,8 +15,7 @@ Per family (:mod:`covert_env.world.families`), on its first ``--scenes`` held-ou
   :func:`covert_env.world.metrics.episode_metrics`).
 
 Writes ``difficulty.md`` (the table, the command, the wall time) and ``difficulty.json`` into ``--out`` and prints
-the table. The planner runs take most of the time (about 7 s per 3-UAV episode and planner on the paper family);
-they go to ``--jobs`` worker processes.
+the table. The planner runs take most of the time; they go to ``--jobs`` worker processes.
 """
 
 from __future__ import annotations

@@ -34,7 +34,7 @@ __all__ = ["parse_args", "run_name", "setup_torch", "latest_checkpoint", "resume
 
 
 def setup_torch(threads: int = 1) -> None:
-    """One torch thread by default: on 2 busy cores, 2 torch threads can be up to 50x slower."""
+    """One torch thread by default: more torch threads than free cores slow a run down (docs/training.md)."""
     import torch
 
     torch.set_num_threads(max(1, int(threads)))

@@ -1,6 +1,6 @@
 """Learn the planner's cost for LoS lost along the path, with the cross-entropy method (CEM), across the suite.
 
-    python -m training.dp_cost --seed 0                 # 8 three-UAV tasks, ~25 min on 2 cores
+    python -m training.dp_cost --seed 0                 # the 8 three-UAV core tasks (time: docs/training.md)
     python -m training.dp_cost --seed 0 --shadow-aware false   # the kinematic mask's nodes: shadows left to the cost
     python -m training.dp_cost --plot runs/a,runs/b --plot-out outputs/dp_cost_curves.png
     covert-env evaluate --task downtown-3uav --policies dp runs/<run>   # as mappo:runs/<run> or pretrained:dp-cost
@@ -79,7 +79,7 @@ class Args(RunArgs):
     max_scale: float = 10.0
     """largest scale drawn (path_cost[0] <= 100 max_scale m)"""
     heading: str = "inherited"
-    """the planner's heading mode: inherited (the paper) or binned (2.5-3 times slower)"""
+    """the planner's heading mode: inherited (the paper) or binned (slower: docs/performance.md)"""
     separated_continuation: bool = True
     """the candidates' team looks one slot past plans of depth 1 (baselines.dp.continuation); the paper's planner
     they are compared with does not"""

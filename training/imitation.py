@@ -1,6 +1,6 @@
 """Behaviour cloning of the DP planner: a learned team's actor that starts where the paper's planner is.
 
-    OMP_NUM_THREADS=1 python -m training.imitation --recipe 3uav-suite --seed 0          # 12 min on 2 cores
+    OMP_NUM_THREADS=1 python -m training.imitation --recipe 3uav-suite --seed 0          # time: docs/training.md
     covert-env benchmark --policies dp mappo:runs/<run>                           # score it on the suite
     OMP_NUM_THREADS=1 python -m training.mappo --recipe 3uav-suite --init-actor runs/<run> # fine-tune it with RL
 

@@ -28,7 +28,7 @@ Pitfalls (each cost us time):
   hashing, so without a fixed ``PYTHONHASHSEED`` two runs with the same ``seed`` differ. It must be set before
   Python starts (export it); the script passes it on to the workers through ``runtime_env`` and warns if unset.
 * One torch thread per worker: every env runner and learner otherwise starts as many torch/OpenMP threads as
-  there are cores, which oversubscribes small machines badly (2 threads on 2 busy cores: up to 50x slower). We set
+  there are cores, which oversubscribes small machines badly (docs/training.md). We set
   ``OMP_NUM_THREADS=1`` in the workers' ``runtime_env`` and ``torch.set_num_threads(1)`` in the env creator.
 * ``clip_actions``: RLlib samples Gaussian actions without bounds; with ``clip_actions=True`` they are clipped
   to the Box before ``env.step``. (Our env clips out-of-range actions itself, documented, but other envs raise.)

@@ -39,4 +39,4 @@ class TrainingArgs(RunArgs):
     time_budget_minutes: float = 0.0
     """stop gracefully after this much wall-clock training time and save (0: no budget)"""
     torch_threads: int = 1
-    """torch threads (1: 2 threads on 2 busy cores can be 50x slower)"""
+    """torch threads (1: more threads than free cores slow a run down, docs/training.md)"""

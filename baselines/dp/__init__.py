@@ -59,7 +59,8 @@ iterative root solve of eq. 29. Instead:
    is feasible, every other one whose bound is still below the best exact value (the rest provably
    cannot win); nodes without a feasible transition yet get the next 1, 2, 4, ... smallest bounds.
    Each round is one vectorised solve for all UAVs of a team. The result equals the dense recursion's
-   (tested against it at the 2 m grid), with ~1% of the transitions solved exactly.
+   (tested against it at the 2 m grid), solving a small share of the transitions exactly
+   (docs/decisions/planner.md gives it).
 3. For the binned variant the inherited plan is computed first; its cost is an upper bound U on the
    optimum. A heading-free backward recursion over the cached pair bounds gives a lower bound H on every
    node's cost-to-go, and states or transitions with ``J + bound + H > U`` are dropped (they cannot

@@ -48,7 +48,7 @@ def _bound_threads() -> int:
 #: Threads that compute the inherited variant's dense bound (read once, from ``COVERT_DP_THREADS``). A
 #: team replan spends much of its time there, in compiled passes that release the GIL, so
 #: 2 threads can use both cores of an idle 2-core machine for it; on a busy machine they only add switching
-#: (a 3-UAV replan's wall time rose from 70 to 85 ms at load 4.5), hence the default of 1.
+#: (docs/model.md), hence the default of 1.
 BOUND_THREADS = _bound_threads()
 _POOL: list = []
 

@@ -19,9 +19,9 @@ __all__ = ["BOUND_TOL", "first_round", "nonzero_indices", "select_per_bin", "sel
 
 #: Absolute slack when comparing float32 bounds with float64 exact costs (a few float32 ulps at ~1e4).
 BOUND_TOL = 1e-2
-#: First-round band (cost units = metres of path): the table's bound is within ~0.9 m of the exact path
-#: length for 99% of transitions, so solving every transition this close to its column's smallest bound
-#: usually settles the column in one batch.
+#: First-round band (cost units = metres of path): the table's bound is usually within a metre of the exact
+#: path length (docs/decisions/planner.md), so solving every transition this close to its column's smallest
+#: bound usually settles the column in one batch.
 FIRST_BAND = 0.5
 
 

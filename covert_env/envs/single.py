@@ -148,7 +148,7 @@ class CovertSensingWaypointEnv(CovertSensingEnv):
     placed at the target's next pose; the env flies the turn-then-straight manoeuvre (eqs. 22-29)
     to it. ``action_masks()`` (and ``info["action_mask"]``, or ``obs["action_mask"]`` with ``dict_obs=True``)
     mark nodes reachable in one slot and in the visible zone (eq. 10). If no node is both, the reachable nodes
-    are allowed; if the UAV can reach no node at all (about 5 % of slots under a random masked policy), every
+    are allowed; if the UAV can reach no node at all (how often: docs/environments.md), every
     node is, so a masked sampler always has a choice. A node the UAV cannot reach is flown as a best effort (the
     admissible constant (v, omega) ending closest to it) and flagged ``info["infeasible"]``, as is a masked-out
     node. See :class:`CovertSensingEnv` for everything else.

@@ -83,7 +83,7 @@ class CovertSensingVectorEnv(ConstructionSettings, LiveSettings, CopyReaders, Wa
     Waypoint mode: ``action_masks()`` returns ``(B, U, L)`` int8 (1 = allowed), the parallel env's mask per copy
     and agent. It lives there (and in the observation with ``dict_obs=True``), not in the infos. A row with no
     node both reachable and visible allows the reachable nodes, and a row whose UAV can reach no node is all ones
-    (about 5 % of UAV-slots under a random masked policy); a node taken there is flown as a best effort (the
+    (how often: docs/environments.md); a node taken there is flown as a best effort (the
     admissible constant (v, omega) ending closest to it) and flagged ``infos["infeasible"]``. Reachability
     comes from :class:`~covert_env.geometry.reach.ReachTable` (a table in the UAV's frame; only nodes near its boundary
     are solved), which gives exactly ``solve_manoeuvre``'s answer. ``waypoint_paths(nodes)`` returns the paths
@@ -141,10 +141,8 @@ class CovertSensingVectorEnv(ConstructionSettings, LiveSettings, CopyReaders, Wa
 
     ``num_envs`` (B, in ``[1, MAX_NUM_ENVS]``) and the parallel env's keyword arguments (``render_mode`` must
     be None). ``scenario="random"`` builds a scene the first time a copy draws its seed, all the scenes a reset needs
-    as one batch (about 1 ms each at large B, several ms in waypoint mode, more for the dense families); the pool
-    keeps ``scene_cache_size`` scenes (default ``B + 32``, at least B): with
-    ``scene_pool <= scene_cache_size`` every training scene is built once (about 40 kB each, 80 kB in waypoint
-    mode), otherwise a scene is rebuilt whenever it is drawn again after leaving the cache.
+    as one batch (what a scene costs: docs/performance.md); the pool keeps ``scene_cache_size`` scenes (default
+    ``B + 32``, at least B): with ``scene_pool <= scene_cache_size`` every training scene is built once, otherwise a scene is rebuilt whenever it is drawn again after leaving the cache.
     ``autoreset_mode``: ``AutoresetMode.SAME_STEP`` (default) or ``AutoresetMode.DISABLED`` (see Autoreset).
     ``record``: keep every copy's current episode for the metrics (``trajectory(i)``,
     :class:`~covert_env.envs.recorder.EpisodeRecorder`; about ``n_slots * U * (path_samples + 4) * 16`` bytes per

@@ -232,7 +232,7 @@ class Polytope:
     def _prevalidated(cls, base: np.ndarray, top: np.ndarray, footprint: Polygon | None = None, *,
                       frustum: bool = False, halfspaces: np.ndarray | None = None) -> Polytope:
         """A polytope from arrays that are valid by construction (the random generator's), skipping the
-        checks of ``__post_init__`` (~0.2 ms each, most of a scene's build time). ``base`` must already be
+        checks of ``__post_init__`` (most of a scene's build time). ``base`` must already be
         counter-clockwise; tests run every generated polytope through the full validator.
 
         ``frustum=True`` promises a planar top whose side quads ``base[j], base[j+1], top[j+1], top[j]`` are

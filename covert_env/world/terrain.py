@@ -281,7 +281,7 @@ class Terrain:
                 k = int(rng.integers(cfg.min_vertices, cfg.max_vertices + 1))
                 r = rng.uniform(cfg.min_radius, cfg.max_radius)
                 near = clear + r
-                # rng.choice((-1.0, 1.0)) draws this same integer, at 5x the cost of the call.
+                # rng.choice((-1.0, 1.0)) draws this same integer; indexing is the cheaper call.
                 off = rng.uniform(near, max(near, cfg.road_max_offset - r)) * (-1.0, 1.0)[rng.integers(0, 2)]
                 point, th = road.pose_at(s)
                 centre = point + off * np.array([-math.sin(th), math.cos(th)])
