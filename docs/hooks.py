@@ -1,8 +1,9 @@
 """mkdocs hooks: the site's generated parts, made from the repository at build time (nothing here is hand-copied).
 
 * ``<!-- generated: NAME -->`` on a page is replaced by the table or list NAME (:data:`GENERATED`): the suite's
-  leaderboard from ``docs/results/suite.json`` (the run published by ``python -m covert_env.evaluation.leaderboard``), the
-  shipped cards from ``training/pretrained/*.json``, the task list from ``covert_env.world.tasks``.
+  leaderboard from ``docs/results/suite.json`` (the run published by
+  ``python -m covert_env.evaluation.leaderboard``), the shipped cards from ``training/pretrained/*.json``, the task
+  list from ``covert_env.world.tasks``.
 * Generated files: ``changelog.md`` (the repository's ``CHANGELOG.md``), ``images/families/<family>.png`` (one
   held-out scene of each family, drawn by ``covert_env.render.scene_figure``), ``images/suite_profile.png``
   (the published run's performance profiles, drawn by ``covert_env.evaluation.leaderboard.profile_figure``) and
@@ -178,8 +179,8 @@ def _family_figure(name: str):
 
 
 def on_files(files, config):
-    from covert_env.world.families import FAMILIES
     from covert_env.evaluation.leaderboard import profile_figure
+    from covert_env.world.families import FAMILIES
 
     files.append(File.generated(config, "changelog.md", content=(ROOT / "CHANGELOG.md").read_text(encoding="utf-8")))
     for name in FAMILIES:

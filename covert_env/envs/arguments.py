@@ -43,6 +43,29 @@ class ConstructionSetting:
         fixed[self.name] = value
 
 
+class Forwarded:
+    """An attribute that lives on another object the env holds (``via``, e.g. ``"_vec"``): reading it reads there and
+    assigning it assigns there, where it is validated. The views of the vector env (the parallel env of its one copy,
+    the Gymnasium env of one UAV, a copy read as an engine) show its live settings this way. ``writable=False``
+    makes it read-only (assigning raises an ``AttributeError``, as a property without a setter does)."""
+
+    def __init__(self, via: str, doc: str | None = None, writable: bool = True):
+        self.via, self.writable, self.__doc__ = via, writable, doc
+
+    def __set_name__(self, owner, name: str) -> None:
+        self.name = name
+
+    def __get__(self, obj, owner=None):
+        if obj is None:
+            return self
+        return getattr(getattr(obj, self.via), self.name)
+
+    def __set__(self, obj, value) -> None:
+        if not self.writable:
+            raise AttributeError(f"{type(obj).__name__}.{self.name} is read-only")
+        setattr(getattr(obj, self.via), self.name, value)
+
+
 class ConstructionSettings:
     """Base of the envs: :data:`CONSTRUCTION_SETTINGS` as :class:`ConstructionSetting` attributes."""
 

@@ -18,7 +18,7 @@ from gymnasium.vector import AutoresetMode
 from pettingzoo import ParallelEnv
 from pettingzoo.utils import parallel_to_aec, wrappers
 
-from covert_env.envs.arguments import ConstructionSettings, int_arg, reset_options
+from covert_env.envs.arguments import ConstructionSettings, Forwarded, int_arg, reset_options
 from covert_env.envs.observation import observation_table
 from covert_env.envs.recorder import CopyView
 from covert_env.envs.settings import ACTION_MODES, MAX_PATH_SAMPLES, MAX_SCENE_POOL, RENDER_MODES, EnvSettings
@@ -278,46 +278,16 @@ class CovertSensingParallelEnv(ConstructionSettings, ParallelEnv):
         return agent
 
     # ------------------------------------------------------------------ settings read live by the vector env
-    @property
-    def max_cycles(self) -> int:
-        """Episode length bound in slots; the episode also ends at the end of the route (``config.n_slots``)."""
-        return self._vec.max_cycles
-
-    @max_cycles.setter
-    def max_cycles(self, value) -> None:
-        # Validated on every assignment: PettingZoo's test battery and users set it as an attribute.
-        self._vec.max_cycles = value
-
-    @property
-    def episode_length(self) -> int:
-        """Slots in an episode: ``min(max_cycles, config.n_slots)`` (the target's route has n_slots slots)."""
-        return self._vec.episode_length
-
-    @property
-    def reward_scale(self) -> float:
-        return self._vec.reward_scale
-
-    @reward_scale.setter
-    def reward_scale(self, value) -> None:
-        self._vec.reward_scale = value
-
-    @property
-    def penalties(self) -> dict:
-        """The penalty weights by term (``los``, ``zone``, ``separation``, ``terrain``), read at every step; assigning
-        a dict or an item (``penalties["los"] = 2.0``, live) validates it."""
-        return self._vec.penalties
-
-    @penalties.setter
-    def penalties(self, value) -> None:
-        self._vec.penalties = value
-
-    @property
-    def terminate_on_collision(self) -> bool:
-        return self._vec.terminate_on_collision
-
-    @terminate_on_collision.setter
-    def terminate_on_collision(self, value) -> None:
-        self._vec.terminate_on_collision = value
+    # Validated on every assignment (by the vector env): PettingZoo's test battery and users set them as attributes.
+    max_cycles = Forwarded("_vec", "Episode length bound in slots; the episode also ends at the end of the route "
+                                   "(``config.n_slots``).")
+    episode_length = Forwarded("_vec", "Slots in an episode: ``min(max_cycles, config.n_slots)`` (the target's route "
+                                       "has n_slots slots).", writable=False)
+    reward_scale = Forwarded("_vec", "The stage cost's divisor (eq. 18 / reward_scale), in [1e-6, 1e12].")
+    penalties = Forwarded("_vec", "The penalty weights by term (``los``, ``zone``, ``separation``, ``terrain``), read "
+                                  "at every step; assigning a dict or an item (``penalties[\"los\"] = 2.0``, live) "
+                                  "validates it.")
+    terminate_on_collision = Forwarded("_vec", "Whether the episode ends when two UAVs come closer than d_safe1.")
 
     # ------------------------------------------------------------------ the episode, read as an engine
     @property

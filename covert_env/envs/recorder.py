@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from covert_env.envs.arguments import int_arg
+from covert_env.envs.arguments import Forwarded, int_arg
 from covert_env.world.roles import TargetReads
 from covert_env.world.scenario import Scenario
 from covert_env.world.trajectory import Trajectory
@@ -68,13 +68,8 @@ class CopyView(TargetReads):
     def __init__(self, venv, i: int):
         self._venv, self._i = venv, int(i)
 
-    @property
-    def config(self):
-        return self._venv.config
-
-    @property
-    def path_samples(self) -> int:
-        return self._venv.path_samples
+    config = Forwarded("_venv", "The env's :class:`~covert_env.world.config.Config`.", writable=False)
+    path_samples = Forwarded("_venv", "Samples per slot along each path (endpoints included).", writable=False)
 
     @property
     def k(self) -> int:

@@ -12,6 +12,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from covert_env.envs.arguments import Forwarded
 from covert_env.envs.covert_sensing import CovertSensingParallelEnv
 from covert_env.envs.observation import observation_table
 
@@ -107,18 +108,9 @@ class CovertSensingEnv(gym.Env):
         self.observation_space = self.par.observation_space(self._agent)
         self.action_space = self.par.action_space(self._agent)
 
-    @property
-    def config(self):
-        return self.par.config
-
-    @property
-    def max_cycles(self) -> int:
-        """Episode length bound in slots (validated on assignment; the route ends at ``config.n_slots``)."""
-        return self.par.max_cycles
-
-    @max_cycles.setter
-    def max_cycles(self, value) -> None:
-        self.par.max_cycles = value
+    config = Forwarded("par", "The env's :class:`~covert_env.world.config.Config`.", writable=False)
+    max_cycles = Forwarded("par", "Episode length bound in slots (validated on assignment; the route ends at "
+                                  "``config.n_slots``).")
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)

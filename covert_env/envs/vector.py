@@ -142,7 +142,8 @@ class CovertSensingVectorEnv(ConstructionSettings, LiveSettings, CopyReaders, Wa
     ``num_envs`` (B, in ``[1, MAX_NUM_ENVS]``) and the parallel env's keyword arguments (``render_mode`` must
     be None). ``scenario="random"`` builds a scene the first time a copy draws its seed, all the scenes a reset needs
     as one batch (what a scene costs: docs/performance.md); the pool keeps ``scene_cache_size`` scenes (default
-    ``B + 32``, at least B): with ``scene_pool <= scene_cache_size`` every training scene is built once, otherwise a scene is rebuilt whenever it is drawn again after leaving the cache.
+    ``B + 32``, at least B): with ``scene_pool <= scene_cache_size`` every training scene is built once, otherwise
+    a scene is rebuilt whenever it is drawn again after leaving the cache.
     ``autoreset_mode``: ``AutoresetMode.SAME_STEP`` (default) or ``AutoresetMode.DISABLED`` (see Autoreset).
     ``record``: keep every copy's current episode for the metrics (``trajectory(i)``,
     :class:`~covert_env.envs.recorder.EpisodeRecorder`; about ``n_slots * U * (path_samples + 4) * 16`` bytes per
