@@ -165,6 +165,33 @@ def test_max_cycles_validated_on_assignment_and_bounded_by_the_route():
     assert env.agents == []
 
 
+def test_the_views_live_settings_are_the_vector_envs():
+    """The parallel env, the Gymnasium env and a copy read as an engine show the vector env's live settings
+    (envs.arguments.Forwarded): what is assigned to a view is the vector env's at once, and the read-only ones
+    refuse an assignment by name."""
+    env = covert_env.parallel_env(n_uavs=2, scenario="paper")
+    env.reward_scale, env.terminate_on_collision = 50.0, True
+    env.penalties = {**env.penalties, "los": 3.0}
+    vec = env._vec
+    assert (vec.reward_scale, vec.terminate_on_collision, vec.penalties["los"]) == (50.0, True, 3.0)
+    vec.max_cycles = 7
+    assert env.max_cycles == 7 and env.episode_length == 7
+    with pytest.raises(AttributeError, match="episode_length is read-only"):
+        env.episode_length = 3
+    with pytest.raises(ValueError, match="reward_scale must be a finite number"):
+        env.reward_scale = 0.0
+    genv = gym.make("covert_env/CovertSensing-v4").unwrapped
+    genv.max_cycles = 4
+    assert genv.par.max_cycles == 4 and genv.config is genv.par.config
+    with pytest.raises(AttributeError, match="config is read-only"):
+        genv.config = genv.config
+    env.reset(seed=0)
+    view = env.engine
+    assert view.config is env.config and view.path_samples == vec.path_samples
+    with pytest.raises(AttributeError, match="path_samples is read-only"):
+        view.path_samples = 3
+
+
 # ---------------------------------------------------------------------- no leaks
 def test_closed_env_is_collected():
     env = covert_env.parallel_env(n_uavs=2, action_mode="waypoint", render_mode="rgb_array")
