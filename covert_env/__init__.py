@@ -12,8 +12,7 @@ Uneven Terrain", Remote Sensing 16(22):4273, 2024. The environments are thin ada
     genv = gym.make("covert_env/CovertSensing-v4")               # Gymnasium, one UAV
 """
 
-import sys
-
+from covert_env.moved import MOVED as _MOVED
 from covert_env.moved import MovedModules as _MovedModules
 from covert_env.world.config import Config
 from covert_env.world.engine import Engine
@@ -29,8 +28,7 @@ from covert_env import covert_sensing_v4  # noqa: E402
 from covert_env.envs import env, parallel_env, raw_env, vector_env  # noqa: E402
 from covert_env.retired import RETIRED as _RETIRED  # noqa: E402
 
-if not any(isinstance(f, _MovedModules) for f in sys.meta_path):       # the old module paths (covert_env.moved)
-    sys.meta_path.append(_MovedModules())
+_MovedModules.install(_MOVED)                                           # the old module paths (covert_env.moved)
 
 
 def __getattr__(name: str):

@@ -138,14 +138,15 @@ def test_the_model_is_in_floors(floor):
 
 
 def test_the_old_module_paths_give_the_moved_modules(recwarn):
-    """``covert_env.zone``, ``covert_env.config``, ``training.evaluate``, ... (covert_env.moved): the module at its
-    new place, with a DeprecationWarning naming both."""
+    """``covert_env.zone``, ``covert_env.config``, ``training.evaluate``, ... (covert_env.moved, and training's own
+    map): the module at its new place, with a DeprecationWarning naming both."""
     import importlib
     import sys
 
+    import training
     from covert_env.moved import MOVED
 
-    for old, new in MOVED.items():
+    for old, new in {**MOVED, **training.MOVED}.items():
         sys.modules.pop(old, None)                                    # an earlier import of the old path: again
         assert (ROOT / (new.replace(".", "/") + ".py")).is_file(), new
         assert not (ROOT / (old.replace(".", "/") + ".py")).exists(), old
@@ -157,16 +158,17 @@ def test_the_old_module_paths_give_the_moved_modules(recwarn):
     assert any("training.evaluate moved to covert_env.evaluation.evaluate" in m for m in said), said
 
 
-def test_python_m_runs_a_moved_module():
-    """``python -m training.evaluate --help`` runs the moved module as __main__ (with its own __file__), and warns."""
+def test_python_m_runs_a_moved_module_and_says_so():
+    """``python -m training.evaluate`` runs the moved module as __main__ (with its own __file__), and warns where a
+    person sees it, with Python's default warning filters."""
     import subprocess
     import sys
 
-    out = subprocess.run([sys.executable, "-W", "always", "-m", "training.leaderboard", "--help"], cwd=ROOT,
-                         capture_output=True, text=True, timeout=120)
+    out = subprocess.run([sys.executable, "-m", "training.evaluate", "--help"], cwd=ROOT, capture_output=True,
+                         text=True, timeout=120)
     assert out.returncode == 0, out.stderr
-    assert out.stdout.startswith("usage: python -m covert_env.evaluation.leaderboard")
-    assert "training.leaderboard moved to covert_env.evaluation.leaderboard" in out.stderr
+    assert out.stdout.startswith("usage: python -m covert_env.evaluation.evaluate")
+    assert "FutureWarning: training.evaluate moved to covert_env.evaluation.evaluate" in out.stderr
 
 
 #: A module of a higher package named in a string: ``training``, ``training.mappo``, ``baselines.dp:DPPlanner``.

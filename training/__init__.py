@@ -19,4 +19,11 @@
 Outputs go to the git-ignored ``runs/`` (training) and ``outputs/`` (evaluation) folders.
 """
 
-import covert_env  # noqa: E402, F401  (its finder serves the modules that moved to covert_env.evaluation: covert_env.moved)
+from covert_env.moved import MovedModules  # noqa: E402
+
+#: training's modules that moved after covert_env 0.10 -> their new names (importable for one more release).
+MOVED = {
+    **{f"training.{m}": f"covert_env.evaluation.{m}" for m in ("benchmark", "evaluate", "stats")},
+    "training.pretrained.learned_cost": "baselines.learned_cost",
+}
+MovedModules.install(MOVED)

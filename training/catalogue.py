@@ -26,6 +26,8 @@ def tier_of(card: dict) -> str:
     from baselines.learned_cost import KIND
 
     return "hybrid" if card.get("kind") == KIND else "learned"
+
+
 def _tasks() -> list[str]:
     lines = [f"Tasks ({SUITE_VERSION}; --task NAME, covert-env benchmark --tasks NAME ... | core | all; * = core):"]
     for t in TASKS.values():

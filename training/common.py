@@ -23,7 +23,15 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from covert_env.command_line import UsageError, float_range, int_range, non_negative_int, output_dir, positive_int
+from covert_env.command_line import (  # noqa: F401  (ordered_results: importable here for one more release)
+    UsageError,
+    float_range,
+    int_range,
+    non_negative_int,
+    ordered_results,
+    output_dir,
+    positive_int,
+)
 from covert_env.envs.settings import MAX_SCENE_POOL
 from covert_env.envs.vector import MAX_NUM_ENVS
 from covert_env.world.config import MAX_N_UAVS, Config, read_json

@@ -54,6 +54,8 @@ SUITE_3UAV = ("sparse-3uav,paper-3uav,winding-3uav,dense-3uav,downtown-3uav,towe
 class Args(RunArgs):
     seed: int = 0
     """seed of the scenes drawn and of the candidates"""
+    run_name: str = ""
+    """run folder name (default {tasks}__dp_cost__{seed}__{time})"""
     tasks: str = SUITE_3UAV
     """comma-separated suite tasks to learn on (their training scenes)"""
     iterations: int = 4

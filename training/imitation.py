@@ -75,6 +75,8 @@ class Args(RunArgs):
     """Adam's step size"""
     seed: int = 0
     """seeds torch, the minibatch order, and picks the scenes (seed * 1000 + i of the training scenes, seed < 1000)"""
+    run_name: str = ""
+    """run folder name (default {env}__bc-dp__{seed}__{time})"""
     jobs: int = 2
     """processes flying the planner"""
     torch_threads: int = 1

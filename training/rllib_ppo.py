@@ -69,6 +69,11 @@ class Args(TrainingArgs):
     """name of the env in run names and the Ray env registry"""
     seed: int = 0
     """seed of the algorithm (env runners get seed + worker index)"""
+    time_budget_minutes: float = 0.0
+    """stop after the iteration that crosses this wall-clock budget and save (0: no budget)"""
+    torch_threads: int = 1
+    """torch threads of the driver's learner (the env runners use one each; with --num-env-runners 0 the driver
+    samples too, with one)"""
     n_uavs: int = 3
     """UAVs per env (all share one policy)"""
     action_mode: str = "unicycle"

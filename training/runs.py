@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from covert_env.command_line import UsageError
+from covert_env.command_line import UsageError, read_run_json  # noqa: F401  (read_run_json: here for one more release)
 from covert_env.envs.covert_sensing import CovertSensingParallelEnv
 
 __all__ = ["run_env"]

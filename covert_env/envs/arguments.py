@@ -47,10 +47,15 @@ class Forwarded:
     """An attribute that lives on another object the env holds (``via``, e.g. ``"_vec"``): reading it reads there and
     assigning it assigns there, where it is validated. The views of the vector env (the parallel env of its one copy,
     the Gymnasium env of one UAV, a copy read as an engine) show its live settings this way. ``writable=False``
-    makes it read-only (assigning raises an ``AttributeError``, as a property without a setter does)."""
+    makes it read-only (assigning raises an ``AttributeError``, as a property without a setter does). Declare it
+    with its type and a docstring below it, as a dataclass field, so the API reference shows both::
 
-    def __init__(self, via: str, doc: str | None = None, writable: bool = True):
-        self.via, self.writable, self.__doc__ = via, writable, doc
+        max_cycles: int = Forwarded("_vec")
+        '''Episode length bound in slots.'''
+    """
+
+    def __init__(self, via: str, writable: bool = True):
+        self.via, self.writable = via, writable
 
     def __set_name__(self, owner, name: str) -> None:
         self.name = name

@@ -279,15 +279,17 @@ class CovertSensingParallelEnv(ConstructionSettings, ParallelEnv):
 
     # ------------------------------------------------------------------ settings read live by the vector env
     # Validated on every assignment (by the vector env): PettingZoo's test battery and users set them as attributes.
-    max_cycles = Forwarded("_vec", "Episode length bound in slots; the episode also ends at the end of the route "
-                                   "(``config.n_slots``).")
-    episode_length = Forwarded("_vec", "Slots in an episode: ``min(max_cycles, config.n_slots)`` (the target's route "
-                                       "has n_slots slots).", writable=False)
-    reward_scale = Forwarded("_vec", "The stage cost's divisor (eq. 18 / reward_scale), in [1e-6, 1e12].")
-    penalties = Forwarded("_vec", "The penalty weights by term (``los``, ``zone``, ``separation``, ``terrain``), read "
-                                  "at every step; assigning a dict or an item (``penalties[\"los\"] = 2.0``, live) "
-                                  "validates it.")
-    terminate_on_collision = Forwarded("_vec", "Whether the episode ends when two UAVs come closer than d_safe1.")
+    max_cycles: int = Forwarded("_vec")
+    """Episode length bound in slots; the episode also ends at the end of the route (``config.n_slots``)."""
+    episode_length: int = Forwarded("_vec", writable=False)
+    """Slots in an episode: ``min(max_cycles, config.n_slots)`` (the target's route has n_slots slots)."""
+    reward_scale: float = Forwarded("_vec")
+    """The stage cost's divisor (eq. 18 / reward_scale), in [1e-6, 1e12]."""
+    penalties: dict = Forwarded("_vec")
+    """The penalty weights by term (``los``, ``los_path``, ``zone``, ``separation``, ``terrain``), read at every step;
+    assigning a dict or an item (``penalties["los"] = 2.0``, live) validates it."""
+    terminate_on_collision: bool = Forwarded("_vec")
+    """Whether the episode ends when two UAVs come closer than d_safe1."""
 
     # ------------------------------------------------------------------ the episode, read as an engine
     @property

@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from covert_env.envs.arguments import Forwarded, int_arg
+from covert_env.world.config import Config
 from covert_env.world.roles import TargetReads
 from covert_env.world.scenario import Scenario
 from covert_env.world.trajectory import Trajectory
@@ -68,8 +69,10 @@ class CopyView(TargetReads):
     def __init__(self, venv, i: int):
         self._venv, self._i = venv, int(i)
 
-    config = Forwarded("_venv", "The env's :class:`~covert_env.world.config.Config`.", writable=False)
-    path_samples = Forwarded("_venv", "Samples per slot along each path (endpoints included).", writable=False)
+    config: Config = Forwarded("_venv", writable=False)
+    """The env's :class:`~covert_env.world.config.Config`."""
+    path_samples: int = Forwarded("_venv", writable=False)
+    """Samples per slot along each path (endpoints included)."""
 
     @property
     def k(self) -> int:

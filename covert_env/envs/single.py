@@ -15,6 +15,7 @@ import numpy as np
 from covert_env.envs.arguments import Forwarded
 from covert_env.envs.covert_sensing import CovertSensingParallelEnv
 from covert_env.envs.observation import observation_table
+from covert_env.world.config import Config
 
 __all__ = ["CovertSensingEnv", "CovertSensingWaypointEnv"]
 
@@ -108,9 +109,10 @@ class CovertSensingEnv(gym.Env):
         self.observation_space = self.par.observation_space(self._agent)
         self.action_space = self.par.action_space(self._agent)
 
-    config = Forwarded("par", "The env's :class:`~covert_env.world.config.Config`.", writable=False)
-    max_cycles = Forwarded("par", "Episode length bound in slots (validated on assignment; the route ends at "
-                                  "``config.n_slots``).")
+    config: Config = Forwarded("par", writable=False)
+    """The env's :class:`~covert_env.world.config.Config`."""
+    max_cycles: int = Forwarded("par")
+    """Episode length bound in slots (validated on assignment; the route ends at ``config.n_slots``)."""
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)

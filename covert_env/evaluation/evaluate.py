@@ -71,7 +71,7 @@ from covert_env.command_line import (
 from covert_env.envs.covert_sensing import CovertSensingParallelEnv
 from covert_env.envs.vector import MAX_SCENE_SEED
 from covert_env.evaluation.episodes import COLUMNS, HELD_OUT_OFFSET, evaluate, summarise
-from covert_env.evaluation.registry import from_files, registered_policies
+from covert_env.evaluation.registry import from_files, spec_forms
 from covert_env.evaluation.specs import SHIELD_SUFFIX, load_policy, split_seeds
 from covert_env.evaluation.stats import iqm, probability_of_improvement, stratified_bootstrap_ci
 from covert_env.evaluation.tiers import TIERS, spec_tier
@@ -196,8 +196,7 @@ def build_parser(prog: str = "python -m covert_env.evaluation.evaluate") -> argp
     p = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n")[0],
                                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     p.add_argument("--policies", nargs="+", default=["random", "hold-centre", "dp", "dp-blind"],
-                   help="policy specs: a registered NAME or PREFIX:ARGUMENT "
-                        f"({', '.join(sorted(registered_policies()))}; covert-env list describes them), each "
+                   help=f"policy specs: {', '.join(spec_forms())} (covert-env list describes them), each "
                         "optionally @unicycle or @waypoint, and +shield for a waypoint policy")
     p.add_argument("--episodes", type=int_range(1, MAX_SCENES), default=20,
                    help=f"held-out scenes per policy, in [1, {MAX_SCENES}]")
