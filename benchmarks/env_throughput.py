@@ -15,13 +15,9 @@ times, interleaved, so load from other processes hits them alike; the table give
 env-steps/s and the ratios of the same run (default unicycle / mpe2: target >= 1). The command line
 is printed first.
 
-mpe2 is optional; it goes in the peers' venv with VMAS (see benchmarks/vector_throughput.py)::
-
-    python -m venv --system-site-packages .venv-peers
-    .venv-peers/bin/pip install torch==2.13.0 vmas mpe2
-    .venv-peers/bin/python benchmarks/env_throughput.py
-
-Without ``mpe2`` importable the script says so and measures ours alone.
+mpe2 is optional: it goes in the peers' venv beside VMAS (``.venv-peers``, made as benchmarks/vector_throughput.py
+says), and ``.venv-peers/bin/python benchmarks/env_throughput.py`` runs this script there. Without ``mpe2``
+importable the script says so and measures ours alone.
 """
 
 from __future__ import annotations

@@ -214,18 +214,15 @@ def test_scenario_normalises_start_arrays():
 
 
 def _pick_one_by_one(c, nodes, visible, shadowed, rng, u):
-    """The start rule written sequentially (steps 1-4 of Scenario.sample_starts, one copy at a time)."""
-    from covert_env.geometry.zone import SPREAD_MARGIN, spread_nodes, zone_lattice
+    """Step 1 of Scenario.sample_starts written for one copy (the greedy pick of spread_nodes over the visible nodes
+    in random order), then the same fallbacks (steps 2-4) with the generator where step 1 left it."""
+    from covert_env.geometry.zone import spread_nodes
+    from covert_env.world.scenario import _fallback_starts
 
     order = visible[rng.permutation(len(visible))]
     picked = spread_nodes(nodes, order, 2 * c.d_safe1, u)
     if len(picked) < u:
-        order = np.concatenate([order, shadowed[rng.permutation(len(shadowed))]])
-        picked = spread_nodes(nodes, order, 2 * c.d_safe1, u)
-        if len(picked) < u:
-            picked = spread_nodes(nodes, order, c.d_safe1, u)
-        if len(picked) < u:
-            picked = spread_nodes(zone_lattice(c), np.union1d(visible, shadowed), c.d_safe1 * (1 + SPREAD_MARGIN), u)
+        picked = _fallback_starts(c, nodes, order, visible, shadowed, rng, u, "x")
     return nodes[picked], rng.uniform(0, 2 * np.pi, u)
 
 

@@ -9,9 +9,13 @@ from collections.abc import Mapping
 import gymnasium
 import numpy as np
 
-__all__ = ["CONSTRUCTION_SETTINGS", "ConstructionSetting", "ConstructionSettings", "bool_arg", "int_arg", "number_arg",
-           "reset_options"]
+from covert_env.world.config import Config, short_repr
 
+__all__ = ["CONSTRUCTION_SETTINGS", "MAX_SCENE_SEED", "ConstructionSetting", "ConstructionSettings", "bool_arg",
+           "copy_seeds", "int_arg", "number_arg", "reset_options", "scene_seeds", "vector_reset_options"]
+
+#: Largest scene seed: scenes are keyed by int64 in the scene pool.
+MAX_SCENE_SEED = 2**63 - 1
 #: The envs' settings that shape the spaces, the scenes or the dynamics: fixed when an env is made.
 CONSTRUCTION_SETTINGS = ("config", "action_mode", "mask_mode", "task", "family", "map_size", "target_path", "dict_obs",
                          "scenario_spec", "scene_pool", "path_samples", "random_starts")
@@ -72,20 +76,33 @@ class Forwarded:
 
 
 class ConstructionSettings:
-    """Base of the envs: :data:`CONSTRUCTION_SETTINGS` as :class:`ConstructionSetting` attributes."""
+    """Base of the envs: :data:`CONSTRUCTION_SETTINGS` as :class:`ConstructionSetting` attributes, read-only once the
+    env is made (the parallel env's Arguments describe each)."""
 
-    config = ConstructionSetting()
-    action_mode = ConstructionSetting()
-    mask_mode = ConstructionSetting()
-    task = ConstructionSetting()
-    family = ConstructionSetting()
-    map_size = ConstructionSetting()
-    target_path = ConstructionSetting()
-    dict_obs = ConstructionSetting()
-    scenario_spec = ConstructionSetting()
-    scene_pool = ConstructionSetting()
-    path_samples = ConstructionSetting()
-    random_starts = ConstructionSetting()
+    config: Config = ConstructionSetting()
+    """The model's parameters (:class:`~covert_env.world.config.Config`), with a task's or family's fields set on it."""
+    action_mode: str = ConstructionSetting()
+    """``"unicycle"`` (controls v, omega) or ``"waypoint"`` (a lattice node per UAV and slot)."""
+    mask_mode: str = ConstructionSetting()
+    """``"visible"`` or ``"kinematic"``: what the waypoint action mask allows."""
+    task: str | None = ConstructionSetting()
+    """The suite task the env was made for (``covert_env.world.tasks``), or None."""
+    family: str | None = ConstructionSetting()
+    """The scene family random scenes are drawn from (``covert_env.world.families``), or None (the config's)."""
+    map_size: int = ConstructionSetting()
+    """Side S of the observation's maps (cells)."""
+    target_path: int = ConstructionSetting()
+    """Predicted slots of the target's path in the observation (0: none)."""
+    dict_obs: bool = ConstructionSetting()
+    """Whether observations are dicts with the action mask (waypoint mode)."""
+    scenario_spec: object = ConstructionSetting()
+    """What the scenes are: ``"random"``, ``"paper"`` or a :class:`~covert_env.world.scenario.Scenario`."""
+    scene_pool: int = ConstructionSetting()
+    """Training scene seeds are drawn from ``range(scene_pool)``."""
+    path_samples: int = ConstructionSetting()
+    """Samples per slot along each path (endpoints included), for LoS and separation between slot times."""
+    random_starts: bool = ConstructionSetting()
+    """Whether starts are drawn at every reset on a fixed scenario (else the scenario's own)."""
 
 
 def int_arg(name: str, value, low: int, high: int | None = None) -> int:
@@ -131,3 +148,37 @@ def reset_options(options, known: tuple[str, ...]) -> dict:
     if unknown:
         gymnasium.logger.warn(f"reset(options=...): ignoring unknown option(s) {unknown}; known: {list(known)}")
     return dict(options)
+
+
+def copy_seeds(seed, b: int) -> np.ndarray:
+    """Per-copy seeds: from ``np.random.SeedSequence(seed)`` for an int, as given for a sequence of b ints (any
+    size, as Gymnasium's seeding takes them: an int64 array, or an object array of Python ints beyond 2**63 - 1)."""
+    if np.ndim(seed) == 0:
+        return np.random.SeedSequence(int_arg("seed", seed, 0)).generate_state(b).astype(np.int64)
+    seeds = [int_arg("seed", s, 0) for s in seed]
+    if len(seeds) != b:
+        raise ValueError(f"reset(seed=...) needs an int or {b} ints (one per copy), got {len(seeds)}")
+    return np.array(seeds, dtype=np.int64 if max(seeds, default=0) < 2 ** 63 else object)
+
+
+def vector_reset_options(options: dict | None, b: int) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """``options["scene_seed"]`` as b ints and ``options["reset_mask"]`` as b bools (None without them); other
+    keys are warned about and ignored (:func:`~covert_env.envs.arguments.reset_options`)."""
+    options = reset_options(options, ("scene_seed", "reset_mask"))
+    mask = options.get("reset_mask")
+    if mask is not None:
+        mask = np.asarray(mask)
+        if mask.shape != (b,) or mask.dtype != np.bool_:
+            raise ValueError(f"options['reset_mask'] must be {b} bools (one per copy), got {options['reset_mask']!r}")
+    return scene_seeds(options.get("scene_seed"), b), mask
+
+
+def scene_seeds(seeds, b: int) -> np.ndarray | None:
+    """``options["scene_seed"]`` as b ints in [0, MAX_SCENE_SEED] (None without it)."""
+    if seeds is None:
+        return None
+    arr = np.broadcast_to(np.asarray(seeds), (b,)) if np.ndim(seeds) == 0 else np.asarray(seeds)
+    if arr.shape != (b,) or arr.dtype.kind not in "iu" or (arr < 0).any() or (arr > MAX_SCENE_SEED).any():
+        raise ValueError(f"options['scene_seed'] must be an integer in [0, {MAX_SCENE_SEED}] (2**63 - 1) or {b} of "
+                         f"them (one per copy), got {short_repr(seeds)}")
+    return arr

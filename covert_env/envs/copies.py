@@ -1,8 +1,9 @@
 """Where the copies of a vector env stand: the batch state every step reads and writes, in one place.
 
 :class:`~covert_env.envs.vector.CovertSensingVectorEnv` holds one :class:`Copies` (``env.copies``); its step and
-reset write it, and its readers (:class:`~covert_env.envs.recorder.CopyReaders`,
-:class:`~covert_env.envs.waypoint_queries.WaypointQueries`) read it. Arrays are batch-first: B copies of U UAVs.
+reset write it; its readers (``slots``, ``scene(i)``, ...) and its waypoint queries
+(:class:`~covert_env.envs.waypoint_queries.WaypointQueries`, given the batch state when the env is made) read it.
+Arrays are batch-first: B copies of U UAVs.
 """
 
 from __future__ import annotations

@@ -12,13 +12,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from covert_env.envs.arguments import Forwarded, int_arg
+from covert_env.envs.arguments import Forwarded
 from covert_env.world.config import Config
 from covert_env.world.roles import TargetReads
-from covert_env.world.scenario import Scenario
 from covert_env.world.trajectory import Trajectory
 
-__all__ = ["CopyReaders", "CopyView", "EpisodeRecorder"]
+__all__ = ["CopyView", "EpisodeRecorder"]
 
 
 class EpisodeRecorder:
@@ -106,67 +105,3 @@ class CopyView(TargetReads):
 
     def trajectory(self) -> Trajectory:
         return self._venv.trajectory(self._i)
-
-
-class CopyReaders:
-    """The vector env's readers of its copies: slots, poses, scenes, episodes and :class:`CopyView` (a base of
-    :class:`~covert_env.envs.vector.CovertSensingVectorEnv`; they read its ``num_envs``, its batch state ``copies``
-    (:class:`~covert_env.envs.copies.Copies`), its scene pool ``_pool`` and its episodes ``_recorder``). The readers
-    of one copy check its index and ``require_running``; ``started``, ``slots``, ``uav_xy`` and ``uav_theta`` read
-    the arrays as they are (zeros before the first ``reset()``)."""
-
-    @property
-    def started(self) -> bool:
-        """True once ``reset()`` has been called."""
-        return self.copies.started
-
-    @property
-    def slots(self) -> np.ndarray:
-        """(B,) the slot k each copy has reached."""
-        return self.copies.k.copy()
-
-    @property
-    def uav_xy(self) -> np.ndarray:
-        """(B, U, 2) the UAVs' positions (read-only view)."""
-        out = self.copies.xy.view()
-        out.flags.writeable = False
-        return out
-
-    @property
-    def uav_theta(self) -> np.ndarray:
-        """(B, U) the UAVs' headings in [0, 2 pi) (read-only view)."""
-        out = self.copies.theta.view()
-        out.flags.writeable = False
-        return out
-
-    def scene(self, i: int):
-        """The scene copy i flies (``config``, ``terrain``, ``track``, ``name``), without starts."""
-        i = self._copy("scene()", i)
-        return self._pool.cache(self.copies.rows[i]).parts
-
-    def scenario(self, i: int) -> Scenario:
-        """The :class:`~covert_env.world.scenario.Scenario` of copy i's episode, with the starts actually flown."""
-        i = self._copy("scenario()", i)
-        cache = self._pool.cache(self.copies.rows[i])
-        if not self.copies.drawn[i]:
-            return cache.seeded_scenario()
-        w = cache.parts
-        return Scenario(w.config, w.terrain, w.track, self.copies.start_xy[i].copy(), self.copies.start_theta[i].copy(),
-                        name=w.name)
-
-    def trajectory(self, i: int) -> Trajectory:
-        """Copy i's episode so far as a :class:`~covert_env.world.trajectory.Trajectory` (needs ``record=True``)."""
-        if self._recorder is None:
-            raise RuntimeError("trajectory() needs the vector env built with record=True")
-        i = self._copy("trajectory()", i)
-        return self._recorder.trajectory(i, int(self.copies.k[i]), self.scene(i).track)
-
-    def copy_view(self, i: int) -> CopyView:
-        """Copy i read as an engine (:class:`~covert_env.envs.recorder.CopyView`), after ``reset()``."""
-        return CopyView(self, self._copy("copy_view()", i))
-
-    def _copy(self, what: str, i) -> int:
-        """Copy index ``i`` checked (an integer in [0, num_envs - 1]; no negative indices, bools or floats) while
-        the env is running."""
-        self.require_running(what)
-        return int_arg(f"{what}: copy index", i, 0, self.num_envs - 1)

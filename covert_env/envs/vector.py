@@ -10,25 +10,24 @@ from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
 from covert_env.envs import batch
-from covert_env.envs.arguments import ConstructionSettings, int_arg, reset_options
+from covert_env.envs.arguments import MAX_SCENE_SEED, ConstructionSettings, copy_seeds, int_arg, vector_reset_options
 from covert_env.envs.copies import Copies
-from covert_env.envs.recorder import CopyReaders, EpisodeRecorder
+from covert_env.envs.recorder import CopyView, EpisodeRecorder
 from covert_env.envs.scene_pool import ScenePool
 from covert_env.envs.settings import EnvSettings, LiveSettings, check_penalties
-from covert_env.envs.waypoint_queries import WaypointQueries
+from covert_env.envs.waypoint_queries import SafetyState, WaypointQueries
 from covert_env.geometry.angles import wrap_heading
 from covert_env.geometry.flight import fly_arc
 from covert_env.geometry.reach import reach_table
 from covert_env.geometry.separation import nearest_teammate
 from covert_env.geometry.zone import to_world, zone_distance
-from covert_env.world.config import short_repr
 from covert_env.world.metrics import moves_quantities
+from covert_env.world.scenario import Scenario
+from covert_env.world.trajectory import Trajectory
 
 __all__ = ["AUTORESET_MODES", "CovertSensingVectorEnv", "vector_env", "INFO_BOOLS", "INFO_KEYS", "INFO_DTYPES",
            "MAX_NUM_ENVS", "MAX_SCENE_SEED"]
 
-#: Largest scene seed: scenes are keyed by int64 in the scene pool.
-MAX_SCENE_SEED = 2**63 - 1
 #: Largest ``num_envs`` accepted: memory grows linearly with it (see benchmarks/vector_throughput.py).
 MAX_NUM_ENVS = 1 << 16
 #: Largest ``scene_cache_size``: a scene holds ~40 kB (~80 kB in waypoint mode), so this is a few GB at most.
@@ -47,7 +46,7 @@ INFO_DTYPES = {key: np.dtype(np.int64) if key == "slot" else np.dtype(bool) if k
                else np.dtype(np.float64) for key in INFO_KEYS}
 
 
-class CovertSensingVectorEnv(ConstructionSettings, LiveSettings, CopyReaders, WaypointQueries):
+class CovertSensingVectorEnv(ConstructionSettings, LiveSettings):
     """B copies of :class:`~covert_env.envs.covert_sensing.CovertSensingParallelEnv`, as batch-first arrays.
 
     ## Description
@@ -224,6 +223,9 @@ class CovertSensingVectorEnv(ConstructionSettings, LiveSettings, CopyReaders, Wa
         self._own: np.ndarray | None = None                 # own features of the whole batch, until a state change
         self._recorder = EpisodeRecorder(b, u, c.n_slots, self.path_samples) if record else None
         self._reach = reach_table(c.v_max, c.w_max, c.delta) if self.action_mode == "waypoint" else None
+        #: Where waypoint actions would fly (:class:`~covert_env.envs.waypoint_queries.WaypointQueries`; waypoint mode).
+        self.waypoints = (WaypointQueries(c, self.lattice, self.copies, self._pool, self._reach, self._times)
+                          if self.action_mode == "waypoint" else None)
 
     @property
     def num_envs(self) -> int:
@@ -238,7 +240,7 @@ class CovertSensingVectorEnv(ConstructionSettings, LiveSettings, CopyReaders, Wa
             raise RuntimeError("reset() called after close()")
         b = self.num_envs
         # Options are checked before any generator changes: a refused call leaves the batch as it was.
-        scene_seeds, mask = _reset_options(options, b)
+        scene_seeds, mask = vector_reset_options(options, b)
         if scene_seeds is not None and self.scenario_spec != "random":
             flown = "the paper scenario" if self.scenario_spec == "paper" else "a given Scenario"
             raise ValueError("reset(options={'scene_seed': ...}) picks random scenes: it needs scenario='random', "
@@ -254,7 +256,7 @@ class CovertSensingVectorEnv(ConstructionSettings, LiveSettings, CopyReaders, Wa
             if chosen.size == 0:                  # nothing to reset: the batch as it is
                 return self._observation(self._obs_rows()), {key: val.copy() for key, val in self._last_infos.items()}
         if seed is not None:
-            self.copy_seeds = _copy_seeds(seed, b)
+            self.copy_seeds = copy_seeds(seed, b)
             self._rngs = [gymnasium.utils.seeding.np_random(int(s))[0] for s in self.copy_seeds]
         elif self._rngs is None:
             self._rngs = [gymnasium.utils.seeding.np_random(None)[0] for _ in range(b)]
@@ -351,7 +353,7 @@ class CovertSensingVectorEnv(ConstructionSettings, LiveSettings, CopyReaders, Wa
 
     def close(self) -> None:
         """Release the scenes; every later call but ``close()`` raises a RuntimeError."""
-        self._pool = None
+        self._pool = self.waypoints = None
 
     def require_running(self, what: str) -> None:
         """A RuntimeError naming ``what`` before the first ``reset()`` or after ``close()``."""
@@ -360,7 +362,103 @@ class CovertSensingVectorEnv(ConstructionSettings, LiveSettings, CopyReaders, Wa
         if not self.copies.started:
             raise RuntimeError(f"{what} called before reset(); call reset() first")
 
+    # ------------------------------------------------------------------ reading the copies
+    @property
+    def started(self) -> bool:
+        """True once ``reset()`` has been called."""
+        return self.copies.started
+
+    @property
+    def slots(self) -> np.ndarray:
+        """(B,) the slot k each copy has reached (zeros before the first ``reset()``)."""
+        return self.copies.k.copy()
+
+    @property
+    def uav_xy(self) -> np.ndarray:
+        """(B, U, 2) the UAVs' positions (a read-only view; zeros before the first ``reset()``)."""
+        return _read_only(self.copies.xy)
+
+    @property
+    def uav_theta(self) -> np.ndarray:
+        """(B, U) the UAVs' headings in [0, 2 pi) (a read-only view; zeros before the first ``reset()``)."""
+        return _read_only(self.copies.theta)
+
+    def scene(self, i: int):
+        """The scene copy i flies (``config``, ``terrain``, ``track``, ``name``), without starts."""
+        i = self._copy("scene()", i)
+        return self._pool.cache(self.copies.rows[i]).parts
+
+    def scenario(self, i: int) -> Scenario:
+        """The :class:`~covert_env.world.scenario.Scenario` of copy i's episode, with the starts actually flown."""
+        i, cp = self._copy("scenario()", i), self.copies
+        cache = self._pool.cache(cp.rows[i])
+        if not cp.drawn[i]:
+            return cache.seeded_scenario()
+        w = cache.parts
+        return Scenario(w.config, w.terrain, w.track, cp.start_xy[i].copy(), cp.start_theta[i].copy(), name=w.name)
+
+    def trajectory(self, i: int) -> Trajectory:
+        """Copy i's episode so far as a :class:`~covert_env.world.trajectory.Trajectory` (needs ``record=True``)."""
+        if self._recorder is None:
+            raise RuntimeError("trajectory() needs the vector env built with record=True")
+        i = self._copy("trajectory()", i)
+        return self._recorder.trajectory(i, int(self.copies.k[i]), self.scene(i).track)
+
+    def copy_view(self, i: int) -> CopyView:
+        """Copy i read as an engine (:class:`~covert_env.envs.recorder.CopyView`), after ``reset()``."""
+        return CopyView(self, self._copy("copy_view()", i))
+
+    # ------------------------------------------------------------------ where waypoint actions would fly
+    def waypoint_paths(self, nodes) -> np.ndarray:
+        """Where the UAVs would fly in this slot to lattice ``nodes``: path samples ``(B, U, M, path_samples, 2)``
+        (world frame, m) for node indices ``(B, U, M)``, at the sample times of ``step`` and flown as ``step``
+        flies them (the manoeuvre of eqs. 22-29, or its best effort where a node is out of reach). An index of -1
+        stands for no node (ragged candidate lists): its samples are NaN and cost nothing.
+
+        A read-only query (the state does not change), for policies that plan with the model: the separation
+        shield of ``training.shield`` tests these paths against eq. 2. Waypoint mode, after ``reset()``."""
+        return self._waypoints("waypoint_paths()").paths(nodes)
+
+    def waypoint_goals(self, nodes) -> np.ndarray:
+        """Where lattice ``nodes`` ``(B, U, M)`` lie at slot k+1: ``(B, U, M, 2)`` (world frame, m), the waypoints
+        those actions fly to; NaN where the index is -1 (no node). Read-only; waypoint mode, after ``reset()``."""
+        return self._waypoints("waypoint_goals()").goals(nodes)
+
+    def onward_reach(self, xy, theta) -> np.ndarray:
+        """How many lattice nodes UAVs ending this slot at poses ``xy`` ``(B, U, M, 2)`` (world frame, m), heading
+        ``theta`` ``(B, U, M)``, may reach in the next slot: ``(B, U, M)`` int64, -1 where the pose holds a NaN.
+
+        The next slot's nodes are placed at the target two slots ahead: its pose predicted for slot k+1, driven on
+        for one more slot with the same displacement and turn (a constant-speed, constant-curvature guess; the env
+        keeps one slot of prediction). Reachability is :class:`~covert_env.geometry.reach.ReachTable`'s lookup without
+        the manoeuvre solver: the nodes in its boundary cells count as unreachable, so the count is a lower bound
+        (within a cell of the reach boundary). A UAV with a count of 0 reaches no node next slot, or only nodes
+        at the edge of its reach: it is about to leave the zone. A read-only query (waypoint mode, after
+        ``reset()``) for policies that look one slot ahead: the viability rule of ``training.shield`` tests the
+        ends of its candidate paths (``waypoint_paths``) with it."""
+        return self._waypoints("onward_reach()").onward_reach(xy, theta)
+
+    def safety_state(self, depth: int = 1) -> SafetyState:
+        """What the safety filter reads of this slot (:class:`~covert_env.envs.waypoint_queries.SafetyState`): the
+        poses, where this slot's lattice and the next ``depth`` slots' lattices lie, the polytope tops and the masks.
+        The later lattices are the env's own predictions at those slots (what the observation will show then), so
+        moves the filter plans for them are flown exactly as checked. Read-only; waypoint mode, after ``reset()``."""
+        return self._waypoints("safety_state()").safety_state(depth, self.episode_length)
+
     # ------------------------------------------------------------------ internals
+    def _waypoints(self, what: str) -> WaypointQueries:
+        """The waypoint queries, once ``what`` is checked: waypoint mode, running."""
+        if self.action_mode != "waypoint":
+            raise RuntimeError(f"{what} is for action_mode='waypoint'")
+        self.require_running(what)
+        return self.waypoints
+
+    def _copy(self, what: str, i) -> int:
+        """Copy index ``i`` checked (an integer in [0, num_envs - 1]; no negative indices, bools or floats) while
+        the env is running."""
+        self.require_running(what)
+        return int_arg(f"{what}: copy index", i, 0, self.num_envs - 1)
+
     def _reset_copies(self, idx: np.ndarray, scene_seeds) -> None:
         """Put copies ``idx`` at slot 0 of a new episode: scenes and starts drawn per copy (class docstring)."""
         c, pool, cp = self.config, self._pool, self.copies
@@ -436,6 +534,12 @@ class CovertSensingVectorEnv(ConstructionSettings, LiveSettings, CopyReaders, Wa
                                       visible, self._reach)
 
 
+def _read_only(a: np.ndarray) -> np.ndarray:
+    out = a.view()
+    out.flags.writeable = False
+    return out
+
+
 def _step_infos(k, quant, flagged, speed, terms, costs) -> dict[str, np.ndarray]:
     """The infos of a step, ``(B, U)`` arrays in ``INFO_KEYS`` order (the parallel env's Infos table)."""
     infos = {"slot": np.repeat(k[:, None], flagged.shape[1], axis=1), "los": quant.los, "los_path": quant.los_path,
@@ -446,40 +550,6 @@ def _step_infos(k, quant, flagged, speed, terms, costs) -> dict[str, np.ndarray]
     infos["cost"] = costs.sum(axis=0)
     infos.update(zip((f"cost_{n}" for n in batch.COSTS), costs, strict=True))
     return infos
-
-
-def _copy_seeds(seed, b: int) -> np.ndarray:
-    """Per-copy seeds: from ``np.random.SeedSequence(seed)`` for an int, as given for a sequence of b ints (any
-    size, as Gymnasium's seeding takes them: an int64 array, or an object array of Python ints beyond 2**63 - 1)."""
-    if np.ndim(seed) == 0:
-        return np.random.SeedSequence(int_arg("seed", seed, 0)).generate_state(b).astype(np.int64)
-    seeds = [int_arg("seed", s, 0) for s in seed]
-    if len(seeds) != b:
-        raise ValueError(f"reset(seed=...) needs an int or {b} ints (one per copy), got {len(seeds)}")
-    return np.array(seeds, dtype=np.int64 if max(seeds, default=0) < 2 ** 63 else object)
-
-
-def _reset_options(options: dict | None, b: int) -> tuple[np.ndarray | None, np.ndarray | None]:
-    """``options["scene_seed"]`` as b ints and ``options["reset_mask"]`` as b bools (None without them); other
-    keys are warned about and ignored (:func:`~covert_env.envs.arguments.reset_options`)."""
-    options = reset_options(options, ("scene_seed", "reset_mask"))
-    mask = options.get("reset_mask")
-    if mask is not None:
-        mask = np.asarray(mask)
-        if mask.shape != (b,) or mask.dtype != np.bool_:
-            raise ValueError(f"options['reset_mask'] must be {b} bools (one per copy), got {options['reset_mask']!r}")
-    return _scene_seeds(options.get("scene_seed"), b), mask
-
-
-def _scene_seeds(seeds, b: int) -> np.ndarray | None:
-    """``options["scene_seed"]`` as b ints in [0, MAX_SCENE_SEED] (None without it)."""
-    if seeds is None:
-        return None
-    arr = np.broadcast_to(np.asarray(seeds), (b,)) if np.ndim(seeds) == 0 else np.asarray(seeds)
-    if arr.shape != (b,) or arr.dtype.kind not in "iu" or (arr < 0).any() or (arr > MAX_SCENE_SEED).any():
-        raise ValueError(f"options['scene_seed'] must be an integer in [0, {MAX_SCENE_SEED}] (2**63 - 1) or {b} of "
-                         f"them (one per copy), got {short_repr(seeds)}")
-    return arr
 
 
 def vector_env(num_envs: int = 1, **kwargs: Any) -> CovertSensingVectorEnv:
