@@ -168,7 +168,7 @@ def measure(runner, seconds: float, episodes: int) -> tuple[int, float, float, i
 #: The parts of a batched step the profile breaks out (function names in covert_env, cumulative time each).
 PARTS = (
     ("flight, unicycle (fly_arc)", "flight.py", "fly_arc"),
-    ("flight, waypoint (fly_waypoints)", "batch.py", "fly_waypoints"),
+    ("flight, waypoint (fly_waypoints)", "flight.py", "fly_waypoints"),
     ("  manoeuvres to the chosen nodes (solve_manoeuvre + fallback)", "flight.py", "waypoint_controls"),
     ("  turn-then-straight path (fly_turn_straight)", "flight.py", "fly_turn_straight"),
     ("slot quantities (moves_quantities)", "metrics.py", "moves_quantities"),

@@ -9,8 +9,8 @@ import numpy as np
 
 from baselines.dp.lattice import Stage
 from baselines.dp.safety import _clear_of, _FirstSlot
-from covert_env.envs.batch import fly_waypoints
 from covert_env.geometry.dynamics import solve_manoeuvre
+from covert_env.geometry.flight import fly_waypoints
 from covert_env.geometry.separation import separation
 from covert_env.geometry.ties import first_argmax
 

@@ -9,8 +9,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from covert_env.envs.batch import fly_waypoints
 from covert_env.geometry.dynamics import Manoeuvre, solve_manoeuvre
+from covert_env.geometry.flight import fly_waypoints
 
 __all__ = ["DPPlan", "TeamPlan", "flown_paths"]
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from covert_env.envs.observation import OFFSET_CLIP, OWN_SIZE, OWN_SLICES
-from covert_env.geometry.flight import fly_turn_straight, waypoint_controls
+from covert_env.geometry.flight import fly_waypoints
 from covert_env.geometry.zone import to_target_frame
 from covert_env.world.config import short_repr
 
@@ -28,7 +28,7 @@ COSTS = ("los", "los_path", "zone", "separation", "terrain")
 
 __all__ = ["COSTS", "MIN_SPEED_FRACTION", "OFFSET_CLIP", "REWARD_TERMS", "action_masks", "constraint_costs",
            "fly_to_goals",
-           "fly_waypoints", "own_features", "reward_terms",
+           "own_features", "reward_terms",
            "unicycle_actions", "unicycle_controls", "waypoint_actions"]
 
 
@@ -75,19 +75,6 @@ def unicycle_controls(act: np.ndarray, c) -> tuple[np.ndarray, np.ndarray]:
     act = np.minimum(np.maximum(act, -1.0), 1.0)
     v = c.v_max * (MIN_SPEED_FRACTION + (1 - MIN_SPEED_FRACTION) * (act[..., 0] + 1) / 2)
     return v, c.w_max * act[..., 1]
-
-
-def fly_waypoints(xy, theta, goals, c, times):
-    """The turn-then-straight manoeuvre to ``goals`` (B, U, 2) (best effort where unreachable, see
-    :func:`waypoint_controls`), flown by :func:`fly_turn_straight`.
-
-    Returns path samples (B, U, P, 2), end headings (B, U), speeds v (B, U), the fallback flags (B, U) and the
-    turn rates omega (B, U)."""
-    shape = theta.shape
-    v, w, t_turn, fallback = waypoint_controls(xy.reshape(-1, 2), theta.reshape(-1), goals.reshape(-1, 2), c)
-    v, w, t_turn = v.reshape(shape), w.reshape(shape), t_turn.reshape(shape)
-    path, end_theta = fly_turn_straight(xy, theta, v, w, t_turn, times)
-    return path, end_theta, v, fallback.reshape(shape), w
 
 
 def fly_to_goals(xy, theta, goals, c, times) -> np.ndarray:

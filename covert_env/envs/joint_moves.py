@@ -7,9 +7,9 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from covert_env.envs import batch
 from covert_env.envs.waypoint_queries import SafetyState
 from covert_env.geometry.angles import wrap_heading
+from covert_env.geometry.flight import fly_waypoints
 from covert_env.geometry.separation import priority_negotiation, separation
 from covert_env.geometry.zone import to_world
 from covert_env.world.metrics import top_clearance
@@ -156,7 +156,7 @@ class Flights:
         self.end_theta = np.full((b, u, m), np.nan)
         if len(ci):
             goals = to_world(flt.lattice[nodes[ci, ui, mi]][:, None], q[ci], phi[ci])   # (N, 1, 2)
-            path, end_theta, *_ = batch.fly_waypoints(xy[ci, ui][:, None], theta[ci, ui][:, None], goals, c, times)
+            path, end_theta, *_ = fly_waypoints(xy[ci, ui][:, None], theta[ci, ui][:, None], goals, c, times)
             self.paths[ci, ui, mi] = path[:, 0]
             self.end_theta[ci, ui, mi] = wrap_heading(end_theta[:, 0])
         self.clear = np.zeros((b, u, m), bool)

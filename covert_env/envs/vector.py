@@ -17,7 +17,7 @@ from covert_env.envs.scene_pool import ScenePool
 from covert_env.envs.settings import EnvSettings, LiveSettings, check_penalties
 from covert_env.envs.waypoint_queries import SafetyState, WaypointQueries
 from covert_env.geometry.angles import wrap_heading
-from covert_env.geometry.flight import fly_arc
+from covert_env.geometry.flight import fly_arc, fly_waypoints
 from covert_env.geometry.reach import reach_table
 from covert_env.geometry.separation import nearest_teammate
 from covert_env.geometry.zone import to_world, zone_distance
@@ -293,7 +293,7 @@ class CovertSensingVectorEnv(ConstructionSettings, LiveSettings):
             flagged = np.take_along_axis(self.copies.masks, idx[..., None], axis=-1)[..., 0] == 0
             # The nodes are about the target's next pose as predicted now (what the mask and the planner use).
             goals = to_world(self.lattice[idx], pool.q_next[rows, k, :2], pool.phi_next[rows, k])
-            path, end_theta, v, fallback, w = batch.fly_waypoints(xy0, th0, goals, c, self._times)
+            path, end_theta, v, fallback, w = fly_waypoints(xy0, th0, goals, c, self._times)
             flagged |= fallback
         end = path[..., -1, :].copy()
         # LoS at the slot's end against q[k+1]; along the path (its samples after the start, which the previous

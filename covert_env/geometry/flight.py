@@ -18,7 +18,7 @@ from covert_env.geometry.angles import TWO_PI, wrap_heading
 from covert_env.geometry.dynamics import solve_manoeuvre, unicycle_arc, unicycle_heading
 
 __all__ = ["HEADING_GRID", "POSITION_GRID", "check_unicycle", "closest_constant_control", "fly_arc",
-           "fly_turn_straight", "settle_pose", "waypoint_controls"]
+           "fly_turn_straight", "fly_waypoints", "settle_pose", "waypoint_controls"]
 
 #: The grids a UAV's pose is settled on at every slot end (docs/decisions/flight.md#settled-slot-end-poses): positions
 #: (m) and headings (rad). Powers of two, so that settling is exact arithmetic.
@@ -143,3 +143,16 @@ def fly_turn_straight(xy, theta, v, w, t_turn, times):
     unicycle_arc(x1, y1, th1e[..., None], v[..., None], 0.0, t2, out=(path[..., 1:, 0], path[..., 1:, 1]),
                  heading=False)
     return settle_pose(path, unicycle_heading(th1e, 0.0, t2[..., -1]))
+
+
+def fly_waypoints(xy, theta, goals, c, times):
+    """The turn-then-straight manoeuvre to ``goals`` (B, U, 2) (best effort where unreachable, see
+    :func:`waypoint_controls`), flown by :func:`fly_turn_straight`.
+
+    Returns path samples (B, U, P, 2), end headings (B, U), speeds v (B, U), the fallback flags (B, U) and the
+    turn rates omega (B, U)."""
+    shape = theta.shape
+    v, w, t_turn, fallback = waypoint_controls(xy.reshape(-1, 2), theta.reshape(-1), goals.reshape(-1, 2), c)
+    v, w, t_turn = v.reshape(shape), w.reshape(shape), t_turn.reshape(shape)
+    path, end_theta = fly_turn_straight(xy, theta, v, w, t_turn, times)
+    return path, end_theta, v, fallback.reshape(shape), w

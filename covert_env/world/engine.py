@@ -23,7 +23,7 @@ import math
 import numpy as np
 
 from covert_env.geometry.angles import wrap_heading
-from covert_env.geometry.flight import check_unicycle, fly_arc, fly_turn_straight, waypoint_controls
+from covert_env.geometry.flight import check_unicycle, fly_arc, fly_waypoints
 from covert_env.world.config import MAX_N_UAVS, check_coordinates, short_repr
 from covert_env.world.metrics import SlotQuantities, moves_quantities
 from covert_env.world.roles import TargetReads
@@ -146,18 +146,16 @@ class Engine(TargetReads):
         c = self.config
         xy, theta = self.uav_xy[None], self.uav_theta[None]
         flagged = np.zeros((1, u), bool) if infeasible is None else infeasible.copy()
+        times = self._fractions * c.delta
+        # The vector env's flight at B = 1: the same functions, so an engine and an env fly the same arithmetic.
         if unicycle is not None:
             ctl = unicycle.copy()                                        # the engine keeps v and omega
             check_unicycle(ctl, c)
-            v, w, t_turn = ctl[..., 0], ctl[..., 1], None                # held for the whole slot
+            v, w = ctl[..., 0], ctl[..., 1]                              # held for the whole slot
+            path, end_theta = fly_arc(xy, theta, v, w, times)
         else:
-            v, w, t_turn, fallback = waypoint_controls(xy.reshape(-1, 2), theta.reshape(-1), waypoints.reshape(-1, 2),
-                                                       c)
-            v, w, t_turn = v.reshape(1, u), w.reshape(1, u), t_turn.reshape(1, u)
-            flagged |= fallback.reshape(1, u)
-        times = self._fractions * c.delta
-        path, end_theta = fly_arc(xy, theta, v, w, times) if t_turn is None else fly_turn_straight(
-            xy, theta, v, w, t_turn, times)
+            path, end_theta, v, fallback, w = fly_waypoints(xy, theta, waypoints, c, times)
+            flagged |= fallback
         self._record(path[0], end_theta[0], v[0], w[0], flagged[0], None if decision_time is None
                      else decision_time[0].copy())
         return self.last_quantities()
