@@ -1,8 +1,7 @@
-"""The episodes a vector env's copies are flying, recorded for the metrics, and one copy seen as an engine.
+"""One copy of a vector env seen as an engine.
 
-:class:`EpisodeRecorder` keeps, per copy, what :class:`~covert_env.world.engine.Engine` records (positions, headings,
-path samples, speeds, turn rates, fallback flags) in preallocated arrays written by one array operation per step,
-and turns a copy's episode into a :class:`~covert_env.world.trajectory.Trajectory`: the metrics of
+The vector env records its copies' episodes (``record=True``) with the engine's recorder,
+:class:`~covert_env.world.trajectory.EpisodeRecorder` (importable from here too), so the metrics of
 :mod:`covert_env.world.metrics` score the envs' episodes and the engine's alike. :class:`CopyView` reads copy i of a
 vector env in the engine's terms (``k``, ``uav_xy``, ``predict``, ``trajectory``, ...), so the DP planner, the
 renderer and the evaluation harness drive an env exactly as they drive an engine.
@@ -15,45 +14,9 @@ import numpy as np
 from covert_env.envs.arguments import Forwarded
 from covert_env.world.config import Config
 from covert_env.world.roles import TargetReads
-from covert_env.world.trajectory import Trajectory
+from covert_env.world.trajectory import EpisodeRecorder, Trajectory
 
 __all__ = ["CopyView", "EpisodeRecorder"]
-
-
-class EpisodeRecorder:
-    """B copies' current episodes (at most ``n_slots`` slots of U UAVs, P path samples per slot)."""
-
-    def __init__(self, b: int, u: int, n_slots: int, path_samples: int):
-        n, p = n_slots, path_samples
-        self.xy, self.theta = np.zeros((b, n + 1, u, 2)), np.zeros((b, n + 1, u))
-        self.path = np.zeros((b, n, u, p, 2))
-        self.length, self.max_speed, self.max_turn_rate = np.zeros((b, n, u)), np.zeros((b, n, u)), np.zeros((b, n, u))
-        self.infeasible = np.zeros((b, n, u), bool)
-        self.fractions = np.linspace(0.0, 1.0, p)
-
-    def start(self, idx, xy: np.ndarray, theta: np.ndarray) -> None:
-        """Copies ``idx`` begin an episode at poses ``xy`` (len(idx), U, 2), ``theta`` (len(idx), U)."""
-        self.xy[idx, 0], self.theta[idx, 0] = xy, theta
-
-    def record(self, k: np.ndarray, path, *, end_theta, v, w, flagged, delta: float) -> None:
-        """Slot ``k`` (B,) -> k + 1 of every copy: path samples (B, U, P, 2), end headings (wrapped), controls v and
-        w and the fallback flags (B, U)."""
-        b = np.arange(len(k))
-        self.path[b, k], self.length[b, k] = path, v * delta
-        self.max_speed[b, k], self.max_turn_rate[b, k], self.infeasible[b, k] = v, np.abs(w), flagged
-        self.xy[b, k + 1], self.theta[b, k + 1] = path[..., -1, :], end_theta
-
-    def trajectory(self, i: int, k: int, track) -> Trajectory:
-        """Copy i's episode up to slot k on the target's ``track``, as the engine records it."""
-        ks = np.arange(k + 1)
-        p, u = len(self.fractions), self.xy.shape[2]
-        return Trajectory(
-            uav_xy=self.xy[i, :k + 1].copy(), uav_theta=self.theta[i, :k + 1].copy(),
-            path_xy=self.path[i, :k].copy(), path_length=self.length[i, :k].copy(),
-            target_xyz=track.position(ks), target_phi=np.asarray(track.heading(ks)).reshape(-1),
-            target_path_xyz=np.array(track.position_between(ks[:-1], self.fractions)).reshape(-1, p, 3),
-            max_speed=self.max_speed[i, :k].copy(), max_turn_rate=self.max_turn_rate[i, :k].copy(),
-            infeasible=self.infeasible[i, :k].copy(), decision_time=np.full((k, u), np.nan))
 
 
 class CopyView(TargetReads):

@@ -1,9 +1,11 @@
 """The world: terrain, the target on its road, and the UAV team, advanced one slot at a time.
 
-One scene's world, flown with :mod:`covert_env.geometry.flight` and scored with
-:func:`~covert_env.world.metrics.moves_quantities`: the functions the vector env (and so every env) flies and scores its
-B copies with, so a DP rollout on an engine and an env rollout are the same arithmetic (tested), and every
-episode ends as a :class:`~covert_env.world.trajectory.Trajectory` that :mod:`covert_env.world.metrics` scores.
+One scene's world at B = 1 of the vector env's kernel: flown with :mod:`covert_env.geometry.flight`, scored with
+:func:`~covert_env.world.metrics.moves_quantities` and recorded by
+:class:`~covert_env.world.trajectory.EpisodeRecorder`, the functions the vector env (and so every env) flies, scores
+and records its B copies with. So a DP rollout on an engine and an env rollout are the same arithmetic (tested), and
+every episode ends as a :class:`~covert_env.world.trajectory.Trajectory` that :mod:`covert_env.world.metrics` scores.
+The engine takes what the envs' action spaces do not: unicycle controls in m/s and rad/s, and any waypoint.
 
 Each UAV's move over a slot is either
 
@@ -28,7 +30,7 @@ from covert_env.world.config import MAX_N_UAVS, check_coordinates, short_repr
 from covert_env.world.metrics import SlotQuantities, moves_quantities
 from covert_env.world.roles import TargetReads
 from covert_env.world.scenario import Scenario, valid_start_shapes
-from covert_env.world.trajectory import Trajectory
+from covert_env.world.trajectory import EpisodeRecorder, Trajectory
 
 __all__ = ["Engine", "MAX_PATH_SAMPLES"]
 
@@ -91,16 +93,10 @@ class Engine(TargetReads):
         self.k = 0
         self.uav_xy = xy.copy()
         self.uav_theta = wrap_heading(th)
-        u = len(xy)
-        self._xy = [self.uav_xy.copy()]
-        self._theta = [self.uav_theta.copy()]
-        self._path: list[np.ndarray] = []
-        self._length: list[np.ndarray] = []
-        self._vmax: list[np.ndarray] = []
-        self._wmax: list[np.ndarray] = []
-        self._infeasible: list[np.ndarray] = []
-        self._dtime: list[np.ndarray | None] = []
-        self.n_uavs = u
+        self.n_uavs = len(xy)
+        # The episode as the vector env records its copies', with B = 1 (its pages are written as slots are flown).
+        self._episode = EpisodeRecorder(1, self.n_uavs, self.config.n_slots, self.path_samples)
+        self._episode.start(0, self.uav_xy, self.uav_theta)
 
     @property
     def done(self) -> bool:
@@ -156,22 +152,12 @@ class Engine(TargetReads):
         else:
             path, end_theta, v, fallback, w = fly_waypoints(xy, theta, waypoints, c, times)
             flagged |= fallback
-        self._record(path[0], end_theta[0], v[0], w[0], flagged[0], None if decision_time is None
-                     else decision_time[0].copy())
-        return self.last_quantities()
-
-    def _record(self, path, end_theta, v, w, flagged, decision_time) -> None:
-        self._path.append(path)
-        self._length.append(v * self.config.delta)
-        self._vmax.append(v)
-        self._wmax.append(np.abs(w))
-        self._infeasible.append(flagged)
-        self._dtime.append(decision_time)                             # None = not measured (NaN in trajectories)
-        self.uav_xy = path[:, -1].copy()
-        self.uav_theta = wrap_heading(end_theta)
+        end_theta = wrap_heading(end_theta)
+        self._episode.record(np.array([self.k]), path, end_theta=end_theta, v=v, w=w, flagged=flagged, delta=c.delta,
+                             decision_time=decision_time)
+        self.uav_xy, self.uav_theta = path[0, :, -1].copy(), end_theta[0]
         self.k += 1
-        self._xy.append(self.uav_xy.copy())
-        self._theta.append(self.uav_theta.copy())
+        return self.last_quantities()
 
     # ------------------------------------------------------------------ records
     def trajectory(self, last: int | None = None) -> Trajectory:
@@ -179,39 +165,24 @@ class Engine(TargetReads):
         if last is not None and (isinstance(last, bool) or not isinstance(last, (int, np.integer)) or last < 0):
             raise ValueError(f"Engine.trajectory: last must be None or an integer >= 0 (slots), got {short_repr(last)}")
         k0 = 0 if last is None else max(self.k - last, 0)
-        ks = np.arange(k0, self.k + 1)
-        u = self.n_uavs
-
-        def stack(xs, shape):
-            return np.array(xs[k0:]) if len(xs[k0:]) else np.zeros((0,) + shape)
-
-        p = self.path_samples
-        nan = np.full(u, np.nan)
-        return Trajectory(
-            uav_xy=np.array(self._xy[k0:]), uav_theta=np.array(self._theta[k0:]),
-            path_xy=stack(self._path, (u, p, 2)), path_length=stack(self._length, (u,)),
-            target_xyz=self.track.position(ks), target_phi=np.asarray(self.track.heading(ks)).reshape(-1),
-            target_path_xyz=np.array(self.track.position_between(ks[:-1], self._fractions)).reshape(-1, p, 3),
-            max_speed=stack(self._vmax, (u,)), max_turn_rate=stack(self._wmax, (u,)),
-            infeasible=stack(self._infeasible, (u,)).astype(bool),
-            decision_time=stack([nan if d is None else d for d in self._dtime], (u,)))
+        return self._episode.trajectory(0, self.k, self.track, first=k0)
 
     def last_quantities(self) -> SlotQuantities:
         """Quantities of the slot just flown (arrays of shape (1, U))."""
         if self.k == 0:
             raise RuntimeError("Engine.last_quantities: no slot flown yet")
-        k, tr = self.k, self.track
+        k, tr, e = self.k, self.track, self._episode
         q, phi = tr.positions[k - 1:k + 1], tr.headings[k - 1:k + 1]
         target_path = tr.position_between(k - 1, self._fractions)[None] if self.path_los else None
-        return moves_quantities(self._xy[-2][None], self._xy[-1][None], target_start=q[0], phi_start=phi[0],
-                                target_end=q[1], phi_end=phi[1], path_xy=self._path[-1][None],
-                                path_length=self._length[-1][None], target_path_xyz=target_path,
+        return moves_quantities(e.xy[:, k - 1], e.xy[:, k], target_start=q[0], phi_start=phi[0],
+                                target_end=q[1], phi_end=phi[1], path_xy=e.path[:, k - 1],
+                                path_length=e.length[:, k - 1], target_path_xyz=target_path,
                                 terrain=self.terrain, config=self.config)
 
     @property
     def positions(self) -> np.ndarray:
         """(k + 1, U, 2) the UAVs' positions at slot times 0..k (the trails the renderer draws)."""
-        return np.array(self._xy)
+        return self._episode.xy[0, :self.k + 1].copy()
 
 
 #: Most samples per slot along a path (Engine's path_samples): every slot stores (U, path_samples, 2) points.

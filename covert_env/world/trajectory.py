@@ -1,8 +1,8 @@
 """A recorded episode: everything the metrics need, and nothing a policy could fake.
 
-The engine writes one :class:`Trajectory` per episode, whatever drives the UAVs (the DP planner, a
-trained agent, a random policy); :mod:`covert_env.world.metrics` scores it. It saves to and loads from
-plain JSON.
+The engine and the vector env write one :class:`Trajectory` per episode, whatever drives the UAVs (the DP planner,
+a trained agent, a random policy), through one :class:`EpisodeRecorder` (the engine's with B = 1);
+:mod:`covert_env.world.metrics` scores it. It saves to and loads from plain JSON.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["Trajectory"]
+__all__ = ["EpisodeRecorder", "Trajectory"]
 
 
 @dataclass(eq=False)
@@ -91,3 +91,45 @@ class Trajectory:
     @classmethod
     def load(cls, path: str | Path) -> Trajectory:
         return cls.from_dict(json.loads(Path(path).read_text()))
+
+
+class EpisodeRecorder:
+    """B episodes being flown, at most ``n_slots`` slots of U UAVs with P path samples per slot, batch-first:
+    preallocated arrays written by one array operation per slot, read back as a :class:`Trajectory`. The engine
+    records its one episode in one (B = 1), the vector env its copies' (``record=True``)."""
+
+    def __init__(self, b: int, u: int, n_slots: int, path_samples: int):
+        n, p = n_slots, path_samples
+        self.xy, self.theta = np.zeros((b, n + 1, u, 2)), np.zeros((b, n + 1, u))
+        self.path = np.zeros((b, n, u, p, 2))
+        self.length, self.max_speed, self.max_turn_rate = np.zeros((b, n, u)), np.zeros((b, n, u)), np.zeros((b, n, u))
+        self.infeasible = np.zeros((b, n, u), bool)
+        self.decision_time = np.full((b, n, u), np.nan)                 # NaN: not measured
+        self.fractions = np.linspace(0.0, 1.0, p)
+
+    def start(self, idx, xy: np.ndarray, theta: np.ndarray) -> None:
+        """Episodes ``idx`` begin at poses ``xy`` (len(idx), U, 2), ``theta`` (len(idx), U)."""
+        self.xy[idx, 0], self.theta[idx, 0] = xy, theta
+        self.decision_time[idx] = np.nan
+
+    def record(self, k: np.ndarray, path, *, end_theta, v, w, flagged, delta: float, decision_time=None) -> None:
+        """Slot ``k`` (B,) -> k + 1 of every episode: path samples (B, U, P, 2), end headings (wrapped), controls v
+        and w, the fallback flags and (if measured) the policy's decision times (B, U)."""
+        b = np.arange(len(k))
+        self.path[b, k], self.length[b, k] = path, v * delta
+        self.max_speed[b, k], self.max_turn_rate[b, k], self.infeasible[b, k] = v, np.abs(w), flagged
+        self.xy[b, k + 1], self.theta[b, k + 1] = path[..., -1, :], end_theta
+        if decision_time is not None:
+            self.decision_time[b, k] = decision_time
+
+    def trajectory(self, i: int, k: int, track, first: int = 0) -> Trajectory:
+        """Episode i's slots ``first`` .. k on the target's ``track`` (a :class:`Trajectory` of k - first slots)."""
+        ks = np.arange(first, k + 1)
+        p = len(self.fractions)
+        return Trajectory(
+            uav_xy=self.xy[i, first:k + 1].copy(), uav_theta=self.theta[i, first:k + 1].copy(),
+            path_xy=self.path[i, first:k].copy(), path_length=self.length[i, first:k].copy(),
+            target_xyz=track.position(ks), target_phi=np.asarray(track.heading(ks)).reshape(-1),
+            target_path_xyz=np.array(track.position_between(ks[:-1], self.fractions)).reshape(-1, p, 3),
+            max_speed=self.max_speed[i, first:k].copy(), max_turn_rate=self.max_turn_rate[i, first:k].copy(),
+            infeasible=self.infeasible[i, first:k].copy(), decision_time=self.decision_time[i, first:k].copy())
