@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+import math
 
 import numpy as np
 import pytest
@@ -76,3 +77,37 @@ def test_negotiation_tries_at_most_u_orders_and_each_uav_first_once():
     # A UAV stuck again after its promotion ends the negotiation (another order cannot give it more room).
     tried, failed = _negotiate(lambda c, o: 3, 1, 5)
     assert tried[0] == [(0, 1, 2, 3, 4), (3, 0, 1, 2, 4)] and failed[0]
+
+
+def _greedy_one_by_one(points, order, min_dist, k):
+    """The start picker's rule written out: each candidate in turn, taken if no earlier pick is closer than
+    min_dist (eq. 2's distance, math.hypot per pair), until k are taken."""
+    picked = []
+    for i in order:
+        if len(picked) == k:
+            break
+        if all(math.hypot(points[i][0] - points[j][0], points[i][1] - points[j][1]) >= min_dist for j in picked):
+            picked.append(int(i))
+    return picked
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2 ** 31 - 1), b=st.integers(1, 5), n=st.integers(0, 30), k=st.integers(1, 6),
+       min_dist=st.sampled_from([0.0, 1.0, 2.5, 5.0]))
+def test_spread_picks_are_each_lists_greedy_picks(seed, b, n, k, min_dist):
+    """spread_picks (every copy's start picks at once) gives each list the picks of the one-by-one rule, on points
+    with duplicates and exact distances (a 1 m grid), lists of different lengths included; spread_nodes is one list."""
+    from covert_env.geometry.zone import spread_nodes, spread_picks
+
+    rng = np.random.default_rng(seed)
+    points = rng.integers(0, 6, (b, max(n, 1), 2)).astype(float)
+    lens = rng.integers(0, n + 1, b)
+    m = max(int(lens.max(initial=0)), 1)
+    order = np.stack([rng.permutation(max(n, 1))[:m] if n >= m else np.zeros(m, int) for _ in range(b)])
+    valid = np.arange(m) < lens[:, None]
+    got = spread_picks(points, order, valid, min_dist, k)
+    assert got.shape == (b, k)
+    for i in range(b):
+        want = _greedy_one_by_one(points[i].tolist(), order[i, :lens[i]], min_dist, k)
+        assert got[i].tolist() == want + [-1] * (k - len(want))
+        assert spread_nodes(points[i], order[i, :lens[i]], min_dist, k).tolist() == want

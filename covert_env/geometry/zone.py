@@ -61,7 +61,7 @@ __all__ = [
     "to_world",
     "visible_zone",
     "zone_distance",
-    "zone_mask", "zone_lattice", "lattice_size", "spread_nodes", "zone_capacity"]
+    "zone_mask", "zone_lattice", "lattice_size", "spread_nodes", "spread_picks", "zone_capacity"]
 
 ARC_RESOLUTION = math.radians(0.25)
 """Default largest angle (rad) spanned by one chord of a polygon arc."""
@@ -338,11 +338,40 @@ def zone_lattice(config) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------- start placement
-def spread_nodes(points, order, min_dist: float, k: int) -> np.ndarray:
-    """Greedy pick of up to ``k`` points pairwise at least ``min_dist`` apart, scanning ``order``.
+def spread_picks(points, order, valid, min_dist: float, k: int) -> np.ndarray:
+    """Greedy picks of up to ``k`` points pairwise at least ``min_dist`` apart (eq. 2), for B candidate lists at once.
 
-    The first point of ``order`` not closer than ``min_dist`` to an earlier pick is taken, k times: the
-    same picks as testing each point in turn against all earlier picks, but vectorised over points.
+    In each list the first candidate of ``order`` not closer than ``min_dist`` to an earlier pick is taken, k times:
+    the same picks as testing each candidate in turn against all earlier picks, vectorised over candidates and
+    lists (the start picker of every copy of a vector env at once; :func:`spread_nodes` is one list).
+
+    Args:
+        points: (B, n, 2) positions; order: (B, m) indices into each list's points, scanned in this order;
+        valid: (B, m) bool, the entries of ``order`` to scan (a list may be shorter than m).
+
+    Returns:
+        (B, k) indices into ``points``, in pick order; -1 where a list has fewer than k picks.
+    """
+    order = np.asarray(order, dtype=np.intp)
+    rows = np.arange(len(order))
+    cand = np.asarray(points, dtype=float)[rows[:, None], order]                  # (B, m, 2)
+    picked = np.full((len(order), k), -1, dtype=np.intp)
+    alive = np.array(valid, dtype=bool)
+    for j in range(k if order.shape[1] else 0):
+        first = alive.argmax(axis=1)
+        has = alive[rows, first]
+        if not has.any():
+            break
+        picked[has, j] = order[has, first[has]]
+        alive[rows, first] = False                    # taken (also where min_dist is 0)
+        # Eq. 2 between each list's pick and its candidates: np.hypot(*(p - o)) per pair.
+        alive &= separation(cand[:, :, None], cand[rows, first][:, None, None]) >= min_dist
+    return picked
+
+
+def spread_nodes(points, order, min_dist: float, k: int) -> np.ndarray:
+    """Greedy pick of up to ``k`` points pairwise at least ``min_dist`` apart, scanning ``order``: one list of
+    :func:`spread_picks`.
 
     Args:
         points: (n, 2) positions; order: (m,) indices into them, scanned in this order.
@@ -350,21 +379,10 @@ def spread_nodes(points, order, min_dist: float, k: int) -> np.ndarray:
     Returns:
         (<= k,) indices into ``points``, in pick order.
     """
-    pts = np.asarray(points, dtype=float)
-    order = np.asarray(order, dtype=int)
-    alive = np.ones(len(order), bool)
-    picked: list[int] = []
-    cand = pts[order]
-    while len(picked) < k:
-        free = np.flatnonzero(alive)
-        if free.size == 0:
-            break
-        first = free[0]
-        picked.append(int(order[first]))
-        p = cand[first]
-        # Eq. 2 between the pick and every candidate: np.hypot(*(p - o)) per pair, as a per-point loop computes it.
-        alive &= separation(cand[:, None], p[None, None]) >= min_dist
-    return np.array(picked, dtype=int)
+    order = np.asarray(order, dtype=np.intp)
+    picked = spread_picks(np.asarray(points, dtype=float)[None], order[None], np.ones((1, len(order)), bool),
+                          min_dist, k)[0]
+    return picked[picked >= 0].astype(int)
 
 
 #: Relative margin on the separation in target-frame placement: rotating the offsets into the world

@@ -13,8 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from covert_env.geometry.separation import separation
-from covert_env.geometry.zone import SPREAD_MARGIN, spread_nodes, to_world, zone_lattice
+from covert_env.geometry.zone import SPREAD_MARGIN, spread_nodes, spread_picks, to_world, zone_lattice
 from covert_env.world.config import (
     MAX_N_UAVS,
     SCENE_ROAD_LEAD_IN,
@@ -321,7 +320,7 @@ def pick_starts_many(c: Config, nodes: np.ndarray, visible: list, shadowed: list
                      names: list) -> tuple[np.ndarray, np.ndarray]:
     """:func:`pick_starts` of B copies, each with its own generator: ``nodes`` (B, L, 2), and per copy the indices
     of its ``visible`` and ``shadowed`` candidates. Step 1's greedy pick
-    (:func:`~covert_env.geometry.zone.spread_nodes`) runs for all copies at once, with the same picks; a copy that needs
+    (:func:`~covert_env.geometry.zone.spread_picks`) runs for all copies at once; a copy that needs
     the fallbacks takes them alone. Returns (B, U, 2) positions and (B, U) headings."""
     b = len(rngs)
     orders = [vis[rng.permutation(len(vis))] for vis, rng in zip(visible, rngs, strict=True)]
@@ -329,15 +328,7 @@ def pick_starts_many(c: Config, nodes: np.ndarray, visible: list, shadowed: list
     idx = np.zeros((b, max(int(lens.max(initial=0)), 1)), dtype=np.intp)
     valid = np.arange(idx.shape[1]) < lens[:, None]
     idx[valid] = np.concatenate(orders) if b else []
-    rows = np.arange(b)
-    cand = nodes[rows[:, None], idx]                                        # (B, m, 2)
-    picked, alive = np.full((b, u), -1, dtype=np.intp), valid
-    for j in range(u):
-        first = alive.argmax(axis=1)
-        has = alive[rows, first]
-        picked[has, j] = idx[has, first[has]]
-        # Eq. 2 between each copy's pick and its candidates, as spread_nodes computes it.
-        alive = alive & (separation(cand[:, :, None], cand[rows, first][:, None, None]) >= 2 * c.d_safe1)
+    picked = spread_picks(nodes, idx, valid, 2 * c.d_safe1, u)
     xy, theta = np.empty((b, u, 2)), np.empty((b, u))
     for n in range(b):                                   # each copy's own draws, in its generator's order
         pick = picked[n]
