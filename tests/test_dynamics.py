@@ -509,3 +509,61 @@ def test_manoeuvre_feasible_is_solve_manoeuvres_feasibility(limits):
     got = manoeuvre_feasible(p, theta, g, v_max=v_max, w_max=w_max, delta=delta)
     assert got.dtype == bool and np.array_equal(got, want)
     assert 0.05 < want.mean() < 0.95
+
+
+def _newton_in_numpy(a, b, d, d2, wd, r_max):
+    """The safeguarded Newton iteration of eq. 29 written with numpy array operations (the form the compiled steps
+    of covert_env.geometry.turn_root follow, operation for operation)."""
+    from covert_env.geometry.turn_root import _NEWTON_RTOL, _dF, _F, _root_bracket
+
+    ok, r_out = np.zeros(len(a), bool), np.full(len(a), np.nan)
+    idx, lo, hi = _root_bracket(a, b, d, d2, wd, r_max)
+    a, b, d2 = a[idx], b[idx], d2[idx]
+    x = lo.copy()
+    f, tau, lat = _F(a, b, d2, x, wd)
+    fp = _dF(a, b, x, tau, lat, wd)
+    dx_old = hi - lo
+    dx = dx_old.copy()
+    act, r_res = np.arange(idx.size), np.full(idx.size, np.nan)
+    for _ in range(100):
+        pos = f > 0
+        lo, hi = np.where(pos, x, lo), np.where(pos, hi, x)
+        newton = x - f / fp
+        bis = ~((newton > lo) & (newton < hi)) | (np.abs(2.0 * f) > np.abs(dx_old * fp))
+        x_new = np.where(bis, 0.5 * (lo + hi), newton)
+        dx_old, dx = dx, x_new - x
+        done = (np.abs(dx) <= _NEWTON_RTOL * x_new) | (f == 0) | (hi - lo <= _NEWTON_RTOL * hi)
+        x = x_new
+        r_res[act[done]] = np.where(f[done] == 0, x[done] - dx[done], x[done])
+        keep = ~done
+        act, a, b, d2, x, lo, hi, dx, dx_old = (t[keep] for t in (act, a, b, d2, x, lo, hi, dx, dx_old))
+        if act.size == 0:
+            break
+        f, tau, lat = _F(a, b, d2, x, wd)
+        fp = _dF(a, b, x, tau, lat, wd)
+    good = np.isfinite(r_res)
+    ok[idx[good]], r_out[idx[good]] = True, r_res[good]
+    return ok, r_out
+
+
+@pytest.mark.parametrize("w_max, v_max", [(3.0, 50.0), (5.0, 30.0), (1.0, 80.0)])
+def test_compiled_newton_is_the_numpy_iteration_bit_for_bit(w_max, v_max):
+    """solve_turn (compiled steps, numpy's arctangent) gives every root of the numpy form to the last bit, on goals
+    ahead, abeam, behind (two roots with W_max = 5), near the turning circle and at the reach's edge."""
+    from covert_env.geometry.turn_root import solve_turn
+
+    rng = np.random.default_rng(7)
+    n = 20000
+    ang = rng.uniform(-np.pi, np.pi, n)
+    dist = v_max * rng.choice([0.02, 0.3, 0.7, 0.999, 1.0], n) * rng.uniform(0.9, 1.0, n)
+    a, b = dist * np.cos(ang), np.abs(dist * np.sin(ang))
+    keep = b > 1e-9 * dist
+    a, b = a[keep], b[keep]
+    d2 = a * a + b * b
+    d = np.sqrt(d2)
+    with np.errstate(all="ignore"):
+        want = _newton_in_numpy(a, b, d, d2, w_max, v_max / w_max)
+        got = solve_turn(a, b, d, d2, w_max, v_max / w_max)
+    assert want[0].sum() > 1000
+    np.testing.assert_array_equal(got[0], want[0])
+    np.testing.assert_array_equal(got[1], want[1])

@@ -79,7 +79,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from covert_env.geometry.angles import TWO_PI, wrap_heading
+from covert_env.geometry.angles import wrap_heading
+from covert_env.geometry.turn_root import _lateral_len, _root_bracket, _tau, solve_turn
 
 __all__ = [
     "Manoeuvre",
@@ -94,10 +95,6 @@ __all__ = [
 # A waypoint whose lateral offset is below this fraction of its distance counts as dead ahead: flying
 # straight then misses it by at most 1e-12 of the distance, far below any tolerance that matters.
 _STRAIGHT_REL = 1e-12
-# Relative step size at which the Newton iteration stops; ~50 ulp, well below 1e-9 m on any real slot.
-_NEWTON_RTOL = 1e-14
-_NEWTON_MAX_ITER = 100
-_PHI_BISECT_ITER = 60
 
 
 MIN_GOAL_DISTANCE = 1e-9
@@ -241,144 +238,6 @@ def unicycle_path(x, y, theta, v, omega, dt, n_points):
     return np.stack(np.broadcast_arrays(xs, ys, ths), axis=-1)
 
 
-# -------------------------------------------------------------------------- manoeuvre geometry
-
-
-def _lateral_len(d2, b, r):
-    """L = |z - g|, the straight leg; clamped at 0 so that rounding at r = R_c never gives NaN."""
-    return np.sqrt(np.maximum(d2 - 2.0 * b * r, 0.0))
-
-
-def _tau(a, b, r, L):
-    """Turn angle in [0, 2 pi) for the left-turn frame (b >= 0), from the cancellation-free heading vector."""
-    # a - L loses all its digits when the goal is nearly dead ahead (L ~ a); a^2 - L^2 = b (2r - b) is exact.
-    # The quotient is itself rounding noise over a tiny divisor when a + L ~ 0 (goal abeam, on the turning
-    # circle: a = 0+, L = 0), where a - L is exact enough; a > 0 with a + L below 1e-6 (b + r) uses a - L.
-    quotient = (a > 0) & (a + L > 1e-6 * (b + r))
-    a_minus_l = np.where(quotient, b * (2.0 * r - b) / np.where(quotient, a + L, 1.0), a - L)
-    ex = L * a - r * (b - r)
-    ey = r * a_minus_l + L * b
-    t = np.arctan2(ey, ex)
-    # A left turn's angle, not a heading: just below a full circle it may round to 2 pi, which must not fold to 0.
-    return np.where(t < 0, t + TWO_PI, t)
-
-
-def _F(a, b, d2, r, wd):
-    """Eq. 29 as a function of the radius r: arc + straight - distance flown in the slot at v = W_max r."""
-    L = _lateral_len(d2, b, r)
-    tau = _tau(a, b, r, L)
-    return r * tau + L - wd * r, tau, L
-
-
-def _dF(a, b, r, tau, L, wd):
-    """dF/dr = tau + (L (r - b) - a r) / D^2 - delta W_max (the r tau' and L' singularities cancel)."""
-    return tau + (L * (r - b) - a * r) / (L * L + r * r) - wd
-
-
-def _phi(a, b, d2, r):
-    """phi(r) = L (L^2 + r b) / r^2 + a; h'(r) = -phi / D^2, and phi is strictly decreasing in r."""
-    L = _lateral_len(d2, b, r)
-    return L * (L * L + r * b) / (r * r) + a
-
-
-def _root_bracket(a, b, d, d2, wd, r_max):
-    """The left-frame goals (b >= 0, not dead ahead; 1-D arrays) for which eq. 29 has a root: their indices and a
-    sign-change bracket [lo, hi] of the smallest root. It decides feasibility alone: the safeguarded Newton
-    iteration of :func:`_solve_turn` converges on every bracket (each step halves the one before, or bisects)."""
-    if a.shape[0] == 0:
-        return np.zeros(0, np.intp), a, a
-    # Bracket [lo, hi]: lo from "path >= |g - p|" (so F(lo) >= 0), hi from the turning circle and V_max.
-    lo = d / wd
-    r_c = np.where(b > 0, d2 / (2.0 * np.where(b > 0, b, 1.0)), np.inf)
-    hi = np.minimum(r_c, r_max)
-    alive = lo < hi
-
-    if wd <= np.pi:
-        # Unreachable by any control: |theta(t)| <= W t <= pi gives x(T) >= (v / W) sin(W T) >= 0 > a.
-        alive &= a >= 0
-    # Behind the UAV, eq. 29 may have two roots; cap hi at the minimiser r* of h so that the bracket holds
-    # only the smaller one. phi is monotone, so plain bisection finds r*.
-    behind = np.flatnonzero(alive & (a < 0))
-    if behind.size:
-        ab, bb, d2b = a[behind], b[behind], d2[behind]
-        blo, bhi = lo[behind], hi[behind]
-        phi_hi = _phi(ab, bb, d2b, bhi)
-        phi_lo = _phi(ab, bb, d2b, blo)
-        # phi(lo) <= 0: h increases on the whole bracket from h(lo) >= delta W_max, so there is no root.
-        alive[behind[phi_lo <= 0]] = False
-        need = (phi_hi < 0) & (phi_lo > 0)
-        if need.any():
-            sub = np.flatnonzero(need)
-            s_a, s_b, s_d2 = ab[sub], bb[sub], d2b[sub]
-            s_lo, s_hi = blo[sub].copy(), bhi[sub].copy()
-            for _ in range(_PHI_BISECT_ITER):
-                mid = 0.5 * (s_lo + s_hi)
-                pos = _phi(s_a, s_b, s_d2, mid) > 0
-                s_lo = np.where(pos, mid, s_lo)
-                s_hi = np.where(pos, s_hi, mid)
-            # s_hi has phi <= 0, i.e. lies just past r*, where h is within rounding of its minimum.
-            hi[behind[sub]] = s_hi
-
-    idx = np.flatnonzero(alive)
-    if idx.size == 0:
-        return idx, lo[idx], hi[idx]
-    f_hi, _, _ = _F(a[idx], b[idx], d2[idx], hi[idx], wd)
-    # F(hi) > 0: even the largest admissible radius cannot cover the path in one slot -> infeasible.
-    idx = idx[f_hi <= 0]
-    return idx, lo[idx], hi[idx]
-
-
-def _solve_turn(a, b, d, d2, wd, r_max):
-    """Smallest root r of eq. 29 for left-frame goals (b >= 0, not dead ahead). Returns (ok, r).
-
-    All arrays are 1-D of equal length; the work shrinks to the still-unconverged entries each iteration.
-    """
-    n = a.shape[0]
-    ok = np.zeros(n, dtype=bool)
-    r_out = np.full(n, np.nan)
-    idx, lo, hi = _root_bracket(a, b, d, d2, wd, r_max)
-    if idx.size == 0:
-        return ok, r_out
-    a, b, d2 = a[idx], b[idx], d2[idx]
-
-    # Safeguarded Newton ("rtsafe"): start at lo, the straight-line estimate, exact for small turns.
-    x = lo.copy()
-    f, tau, L = _F(a, b, d2, x, wd)
-    fp = _dF(a, b, x, tau, L, wd)
-    dx_old = hi - lo
-    dx = dx_old.copy()
-    act = np.arange(idx.size)
-    r_res = np.full(idx.size, np.nan)
-    for _ in range(_NEWTON_MAX_ITER):
-        pos = f > 0
-        lo = np.where(pos, x, lo)
-        hi = np.where(pos, hi, x)
-        newton = x - f / fp  # fp may be 0: inf/NaN fails the bracket test below and bisects instead
-        # Bisect when Newton leaves the bracket or is not at least halving the step (guaranteed progress).
-        bis = ~((newton > lo) & (newton < hi)) | (np.abs(2.0 * f) > np.abs(dx_old * fp))
-        x_new = np.where(bis, 0.5 * (lo + hi), newton)
-        dx_old = dx
-        dx = x_new - x
-        done = (np.abs(dx) <= _NEWTON_RTOL * x_new) | (f == 0) | (hi - lo <= _NEWTON_RTOL * hi)
-        x = x_new
-        if done.any():
-            r_res[act[done]] = np.where(f[done] == 0, x[done] - dx[done], x[done])
-            nd = ~done
-            act, a, b, d2, x, lo, hi, dx, dx_old = (t[nd] for t in (act, a, b, d2, x, lo, hi, dx, dx_old))
-            if act.size == 0:
-                break
-        f, tau, L = _F(a, b, d2, x, wd)
-        fp = _dF(a, b, x, tau, L, wd)
-    # Anything still unconverged (never seen in practice) stays NaN and is reported infeasible.
-
-    good = np.isfinite(r_res)
-    idx = idx[good]
-    r = r_res[good]
-    ok[idx] = True
-    r_out[idx] = r
-    return ok, r_out
-
-
 # ------------------------------------------------------------------------------------ Manoeuvre
 
 
@@ -455,11 +314,11 @@ class Manoeuvre:
         return np.stack([np.where(in_turn, x1, x2), np.where(in_turn, y1, y2)], axis=-1)
 
 
-def _uav_frame(P, TH, G, v_max: float, delta: float):
-    """Goals ``G`` (n, 2) in the frames of poses ``P`` (n, 2), ``TH`` (n,): cos, sin, forward offset ``a``, lateral
-    ``cross`` (> 0 left), ``b = |cross|``, ``d2``, ``d = |g - p|``, ``usable`` (d in (MIN_GOAL_DISTANCE, V_max
-    delta]: the path is at least the chord) and ``straight`` (usable and dead ahead: no turn)."""
-    c, s = np.cos(TH), np.sin(TH)
+def _uav_frame(P, c, s, G, v_max: float, delta: float):
+    """Goals ``G`` (n, 2) in the frames of poses ``P`` (n, 2) with headings of cosine ``c`` and sine ``s`` (n,):
+    forward offset ``a``, lateral ``cross`` (> 0 left), ``b = |cross|``, ``d2``, ``d = |g - p|``, ``usable`` (d in
+    (MIN_GOAL_DISTANCE, V_max delta]: the path is at least the chord) and ``straight`` (usable and dead ahead: no
+    turn). The caller takes the cosines and sines once per heading (many goals share a start)."""
     rx, ry = G[:, 0] - P[:, 0], G[:, 1] - P[:, 1]
     a = c * rx + s * ry
     cross = c * ry - s * rx
@@ -468,15 +327,17 @@ def _uav_frame(P, TH, G, v_max: float, delta: float):
     d = np.sqrt(d2)
     usable = np.isfinite(d) & (d > MIN_GOAL_DISTANCE) & (d <= v_max * delta)
     straight = usable & (a > 0) & (b <= _STRAIGHT_REL * d)
-    return c, s, a, cross, b, d2, d, usable, straight
+    return a, cross, b, d2, d, usable, straight
 
 
-def manoeuvre_feasible(p, theta, goals, *, v_max: float, w_max: float, delta: float) -> np.ndarray:
+def manoeuvre_feasible(p, theta, goals, *, v_max: float, w_max: float, delta: float, cos_sin=None) -> np.ndarray:
     """``solve_manoeuvre(p, theta, goals, ...).feasible`` of flat batches (``p`` (n, 2), ``theta`` (n,), ``goals``
     (n, 2), limits already checked), without solving for the speed: a goal is feasible iff it is dead ahead or
-    eq. 29 has a root bracket (:func:`_root_bracket`). What the waypoint masks and the reach table ask."""
+    eq. 29 has a root bracket (:func:`_root_bracket`). What the waypoint masks and the reach table ask.
+    ``cos_sin``: ``(np.cos(theta), np.sin(theta))`` if the caller has them already."""
+    c, s = (np.cos(theta), np.sin(theta)) if cos_sin is None else cos_sin
     with np.errstate(all="ignore"):
-        _, _, a, _, b, d2, d, usable, straight = _uav_frame(p, theta, goals, v_max, delta)
+        a, _, b, d2, d, usable, straight = _uav_frame(p, c, s, goals, v_max, delta)
         ti = np.flatnonzero(usable & ~straight)
         straight[ti[_root_bracket(a[ti], b[ti], d[ti], d2[ti], w_max * delta, v_max / w_max)[0]]] = True
     return straight
@@ -524,7 +385,10 @@ def solve_manoeuvre(p, theta, goals, *, v_max: float = 50.0, w_max: float = 3.0,
     n = TH.shape[0]
 
     with np.errstate(all="ignore"):
-        c, s, a, cross, b, d2, d, usable, straight = _uav_frame(P, TH, G, v_max, delta)
+        # One cosine and sine per start heading, shared by every goal from it.
+        c = np.broadcast_to(np.cos(theta), shape).reshape(-1)
+        s = np.broadcast_to(np.sin(theta), shape).reshape(-1)
+        a, cross, b, d2, d, usable, straight = _uav_frame(P, c, s, G, v_max, delta)
         wd = w_max * delta
         turn = _turn_side(cross)
         turn[straight] = 0
@@ -537,7 +401,7 @@ def solve_manoeuvre(p, theta, goals, *, v_max: float = 50.0, w_max: float = 3.0,
         tau[straight] = 0.0
 
         ti = np.flatnonzero(usable & ~straight)
-        ok_t, r_t = _solve_turn(a[ti], b[ti], d[ti], d2[ti], wd, v_max / w_max)
+        ok_t, r_t = solve_turn(a[ti], b[ti], d[ti], d2[ti], wd, v_max / w_max)
         ti = ti[ok_t]
         r_t = r_t[ok_t]
         at, bt, d2t = a[ti], b[ti], d2[ti]

@@ -171,7 +171,7 @@ class ReachTable:
             ui, li = np.divmod(rest, lab.shape[2])
             goals = to_world(offsets[li][:, None], q_xy[bi], phi[bi])[:, 0]
             out[bi, ui, li] = manoeuvre_feasible(xy[bi, ui], theta[bi, ui], goals, v_max=self.v_max,
-                                                 w_max=self.w_max, delta=self.delta)
+                                                 w_max=self.w_max, delta=self.delta, cos_sin=(c[bi, ui], s[bi, ui]))
         return out
 
 
