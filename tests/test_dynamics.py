@@ -514,10 +514,10 @@ def test_manoeuvre_feasible_is_solve_manoeuvres_feasibility(limits):
 def _newton_in_numpy(a, b, d, d2, wd, r_max):
     """The safeguarded Newton iteration of eq. 29 written with numpy array operations (the form the compiled steps
     of covert_env.geometry.turn_root follow, operation for operation)."""
-    from covert_env.geometry.turn_root import _NEWTON_RTOL, _dF, _F, _root_bracket
+    from covert_env.geometry.turn_root import _F, _NEWTON_RTOL, _dF, root_bracket
 
     ok, r_out = np.zeros(len(a), bool), np.full(len(a), np.nan)
-    idx, lo, hi = _root_bracket(a, b, d, d2, wd, r_max)
+    idx, lo, hi = root_bracket(a, b, d, d2, wd, r_max)
     a, b, d2 = a[idx], b[idx], d2[idx]
     x = lo.copy()
     f, tau, lat = _F(a, b, d2, x, wd)
@@ -549,7 +549,7 @@ def _newton_in_numpy(a, b, d, d2, wd, r_max):
 @pytest.mark.parametrize("w_max, v_max", [(3.0, 50.0), (5.0, 30.0), (1.0, 80.0)])
 def test_compiled_newton_is_the_numpy_iteration_bit_for_bit(w_max, v_max):
     """solve_turn (compiled steps, numpy's arctangent) gives every root of the numpy form to the last bit, on goals
-    ahead, abeam, behind (two roots with W_max = 5), near the turning circle and at the reach's edge."""
+    ahead, abeam, behind (two roots with W_max = 5), on and near the turning circle and at the reach's edge."""
     from covert_env.geometry.turn_root import solve_turn
 
     rng = np.random.default_rng(7)
@@ -558,7 +558,9 @@ def test_compiled_newton_is_the_numpy_iteration_bit_for_bit(w_max, v_max):
     dist = v_max * rng.choice([0.02, 0.3, 0.7, 0.999, 1.0], n) * rng.uniform(0.9, 1.0, n)
     a, b = dist * np.cos(ang), np.abs(dist * np.sin(ang))
     keep = b > 1e-9 * dist
-    a, b = a[keep], b[keep]
+    # Goals on turning circles (centre (0, r)): the bracket's end R_c = r, where a + L nearly cancels.
+    r, t = v_max / w_max * rng.uniform(0.05, 1.0, 2000), rng.uniform(0.01, 2 * np.pi - 0.01, 2000)
+    a, b = np.concatenate([a[keep], r * np.sin(t)]), np.concatenate([b[keep], r * (1.0 - np.cos(t))])
     d2 = a * a + b * b
     d = np.sqrt(d2)
     with np.errstate(all="ignore"):

@@ -214,15 +214,28 @@ def test_scenario_normalises_start_arrays():
 
 
 def _pick_one_by_one(c, nodes, visible, shadowed, rng, u):
-    """Step 1 of Scenario.sample_starts written for one copy (the greedy pick of spread_nodes over the visible nodes
-    in random order), then the same fallbacks (steps 2-4) with the generator where step 1 left it."""
-    from covert_env.geometry.zone import spread_nodes
-    from covert_env.world.scenario import _fallback_starts
+    """The start rule of Scenario.sample_starts written one candidate at a time: the visible nodes in random order at
+    2 d_safe1 apart, then with the shadowed ones after them, then at d_safe1, then on the zone lattice with the
+    margin; a candidate is taken if eq. 2's distance to every earlier pick is at least the spacing."""
+    from covert_env.geometry.zone import SPREAD_MARGIN, zone_lattice
+
+    def greedy(points, order, spacing):
+        picked = []
+        for i in order:
+            if len(picked) < u and all(np.hypot(*(points[i] - points[j])) >= spacing for j in picked):
+                picked.append(int(i))
+        return picked
 
     order = visible[rng.permutation(len(visible))]
-    picked = spread_nodes(nodes, order, 2 * c.d_safe1, u)
+    picked = greedy(nodes, order, 2 * c.d_safe1)
     if len(picked) < u:
-        picked = _fallback_starts(c, nodes, order, visible, shadowed, rng, u, "x")
+        order = np.concatenate([order, shadowed[rng.permutation(len(shadowed))]])
+        for spacing in (2 * c.d_safe1, c.d_safe1):
+            picked = greedy(nodes, order, spacing)
+            if len(picked) == u:
+                break
+        else:
+            picked = greedy(zone_lattice(c), np.union1d(visible, shadowed), c.d_safe1 * (1 + SPREAD_MARGIN))
     return nodes[picked], rng.uniform(0, 2 * np.pi, u)
 
 

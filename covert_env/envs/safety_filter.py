@@ -226,7 +226,7 @@ class SafetyFilter:
     # ------------------------------------------------------------------ the filter
     def filter(self, state: SafetyState, proposed, scores=None, available=None) -> np.ndarray:
         """The team's nodes (B, U) for the proposals ``proposed`` (B, U) (lattice indices), under ``state`` (the
-        env's :meth:`~covert_env.envs.waypoint_queries.WaypointQueries.safety_state` with ``depth`` >= this
+        env's :meth:`~covert_env.envs.vector.CovertSensingVectorEnv.safety_state` with ``depth`` >= this
         filter's). ``scores`` (B, U, L), higher preferred (e.g. a policy's logits; -inf: last), orders the
         alternatives; default: the nodes nearest to the proposal first. ``available`` (B, L) bool: the nodes a copy
         may fly to at all, where the filter looks beyond the masks (default: every lattice node; a mix of tasks

@@ -145,7 +145,7 @@ class CovertSensingVectorEnv(ConstructionSettings, LiveSettings):
     a scene is rebuilt whenever it is drawn again after leaving the cache.
     ``autoreset_mode``: ``AutoresetMode.SAME_STEP`` (default) or ``AutoresetMode.DISABLED`` (see Autoreset).
     ``record``: keep every copy's current episode for the metrics (``trajectory(i)``,
-    :class:`~covert_env.envs.recorder.EpisodeRecorder`; about ``n_slots * U * (path_samples + 4) * 16`` bytes per
+    :class:`~covert_env.world.trajectory.EpisodeRecorder`; about ``n_slots * U * (path_samples + 4) * 16`` bytes per
     copy, so off by default). With same-step autoreset an ended episode is replaced by the next one within the
     step that ends it: to score whole episodes, record with ``autoreset_mode=DISABLED`` (as the parallel env does).
 
@@ -223,9 +223,9 @@ class CovertSensingVectorEnv(ConstructionSettings, LiveSettings):
         self._own: np.ndarray | None = None                 # own features of the whole batch, until a state change
         self._recorder = EpisodeRecorder(b, u, c.n_slots, self.path_samples) if record else None
         self._reach = reach_table(c.v_max, c.w_max, c.delta) if self.action_mode == "waypoint" else None
-        #: Where waypoint actions would fly (:class:`~covert_env.envs.waypoint_queries.WaypointQueries`; waypoint mode).
-        self.waypoints = (WaypointQueries(c, self.lattice, self.copies, self._pool, self._reach, self._times)
-                          if self.action_mode == "waypoint" else None)
+        # Where waypoint actions would fly: one object over the batch state (waypoint mode; the methods below ask it).
+        self._queries = (WaypointQueries(c, self.lattice, self.copies, self._pool, self._reach, self._times)
+                         if self.action_mode == "waypoint" else None)
 
     @property
     def num_envs(self) -> int:
@@ -353,7 +353,7 @@ class CovertSensingVectorEnv(ConstructionSettings, LiveSettings):
 
     def close(self) -> None:
         """Release the scenes; every later call but ``close()`` raises a RuntimeError."""
-        self._pool = self.waypoints = None
+        self._pool = self._queries = None
 
     def require_running(self, what: str) -> None:
         """A RuntimeError naming ``what`` before the first ``reset()`` or after ``close()``."""
@@ -409,49 +409,35 @@ class CovertSensingVectorEnv(ConstructionSettings, LiveSettings):
         return CopyView(self, self._copy("copy_view()", i))
 
     # ------------------------------------------------------------------ where waypoint actions would fly
+    # Read-only queries for policies that plan with the model (waypoint mode, after reset()); each is documented
+    # where it is computed, in covert_env.envs.waypoint_queries.WaypointQueries.
     def waypoint_paths(self, nodes) -> np.ndarray:
-        """Where the UAVs would fly in this slot to lattice ``nodes``: path samples ``(B, U, M, path_samples, 2)``
-        (world frame, m) for node indices ``(B, U, M)``, at the sample times of ``step`` and flown as ``step``
-        flies them (the manoeuvre of eqs. 22-29, or its best effort where a node is out of reach). An index of -1
-        stands for no node (ragged candidate lists): its samples are NaN and cost nothing.
-
-        A read-only query (the state does not change), for policies that plan with the model: the separation
-        shield of ``training.shield`` tests these paths against eq. 2. Waypoint mode, after ``reset()``."""
-        return self._waypoints("waypoint_paths()").paths(nodes)
+        """The paths ``(B, U, M, path_samples, 2)`` step would fly to lattice ``nodes`` ``(B, U, M)`` (-1: none):
+        :meth:`~covert_env.envs.waypoint_queries.WaypointQueries.paths`."""
+        return self._running_queries("waypoint_paths()").paths(nodes)
 
     def waypoint_goals(self, nodes) -> np.ndarray:
-        """Where lattice ``nodes`` ``(B, U, M)`` lie at slot k+1: ``(B, U, M, 2)`` (world frame, m), the waypoints
-        those actions fly to; NaN where the index is -1 (no node). Read-only; waypoint mode, after ``reset()``."""
-        return self._waypoints("waypoint_goals()").goals(nodes)
+        """Where lattice ``nodes`` ``(B, U, M)`` lie at slot k+1, ``(B, U, M, 2)``:
+        :meth:`~covert_env.envs.waypoint_queries.WaypointQueries.goals`."""
+        return self._running_queries("waypoint_goals()").goals(nodes)
 
     def onward_reach(self, xy, theta) -> np.ndarray:
-        """How many lattice nodes UAVs ending this slot at poses ``xy`` ``(B, U, M, 2)`` (world frame, m), heading
-        ``theta`` ``(B, U, M)``, may reach in the next slot: ``(B, U, M)`` int64, -1 where the pose holds a NaN.
-
-        The next slot's nodes are placed at the target two slots ahead: its pose predicted for slot k+1, driven on
-        for one more slot with the same displacement and turn (a constant-speed, constant-curvature guess; the env
-        keeps one slot of prediction). Reachability is :class:`~covert_env.geometry.reach.ReachTable`'s lookup without
-        the manoeuvre solver: the nodes in its boundary cells count as unreachable, so the count is a lower bound
-        (within a cell of the reach boundary). A UAV with a count of 0 reaches no node next slot, or only nodes
-        at the edge of its reach: it is about to leave the zone. A read-only query (waypoint mode, after
-        ``reset()``) for policies that look one slot ahead: the viability rule of ``training.shield`` tests the
-        ends of its candidate paths (``waypoint_paths``) with it."""
-        return self._waypoints("onward_reach()").onward_reach(xy, theta)
+        """How many nodes UAVs ending this slot at poses ``xy``, ``theta`` may reach next slot, ``(B, U, M)``:
+        :meth:`~covert_env.envs.waypoint_queries.WaypointQueries.onward_reach`."""
+        return self._running_queries("onward_reach()").onward_reach(xy, theta)
 
     def safety_state(self, depth: int = 1) -> SafetyState:
-        """What the safety filter reads of this slot (:class:`~covert_env.envs.waypoint_queries.SafetyState`): the
-        poses, where this slot's lattice and the next ``depth`` slots' lattices lie, the polytope tops and the masks.
-        The later lattices are the env's own predictions at those slots (what the observation will show then), so
-        moves the filter plans for them are flown exactly as checked. Read-only; waypoint mode, after ``reset()``."""
-        return self._waypoints("safety_state()").safety_state(depth, self.episode_length)
+        """What the safety filter reads of this slot and the next ``depth`` slots' lattices:
+        :meth:`~covert_env.envs.waypoint_queries.WaypointQueries.safety_state`."""
+        return self._running_queries("safety_state()").safety_state(depth, self.episode_length)
 
     # ------------------------------------------------------------------ internals
-    def _waypoints(self, what: str) -> WaypointQueries:
+    def _running_queries(self, what: str) -> WaypointQueries:
         """The waypoint queries, once ``what`` is checked: waypoint mode, running."""
         if self.action_mode != "waypoint":
             raise RuntimeError(f"{what} is for action_mode='waypoint'")
         self.require_running(what)
-        return self.waypoints
+        return self._queries
 
     def _copy(self, what: str, i) -> int:
         """Copy index ``i`` checked (an integer in [0, num_envs - 1]; no negative indices, bools or floats) while

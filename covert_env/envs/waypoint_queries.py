@@ -40,8 +40,8 @@ class WaypointQueries:
     ``copies`` (:class:`~covert_env.envs.copies.Copies`: poses, slots, scene rows, masks), the scene pool ``pool``
     (the target's predicted poses and the polytope tops), the lattice, the reach table and the sample times of a
     slot. The vector env holds one (waypoint mode) and answers ``waypoint_paths``, ``waypoint_goals``,
-    ``onward_reach`` and ``safety_state`` with it, after checking its mode and that it is running; the arguments
-    are checked here, against the batch's shape.
+    ``onward_reach`` and ``safety_state`` with it, after checking its mode and that it is running (the env's
+    checks: this object is not the env's API); the arguments are checked here, against the batch's shape.
     """
 
     def __init__(self, config, lattice: np.ndarray, copies, pool, reach, times: np.ndarray):
@@ -49,7 +49,11 @@ class WaypointQueries:
         self.reach, self.times = reach, times
 
     def paths(self, nodes) -> np.ndarray:
-        """``waypoint_paths``: the path samples ``(B, U, M, P, 2)`` flown to lattice ``nodes`` ``(B, U, M)``."""
+        """Where the UAVs would fly in this slot to lattice ``nodes``: path samples ``(B, U, M, path_samples, 2)``
+        (world frame, m) for node indices ``(B, U, M)``, at the sample times of ``step`` and flown as ``step``
+        flies them (the manoeuvre of eqs. 22-29, or its best effort where a node is out of reach). An index of -1
+        stands for no node (ragged candidate lists): its samples are NaN and cost nothing. The env's
+        ``waypoint_paths``: the separation shield of ``training.shield`` tests these paths against eq. 2."""
         nodes = self._checked_nodes("waypoint_paths()", nodes)
         if nodes.shape[2] > len(self.lattice):
             raise ValueError(f"waypoint_paths(): at most {len(self.lattice)} nodes per UAV (the lattice's), got "
@@ -57,12 +61,21 @@ class WaypointQueries:
         return batch.fly_to_goals(self.copies.xy, self.copies.theta, self._goals(nodes), self.config, self.times)
 
     def goals(self, nodes) -> np.ndarray:
-        """``waypoint_goals``: where lattice ``nodes`` ``(B, U, M)`` lie at slot k+1, ``(B, U, M, 2)``."""
+        """Where lattice ``nodes`` ``(B, U, M)`` lie at slot k+1: ``(B, U, M, 2)`` (world frame, m), the waypoints
+        those actions fly to; NaN where the index is -1 (no node). The env's ``waypoint_goals``."""
         return self._goals(self._checked_nodes("waypoint_goals()", nodes))
 
     def onward_reach(self, xy, theta) -> np.ndarray:
-        """``onward_reach``: lattice nodes reachable next slot from poses ``xy`` ``(B, U, M, 2)``, ``theta``
-        ``(B, U, M)``; ``(B, U, M)`` int64, -1 where the pose holds a NaN."""
+        """How many lattice nodes UAVs ending this slot at poses ``xy`` ``(B, U, M, 2)`` (world frame, m), heading
+        ``theta`` ``(B, U, M)``, may reach in the next slot: ``(B, U, M)`` int64, -1 where the pose holds a NaN.
+
+        The next slot's nodes are placed at the target two slots ahead: its pose predicted for slot k+1, driven on
+        for one more slot with the same displacement and turn (a constant-speed, constant-curvature guess; the env
+        keeps one slot of prediction). Reachability is :class:`~covert_env.geometry.reach.ReachTable`'s lookup without
+        the manoeuvre solver: the nodes in its boundary cells count as unreachable, so the count is a lower bound
+        (within a cell of the reach boundary). A UAV with a count of 0 reaches no node next slot, or only nodes
+        at the edge of its reach: it is about to leave the zone. The env's ``onward_reach``: the viability rule of
+        ``training.shield`` tests the ends of its candidate paths with it."""
         xy, theta = np.asarray(xy), np.asarray(theta)
         b, u = self.copies.theta.shape
         if xy.ndim != 4 or xy.shape[:2] != (b, u) or xy.shape[3] != 2 or theta.shape != xy.shape[:3]:
@@ -89,8 +102,10 @@ class WaypointQueries:
         return out
 
     def safety_state(self, depth, episode_length: int) -> SafetyState:
-        """``safety_state``: this slot and the next ``depth`` slots' lattices, the poses, tops and masks, in an
-        episode of ``episode_length`` slots."""
+        """What the safety filter reads of this slot (:class:`SafetyState`) in an episode of ``episode_length``
+        slots: the poses, where this slot's lattice and the next ``depth`` slots' lattices lie, the polytope tops and
+        the masks. The later lattices are the env's own predictions at those slots (what the observation will show
+        then), so moves the filter plans for them are flown exactly as checked. The env's ``safety_state(depth)``."""
         depth = int_arg("depth", depth, 1, 1000)
         pool, rows, k = self.pool, self.copies.rows, self.copies.k
         ahead = np.minimum(k[:, None] + np.arange(1, depth + 1), pool.q_next.shape[1] - 1)        # (B, D)

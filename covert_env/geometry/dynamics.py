@@ -80,7 +80,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from covert_env.geometry.angles import wrap_heading
-from covert_env.geometry.turn_root import _lateral_len, _root_bracket, _tau, solve_turn
+from covert_env.geometry.turn_root import root_bracket, solve_turn, straight_leg, turn_angle
 
 __all__ = [
     "Manoeuvre",
@@ -333,13 +333,13 @@ def _uav_frame(P, c, s, G, v_max: float, delta: float):
 def manoeuvre_feasible(p, theta, goals, *, v_max: float, w_max: float, delta: float, cos_sin=None) -> np.ndarray:
     """``solve_manoeuvre(p, theta, goals, ...).feasible`` of flat batches (``p`` (n, 2), ``theta`` (n,), ``goals``
     (n, 2), limits already checked), without solving for the speed: a goal is feasible iff it is dead ahead or
-    eq. 29 has a root bracket (:func:`_root_bracket`). What the waypoint masks and the reach table ask.
-    ``cos_sin``: ``(np.cos(theta), np.sin(theta))`` if the caller has them already."""
+    eq. 29 has a root bracket (:func:`~covert_env.geometry.turn_root.root_bracket`). What the waypoint masks and
+    the reach table ask. ``cos_sin``: ``(np.cos(theta), np.sin(theta))`` if the caller has them already."""
     c, s = (np.cos(theta), np.sin(theta)) if cos_sin is None else cos_sin
     with np.errstate(all="ignore"):
         a, _, b, d2, d, usable, straight = _uav_frame(p, c, s, goals, v_max, delta)
         ti = np.flatnonzero(usable & ~straight)
-        straight[ti[_root_bracket(a[ti], b[ti], d[ti], d2[ti], w_max * delta, v_max / w_max)[0]]] = True
+        straight[ti[root_bracket(a[ti], b[ti], d[ti], d2[ti], w_max * delta, v_max / w_max)[0]]] = True
     return straight
 
 
@@ -405,7 +405,7 @@ def solve_manoeuvre(p, theta, goals, *, v_max: float = 50.0, w_max: float = 3.0,
         ti = ti[ok_t]
         r_t = r_t[ok_t]
         at, bt, d2t = a[ti], b[ti], d2[ti]
-        tau_t = _tau(at, bt, r_t, _lateral_len(d2t, bt, r_t))
+        tau_t = turn_angle(at, bt, r_t, straight_leg(d2t, bt, r_t))
         # tau <= delta W_max holds at the root up to rounding; never report a turn longer than the slot.
         tau_t = np.minimum(tau_t, wd)
         feasible[ti] = True

@@ -1,7 +1,7 @@
 """Eq. 29's root: the turn radius r (speed ``v = W_max r``) of the turn-then-straight manoeuvre.
 
 ``F(r) = r tau(r) + L(r) - delta W_max r`` (arc plus straight minus the distance flown in the slot) is solved for
-its smallest root in the bracket :func:`_root_bracket` finds (its existence decides feasibility), by a safeguarded
+its smallest root in the bracket :func:`root_bracket` finds (its existence decides feasibility), by a safeguarded
 Newton iteration: Newton steps kept inside the shrinking sign-change bracket, bisection otherwise
 (:mod:`covert_env.geometry.dynamics` derives F, its derivative and the root structure).
 
@@ -19,7 +19,7 @@ import numpy as np
 
 from covert_env.geometry.angles import TWO_PI
 
-__all__ = ["solve_turn"]
+__all__ = ["root_bracket", "solve_turn", "straight_leg", "turn_angle"]
 
 # Relative step size at which the Newton iteration stops; ~50 ulp, well below 1e-9 m on any real slot.
 _NEWTON_RTOL = 1e-14
@@ -27,12 +27,12 @@ _NEWTON_MAX_ITER = 100
 _PHI_BISECT_ITER = 60
 
 
-def _lateral_len(d2, b, r):
+def straight_leg(d2, b, r):
     """L = |z - g|, the straight leg; clamped at 0 so that rounding at r = R_c never gives NaN."""
     return np.sqrt(np.maximum(d2 - 2.0 * b * r, 0.0))
 
 
-def _tau(a, b, r, L):
+def turn_angle(a, b, r, L):
     """Turn angle in [0, 2 pi) for the left-turn frame (b >= 0), from the cancellation-free heading vector."""
     # a - L loses all its digits when the goal is nearly dead ahead (L ~ a); a^2 - L^2 = b (2r - b) is exact.
     # The quotient is itself rounding noise over a tiny divisor when a + L ~ 0 (goal abeam, on the turning
@@ -48,8 +48,8 @@ def _tau(a, b, r, L):
 
 def _F(a, b, d2, r, wd):
     """Eq. 29 as a function of the radius r: arc + straight - distance flown in the slot at v = W_max r."""
-    L = _lateral_len(d2, b, r)
-    tau = _tau(a, b, r, L)
+    L = straight_leg(d2, b, r)
+    tau = turn_angle(a, b, r, L)
     return r * tau + L - wd * r, tau, L
 
 
@@ -60,14 +60,14 @@ def _dF(a, b, r, tau, L, wd):
 
 def _phi(a, b, d2, r):
     """phi(r) = L (L^2 + r b) / r^2 + a; h'(r) = -phi / D^2, and phi is strictly decreasing in r."""
-    L = _lateral_len(d2, b, r)
+    L = straight_leg(d2, b, r)
     return L * (L * L + r * b) / (r * r) + a
 
 
-def _root_bracket(a, b, d, d2, wd, r_max):
+def root_bracket(a, b, d, d2, wd, r_max):
     """The left-frame goals (b >= 0, not dead ahead; 1-D arrays) for which eq. 29 has a root: their indices and a
     sign-change bracket [lo, hi] of the smallest root. It decides feasibility alone: the safeguarded Newton
-    iteration of :func:`_solve_turn` converges on every bracket (each step halves the one before, or bisects)."""
+    iteration of :func:`solve_turn` converges on every bracket (each step halves the one before, or bisects)."""
     if a.shape[0] == 0:
         return np.zeros(0, np.intp), a, a
     # Bracket [lo, hi]: lo from "path >= |g - p|" (so F(lo) >= 0), hi from the turning circle and V_max.
@@ -112,9 +112,9 @@ def _root_bracket(a, b, d, d2, wd, r_max):
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _heading_vectors(a, b, r, d2, lat, ex, ey):  # pragma: no cover
-    """:func:`_lateral_len` and :func:`_tau`'s heading vector (ex, ey) before its arctangent, pair by pair, into
-    ``lat``, ``ex``, ``ey``: the same operations as the numpy forms."""
+def _heading_vectors(a, b, r, d2, leg, ex, ey):  # pragma: no cover
+    """:func:`straight_leg` L and :func:`turn_angle`'s heading vector (ex, ey) before its arctangent, pair by pair,
+    into ``leg``, ``ex``, ``ey``: the same operations as the numpy forms."""
     for i in range(len(a)):
         ai, bi, ri = a[i], b[i], r[i]
         s = d2[i] - 2.0 * bi * ri
@@ -125,18 +125,18 @@ def _heading_vectors(a, b, r, d2, lat, ex, ey):  # pragma: no cover
             a_minus_l = bi * (2.0 * ri - bi) / (ai + li)
         else:
             a_minus_l = ai - li
-        lat[i] = li
+        leg[i] = li
         ex[i] = li * ai - ri * (bi - ri)
         ey[i] = ri * a_minus_l + li * bi
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _values(a, b, r, lat, t, wd, f, fp):  # pragma: no cover
+def _residual_and_slope(a, b, r, leg, t, wd, f, fp):  # pragma: no cover
     """F (:func:`_F`) and F' (:func:`_dF`) at ``r`` from the arctangents ``t`` of the heading vectors, into ``f``
     and ``fp``."""
     for i in range(len(a)):
         tau = t[i] + TWO_PI if t[i] < 0 else t[i]
-        ri, li = r[i], lat[i]
+        ri, li = r[i], leg[i]
         f[i] = ri * tau + li - wd * ri
         fp[i] = tau + (li * (ri - b[i]) - a[i] * ri) / (li * li + ri * ri) - wd
 
@@ -166,12 +166,12 @@ def _newton_step(f, fp, x, lo, hi, dx, dx_old, act, a, b, d2, r_res, rtol):  # p
     return m
 
 
-def _newton_values(a, b, x, d2, wd, work):
+def _eq29_at(a, b, x, d2, wd, work):
     """F and F' at ``x`` for every pair (views of ``work`` (5, >= n)): the compiled heading vectors, numpy's
     arctangent, the compiled rest."""
-    lat, ex, ey, f, fp = work[:, :len(a)]
-    _heading_vectors(a, b, x, d2, lat, ex, ey)
-    _values(a, b, x, lat, np.arctan2(ey, ex), wd, f, fp)
+    leg, ex, ey, f, fp = work[:, :len(a)]
+    _heading_vectors(a, b, x, d2, leg, ex, ey)
+    _residual_and_slope(a, b, x, leg, np.arctan2(ey, ex), wd, f, fp)
     return f, fp
 
 
@@ -183,15 +183,14 @@ def solve_turn(a, b, d, d2, wd, r_max):
     n = a.shape[0]
     ok = np.zeros(n, dtype=bool)
     r_out = np.full(n, np.nan)
-    idx, lo, hi = _root_bracket(a, b, d, d2, wd, r_max)
+    idx, lo, hi = root_bracket(a, b, d, d2, wd, r_max)
     if idx.size == 0:
         return ok, r_out
-    a, b, d2 = a[idx].copy(), b[idx].copy(), d2[idx].copy()
+    a, b, d2 = a[idx], b[idx], d2[idx]            # new arrays: _newton_step compacts them (and lo, hi) in place
     # Safeguarded Newton ("rtsafe"): start at lo, the straight-line estimate, exact for small turns.
     x = lo.copy()
-    lo, hi = lo.copy(), hi.copy()
     work = np.empty((5, idx.size))
-    f, fp = _newton_values(a, b, x, d2, wd, work)
+    f, fp = _eq29_at(a, b, x, d2, wd, work)
     dx_old = hi - lo
     dx = dx_old.copy()
     act = np.arange(idx.size)
@@ -201,7 +200,7 @@ def solve_turn(a, b, d, d2, wd, r_max):
         if m == 0:
             break
         x, lo, hi, dx, dx_old, act, a, b, d2 = (t[:m] for t in (x, lo, hi, dx, dx_old, act, a, b, d2))
-        f, fp = _newton_values(a, b, x, d2, wd, work)
+        f, fp = _eq29_at(a, b, x, d2, wd, work)
     # Anything still unconverged (never seen in practice) stays NaN and is reported infeasible.
     good = np.isfinite(r_res)
     ok[idx[good]] = True
