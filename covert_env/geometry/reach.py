@@ -195,11 +195,14 @@ def _lookup_labels(coef, nodes, labels, coarse, shift, out):  # pragma: no cover
     top_a, top_b = np.float32(na - 1), np.float32(nb - 1)
     zero = np.float32(0.0)
     xs, ys = nodes[0].copy(), nodes[1].copy()
+    n = len(xs)
+    coarse_at, fine_at = np.empty(n, np.int64), np.empty(n, np.int64)
     for r in range(coef.shape[0]):
         a0, a1, a2 = coef[r, 0, 0], coef[r, 0, 1], coef[r, 0, 2]
         b0, b1, b2 = coef[r, 1, 0], coef[r, 1, 1], coef[r, 1, 2]
-        row = out[r]
-        for j in range(len(xs)):
+        # Two passes: the cells of every node first (branch-free arithmetic the compiler vectorises), then the
+        # table reads, whose branch would keep the first pass scalar.
+        for j in range(n):
             x, y = xs[j], ys[j]
             ia = a0 * x + a1 * y + a2
             ib = abs(b0 * x + b1 * y + b2)
@@ -207,5 +210,9 @@ def _lookup_labels(coef, nodes, labels, coarse, shift, out):  # pragma: no cover
             ia = ia if ia < top_a else top_a
             ib = ib if ib < top_b else top_b                # NaN -> the last column
             i, k = np.int32(ia), np.int32(ib)
-            label = flat_coarse[(i >> shift) * cnb + (k >> shift)]
-            row[j] = label if label != _MIXED else flat[i * nb + k]
+            coarse_at[j] = (i >> shift) * cnb + (k >> shift)
+            fine_at[j] = i * nb + k
+        row = out[r]
+        for j in range(n):
+            label = flat_coarse[coarse_at[j]]
+            row[j] = label if label != _MIXED else flat[fine_at[j]]

@@ -79,28 +79,43 @@ def _kernel(hs, cx, cy, radius, z_top, growth, targets, rows, start, points, hei
 def _kernel_offsets(hs, cx, cy, radius, z_top, growth, targets, rows, cos, sin, offsets, height, tol,
                     out):  # pragma: no cover
     """``out[j, l]`` = the segment from target j's offset l (in its frame, at ``height``) is blocked; arguments as
-    :func:`blocked_offsets`. The points are :func:`~covert_env.geometry.zone.to_world`'s, term by term."""
+    :func:`blocked_offsets`. The points are :func:`~covert_env.geometry.zone.to_world`'s, term by term.
+
+    Every point of a target is at the same height, so a polytope's low part of the segments (``s0``, ``s1``) is the
+    same for all: the kernel takes one kept polytope at a time, tests every point against its footprint circle in
+    one branch-free pass (which the compiler vectorises), then clips the points that pass and are not yet blocked.
+    A point is blocked iff some polytope blocks it: the decisions of :func:`_point_blocked`, polytope by polytope."""
     keep = np.empty(hs.shape[1], dtype=np.int64)
-    points = np.empty((len(offsets), 2))
+    n = len(offsets)
+    xs, ys = np.empty(n), np.empty(n)
+    near = np.empty(n, dtype=np.bool_)
+    uz = height
     for j in range(len(targets)):
-        qx, qy = targets[j, 0], targets[j, 1]
+        qx, qy, qz, r = targets[j, 0], targets[j, 1], targets[j, 2], rows[j]
         c, s = cos[j], sin[j]
         d2_max = 0.0
-        for i in range(len(offsets)):
+        for i in range(n):
             x = qx + c * offsets[i, 0] - s * offsets[i, 1]
             y = qy + s * offsets[i, 0] + c * offsets[i, 1]
-            points[i, 0], points[i, 1] = x, y
+            xs[i], ys[i] = x, y
             dx, dy = x - qx, y - qy
             d2 = dx * dx + dy * dy
             if d2 > d2_max:
                 d2_max = d2
-        n_keep = _near_polytopes(z_top, cx, cy, radius, growth, rows[j], qx, qy, targets[j, 2], np.sqrt(d2_max),
-                                 height, tol, keep)
-        if n_keep == 0:
-            continue
-        for i in range(len(offsets)):
-            out[j, i] = _point_blocked(hs, cx, cy, radius, z_top, growth, rows[j], keep, n_keep, qx, qy,
-                                       targets[j, 2], points[i, 0], points[i, 1], height, tol)
+        n_keep = _near_polytopes(z_top, cx, cy, radius, growth, r, qx, qy, qz, np.sqrt(d2_max), height, tol, keep)
+        blocked = out[j]
+        dz = qz - uz
+        inv_dz = 1.0 / (dz if dz != 0.0 else -1e-300)
+        for k in range(n_keep):
+            m = keep[k]
+            s0, s1, rad = _low_part(radius, z_top, growth, r, m, uz, dz, inv_dz, tol)
+            if not s1 > s0 - 1e-12:
+                continue
+            for i in range(n):
+                near[i] = _near_footprint(cx[r, m], cy[r, m], rad, xs[i], ys[i], qx - xs[i], qy - ys[i], s0, s1)
+            for i in range(n):
+                if near[i] and not blocked[i] and _clip_meets(hs, r, m, xs[i], ys[i], uz, qx, qy, qz, tol):
+                    blocked[i] = True
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -141,9 +156,9 @@ def _point_blocked(hs, cx, cy, radius, z_top, growth, r, keep, n_keep, qx, qy, q
     inv_dz = 1.0 / (dz if dz != 0.0 else -1e-300)
     for k in range(n_keep):
         m = keep[k]
+        # _low_part written out: per (point, polytope), its tuple return makes this loop twice as slow.
         grow = growth[r, m] * -tol if tol < 0.0 else 0.0
         rad = radius[r, m] + grow + 1e-9
-        # The parameter range [s0, s1] (s = 0 at the UAV) where the segment is lower than the grown top.
         top = z_top[r, m] + grow + 1e-9
         sc = (top - uz) * inv_dz
         if dz <= 0.0:
@@ -152,37 +167,62 @@ def _point_blocked(hs, cx, cy, radius, z_top, growth, r, keep, n_keep, qx, qy, q
             s0, s1 = 0.0, min(max(sc, 0.0), 1.0)
         if not s1 > s0 - 1e-12:
             continue
-        # Its 2-D part must pass within the footprint circle.
-        acx = cx[r, m] - (ux + s0 * ex)
-        acy = cy[r, m] - (uy + s0 * ey)
-        abx, aby = (s1 - s0) * ex, (s1 - s0) * ey
-        ab2 = abx * abx + aby * aby
-        w = (acx * abx + acy * aby) / (ab2 if ab2 > 0 else 1.0)
-        w = min(max(w, 0.0), 1.0)
-        px, py = acx - w * abx, acy - w * aby
-        if px * px + py * py > rad * rad:
+        if not _near_footprint(cx[r, m], cy[r, m], rad, ux, uy, ex, ey, s0, s1):
             continue
-        # The exact clip (Cyrus-Beck) against the polytope shrunk by tol.
-        s_in, s_out = 0.0, 1.0
-        for f in range(hs.shape[2]):
-            nx, ny, nz = hs[r, m, f, 0], hs[r, m, f, 1], hs[r, m, f, 2]
-            dt = hs[r, m, f, 3] + tol
-            v0 = nx * ux + ny * uy
-            v0 = v0 + (nz * uz + dt)
-            v1 = nx * qx + ny * qy
-            v1 = v1 + (nz * qz + dt)
-            den = v1 - v0
-            s = -v0 / den
-            if den < 0.0:
-                if s > s_in:
-                    s_in = s
-            elif s < s_out:                 # den == 0: -inf (outside), +inf or NaN (no bound)
-                s_out = s
-            if s_in > s_out:
-                break
-        if s_in <= s_out:
+        if _clip_meets(hs, r, m, ux, uy, uz, qx, qy, qz, tol):
             return True
     return False
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _low_part(radius, z_top, growth, r, m, uz, dz, inv_dz, tol):  # pragma: no cover
+    """Polytope m of row r against a segment from height ``uz`` rising ``dz``: the parameter range [s0, s1] (s = 0
+    at the UAV) where the segment is lower than the grown top, and the grown footprint circle's radius."""
+    grow = growth[r, m] * -tol if tol < 0.0 else 0.0
+    rad = radius[r, m] + grow + 1e-9
+    top = z_top[r, m] + grow + 1e-9
+    sc = (top - uz) * inv_dz
+    if dz <= 0.0:
+        return min(max(sc, 0.0), 1.0), 1.0, rad
+    return 0.0, min(max(sc, 0.0), 1.0), rad
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _near_footprint(cxm, cym, rad, ux, uy, ex, ey, s0, s1):  # pragma: no cover
+    """Whether the 2-D part [s0, s1] of the segment from (ux, uy) along (ex, ey) passes within ``rad`` of the
+    footprint circle's centre (cxm, cym): the broad phase per (point, polytope)."""
+    acx = cxm - (ux + s0 * ex)
+    acy = cym - (uy + s0 * ey)
+    abx, aby = (s1 - s0) * ex, (s1 - s0) * ey
+    ab2 = abx * abx + aby * aby
+    w = (acx * abx + acy * aby) / (ab2 if ab2 > 0 else 1.0)
+    w = min(max(w, 0.0), 1.0)
+    px, py = acx - w * abx, acy - w * aby
+    return not px * px + py * py > rad * rad
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _clip_meets(hs, r, m, ux, uy, uz, qx, qy, qz, tol):  # pragma: no cover
+    """The exact clip (Cyrus-Beck): whether the segment from (ux, uy, uz) to (qx, qy, qz) meets polytope m of row r
+    shrunk by ``tol``."""
+    s_in, s_out = 0.0, 1.0
+    for f in range(hs.shape[2]):
+        nx, ny, nz = hs[r, m, f, 0], hs[r, m, f, 1], hs[r, m, f, 2]
+        dt = hs[r, m, f, 3] + tol
+        v0 = nx * ux + ny * uy
+        v0 = v0 + (nz * uz + dt)
+        v1 = nx * qx + ny * qy
+        v1 = v1 + (nz * qz + dt)
+        den = v1 - v0
+        s = -v0 / den
+        if den < 0.0:
+            if s > s_in:
+                s_in = s
+        elif s < s_out:                 # den == 0: -inf (outside), +inf or NaN (no bound)
+            s_out = s
+        if s_in > s_out:
+            return False
+    return s_in <= s_out
 
 
 def blocked_segments(hs: np.ndarray, cx: np.ndarray, cy: np.ndarray, radius: np.ndarray, z_top: np.ndarray,
