@@ -156,7 +156,7 @@ def _point_blocked(hs, cx, cy, radius, z_top, growth, r, keep, n_keep, qx, qy, q
     inv_dz = 1.0 / (dz if dz != 0.0 else -1e-300)
     for k in range(n_keep):
         m = keep[k]
-        # _low_part written out: per (point, polytope), its tuple return makes this loop twice as slow.
+        # _low_part written out: called per (point, polytope), its tuple return keeps this loop from compiling well.
         grow = growth[r, m] * -tol if tol < 0.0 else 0.0
         rad = radius[r, m] + grow + 1e-9
         top = z_top[r, m] + grow + 1e-9
