@@ -90,7 +90,7 @@ def _phi(a, b, d2, r):
 
 @numba.njit(cache=False)
 def _newton_terms(a, b, d2, x, wd):
-    """Eq. 29 as F(r) and dF/dr at r = x (covert_env.geometry.turn_root._F and _dF)."""
+    """Eq. 29 as F(r) and dF/dr at r = x (covert_env.geometry.turn_root._residual_and_slope)."""
     lat = _lateral(d2, b, x)
     tau = _tau(a, b, x, lat)
     return x * tau + lat - wd * x, tau + (lat * (x - b) - a * x) / (lat * lat + x * x) - wd

@@ -511,10 +511,26 @@ def test_manoeuvre_feasible_is_solve_manoeuvres_feasibility(limits):
     assert 0.05 < want.mean() < 0.95
 
 
+def _eq29_in_numpy(a, b, d2, r, wd):
+    """Eq. 29's residual F(r) = r tau + L - delta W_max r, with tau and L, written with numpy array operations."""
+    lat = np.sqrt(np.maximum(d2 - 2.0 * b * r, 0.0))
+    quotient = (a > 0) & (a + lat > 1e-6 * (b + r))
+    a_minus_l = np.where(quotient, b * (2.0 * r - b) / np.where(quotient, a + lat, 1.0), a - lat)
+    t = np.arctan2(r * a_minus_l + lat * b, lat * a - r * (b - r))
+    tau = np.where(t < 0, t + 2 * np.pi, t)
+    return r * tau + lat - wd * r, tau, lat
+
+
+def _dF(a, b, r, tau, lat, wd):
+    return tau + (lat * (r - b) - a * r) / (lat * lat + r * r) - wd
+
+
 def _newton_in_numpy(a, b, d, d2, wd, r_max):
     """The safeguarded Newton iteration of eq. 29 written with numpy array operations (the form the compiled steps
     of covert_env.geometry.turn_root follow, operation for operation)."""
-    from covert_env.geometry.turn_root import _F, _NEWTON_RTOL, _dF, root_bracket
+    from covert_env.geometry.turn_root import _NEWTON_RTOL, root_bracket
+
+    _F = _eq29_in_numpy
 
     ok, r_out = np.zeros(len(a), bool), np.full(len(a), np.nan)
     idx, lo, hi = root_bracket(a, b, d, d2, wd, r_max)

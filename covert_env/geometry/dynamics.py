@@ -80,7 +80,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from covert_env.geometry.angles import wrap_heading
-from covert_env.geometry.turn_root import root_bracket, solve_turn, straight_leg, turn_angle
+from covert_env.geometry.turn_root import root_bracket, solve_turn, turn_angle
 
 __all__ = [
     "Manoeuvre",
@@ -405,7 +405,7 @@ def solve_manoeuvre(p, theta, goals, *, v_max: float = 50.0, w_max: float = 3.0,
         ti = ti[ok_t]
         r_t = r_t[ok_t]
         at, bt, d2t = a[ti], b[ti], d2[ti]
-        tau_t = turn_angle(at, bt, r_t, straight_leg(d2t, bt, r_t))
+        tau_t = turn_angle(at, bt, r_t, d2t)
         # tau <= delta W_max holds at the root up to rounding; never report a turn longer than the slot.
         tau_t = np.minimum(tau_t, wd)
         feasible[ti] = True

@@ -6,10 +6,10 @@ Newton iteration: Newton steps kept inside the shrinking sign-change bracket, bi
 (:mod:`covert_env.geometry.dynamics` derives F, its derivative and the root structure).
 
 The iteration runs on every still-unconverged pair at once. Its arithmetic per pair is compiled (numba: the
-heading vector, F, F' and the step, the same IEEE operations in the same order as the numpy forms below), but the
-arctangent is numpy's ``arctan2``, called once per iteration on the whole batch: numpy's float64 ``arctan2`` rounds
-differently from the C library's on CPUs with AVX-512, and the env's numbers (fingerprints, the shipped cards'
-replays) are numpy's, bit for bit.
+heading vector, F, F' and the step), but the arctangent is numpy's ``arctan2``, called once per iteration on the
+whole batch: numpy's float64 ``arctan2`` rounds differently from the C library's on CPUs with AVX-512, and the env's
+numbers (fingerprints, the shipped cards' replays) are numpy's, bit for bit (tests/test_dynamics.py holds the
+iteration written with numpy array operations, which the compiled one matches to the last bit).
 """
 
 from __future__ import annotations
@@ -32,30 +32,15 @@ def straight_leg(d2, b, r):
     return np.sqrt(np.maximum(d2 - 2.0 * b * r, 0.0))
 
 
-def turn_angle(a, b, r, L):
-    """Turn angle in [0, 2 pi) for the left-turn frame (b >= 0), from the cancellation-free heading vector."""
-    # a - L loses all its digits when the goal is nearly dead ahead (L ~ a); a^2 - L^2 = b (2r - b) is exact.
-    # The quotient is itself rounding noise over a tiny divisor when a + L ~ 0 (goal abeam, on the turning
-    # circle: a = 0+, L = 0), where a - L is exact enough; a > 0 with a + L below 1e-6 (b + r) uses a - L.
-    quotient = (a > 0) & (a + L > 1e-6 * (b + r))
-    a_minus_l = np.where(quotient, b * (2.0 * r - b) / np.where(quotient, a + L, 1.0), a - L)
-    ex = L * a - r * (b - r)
-    ey = r * a_minus_l + L * b
+def turn_angle(a, b, r, d2):
+    """Turn angle tau in [0, 2 pi) of left-frame goals (b >= 0) at radius r (1-D arrays): the arctangent of the
+    cancellation-free heading vector (:func:`_heading_vectors`), folded as :func:`_residual_and_slope` folds it."""
+    n = len(a)
+    leg, ex, ey = np.empty(n), np.empty(n), np.empty(n)
+    _heading_vectors(a, b, r, d2, leg, ex, ey)
     t = np.arctan2(ey, ex)
     # A left turn's angle, not a heading: just below a full circle it may round to 2 pi, which must not fold to 0.
     return np.where(t < 0, t + TWO_PI, t)
-
-
-def _F(a, b, d2, r, wd):
-    """Eq. 29 as a function of the radius r: arc + straight - distance flown in the slot at v = W_max r."""
-    L = straight_leg(d2, b, r)
-    tau = turn_angle(a, b, r, L)
-    return r * tau + L - wd * r, tau, L
-
-
-def _dF(a, b, r, tau, L, wd):
-    """dF/dr = tau + (L (r - b) - a r) / D^2 - delta W_max (the r tau' and L' singularities cancel)."""
-    return tau + (L * (r - b) - a * r) / (L * L + r * r) - wd
 
 
 def _phi(a, b, d2, r):
@@ -105,7 +90,7 @@ def root_bracket(a, b, d, d2, wd, r_max):
     idx = np.flatnonzero(alive)
     if idx.size == 0:
         return idx, lo[idx], hi[idx]
-    f_hi, _, _ = _F(a[idx], b[idx], d2[idx], hi[idx], wd)
+    f_hi = _eq29_at(a[idx], b[idx], hi[idx], d2[idx], wd, np.empty((5, idx.size)))[0]
     # F(hi) > 0: even the largest admissible radius cannot cover the path in one slot -> infeasible.
     idx = idx[f_hi <= 0]
     return idx, lo[idx], hi[idx]
@@ -113,14 +98,17 @@ def root_bracket(a, b, d, d2, wd, r_max):
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _heading_vectors(a, b, r, d2, leg, ex, ey):  # pragma: no cover
-    """:func:`straight_leg` L and :func:`turn_angle`'s heading vector (ex, ey) before its arctangent, pair by pair,
-    into ``leg``, ``ex``, ``ey``: the same operations as the numpy forms."""
+    """The straight leg L (:func:`straight_leg`) and the heading vector (ex, ey) whose arctangent is the turn angle
+    tau, pair by pair, into ``leg``, ``ex``, ``ey``."""
     for i in range(len(a)):
         ai, bi, ri = a[i], b[i], r[i]
         s = d2[i] - 2.0 * bi * ri
         if s < 0.0:                                    # np.maximum(s, 0.0): NaN stays NaN
             s = 0.0
         li = np.sqrt(s)
+        # a - L loses all its digits when the goal is nearly dead ahead (L ~ a); a^2 - L^2 = b (2r - b) is exact.
+        # The quotient is itself rounding noise over a tiny divisor when a + L ~ 0 (goal abeam, on the turning
+        # circle: a = 0+, L = 0), where a - L is exact enough; a > 0 with a + L below 1e-6 (b + r) uses a - L.
         if ai > 0 and ai + li > 1e-6 * (bi + ri):
             a_minus_l = bi * (2.0 * ri - bi) / (ai + li)
         else:
@@ -132,8 +120,9 @@ def _heading_vectors(a, b, r, d2, leg, ex, ey):  # pragma: no cover
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _residual_and_slope(a, b, r, leg, t, wd, f, fp):  # pragma: no cover
-    """F (:func:`_F`) and F' (:func:`_dF`) at ``r`` from the arctangents ``t`` of the heading vectors, into ``f``
-    and ``fp``."""
+    """Eq. 29's residual F(r) = r tau + L - delta W_max r and its slope
+    F'(r) = tau + (L (r - b) - a r) / D^2 - delta W_max (the r tau' and L' singularities cancel), from the
+    arctangents ``t`` of the heading vectors, into ``f`` and ``fp``."""
     for i in range(len(a)):
         tau = t[i] + TWO_PI if t[i] < 0 else t[i]
         ri, li = r[i], leg[i]
