@@ -5,7 +5,7 @@ slots is checked here on ``path_samples`` equally spaced instants of the manoeuv
 manoeuvres at once:
 
 * ``check_path`` (:class:`PathChecker`): at every interior instant the UAV is in the zone of eq. 4 around
-  the target at that instant and outside its shadows (eqs. 8-9): a line-of-sight guarantee the paper
+  the target at that instant and sees it (eq. 6, the env's line-of-sight kernel): a guarantee the paper
   does not give;
 * team negotiation (:func:`separated`): at every instant the UAV keeps a distance from the manoeuvres
   other UAVs recorded at the same instants (eq. 2 along the path);
@@ -15,11 +15,9 @@ manoeuvres at once:
 
 from __future__ import annotations
 
-from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
-import shapely
 
 from baselines.dp.clearance import TerrainClearance, take_manoeuvres
 from covert_env.geometry.angles import wrap_angle
@@ -27,15 +25,11 @@ from covert_env.geometry.dynamics import Manoeuvre, unicycle_arc
 from covert_env.geometry.separation import separation
 from covert_env.geometry.zone import in_feasible_zone
 from covert_env.world.config import Config
-from covert_env.world.shadows import shadow_union_cfg
 from covert_env.world.terrain import Terrain
-from covert_env.world.visibility import SAFE_LOS_TOLERANCE, line_of_sight
+from covert_env.world.visibility import SAFE_LOS_TOLERANCE, line_of_sight_rows
 
-__all__ = ["FALLBACK_PENALTY", "PathChecker", "PathContext", "SHADOW_MARGIN", "record_circles", "separated"]
+__all__ = ["FALLBACK_PENALTY", "PathChecker", "PathContext", "record_circles", "separated"]
 
-#: Growth (m) of the shadows used for ``check_path``: shadows equal the blocked set up to ~1e-8 m at their
-#: boundary (tests/test_visibility.py checks 1 cm); a point within 1 cm of a shadow counts as blocked.
-SHADOW_MARGIN = 0.01
 #: Consecutive samples of a recorded path bounded by one circle in the separation test (:func:`separated`).
 SEPARATION_RUN = 5
 #: Penalty per non-visible node in fallback level 2, for the last stage; earlier stages weigh 2x more
@@ -52,14 +46,12 @@ class PathContext:
 
 
 class PathChecker:
-    """``check_path``: line of sight and zone at the instants between slots, with a cache of shadow unions;
-    and eq. 3 (``clearance``) at the nodes and along every manoeuvre."""
+    """``check_path``: line of sight and zone at the instants between slots; and eq. 3 (``clearance``) at the
+    nodes and along every manoeuvre."""
 
-    def __init__(self, config: Config, terrain: Terrain, path_samples: int, cache_size: int):
+    def __init__(self, config: Config, terrain: Terrain, path_samples: int):
         self.config, self.terrain, self.path_samples = config, terrain, int(path_samples)
         self.clearance = TerrainClearance(terrain, config.altitude, config.d_safe2, self.path_samples)
-        self._max_shadows = 8 * int(cache_size) * self.path_samples
-        self._shadows: OrderedDict = OrderedDict()
 
     def context(self, tq, tphi, target_path) -> PathContext:
         """Target samples per slot: ``target_path`` (N, P, 3), or linear between the slot positions."""
@@ -108,58 +100,26 @@ class PathChecker:
         good = np.ones(len(pts), bool)
         if zone:
             good = in_feasible_zone(pts, tq[:, :2], ctx.phi[j, 1:-1], c.r1, c.r2, c.mu, 0.0).all(axis=1)
-        # One pass per instant (the target, hence the shadows, differ), each over every manoeuvre at once.
-        for i in range(p - 2):
-            idx = np.flatnonzero(good)
-            if idx.size == 0:
-                break
-            if c.h_min is None:
-                # Samples in the zone are within R2 of the target, where the shadows (eqs. 8-9, automatic
-                # h_min) are exactly the blocked set; grown by 1 cm they are a conservative, fast test.
-                shadow = self.shadow(tq[i])
-                if shadow is not None:
-                    good[idx] = ~shapely.intersects_xy(shadow, pts[idx, i, 0], pts[idx, i, 1])
-            else:
-                good[idx] = line_of_sight(self.terrain, pts[idx, i], c.altitude, tq[i], tol=SAFE_LOS_TOLERANCE)
+        if good.any():
+            good[good] = ~self._blocked(pts[good], tq).any(axis=1)
         return good
 
     def blocked_share(self, m: Manoeuvre, ok: np.ndarray, ctx: PathContext, j: int) -> np.ndarray:
         """For feasible manoeuvres into stage j: the share of the samples after the start (the end included)
         with LoS to the target at the same instant blocked -- the env's ``cost_los_path`` on the planner's
         samples and its predicted target (docs/decisions/planner.md#a-learned-cost-in-the-planners-search)."""
-        c = self.config
         p = self.path_samples
         pts = take_manoeuvres(m, np.flatnonzero(ok)).points(p)[:, 1:]          # (K, P - 1, 2)
-        tq = ctx.target[j, 1:]                                                  # (P - 1, 3)
-        if c.h_min is not None:
-            exact = np.ones(pts.shape[:2], bool)
-            blocked = np.zeros(pts.shape[:2], bool)
-        else:
-            # Every (manoeuvre, instant) against that instant's shadows in one call (None: no shadow, clear).
-            # The shadows are the blocked set within their radius; a path that bows out beyond it is checked
-            # exactly there.
-            reach = c.r2 + c.shadow_margin - 2 * SHADOW_MARGIN
-            exact = np.hypot(pts[..., 0] - tq[:, 0], pts[..., 1] - tq[:, 1]) > reach
-            shadows = np.array([self.shadow(q) for q in tq], dtype=object)
-            blocked = shapely.intersects_xy(shadows, pts[..., 0], pts[..., 1])
-        if exact.any():
-            k, i = np.nonzero(exact)
-            blocked[k, i] = ~line_of_sight(self.terrain, pts[k, i], c.altitude, tq[i], tol=SAFE_LOS_TOLERANCE)
-        return blocked.sum(axis=1) / (p - 1)
+        return self._blocked(pts, ctx.target[j, 1:]).sum(axis=1) / (p - 1)
 
-    def shadow(self, q):
-        """Prepared union of the shadows at target position q, grown by 1 cm (None: no shadow); cached."""
-        key = np.asarray(q, float).tobytes()
-        if key in self._shadows:
-            return self._shadows[key]
-        geom = shadow_union_cfg(self.terrain, q, self.config)
-        geom = None if geom.is_empty else geom.buffer(SHADOW_MARGIN, quad_segs=2)
-        if geom is not None:
-            shapely.prepare(geom)
-        self._shadows[key] = geom
-        while len(self._shadows) > self._max_shadows:
-            self._shadows.popitem(last=False)
-        return geom
+    def _blocked(self, pts: np.ndarray, tq: np.ndarray) -> np.ndarray:
+        """(K, S) whether sample i of manoeuvre k, ``pts[k, i]``, is out of sight of the target at that instant,
+        ``tq[i]``: eq. 6 exactly, every (manoeuvre, instant) in one call of the line-of-sight kernel, at
+        :data:`~covert_env.world.visibility.SAFE_LOS_TOLERANCE` (a sample called visible stays visible when the
+        env scores it)."""
+        by_instant = np.ascontiguousarray(pts.transpose(1, 0, 2))                # (S, K, 2): target i's points
+        clear = line_of_sight_rows(self.terrain, by_instant, self.config.altitude, tq, tol=SAFE_LOS_TOLERANCE)
+        return ~clear.T
 
 
 def record_circles(avoid: np.ndarray, avoid_dist: float, j: int) -> tuple:

@@ -123,7 +123,7 @@ class DPPlanner:
         # A replan at slot k+1 reuses N - 1 of the stages and N - 2 of the pairs of the one at slot k.
         size = int(cache_size) if cache_size is not None else config.horizon + 2
         self.cache = StageCache(self.lattice, self.table, config.lam, config.eta, size)
-        self.paths = PathChecker(config, terrain, self.path_samples, size)
+        self.paths = PathChecker(config, terrain, self.path_samples)
         self.recursion = ForwardRecursion(config, self.lattice, self.table, self.cache, self.paths)
 
     @property
