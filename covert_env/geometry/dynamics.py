@@ -307,11 +307,17 @@ class Manoeuvre:
         sx, sy = self.start[..., 0][ex], self.start[..., 1][ex]
         zx, zy = self.tangent[..., 0][ex], self.tangent[..., 1][ex]
         in_turn = t <= tt
-        # Each phase is flown exactly from its own start; times outside a phase are clipped, then discarded.
-        # Positions only: the headings along the path are never read.
-        x1, y1, _ = unicycle_arc(sx, sy, th0, v, om, np.minimum(t, tt), heading=False)
+        # Each phase is flown exactly from its own start, positions only (the headings along the path are never
+        # read). The straight leg costs one sine and cosine per manoeuvre, so it is flown at every time (those in
+        # the turn are overwritten); the turn, three per sample, only at the times in it.
         x2, y2, _ = unicycle_arc(zx, zy, tha, v, 0.0, np.maximum(t - tt, 0.0), heading=False)
-        return np.stack([np.where(in_turn, x1, x2), np.where(in_turn, y1, y2)], axis=-1)
+        out = np.stack([x2, y2], axis=-1)
+        turning = np.nonzero(in_turn)
+        at = turning[:-1] + (0,)
+        x1, y1, _ = unicycle_arc(sx[at], sy[at], th0[at], v[at], om[at], t[turning[-1]], heading=False)
+        out[turning + (0,)] = x1
+        out[turning + (1,)] = y1
+        return out
 
 
 def _uav_frame(P, c, s, G, v_max: float, delta: float):
