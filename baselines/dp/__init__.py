@@ -74,8 +74,8 @@ only make the planner skip a transition, never accept an infeasible one. Under n
 loser's plan stays valid but may not be its constrained optimum.
 
 ``check_path=True`` adds, for every solved manoeuvre, ``path_samples`` instants at which the UAV must be
-in the zone of eq. 4 around the target at that instant and outside its shadows (eqs. 8-9, exact within
-R2 of the target, grown by 1 cm): a line-of-sight guarantee between slot times.
+in the zone of eq. 4 around the target at that instant and see it (eq. 6, the env's line-of-sight kernel, at
+``SAFE_LOS_TOLERANCE``: the polytopes grown by 1 um): a line-of-sight guarantee between slot times.
 
 ``path_cost`` (per stage, m of stage cost) instead makes LoS along the manoeuvre a cost: a transition into stage
 j pays ``path_cost[j-1]`` times the share of its samples without LoS to the predicted target at the same instant.

@@ -306,15 +306,16 @@ class Manoeuvre:
         tha = np.asarray(self.heading_after, dtype=float)[ex]
         sx, sy = self.start[..., 0][ex], self.start[..., 1][ex]
         zx, zy = self.tangent[..., 0][ex], self.tangent[..., 1][ex]
-        in_turn = t <= tt
         # Each phase is flown exactly from its own start, positions only (the headings along the path are never
         # read). The straight leg costs one sine and cosine per manoeuvre, so it is flown at every time (those in
         # the turn are overwritten); the turn, three per sample, only at the times in it.
-        x2, y2, _ = unicycle_arc(zx, zy, tha, v, 0.0, np.maximum(t - tt, 0.0), heading=False)
-        out = np.stack([x2, y2], axis=-1)
-        turning = np.nonzero(in_turn)
+        batch = np.broadcast_shapes(*(np.shape(a) for a in (v, om, tt, th0, tha, sx, sy, zx, zy)))   # (*batch, 1)
+        out = np.empty(batch[:-1] + (n, 2))
+        out[..., 0], out[..., 1], _ = unicycle_arc(zx, zy, tha, v, 0.0, np.maximum(t - tt, 0.0), heading=False)
+        turning = np.nonzero(np.broadcast_to(t <= tt, out.shape[:-1]))
         at = turning[:-1] + (0,)
-        x1, y1, _ = unicycle_arc(sx[at], sy[at], th0[at], v[at], om[at], t[turning[-1]], heading=False)
+        x1, y1, _ = unicycle_arc(*(np.broadcast_to(a, batch)[at] for a in (sx, sy, th0, v, om)), t[turning[-1]],
+                                 heading=False)
         out[turning + (0,)] = x1
         out[turning + (1,)] = y1
         return out
