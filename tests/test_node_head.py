@@ -10,7 +10,7 @@ from _extras import needs
 torch = needs("torch")
 
 from training.mappo.networks import Actor  # noqa: E402
-from training.mappo.node_head import node_scores  # noqa: E402
+from training.mappo.node_head import CHUNK, node_scores  # noqa: E402
 
 
 def _reference(actor, obs, store, sample_of, mask):
@@ -28,12 +28,14 @@ def _grads(actor, fn, weight):
     return logits.detach(), {k: p.grad.clone() for k, p in actor.named_parameters()}
 
 
-@pytest.mark.parametrize("seed", [0, 1])
-def test_scores_and_gradients_are_the_torch_head(seed):
+@pytest.mark.parametrize(("seed", "rows", "node_hidden"), [(0, 40, 32), (1, 40, 32), (2, 130, 6)])
+def test_scores_and_gradients_are_the_torch_head(seed, rows, node_hidden):
+    """Also with more pairs than a chunk (130 rows: some 3,000 pairs, rows cut between chunks) and a width that is
+    not a power of two."""
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
-    rows, n_nodes, n_feat, width = 40, 57, 13, 21
-    actor = Actor(width, n_nodes, head="node", hidden=16, node_hidden=32, n_feat=n_feat, log_std_init=-0.5)
+    n_nodes, n_feat, width = 57, 13, 21
+    actor = Actor(width, n_nodes, head="node", hidden=16, node_hidden=node_hidden, n_feat=n_feat, log_std_init=-0.5)
     for p in actor.node_out.parameters():             # a trained-size output layer: every hidden unit matters
         torch.nn.init.normal_(p, std=0.5)
     obs = torch.randn(rows, width)
@@ -41,6 +43,7 @@ def test_scores_and_gradients_are_the_torch_head(seed):
     sample_of = rng.permutation(3 * rows)[:rows]      # rows read samples of a larger store, as a minibatch does
     mask = torch.from_numpy(rng.random((rows, n_nodes)) < 0.4)
     mask[3] = False                                   # a row with no allowed node
+    assert rows < 100 or int(mask.sum()) > CHUNK      # the large case spans chunks
     weight = torch.randn(rows, n_nodes) * mask
     want, want_g = _grads(actor, lambda: _reference(actor, obs, store, sample_of, mask), weight)
     got, got_g = _grads(actor, lambda: actor.logits(obs, store, mask, sample_of), weight)
@@ -65,10 +68,7 @@ def test_the_dense_path_reads_the_rows_samples():
 def test_bad_inputs_are_refused_with_what_was_given():
     torch.manual_seed(0)
     actor = Actor(5, 7, head="node", hidden=8, node_hidden=6, n_feat=3, log_std_init=-0.5)
-    a = torch.zeros(2, 6)
     one = np.zeros(1, np.int64)
-    with pytest.raises(ValueError, match="power of two, got 6"):
-        node_scores(a, actor.node_feat, actor.node_out, np.zeros((2, 7, 3), np.float32), one, one, one)
     actor = Actor(5, 7, head="node", hidden=8, node_hidden=4, n_feat=3, log_std_init=-0.5)
     with pytest.raises(ValueError, match=r"float32 array, got float64 \(2, 7, 3\)"):
         node_scores(torch.zeros(2, 4), actor.node_feat, actor.node_out, np.zeros((2, 7, 3)), one, one, one)

@@ -1,4 +1,4 @@
-"""The node head's scores of the allowed nodes, forward and backward in one compiled pass each.
+"""The node head's scores of the allowed nodes, forward and backward compiled, a chunk of pairs at a time.
 
 The waypoint actor's node head (:class:`training.mappo.networks.Actor`) scores node ``n`` of row ``r`` as
 
@@ -8,8 +8,9 @@ with ``a[r]`` the trunk's projection of the row's observation (``node_obs``), ``
 (:func:`training.pretrained.node_features`), ``W`` the ``node_feat`` weights and ``w``, ``b`` the ``node_out``
 layer. Written with torch, one PPO minibatch of a few thousand rows with some 250 allowed nodes each makes
 several tensors of (rows x nodes x hidden) floats (the gathered features, the pre-activations, their gradients):
-memory traffic, not arithmetic, bounds it. :func:`node_scores` does the same arithmetic pair by pair in a compiled
-loop that holds one pair's hidden vector at a time, and recomputes it in the backward pass instead of storing it.
+memory traffic, not arithmetic, bounds it. :func:`node_scores` does the same arithmetic in compiled chunks of
+:data:`CHUNK` pairs: the chunk's features gathered into one block, ``W f`` of the whole block as one matrix
+product, the rest pair by pair; the backward pass recomputes the products instead of storing them.
 
 The features stay where the rollout stored them, ``(samples, L, F)``; each row names its sample (``sample_of``),
 so a minibatch reads them without copying.
@@ -24,78 +25,71 @@ import torch
 __all__ = ["node_scores"]
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
-def _hidden(a, r, f, wt, pre):
-    """``pre`` = ``a[r] + W f``, the hidden pre-activations of one pair."""
-    n_feat, hidden = wt.shape
-    for j in range(hidden):
-        pre[j] = 0.0
-    for k in range(n_feat):
-        fk = f[k]
-        for j in range(hidden):
-            pre[j] += wt[k, j] * fk
-    for j in range(hidden):
-        pre[j] += a[r, j]
+#: Pairs per chunk: their features are gathered into one (CHUNK, F) block, and W f of them all is one matrix
+#: product (a few hundred kB of float32: the block, its products and their gradients stay in cache).
+CHUNK = 2048
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _tree_sum(x):
-    """The sum of ``x`` (its length a power of two) by halves: a fixed order that vectorises."""
-    n = len(x) // 2
-    while n >= 1:
-        for j in range(n):
-            x[j] += x[j + n]
-        n //= 2
-    return x[0]
+def _gather(feats, sample_of, rows, nodes, start, m, block):
+    """``block[i]`` = the features of pair ``start + i``, for ``i < m``."""
+    for i in range(m):
+        p = start + i
+        block[i] = feats[sample_of[rows[p]], nodes[p]]
 
 
 @numba.njit(cache=True, nogil=True)
 def _forward(a, feats, sample_of, rows, nodes, wt, w, b, out):
     """``out[p]`` = the score of node ``nodes[p]`` of row ``rows[p]`` (module docstring); ``wt`` is ``W``
-    transposed, ``(F, H)``, so that the inner loops run over the hidden units (``H`` a power of two)."""
-    hidden = wt.shape[1]
-    pre = np.empty(hidden, np.float32)
-    for p in range(len(rows)):
-        r = rows[p]
-        _hidden(a, r, feats[sample_of[r], nodes[p]], wt, pre)
-        for j in range(hidden):
-            pre[j] = w[j] * max(pre[j], np.float32(0.0))
-        out[p] = _tree_sum(pre) + b
+    transposed, ``(F, H)``."""
+    n_feat, hidden = wt.shape
+    block = np.empty((CHUNK, n_feat), np.float32)
+    zero = np.float32(0.0)
+    for start in range(0, len(rows), CHUNK):
+        m = min(CHUNK, len(rows) - start)
+        _gather(feats, sample_of, rows, nodes, start, m, block)
+        z = np.dot(block[:m], wt)                                   # (m, H): W f of every pair
+        for i in range(m):
+            r = rows[start + i]
+            for j in range(hidden):
+                z[i, j] = max(z[i, j] + a[r, j], zero)
+        scores = np.dot(z, w)
+        for i in range(m):
+            out[start + i] = scores[i] + b
 
 
 @numba.njit(cache=True, nogil=True)
 def _backward(a, feats, sample_of, rows, nodes, wt, w, grad, da, dwt, dw):
     """The gradients of ``sum_p grad[p] * out[p]`` with respect to ``a`` (added to ``da``), ``W`` transposed
-    (``dwt``) and ``w`` (``dw``). A row's pairs (next to each other in ``rows``) add up in float32; the parameters'
-    gradients, sums over every row, in float64."""
+    (``dwt``) and ``w`` (``dw``). The hidden pre-activations are recomputed, not stored; a chunk's parameter
+    gradients add up in float32 (``W``'s as one matrix product), the totals over chunks in float64."""
     n_feat, hidden = wt.shape
-    pre = np.empty(hidden, np.float32)
-    dz = np.empty(hidden, np.float32)
-    row_dwt = np.zeros((n_feat, hidden), np.float32)
-    row_dw = np.zeros(hidden, np.float32)
-    n = len(rows)
-    for p in range(n):
-        r = rows[p]
-        g = grad[p]
-        f = feats[sample_of[r], nodes[p]]
-        _hidden(a, r, f, wt, pre)
-        for j in range(hidden):
-            on = pre[j] > 0.0
-            dz[j] = g * w[j] if on else np.float32(0.0)
-            row_dw[j] += g * pre[j] if on else np.float32(0.0)
-            da[r, j] += dz[j]
+    block = np.empty((CHUNK, n_feat), np.float32)
+    dz = np.empty((CHUNK, hidden), np.float32)
+    chunk_dw = np.empty(hidden, np.float32)
+    zero = np.float32(0.0)
+    for start in range(0, len(rows), CHUNK):
+        m = min(CHUNK, len(rows) - start)
+        _gather(feats, sample_of, rows, nodes, start, m, block)
+        z = np.dot(block[:m], wt)
+        chunk_dw[:] = 0.0
+        for i in range(m):
+            p = start + i
+            r = rows[p]
+            g = grad[p]
+            for j in range(hidden):
+                pre = z[i, j] + a[r, j]
+                on = pre > 0.0
+                d = g * w[j] if on else zero
+                dz[i, j] = d
+                da[r, j] += d
+                chunk_dw[j] += g * pre if on else zero
+        chunk_dwt = np.dot(block[:m].T, dz[:m])                     # (F, H): sum over the chunk of f dz
         for k in range(n_feat):
-            fk = f[k]
             for j in range(hidden):
-                row_dwt[k, j] += fk * dz[j]
-        if p == n - 1 or rows[p + 1] != r:                 # the row's last pair: its sums join the totals
-            for k in range(n_feat):
-                for j in range(hidden):
-                    dwt[k, j] += row_dwt[k, j]
-                    row_dwt[k, j] = 0.0
-            for j in range(hidden):
-                dw[j] += row_dw[j]
-                row_dw[j] = 0.0
+                dwt[k, j] += chunk_dwt[k, j]
+        for j in range(hidden):
+            dw[j] += chunk_dw[j]
 
 
 class _NodeScores(torch.autograd.Function):
@@ -139,9 +133,6 @@ def node_scores(a: torch.Tensor, node_feat: torch.nn.Linear, node_out: torch.nn.
         sample_of: ``(R,)`` int64, the sample of ``feats`` each row reads.
         rows, nodes: ``(P,)`` int64, the pairs to score (a row's pairs next to each other keep ``a[r]`` in cache).
     """
-    hidden = node_feat.weight.shape[0]
-    if hidden & (hidden - 1):
-        raise ValueError(f"node_scores: the node head's hidden width must be a power of two, got {hidden}")
     if node_feat.bias is not None:
         raise ValueError("node_scores: node_feat must have no bias (the node head's F -> H layer)")
     if feats.dtype != np.float32 or not feats.flags.c_contiguous or feats.ndim != 3:
