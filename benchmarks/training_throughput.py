@@ -4,8 +4,9 @@ at the same B, tasks and mask mode, in the same run, with where the loop's time 
     python benchmarks/training_throughput.py [--sizes 16 64 256] [--updates 2] [--num-steps 16]
         [--guards shield filter] [--recipe 3uav-suite]
 
-For each B: the raw env (the recipe's tasks as one ``TaskMix``, kinematic mask, masked-random nodes, automatic
-resets), then the recipe's loop (``training.mappo``: rollout of ``--num-steps`` slots, GAE, the PPO update) for
+For each B: the raw env (the recipe's tasks as one vector env, ``covert_env.envs.task_mix``, kinematic mask,
+masked-random nodes, automatic resets), then the recipe's loop (``training.mappo``: rollout of ``--num-steps``
+slots, GAE, the PPO update) for
 ``--updates`` updates after one untimed update, with each guard of ``--guards``:
 
 * ``shield``: the recipe's separation shield (``training.shield``, with its look-ahead and viability rule);

@@ -1,4 +1,4 @@
-"""training.task_mix (several tasks' vector envs as one batch) and the node head's map features
+"""Vector envs of several tasks (covert_env.envs.task_mix; training.task_mix) and the node head's map features
 (training.pretrained.map_at / node_features with map_offsets)."""
 
 import numpy as np
@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 import covert_env
 from training.pretrained import map_at, node_features
 from training.shield import end_poses
-from training.task_mix import TaskMix, make_training_env
+from training.task_mix import make_training_env
 
 
 def _grid(size, lo=(-120.0, -60.0), hi=(40.0, 60.0)):
@@ -68,89 +68,96 @@ def test_map_feature_agrees_with_the_visible_nodes():
     assert np.mean(agree) > 0.9
 
 
-def test_mix_rows_are_the_tasks_envs():
-    """A mix of two tasks steps exactly as the two tasks' envs would, each on its rows (seed + i per task)."""
-    tasks = ["paper-3uav", "towers-3uav"]
-    mix = TaskMix(tasks, 4, action_mode="waypoint", max_cycles=3)
-    solo = [covert_env.vector_env(num_envs=2, task=t, action_mode="waypoint", max_cycles=3) for t in tasks]
+def _own_nodes(mix, solo):
+    """(L_mix,) each node of the mix's lattice as an index of ``solo``'s (-1: it has none there)."""
+    at = np.abs(solo.lattice[:, None] - mix.lattice[None]).sum(-1).argmin(1)
+    inv = np.full(len(mix.lattice), -1)
+    inv[at] = np.arange(len(at))
+    return at, inv
+
+
+@pytest.mark.parametrize(("tasks", "mask_mode"), [(["paper-3uav", "towers-3uav"], "visible"),
+                                                  (["sparse-3uav", "downtown-3uav-deviating"], "kinematic"),
+                                                  (["paper-3uav-deviating", "winding-3uav"], "visible")])
+def test_mix_rows_are_the_tasks_envs(tasks, mask_mode):
+    """A vector env of two tasks steps exactly as the two tasks' envs would, each on its rows (seed + i per task),
+    a deviating task's nodes at their places in the larger lattice; through an automatic reset too."""
+    kw = dict(action_mode="waypoint", max_cycles=3, mask_mode=mask_mode)
+    mix = covert_env.vector_env(num_envs=4, task=tasks, **kw)
+    solo = [covert_env.vector_env(num_envs=2, task=t, **kw) for t in tasks]
+    assert mix.task == tuple(tasks) and mix.family is None
+    maps = [_own_nodes(mix, e) for e in solo]
     obs, _ = mix.reset(seed=5)
     ref = [e.reset(seed=5 + i)[0] for i, e in enumerate(solo)]
     np.testing.assert_array_equal(obs, np.concatenate(ref))
+    avail = mix.available_nodes
+    for i, (at, _) in enumerate(maps):
+        assert avail[2 * i:2 * i + 2].sum() == 2 * len(at) and avail[2 * i:2 * i + 2, at].all()
     rng = np.random.default_rng(0)
-    for _ in range(3):
+    for step in range(4):                                                  # the route's 3 slots, then one more
         m = mix.action_masks().astype(bool)
-        np.testing.assert_array_equal(m, np.concatenate([e.action_masks() for e in solo]).astype(bool))
+        for i, ((at, _), e) in enumerate(zip(maps, solo, strict=True)):
+            np.testing.assert_array_equal(m[2 * i:2 * i + 2][..., at], e.action_masks().astype(bool))
+            assert m[2 * i:2 * i + 2].sum() == e.action_masks().sum()             # nothing at nodes it lacks
         act = np.array([[rng.choice(np.flatnonzero(m[b, u])) for u in range(3)] for b in range(4)])
+        own = [inv[a] for (_, inv), a in zip(maps, np.split(act, 2), strict=True)]
         np.testing.assert_array_equal(mix.waypoint_paths(act[..., None]),
-                                      np.concatenate([e.waypoint_paths(a[..., None])
-                                                      for e, a in zip(solo, np.split(act, 2), strict=True)]))
+                                      np.concatenate([e.waypoint_paths(a[..., None]) for e, a in zip(solo, own,
+                                                                                                   strict=True)]))
         ends = end_poses(mix.waypoint_paths(act[..., None]))
         np.testing.assert_array_equal(mix.onward_reach(*ends),
                                       np.concatenate([e.onward_reach(x, t) for e, x, t in
                                                       zip(solo, np.split(ends[0], 2), np.split(ends[1], 2),
                                                           strict=True)]))
         got = mix.step(act)
-        want = [e.step(a) for e, a in zip(solo, np.split(act, 2), strict=True)]
+        want = [e.step(a) for e, a in zip(solo, own, strict=True)]
         for j in range(4):
             np.testing.assert_array_equal(got[j], np.concatenate([w[j] for w in want]))
-        np.testing.assert_array_equal(got[4]["cost_los_path"], np.concatenate([w[4]["cost_los_path"] for w in want]))
+        for key in ("cost_los_path", "infeasible", "in_zone"):
+            np.testing.assert_array_equal(got[4][key], np.concatenate([w[4][key] for w in want]))
         np.testing.assert_array_equal(mix.state(), np.concatenate([e.state() for e in solo]))
-    assert "final_info" in got[4]                                          # the route's 3 slots ended
-    np.testing.assert_array_equal(got[4]["final_state"], np.concatenate([w[4]["final_state"] for w in want]))
-    np.testing.assert_array_equal(got[4]["final_info"]["reward_zone"],
-                                  np.concatenate([w[4]["final_info"]["reward_zone"] for w in want]))
+        assert ("final_info" in got[4]) == (step == 2)
+        if step == 2:
+            np.testing.assert_array_equal(got[4]["final_state"],
+                                          np.concatenate([w[4]["final_state"] for w in want]))
+            np.testing.assert_array_equal(got[4]["final_info"]["reward_zone"],
+                                          np.concatenate([w[4]["final_info"]["reward_zone"] for w in want]))
+    for i in (0, 3):                                                       # each copy's scene is its task's
+        assert mix.scene(i).config == solo[i // 2].scene(i % 2).config
+        np.testing.assert_array_equal(mix.scenario(i).uav_xy, solo[i // 2].scenario(i % 2).uav_xy)
 
 
-def test_mix_of_two_lattices_maps_the_nodes():
-    """A nominal and a deviating task: the mix acts on the larger lattice; the deviating copies' masks allow only
-    its nodes, and a union index flies the deviating env's node at the same place."""
-    mix = TaskMix(["paper-3uav", "paper-3uav-deviating"], 2, action_mode="waypoint", mask_mode="kinematic")
-    dev = covert_env.vector_env(num_envs=1, task="paper-3uav-deviating", action_mode="waypoint",
+def test_mix_flies_a_node_its_task_lacks_as_infeasible():
+    """A deviating copy sent to a node only the nominal lattice has flies there, flagged infeasible (an action
+    outside the mask), as any masked-out node is flown."""
+    mix = covert_env.vector_env(num_envs=2, task=["paper-3uav", "paper-3uav-deviating"], action_mode="waypoint",
                                 mask_mode="kinematic")
     mix.reset(seed=3)
-    dev.reset(seed=4)
-    assert mix.lattice.shape == (577, 2) and dev.lattice.shape == (483, 2)
-    at = np.abs(dev.lattice[:, None] - mix.lattice[None]).sum(-1).argmin(1)
-    m = mix.action_masks()
-    np.testing.assert_array_equal(m[1][:, at], dev.action_masks()[0])
-    assert m[1].sum() == dev.action_masks().sum()                          # nothing at nodes it does not have
-    rng = np.random.default_rng(1)
-    act = np.array([[rng.choice(np.flatnonzero(m[b, u])) for u in range(3)] for b in range(2)])
-    own = np.array([[np.flatnonzero(at == act[1, u])[0] for u in range(3)]])
-    np.testing.assert_array_equal(mix.waypoint_paths(act[..., None])[1], dev.waypoint_paths(own[..., None])[0])
-    np.testing.assert_array_equal(mix.onward_reach(*end_poses(mix.waypoint_paths(act[..., None])))[1],
-                                  dev.onward_reach(*end_poses(dev.waypoint_paths(own[..., None])))[0])
-    with pytest.raises(ValueError, match=r"TaskMix.onward_reach\(\): xy must have shape \(2, 3, M, 2\)"):
-        mix.onward_reach(np.zeros((2, 3, 2)), np.zeros((2, 3)))
-    np.testing.assert_array_equal(mix.step(act)[1][1], dev.step(own)[1][0])
-    bad = act.copy()
-    bad[1, 0] = np.setdiff1d(np.arange(577), at)[0]
-    with pytest.raises(ValueError, match=rf"task 'paper-3uav-deviating' has no node {bad[1, 0]} \(copy 0 of the "
-                                         r"task, UAV 0\)"):
-        mix.step(bad)
-    for wrong, pattern in ((act.astype(float), r"integer indices of shape \(2, 3\), got float64"),
-                           (act[:1], r"shape \(2, 3\), got int64 \(1, 3\)"),
-                           (act + 577, r"node indices must be in \[0, 576\]")):
-        with pytest.raises(ValueError, match=pattern):
-            mix.step(wrong)
-    with pytest.raises(ValueError, match=r"TaskMix.waypoint_paths\(\): node indices must be in \[-1, 576\]"):
-        mix.waypoint_paths(np.full((2, 3, 1), -2))
+    assert mix.lattice.shape == (577, 2)
+    missing = np.flatnonzero(~mix.available_nodes[1])
+    assert len(missing) == 577 - 483
+    m = mix.action_masks().astype(bool)
+    act = np.array([[int(np.flatnonzero(m[b, u])[0]) for u in range(3)] for b in range(2)])
+    act[1, 0] = missing[0]
+    infos = mix.step(act)[4]
+    assert infos["infeasible"][1, 0] and not infos["infeasible"][1, 1:].any()
 
 
 def test_mix_safety_state_and_filter_keep_each_copy_on_its_tasks_lattice():
-    """TaskMix.safety_state is its tasks' states on the mix's lattice (masks at their nodes' places, tops padded
+    """A mix's safety_state is its tasks' states on the mix's lattice (masks at their nodes' places, tops padded
     with inf), available_nodes says which nodes each copy's task has, and the safety filter never flies a copy to
     a node its task lacks, even where it looks beyond the masks."""
     from covert_env.envs.safety_filter import SafetyFilter, SafetyFilteredVectorEnv
 
-    mix = TaskMix(["towers-3uav", "paper-3uav-deviating"], 2, action_mode="waypoint", mask_mode="kinematic")
+    mix = covert_env.vector_env(num_envs=2, task=["towers-3uav", "paper-3uav-deviating"], action_mode="waypoint",
+                                mask_mode="kinematic")
     dev = covert_env.vector_env(num_envs=1, task="paper-3uav-deviating", action_mode="waypoint",
                                 mask_mode="kinematic")
     tow = covert_env.vector_env(num_envs=1, task="towers-3uav", action_mode="waypoint", mask_mode="kinematic")
     mix.reset(seed=3)
     tow.reset(seed=3)
     dev.reset(seed=4)
-    at = np.abs(dev.lattice[:, None] - mix.lattice[None]).sum(-1).argmin(1)
+    at, _ = _own_nodes(mix, dev)
     state, own_t, own_d = mix.safety_state(2), tow.safety_state(2), dev.safety_state(2)
     np.testing.assert_array_equal(state.masks[1][:, at], own_d.masks[0])
     assert state.masks[1].sum() == own_d.masks.sum()
@@ -158,8 +165,8 @@ def test_mix_safety_state_and_filter_keep_each_copy_on_its_tasks_lattice():
     for name in ("xy", "theta", "q_next", "phi_next", "q_ahead", "phi_ahead", "slots_left", "slot"):
         np.testing.assert_array_equal(getattr(state, name)[1], getattr(own_d, name)[0])
         np.testing.assert_array_equal(getattr(state, name)[0], getattr(own_t, name)[0])
-    t = max(own_t.tops.shape[1], own_d.tops.shape[1])
-    assert state.tops.shape == (2, t, 3) and np.isinf(state.tops[1, own_d.tops.shape[1]:]).all()
+    np.testing.assert_array_equal(state.tops[0][np.isfinite(state.tops[0, :, 0])], own_t.tops[0])
+    np.testing.assert_array_equal(state.tops[1][np.isfinite(state.tops[1, :, 0])], own_d.tops[0])
     avail = mix.available_nodes
     assert avail.shape == (2, 577) and avail[0].all() and avail[1].sum() == 483 and avail[1, at].all()
     # Looking beyond the masks (every stage but the last refused), the filter keeps to the available nodes.
@@ -186,18 +193,31 @@ def test_mix_safety_state_and_filter_keep_each_copy_on_its_tasks_lattice():
 
 
 def test_mix_errors_name_the_problem():
-    with pytest.raises(ValueError, match="distinct task names"):
-        TaskMix(["paper-3uav", "paper-3uav"], 2)
-    with pytest.raises(ValueError, match="multiple of the 2 tasks"):
-        TaskMix(["paper-3uav", "dense-3uav"], 3)
+    def make(tasks, n, **kw):
+        return covert_env.vector_env(num_envs=n, task=tasks, **kw)
+
+    with pytest.raises(ValueError, match="list of distinct task names"):
+        make(["paper-3uav", "paper-3uav"], 2)
+    with pytest.raises(ValueError, match="multiple of the 2 tasks .* got 3"):
+        make(["paper-3uav", "dense-3uav"], 3)
     with pytest.raises(ValueError, match="n_uavs is set by each task"):
-        TaskMix(["paper-3uav", "dense-3uav"], 2, n_uavs=3)
-    with pytest.raises(ValueError, match="'paper-6uav' differs from 'paper-3uav' in its team size"):
-        TaskMix(["paper-3uav", "paper-6uav"], 2)
+        make(["paper-3uav", "dense-3uav"], 2, n_uavs=3)
+    with pytest.raises(ValueError, match=r"task 'paper-6uav' differs from 'paper-3uav' in \['n_uavs'\]"):
+        make(["paper-3uav", "paper-6uav"], 2)
+    with pytest.raises(ValueError, match="got 'nope'"):
+        make(["paper-3uav", "nope"], 2)
     with pytest.raises(RuntimeError, match=r"waypoint_paths\(\) is for action_mode='waypoint'"):
-        uni = TaskMix(["paper-3uav", "dense-3uav"], 2)
+        uni = make(["paper-3uav", "dense-3uav"], 2)
         uni.reset(seed=0)
         uni.waypoint_paths(np.zeros((2, 3, 1), int))
-    with pytest.raises(ValueError, match="dict_obs=True is not supported"):
-        TaskMix(["paper-3uav", "dense-3uav"], 2, dict_obs=True)
-    assert isinstance(make_training_env(["paper-3uav"], 2), covert_env.envs.vector.CovertSensingVectorEnv)
+    with pytest.raises(ValueError, match="several tasks are for the vector env"):
+        covert_env.parallel_env(task=["paper-3uav", "dense-3uav"])
+    with pytest.raises(ValueError, match="does not render"):
+        make(["paper-3uav", "dense-3uav"], 2, render_mode="human")
+
+
+def test_make_training_env_gives_one_vector_env():
+    one = make_training_env(["towers-3uav"], 2)
+    mixed = make_training_env(["paper-3uav", "dense-3uav"], 4, action_mode="waypoint")
+    assert one.task == "towers-3uav" and mixed.task == ("paper-3uav", "dense-3uav")
+    assert mixed.num_envs == 4 and mixed.task_mix.copy_task.tolist() == [0, 0, 1, 1]

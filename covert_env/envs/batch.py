@@ -87,13 +87,16 @@ def fly_to_goals(xy, theta, goals, c, times) -> np.ndarray:
     return out
 
 
-def action_masks(xy, theta, q_xy, phi, lattice, visible, table) -> np.ndarray:
+def action_masks(xy, theta, q_xy, phi, lattice, visible, table, available=None) -> np.ndarray:
     """Waypoint masks (B, U, L) int8: the ``lattice`` nodes (L, 2) placed at the targets q_xy (B, 2), phi (B,) of
     slot k+1, reachable in one slot from the poses (B, U) (``table``: the config's
     :class:`~covert_env.geometry.reach.ReachTable`, exactly ``solve_manoeuvre``'s answer) and ``visible`` (B, L) there
     (None: reachable only, the kinematic mask); where no node qualifies the reachable ones, and where none is
-    reachable all."""
+    reachable all. With ``available`` (B, L) bool (a copy's task has only these nodes) every node outside it is
+    left out, as if the lattice had only its nodes."""
     reach = table.reachable(xy, theta, q_xy, phi, lattice)
+    if available is not None:
+        reach &= available[:, None, :]
     if visible is None:
         mask = reach.copy()
     else:
@@ -101,7 +104,8 @@ def action_masks(xy, theta, q_xy, phi, lattice, visible, table) -> np.ndarray:
     empty = ~mask.any(axis=-1)
     if empty.any():                                   # rare: fix those rows only
         rows = reach[empty]
-        mask[empty] = np.where(rows.any(axis=-1, keepdims=True), rows, True)
+        every = True if available is None else np.broadcast_to(available[:, None, :], mask.shape)[empty]
+        mask[empty] = np.where(rows.any(axis=-1, keepdims=True), rows, every)
     return mask.view(np.int8)
 
 

@@ -38,6 +38,9 @@ class ScenePool:
         waypoint: whether to tabulate the lattice's visibility per slot (the waypoint masks need it).
         path_slots: predicted slots of the target's path in the shared blocks (the env's ``target_path``).
         capacity: rows kept; the least recently used scene no copy flies is replaced beyond it.
+        mix: the copies' tasks (:class:`~covert_env.envs.task_mix.TaskMix`) for an env of several tasks, else
+            None. A scene's key is then ``(task, seed)``: each is drawn with its task's config, its maps mark its
+            task's zone, and its start candidates are its task's zone lattice (padded with unusable nodes).
 
     Attributes (rows R, slots T = track slots + 1, polytopes M, faces F, lattice nodes L):
         q (R, T, 3), phi (R, T): the target's track, clamped at its end like ``TargetTrack.position``.
@@ -60,11 +63,16 @@ class ScenePool:
     """
 
     def __init__(self, spec, config, lattice, map_offsets, map_in_zone, *, waypoint: bool, capacity: int,
-                 path_slots: int = 0):
+                 path_slots: int = 0, mix=None):
         self.spec, self.config, self.lattice = spec, config, lattice
         self._map_cells, self._map_in_zone = map_offsets[map_in_zone], map_in_zone
         self.waypoint, self.capacity, self.path_slots = waypoint, capacity, path_slots
-        self._start_lattice = zone_lattice(config)
+        self.mix = mix
+        # Per task (one for an env of one task): its config, map cells in its zone and start lattice.
+        if mix is None:
+            self._configs, self._in_zone, self._starts = (config,), map_in_zone[None], (zone_lattice(config),)
+        else:
+            self._configs, self._in_zone, self._starts = mix.configs, mix.map_in_zone, mix.start_lattices
         self._rows: OrderedDict = OrderedDict()          # key -> row, least recently used first
         self._caches: list[SceneCache | None] = []
         self._names: list[str] = []                      # per row, for error messages
@@ -73,7 +81,7 @@ class ScenePool:
         self.q_next, self.phi_next = np.zeros((0, 1, 3)), np.zeros((0, 1))
         self.blocks = np.zeros((0, 1, d), np.float32)
         self.lattice_ok = np.zeros((0, 1, len(lattice)), bool)
-        n0 = len(self._start_lattice)
+        n0 = max(len(a) for a in self._starts)
         self.start_xy, self.start_visible = np.zeros((0, n0, 2)), np.zeros((0, n0), bool)
         self.start_clear = np.zeros((0, n0), bool)
         self.roads, self.road_lengths = np.zeros((0, 2, 2)), np.zeros((0, 2))
@@ -97,10 +105,12 @@ class ScenePool:
         return self.terrains.radius
 
     # ------------------------------------------------------------------ scenes
-    def key(self, scene_seed) -> object:
+    def key(self, scene_seed, task: int = 0) -> object:
         if isinstance(self.spec, Scenario):
             return ("scenario", id(self.spec))
-        return "paper" if self.spec == "paper" else int(scene_seed)
+        if self.spec == "paper":
+            return "paper"
+        return int(scene_seed) if self.mix is None else (int(task), int(scene_seed))
 
     def rows_of(self, keys: list, in_use: np.ndarray) -> np.ndarray:
         """The rows of the scenes ``keys``, the missing ones built as one batch; ``in_use``: rows copies fly now
@@ -125,9 +135,14 @@ class ScenePool:
         stale = [k for k, r in self._rows.items() if r not in busy][:len(missing) - len(free)]
         if len(free) + len(stale) < len(missing):
             raise RuntimeError("ScenePool: every row is in use; raise the capacity")
-        batch = self._batch(list(missing))
+        # One batch per task (one for an env of one task), all built before any is written.
+        keys = list(missing)
+        task = np.array([k[0] for k in keys] if self.mix is not None else [0] * len(keys))
+        batches = [(t, np.flatnonzero(task == t)) for t in np.unique(task).tolist()]
+        batches = [(t, sel, self._batch([keys[i] for i in sel], t)) for t, sel in batches]
         rows = free + [self._rows.pop(k) for k in stale]
-        self._fill(np.array(rows, dtype=np.intp), batch)
+        for t, sel, batch in batches:
+            self._fill(np.array(rows, dtype=np.intp)[sel], batch, t)
         for (key, ns), r in zip(missing.items(), rows, strict=True):
             self._rows[key] = r
             out[ns] = r
@@ -142,7 +157,7 @@ class ScenePool:
         return self._caches[row]
 
     def draw_episodes(self, rows: np.ndarray, idx: np.ndarray, rngs, scene_seeds, scene_pool: int, draw_starts: bool,
-                      n_uavs: int) -> tuple[np.ndarray, np.ndarray]:
+                      n_uavs: int, tasks=None) -> tuple[np.ndarray, np.ndarray]:
         """Scenes and starts of new episodes for the copies ``idx``, each from its own generator in ``rngs``.
 
         ``rows`` (B,): every copy's scene row, updated in place for ``idx`` (their old scenes may leave the pool
@@ -152,7 +167,7 @@ class ScenePool:
         both by :func:`~covert_env.world.scenario.pick_starts_many` on the pool's start candidates. Returns the starts
         ``(len(idx), U, 2)`` and headings ``(len(idx), U)``. The missing scenes are built as one batch;
         drawing is the one per-copy step of a reset (a few µs per copy, once per episode): every copy has its own
-        generator.
+        generator. ``tasks``: the copies' tasks (an env of several tasks).
         """
         if len(idx) == 0:
             return np.zeros((0, n_uavs, 2)), np.zeros((0, n_uavs))
@@ -160,7 +175,8 @@ class ScenePool:
         seeds = [None if scene_seeds is None else int(scene_seeds[n]) for n in range(len(idx))]
         if self.spec == "random":
             seeds = [int(rng.integers(scene_pool)) if s is None else s for s, rng in zip(seeds, rngs, strict=True)]
-        rows[idx] = got = self.rows_of([self.key(s) for s in seeds], rows)
+        tasks = np.zeros(len(idx), np.intp) if tasks is None else tasks
+        rows[idx] = got = self.rows_of([self.key(s, t) for s, t in zip(seeds, tasks.tolist(), strict=True)], rows)
         if not draw_starts and self.spec == "random":
             # Each scene's own starts (Scenario.random(seed)): the start rule with a new generator of its seed.
             rngs = [np.random.default_rng(s) for s in seeds]
@@ -174,17 +190,18 @@ class ScenePool:
                                 [np.flatnonzero(v) for v in usable & ~vis], rngs, n_uavs,
                                 [self._names[r] for r in got.tolist()])
 
-    def _batch(self, keys: list) -> SceneBatch:
-        c = self.config
+    def _batch(self, keys: list, task: int) -> SceneBatch:
+        c = self._configs[task]
         if isinstance(self.spec, Scenario):
             return SceneBatch.of(keys[0], self.spec)
         if self.spec == "paper":
             return SceneBatch.of(keys[0], Scenario.paper(c))
-        return SceneBatch.random(keys, c)
+        return SceneBatch.random(keys if self.mix is None else [k[1] for k in keys], c)
 
-    def _fill(self, rows: np.ndarray, batch: SceneBatch) -> None:
-        """Write the scenes of ``batch`` into ``rows``, with their per-slot quantities (one batched call each)."""
-        c = self.config
+    def _fill(self, rows: np.ndarray, batch: SceneBatch, task: int) -> None:
+        """Write the scenes of ``batch`` (of task ``task``) into ``rows``, with their per-slot quantities (one batched
+        call each)."""
+        c = self._configs[task]
         n_t = batch.q.shape[1]
         n = max(int(rows.max()) + 1, len(self.q))
         t = max(n_t, self.q.shape[1])
@@ -218,27 +235,34 @@ class ScenePool:
         self.road_last[rows], self.target_z[rows] = k_road - 1, batch.z
         self.arc[rows] = batch.arc[:, ks]
         self.arc_segment[rows] = segments_at(batch.road_lengths, batch.arc)[:, ks]
-        self.blocks[rows] = self._blocks(rows, batch)[:, ks]
+        self.blocks[rows] = self._blocks(rows, batch, task)[:, ks]
         if self.waypoint:
             self.lattice_ok[rows] = self._lattice_visible(rows, batch)[:, ks]
-        self._write_starts(rows, batch)
+        self._write_starts(rows, batch, task)
+        prefix = "" if self.mix is None else f"{self.mix.names[task]}/"
         for key, r in zip(batch.keys, rows.tolist(), strict=True):
             sc = batch.scenario
             self._caches[r] = SceneCache(c, seed=None if sc is not None else key, scenario=sc)
-            self._names[r] = sc.name if sc is not None else f"random-{key}"
+            self._names[r] = sc.name if sc is not None else f"{prefix}random-{key}"
 
-    def _blocks(self, rows: np.ndarray, batch: SceneBatch) -> np.ndarray:
+    def _blocks(self, rows: np.ndarray, batch: SceneBatch, task: int) -> np.ndarray:
         """(N, T, D) the shared blocks of the scenes just written into ``rows``: their maps at every slot and at
-        the predicted next one (the next slot's maps when the prediction is the truth)."""
-        c, in_zone = self.config, self._map_in_zone
+        the predicted next one (the next slot's maps when the prediction is the truth). The maps are 1 only in the
+        task's zone: each cell's line of sight is its own, so the cells of the env's zone are tested and those
+        outside the task's (eroded) zone set to 0."""
+        c, in_zone = self._configs[task], self._map_in_zone
+        outside = ~self._in_zone[task][in_zone]
         maps = np.zeros(batch.q.shape[:2] + (len(in_zone),), np.float32)
-        maps[..., in_zone] = visible_nodes_rows(self.terrains, rows, self._map_cells, batch.q, batch.phi, c.altitude)
+        seen = visible_nodes_rows(self.terrains, rows, self._map_cells, batch.q, batch.phi, c.altitude)
+        seen[..., outside] = False
+        maps[..., in_zone] = seen
         if batch.exact:
             maps_next = maps[:, np.minimum(np.arange(maps.shape[1]) + 1, maps.shape[1] - 1)]
         else:
             maps_next = np.zeros_like(maps)
-            maps_next[..., in_zone] = visible_nodes_rows(self.terrains, rows, self._map_cells, batch.q_next,
-                                                         batch.phi_next, c.altitude)
+            seen = visible_nodes_rows(self.terrains, rows, self._map_cells, batch.q_next, batch.phi_next, c.altitude)
+            seen[..., outside] = False
+            maps_next[..., in_zone] = seen
         return shared_blocks(c, batch, maps, maps_next, self.path_slots)
 
     def _lattice_visible(self, rows: np.ndarray, batch: SceneBatch) -> np.ndarray:
@@ -248,17 +272,20 @@ class ScenePool:
         phi = np.concatenate([batch.phi[:, :1], batch.phi_next[:, :-1]], axis=1)
         return visible_nodes_rows(self.terrains, rows, self.lattice, q, phi, self.config.altitude)
 
-    def _write_starts(self, rows: np.ndarray, batch: SceneBatch) -> None:
-        """The start candidates of the scenes just written into ``rows`` (:func:`start_nodes` and their LoS)."""
-        c = self.config
-        self.start_xy[rows], self.start_clear[rows] = start_nodes(c, self._start_lattice, batch.q[:, 0],
-                                                                  batch.phi[:, 0], batch.top)
-        if self.waypoint and batch.exact and np.array_equal(self.lattice, self._start_lattice):
+    def _write_starts(self, rows: np.ndarray, batch: SceneBatch, task: int) -> None:
+        """The start candidates of the scenes just written into ``rows`` (:func:`start_nodes` and their LoS): the
+        task's start lattice, padded with unusable nodes to the longest task's."""
+        c, nodes = self._configs[task], self._starts[task]
+        n = len(nodes)
+        self.start_xy[rows, n:], self.start_clear[rows, n:], self.start_visible[rows, n:] = 0.0, False, False
+        self.start_xy[rows, :n], self.start_clear[rows, :n] = start_nodes(c, nodes, batch.q[:, 0], batch.phi[:, 0],
+                                                                          batch.top)
+        if self.waypoint and batch.exact and np.array_equal(self.lattice, nodes):
             # The same nodes and targets: the same decisions.
-            self.start_visible[rows] = self.lattice_ok[rows, 0]
+            self.start_visible[rows, :n] = self.lattice_ok[rows, 0]
         else:
-            self.start_visible[rows] = visible_nodes_rows(self.terrains, rows, self._start_lattice, batch.q[:, :1],
-                                                          batch.phi[:, :1], c.altitude)[:, 0]
+            self.start_visible[rows, :n] = visible_nodes_rows(self.terrains, rows, nodes, batch.q[:, :1],
+                                                              batch.phi[:, :1], c.altitude)[:, 0]
 
     # ------------------------------------------------------------------ geometry
     def line_of_sight(self, rows: np.ndarray, uav_xy: np.ndarray, altitude: float, target_xyz: np.ndarray,

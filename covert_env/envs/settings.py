@@ -117,6 +117,9 @@ class EnvSettings:
                             f"got {type(config).__name__} {config!r}")
         if n_uavs is not None:
             cfg = cfg.replace(n_uavs=int_arg("n_uavs", n_uavs, 1))
+        if isinstance(task, (list, tuple)):
+            raise ValueError(f"task={list(task)!r}: several tasks are for the vector env "
+                             "(covert_env.vector_env(num_envs=B, task=[...])); this env flies one task")
         if task is not None:
             t = get_task(task)
             if family is not None and family != t.family:

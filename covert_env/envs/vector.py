@@ -15,6 +15,7 @@ from covert_env.envs.copies import Copies
 from covert_env.envs.recorder import CopyView, EpisodeRecorder
 from covert_env.envs.scene_pool import ScenePool
 from covert_env.envs.settings import EnvSettings, LiveSettings, check_penalties
+from covert_env.envs.task_mix import mix_settings
 from covert_env.envs.waypoint_queries import SafetyState, WaypointQueries
 from covert_env.geometry.angles import wrap_heading
 from covert_env.geometry.flight import fly_arc, fly_waypoints
@@ -149,6 +150,17 @@ class CovertSensingVectorEnv(ConstructionSettings, LiveSettings):
     copy, so off by default). With same-step autoreset an ended episode is replaced by the next one within the
     step that ends it: to score whole episodes, record with ``autoreset_mode=DISABLED`` (as the parallel env does).
 
+    ## Several tasks
+
+    ``task=["paper-3uav", "downtown-3uav", ...]`` (distinct suite tasks of one team size; ``num_envs`` a multiple of
+    their number T) makes one env whose copies fly them in blocks: copy i flies ``task[i // (B / T)]``, drawing its
+    scenes with that task's config, and all copies step in one batch (:mod:`covert_env.envs.task_mix`; ``task_mix``
+    says which copy flies which task). The tasks may differ only in the scene family's config fields and the
+    target model's (``prediction_error``, ``r_u``); ``config`` is that of the task with the largest lattice, the
+    env's action space. A deviating task's copies (an eroded zone, fewer nodes) have masks that allow only their
+    task's nodes (``available_nodes``, (B, L)), and their maps mark their own zone. ``reset(seed=s)`` seeds task
+    t's copies as that task's own env reset with ``seed=s + t``: each copy steps bit for bit as there.
+
     ## Reading a copy
 
     ``slots`` (B,), ``uav_xy`` (B, U, 2) and ``uav_theta`` (B, U) (read-only), ``scene(i)`` (terrain and track),
@@ -171,7 +183,13 @@ class CovertSensingVectorEnv(ConstructionSettings, LiveSettings):
                  record: bool = False, scene_cache_size: int | None = None, **kwargs):
         if kwargs.get("render_mode") is not None:
             raise ValueError("the vector env does not render; use the parallel env (render_mode=...) to watch a copy")
-        self._setup(num_envs, EnvSettings(**kwargs), autoreset_mode, record, scene_cache_size)
+        task = kwargs.get("task")
+        if isinstance(task, (list, tuple)):
+            num_envs = int_arg("num_envs", num_envs, 1, MAX_NUM_ENVS)
+            settings, mix = mix_settings(task, num_envs, {k: v for k, v in kwargs.items() if k != "task"})
+            self._setup(num_envs, settings, autoreset_mode, record, scene_cache_size, mix)
+        else:
+            self._setup(num_envs, EnvSettings(**kwargs), autoreset_mode, record, scene_cache_size)
 
     @classmethod
     def from_settings(cls, num_envs: int, settings: EnvSettings, *,
@@ -182,7 +200,7 @@ class CovertSensingVectorEnv(ConstructionSettings, LiveSettings):
         venv._setup(num_envs, settings, autoreset_mode, record, scene_cache_size)
         return venv
 
-    def _setup(self, num_envs, s: EnvSettings, autoreset_mode, record, scene_cache_size) -> None:
+    def _setup(self, num_envs, s: EnvSettings, autoreset_mode, record, scene_cache_size, mix=None) -> None:
         self._num_envs = int_arg("num_envs", num_envs, 1, MAX_NUM_ENVS)
         cache_size = self.num_envs + 32 if scene_cache_size is None else int_arg(
             "scene_cache_size", scene_cache_size, self.num_envs, MAX_SCENE_CACHE)
@@ -211,9 +229,13 @@ class CovertSensingVectorEnv(ConstructionSettings, LiveSettings):
         self.observation_space = batch_space(batch_space(self.single_observation_space, u), b)
         self.action_space = batch_space(batch_space(self.single_action_space, u), b)
         self.state_space = batch_space(self.single_state_space, b)
+        #: The copies' tasks in an env of several (:class:`~covert_env.envs.task_mix.TaskMix`), else None.
+        self.task_mix = mix
+        # (B, L) the lattice nodes each copy's task has (None: every node, one task).
+        self._available = None if mix is None else mix.available[mix.copy_task]
         self._pool = ScenePool(s.scenario, c, self.lattice, s.map_offsets, s.map_in_zone,
                                waypoint=self.action_mode == "waypoint" and s.mask_mode == "visible",
-                               capacity=cache_size, path_slots=s.target_path)
+                               capacity=cache_size, path_slots=s.target_path, mix=mix)
         self._times = np.linspace(0.0, 1.0, self.path_samples) * c.delta      # the engine's sample times
         self._fractions = np.linspace(0.0, 1.0, self.path_samples)[1:]        # of the slot, after its start
         self._rngs: list[np.random.Generator] | None = None
@@ -224,8 +246,8 @@ class CovertSensingVectorEnv(ConstructionSettings, LiveSettings):
         self._recorder = EpisodeRecorder(b, u, c.n_slots, self.path_samples) if record else None
         self._reach = reach_table(c.v_max, c.w_max, c.delta) if self.action_mode == "waypoint" else None
         # Where waypoint actions would fly: one object over the batch state (waypoint mode; the methods below ask it).
-        self._queries = (WaypointQueries(c, self.lattice, self.copies, self._pool, self._reach, self._times)
-                         if self.action_mode == "waypoint" else None)
+        self._queries = (WaypointQueries(c, self.lattice, self.copies, self._pool, self._reach, self._times,
+                                         self._available) if self.action_mode == "waypoint" else None)
 
     @property
     def num_envs(self) -> int:
@@ -256,7 +278,8 @@ class CovertSensingVectorEnv(ConstructionSettings, LiveSettings):
             if chosen.size == 0:                  # nothing to reset: the batch as it is
                 return self._observation(self._obs_rows()), {key: val.copy() for key, val in self._last_infos.items()}
         if seed is not None:
-            self.copy_seeds = copy_seeds(seed, b)
+            mixed = self.task_mix is not None and np.ndim(seed) == 0
+            self.copy_seeds = self.task_mix.copy_seeds(int_arg("seed", seed, 0)) if mixed else copy_seeds(seed, b)
             self._rngs = [gymnasium.utils.seeding.np_random(int(s))[0] for s in self.copy_seeds]
         elif self._rngs is None:
             self._rngs = [gymnasium.utils.seeding.np_random(None)[0] for _ in range(b)]
@@ -426,6 +449,16 @@ class CovertSensingVectorEnv(ConstructionSettings, LiveSettings):
         :meth:`~covert_env.envs.waypoint_queries.WaypointQueries.onward_reach`."""
         return self._running_queries("onward_reach()").onward_reach(xy, theta)
 
+    @property
+    def available_nodes(self) -> np.ndarray:
+        """(B, L) bool: the lattice nodes each copy's task has, what its masks may allow (every node but in a mix
+        with a deviating task, whose eroded zone holds fewer: :mod:`covert_env.envs.task_mix`). Waypoint mode."""
+        if self.action_mode != "waypoint":
+            raise RuntimeError("available_nodes is for action_mode='waypoint'")
+        if self._available is None:
+            return np.ones((self.num_envs, len(self.lattice)), bool)
+        return self._available.copy()
+
     def safety_state(self, depth: int = 1) -> SafetyState:
         """What the safety filter reads of this slot and the next ``depth`` slots' lattices:
         :meth:`~covert_env.envs.waypoint_queries.WaypointQueries.safety_state`."""
@@ -451,7 +484,8 @@ class CovertSensingVectorEnv(ConstructionSettings, LiveSettings):
         draw = self.random_starts or (self.scenario_spec == "random" and scene_seeds is None)
         try:
             xy, theta = pool.draw_episodes(cp.rows, idx, [self._rngs[j] for j in idx], scene_seeds,
-                                           self.scene_pool, draw, len(self.possible_agents))
+                                           self.scene_pool, draw, len(self.possible_agents),
+                                           None if self.task_mix is None else self.task_mix.copy_task[idx])
         except Exception:
             # A scene that failed to build leaves these copies without one: they must be reset before a step.
             cp.rows[idx] = np.maximum(cp.rows[idx], 0)
@@ -517,7 +551,7 @@ class CovertSensingVectorEnv(ConstructionSettings, LiveSettings):
         rows, k = cp.rows, cp.k
         visible = pool.lattice_ok[rows, k + 1] if self.mask_mode == "visible" else None
         cp.masks = batch.action_masks(cp.xy, cp.theta, pool.q_next[rows, k, :2], pool.phi_next[rows, k], self.lattice,
-                                      visible, self._reach)
+                                      visible, self._reach, self._available)
 
 
 def _read_only(a: np.ndarray) -> np.ndarray:

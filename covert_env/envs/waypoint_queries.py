@@ -44,9 +44,10 @@ class WaypointQueries:
     checks: this object is not the env's API); the arguments are checked here, against the batch's shape.
     """
 
-    def __init__(self, config, lattice: np.ndarray, copies, pool, reach, times: np.ndarray):
+    def __init__(self, config, lattice: np.ndarray, copies, pool, reach, times: np.ndarray, available=None):
         self.config, self.lattice, self.copies, self.pool = config, lattice, copies, pool
         self.reach, self.times = reach, times
+        self.available = available            # (B, L) the nodes each copy's task has (None: all)
 
     def paths(self, nodes) -> np.ndarray:
         """Where the UAVs would fly in this slot to lattice ``nodes``: path samples ``(B, U, M, path_samples, 2)``
@@ -73,7 +74,8 @@ class WaypointQueries:
         for one more slot with the same displacement and turn (a constant-speed, constant-curvature guess; the env
         keeps one slot of prediction). Reachability is :class:`~covert_env.geometry.reach.ReachTable`'s lookup without
         the manoeuvre solver: the nodes in its boundary cells count as unreachable, so the count is a lower bound
-        (within a cell of the reach boundary). A UAV with a count of 0 reaches no node next slot, or only nodes
+        (within a cell of the reach boundary); a copy counts only the nodes its task has. A UAV with a count of 0
+        reaches no node next slot, or only nodes
         at the edge of its reach: it is about to leave the zone. The env's ``onward_reach``: the viability rule of
         ``training.shield`` tests the ends of its candidate paths with it."""
         xy, theta = np.asarray(xy), np.asarray(theta)
@@ -98,6 +100,8 @@ class WaypointQueries:
         phi2 = pool.phi_next[rows, k] + turn
         reach = self.reach.reachable(xy[ci, ui, mi][:, None], theta[ci, ui, mi][:, None], q2[ci], phi2[ci],
                                      self.lattice, exact=False)                                   # (N, 1, L)
+        if self.available is not None:
+            reach[:, 0] &= self.available[ci]
         out[ci, ui, mi] = reach[:, 0].sum(axis=-1)
         return out
 

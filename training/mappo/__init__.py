@@ -22,7 +22,7 @@ model card, ``.npz`` + JSON checkpoints: nothing is pickled); ``train``, which r
   node and the move's midpoint, so that a team acting with ``--mask-mode kinematic`` sees the shadows where it
   scores the nodes (docs/decisions/learning.md, "Learned teams across the suite").
 * **Tasks** (``--tasks a,b,...``): the copies are split evenly over suite tasks and draw from each task's training
-  scenes (:mod:`training.task_mix`); without it, random scenes of the paper family.
+  scenes, all in one vector env (:mod:`covert_env.envs.task_mix`); without it, random scenes of the paper family.
 * **Separation shield** (waypoint mode, ``--separation-shield``, on by default): the UAVs of a copy choose one
   after another, and a UAV may not choose a node whose path comes closer than d_safe1 to a teammate's chosen
   path (:mod:`training.shield`; the env's ``waypoint_paths`` flies the candidates). The shielded masks are

@@ -48,9 +48,9 @@ class Args(TrainingArgs):
     default observation, which shows the next slot only)"""
     tasks: str = ""
     """train on these suite tasks' training scenes at once (comma-separated, e.g. 'sparse-3uav,paper-3uav'; each
-    gets num_envs / its count copies; training.task_mix: the mix acts on the largest lattice, which must hold every
-    other task's nodes, as a nominal lattice holds its deviating task's); empty: random scenes of the paper family
-    (scene_pool)"""
+    gets num_envs / its count copies of one vector env, covert_env.envs.task_mix: the mix acts on the largest
+    lattice, which must hold every other task's nodes, as a nominal lattice holds its deviating task's); empty:
+    random scenes of the paper family (scene_pool)"""
     total_timesteps: int = 50_000_000
     """env steps (copy-slots) to train for; the time budget usually stops first"""
     learning_rate: float = 3e-4
