@@ -489,8 +489,9 @@ def test_points_follow_path_at_constant_speed():
 @pytest.mark.parametrize("limits", [(50.0, 3.0, 1.0), (30.0, 5.0, 1.0), (50.0, 1.0, 0.5)])
 def test_manoeuvre_feasible_is_solve_manoeuvres_feasibility(limits):
     """The masks' test (a root bracket of eq. 29, no speed solved) decides every goal as solve_manoeuvre does: ahead,
-    behind (two roots when W_max delta > pi), dead ahead, at the start, at the slot's reach, far away."""
-    from covert_env.geometry.dynamics import manoeuvre_feasible
+    behind (two roots when W_max delta > pi), dead ahead, at the start, at the slot's reach, far away; and the
+    env's controls (manoeuvre_controls) are solve_manoeuvre's."""
+    from covert_env.geometry.dynamics import manoeuvre_controls, manoeuvre_feasible
 
     v_max, w_max, delta = limits
     rng = np.random.default_rng(21)
@@ -505,10 +506,16 @@ def test_manoeuvre_feasible_is_solve_manoeuvres_feasibility(limits):
     rim = g[600:1600] - p[600:1600]
     g[600:1600] = p[600:1600] + rim * (reach * (1 + rng.uniform(-1e-12, 1e-12, (1000, 1)))
                                        / np.linalg.norm(rim, axis=1, keepdims=True))   # at the reach
-    want = solve_manoeuvre(p, theta, g, v_max=v_max, w_max=w_max, delta=delta).feasible
+    m = solve_manoeuvre(p, theta, g, v_max=v_max, w_max=w_max, delta=delta)
+    want = m.feasible
     got = manoeuvre_feasible(p, theta, g, v_max=v_max, w_max=w_max, delta=delta)
     assert got.dtype == bool and np.array_equal(got, want)
     assert 0.05 < want.mean() < 0.95
+    # The controls alone (what the env flies) are solve_manoeuvre's, bit for bit, NaN where infeasible.
+    feasible, v, omega, turn_time = manoeuvre_controls(p, theta, g, v_max=v_max, w_max=w_max, delta=delta)
+    np.testing.assert_array_equal(feasible, want)
+    for name, arr in (("v", v), ("omega", omega), ("turn_time", turn_time)):
+        np.testing.assert_array_equal(arr, getattr(m, name), err_msg=name)
 
 
 def _eq29_in_numpy(a, b, d2, r, wd):

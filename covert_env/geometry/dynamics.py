@@ -85,6 +85,7 @@ from covert_env.geometry.turn_root import root_bracket, solve_turn, turn_angle
 __all__ = [
     "Manoeuvre",
     "fly_manoeuvre",
+    "manoeuvre_controls",
     "manoeuvre_feasible",
     "solve_manoeuvre",
     "unicycle_arc",
@@ -350,6 +351,53 @@ def manoeuvre_feasible(p, theta, goals, *, v_max: float, w_max: float, delta: fl
     return straight
 
 
+def _controls(P, c, s, G, v_max: float, w_max: float, delta: float):
+    """Eqs. 22-29 for flat batches: starts ``P`` (n, 2) with headings of cosine ``c`` and sine ``s`` (n,), goals
+    ``G`` (n, 2). Returns ``feasible``, ``turn`` (int8, 0 where infeasible or straight), the turn radius ``r`` and
+    angle ``tau``, and the controls ``v``, ``omega``, ``turn_time`` (NaN where infeasible), each (n,). The one
+    home of the solve: :func:`solve_manoeuvre` adds the geometry, :func:`manoeuvre_controls` is this alone."""
+    n = len(c)
+    a, cross, b, d2, d, usable, straight = _uav_frame(P, c, s, G, v_max, delta)
+    wd = w_max * delta
+    turn = _turn_side(cross)
+    turn[straight] = 0
+
+    feasible = straight.copy()
+    r = np.full(n, np.nan)
+    tau = np.full(n, np.nan)
+    v = np.full(n, np.nan)
+    v[straight] = d[straight] / delta
+    tau[straight] = 0.0
+
+    ti = np.flatnonzero(usable & ~straight)
+    ok_t, r_t = solve_turn(a[ti], b[ti], d[ti], d2[ti], wd, v_max / w_max)
+    ti = ti[ok_t]
+    r_t = r_t[ok_t]
+    at, bt, d2t = a[ti], b[ti], d2[ti]
+    tau_t = turn_angle(at, bt, r_t, d2t)
+    # tau <= delta W_max holds at the root up to rounding; never report a turn longer than the slot.
+    tau_t = np.minimum(tau_t, wd)
+    feasible[ti] = True
+    r[ti] = r_t
+    tau[ti] = tau_t
+    v[ti] = np.minimum(w_max * r_t, v_max)
+
+    turn = np.where(feasible, turn, 0).astype(np.int8)
+    omega = np.where(feasible, turn * w_max, np.nan)
+    turn_time = np.where(feasible, np.minimum(tau / w_max, delta), np.nan)
+    return feasible, turn, r, tau, v, omega, turn_time
+
+
+def manoeuvre_controls(p, theta, goals, *, v_max: float, w_max: float, delta: float):
+    """``solve_manoeuvre(p, theta, goals, ...)``'s ``feasible``, ``v``, ``omega`` and ``turn_time``, the same values,
+    for flat batches (``p`` (n, 2), ``theta`` (n,), ``goals`` (n, 2) floats; limits already checked) without the
+    manoeuvre's geometry: what flying a slot needs (:func:`~covert_env.geometry.flight.waypoint_controls`)."""
+    with np.errstate(all="ignore"):
+        feasible, _, _, _, v, omega, turn_time = _controls(p, np.cos(theta), np.sin(theta), goals, v_max, w_max,
+                                                           delta)
+    return feasible, v, omega, turn_time
+
+
 def solve_manoeuvre(p, theta, goals, *, v_max: float = 50.0, w_max: float = 3.0,
                     delta: float = 1.0) -> Manoeuvre:
     """Turn-then-straight manoeuvres from poses ``(p, theta)`` to waypoints ``goals`` (eqs. 22-29).
@@ -389,40 +437,12 @@ def solve_manoeuvre(p, theta, goals, *, v_max: float = 50.0, w_max: float = 3.0,
     P = start.reshape(-1, 2)
     G = goal.reshape(-1, 2)
     TH = th0.reshape(-1)
-    n = TH.shape[0]
 
     with np.errstate(all="ignore"):
         # One cosine and sine per start heading, shared by every goal from it.
         c = np.broadcast_to(np.cos(theta), shape).reshape(-1)
         s = np.broadcast_to(np.sin(theta), shape).reshape(-1)
-        a, cross, b, d2, d, usable, straight = _uav_frame(P, c, s, G, v_max, delta)
-        wd = w_max * delta
-        turn = _turn_side(cross)
-        turn[straight] = 0
-
-        feasible = straight.copy()
-        r = np.full(n, np.nan)
-        tau = np.full(n, np.nan)
-        v = np.full(n, np.nan)
-        v[straight] = d[straight] / delta
-        tau[straight] = 0.0
-
-        ti = np.flatnonzero(usable & ~straight)
-        ok_t, r_t = solve_turn(a[ti], b[ti], d[ti], d2[ti], wd, v_max / w_max)
-        ti = ti[ok_t]
-        r_t = r_t[ok_t]
-        at, bt, d2t = a[ti], b[ti], d2[ti]
-        tau_t = turn_angle(at, bt, r_t, d2t)
-        # tau <= delta W_max holds at the root up to rounding; never report a turn longer than the slot.
-        tau_t = np.minimum(tau_t, wd)
-        feasible[ti] = True
-        r[ti] = r_t
-        tau[ti] = tau_t
-        v[ti] = np.minimum(w_max * r_t, v_max)
-
-        turn = np.where(feasible, turn, 0).astype(np.int8)
-        omega = np.where(feasible, turn * w_max, np.nan)
-        turn_time = np.where(feasible, np.minimum(tau / w_max, delta), np.nan)
+        feasible, turn, r, tau, v, omega, turn_time = _controls(P, c, s, G, v_max, w_max, delta)
         heading_after = np.where(feasible, wrap_heading(TH + turn * tau), np.nan)
         length = v * delta
         # Tangent point z, mapped back from the UAV frame: (r sin tau, turn * r (1 - cos tau)).

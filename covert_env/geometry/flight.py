@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from covert_env.geometry.angles import TWO_PI, wrap_heading
-from covert_env.geometry.dynamics import solve_manoeuvre, unicycle_arc, unicycle_heading
+from covert_env.geometry.dynamics import manoeuvre_controls, unicycle_arc, unicycle_heading
 
 __all__ = ["HEADING_GRID", "POSITION_GRID", "check_unicycle", "closest_constant_control", "fly_arc",
            "fly_turn_straight", "fly_waypoints", "settle_pose", "waypoint_controls"]
@@ -69,16 +69,18 @@ def settle_pose(path, end_theta):
 def waypoint_controls(xy, theta, goals, c):
     """Manoeuvre controls (v, omega, turn time) from (K, 2) poses to (K, 2) goals, and the fallback flags (K,).
 
-    ``solve_manoeuvre`` (eqs. 22-29) where the goal is reachable in one slot; elsewhere the best effort of
+    ``solve_manoeuvre``'s controls (eqs. 22-29, :func:`~covert_env.geometry.dynamics.manoeuvre_controls`) where the
+    goal is reachable in one slot; elsewhere the best effort of
     :func:`closest_constant_control`, held for the whole slot. The engine's rule, value for value."""
     if not np.all(np.isfinite(goals)):
         raise ValueError("Engine.step: waypoints must be finite (got NaN or inf)")
-    m = solve_manoeuvre(xy, theta, goals, v_max=c.v_max, w_max=c.w_max, delta=c.delta)
-    feasible = np.asarray(m.feasible, bool).reshape(-1)
+    feasible, v, w, t_turn = manoeuvre_controls(np.asarray(xy, float), np.asarray(theta, float),
+                                                np.asarray(goals, float), v_max=c.v_max, w_max=c.w_max,
+                                                delta=c.delta)
     # The engine's np.where(feasible, np.nan_to_num(.), 0.0): a feasible manoeuvre's numbers are finite.
-    v = np.where(feasible, m.v, 0.0)
-    w = np.where(feasible, m.omega, 0.0)
-    t_turn = np.where(feasible, m.turn_time, 0.0)
+    v = np.where(feasible, v, 0.0)
+    w = np.where(feasible, w, 0.0)
+    t_turn = np.where(feasible, t_turn, 0.0)
     bad = ~feasible
     if bad.any():
         v[bad], w[bad] = closest_constant_control(xy[bad], theta[bad], goals[bad], c)
