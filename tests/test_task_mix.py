@@ -124,6 +124,7 @@ def test_mix_rows_are_the_tasks_envs(tasks, mask_mode):
                                           np.concatenate([w[4]["final_info"]["reward_zone"] for w in want]))
     for i in (0, 3):                                                       # each copy's scene is its task's
         assert mix.scene(i).config == solo[i // 2].scene(i % 2).config
+        assert mix.copy_view(i).config == solo[i // 2].copy_view(i % 2).config == solo[i // 2].config
         np.testing.assert_array_equal(mix.scenario(i).uav_xy, solo[i // 2].scenario(i % 2).uav_xy)
 
 

@@ -31,8 +31,13 @@ class CopyView(TargetReads):
     def __init__(self, venv, i: int):
         self._venv, self._i = venv, int(i)
 
-    config: Config = Forwarded("_venv", writable=False)
-    """The env's :class:`~covert_env.world.config.Config`."""
+    @property
+    def config(self) -> Config:
+        """The copy's :class:`~covert_env.world.config.Config`: the env's, or in an env of several tasks its own
+        task's (a deviating task's ``r_u`` and ``prediction_error``; :mod:`covert_env.envs.task_mix`)."""
+        mix = self._venv.task_mix
+        return self._venv.config if mix is None else mix.configs[int(mix.copy_task[self._i])]
+
     path_samples: int = Forwarded("_venv", writable=False)
     """Samples per slot along each path (endpoints included)."""
 
