@@ -70,5 +70,9 @@ def test_bad_inputs_are_refused_with_what_was_given():
     actor = Actor(5, 7, head="node", hidden=8, node_hidden=6, n_feat=3, log_std_init=-0.5)
     one = np.zeros(1, np.int64)
     actor = Actor(5, 7, head="node", hidden=8, node_hidden=4, n_feat=3, log_std_init=-0.5)
+    with pytest.raises(ValueError, match=r"runs in float32 .* got \['torch.float64'\]"):
+        node_scores(torch.zeros(2, 4, dtype=torch.float64), actor.node_feat.double(), actor.node_out.double(),
+                    np.zeros((2, 7, 3), np.float32), one, one, one)
+    actor = Actor(5, 7, head="node", hidden=8, node_hidden=4, n_feat=3, log_std_init=-0.5)
     with pytest.raises(ValueError, match=r"float32 array, got float64 \(2, 7, 3\)"):
         node_scores(torch.zeros(2, 4), actor.node_feat, actor.node_out, np.zeros((2, 7, 3)), one, one, one)

@@ -8,9 +8,10 @@ with ``a[r]`` the trunk's projection of the row's observation (``node_obs``), ``
 (:func:`training.pretrained.node_features`), ``W`` the ``node_feat`` weights and ``w``, ``b`` the ``node_out``
 layer. Written with torch, one PPO minibatch of a few thousand rows with some 250 allowed nodes each makes
 several tensors of (rows x nodes x hidden) floats (the gathered features, the pre-activations, their gradients):
-memory traffic, not arithmetic, bounds it. :func:`node_scores` does the same arithmetic in compiled chunks of
-:data:`CHUNK` pairs: the chunk's features gathered into one block, ``W f`` of the whole block as one matrix
-product, the rest pair by pair; the backward pass recomputes the products instead of storing them.
+memory traffic, not arithmetic, bounds it. :func:`node_scores` does the same arithmetic a chunk of :data:`CHUNK`
+pairs at a time: the chunk's features gathered into one block (compiled), ``W f`` of the whole block as one torch
+matrix product (on torch's threads: one in the training scripts, so a run's numbers do not depend on the number
+of cores), the rest pair by pair (compiled); the backward pass recomputes the products instead of storing them.
 
 The features stay where the rollout stored them, ``(samples, L, F)``; each row names its sample (``sample_of``),
 so a minibatch reads them without copying.
@@ -30,7 +31,7 @@ __all__ = ["node_scores"]
 CHUNK = 2048
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@numba.njit(cache=True, nogil=True)
 def _gather(feats, sample_of, rows, nodes, start, m, block):
     """``block[i]`` = the features of pair ``start + i``, for ``i < m``."""
     for i in range(m):
@@ -39,57 +40,69 @@ def _gather(feats, sample_of, rows, nodes, start, m, block):
 
 
 @numba.njit(cache=True, nogil=True)
-def _forward(a, feats, sample_of, rows, nodes, wt, w, b, out):
-    """``out[p]`` = the score of node ``nodes[p]`` of row ``rows[p]`` (module docstring); ``wt`` is ``W``
-    transposed, ``(F, H)``."""
-    n_feat, hidden = wt.shape
-    block = np.empty((CHUNK, n_feat), np.float32)
+def _hidden(z, a, rows, start):
+    """``z[i]`` = relu(``z[i]`` + ``a[rows[start + i]]``): the hidden units of the chunk's pairs, in place."""
     zero = np.float32(0.0)
-    for start in range(0, len(rows), CHUNK):
-        m = min(CHUNK, len(rows) - start)
-        _gather(feats, sample_of, rows, nodes, start, m, block)
-        z = np.dot(block[:m], wt)                                   # (m, H): W f of every pair
-        for i in range(m):
-            r = rows[start + i]
-            for j in range(hidden):
-                z[i, j] = max(z[i, j] + a[r, j], zero)
-        scores = np.dot(z, w)
-        for i in range(m):
-            out[start + i] = scores[i] + b
+    for i in range(z.shape[0]):
+        r = rows[start + i]
+        for j in range(z.shape[1]):
+            z[i, j] = max(z[i, j] + a[r, j], zero)
 
 
 @numba.njit(cache=True, nogil=True)
-def _backward(a, feats, sample_of, rows, nodes, wt, w, grad, da, dwt, dw):
-    """The gradients of ``sum_p grad[p] * out[p]`` with respect to ``a`` (added to ``da``), ``W`` transposed
-    (``dwt``) and ``w`` (``dw``). The hidden pre-activations are recomputed, not stored; a chunk's parameter
-    gradients add up in float32 (``W``'s as one matrix product), the totals over chunks in float64."""
-    n_feat, hidden = wt.shape
-    block = np.empty((CHUNK, n_feat), np.float32)
-    dz = np.empty((CHUNK, hidden), np.float32)
-    chunk_dw = np.empty(hidden, np.float32)
+def _hidden_grad(z, a, rows, start, grad, w, dz, da, dw):
+    """From the chunk's products ``z`` = W f: ``dz`` (the gradient at the pre-activations), added up into ``da``
+    per row, and ``dw`` (float32, the chunk's sum)."""
     zero = np.float32(0.0)
+    for j in range(z.shape[1]):
+        dw[j] = 0.0
+    for i in range(z.shape[0]):
+        p = start + i
+        r = rows[p]
+        g = grad[p]
+        for j in range(z.shape[1]):
+            pre = z[i, j] + a[r, j]
+            on = pre > 0.0
+            d = g * w[j] if on else zero
+            dz[i, j] = d
+            da[r, j] += d
+            dw[j] += g * pre if on else zero
+
+
+def _forward(a, feats, sample_of, rows, nodes, weight, w, b) -> np.ndarray:
+    """The scores of the pairs ``(rows[p], nodes[p])`` (module docstring): a chunk at a time, its ``W f`` one torch
+    matrix product (on torch's threads, one in the training scripts)."""
+    out = np.empty(len(rows), np.float32)
+    block = np.empty((CHUNK, feats.shape[2]), np.float32)
+    wt = weight.t()
     for start in range(0, len(rows), CHUNK):
         m = min(CHUNK, len(rows) - start)
         _gather(feats, sample_of, rows, nodes, start, m, block)
-        z = np.dot(block[:m], wt)
-        chunk_dw[:] = 0.0
-        for i in range(m):
-            p = start + i
-            r = rows[p]
-            g = grad[p]
-            for j in range(hidden):
-                pre = z[i, j] + a[r, j]
-                on = pre > 0.0
-                d = g * w[j] if on else zero
-                dz[i, j] = d
-                da[r, j] += d
-                chunk_dw[j] += g * pre if on else zero
-        chunk_dwt = np.dot(block[:m].T, dz[:m])                     # (F, H): sum over the chunk of f dz
-        for k in range(n_feat):
-            for j in range(hidden):
-                dwt[k, j] += chunk_dwt[k, j]
-        for j in range(hidden):
-            dw[j] += chunk_dw[j]
+        z = torch.mm(torch.from_numpy(block[:m]), wt)
+        _hidden(z.numpy(), a, rows, start)
+        out[start:start + m] = torch.mv(z, w).numpy() + b
+    return out
+
+
+def _backward(a, feats, sample_of, rows, nodes, weight, w, grad):
+    """The gradients of ``sum_p grad[p] * out[p]`` with respect to ``a``, ``W`` and ``w``. The products ``W f`` are
+    recomputed, not stored; a chunk's parameter gradients add up in float32 (``W``'s as one matrix product), the
+    totals over chunks in float64."""
+    n_feat, hidden = feats.shape[2], weight.shape[0]
+    block = np.empty((CHUNK, n_feat), np.float32)
+    dz = np.empty((CHUNK, hidden), np.float32)
+    chunk_dw = np.empty(hidden, np.float32)
+    da = np.zeros(a.shape, np.float32)
+    dweight, dw = np.zeros((hidden, n_feat)), np.zeros(hidden)
+    wt, w_np = weight.t(), w.numpy()
+    for start in range(0, len(rows), CHUNK):
+        m = min(CHUNK, len(rows) - start)
+        _gather(feats, sample_of, rows, nodes, start, m, block)
+        z = torch.mm(torch.from_numpy(block[:m]), wt).numpy()
+        _hidden_grad(z, a, rows, start, grad, w_np, dz, da, chunk_dw)
+        dweight += torch.mm(torch.from_numpy(dz[:m]).t(), torch.from_numpy(block[:m])).numpy()   # (H, F)
+        dw += chunk_dw
+    return da, dweight, dw
 
 
 class _NodeScores(torch.autograd.Function):
@@ -97,26 +110,22 @@ class _NodeScores(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, a, weight, w, b, feats, sample_of, rows, nodes):
-        wt = np.ascontiguousarray(weight.detach().numpy().T)
-        out = np.empty(len(rows), np.float32)
-        _forward(a.detach().numpy(), feats, sample_of, rows, nodes, wt, w.detach().numpy().reshape(-1),
-                 np.float32(b.detach().reshape(-1)[0].item()), out)
+        weight, w = weight.detach().contiguous(), w.detach().reshape(-1).contiguous()
+        out = _forward(a.detach().numpy(), feats, sample_of, rows, nodes, weight, w,
+                       np.float32(b.detach().reshape(-1)[0].item()))
         ctx.save_for_backward(a, weight, w, b)
-        ctx.inputs = (feats, sample_of, rows, nodes, wt)
+        ctx.inputs = (feats, sample_of, rows, nodes)
         return torch.from_numpy(out)
 
     @staticmethod
     def backward(ctx, grad):
         a, weight, w, b = ctx.saved_tensors
-        feats, sample_of, rows, nodes, wt = ctx.inputs
+        feats, sample_of, rows, nodes = ctx.inputs
         g = np.ascontiguousarray(grad.detach().numpy(), np.float32)
-        da = np.zeros(a.shape, np.float32)
-        dwt, dw = np.zeros(wt.shape), np.zeros(wt.shape[1])
-        _backward(a.detach().numpy(), feats, sample_of, rows, nodes, wt, w.detach().numpy().reshape(-1), g, da,
-                  dwt, dw)
+        da, dweight, dw = _backward(a.detach().numpy(), feats, sample_of, rows, nodes, weight, w, g)
         db = np.full(b.shape, g.sum(dtype=np.float64), np.float32)
-        return (torch.from_numpy(da), torch.from_numpy(np.ascontiguousarray(dwt.T, np.float32)),
-                torch.from_numpy(dw.astype(np.float32).reshape(w.shape)), torch.from_numpy(db),
+        return (torch.from_numpy(da), torch.from_numpy(dweight.astype(np.float32)),
+                torch.from_numpy(dw.astype(np.float32).reshape(1, -1)), torch.from_numpy(db),
                 None, None, None, None)
 
 
@@ -135,6 +144,10 @@ def node_scores(a: torch.Tensor, node_feat: torch.nn.Linear, node_out: torch.nn.
     """
     if node_feat.bias is not None:
         raise ValueError("node_scores: node_feat must have no bias (the node head's F -> H layer)")
+    dtypes = {str(t.dtype) for t in (a, node_feat.weight, node_out.weight, node_out.bias)}
+    if dtypes != {"torch.float32"}:
+        raise ValueError(f"node_scores: the node head runs in float32 (a and both layers' parameters), got "
+                         f"{sorted(dtypes)}")
     if feats.dtype != np.float32 or not feats.flags.c_contiguous or feats.ndim != 3:
         raise ValueError(f"node_scores: feats must be a C-contiguous (S, L, F) float32 array, got {feats.dtype} "
                          f"{feats.shape}")
