@@ -201,8 +201,12 @@ def test_mix_errors_name_the_problem():
         make(["paper-3uav", "paper-3uav"], 2)
     with pytest.raises(ValueError, match="multiple of the 2 tasks .* got 3"):
         make(["paper-3uav", "dense-3uav"], 3)
-    with pytest.raises(ValueError, match="n_uavs is set by each task"):
-        make(["paper-3uav", "dense-3uav"], 2, n_uavs=3)
+    assert make(["paper-3uav", "dense-3uav"], 2, n_uavs=3).task == ("paper-3uav", "dense-3uav")
+    assert make(np.array(["paper-3uav", "dense-3uav"]), 2).task == ("paper-3uav", "dense-3uav")
+    with pytest.raises(ValueError, match=r"task='paper-3uav' flies 3 UAV\(s\), got n_uavs=6"):
+        make(["paper-3uav", "dense-3uav"], 2, n_uavs=6)
+    with pytest.raises(ValueError, match="task='dense-3uav' flies the 'dense' family, got family='paper'"):
+        make(["paper-3uav", "dense-3uav"], 2, family="paper")
     with pytest.raises(ValueError, match=r"task 'paper-6uav' differs from 'paper-3uav' in \['n_uavs'\]"):
         make(["paper-3uav", "paper-6uav"], 2)
     with pytest.raises(ValueError, match="got 'nope'"):

@@ -62,18 +62,15 @@ class TaskMix:
 def mix_settings(tasks, num_envs: int, kwargs: dict) -> tuple[EnvSettings, TaskMix]:
     """The settings of a vector env over ``tasks`` (the env's other keyword arguments ``kwargs``) and its
     :class:`TaskMix`. A ValueError names the first argument or task that does not fit."""
-    names = list(tasks)
+    names = [str(t) if isinstance(t, str) else t for t in tasks]          # numpy's str_ too
     if not names or not all(isinstance(t, str) for t in names) or len(set(names)) != len(names):
         raise ValueError(f"task must be a task name or a list of distinct task names, got {tasks!r}")
-    for key in ("family", "n_uavs"):
-        if kwargs.get(key) is not None:
-            raise ValueError(f"task={names!r}: {key} is set by each task, not passed ({key}={kwargs[key]!r})")
     if kwargs.get("dict_obs"):
         raise ValueError(f"task={names!r}: dict_obs=True is not supported with several tasks")
     if num_envs % len(names):
         raise ValueError(f"num_envs must be a multiple of the {len(names)} tasks (each gets as many copies), got "
                          f"{num_envs}")
-    every = [EnvSettings(task=t, **kwargs) for t in names]
+    every = [EnvSettings(task=t, **kwargs) for t in names]         # each checks family= and n_uavs= against its task
     first = every[0].config
     for t, s in zip(names[1:], every[1:], strict=True):
         differ = {f: (getattr(first, f), v) for f, v in s.config.to_dict().items()
