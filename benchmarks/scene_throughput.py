@@ -75,9 +75,9 @@ def make_env(b: int, mode: str, kwargs: dict):
     built, pool = [0], env._pool
     fill = pool._fill
 
-    def counted(rows, batch):
+    def counted(rows, *args):
         built[0] += len(rows)
-        return fill(rows, batch)
+        return fill(rows, *args)
 
     pool._fill = counted
     return env, built

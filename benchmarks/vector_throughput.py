@@ -84,9 +84,9 @@ class Ours:
         self.built, pool = 0, self.env._pool
         fill = pool._fill
 
-        def counted(rows, batch):
+        def counted(rows, *args):
             self.built += len(rows)
-            return fill(rows, batch)
+            return fill(rows, *args)
 
         pool._fill = counted
         self.env.reset(seed=0)
