@@ -159,6 +159,15 @@ def test_safety_filter_run_flies_through_the_filter_and_evaluates_with_it(tmp_pa
     assert row["separation_violations"] == 0 and row["terrain_violations"] == 0 and row["filter_team_slots"] > 0
     tb = list((run / "tb").glob("events.*"))
     assert tb, "no TensorBoard log"
+    assert card["viability_shield"] is False and card["viability_min_reach"] is None
+    assert load_policy(f"mappo:{run}", 3)[0].filter_kw["min_reach"] == 0
+    # With the viability rule: the filter replaces dead-end proposals, in training and in the harness alike.
+    run = mappo.main([*TINY, "--safety-filter", "true", "--separation-shield", "false", "--viability-shield", "true",
+                      "--viability-min-reach", "7", "--mask-mode", "kinematic", "--total-timesteps", "16",
+                      "--runs-dir", str(tmp_path), "--run-name", "filt_viable"])
+    card = json.loads((run / "model.json").read_text())
+    assert card["viability_shield"] is True and card["viability_min_reach"] == 7
+    assert load_policy(f"mappo:{run}", 3)[0].filter_kw["min_reach"] == 7
 
 
 def test_training_throughput_benchmark_measures_every_guard(train_extra, capsys):
@@ -461,8 +470,8 @@ def test_viability_shield_run_records_it_and_the_policy_uses_it(tmp_path, train_
     assert calls
     card["separation_shield"] = None
     (run / "model.json").write_text(json.dumps(card))
-    with pytest.raises(ValueError, match=r"viability_shield is a rule of the separation shield, but "
-                                         r"separation_shield is null"):
+    with pytest.raises(ValueError, match=r"viability_shield is a rule of the separation shield or the safety "
+                                         r"filter, but separation_shield is null and safety_filter false"):
         load_learned(run)
     card["viability_shield"] = "yes"
     (run / "model.json").write_text(json.dumps(card))
@@ -470,7 +479,8 @@ def test_viability_shield_run_records_it_and_the_policy_uses_it(tmp_path, train_
         load_learned(run)
     for bad in (dict(viability_shield=True, separation_shield=False),
                 dict(viability_shield=True, action_mode="unicycle")):
-        with pytest.raises(ValueError, match=r"--viability-shield acts inside the separation shield"):
+        with pytest.raises(ValueError, match=r"--viability-shield acts inside the separation shield or the safety "
+                                             r"filter"):
             mappo.check_args(mappo.Args(**bad))
 
 

@@ -195,6 +195,35 @@ def test_a_batch_is_filtered_as_its_copies_alone():
         venv.step(out)
 
 
+def test_the_viability_rule_turns_dead_ends_into_nodes_with_room_and_keeps_eqs_2_and_3():
+    """With ``min_reach``, a proposal from whose end fewer than that many of the next slot's nodes are reachable
+    gives way to a preferred node that reaches that many: masked-random teams (kinematic mask, towers and a deviating
+    task, whose copies may fly only their own nodes) fly far fewer dead ends, still with no eq. 2 or eq. 3 breach."""
+    from covert_env.envs.safety_filter import SafetyFilteredVectorEnv
+
+    venv = covert_env.vector_env(num_envs=8, task=["towers-3uav", "paper-3uav-deviating"], action_mode="waypoint",
+                                 mask_mode="kinematic")
+    env = SafetyFilteredVectorEnv(venv, min_reach=10)
+    env.reset(seed=4)
+    rng = np.random.default_rng(0)
+    dead_proposed = dead_flown = 0
+    for _ in range(30):
+        m = env.action_masks().astype(bool)
+        proposed = np.argmax(np.where(m, rng.random(m.shape), -1.0), axis=2)
+        state = venv.safety_state(env.safety.depth)
+        avail = venv.available_nodes
+        reach = env.safety._reach_next(state, proposed[..., None], avail)[..., 0]
+        _, _, _, _, infos = env.step(proposed)
+        flown = env.safety._reach_next(state, infos["shield_node"][..., None], avail)[..., 0]
+        dead_proposed += int(((reach >= 0) & (reach < 10)).sum())
+        dead_flown += int(((flown >= 0) & (flown < 10)).sum())
+        assert (infos["cost_separation"] == 0).all() and (infos["cost_terrain"] == 0).all()
+        assert avail[np.arange(8)[:, None], infos["shield_node"]].all()
+    assert dead_proposed > 20 and dead_flown < dead_proposed / 4, (dead_proposed, dead_flown)
+    with pytest.raises(ValueError, match="min_reach must be an integer >= 0"):
+        SafetyFilter(venv.config, venv.lattice, min_reach=-1)
+
+
 def test_filter_refuses_bad_proposals():
     par = covert_env.parallel_env(task="paper-3uav", action_mode="waypoint")
     par.reset(seed=1)

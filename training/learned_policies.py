@@ -247,7 +247,8 @@ def _numpy_policy(spec: str, path: Path, n_uavs: int) -> tuple[Any, dict]:
         if pol.card.get("safety_filter"):
             # Trained through the filter, it flies through it here too, its alternatives ordered as in
             # training (SafetyFilteredVectorEnv: by the distance to the proposal).
-            pol = ShieldedPolicy(pol, use_scores=False)
+            pol = ShieldedPolicy(pol, use_scores=False, min_reach=(pol.card.get("viability_min_reach") or 0)
+                                 if pol.card.get("viability_shield") else 0)
         return pol, settings
     except ValueError as exc:
         raise UsageError(f"{spec}: {exc}") from None

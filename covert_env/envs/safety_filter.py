@@ -108,16 +108,21 @@ class SafetyFilter:
         rounds: negotiations per slot whose certificate failed before the filter tries more nodes.
         room: after a failed certificate, ends at least d_safe1 + room (m) apart are preferred (so are the backup
             plan's); end_margin: and ends at least d_safe2 + end_margin (m) from the tops.
+        min_reach: the viability rule (0: off): a proposal from whose end fewer than ``min_reach`` of the next
+            slot's lattice nodes are reachable is a dead end, replaced before the search by the first of the UAV's
+            8 preferred allowed nodes that reaches that many (else by the one reaching most, if it reaches more);
+            a team that keeps the zone needs it (docs/decisions/learning.md#safety-filter).
     """
 
     def __init__(self, config, lattice, *, samples: int = 201, certificate_samples: int | None = None, depth: int = 3,
                  candidates: int = 48, certificate_candidates: int = 32, rounds: int = 4, room: float = 5.0,
-                 end_margin: float = 2.0):
+                 end_margin: float = 2.0, min_reach: int = 0):
         if certificate_samples is None:
             certificate_samples = min(21, samples) if isinstance(samples, (int, np.integer)) else samples
         for name, v, lo in (("samples", samples, 2), ("certificate_samples", certificate_samples, 2),
                             ("depth", depth, 1), ("candidates", candidates, 2),
-                            ("certificate_candidates", certificate_candidates, 1), ("rounds", rounds, 1)):
+                            ("certificate_candidates", certificate_candidates, 1), ("rounds", rounds, 1),
+                            ("min_reach", min_reach, 0)):
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
                 raise ValueError(f"SafetyFilter: {name} must be an integer >= {lo}, got {v!r}")
         if certificate_samples > samples:
@@ -135,6 +140,7 @@ class SafetyFilter:
         self.depth, self.candidates = int(depth), int(candidates)
         self.certificate_candidates, self.rounds = int(certificate_candidates), int(rounds)
         self.room, self.end_margin = float(room), float(end_margin)
+        self.min_reach = int(min_reach)
         #: Per number of instants: the instants (s) and what eqs. 2 and 3 ask there (m, :func:`sample_bounds`).
         self.grids = {n: (np.linspace(0.0, 1.0, n) * config.delta, *sample_bounds(config, n))
                       for n in {self.samples, self.certificate_samples}}
@@ -245,6 +251,9 @@ class SafetyFilter:
             raise ValueError(f"SafetyFilter.filter: copy {c}'s UAV {i} proposed node {proposed[c, i]}, which is not "
                              "among its available nodes")
         tops = near_tops(state.tops, self.config.altitude, max(g[2] for g in self.grids.values()))
+        given = proposed
+        if self.min_reach:
+            proposed = self._viable(state, proposed, self._proposal_pref(proposed, scores), available)
         pref = self._proposal_pref(proposed, scores)
         out, plan = proposed.copy(), Plan(b, u, self.depth)
         pending = np.ones(b, bool)
@@ -262,12 +271,44 @@ class SafetyFilter:
         if pending.any():
             self._uncertified(state, tops, pref, pending, out, available)
         self._plan = plan
-        moved = out != proposed
+        moved = out != given
         self.stats.team_slots += b
         self.stats.changed += int(moved.sum())
         self.stats.backups += int(held.sum())
         off_mask = ~np.take_along_axis(state.masks, out[..., None], axis=2)[..., 0]
         self.stats.widened += int((moved & off_mask).any(axis=1).sum())
+        return out
+
+    def _reach_next(self, state, nodes, available) -> np.ndarray:
+        """(B, U, M) how many of the next slot's lattice nodes (each copy's ``available``) are reachable from the
+        ends of the moves to ``nodes`` (B, U, M) (-1: none, and where the episode ends with this slot)."""
+        fl = Flights(self, state.xy, state.theta, state.q_next, state.phi_next, nodes, state.tops[:, :0],
+                     self.certificate_samples)
+        out = np.full(nodes.shape, -1, np.int64)
+        ci, ui, mi = np.nonzero((nodes >= 0) & (state.slots_left > 0)[:, None, None])
+        if len(ci):
+            reach = self._reach.reachable(fl.paths[ci, ui, mi, -1][:, None], fl.end_theta[ci, ui, mi][:, None],
+                                          state.q_ahead[ci, 0], state.phi_ahead[ci, 0], self.lattice, exact=False)
+            out[ci, ui, mi] = (reach[:, 0] & available[ci]).sum(axis=-1)
+        return out
+
+    def _viable(self, state, proposed, pref, available) -> np.ndarray:
+        """The proposals with the viability rule (``min_reach``): a dead end gives way to the first of the UAV's 8
+        preferred allowed nodes (:meth:`_spread`) that reaches ``min_reach`` nodes next slot, else to the one that
+        reaches most, where that is more than the proposal's."""
+        now = self._reach_next(state, proposed[..., None], available)[..., 0]
+        dead = (now >= 0) & (now < self.min_reach)
+        if not dead.any():
+            return proposed
+        c, i = np.nonzero(dead)
+        nodes = np.full(proposed.shape + (8,), -1)
+        nodes[c, i] = self._spread(state.masks[c, i], pref[c, i], 8)[0]
+        count = self._reach_next(state, nodes, available)[c, i]                        # (N, 8), -1: no node
+        good = count >= self.min_reach
+        pick = np.where(good.any(axis=1), np.argmax(good, axis=1), np.argmax(count, axis=1))
+        better = good.any(axis=1) | (count.max(axis=1) > now[c, i])
+        out = proposed.copy()
+        out[c[better], i[better]] = nodes[c, i][better, pick[better]]
         return out
 
     def _certified(self, state, tops, allowed, pref, rows, out, plan, stage: _Stage, available) -> np.ndarray:

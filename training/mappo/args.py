@@ -104,8 +104,9 @@ class Args(TrainingArgs):
     viability_shield: bool = False
     """waypoint mode, with the separation shield: a UAV also avoids a node from which it could reach no lattice
     node next slot (it would leave the zone): the end of the chosen path is tested with the env's onward_reach and,
-    if a dead end, the UAV chooses again among the nodes that are not (training.shield); in training and
-    evaluation alike"""
+    if a dead end, the UAV chooses again among the nodes that are not (training.shield); with the safety filter
+    instead: the filter's viability rule (SafetyFilter's min_reach), which replaces a dead-end proposal; in
+    training and evaluation alike"""
     viability_min_reach: int = 1
     """with --viability-shield: a node counts as a dead end if fewer lattice nodes than this are reachable from its
     path's end next slot, where the UAV has a node that reaches this many (1: only nodes that reach none)"""
@@ -179,7 +180,13 @@ def check_args(args: Args) -> None:
     if args.mask_mode != "visible" and args.action_mode != "waypoint":
         raise ValueError(f"--mask-mode {args.mask_mode!r} needs --action-mode waypoint (the unicycle mode has no "
                          "action mask)")
-    for flag, on in (("--viability-shield", args.viability_shield), ("--shield-lookahead", args.shield_lookahead)):
+    if args.viability_shield and not (args.action_mode == "waypoint" and (args.separation_shield
+                                                                         or args.safety_filter)):
+        raise ValueError(f"--viability-shield acts inside the separation shield or the safety filter: it needs "
+                         f"--action-mode waypoint and one of them, got --action-mode {args.action_mode!r} "
+                         f"--separation-shield {str(args.separation_shield).lower()} --safety-filter "
+                         f"{str(args.safety_filter).lower()}")
+    for flag, on in (("--shield-lookahead", args.shield_lookahead),):
         if on and not (args.separation_shield and args.action_mode == "waypoint"):
             raise ValueError(f"{flag} acts inside the separation shield: it needs --action-mode waypoint and "
                              f"--separation-shield true, got --action-mode {args.action_mode!r} --separation-shield "

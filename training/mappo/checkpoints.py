@@ -42,8 +42,10 @@ def model_card(args: Args, s: Sizes, env, env_kwargs: dict, shield) -> dict:
     return {"algorithm": args.algo, "actor": actor_spec, "env_kwargs": env_kwargs, "env_id": env.metadata["name"],
             "separation_shield": None if shield is None else shield.min_distance,
             "shield_end_margin": None if shield is None else shield.end_margin,
-            "viability_shield": bool(shield is not None and args.viability_shield),
-            "viability_min_reach": shield.min_reach if shield is not None and args.viability_shield else None,
+            # The viability rule acts in the shield, or in the safety filter (SafetyFilter's min_reach).
+            "viability_shield": bool((shield is not None or args.safety_filter) and args.viability_shield),
+            "viability_min_reach": (args.viability_min_reach if (shield is not None or args.safety_filter)
+                                    and args.viability_shield else None),
             "shield_lookahead": bool(shield is not None and shield.lookahead),
             "safety_filter": bool(args.safety_filter),
             "train_tasks": task_list(args) or None,

@@ -81,7 +81,7 @@ def train(args: Args) -> Path:
     env = make_training_env(tasks, args.num_envs, **({k: v for k, v in env_kwargs.items()
                                                        if k not in ("n_uavs", "scene_pool")} if tasks else env_kwargs))
     if args.safety_filter:
-        env = SafetyFilteredVectorEnv(env)
+        env = SafetyFilteredVectorEnv(env, min_reach=args.viability_min_reach if args.viability_shield else 0)
     s = sizes_of(args, env)
     shield = (SeparationShield(env.config.d_safe1 + args.shield_margin, args.shield_end_margin,
                                lookahead=args.shield_lookahead, min_reach=args.viability_min_reach)

@@ -341,9 +341,9 @@ def load_learned(path: str | Path) -> LearnedPolicy:
     if card.get("shield_lookahead") and card.get("separation_shield") is None:
         raise ValueError(f"{card_path}: shield_lookahead is a rule of the separation shield, but separation_shield "
                          "is null")
-    if card.get("viability_shield") and card.get("separation_shield") is None:
-        raise ValueError(f"{card_path}: viability_shield is a rule of the separation shield, but separation_shield "
-                         "is null")
+    if card.get("viability_shield") and card.get("separation_shield") is None and not card.get("safety_filter"):
+        raise ValueError(f"{card_path}: viability_shield is a rule of the separation shield or the safety filter, "
+                         "but separation_shield is null and safety_filter false")
     for key, lo in (("separation_shield", 0.0), ("shield_end_margin", 0.0)):
         v = card.get(key)
         if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v)
