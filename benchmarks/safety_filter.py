@@ -2,6 +2,7 @@
 
     python benchmarks/safety_filter.py [--episodes 4] [--tasks paper-6uav towers-6uav ...] [--policy random]
     python benchmarks/safety_filter.py --throughput [--sizes 16 64] [--samples 201 21] [--depth 3 1]
+    python benchmarks/safety_filter.py --training [--sizes 256] [--steps 80] [--seed 0] [--min-reach 0]
 
 Flies ``--policy`` (default masked-random waypoints) through :class:`covert_env.envs.safety_filter.ShieldedPolicy`
 on each task's first ``--episodes`` held-out scenes (``reset(seed=s, options={"scene_seed": s})``, s from the
@@ -14,6 +15,12 @@ path:
 beside what the filter did (``FilterStats``: changed choices, widened to nodes outside the masks, backup plans
 flown, uncertified moves, infeasible events). It prints one row per task and the totals, and exits with status 1
 if a violation happened in a slot the filter did not report as infeasible (a silent failure).
+
+``--training`` flies masked-random proposals through
+:class:`~covert_env.envs.safety_filter.SafetyFilteredVectorEnv` as the ``3uav-suite`` recipe trains: its eight tasks
+as one vector env of ``--sizes`` copies, training scenes, the kinematic mask, automatic resets, ``--steps`` slots;
+it prints every team-slot with a separation or terrain cost (its task, its slot, whether the filter reported it
+infeasible) and the totals.
 
 ``--throughput`` instead measures what the filter costs a learner: env-steps per CPU-second of the waypoint vector
 env (``--task``, kinematic mask, masked-random actions, automatic resets) with and without
@@ -111,6 +118,41 @@ def throughput(b: int, task: str, seconds: float, **filter_kw) -> float:
     return rate
 
 
+def _training(args) -> int:
+    from training.recipes import MAPPO_RECIPES
+
+    tasks = MAPPO_RECIPES["3uav-suite"]["tasks"].split(",")
+    print("| B | seed | steps | team-slots | separation | terrain | infeasible team-slots | of them after slot 4 |")
+    print("|---|---|---|---|---|---|---|---|")
+    for b in args.sizes:
+        env = SafetyFilteredVectorEnv(covert_env.vector_env(num_envs=b, task=tasks, action_mode="waypoint",
+                                                            mask_mode="kinematic"), min_reach=args.min_reach)
+        env.reset(seed=args.seed)
+        rng = np.random.default_rng(args.seed)
+        sep = ter = infeasible = late = 0
+        for t in range(args.steps):
+            masks = env.action_masks().astype(bool)
+            _, _, _, _, infos = env.step(np.argmax(np.where(masks, rng.random(masks.shape), -1.0), axis=2))
+            last = {k: infos[k] for k in ("cost_separation", "cost_terrain", "slot")}
+            if "final_info" in infos:                        # the ended copies' last slot, not their reset
+                ended = infos["_final_info"]
+                for k in last:
+                    last[k] = np.where(ended[:, None], infos["final_info"][k], last[k])
+            bad = (last["cost_separation"] > 0) | (last["cost_terrain"] > 0)
+            for c in np.flatnonzero(bad.any(axis=1)):
+                print(f"  step {t}: copy {c} ({tasks[env.task_mix.copy_task[c]]}), slot {last['slot'][c, 0]}, "
+                      f"infeasible {bool(infos['shield_infeasible'][c].any())}", file=sys.stderr)
+            sep += int((last["cost_separation"] > 0).sum())
+            ter += int((last["cost_terrain"] > 0).sum())
+            hit = infos["shield_infeasible"].any(axis=1)
+            infeasible += int(hit.sum())
+            late += int((hit & (last["slot"][:, 0] > 4)).sum())
+        print(f"| {b} | {args.seed} | {args.steps} | {b * args.steps:,} | {sep} | {ter} | {infeasible} | {late} |",
+              flush=True)
+        env.close()
+    return 0
+
+
 def _throughput(args) -> int:
     print("| B | filter | env-steps per CPU-second | / raw env |")
     print("|---|---|---|---|")
@@ -139,6 +181,11 @@ def main(argv: list[str] | None = None) -> int:
                         help="--throughput's filter samples per slot (default 201 21)")
     parser.add_argument("--depth", type=int, nargs="+", default=[3, 1], help="--throughput's plan depths (default 3 1)")
     parser.add_argument("--seconds", type=float, default=5.0, help="--throughput's CPU-seconds per row (default 5)")
+    parser.add_argument("--training", action="store_true", help="masked random through the filter as the 3uav-suite "
+                        "recipe trains (training scenes, kinematic mask, one vector env of its tasks)")
+    parser.add_argument("--steps", type=int, default=80, help="--training's slots (default 80)")
+    parser.add_argument("--seed", type=int, default=0, help="--training's reset seed (default 0)")
+    parser.add_argument("--min-reach", type=int, default=0, help="--training's viability rule (default 0: off)")
     parser.add_argument("--no-progress", action="store_true")
     args = parser.parse_args(argv)
     if args.episodes < 1:
@@ -146,6 +193,10 @@ def main(argv: list[str] | None = None) -> int:
     print("command:", shlex.join(["python", "benchmarks/safety_filter.py", *(argv or sys.argv[1:])]))
     if args.throughput:
         return _throughput(args)
+    if args.training:
+        if args.sizes == [16, 64]:
+            args.sizes = [256]
+        return _training(args)
     print("| task | " + " | ".join(COLUMNS) + " |")
     print("|---" * (len(COLUMNS) + 1) + "|")
     total = dict.fromkeys(COLUMNS, 0)

@@ -1,4 +1,5 @@
-"""The env benchmarks run (tiny sizes, no peers): each prints its table with a row per configuration.
+"""The env benchmarks run (tiny sizes, no peers): each prints its table with a row per configuration (the safety
+filter's training-scenes check too).
 
 They read the env's internals (the scene pool's fill, to count the scenes built), so a change there must keep them
 running; their figures are measured by hand (docs/performance.md), never asserted here.
@@ -29,6 +30,7 @@ def _run(script: str, *args: str) -> str:
     ("env_throughput.py", ("--seconds", "0.1", "--episodes", "1", "--rounds", "1", "--mode", "both"),
      ("default unicycle", "cached unicycle", "default waypoint", "cached waypoint", "default waypoint / cached")),
     ("scene_throughput.py", ("--sizes", "4", "--families", "paper", "--profile-size", "0"), ("paper ",)),
+    ("safety_filter.py", ("--training", "--sizes", "8", "--steps", "3", "--min-reach", "10"), ("| 8 | 0 | 3 | 24 | ",)),
 ])
 def test_env_benchmarks_run_and_print_their_rows(script, args, rows):
     out = _run(script, *args)
