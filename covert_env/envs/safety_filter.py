@@ -11,7 +11,9 @@ with the same negotiation, each UAV keeping its place behind the target where it
 as it was checked: where a later slot finds no certified move, the plan's next move is safe
 (docs/decisions/learning.md#safety-filter).
 
-Per slot and copy, in order, the first that exists:
+With ``min_reach`` (the viability rule, off by default), a proposal from whose end fewer than ``min_reach`` of the
+next slot's nodes are reachable first gives way to a preferred node that reaches that many: the filter then works
+on the proposals so changed. Per slot and copy, in order, the first that exists:
 
 1. a certified joint move among a few of the allowed nodes (the env's masks) per UAV, found by priority
    negotiation (:func:`~covert_env.geometry.separation.priority_negotiation`): each UAV takes its most preferred node
