@@ -167,7 +167,13 @@ def test_safety_filter_run_flies_through_the_filter_and_evaluates_with_it(tmp_pa
                       "--runs-dir", str(tmp_path), "--run-name", "filt_viable"])
     card = json.loads((run / "model.json").read_text())
     assert card["viability_shield"] is True and card["viability_min_reach"] == 7
-    assert load_policy(f"mappo:{run}", 3)[0].filter_kw["min_reach"] == 7
+    pol, settings = load_policy(f"mappo:{run}", 3)
+    assert pol.filter_kw["min_reach"] == 7
+    row = evaluate(pol, settings, 2, progress=False, env_kwargs={"task": "towers-3uav"})[0]      # flown with it
+    assert row["separation_violations"] == 0 and row["terrain_violations"] == 0
+    card["viability_min_reach"] = None                   # a hand-made card: the shield's default bar, 1
+    (run / "model.json").write_text(json.dumps(card))
+    assert load_policy(f"mappo:{run}", 3)[0].filter_kw["min_reach"] == 1
 
 
 def test_training_throughput_benchmark_measures_every_guard(train_extra, capsys):

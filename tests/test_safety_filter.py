@@ -222,6 +222,19 @@ def test_the_viability_rule_turns_dead_ends_into_nodes_with_room_and_keeps_eqs_2
     assert dead_proposed > 20 and dead_flown < dead_proposed / 4, (dead_proposed, dead_flown)
     with pytest.raises(ValueError, match="min_reach must be an integer >= 0"):
         SafetyFilter(venv.config, venv.lattice, min_reach=-1)
+    # Every UAV a dead end with only k allowed nodes (fewer than the 8 tried, one, or more): its choice stays in
+    # its mask.
+    flt = SafetyFilter(venv.config, venv.lattice, min_reach=100_000)
+    state = venv.safety_state(flt.depth)
+    for k in (1, 3, 7, 9):
+        masks = np.zeros_like(state.masks)
+        for b in range(8):
+            for i in range(3):
+                masks[b, i, np.flatnonzero(state.masks[b, i])[:k]] = True
+        few = state._replace(masks=masks)
+        proposed = np.argmax(masks, axis=2)
+        viable = flt._viable(few, proposed, flt._proposal_pref(proposed, None), venv.available_nodes)
+        assert masks[np.arange(8)[:, None], np.arange(3)[None], viable].all(), k
 
 
 def test_filter_refuses_bad_proposals():

@@ -30,8 +30,7 @@ import numpy as np
 from baselines.learned_cost import is_cost_planner_card, load_cost_planner
 from baselines.policies import parallel_env_of
 from covert_env.command_line import UsageError, read_run_json
-from covert_env.envs.safety_filter import ShieldedPolicy
-from training.pretrained import PRETRAINED_DIR, load_learned, pretrained_names
+from training.pretrained import PRETRAINED_DIR, as_flown, load_learned, pretrained_names
 from training.rllib_ppo import load_policy as load_rllib
 from training.runs import run_env
 from training.trust import require_trust
@@ -243,12 +242,6 @@ def _numpy_policy(spec: str, path: Path, n_uavs: int) -> tuple[Any, dict]:
             pol = load_cost_planner(path)
             return pol, {"n_uavs": n_uavs, **pol.env_settings}
         pol = load_learned(path)
-        settings = dict(pol.env_settings)
-        if pol.card.get("safety_filter"):
-            # Trained through the filter, it flies through it here too, its alternatives ordered as in
-            # training (SafetyFilteredVectorEnv: by the distance to the proposal).
-            pol = ShieldedPolicy(pol, use_scores=False, min_reach=(pol.card.get("viability_min_reach") or 0)
-                                 if pol.card.get("viability_shield") else 0)
-        return pol, settings
+        return as_flown(pol), dict(pol.env_settings)
     except ValueError as exc:
         raise UsageError(f"{spec}: {exc}") from None

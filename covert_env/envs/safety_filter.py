@@ -111,9 +111,10 @@ class SafetyFilter:
         room: after a failed certificate, ends at least d_safe1 + room (m) apart are preferred (so are the backup
             plan's); end_margin: and ends at least d_safe2 + end_margin (m) from the tops.
         min_reach: the viability rule (0: off): a proposal from whose end fewer than ``min_reach`` of the next
-            slot's lattice nodes are reachable is a dead end, replaced before the search by the first of the UAV's
-            8 preferred allowed nodes that reaches that many (else by the one reaching most, if it reaches more);
-            a team that keeps the zone needs it (docs/decisions/learning.md#safety-filter).
+            slot's lattice nodes are reachable is a dead end, replaced before the search by the first of 8 of the
+            UAV's allowed nodes (the 4 preferred, 4 spread over the rest) that reaches that many (else by the one
+            reaching most, if it reaches more). The search may still move a UAV onto a dead end where safety asks
+            for it. A team that keeps the zone needs it (docs/decisions/learning.md#safety-filter).
     """
 
     def __init__(self, config, lattice, *, samples: int = 201, certificate_samples: int | None = None, depth: int = 3,
@@ -295,16 +296,17 @@ class SafetyFilter:
         return out
 
     def _viable(self, state, proposed, pref, available) -> np.ndarray:
-        """The proposals with the viability rule (``min_reach``): a dead end gives way to the first of the UAV's 8
-        preferred allowed nodes (:meth:`_spread`) that reaches ``min_reach`` nodes next slot, else to the one that
-        reaches most, where that is more than the proposal's."""
+        """The proposals with the viability rule (``min_reach``): a dead end gives way to the first of 8 of the UAV's
+        allowed nodes (:meth:`_spread`: the 4 preferred, then 4 spread over the rest) that reaches ``min_reach``
+        nodes next slot, else to the one that reaches most, where that is more than the proposal's."""
         now = self._reach_next(state, proposed[..., None], available)[..., 0]
         dead = (now >= 0) & (now < self.min_reach)
         if not dead.any():
             return proposed
         c, i = np.nonzero(dead)
         nodes = np.full(proposed.shape + (8,), -1)
-        nodes[c, i] = self._spread(state.masks[c, i], pref[c, i], 8)[0]
+        spread = self._spread(state.masks[c, i], pref[c, i], 8)[0]                   # (N, <= 8): fewer allowed
+        nodes[c, i, :spread.shape[1]] = spread
         count = self._reach_next(state, nodes, available)[c, i]                        # (N, 8), -1: no node
         good = count >= self.min_reach
         pick = np.where(good.any(axis=1), np.argmax(good, axis=1), np.argmax(count, axis=1))

@@ -184,7 +184,7 @@ class CovertSensingVectorEnv(ConstructionSettings, LiveSettings):
         if kwargs.get("render_mode") is not None:
             raise ValueError("the vector env does not render; use the parallel env (render_mode=...) to watch a copy")
         task = kwargs.get("task")
-        if isinstance(task, (list, tuple, np.ndarray)):
+        if isinstance(task, (list, tuple)) or (isinstance(task, np.ndarray) and task.ndim == 1):
             num_envs = int_arg("num_envs", num_envs, 1, MAX_NUM_ENVS)
             settings, mix = mix_settings(task, num_envs, {k: v for k, v in kwargs.items() if k != "task"})
             self._setup(num_envs, settings, autoreset_mode, record, scene_cache_size, mix)

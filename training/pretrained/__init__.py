@@ -39,7 +39,8 @@ from training.runs import run_env
 from training.shield import SeparationShield
 
 __all__ = ["node_features", "map_at", "manoeuvre_features", "n_node_features", "NumpyActor", "LearnedPolicy",
-           "load_learned", "check_weights", "PRETRAINED_DIR", "pretrained_names", "N_OWN_FEATURES", "N_MAP_FEATURES",
+           "load_learned", "as_flown", "check_weights", "PRETRAINED_DIR", "pretrained_names", "N_OWN_FEATURES",
+           "N_MAP_FEATURES",
            "N_MANOEUVRE_FEATURES"]
 
 PRETRAINED_DIR = Path(__file__).resolve().parent
@@ -295,6 +296,20 @@ def pretrained_path(name) -> Path:
 def pretrained_names() -> list[str]:
     """Names of the weights shipped in this folder (``NAME.npz`` with its card ``NAME.json``)."""
     return sorted(p.stem for p in PRETRAINED_DIR.glob("*.npz") if p.with_suffix(".json").is_file())
+
+
+def as_flown(pol: LearnedPolicy):
+    """The policy as its card says it flies: a team trained through the safety filter flies through it
+    (:class:`~covert_env.envs.safety_filter.ShieldedPolicy`), its alternatives ordered as in training (by the
+    distance to the proposal, as :class:`~covert_env.envs.safety_filter.SafetyFilteredVectorEnv` orders them) and
+    with the card's viability rule (``viability_min_reach``, 1 if null); any other team as it is. The one rule of
+    ``covert-env evaluate`` and of the cards' scores."""
+    if not pol.card.get("safety_filter"):
+        return pol
+    from covert_env.envs.safety_filter import ShieldedPolicy
+
+    min_reach = (pol.card.get("viability_min_reach") or 1) if pol.card.get("viability_shield") else 0
+    return ShieldedPolicy(pol, use_scores=False, min_reach=min_reach)
 
 
 def load_learned(path: str | Path) -> LearnedPolicy:

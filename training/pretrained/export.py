@@ -35,7 +35,7 @@ from covert_env.evaluation.benchmark import CONSTRAINTS
 from covert_env.evaluation.evaluate import HELD_OUT_OFFSET, evaluate, summarise
 from covert_env.evaluation.provenance import code_commit, platform_record
 from covert_env.evaluation.stats import iqm, stratified_bootstrap_ci
-from training.pretrained import PRETRAINED_DIR, load_learned
+from training.pretrained import PRETRAINED_DIR, as_flown, load_learned
 
 __all__ = ["export", "main", "rescore", "suite_rows"]
 
@@ -176,10 +176,7 @@ def _scores(npz: Path, name: str, episodes: int, progress: bool) -> dict:
     else:
         pol = load_learned(npz)
         settings = pol.env_settings
-        if pol.card.get("safety_filter"):            # scored as the harness flies it: through the filter
-            from covert_env.envs.safety_filter import ShieldedPolicy
-
-            pol = ShieldedPolicy(pol, use_scores=False)
+        pol = as_flown(pol)                          # scored as the harness flies it (the filter, if trained so)
     rows = evaluate(pol, settings, episodes, HELD_OUT_OFFSET, progress=progress, label=name)
     rewards = np.array([r["reward"] for r in rows])
     point, lo, hi = stratified_bootstrap_ci(rewards[:, None], iqm, reps=5000)
