@@ -12,6 +12,7 @@ flown as the closest admissible constant control and flagged (see :mod:`covert_e
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 from covert_env.geometry.angles import TWO_PI, wrap_heading
@@ -120,31 +121,62 @@ def fly_turn_straight(xy, theta, v, w, t_turn, times):
     """Turn at (v, w) for ``t_turn``, then straight at v: path samples (B, U, P, 2) at ``times`` (P,) from poses
     (B, U), and the end headings (B, U) in [0, 2 pi).
 
-    Two :func:`~covert_env.geometry.dynamics.unicycle_arc` legs per sample, as the engine flies them, with each sine and
-    cosine computed once per distinct value: after the turn every sample shares the turn's end pose and the
-    straight leg's heading, and before it the straight leg has length 0. Sample 0 is the exact start."""
-    p = len(times)
-    t = times[1:]                                                          # (P-1,)
-    tt = t_turn[..., None]
-    path = np.empty(theta.shape + (p, 2))
-    path[..., 0, :] = xy
+    Two :func:`~covert_env.geometry.dynamics.unicycle_arc` legs per sample, as the engine flies them: the turn's end
+    pose once per UAV (numpy), then every sample in one compiled pass (:func:`_turn_straight_samples`), which
+    writes ``unicycle_arc``'s arithmetic out operation for operation (its sines and cosines are the C library's,
+    as numpy's float64 ones are: tests/test_batch_flight.py checks the bits). After the turn every sample shares
+    the turn's end pose and the straight leg's heading, and before it the straight leg has length 0. Sample 0 is
+    the exact start."""
+    shape = np.shape(theta)
+    times = np.ascontiguousarray(times, float)
     # The turn's end (t >= t_turn): one pose per UAV, shared by the later samples.
     x1e, y1e, th1e = unicycle_arc(xy[..., 0], xy[..., 1], theta, v, w, np.minimum(times[-1], t_turn))
     th1e = wrap_heading(th1e)
-    # During the turn (t < t_turn): each sample its own point of the arc; the straight leg adds 0.
-    t2 = np.maximum(t - tt, 0.0)                                           # (B, U, P-1)
-    x1 = np.broadcast_to(x1e[..., None], t2.shape).copy()
-    y1 = np.broadcast_to(y1e[..., None], t2.shape).copy()
-    turning = t < tt
-    if turning.any():
-        bu, j = np.nonzero(turning.reshape(-1, p - 1))
-        x1.reshape(-1, p - 1)[bu, j], y1.reshape(-1, p - 1)[bu, j], _ = unicycle_arc(
-            xy[..., 0].reshape(-1)[bu], xy[..., 1].reshape(-1)[bu], theta.reshape(-1)[bu], v.reshape(-1)[bu],
-            w.reshape(-1)[bu], t[j], heading=False)
-    # The straight leg from there, omega the scalar 0: one sine and cosine per UAV.
-    unicycle_arc(x1, y1, th1e[..., None], v[..., None], 0.0, t2, out=(path[..., 1:, 0], path[..., 1:, 1]),
-                 heading=False)
-    return settle_pose(path, unicycle_heading(th1e, 0.0, t2[..., -1]))
+    path = np.empty(shape + (len(times), 2))
+    _turn_straight_samples(*(_flat(a, shape) for a in (xy, theta, v, w, t_turn, x1e, y1e, th1e)), times,
+                           path.reshape(-1, len(times), 2))
+    return settle_pose(path, unicycle_heading(th1e, 0.0, np.maximum(times[-1] - t_turn, 0.0)))
+
+
+def _flat(a, shape) -> np.ndarray:
+    """``a`` (``shape``, or ``shape`` + (2,) for positions) as a contiguous float array with one leading axis."""
+    a = np.asarray(a, float)
+    lead = a.shape[:len(shape)]
+    if lead != shape:
+        a = np.broadcast_to(a, shape + a.shape[len(shape):])
+    return np.ascontiguousarray(a).reshape((-1,) + a.shape[len(shape):])
+
+
+@numba.njit(cache=True, nogil=True)
+def _turn_straight_samples(xy, th0, v, w, t_turn, x1e, y1e, th1e, times, path):  # pragma: no cover
+    """The samples of :func:`fly_turn_straight`, flight by flight: ``unicycle_arc(*xy, th0, v, w, t)`` while
+    ``t < t_turn``, the turn's end (x1e, y1e) after; then ``unicycle_arc(., ., th1e, v, 0.0, max(t - t_turn, 0))``
+    from there: ``cos(th1e + 0.0) * (v t2) + x1``, the products and sums in unicycle_arc's order."""
+    for i in range(len(th0)):
+        xi, yi, ti, vi, wi, tt = xy[i, 0], xy[i, 1], th0[i], v[i], w[i], t_turn[i]
+        mid_s = th1e[i] + 0.0
+        cs, sn = np.cos(mid_s), np.sin(mid_s)
+        path[i, 0, 0], path[i, 0, 1] = xi, yi
+        for j in range(1, len(times)):
+            t = times[j]
+            if t < tt:                                   # in the turn: the arc's own point at t
+                half = 0.5 * wi * t
+                if half == 0.0:
+                    ratio = 1.0
+                else:
+                    ratio = np.sin(half) / half
+                chord = (vi * t) * ratio
+                mid = half + ti
+                x1 = xi + chord * np.cos(mid)
+                y1 = yi + chord * np.sin(mid)
+            else:
+                x1, y1 = x1e[i], y1e[i]
+            t2 = t - tt
+            if t2 < 0.0:                                 # np.maximum(t - t_turn, 0.0): NaN stays NaN
+                t2 = 0.0
+            chord2 = vi * t2
+            path[i, j, 0] = cs * chord2 + x1
+            path[i, j, 1] = sn * chord2 + y1
 
 
 def fly_waypoints(xy, theta, goals, c, times):
