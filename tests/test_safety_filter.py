@@ -16,7 +16,7 @@ from hypothesis.extra.numpy import arrays
 import covert_env
 from baselines.policies import RandomPolicy
 from covert_env.command_line import UsageError
-from covert_env.envs.joint_moves import _first_separated_pair, clear_along, separated_from
+from covert_env.envs.joint_moves import _first_separated_pair, clear_along, nearest_nodes, separated_from
 from covert_env.envs.safety_filter import SafetyFilter, ShieldedPolicy, path_separation, top_clearance_along
 from covert_env.evaluation.evaluate import evaluate, load_policy, split_seeds
 from covert_env.geometry.separation import team_separation
@@ -72,6 +72,24 @@ def test_the_repair_and_negotiation_kernels_are_eq_2_written_out(a, b, c, first,
     separated_from(c, b[:, None].repeat(2, axis=1), need, first, ok)
     gap = np.nan_to_num(path_separation(c[:, :, None], b[:, None, None].repeat(2, axis=2), first), nan=np.inf)
     np.testing.assert_array_equal(ok, (gap >= need).all(axis=2))
+
+
+@settings(max_examples=60, deadline=None)
+@given(arrays(bool, (3, 2, 40)), arrays(bool, (3, 40)), arrays(float, (3, 2, 2), elements=st.floats(-30, 30)),
+       st.sampled_from([1, 2]), st.integers(0, 2**31 - 1))
+def test_the_nearest_nodes_are_the_spread_of_one_or_two(reach, available, place, n, seed):
+    # Integer-valued nodes and places make ties common: the lower node must win them, as the sort does.
+    lattice = np.random.default_rng(seed).integers(-20, 20, (40, 2)).astype(float)
+    place = np.round(place)
+    nodes, dist = nearest_nodes(reach, available, lattice, place, n)
+    # The rule written with the (R, U, L) distances: reachable and available, else every available node.
+    allowed = reach & available[:, None]
+    allowed = np.where(allowed.any(axis=2, keepdims=True), allowed, available[:, None])
+    diff = lattice[None, None] - place[:, :, None]
+    want_nodes, want_dist = SafetyFilter._spread(allowed.reshape(6, -1), np.hypot(diff[..., 0], diff[..., 1])
+                                                 .reshape(6, -1), n)
+    np.testing.assert_array_equal(nodes.reshape(6, -1), want_nodes)
+    np.testing.assert_array_equal(dist.reshape(6, -1), want_dist)
 
 
 def _fly(task: str, seed: int, *, record_state: bool = False):

@@ -14,8 +14,8 @@ from covert_env.geometry.separation import priority_negotiation, separation
 from covert_env.geometry.zone import to_world
 from covert_env.world.metrics import top_clearance
 
-__all__ = ["Flights", "Plan", "clear_along", "near_tops", "negotiate", "path_separation", "sample_bounds",
-           "separated_from", "top_clearance_along"]
+__all__ = ["Flights", "Plan", "clear_along", "near_tops", "nearest_nodes", "negotiate", "path_separation",
+           "sample_bounds", "separated_from", "top_clearance_along"]
 
 #: Far-away stand-in for padded polytope tops (m below the plane): never within d_safe2 of a UAV.
 _FAR = 1e9
@@ -88,12 +88,31 @@ def _clear_along(paths, tops, altitude, need, first, out):
     metric's own test (the square root is monotone and correctly rounded)."""
     n, m, p = paths.shape[:3]
     near2 = (need * (1.0 + 1e-9)) ** 2
+    near_tops = np.empty(tops.shape[1], np.int64)
     for i in range(n):
         for j in range(m):
+            # Broad phase: only the tops within ``need`` (and a margin) of the samples' bounding box can fail a
+            # sample; a NaN sample keeps every top (it is never clear).
+            lo_x, lo_y, hi_x, hi_y, nan = np.inf, np.inf, -np.inf, -np.inf, False
+            for s in range(first, p):
+                x, y = paths[i, j, s, 0], paths[i, j, s, 1]
+                if x != x or y != y:
+                    nan = True
+                    break
+                lo_x, hi_x = min(lo_x, x), max(hi_x, x)
+                lo_y, hi_y = min(lo_y, y), max(hi_y, y)
+            reach = need * (1.0 + 1e-6) + 1e-6
+            k = 0
+            for t in range(tops.shape[1]):
+                tx, ty = tops[i, t, 0], tops[i, t, 1]
+                if nan or not (tx < lo_x - reach or tx > hi_x + reach or ty < lo_y - reach or ty > hi_y + reach):
+                    near_tops[k] = t
+                    k += 1
             ok = True
             for s in range(first, p):
                 x, y = paths[i, j, s, 0], paths[i, j, s, 1]
-                for t in range(tops.shape[1]):
+                for q in range(k):
+                    t = near_tops[q]
                     dx = x - tops[i, t, 0]
                     dy = y - tops[i, t, 1]
                     dz = altitude - tops[i, t, 2]
@@ -134,6 +153,51 @@ def near_tops(tops: np.ndarray, altitude: float, d_safe2: float) -> np.ndarray:
     slot = np.cumsum(near, axis=1)[b, j] - 1
     out[b, slot] = tops[b, j]
     return out
+
+
+def nearest_nodes(reach: np.ndarray, available: np.ndarray, lattice: np.ndarray, place: np.ndarray,
+                  n: int) -> tuple[np.ndarray, np.ndarray]:
+    """The ``n`` nodes (at most 2) nearest to ``place`` (R, U, 2) among each UAV's ``reach`` (R, U, L) bool, or
+    among its copy's ``available`` (R, L) where it reaches none, with their distances: nodes (R, U, n) (-1 padded)
+    and distances (R, U, n) (inf padded). The same as ranking ``hypot(lattice - place)`` over those nodes and
+    taking the first ``n`` (ties: the lower node), without the (R, U, L) distances (a backup plan's slot asks this
+    of every UAV, over the whole lattice)."""
+    if not 1 <= n <= 2:
+        raise ValueError(f"nearest_nodes: n must be 1 or 2, got {n}")
+    r, u, _ = reach.shape
+    nodes, dist = np.empty((r, u, n), np.int64), np.empty((r, u, n))
+    _nearest_nodes(np.ascontiguousarray(reach), np.ascontiguousarray(available), np.ascontiguousarray(lattice, float),
+                   np.ascontiguousarray(place, float), nodes, dist)
+    return nodes, dist
+
+
+@numba.njit(cache=True, nogil=True)
+def _nearest_nodes(reach, available, lattice, place, nodes, dist):  # pragma: no cover
+    """:func:`nearest_nodes`' loop: one pass over the lattice per UAV, keeping the best ``n`` (strictly smaller
+    distance wins, so the lower node keeps a tie, as a stable sort does)."""
+    r, u, lat = reach.shape
+    n = nodes.shape[2]
+    for i in range(r):
+        for k in range(u):
+            any_reach = False
+            for j in range(lat):
+                if reach[i, k, j] and available[i, j]:
+                    any_reach = True
+                    break
+            px, py = place[i, k, 0], place[i, k, 1]
+            b0, b1, d0, d1 = -1, -1, np.inf, np.inf
+            for j in range(lat):
+                if not available[i, j] or (any_reach and not reach[i, k, j]):
+                    continue
+                d = np.hypot(lattice[j, 0] - px, lattice[j, 1] - py)
+                if d < d0:
+                    b1, d1 = b0, d0
+                    b0, d0 = j, d
+                elif d < d1:
+                    b1, d1 = j, d
+            nodes[i, k, 0], dist[i, k, 0] = b0, d0
+            if n == 2:
+                nodes[i, k, 1], dist[i, k, 1] = b1, d1
 
 
 class Flights:
@@ -203,13 +267,13 @@ def negotiate(flt, fl: Flights, rank: np.ndarray, rows: np.ndarray, room: float 
     def settle(order, redo):
         rows = np.nonzero(redo)[0]                       # work on the copies to settle alone
         at = np.arange(len(rows))
-        paths, use, rk, od = fl.paths[rows], usable[rows], rank[rows], order[rows]
+        use, rk, od = usable[rows], rank[rows], order[rows]
         pick = np.full((len(rows), u), -1)
         stuck = np.full(len(rows), u)
-        chosen = np.full((len(rows), u, paths.shape[3], 2), np.nan)
+        chosen = np.full((len(rows), u, fl.paths.shape[3], 2), np.nan)
         for i in range(u):
             k = od[:, i]
-            ok, cand = use[at, k], paths[at, k]                                          # (R, M), (R, M, P, 2)
+            ok, cand = use[at, k], fl.paths[rows, k]                                     # (R, M), (R, M, P, 2)
             if i:
                 past = chosen[at[:, None], od[:, :i]]                                     # (R, i, P, 2)
                 separated_from(cand, past, fl.sep_need, fl.first, ok)

@@ -57,6 +57,7 @@ from covert_env.envs.joint_moves import (
     Flights,
     Plan,
     near_tops,
+    nearest_nodes,
     negotiate,
     path_separation,
     sample_bounds,
@@ -388,12 +389,9 @@ class SafetyFilter:
         Returns nodes (R, U), found (R,), end positions (R, U, 2) and headings (R, U), the stuck UAV (R,)."""
         r, u = th.shape
         lat = len(self.lattice)
-        reach = self._reach.reachable(xy, th, q, phi, self.lattice, exact=False) & available[:, None]  # (R, U, L)
-        none = ~reach.any(axis=2)                        # no node reachable: best efforts toward every node
-        reach[none] = np.broadcast_to(available[:, None], reach.shape)[none]
+        reach = self._reach.reachable(xy, th, q, phi, self.lattice, exact=False)                 # (R, U, L)
         place = to_target_frame(xy - q[:, None], np.cos(phi)[:, None], np.sin(phi)[:, None])      # (R, U, 2)
-        diff = self.lattice[None, None] - place[:, :, None]
-        pref = np.hypot(diff[..., 0], diff[..., 1])
+        pref = None
         out = np.full((r, u), -1)
         found = np.zeros(r, bool)
         stuck = np.zeros(r, np.int64)
@@ -401,8 +399,17 @@ class SafetyFilter:
         todo = np.ones(r, bool)
         for n in stage.certificate:
             sub = np.nonzero(todo)[0]
-            nodes, rank = self._spread(reach[sub].reshape(-1, lat), pref[sub].reshape(-1, lat), n)
-            nodes, rank = nodes.reshape(len(sub), u, -1), rank.reshape(len(sub), u, -1)
+            if n is not None and n <= 2:                 # the nearest alone: no (R, U, L) distances
+                nodes, rank = nearest_nodes(reach[sub], available[sub], self.lattice, place[sub], n)
+            else:
+                if pref is None:                         # no node reachable: best efforts toward every node
+                    reach &= available[:, None]
+                    none = ~reach.any(axis=2)
+                    reach[none] = np.broadcast_to(available[:, None], reach.shape)[none]
+                    diff = self.lattice[None, None] - place[:, :, None]
+                    pref = np.hypot(diff[..., 0], diff[..., 1])
+                nodes, rank = self._spread(reach[sub].reshape(-1, lat), pref[sub].reshape(-1, lat), n)
+                nodes, rank = nodes.reshape(len(sub), u, -1), rank.reshape(len(sub), u, -1)
             nf = Flights(self, xy[sub], th[sub], q[sub], phi[sub], nodes, tops[sub], stage.certificate_samples)
             pick, unsettled = negotiate(self, nf, rank, np.ones(len(sub), bool), room=self.room, strict=True,
                                         repair=stage.repair)
