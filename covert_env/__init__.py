@@ -12,14 +12,21 @@ Uneven Terrain", Remote Sensing 16(22):4273, 2024. The environments are thin ada
     genv = gym.make("covert_env/CovertSensing-v4")               # Gymnasium, one UAV
 """
 
-from covert_env.moved import MOVED as _MOVED
-from covert_env.moved import MovedModules as _MovedModules
-from covert_env.world.config import Config
-from covert_env.world.engine import Engine
-from covert_env.world.road import Road, TargetTrack
-from covert_env.world.scenario import Scenario
-from covert_env.world.terrain import Polytope, Terrain
-from covert_env.world.trajectory import Trajectory
+import os as _os
+
+# The compiled kernels' sines and cosines must be the C library's, as numpy's float64 ones are (the env's numbers
+# bit for bit: tests/test_batch_flight.py); Intel's SVML, which numba uses where installed, rounds differently.
+# Effective when numba is first imported here; covert_env.geometry.flight warns otherwise.
+_os.environ.setdefault("NUMBA_DISABLE_INTEL_SVML", "1")
+
+from covert_env.moved import MOVED as _MOVED  # noqa: E402
+from covert_env.moved import MovedModules as _MovedModules  # noqa: E402
+from covert_env.world.config import Config  # noqa: E402
+from covert_env.world.engine import Engine  # noqa: E402
+from covert_env.world.road import Road, TargetTrack  # noqa: E402
+from covert_env.world.scenario import Scenario  # noqa: E402
+from covert_env.world.terrain import Polytope, Terrain  # noqa: E402
+from covert_env.world.trajectory import Trajectory  # noqa: E402
 
 __version__ = "0.10.0"
 

@@ -12,6 +12,8 @@ flown as the closest admissible constant control and flagged (see :mod:`covert_e
 
 from __future__ import annotations
 
+import warnings
+
 import numba
 import numpy as np
 
@@ -20,6 +22,11 @@ from covert_env.geometry.dynamics import manoeuvre_controls, unicycle_arc, unicy
 
 __all__ = ["HEADING_GRID", "POSITION_GRID", "check_unicycle", "closest_constant_control", "fly_arc",
            "fly_turn_straight", "fly_waypoints", "settle_pose", "waypoint_controls"]
+
+if numba.config.USING_SVML:                     # numba was imported before covert_env, with SVML installed
+    warnings.warn("numba uses Intel's SVML here (NUMBA_DISABLE_INTEL_SVML unset when numba was first imported): the "
+                  "compiled flights' sines may differ from numpy's in the last bit; import covert_env first or set "
+                  "NUMBA_DISABLE_INTEL_SVML=1", RuntimeWarning, stacklevel=2)
 
 #: The grids a UAV's pose is settled on at every slot end (docs/decisions/flight.md#settled-slot-end-poses): positions
 #: (m) and headings (rad). Powers of two, so that settling is exact arithmetic.
