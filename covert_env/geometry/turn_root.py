@@ -6,10 +6,11 @@ Newton iteration: Newton steps kept inside the shrinking sign-change bracket, bi
 (:mod:`covert_env.geometry.dynamics` derives F, its derivative and the root structure).
 
 The iteration runs on every still-unconverged pair at once. Its arithmetic per pair is compiled (numba: the
-heading vector, F, F' and the step), but the arctangent is numpy's ``arctan2``, called once per iteration on the
-whole batch: numpy's float64 ``arctan2`` rounds differently from the C library's on CPUs with AVX-512, and the env's
-numbers (fingerprints, the shipped cards' replays) are numpy's, bit for bit (tests/test_dynamics.py holds the
-iteration written with numpy array operations, which the compiled one matches to the last bit).
+heading vector, F, F' and the step, one pass per iteration), but the arctangent is numpy's ``arctan2``, called
+once per iteration on the whole batch: numpy's float64 ``arctan2`` rounds differently from the C library's on CPUs
+with AVX-512, and the env's numbers (fingerprints, the shipped cards' replays) are numpy's, bit for bit
+(tests/test_dynamics.py holds the iteration written with numpy array operations, which the compiled one matches
+to the last bit).
 """
 
 from __future__ import annotations
@@ -119,24 +120,32 @@ def _heading_vectors(a, b, r, d2, leg, ex, ey):  # pragma: no cover
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _residual_and_slope(a, b, r, leg, t, wd, f, fp):  # pragma: no cover
+def _residual_slope(a, b, r, leg, t, wd):  # pragma: no cover
     """Eq. 29's residual F(r) = r tau + L - delta W_max r and its slope
-    F'(r) = tau + (L (r - b) - a r) / D^2 - delta W_max (the r tau' and L' singularities cancel), from the
-    arctangents ``t`` of the heading vectors, into ``f`` and ``fp``."""
-    for i in range(len(a)):
-        tau = t[i] + TWO_PI if t[i] < 0 else t[i]
-        ri, li = r[i], leg[i]
-        f[i] = ri * tau + li - wd * ri
-        fp[i] = tau + (li * (ri - b[i]) - a[i] * ri) / (li * li + ri * ri) - wd
+    F'(r) = tau + (L (r - b) - a r) / D^2 - delta W_max (the r tau' and L' singularities cancel) of one pair, from
+    the arctangent ``t`` of its heading vector."""
+    tau = t + TWO_PI if t < 0 else t
+    return r * tau + leg - wd * r, tau + (leg * (r - b) - a * r) / (leg * leg + r * r) - wd
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _newton_step(f, fp, x, lo, hi, dx, dx_old, act, a, b, d2, r_res, rtol):  # pragma: no cover
-    """One safeguarded Newton step of every pair (the numpy form's arithmetic); a converged pair's root goes to
-    ``r_res[act[i]]`` and the others move to the front of every array, in order. Returns how many are left."""
-    m = 0
-    for i in range(len(x)):
-        fi, fpi, xi = f[i], fp[i], x[i]
+def _residual_and_slope(a, b, r, leg, t, wd, f, fp):  # pragma: no cover
+    """:func:`_residual_slope` of every pair, into ``f`` and ``fp``."""
+    for i in range(len(a)):
+        f[i], fp[i] = _residual_slope(a[i], b[i], r[i], leg[i], t[i], wd)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _newton_pass(t, m, x, lo, hi, dx, dx_old, act, a, b, d2, r_res, leg, ex, ey, wd, rtol):  # pragma: no cover
+    """One safeguarded Newton step of the first ``m`` pairs, from the arctangents ``t`` of their heading vectors
+    (``leg``, ``ex``, ``ey`` at ``x``): eq. 29's residual and slope (:func:`_residual_slope`), the
+    step (the numpy form's), then the heading vectors at the new ``x`` (:func:`_heading_vectors`). A converged
+    pair's root goes to ``r_res[act[i]]``; the others move to the front of every array, in order. Returns how many
+    are left."""
+    k = 0
+    for i in range(m):
+        xi = x[i]
+        fi, fpi = _residual_slope(a[i], b[i], xi, leg[i], t[i], wd)
         lo_i, hi_i = lo[i], hi[i]
         if fi > 0:
             lo_i = xi
@@ -149,10 +158,11 @@ def _newton_step(f, fp, x, lo, hi, dx, dx_old, act, a, b, d2, r_res, rtol):  # p
         if abs(dx_i) <= rtol * x_new or fi == 0 or hi_i - lo_i <= rtol * hi_i:
             r_res[act[i]] = x_new - dx_i if fi == 0 else x_new
             continue
-        x[m], lo[m], hi[m], dx_old[m], dx[m] = x_new, lo_i, hi_i, dx[i], dx_i
-        act[m], a[m], b[m], d2[m] = act[i], a[i], b[i], d2[i]
-        m += 1
-    return m
+        x[k], lo[k], hi[k], dx_old[k], dx[k] = x_new, lo_i, hi_i, dx[i], dx_i
+        act[k], a[k], b[k], d2[k] = act[i], a[i], b[i], d2[i]
+        k += 1
+    _heading_vectors(a[:k], b[:k], x[:k], d2[:k], leg, ex, ey)
+    return k
 
 
 def _eq29_at(a, b, x, d2, wd, work):
@@ -175,21 +185,23 @@ def solve_turn(a, b, d, d2, wd, r_max):
     idx, lo, hi = root_bracket(a, b, d, d2, wd, r_max)
     if idx.size == 0:
         return ok, r_out
-    a, b, d2 = a[idx], b[idx], d2[idx]            # new arrays: _newton_step compacts them (and lo, hi) in place
+    a, b, d2 = a[idx], b[idx], d2[idx]            # new arrays: _newton_pass compacts them (and lo, hi) in place
     # Safeguarded Newton ("rtsafe"): start at lo, the straight-line estimate, exact for small turns.
+    m = idx.size
     x = lo.copy()
-    work = np.empty((5, idx.size))
-    f, fp = _eq29_at(a, b, x, d2, wd, work)
+    leg, ex, ey, t = np.empty(m), np.empty(m), np.empty(m), np.empty(m)
+    _heading_vectors(a, b, x, d2, leg, ex, ey)
     dx_old = hi - lo
     dx = dx_old.copy()
-    act = np.arange(idx.size)
-    r_res = np.full(idx.size, np.nan)
+    act = np.arange(m)
+    r_res = np.full(m, np.nan)
+    # Per iteration: numpy's arctangent of the pairs left, then one compiled pass (step, compaction, the next
+    # heading vectors).
     for _ in range(_NEWTON_MAX_ITER):
-        m = _newton_step(f, fp, x, lo, hi, dx, dx_old, act, a, b, d2, r_res, _NEWTON_RTOL)
+        np.arctan2(ey[:m], ex[:m], out=t[:m])
+        m = _newton_pass(t, m, x, lo, hi, dx, dx_old, act, a, b, d2, r_res, leg, ex, ey, wd, _NEWTON_RTOL)
         if m == 0:
             break
-        x, lo, hi, dx, dx_old, act, a, b, d2 = (t[:m] for t in (x, lo, hi, dx, dx_old, act, a, b, d2))
-        f, fp = _eq29_at(a, b, x, d2, wd, work)
     # Anything still unconverged (never seen in practice) stays NaN and is reported infeasible.
     good = np.isfinite(r_res)
     ok[idx[good]] = True
