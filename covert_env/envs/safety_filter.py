@@ -256,24 +256,42 @@ class SafetyFilter:
                              "among its available nodes")
         tops = near_tops(state.tops, self.config.altitude, max(g[2] for g in self.grids.values()))
         given = proposed
+        scores = None if scores is None else np.asarray(scores)
         if self.min_reach:
-            proposed = self._viable(state, proposed, self._proposal_pref(proposed, scores), available)
-        pref = self._proposal_pref(proposed, scores)
+            proposed = self._viable(state, proposed, scores, available)
         out, plan = proposed.copy(), Plan(b, u, self.depth)
         pending = np.ones(b, bool)
+        # The preferences over the lattice, for the copies still pending when a stage first needs them (later
+        # stages and the uncertified search take fewer).
+        pref, have = np.empty((b, u, len(self.lattice))), np.zeros(b, bool)
+
+        def preferences(idx):
+            new = idx[~have[idx]]
+            if len(new):
+                pref[new] = self._proposal_pref(proposed[new], None if scores is None else scores[new])
+                have[new] = True
+            return pref[idx]
+
         for stage in self._search:
-            if not pending.any():
+            idx = np.nonzero(pending)[0]
+            if not len(idx):
                 break
-            allowed = np.repeat(available[:, None], u, axis=1) if stage.widen else state.masks.copy()
-            allowed[np.arange(b)[:, None], np.arange(u)[None], proposed] = True
-            pending &= ~self._certified(state, tops, allowed, pref, pending, out, plan, stage, available)
+            if stage.candidates == 1:                    # the proposals alone, each its UAV's first choice
+                nodes, rank = proposed[idx][..., None], np.full((len(idx), u, 1), -1e300)
+            else:
+                allowed = np.repeat(available[idx, None], u, axis=1) if stage.widen else state.masks[idx]
+                allowed[np.arange(len(idx))[:, None], np.arange(u)[None], proposed[idx]] = True
+                nodes, rank = self._spread(allowed.reshape(len(idx) * u, -1),
+                                           preferences(idx).reshape(len(idx) * u, -1), stage.candidates)
+                nodes, rank = nodes.reshape(len(idx), u, -1), rank.reshape(len(idx), u, -1)
+            pending[idx[self._certified(state, tops, idx, nodes, rank, out, plan, stage, available)]] = False
         held = pending & self._plan.holds(state)                      # the backup plan's next move
         if held.any():
             out[held] = self._plan.nodes[held, 0]
             plan.shift_from(self._plan, held)
             pending &= ~held
         if pending.any():
-            self._uncertified(state, tops, pref, pending, out, available)
+            self._uncertified(state, tops, preferences(np.nonzero(pending)[0]), pending, out, available)
         self._plan = plan
         moved = out != given
         self.stats.team_slots += b
@@ -296,7 +314,7 @@ class SafetyFilter:
             out[ci, ui, mi] = (reach[:, 0] & available[ci]).sum(axis=-1)
         return out
 
-    def _viable(self, state, proposed, pref, available) -> np.ndarray:
+    def _viable(self, state, proposed, scores, available) -> np.ndarray:
         """The proposals with the viability rule (``min_reach``): a dead end gives way to the first of 8 of the UAV's
         allowed nodes (:meth:`_spread`: the 4 preferred, then 4 spread over the rest) that reaches ``min_reach``
         nodes next slot, else to the one that reaches most, where that is more than the proposal's."""
@@ -306,7 +324,8 @@ class SafetyFilter:
             return proposed
         c, i = np.nonzero(dead)
         nodes = np.full(proposed.shape + (8,), -1)
-        spread = self._spread(state.masks[c, i], pref[c, i], 8)[0]                   # (N, <= 8): fewer allowed
+        pref = self._proposal_pref(proposed[c], None if scores is None else scores[c])[np.arange(len(c)), i]
+        spread = self._spread(state.masks[c, i], pref, 8)[0]                          # (N, <= 8): fewer allowed
         nodes[c, i, :spread.shape[1]] = spread
         count = self._reach_next(state, nodes, available)[c, i]                        # (N, 8), -1: no node
         good = count >= self.min_reach
@@ -316,14 +335,11 @@ class SafetyFilter:
         out[c[better], i[better]] = nodes[c, i][better, pick[better]]
         return out
 
-    def _certified(self, state, tops, allowed, pref, rows, out, plan, stage: _Stage, available) -> np.ndarray:
-        """Certified joint moves for the copies ``rows`` among ``stage.candidates`` (None: all) of the ``allowed``
-        nodes per UAV; fills ``out`` and the next slots' backup ``plan``, returns the copies done."""
-        b, u, _ = allowed.shape
-        idx = np.nonzero(rows)[0]
-        nodes, rank = self._spread(allowed[idx].reshape(len(idx) * u, -1), pref[idx].reshape(len(idx) * u, -1),
-                                   stage.candidates)
-        nodes, rank = nodes.reshape(len(idx), u, -1), rank.reshape(len(idx), u, -1)
+    def _certified(self, state, tops, idx, nodes, rank, out, plan, stage: _Stage, available) -> np.ndarray:
+        """Certified joint moves for the copies ``idx`` among their candidates ``nodes`` (R, U, M) ranked by
+        ``rank`` (lower first, inf: none; changed in place); fills ``out`` and the next slots' backup ``plan``,
+        returns which of them are done (R,)."""
+        u = nodes.shape[1]
         fl = Flights(self, state.xy[idx], state.theta[idx], state.q_next[idx], state.phi_next[idx], nodes, tops[idx],
                      self.samples)
         done, todo = np.zeros(len(idx), bool), np.ones(len(idx), bool)
@@ -350,9 +366,7 @@ class SafetyFilter:
             gap[np.arange(len(r)), stuck[r]] = np.inf
             for who in (stuck[r], np.argmin(gap, axis=1)):
                 rank[r, who, choice[r, who]] = np.inf
-        result = np.zeros(b, bool)
-        result[idx[done]] = True
-        return result
+        return done
 
     def _certificate(self, state, tops, idx, fl, choice, rows, stage: _Stage, available):
         """For the copies ``rows`` (of ``idx``) whose joint move ``choice`` is settled: a backup plan of safe joint
@@ -430,11 +444,12 @@ class SafetyFilter:
         return out, found, ends, end_th, stuck
 
     def _uncertified(self, state, tops, pref, rows, out, available) -> None:
-        """A safe joint move without a certificate for the copies ``rows``, or the proposals (infeasible events)."""
+        """A safe joint move without a certificate for the copies ``rows``, or the proposals (infeasible events);
+        ``pref`` (R, U, L): their preferences."""
         u = state.xy.shape[1]
         idx = np.nonzero(rows)[0]
         allowed = np.repeat(available[idx], u, axis=0)
-        nodes, rank = self._spread(allowed, pref[idx].reshape(len(idx) * u, -1), None)
+        nodes, rank = self._spread(allowed, pref.reshape(len(idx) * u, -1), None)
         nodes, rank = nodes.reshape(len(idx), u, -1), rank.reshape(len(idx), u, -1)
         fl = Flights(self, state.xy[idx], state.theta[idx], state.q_next[idx], state.phi_next[idx], nodes, tops[idx],
                      self.samples)
