@@ -176,6 +176,33 @@ def test_safety_filter_run_flies_through_the_filter_and_evaluates_with_it(tmp_pa
     assert load_policy(f"mappo:{run}", 3)[0].filter_kw["min_reach"] == 1
 
 
+def test_learn_flown_nodes_credits_the_team_with_the_nodes_the_filter_flew(tmp_path, train_extra, capsys):
+    """--learn-flown-nodes: a proposal the filter replaced with a node of the mask is stored as that node, with its
+    log-probability under the rollout's policy; one replaced with a node outside the mask (no probability) and the
+    kept ones stay as proposed. The option needs the filter."""
+    from types import SimpleNamespace
+
+    from training.mappo.rollout import _learn_flown
+
+    mask = np.zeros((1, 2, 3, 5), bool)
+    mask[0, :, :, :3] = True                                            # nodes 0-2 allowed
+    buf = SimpleNamespace(mask=mask, act=np.array([[[0, 1, 2], [2, 2, 0]]]),
+                          logp=np.full((1, 2, 3), -9.0, np.float32))
+    log_probs = np.log(np.arange(1, 31, dtype=np.float32).reshape(2, 3, 5) / 100)
+    flown = np.array([[1, 1, 4], [2, 0, 0]])           # copy 0: UAV 0 replaced, UAV 2 widened; copy 1: UAV 1
+    _learn_flown(buf, 0, flown, log_probs)
+    np.testing.assert_array_equal(buf.act[0], [[1, 1, 2], [2, 0, 0]])
+    np.testing.assert_array_equal(buf.logp[0], [[log_probs[0, 0, 1], -9.0, -9.0], [-9.0, log_probs[1, 1, 0], -9.0]])
+    with pytest.raises(SystemExit):
+        mappo.main([*TINY, "--learn-flown-nodes", "true", "--total-timesteps", "16"])
+    assert "--learn-flown-nodes needs --safety-filter true" in capsys.readouterr().err
+    run = mappo.main([*TINY, "--safety-filter", "true", "--separation-shield", "false", "--learn-flown-nodes", "true",
+                      "--mask-mode", "kinematic", "--total-timesteps", "32", "--runs-dir", str(tmp_path),
+                      "--run-name", "flown"])
+    assert json.loads((run / "args.json").read_text())["learn_flown_nodes"] is True
+    assert json.loads((run / "train_summary.json").read_text())["env_steps"] == 32
+
+
 def test_training_throughput_benchmark_measures_every_guard(train_extra, capsys):
     """benchmarks/training_throughput.py: a row per B for the raw env and per guard, with the loop's time by part
     adding up to 100 %."""

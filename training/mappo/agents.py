@@ -130,6 +130,9 @@ class Agents:
         self.args, self.sizes, self.env = args, sizes, env
         self.actor, self.critic, self.vnorm, self.shield = actor, critic, vnorm, shield
         self.eye = np.eye(sizes.U, dtype=np.float32)
+        #: The last ``act``'s log-probabilities of every node (rows, L) in waypoint mode (None otherwise): what the
+        #: rollout reads for a node other than the one sampled (--learn-flown-nodes).
+        self.log_probs = None
 
     def node_feats(self, flat_obs: np.ndarray):
         """The node head's inputs (rows, L, feats); None for the other heads."""
@@ -186,5 +189,6 @@ class Agents:
                 d = self.actor.dist(self.actor_in(flat_obs), feats,
                                     torch.from_numpy(masks.reshape(rows, -1)) if s.waypoint else None)
                 a = d.sample()
+            self.log_probs = d.logits if s.waypoint else None
             logp = d.log_prob(a) if s.waypoint else d.log_prob(a).sum(-1)
         return a, logp, masks, feats

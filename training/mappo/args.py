@@ -101,6 +101,11 @@ class Args(TrainingArgs):
     """waypoint mode, with --separation-shield false: the team's nodes are proposals that fly through the safety
     filter (covert_env.envs.safety_filter), which keeps eqs. 2 and 3 along the flown path; in training and
     evaluation alike"""
+    learn_flown_nodes: bool = False
+    """with --safety-filter: where the filter replaced a proposal with a node of the mask, the PPO update learns
+    from the node flown (its log-probability under the policy at the rollout) instead of the proposal, so the team
+    is credited with the move it made, as under the shield (action projection otherwise: the proposal keeps the
+    credit of the replacement's outcome)"""
     viability_shield: bool = False
     """waypoint mode, with the separation shield: a UAV also avoids a node from which it could reach no lattice
     node next slot (it would leave the zone): the end of the chosen path is tested with the env's onward_reach and,
@@ -191,6 +196,8 @@ def check_args(args: Args) -> None:
             raise ValueError(f"{flag} acts inside the separation shield: it needs --action-mode waypoint and "
                              f"--separation-shield true, got --action-mode {args.action_mode!r} --separation-shield "
                              f"{str(args.separation_shield).lower()}")
+    if args.learn_flown_nodes and not args.safety_filter:
+        raise ValueError("--learn-flown-nodes needs --safety-filter true (the nodes flown are the filter's)")
     if args.safety_filter and (args.action_mode != "waypoint" or args.separation_shield):
         raise ValueError(f"--safety-filter replaces the separation shield: it needs --action-mode waypoint and "
                          f"--separation-shield false, got --action-mode {args.action_mode!r} --separation-shield "

@@ -74,6 +74,8 @@ def collect_rollout(agents: Agents, buf: Rollout, episodes: Episodes, obs, state
         buf.act[t] = a.numpy().reshape(buf.act.shape[1:])
         buf.logp[t] = logp.numpy().reshape(s.B, s.U)
         obs, rew, term, trunc, infos = env.step(buf.act[t])
+        if args.learn_flown_nodes:
+            _learn_flown(buf, t, infos["shield_node"], agents.log_probs.numpy().reshape(s.B, s.U, -1))
         state = env.state()
         done = term[:, 0] | trunc[:, 0]
         # An ended copy's infos are its next episode's first ones; its last slot's are in final_info.
@@ -88,3 +90,14 @@ def collect_rollout(agents: Agents, buf: Rollout, episodes: Episodes, obs, state
             r[ended] += args.gamma * agents.value(infos["final_obs"][ended], infos["final_state"][ended])
         buf.reward[t], buf.done[t], buf.costs[t] = r, done, kept
     return obs, state
+
+
+def _learn_flown(buf: Rollout, t: int, flown: np.ndarray, log_probs: np.ndarray) -> None:
+    """Step ``t``'s actions become the nodes ``flown`` (B, U) where the filter replaced a proposal with a node of the
+    mask, their log-probabilities read from ``log_probs`` (B, U, L), the policy's at the rollout."""
+    in_mask = np.take_along_axis(buf.mask[t], flown[..., None], axis=-1)[..., 0]
+    swap = (flown != buf.act[t]) & in_mask
+    if swap.any():
+        c, i = np.nonzero(swap)
+        buf.act[t, c, i] = flown[c, i]
+        buf.logp[t, c, i] = log_probs[c, i, flown[c, i]]
