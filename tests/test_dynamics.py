@@ -592,3 +592,46 @@ def test_compiled_newton_is_the_numpy_iteration_bit_for_bit(w_max, v_max):
     assert want[0].sum() > 1000
     np.testing.assert_array_equal(got[0], want[0])
     np.testing.assert_array_equal(got[1], want[1])
+
+
+def _points_in_numpy(m, n):
+    """Manoeuvre.points written with numpy array operations: the straight leg from the tangent point at every time,
+    then the turn flown from the start at the times in it (the form the compiled samples follow)."""
+    from covert_env.geometry.dynamics import unicycle_arc
+
+    t = np.linspace(0.0, m.delta, n)
+    ex = (Ellipsis, None)
+    v, om, tt = (np.asarray(q, dtype=float)[ex] for q in (m.v, m.omega, m.turn_time))
+    th0, tha = np.asarray(m.theta0, dtype=float)[ex], np.asarray(m.heading_after, dtype=float)[ex]
+    sx, sy, zx, zy = m.start[..., 0][ex], m.start[..., 1][ex], m.tangent[..., 0][ex], m.tangent[..., 1][ex]
+    batch = np.broadcast_shapes(*(np.shape(a) for a in (v, om, tt, th0, tha, sx, sy, zx, zy)))
+    out = np.empty(batch[:-1] + (n, 2))
+    out[..., 0], out[..., 1], _ = unicycle_arc(zx, zy, tha, v, 0.0, np.maximum(t - tt, 0.0), heading=False)
+    turning = np.nonzero(np.broadcast_to(t <= tt, out.shape[:-1]))
+    at = turning[:-1] + (0,)
+    x1, y1, _ = unicycle_arc(*(np.broadcast_to(a, batch)[at] for a in (sx, sy, th0, v, om)), t[turning[-1]],
+                             heading=False)
+    out[turning + (0,)] = x1
+    out[turning + (1,)] = y1
+    return out
+
+
+@pytest.mark.parametrize("limits", [(50.0, 3.0, 1.0), (37.0, 2.3, 0.7)])
+def test_manoeuvre_points_are_the_numpy_arcs_bit_for_bit(limits):
+    """The compiled samples of Manoeuvre.points equal unicycle_arc's numpy form to the last bit: turns, straight
+    moves, infeasible goals (NaN rows), a broadcast start and a single manoeuvre."""
+    v_max, w_max, delta = limits
+    rng = np.random.default_rng(5)
+    p = rng.uniform(-100, 100, (500, 2))
+    theta = rng.uniform(0, 2 * np.pi, 500)
+    g = p + rng.uniform(-1.3 * v_max * delta, 1.3 * v_max * delta, (500, 2))
+    g[:40] = p[:40] + rng.uniform(1, v_max * delta, (40, 1)) * np.stack([np.cos(theta[:40]), np.sin(theta[:40])], -1)
+    m = solve_manoeuvre(p, theta, g, v_max=v_max, w_max=w_max, delta=delta)
+    assert 0.1 < m.feasible.mean() < 0.95 and (m.omega == 0).any()
+    for n in (2, 21, 201):
+        np.testing.assert_array_equal(m.points(n), _points_in_numpy(m, n))
+    shared = solve_manoeuvre(p[0], theta[0], g[:50], v_max=v_max, w_max=w_max, delta=delta)   # one start, 50 goals
+    np.testing.assert_array_equal(shared.points(21), _points_in_numpy(shared, 21))
+    one = solve_manoeuvre(p[7], theta[7], g[7], v_max=v_max, w_max=w_max, delta=delta)
+    assert one.points(11).shape == (11, 2)
+    np.testing.assert_array_equal(one.points(11), _points_in_numpy(one, 11))

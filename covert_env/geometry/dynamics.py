@@ -77,6 +77,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from covert_env.geometry.angles import wrap_heading
@@ -301,25 +302,43 @@ class Manoeuvre:
         if n < 1:
             raise ValueError(f"Manoeuvre.points: n must be >= 1, got {n}")
         t = np.linspace(0.0, self.delta, n)
-        ex = (Ellipsis, None)
-        v, om, tt = (np.asarray(q, dtype=float)[ex] for q in (self.v, self.omega, self.turn_time))
-        th0 = np.asarray(self.theta0, dtype=float)[ex]
-        tha = np.asarray(self.heading_after, dtype=float)[ex]
-        sx, sy = self.start[..., 0][ex], self.start[..., 1][ex]
-        zx, zy = self.tangent[..., 0][ex], self.tangent[..., 1][ex]
-        # Each phase is flown exactly from its own start, positions only (the headings along the path are never
-        # read). The straight leg costs one sine and cosine per manoeuvre, so it is flown at every time (those in
-        # the turn are overwritten); the turn, three per sample, only at the times in it.
-        batch = np.broadcast_shapes(*(np.shape(a) for a in (v, om, tt, th0, tha, sx, sy, zx, zy)))   # (*batch, 1)
-        out = np.empty(batch[:-1] + (n, 2))
-        out[..., 0], out[..., 1], _ = unicycle_arc(zx, zy, tha, v, 0.0, np.maximum(t - tt, 0.0), heading=False)
-        turning = np.nonzero(np.broadcast_to(t <= tt, out.shape[:-1]))
-        at = turning[:-1] + (0,)
-        x1, y1, _ = unicycle_arc(*(np.broadcast_to(a, batch)[at] for a in (sx, sy, th0, v, om)), t[turning[-1]],
-                                 heading=False)
-        out[turning + (0,)] = x1
-        out[turning + (1,)] = y1
+        parts = [np.asarray(q, dtype=float) for q in (self.v, self.omega, self.turn_time, self.theta0,
+                                                      self.heading_after)]
+        parts += [self.start[..., 0], self.start[..., 1], self.tangent[..., 0], self.tangent[..., 1]]
+        batch = np.broadcast_shapes(*(np.shape(a) for a in parts))
+        flat = [np.ascontiguousarray(np.broadcast_to(a, batch), dtype=float).reshape(-1) for a in parts]
+        out = np.empty(batch + (n, 2))
+        _manoeuvre_samples(*flat, t, out.reshape(-1, n, 2))
         return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _manoeuvre_samples(v, omega, turn_time, theta0, heading_after, sx, sy, zx, zy, t, out):  # pragma: no cover
+    """:meth:`Manoeuvre.points`' samples, manoeuvre by manoeuvre: each phase flown exactly from its own start,
+    positions only. While ``t <= turn_time``: ``unicycle_arc(sx, sy, theta0, v, omega, t)``; after it, the straight
+    leg from the tangent point, ``unicycle_arc(zx, zy, heading_after, v, 0.0, t - turn_time)``. unicycle_arc's
+    arithmetic written out operation for operation (the sines and cosines are the C library's, as numpy's float64
+    ones are: tests/test_dynamics.py checks the bits)."""
+    for i in range(len(v)):
+        vi, wi, tt = v[i], omega[i], turn_time[i]
+        mid_s = heading_after[i] + 0.0
+        cs, sn = np.cos(mid_s), np.sin(mid_s)
+        for j in range(len(t)):
+            tj = t[j]
+            if tj <= tt:
+                half = 0.5 * wi * tj
+                ratio = 1.0 if half == 0.0 else np.sin(half) / half
+                chord = (vi * tj) * ratio
+                mid = half + theta0[i]
+                out[i, j, 0] = sx[i] + chord * np.cos(mid)
+                out[i, j, 1] = sy[i] + chord * np.sin(mid)
+            else:
+                t2 = tj - tt
+                if t2 < 0.0:                             # np.maximum(t - turn_time, 0.0): NaN stays NaN
+                    t2 = 0.0
+                chord = vi * t2
+                out[i, j, 0] = zx[i] + chord * cs
+                out[i, j, 1] = zy[i] + chord * sn
 
 
 def _uav_frame(P, c, s, G, v_max: float, delta: float):
