@@ -99,29 +99,53 @@ def waypoint_controls(xy, theta, goals, c):
 def closest_constant_control(xy, theta, goals, c):
     """Best effort for unreachable waypoints: the admissible constant (v, omega) whose exact end point
     (:func:`~covert_env.geometry.dynamics.unicycle_arc` over the slot) lies closest to the waypoint, on a 17 x 17 grid
-    refined twice around the best; (K,) each for (K, 2) poses and goals.
+    refined twice around the best (the first of equals, speed major); (K,) each for (K, 2) poses and goals.
 
-    Speeds (K, 17, 1) against turn rates (K, 1, 17): the arc's turn-dependent factors are computed once per grid
-    omega, not once per (v, omega) pair, 17 times fewer sines and cosines."""
-    n = len(goals)
-    x0, y0, th0 = xy[:, 0, None, None], xy[:, 1, None, None], theta[:, None, None]
-    gx, gy = goals[:, 0, None, None], goals[:, 1, None, None]
-    lo_v, hi_v = np.full(n, 0.01 * c.v_max), np.full(n, c.v_max)
-    lo_w, hi_w = np.full(n, -c.w_max), np.full(n, c.w_max)
-    f = np.linspace(0.0, 1.0, 17)
-    rows = np.arange(n)
-    for _ in range(3):
-        gv = lo_v[:, None] + (hi_v - lo_v)[:, None] * f                   # (K, 17): grid speeds
-        gw = lo_w[:, None] + (hi_w - lo_w)[:, None] * f                   # (K, 17): grid turn rates
-        dx, dy, _ = unicycle_arc(x0, y0, th0, gv[:, :, None], gw[:, None, :], c.delta, heading=False)  # (K, 17, 17)
-        dx -= gx                                                           # in place: (K, 17, 17) spills the cache
-        dy -= gy
-        best = np.argmin((dx ** 2 + dy ** 2).reshape(n, -1), axis=1)      # v major, omega minor
-        bv, bw = gv[rows, best // 17], gw[rows, best % 17]
-        dv, dw = (hi_v - lo_v) / 16, (hi_w - lo_w) / 16
-        lo_v, hi_v = np.maximum(bv - dv, 0.01 * c.v_max), np.minimum(bv + dv, c.v_max)
-        lo_w, hi_w = np.maximum(bw - dw, -c.w_max), np.minimum(bw + dw, c.w_max)
-    return bv, bw
+    One compiled pass per pose (:func:`_grid_search`): the arc's turn-dependent factors once per grid omega, then
+    unicycle_arc's arithmetic per (v, omega) pair, the C library's sines as numpy's float64 ones are
+    (tests/test_batch_flight.py checks it against the plain grid search, bit for bit)."""
+    xy, goals = np.asarray(xy, float).reshape(-1, 2), np.asarray(goals, float).reshape(-1, 2)
+    theta = np.asarray(theta, float).reshape(-1)
+    v, w = np.empty(len(theta)), np.empty(len(theta))
+    _grid_search(np.ascontiguousarray(xy), np.ascontiguousarray(theta), np.ascontiguousarray(goals),
+                 float(c.v_max), float(c.w_max), float(c.delta), np.linspace(0.0, 1.0, 17), v, w)
+    return v, w
+
+
+@numba.njit(cache=True, nogil=True)
+def _grid_search(xy, theta, goals, v_max, w_max, delta, f, out_v, out_w):  # pragma: no cover
+    """:func:`closest_constant_control`'s search: for each pose, three rounds of the 17 x 17 grid of speeds (major)
+    and turn rates in the current box, the box shrunk to one grid step around the best each round."""
+    n = len(f)
+    ratio, mid_c, mid_s = np.empty(n), np.empty(n), np.empty(n)
+    gv, gw = np.empty(n), np.empty(n)
+    for k in range(len(theta)):
+        x0, y0, th0, gx, gy = xy[k, 0], xy[k, 1], theta[k], goals[k, 0], goals[k, 1]
+        lo_v, hi_v, lo_w, hi_w = 0.01 * v_max, v_max, -w_max, w_max
+        bv, bw = 0.0, 0.0
+        for _ in range(3):
+            for q in range(n):
+                gv[q] = lo_v + (hi_v - lo_v) * f[q]
+                gw[q] = lo_w + (hi_w - lo_w) * f[q]
+                half = 0.5 * gw[q] * delta
+                ratio[q] = 1.0 if half == 0.0 else np.sin(half) / half
+                mid = half + th0
+                mid_c[q], mid_s[q] = np.cos(mid), np.sin(mid)
+            best, best_d = 0, np.inf
+            for a in range(n):
+                vd = gv[a] * delta
+                for b in range(n):
+                    chord = vd * ratio[b]
+                    dx = (x0 + chord * mid_c[b]) - gx
+                    dy = (y0 + chord * mid_s[b]) - gy
+                    d = dx * dx + dy * dy
+                    if best_d == best_d and (d < best_d or d != d):     # np.argmin: the first NaN, if any
+                        best, best_d = a * n + b, d
+            bv, bw = gv[best // n], gw[best % n]
+            dv, dw = (hi_v - lo_v) / 16, (hi_w - lo_w) / 16
+            lo_v, hi_v = max(bv - dv, 0.01 * v_max), min(bv + dv, v_max)
+            lo_w, hi_w = max(bw - dw, -w_max), min(bw + dw, w_max)
+        out_v[k], out_w[k] = bv, bw
 
 
 def fly_turn_straight(xy, theta, v, w, t_turn, times):
