@@ -85,6 +85,7 @@ from covert_env.geometry.turn_root import root_bracket, solve_turn, turn_angle
 
 __all__ = [
     "Manoeuvre",
+    "arc_point",
     "fly_manoeuvre",
     "manoeuvre_controls",
     "manoeuvre_feasible",
@@ -178,6 +179,17 @@ def unicycle_arc(x, y, theta, v, omega, dt, *, out=None, heading: bool = True):
             np.multiply(trig(mid), chord, out=dst)
         dst += start
     return out[0], out[1], theta1
+
+
+@numba.njit(cache=True, nogil=True)
+def arc_point(x, y, theta, v, omega, dt):  # pragma: no cover
+    """:func:`unicycle_arc`'s position for one pose, compiled, operation for operation (the same bits: numpy's float64
+    sines and cosines are the C library's, as numba's are): what the compiled flights call per sample."""
+    half = 0.5 * omega * dt
+    ratio = 1.0 if half == 0.0 else np.sin(half) / half
+    chord = (v * dt) * ratio
+    mid = half + theta
+    return x + chord * np.cos(mid), y + chord * np.sin(mid)
 
 
 def unicycle_heading(theta, omega, dt):
@@ -316,9 +328,8 @@ class Manoeuvre:
 def _manoeuvre_samples(v, omega, turn_time, theta0, heading_after, sx, sy, zx, zy, t, out):  # pragma: no cover
     """:meth:`Manoeuvre.points`' samples, manoeuvre by manoeuvre: each phase flown exactly from its own start,
     positions only. While ``t <= turn_time``: ``unicycle_arc(sx, sy, theta0, v, omega, t)``; after it, the straight
-    leg from the tangent point, ``unicycle_arc(zx, zy, heading_after, v, 0.0, t - turn_time)``. unicycle_arc's
-    arithmetic written out operation for operation (the sines and cosines are the C library's, as numpy's float64
-    ones are: tests/test_dynamics.py checks the bits)."""
+    leg from the tangent point, ``unicycle_arc(zx, zy, heading_after, v, 0.0, t - turn_time)`` with its sine and
+    cosine once per manoeuvre (:func:`arc_point`; tests/test_dynamics.py checks the bits)."""
     for i in range(len(v)):
         vi, wi, tt = v[i], omega[i], turn_time[i]
         mid_s = heading_after[i] + 0.0
@@ -326,12 +337,7 @@ def _manoeuvre_samples(v, omega, turn_time, theta0, heading_after, sx, sy, zx, z
         for j in range(len(t)):
             tj = t[j]
             if tj <= tt:
-                half = 0.5 * wi * tj
-                ratio = 1.0 if half == 0.0 else np.sin(half) / half
-                chord = (vi * tj) * ratio
-                mid = half + theta0[i]
-                out[i, j, 0] = sx[i] + chord * np.cos(mid)
-                out[i, j, 1] = sy[i] + chord * np.sin(mid)
+                out[i, j, 0], out[i, j, 1] = arc_point(sx[i], sy[i], theta0[i], vi, wi, tj)
             else:
                 t2 = tj - tt
                 if t2 < 0.0:                             # np.maximum(t - turn_time, 0.0): NaN stays NaN

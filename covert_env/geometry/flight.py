@@ -18,7 +18,7 @@ import numba
 import numpy as np
 
 from covert_env.geometry.angles import TWO_PI, wrap_heading
-from covert_env.geometry.dynamics import manoeuvre_controls, unicycle_arc, unicycle_heading
+from covert_env.geometry.dynamics import arc_point, manoeuvre_controls, unicycle_arc, unicycle_heading
 
 __all__ = ["HEADING_GRID", "POSITION_GRID", "check_unicycle", "closest_constant_control", "fly_arc",
            "fly_turn_straight", "fly_waypoints", "settle_pose", "waypoint_controls"]
@@ -153,11 +153,10 @@ def fly_turn_straight(xy, theta, v, w, t_turn, times):
     (B, U), and the end headings (B, U) in [0, 2 pi).
 
     Two :func:`~covert_env.geometry.dynamics.unicycle_arc` legs per sample, as the engine flies them: the turn's end
-    pose once per UAV (numpy), then every sample in one compiled pass (:func:`_turn_straight_samples`), which
-    writes ``unicycle_arc``'s arithmetic out operation for operation (its sines and cosines are the C library's,
-    as numpy's float64 ones are: tests/test_batch_flight.py checks the bits). After the turn every sample shares
-    the turn's end pose and the straight leg's heading, and before it the straight leg has length 0. Sample 0 is
-    the exact start."""
+    pose once per UAV (numpy), then every sample in one compiled pass (:func:`_turn_straight_samples`, the turn's
+    points by :func:`~covert_env.geometry.dynamics.arc_point`: tests/test_batch_flight.py checks the bits). After
+    the turn every sample shares the turn's end pose and the straight leg's heading, and before it the straight leg
+    has length 0. Sample 0 is the exact start."""
     shape = np.shape(theta)
     times = np.ascontiguousarray(times, float)
     # The turn's end (t >= t_turn): one pose per UAV, shared by the later samples.
@@ -191,15 +190,7 @@ def _turn_straight_samples(xy, th0, v, w, t_turn, x1e, y1e, th1e, times, path): 
         for j in range(1, len(times)):
             t = times[j]
             if t < tt:                                   # in the turn: the arc's own point at t
-                half = 0.5 * wi * t
-                if half == 0.0:
-                    ratio = 1.0
-                else:
-                    ratio = np.sin(half) / half
-                chord = (vi * t) * ratio
-                mid = half + ti
-                x1 = xi + chord * np.cos(mid)
-                y1 = yi + chord * np.sin(mid)
+                x1, y1 = arc_point(xi, yi, ti, vi, wi, t)
             else:
                 x1, y1 = x1e[i], y1e[i]
             t2 = t - tt
