@@ -5,8 +5,7 @@ arithmetic. :func:`fly_arc` (a control held for the slot) flies eq. 1 through
 :func:`~covert_env.geometry.dynamics.unicycle_arc`; :func:`fly_turn_straight` (the manoeuvre) and
 :func:`closest_constant_control` (the fallback's grid search) are compiled loops with unicycle_arc's arithmetic
 (the turn's samples by :func:`~covert_env.geometry.dynamics.arc_point`). Each computes a sine and cosine once per
-distinct value
-(tests/test_batch_flight.py checks them against the plain per-sample integration, bit for bit).
+distinct value (tests/test_batch_flight.py checks them against the plain per-sample integration, bit for bit).
 A UAV's move over a slot is either a unicycle control (v, omega) held for the whole slot (eq. 1, integrated
 exactly) or the turn-then-straight manoeuvre to a waypoint (eqs. 22-29); a waypoint the manoeuvre cannot reach is
 flown as the closest admissible constant control and flagged (see :mod:`covert_env.world.engine`).
