@@ -49,6 +49,9 @@ def test_top_clearance_along_is_the_metric_at_every_sample(paths, tops):
        st.integers(0, 1), st.sampled_from([0, 1, 2]), st.floats(0.0, 50.0))
 def test_clear_along_is_the_clearance_compared_with_the_need(paths, tops, first, nan_at, need):
     paths[0, 1, 3] = np.nan                                          # a NaN sample is never clear
+    far = np.array([[[1e4, 0.0, np.nan]]] * 3)                       # nor is a flight near a top of NaN height
+    np.testing.assert_array_equal(clear_along(paths, far, 80.0, need, first), top_clearance_along(paths, far, 80.0,
+                                                                                                  first) >= need)
     # Needs exactly at some flight's clearance: the boundary answers as the metric does (>= is clear).
     gap = top_clearance_along(paths, tops, 80.0, first)
     for n in (need, float(gap[nan_at, 2]), float(np.nextafter(gap[nan_at, 3], 0.0))):
@@ -251,7 +254,7 @@ def test_the_viability_rule_turns_dead_ends_into_nodes_with_room_and_keeps_eqs_2
                 masks[b, i, np.flatnonzero(state.masks[b, i])[:k]] = True
         few = state._replace(masks=masks)
         proposed = np.argmax(masks, axis=2)
-        viable = flt._viable(few, proposed, flt._proposal_pref(proposed, None), venv.available_nodes)
+        viable = flt._viable(few, proposed, None, venv.available_nodes)
         assert masks[np.arange(8)[:, None], np.arange(3)[None], viable].all(), k
 
 

@@ -92,7 +92,7 @@ def _clear_along(paths, tops, altitude, need, first, out):
     for i in range(n):
         for j in range(m):
             # Broad phase: only the tops within ``need`` (and a margin) of the samples' bounding box can fail a
-            # sample; a NaN sample keeps every top (it is never clear).
+            # sample; a NaN sample keeps every top, and a top with a NaN coordinate is kept (neither is clear).
             lo_x, lo_y, hi_x, hi_y, nan = np.inf, np.inf, -np.inf, -np.inf, False
             for s in range(first, p):
                 x, y = paths[i, j, s, 0], paths[i, j, s, 1]
@@ -104,8 +104,9 @@ def _clear_along(paths, tops, altitude, need, first, out):
             reach = need * (1.0 + 1e-6) + 1e-6
             k = 0
             for t in range(tops.shape[1]):
-                tx, ty = tops[i, t, 0], tops[i, t, 1]
-                if nan or not (tx < lo_x - reach or tx > hi_x + reach or ty < lo_y - reach or ty > hi_y + reach):
+                tx, ty, tz = tops[i, t, 0], tops[i, t, 1], tops[i, t, 2]
+                if (nan or tx != tx or ty != ty or tz != tz
+                        or not (tx < lo_x - reach or tx > hi_x + reach or ty < lo_y - reach or ty > hi_y + reach)):
                     near_tops[k] = t
                     k += 1
             ok = True
