@@ -379,6 +379,37 @@ def test_small_input_path_equals_broad_phase_paths():
         assert (~big).any() or len(terrain) < 6
 
 
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), tol=st.sampled_from([LOS_TOLERANCE, SAFE_LOS_TOLERANCE, 0.0, -0.5, -2.0]),
+       level=st.sampled_from(["above", "level", "below", "on a face"]))
+def test_one_height_polytope_by_polytope_equals_point_by_point(seed, tol, level):
+    """Many points of a target at one height go polytope by polytope; few points, or points at their own
+    heights, point by point: every segment is decided alike either way, several targets per call, grazing
+    segments included."""
+    rng = np.random.default_rng(seed)
+    terrain = random_terrain(rng)
+    q = np.stack([random_target(rng) for _ in range(3)])
+    pts = np.stack([disk_points(rng, q[j], 200, radius=130.0) for j in range(3)])        # (3, 200, 2)
+    alt = {"above": H, "level": float(q[0, 2]), "below": 2.0}.get(level)
+    if alt is None:
+        # One height on a face plane: points placed where that plane is at the height, so the segments graze it.
+        alt = H if not len(terrain) else float(terrain[0].vertices[:, 2].max())
+        if len(terrain):
+            f = terrain[0].halfspaces
+            k = int(np.argmax(np.abs(f[:, 0]) + np.abs(f[:, 1])))
+            if abs(f[k, 1]) > 1e-9:
+                pts[:, :40, 1] = -(f[k, 0] * pts[:, :40, 0] + f[k, 2] * alt + f[k, 3]) / f[k, 1]
+    one = line_of_sight_rows(terrain, pts, alt, q, tol=tol)
+    own = line_of_sight(terrain, pts, np.full((3, 200), alt), q[:, None, :], tol=tol)
+    np.testing.assert_array_equal(one, own)
+    few = line_of_sight_rows(terrain, pts[:, :7], alt, q, tol=tol)      # few points a target: point by point
+    np.testing.assert_array_equal(few, one[:, :7])
+    want = all_pairs_clear(terrain, np.column_stack([pts.reshape(-1, 2), np.full(600, alt)]),
+                           np.repeat(q, 200, axis=0), tol)
+    np.testing.assert_array_equal(one.reshape(-1), want)
+
+
 # ----------------------------------------------------------------------------- one terrain per row
 @settings(max_examples=30, deadline=None)
 @given(seed=st.integers(0, 2**31 - 1), altitude=st.sampled_from([H, 40.0, 2.0]))

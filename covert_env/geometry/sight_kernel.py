@@ -28,8 +28,11 @@ clip's alone. (A caller that passes smaller growth factors makes the circle-and-
 planner's possible targets, :func:`baselines.dp.possible_targets.clear_to_all`, block a pair only where the segment
 meets both the pushed-out faces and the widened cylinder.)
 
-The kernel is compiled with numba (a loop per target, per polytope, per point, that stops at the first blocking
-polytope); it runs single-threaded and holds no state between calls. numba checks no bounds, so
+The kernel is compiled with numba, a loop per target. A target's many points at one height (the planner's path
+samples, the lattices and maps) go polytope by polytope, each kept polytope's footprint test over all the points in
+one branch-free pass, then the clips of the points near it; a target's few points (the env's team) and points at
+their own heights go point by point, stopping at the first blocking polytope. Both make the same decision for every
+(point, polytope) pair. It runs single-threaded and holds no state between calls. numba checks no bounds, so
 :func:`blocked_segments` checks every shape and index first.
 """
 
@@ -43,12 +46,24 @@ import numpy as np
 __all__ = ["TerrainTable", "blocked_offsets", "blocked_segments", "offsets_blocked", "segments_blocked",
            "terrain_table"]
 
+# From this many points of one target at one height, the kernel goes polytope by polytope (the planner's path
+# checks: hundreds to tens of thousands of samples per instant); below it, point by point (the env: a target's
+# team), where the polytope-first passes cost more than they save. The decisions are the same either way.
+_MANY_POINTS = 16
+
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _kernel(hs, cx, cy, radius, z_top, growth, targets, rows, start, points, heights, tol, out):  # pragma: no cover
-    """``out[i]`` = segment i is blocked; arguments as :func:`blocked_segments`."""
+    """``out[i]`` = segment i is blocked; arguments as :func:`blocked_segments`. A target's ``_MANY_POINTS`` or
+    more points at one height go polytope by polytope (:func:`_polytopes_first`), the others point by point
+    (:func:`_point_blocked`): the same decisions."""
     one_height = len(heights) == 1
     keep = np.empty(hs.shape[1], dtype=np.int64)
+    width = 0
+    for j in range(len(targets)):
+        if start[j + 1] - start[j] >= _MANY_POINTS:
+            width = max(width, start[j + 1] - start[j])
+    xs, ys, near = np.empty(width), np.empty(width), np.empty(width, dtype=np.bool_)
     for j in range(len(targets)):
         a, b = start[j], start[j + 1]
         if a == b:
@@ -68,6 +83,14 @@ def _kernel(hs, cx, cy, radius, z_top, growth, targets, rows, start, points, hei
         n_keep = _near_polytopes(z_top, cx, cy, radius, growth, r, qx, qy, qz, np.sqrt(d2_max), h_min, tol, keep)
         if n_keep == 0:
             continue
+        if one_height and b - a >= _MANY_POINTS:
+            n = b - a
+            for i in range(n):
+                xs[i] = points[a + i, 0]
+                ys[i] = points[a + i, 1]
+            _polytopes_first(hs, cx, cy, radius, z_top, growth, r, keep, n_keep, qx, qy, qz, xs[:n], ys[:n],
+                             heights[0], tol, near[:n], out[a:b])
+            continue
         for i in range(a, b):
             uz = heights[0] if one_height else heights[i]
             if _point_blocked(hs, cx, cy, radius, z_top, growth, r, keep, n_keep, qx, qy, qz, points[i, 0],
@@ -79,17 +102,11 @@ def _kernel(hs, cx, cy, radius, z_top, growth, targets, rows, start, points, hei
 def _kernel_offsets(hs, cx, cy, radius, z_top, growth, targets, rows, cos, sin, offsets, height, tol,
                     out):  # pragma: no cover
     """``out[j, l]`` = the segment from target j's offset l (in its frame, at ``height``) is blocked; arguments as
-    :func:`blocked_offsets`. The points are :func:`~covert_env.geometry.zone.to_world`'s, term by term.
-
-    Every point of a target is at the same height, so a polytope's low part of the segments (``s0``, ``s1``) is the
-    same for all: the kernel takes one kept polytope at a time, tests every point against its footprint circle in
-    one branch-free pass (which the compiler vectorises), then clips the points that pass and are not yet blocked.
-    A point is blocked iff some polytope blocks it: the decisions of :func:`_point_blocked`, polytope by polytope."""
+    :func:`blocked_offsets`. The points are :func:`~covert_env.geometry.zone.to_world`'s, term by term."""
     keep = np.empty(hs.shape[1], dtype=np.int64)
     n = len(offsets)
     xs, ys = np.empty(n), np.empty(n)
     near = np.empty(n, dtype=np.bool_)
-    uz = height
     for j in range(len(targets)):
         qx, qy, qz, r = targets[j, 0], targets[j, 1], targets[j, 2], rows[j]
         c, s = cos[j], sin[j]
@@ -103,19 +120,33 @@ def _kernel_offsets(hs, cx, cy, radius, z_top, growth, targets, rows, cos, sin, 
             if d2 > d2_max:
                 d2_max = d2
         n_keep = _near_polytopes(z_top, cx, cy, radius, growth, r, qx, qy, qz, np.sqrt(d2_max), height, tol, keep)
-        blocked = out[j]
-        dz = qz - uz
-        inv_dz = 1.0 / (dz if dz != 0.0 else -1e-300)
-        for k in range(n_keep):
-            m = keep[k]
-            s0, s1, rad = _low_part(radius, z_top, growth, r, m, uz, dz, inv_dz, tol)
-            if not s1 > s0 - 1e-12:
-                continue
-            for i in range(n):
-                near[i] = _near_footprint(cx[r, m], cy[r, m], rad, xs[i], ys[i], qx - xs[i], qy - ys[i], s0, s1)
-            for i in range(n):
-                if near[i] and not blocked[i] and _clip_meets(hs, r, m, xs[i], ys[i], uz, qx, qy, qz, tol):
-                    blocked[i] = True
+        _polytopes_first(hs, cx, cy, radius, z_top, growth, r, keep, n_keep, qx, qy, qz, xs, ys, height, tol, near,
+                         out[j])
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _polytopes_first(hs, cx, cy, radius, z_top, growth, r, keep, n_keep, qx, qy, qz, xs, ys, uz, tol, near,
+                     blocked):  # pragma: no cover
+    """Sets ``blocked[i]`` where the segment from (xs[i], ys[i], uz) to the target meets one of the polytopes
+    ``keep[:n_keep]`` of row ``r``; ``near`` is scratch of the points' length.
+
+    Every point is at the same height, so a polytope's low part of the segments (``s0``, ``s1``) is the same for
+    all: one kept polytope at a time, every point is tested against its footprint circle in one branch-free pass
+    (which the compiler vectorises), then the points that pass and are not yet blocked are clipped. A point is
+    blocked iff some polytope blocks it: the decisions of :func:`_point_blocked`, polytope by polytope."""
+    n = len(xs)
+    dz = qz - uz
+    inv_dz = 1.0 / (dz if dz != 0.0 else -1e-300)
+    for k in range(n_keep):
+        m = keep[k]
+        s0, s1, rad = _low_part(radius, z_top, growth, r, m, uz, dz, inv_dz, tol)
+        if not s1 > s0 - 1e-12:
+            continue
+        for i in range(n):
+            near[i] = _near_footprint(cx[r, m], cy[r, m], rad, xs[i], ys[i], qx - xs[i], qy - ys[i], s0, s1)
+        for i in range(n):
+            if near[i] and not blocked[i] and _clip_meets(hs, r, m, xs[i], ys[i], uz, qx, qy, qz, tol):
+                blocked[i] = True
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
