@@ -630,8 +630,13 @@ def test_manoeuvre_points_are_the_numpy_arcs_bit_for_bit(limits):
     assert 0.1 < m.feasible.mean() < 0.95 and (m.omega == 0).any()
     for n in (2, 21, 201):
         np.testing.assert_array_equal(m.points(n), _points_in_numpy(m, n))
+        # Instant-major, the same numbers: (n, K, 2), C-contiguous, as the line-of-sight kernel reads them.
+        by_instant = m.points(n, by_instant=True)
+        assert by_instant.shape == (n, 500, 2) and by_instant.flags.c_contiguous
+        np.testing.assert_array_equal(by_instant, _points_in_numpy(m, n).transpose(1, 0, 2))
     shared = solve_manoeuvre(p[0], theta[0], g[:50], v_max=v_max, w_max=w_max, delta=delta)   # one start, 50 goals
     np.testing.assert_array_equal(shared.points(21), _points_in_numpy(shared, 21))
     one = solve_manoeuvre(p[7], theta[7], g[7], v_max=v_max, w_max=w_max, delta=delta)
     assert one.points(11).shape == (11, 2)
     np.testing.assert_array_equal(one.points(11), _points_in_numpy(one, 11))
+    np.testing.assert_array_equal(one.points(11, by_instant=True), _points_in_numpy(one, 11))

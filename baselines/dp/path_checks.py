@@ -101,7 +101,7 @@ class PathChecker:
         if zone:
             good = in_feasible_zone(pts, tq[:, :2], ctx.phi[j, 1:-1], c.r1, c.r2, c.mu, 0.0).all(axis=1)
         if good.any():
-            good[good] = ~self._blocked(pts[good], tq).any(axis=1)
+            good[good] = ~self._blocked(np.ascontiguousarray(pts[good].transpose(1, 0, 2)), tq).any(axis=0)
         return good
 
     def blocked_share(self, m: Manoeuvre, ok: np.ndarray, ctx: PathContext, j: int) -> np.ndarray:
@@ -109,17 +109,15 @@ class PathChecker:
         with LoS to the target at the same instant blocked -- the env's ``cost_los_path`` on the planner's
         samples and its predicted target (docs/decisions/planner.md#a-learned-cost-in-the-planners-search)."""
         p = self.path_samples
-        pts = take_manoeuvres(m, np.flatnonzero(ok)).points(p)[:, 1:]          # (K, P - 1, 2)
-        return self._blocked(pts, ctx.target[j, 1:]).sum(axis=1) / (p - 1)
+        pts = take_manoeuvres(m, np.flatnonzero(ok)).points(p, by_instant=True)[1:]      # (P - 1, K, 2)
+        return self._blocked(pts, ctx.target[j, 1:]).sum(axis=0) / (p - 1)
 
-    def _blocked(self, pts: np.ndarray, tq: np.ndarray) -> np.ndarray:
-        """(K, S) whether sample i of manoeuvre k, ``pts[k, i]``, is out of sight of the target at that instant,
-        ``tq[i]``: eq. 6 exactly, every (manoeuvre, instant) in one call of the line-of-sight kernel, at
+    def _blocked(self, by_instant: np.ndarray, tq: np.ndarray) -> np.ndarray:
+        """(S, K) whether sample i of manoeuvre k, ``by_instant[i, k]``, is out of sight of the target at that
+        instant, ``tq[i]``: eq. 6 exactly, every (manoeuvre, instant) in one call of the line-of-sight kernel, at
         :data:`~covert_env.world.visibility.SAFE_LOS_TOLERANCE` (a sample called visible stays visible when the
-        env scores it)."""
-        by_instant = np.ascontiguousarray(pts.transpose(1, 0, 2))                # (S, K, 2): target i's points
-        clear = line_of_sight_rows(self.terrain, by_instant, self.config.altitude, tq, tol=SAFE_LOS_TOLERANCE)
-        return ~clear.T
+        env scores it). Instant-major, as the kernel groups points by target."""
+        return ~line_of_sight_rows(self.terrain, by_instant, self.config.altitude, tq, tol=SAFE_LOS_TOLERANCE)
 
 
 def record_circles(avoid: np.ndarray, avoid_dist: float, j: int) -> tuple:

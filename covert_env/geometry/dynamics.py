@@ -301,14 +301,21 @@ class Manoeuvre:
         """
         return self.v, self.omega, self.turn_time
 
-    def points(self, n: int = 20) -> np.ndarray:
+    def points(self, n: int = 20, *, by_instant: bool = False) -> np.ndarray:
         """Positions at ``n`` equally spaced times in ``[0, delta]`` along the path (turn, then straight).
 
         Speed is constant, so the points are also equally spaced in arc length; the first is the start and
         the last the waypoint. Use them to check line of sight and UAV separation between slot times.
 
+        Args:
+            n: samples per manoeuvre, >= 1.
+            by_instant: lay the samples out instant-major, ``(n, *batch, 2)``: the same numbers, grouped as the
+                line-of-sight kernel reads them (every manoeuvre's sample at one instant against the target then),
+                without a transposed copy.
+
         Returns:
-            ``(*batch, n, 2)`` array (``(K, n, 2)`` for K pairs); NaN rows where infeasible.
+            ``(*batch, n, 2)`` array (``(K, n, 2)`` for K pairs), or ``(n, *batch, 2)`` with ``by_instant``; NaN rows
+            where infeasible.
         """
         n = int(n)
         if n < 1:
@@ -319,6 +326,10 @@ class Manoeuvre:
         parts += [self.start[..., 0], self.start[..., 1], self.tangent[..., 0], self.tangent[..., 1]]
         batch = np.broadcast_shapes(*(np.shape(a) for a in parts))
         flat = [np.ascontiguousarray(np.broadcast_to(a, batch), dtype=float).reshape(-1) for a in parts]
+        if by_instant:
+            out = np.empty((n,) + batch + (2,))
+            _manoeuvre_samples(*flat, t, out.reshape(n, -1, 2).transpose(1, 0, 2))
+            return out
         out = np.empty(batch + (n, 2))
         _manoeuvre_samples(*flat, t, out.reshape(-1, n, 2))
         return out
