@@ -203,6 +203,36 @@ def test_learn_flown_nodes_credits_the_team_with_the_nodes_the_filter_flew(tmp_p
     assert json.loads((run / "train_summary.json").read_text())["env_steps"] == 32
 
 
+
+def test_filter_scores_orders_the_filters_alternatives_by_the_policy(tmp_path, train_extra, capsys):
+    """--filter-scores: the card says ``filter_scores`` and the harness flies the team through the filter with its
+    alternatives ordered by its logits, the masked nodes' at -1e8 as in training; without it, by the distance to
+    the proposal. The option needs the filter."""
+    import covert_env
+    from covert_env.evaluation.specs import load_policy
+
+    with pytest.raises(SystemExit):
+        mappo.main([*TINY, "--filter-scores", "true", "--total-timesteps", "16"])
+    assert "--filter-scores needs --safety-filter true" in capsys.readouterr().err
+    run = mappo.main([*TINY, "--safety-filter", "true", "--separation-shield", "false", "--filter-scores", "true",
+                      "--mask-mode", "kinematic", "--total-timesteps", "32", "--runs-dir", str(tmp_path),
+                      "--run-name", "scores"])
+    card = json.loads((run / "model.json").read_text())
+    assert card["filter_scores"] is True and card["safety_filter"] is True
+    pol = load_policy(f"mappo:{run}", 3)[0]
+    assert pol.use_scores is True
+    par = covert_env.parallel_env(**card["env_kwargs"])
+    obs, _ = par.reset(seed=3)
+    pol.reset(par, seed=3)
+    pol.act(obs, par)
+    mask = np.stack([par.action_mask(a) for a in par.possible_agents]).astype(bool)
+    logits = pol.policy.last_logits
+    assert (logits[~mask] == -1e8).all() and (logits[mask] > -1e8).all()
+    card["filter_scores"] = False
+    (run / "model.json").write_text(json.dumps(card))
+    assert load_policy(f"mappo:{run}", 3)[0].use_scores is False
+
+
 def test_training_throughput_benchmark_measures_every_guard(train_extra, capsys):
     """benchmarks/training_throughput.py: a row per B for the raw env and per guard, with the loop's time by part
     adding up to 100 %."""

@@ -388,6 +388,36 @@ def test_a_vector_env_through_the_filter_keeps_eqs_2_and_3():
         SafetyFilteredVectorEnv(covert_env.vector_env(num_envs=1, n_uavs=3))
 
 
+
+def test_a_vector_env_through_the_filter_orders_alternatives_by_the_scores_it_is_given():
+    """``SafetyFilteredVectorEnv.step(actions, scores)`` flies the filter's nodes for those scores, node for node
+    :meth:`SafetyFilter.filter` on the same state; scores that prefer other nodes than the nearest change the
+    replacements (a team of six with random proposals has many)."""
+    from covert_env.envs.safety_filter import SafetyFilter, SafetyFilteredVectorEnv
+
+    def make():
+        venv = SafetyFilteredVectorEnv(covert_env.vector_env(num_envs=4, task="towers-6uav", action_mode="waypoint"))
+        venv.reset(seed=[8_000_010 + j for j in range(4)])
+        return venv
+
+    with_scores, nearest = make(), make()
+    rng = np.random.default_rng(5)
+    differ = 0
+    for _ in range(3):
+        masks = with_scores.action_masks().astype(bool)
+        proposed = np.argmax(np.where(masks, rng.random(masks.shape), -1.0), axis=2)
+        scores = rng.normal(size=masks.shape)
+        direct = SafetyFilter(with_scores.config, with_scores.lattice).filter(
+            with_scores.safety_state(3), proposed, scores)
+        _, _, _, _, infos = with_scores.step(proposed, scores=scores)
+        np.testing.assert_array_equal(infos["shield_node"], direct)
+        _, _, _, _, plain = nearest.step(proposed)
+        differ += int((plain["shield_node"] != infos["shield_node"]).sum())
+        if differ:
+            break
+    assert differ > 0
+
+
 def test_a_coarse_check_includes_its_start():
     """The backup plan's moves are checked on the coarse grid from their start on: the start is the end of a move
     checked on the fine grid, with less room than the coarse grid's margin argument needs. Two UAVs whose slot

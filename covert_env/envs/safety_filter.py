@@ -559,12 +559,14 @@ class SafetyFilteredVectorEnv:
         """The env's ``reset``; a copy reset here starts without a backup plan."""
         return self.env.reset(seed=seed) if options is None else self.env.reset(seed=seed, options=options)
 
-    def step(self, actions):
-        """One slot with the filter's nodes for the proposals ``actions`` (B, U); see the class docstring."""
+    def step(self, actions, scores=None):
+        """One slot with the filter's nodes for the proposals ``actions`` (B, U); see the class docstring.
+        ``scores`` (B, U, L), higher preferred (e.g. the learner's logits), order each UAV's alternatives
+        (:meth:`SafetyFilter.filter`); default: the nodes nearest to the proposal first."""
         b, u = self.env.num_envs, len(self.env.possible_agents)
         proposed = batch.waypoint_actions(actions, (b, u), len(self.env.lattice), self.env.possible_agents)
         before = len(self.safety.stats.events)
-        flown = self.safety.filter(self.env.safety_state(self.safety.depth), proposed,
+        flown = self.safety.filter(self.env.safety_state(self.safety.depth), proposed, scores,
                                    available=getattr(self.env, "available_nodes", None))
         obs, rewards, terminations, truncations, infos = self.env.step(flown)
         infeasible = np.zeros((b, u), bool)

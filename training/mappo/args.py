@@ -106,6 +106,10 @@ class Args(TrainingArgs):
     from the node flown (its log-probability under the policy at the rollout) instead of the proposal, so the team
     is credited with the move it made, as under the shield (action projection otherwise: the proposal keeps the
     credit of the replacement's outcome)"""
+    filter_scores: bool = False
+    """with --safety-filter: the filter orders each UAV's alternatives (the viability rule's and the search's) by
+    the policy's logits, the node it prefers first, instead of by the distance to its proposal; in training and
+    evaluation alike (the model card's filter_scores)"""
     viability_shield: bool = False
     """waypoint mode, with the separation shield: a UAV also avoids a node from which it could reach no lattice
     node next slot (it would leave the zone): the end of the chosen path is tested with the env's onward_reach and,
@@ -198,6 +202,8 @@ def check_args(args: Args) -> None:
                              f"{str(args.separation_shield).lower()}")
     if args.learn_flown_nodes and not args.safety_filter:
         raise ValueError("--learn-flown-nodes needs --safety-filter true (the nodes flown are the filter's)")
+    if args.filter_scores and not args.safety_filter:
+        raise ValueError("--filter-scores needs --safety-filter true (it orders the filter's alternatives)")
     if args.safety_filter and (args.action_mode != "waypoint" or args.separation_shield):
         raise ValueError(f"--safety-filter replaces the separation shield: it needs --action-mode waypoint and "
                          f"--separation-shield false, got --action-mode {args.action_mode!r} --separation-shield "

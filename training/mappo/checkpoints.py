@@ -48,6 +48,7 @@ def model_card(args: Args, s: Sizes, env, env_kwargs: dict, shield) -> dict:
                                     and args.viability_shield else None),
             "shield_lookahead": bool(shield is not None and shield.lookahead),
             "safety_filter": bool(args.safety_filter),
+            "filter_scores": bool(args.safety_filter and args.filter_scores),
             "train_tasks": task_list(args) or None,
             "covert_env_version": covert_env.__version__ if hasattr(covert_env, "__version__") else None}
 

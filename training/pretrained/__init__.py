@@ -263,10 +263,12 @@ class LearnedPolicy:
                                   w_max=c.w_max if self.actor.spec.get("node_manoeuvre") else None
                                   ) if self.actor.head == "node" else None
             logits = self.actor.logits(x, feats)
-            #: The node logits of the last ``act`` (U, L): a safety filter around the team orders its
-            #: alternatives by them (:class:`covert_env.envs.safety_filter.ShieldedPolicy`).
-            self.last_logits = logits
             mask = np.stack([par.action_mask(a) for a in agents]).astype(bool)
+            #: The node logits of the last ``act`` (U, L): a safety filter around the team orders its
+            #: alternatives by them (:class:`covert_env.envs.safety_filter.ShieldedPolicy`). A team trained with
+            #: the filter ordering by its logits (the card's ``filter_scores``) saw the masked nodes' at -1e8
+            #: (training.mappo scores the allowed nodes only): so here, so that it flies as it trained.
+            self.last_logits = np.where(mask, logits, -1e8) if self.card.get("filter_scores") else logits
             if self.shield is not None:
                 act, _ = self.shield.choose(mask[None], lambda n: par.waypoint_paths(n[0])[None],
                                             lambda k, m: first_argmax(np.where(m, logits[k], -np.inf), axis=-1),
@@ -300,16 +302,17 @@ def pretrained_names() -> list[str]:
 
 def as_flown(pol: LearnedPolicy):
     """The policy as its card says it flies: a team trained through the safety filter flies through it
-    (:class:`~covert_env.envs.safety_filter.ShieldedPolicy`), its alternatives ordered as in training (by the
-    distance to the proposal, as :class:`~covert_env.envs.safety_filter.SafetyFilteredVectorEnv` orders them) and
-    with the card's viability rule (``viability_min_reach``, 1 if null); any other team as it is. The one rule of
+    (:class:`~covert_env.envs.safety_filter.ShieldedPolicy`), its alternatives ordered as in training (by its
+    logits where the card says ``filter_scores``, else by the distance to the proposal, as
+    :class:`~covert_env.envs.safety_filter.SafetyFilteredVectorEnv` orders them by default) and with the card's
+    viability rule (``viability_min_reach``, 1 if null); any other team as it is. The one rule of
     ``covert-env evaluate`` and of the cards' scores."""
     if not pol.card.get("safety_filter"):
         return pol
     from covert_env.envs.safety_filter import ShieldedPolicy
 
     min_reach = (pol.card.get("viability_min_reach") or 1) if pol.card.get("viability_shield") else 0
-    return ShieldedPolicy(pol, use_scores=False, min_reach=min_reach)
+    return ShieldedPolicy(pol, use_scores=bool(pol.card.get("filter_scores")), min_reach=min_reach)
 
 
 def load_learned(path: str | Path) -> LearnedPolicy:
