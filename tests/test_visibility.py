@@ -380,17 +380,18 @@ def test_small_input_path_equals_broad_phase_paths():
 
 
 
-@settings(max_examples=40, deadline=None)
-@given(seed=st.integers(0, 2**31 - 1), tol=st.sampled_from([LOS_TOLERANCE, SAFE_LOS_TOLERANCE, 0.0, -0.5, -2.0]),
-       level=st.sampled_from(["above", "level", "below", "on a face"]))
-def test_one_height_polytope_by_polytope_equals_point_by_point(seed, tol, level):
-    """Many points of a target at one height go polytope by polytope; few points, or points at their own
-    heights, point by point: every segment is decided alike either way, several targets per call, grazing
-    segments included."""
+def _one_height_layouts(seed: int, tol: float, level: str):
+    """Targets of 0, 15, 16, 300 and 3 points at one height, decided with that height given once (polytope by
+    polytope from 16 points on, point by point below) and once per point (point by point), and by the all-pairs
+    clip: ``(once, per point, all pairs)``, each (N,) True = blocked."""
+    from covert_env.geometry.sight_kernel import segments_blocked
+    from covert_env.world.visibility import terrain_arrays
+
     rng = np.random.default_rng(seed)
     terrain = random_terrain(rng)
-    q = np.stack([random_target(rng) for _ in range(3)])
-    pts = np.stack([disk_points(rng, q[j], 200, radius=130.0) for j in range(3)])        # (3, 200, 2)
+    sizes = [0, 15, 16, 300, 3]
+    q = np.stack([random_target(rng) for _ in sizes])
+    pts = np.concatenate([disk_points(rng, q[j], n, radius=130.0) for j, n in enumerate(sizes)])
     alt = {"above": H, "level": float(q[0, 2]), "below": 2.0}.get(level)
     if alt is None:
         # One height on a face plane: points placed where that plane is at the height, so the segments graze it.
@@ -399,15 +400,33 @@ def test_one_height_polytope_by_polytope_equals_point_by_point(seed, tol, level)
             f = terrain[0].halfspaces
             k = int(np.argmax(np.abs(f[:, 0]) + np.abs(f[:, 1])))
             if abs(f[k, 1]) > 1e-9:
-                pts[:, :40, 1] = -(f[k, 0] * pts[:, :40, 0] + f[k, 2] * alt + f[k, 3]) / f[k, 1]
-    one = line_of_sight_rows(terrain, pts, alt, q, tol=tol)
-    own = line_of_sight(terrain, pts, np.full((3, 200), alt), q[:, None, :], tol=tol)
-    np.testing.assert_array_equal(one, own)
-    few = line_of_sight_rows(terrain, pts[:, :7], alt, q, tol=tol)      # few points a target: point by point
-    np.testing.assert_array_equal(few, one[:, :7])
-    want = all_pairs_clear(terrain, np.column_stack([pts.reshape(-1, 2), np.full(600, alt)]),
-                           np.repeat(q, 200, axis=0), tol)
-    np.testing.assert_array_equal(one.reshape(-1), want)
+                pts[:120, 1] = -(f[k, 0] * pts[:120, 0] + f[k, 2] * alt + f[k, 3]) / f[k, 1]
+    want = ~all_pairs_clear(terrain, np.column_stack([pts, np.full(len(pts), alt)]), np.repeat(q, sizes, axis=0), tol)
+    if not len(terrain):
+        return want, want, want
+    table, rows = terrain_arrays(terrain).table, np.zeros(len(sizes), np.int64)
+    start = np.concatenate([[0], np.cumsum(sizes)])
+    once = segments_blocked(table, q, rows, start, pts, alt, tol)
+    per_point = segments_blocked(table, q, rows, start, pts, np.full(len(pts), alt), tol)
+    return once, per_point, want
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), tol=st.sampled_from([LOS_TOLERANCE, SAFE_LOS_TOLERANCE, 0.0, -0.5, -2.0]),
+       level=st.sampled_from(["above", "level", "below", "on a face"]))
+def test_one_height_polytope_by_polytope_equals_point_by_point(seed, tol, level):
+    """A target's many points at one height go polytope by polytope; few points, or points at their own heights,
+    point by point: every segment is decided alike either way, targets of 0 to 300 points in one call, grazing
+    segments included, and as the all-pairs clip decides it."""
+    once, per_point, want = _one_height_layouts(seed, tol, level)
+    np.testing.assert_array_equal(once, per_point)
+    np.testing.assert_array_equal(once, want)
+
+
+def test_one_height_layouts_block_some_segments():
+    """The layouts above are not vacuous: over a few seeds, many segments of each size of target are blocked."""
+    blocked = sum(_one_height_layouts(seed, LOS_TOLERANCE, "above")[0] for seed in range(20))
+    assert blocked[:15].sum() > 0 and blocked[15:31].sum() > 0 and blocked[31:331].sum() > 50
 
 
 # ----------------------------------------------------------------------------- one terrain per row

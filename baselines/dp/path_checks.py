@@ -95,13 +95,13 @@ class PathChecker:
         if p <= 2:
             return np.ones(int(ok.sum()), bool)
         # Only the feasible manoeuvres are flown (sampling is most of the cost of this check).
-        pts = take_manoeuvres(m, np.flatnonzero(ok)).points(p)[:, 1:-1]
+        pts = take_manoeuvres(m, np.flatnonzero(ok)).points(p, by_instant=True)[1:-1]          # (P - 2, K, 2)
         tq = ctx.target[j, 1:-1]
-        good = np.ones(len(pts), bool)
+        good = np.ones(pts.shape[1], bool)
         if zone:
-            good = in_feasible_zone(pts, tq[:, :2], ctx.phi[j, 1:-1], c.r1, c.r2, c.mu, 0.0).all(axis=1)
+            good = in_feasible_zone(pts, tq[:, None, :2], ctx.phi[j, 1:-1, None], c.r1, c.r2, c.mu, 0.0).all(axis=0)
         if good.any():
-            good[good] = ~self._blocked(np.ascontiguousarray(pts[good].transpose(1, 0, 2)), tq).any(axis=0)
+            good[good] = ~self._blocked(pts[:, good], tq).any(axis=0)
         return good
 
     def blocked_share(self, m: Manoeuvre, ok: np.ndarray, ctx: PathContext, j: int) -> np.ndarray:

@@ -60,7 +60,7 @@ def _kernel(hs, cx, cy, radius, z_top, growth, targets, rows, start, points, hei
     one_height = len(heights) == 1
     keep = np.empty(hs.shape[1], dtype=np.int64)
     width = 0
-    for j in range(len(targets)):
+    for j in range(len(targets) if one_height else 0):
         if start[j + 1] - start[j] >= _MANY_POINTS:
             width = max(width, start[j + 1] - start[j])
     xs, ys, near = np.empty(width), np.empty(width), np.empty(width, dtype=np.bool_)
