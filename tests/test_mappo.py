@@ -204,19 +204,33 @@ def test_learn_flown_nodes_credits_the_team_with_the_nodes_the_filter_flew(tmp_p
 
 
 
-def test_filter_scores_orders_the_filters_alternatives_by_the_policy(tmp_path, train_extra, capsys):
-    """--filter-scores: the card says ``filter_scores`` and the harness flies the team through the filter with its
-    alternatives ordered by its logits, the masked nodes' at -1e8 as in training; without it, by the distance to
-    the proposal. The option needs the filter."""
+def test_filter_scores_orders_the_filters_alternatives_by_the_policy(tmp_path, train_extra, capsys, monkeypatch):
+    """--filter-scores: every training step gives the filter the policy's node logits, the masked nodes' at
+    MASKED_LOGIT; the card says ``filter_scores`` and the harness flies the team through the filter with its
+    alternatives ordered by the same scores; without it, by the distance to the proposal. The option needs the
+    filter."""
     import covert_env
+    from covert_env.envs.safety_filter import SafetyFilteredVectorEnv
     from covert_env.evaluation.specs import load_policy
+    from training.pretrained import MASKED_LOGIT
 
     with pytest.raises(SystemExit):
-        mappo.main([*TINY, "--filter-scores", "true", "--total-timesteps", "16"])
+        mappo.main([*TINY, "--filter-scores", "true", "--total-timesteps", "16", "--runs-dir", str(tmp_path)])
     assert "--filter-scores needs --safety-filter true" in capsys.readouterr().err
+    given, step = [], SafetyFilteredVectorEnv.step
+
+    def recording_step(self, actions, scores=None):
+        given.append((self.action_masks().astype(bool), scores))
+        return step(self, actions, scores=scores)
+
+    monkeypatch.setattr(SafetyFilteredVectorEnv, "step", recording_step)
     run = mappo.main([*TINY, "--safety-filter", "true", "--separation-shield", "false", "--filter-scores", "true",
                       "--mask-mode", "kinematic", "--total-timesteps", "32", "--runs-dir", str(tmp_path),
                       "--run-name", "scores"])
+    assert len(given) == 16
+    for mask, scores in given:
+        assert scores is not None and scores.shape == mask.shape == (2, 3, mask.shape[2]) and (~mask).any()
+        assert (scores[~mask] == MASKED_LOGIT).all() and (scores[mask] > MASKED_LOGIT / 2).all()
     card = json.loads((run / "model.json").read_text())
     assert card["filter_scores"] is True and card["safety_filter"] is True
     pol = load_policy(f"mappo:{run}", 3)[0]
@@ -227,7 +241,7 @@ def test_filter_scores_orders_the_filters_alternatives_by_the_policy(tmp_path, t
     pol.act(obs, par)
     mask = np.stack([par.action_mask(a) for a in par.possible_agents]).astype(bool)
     logits = pol.policy.last_logits
-    assert (logits[~mask] == -1e8).all() and (logits[mask] > -1e8).all()
+    assert (~mask).any() and (logits[~mask] == MASKED_LOGIT).all() and (logits[mask] > MASKED_LOGIT / 2).all()
     card["filter_scores"] = False
     (run / "model.json").write_text(json.dumps(card))
     assert load_policy(f"mappo:{run}", 3)[0].use_scores is False

@@ -466,7 +466,7 @@ class ShieldedPolicy:
     through a :class:`SafetyFilter` on the PettingZoo parallel env: the spec suffix ``+shield``. Where the policy
     leaves its node scores in ``last_logits`` (U, L) (the learned teams of ``training.pretrained`` do) and
     ``use_scores`` is True, the filter orders each UAV's alternatives by them; otherwise by the distance to the
-    proposed node (as :class:`SafetyFilteredVectorEnv` does in training)."""
+    proposed node (as :class:`SafetyFilteredVectorEnv` does in training unless it is given scores)."""
 
     def __init__(self, policy, *, use_scores: bool = True, **filter_kw):
         self.policy, self.filter_kw, self.use_scores = policy, filter_kw, use_scores

@@ -32,7 +32,9 @@ model card, ``.npz`` + JSON checkpoints: nothing is pickled); ``train``, which r
   nodes are proposals, and the env flies the nodes of :class:`covert_env.envs.safety_filter.SafetyFilteredVectorEnv`,
   which keeps eqs. 2 and 3 along the flown path and certifies each move by a backup plan (action projection: PPO
   keeps the probabilities of the proposals, the rewards and costs are those of the moves flown). The harness
-  flies a team trained so through the same filter (the model card's ``safety_filter``).
+  flies a team trained so through the same filter (the model card's ``safety_filter``). With ``--filter-scores``
+  the filter orders each UAV's alternatives by the policy's node logits instead of by the distance to its
+  proposal, in training and in the harness alike (the card's ``filter_scores``).
 * **Critic**: MAPPO (``--algo mappo``) sees the centralised ``state()`` of the copy plus a one-hot of the agent
   (the rewards are per agent, so one state value would not do); IPPO (``--algo ippo``) sees the agent's own
   observation. Value targets are normalised by running statistics (``--value-norm``, MAPPO's ValueNorm).

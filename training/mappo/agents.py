@@ -185,10 +185,18 @@ class Agents:
                                                  self.env.onward_reach if self.args.viability_shield else None)
                 d = masked_categorical(logits, torch.from_numpy(masks.reshape(rows, -1)))
                 a = torch.from_numpy(a_np.reshape(rows))
-            else:
-                d = self.actor.dist(self.actor_in(flat_obs), feats,
-                                    torch.from_numpy(masks.reshape(rows, -1)) if s.waypoint else None)
+            elif s.waypoint:
+                mask = torch.from_numpy(masks.reshape(rows, -1))
+                logits = self.actor.logits(self.actor_in(flat_obs), feats, mask)
+                d = masked_categorical(logits, mask)
                 a = d.sample()
+            else:
+                logits = None
+                d = self.actor.dist(self.actor_in(flat_obs), feats, None)
+                a = d.sample()
+            #: The node logits of this step (B * U, L), the masked nodes' at MASKED_LOGIT (what --filter-scores
+            #: gives the filter, as a team's card makes the harness give it), and their log-probabilities.
+            self.scores = logits
             self.log_probs = d.logits if s.waypoint else None
             logp = d.log_prob(a) if s.waypoint else d.log_prob(a).sum(-1)
         return a, logp, masks, feats

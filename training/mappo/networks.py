@@ -12,6 +12,7 @@ import torch
 from torch import nn
 
 from training.mappo.node_head import node_scores
+from training.pretrained import MASKED_LOGIT
 
 __all__ = ["Actor", "Critic", "layer", "masked_categorical"]
 
@@ -26,8 +27,9 @@ def layer(i: int, o: int, std: float = 2 ** 0.5, bias: bool = True) -> nn.Linear
 
 
 def masked_categorical(logits: torch.Tensor, mask: torch.Tensor) -> torch.distributions.Categorical:
-    """A categorical over the allowed nodes: the masked ones get -1e8 (never sampled, a finite log-probability)."""
-    return torch.distributions.Categorical(logits=torch.where(mask, logits, torch.tensor(-1e8)))
+    """A categorical over the allowed nodes: the masked ones get MASKED_LOGIT (never sampled, a finite
+    log-probability)."""
+    return torch.distributions.Categorical(logits=torch.where(mask, logits, torch.tensor(MASKED_LOGIT)))
 
 
 class Actor(nn.Module):
@@ -56,7 +58,8 @@ class Actor(nn.Module):
     def logits(self, obs, feats=None, mask=None, sample_of=None):
         """Node logits (waypoint heads). ``feats`` are the node features, one sample per row, or with
         ``sample_of`` (an int array, one per row) a store of samples that the rows name. With ``mask``, the node
-        head scores only the allowed nodes (:func:`training.mappo.node_head.node_scores`) and the others get -1e8."""
+        head scores only the allowed nodes (:func:`training.mappo.node_head.node_scores`) and the others get
+        MASKED_LOGIT."""
         h = self.trunk(obs)
         if self.head != "node":
             return self.flat(h)
@@ -69,7 +72,7 @@ class Actor(nn.Module):
         sample_of = np.arange(len(mask)) if sample_of is None else np.asarray(sample_of, np.int64)
         scores = node_scores(self.node_obs(h), self.node_feat, self.node_out, np.ascontiguousarray(store, np.float32),
                              sample_of, rows.numpy(), nodes.numpy())
-        return torch.full(mask.shape, -1e8).index_put((rows, nodes), scores)
+        return torch.full(mask.shape, MASKED_LOGIT).index_put((rows, nodes), scores)
 
     def dist(self, obs, feats=None, mask=None, sample_of=None):
         """The action distribution: a masked categorical over the nodes, or the unicycle's Gaussian."""

@@ -74,7 +74,7 @@ def collect_rollout(agents: Agents, buf: Rollout, episodes: Episodes, obs, state
         buf.act[t] = a.numpy().reshape(buf.act.shape[1:])
         buf.logp[t] = logp.numpy().reshape(s.B, s.U)
         if args.filter_scores:         # the filter orders its alternatives by the policy's logits
-            obs, rew, term, trunc, infos = env.step(buf.act[t], scores=agents.log_probs.numpy().reshape(s.B, s.U, -1))
+            obs, rew, term, trunc, infos = env.step(buf.act[t], scores=agents.scores.numpy().reshape(s.B, s.U, -1))
         else:
             obs, rew, term, trunc, infos = env.step(buf.act[t])
         if args.learn_flown_nodes:

@@ -40,8 +40,11 @@ from training.shield import SeparationShield
 
 __all__ = ["node_features", "map_at", "manoeuvre_features", "n_node_features", "NumpyActor", "LearnedPolicy",
            "load_learned", "as_flown", "check_weights", "PRETRAINED_DIR", "pretrained_names", "N_OWN_FEATURES",
-           "N_MAP_FEATURES",
-           "N_MANOEUVRE_FEATURES"]
+           "N_MAP_FEATURES", "N_MANOEUVRE_FEATURES", "MASKED_LOGIT"]
+
+#: The logit of a node outside the action mask (training.mappo's masked categorical): finite, so a log-probability
+#: stays a number, and far below any node's score.
+MASKED_LOGIT = -1e8
 
 PRETRAINED_DIR = Path(__file__).resolve().parent
 #: The largest weights file :func:`load_learned` unpacks (bytes of arrays): the shipped actor holds well under 1 MB.
@@ -266,9 +269,9 @@ class LearnedPolicy:
             mask = np.stack([par.action_mask(a) for a in agents]).astype(bool)
             #: The node logits of the last ``act`` (U, L): a safety filter around the team orders its
             #: alternatives by them (:class:`covert_env.envs.safety_filter.ShieldedPolicy`). A team trained with
-            #: the filter ordering by its logits (the card's ``filter_scores``) saw the masked nodes' at -1e8
-            #: (training.mappo scores the allowed nodes only): so here, so that it flies as it trained.
-            self.last_logits = np.where(mask, logits, -1e8) if self.card.get("filter_scores") else logits
+            #: the filter ordering by its logits (the card's ``filter_scores``) saw the masked nodes' at
+            #: MASKED_LOGIT (training.mappo scores the allowed nodes only): so here, so that it flies as it trained.
+            self.last_logits = np.where(mask, logits, MASKED_LOGIT) if self.card.get("filter_scores") else logits
             if self.shield is not None:
                 act, _ = self.shield.choose(mask[None], lambda n: par.waypoint_paths(n[0])[None],
                                             lambda k, m: first_argmax(np.where(m, logits[k], -np.inf), axis=-1),
@@ -345,6 +348,11 @@ def load_learned(path: str | Path) -> LearnedPolicy:
         raise ValueError(f"{card_path}: viability_shield must be true or false, got {card['viability_shield']!r}")
     if not isinstance(card.get("safety_filter", False), bool):
         raise ValueError(f"{card_path}: safety_filter must be true or false, got {card['safety_filter']!r}")
+    if not isinstance(card.get("filter_scores", False), bool):
+        raise ValueError(f"{card_path}: filter_scores must be true or false, got {card['filter_scores']!r}")
+    if card.get("filter_scores") and not card.get("safety_filter"):
+        raise ValueError(f"{card_path}: filter_scores orders the safety filter's alternatives, but safety_filter is "
+                         "false")
     if card.get("safety_filter") and card.get("separation_shield") is not None:
         raise ValueError(f"{card_path}: safety_filter replaces the separation shield, but separation_shield is "
                          f"{card['separation_shield']!r}")

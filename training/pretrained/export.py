@@ -66,6 +66,7 @@ def export(run: Path, name: str, episodes: int = 20, out_dir: Path = PRETRAINED_
             "viability_min_reach": meta.get("viability_min_reach"),
             "shield_lookahead": bool(meta.get("shield_lookahead", False)),
             "safety_filter": bool(meta.get("safety_filter", False)),
+            "filter_scores": bool(meta.get("filter_scores", False)),
             "covert_env_version": covert_env.__version__, "commit": code_commit(),
             "recipe": {k: v for k, v in args.items() if k not in ("card", "resume", "runs_dir")},
             "training": {**summary, "run": run.name, "commit": training_commit or "unknown"}, "note": note}
