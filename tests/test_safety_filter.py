@@ -388,7 +388,6 @@ def test_a_vector_env_through_the_filter_keeps_eqs_2_and_3():
         SafetyFilteredVectorEnv(covert_env.vector_env(num_envs=1, n_uavs=3))
 
 
-
 def test_a_vector_env_through_the_filter_orders_alternatives_by_the_scores_it_is_given():
     """``SafetyFilteredVectorEnv.step(actions, scores)`` flies the filter's nodes for those scores, node for node
     :meth:`SafetyFilter.filter` on the same state and backup plans, at every step; on the same states, scores that
