@@ -242,9 +242,20 @@ def test_filter_scores_orders_the_filters_alternatives_by_the_policy(tmp_path, t
     mask = np.stack([par.action_mask(a) for a in par.possible_agents]).astype(bool)
     logits = pol.policy.last_logits
     assert (~mask).any() and (logits[~mask] == MASKED_LOGIT).all() and (logits[mask] > MASKED_LOGIT / 2).all()
+    # The exported card keeps it, so pretrained:NAME flies as mappo:RUN does.
+    from training.pretrained.export import export
+    shipped = export(run, "tiny_scores", episodes=1, out_dir=tmp_path / "shipped", progress=False)
+    assert json.loads(shipped.read_text())["filter_scores"] is True
+    assert load_policy(f"mappo:{shipped.with_suffix('.npz')}", 3)[0].use_scores is True
     card["filter_scores"] = False
     (run / "model.json").write_text(json.dumps(card))
     assert load_policy(f"mappo:{run}", 3)[0].use_scores is False
+    for bad, message in (({"filter_scores": "yes"}, "filter_scores must be true or false, got 'yes'"),
+                         ({"filter_scores": True, "safety_filter": False},
+                          "filter_scores orders the safety filter's alternatives, but safety_filter is false")):
+        (run / "model.json").write_text(json.dumps({**card, **bad}))
+        with pytest.raises(ValueError, match=message):
+            load_policy(f"mappo:{run}", 3)
 
 
 def test_training_throughput_benchmark_measures_every_guard(train_extra, capsys):
