@@ -11,9 +11,9 @@ with the same negotiation, each UAV keeping its place behind the target where it
 as it was checked: where a later slot finds no certified move, the plan's next move is safe
 (docs/decisions/learning.md#safety-filter).
 
-With ``min_reach`` (the viability rule, off by default), a proposal from whose end fewer than ``min_reach`` of the
-next slot's nodes are reachable first gives way to a preferred node that reaches that many: the filter then works
-on the proposals so changed. Per slot and copy, in order, the first that exists:
+With ``min_reach`` (the viability rule, off by default), a UAV whose proposal ends where fewer than ``min_reach`` of
+the next slot's nodes are reachable proposes its preferred node that reaches that many instead, and the search
+ranks the dead ends so found last. Per slot and copy, in order, the first that exists:
 
 1. a certified joint move among a few of the allowed nodes (the env's masks) per UAV, found by priority
    negotiation (:func:`~covert_env.geometry.separation.priority_negotiation`): each UAV takes its most preferred node
@@ -63,6 +63,7 @@ from covert_env.envs.joint_moves import (
     sample_bounds,
     top_clearance_along,
 )
+from covert_env.envs.viability import DEAD_END_PREF, ViabilityRule
 from covert_env.envs.waypoint_queries import SafetyState
 from covert_env.geometry.reach import reach_table
 from covert_env.geometry.zone import to_target_frame
@@ -111,11 +112,11 @@ class SafetyFilter:
         rounds: negotiations per slot whose certificate failed before the filter tries more nodes.
         room: after a failed certificate, ends at least d_safe1 + room (m) apart are preferred (so are the backup
             plan's); end_margin: and ends at least d_safe2 + end_margin (m) from the tops.
-        min_reach: the viability rule (0: off): a proposal from whose end fewer than ``min_reach`` of the next
-            slot's lattice nodes are reachable is a dead end, replaced before the search by the first of 8 of the
-            UAV's allowed nodes (the 4 preferred, 4 spread over the rest) that reaches that many (else by the one
-            reaching most, if it reaches more). The search may still move a UAV onto a dead end where safety asks
-            for it. A team that keeps the zone needs it (docs/decisions/learning.md#safety-filter).
+        min_reach: the viability rule (0: off): a UAV whose proposal ends where fewer than ``min_reach`` of the
+            next slot's lattice nodes are reachable has every allowed node tested and proposes its most preferred
+            node that reaches that many (where none does, one that reaches most); the search ranks the nodes below
+            that bar last, and may still fly one where safety asks for it. A team that keeps the zone needs it
+            (docs/decisions/learning.md#safety-filter).
     """
 
     def __init__(self, config, lattice, *, samples: int = 201, certificate_samples: int | None = None, depth: int = 3,
@@ -149,6 +150,9 @@ class SafetyFilter:
         self.grids = {n: (np.linspace(0.0, 1.0, n) * config.delta, *sample_bounds(config, n))
                       for n in {self.samples, self.certificate_samples}}
         self._reach = reach_table(config.v_max, config.w_max, config.delta)
+        #: The viability rule (None: off).
+        self.viability = ViabilityRule(config, lattice, self.min_reach, self.grids[self.certificate_samples][0],
+                                       self._reach) if self.min_reach else None
         self.stats = FilterStats()
         self._plan = Plan(0, 0, self.depth)
         full, coarse, fine = (self.certificate_candidates, None), self.certificate_samples, self.samples
@@ -257,8 +261,11 @@ class SafetyFilter:
         tops = near_tops(state.tops, self.config.altitude, max(g[2] for g in self.grids.values()))
         given = proposed
         scores = None if scores is None else np.asarray(scores)
-        if self.min_reach:
-            proposed = self._viable(state, proposed, scores, available)
+        demoted = None
+        if self.viability is not None:
+            proposed, demoted = self.viability.apply(
+                state, proposed, lambda c, i: self._proposal_pref(proposed[c], None if scores is None else
+                                                                  scores[c])[np.arange(len(c)), i], available)
         out, plan = proposed.copy(), Plan(b, u, self.depth)
         pending = np.ones(b, bool)
         # The preferences over the lattice, for the copies still pending when a stage first needs them (later
@@ -269,6 +276,8 @@ class SafetyFilter:
             new = idx[~have[idx]]
             if len(new):
                 pref[new] = self._proposal_pref(proposed[new], None if scores is None else scores[new])
+                if demoted is not None:                  # the viability rule's dead ends: last
+                    pref[new] = np.where(demoted[new], DEAD_END_PREF, pref[new])
                 have[new] = True
             return pref[idx]
 
@@ -284,6 +293,9 @@ class SafetyFilter:
                 nodes, rank = self._spread(allowed.reshape(len(idx) * u, -1),
                                            preferences(idx).reshape(len(idx) * u, -1), stage.candidates)
                 nodes, rank = nodes.reshape(len(idx), u, -1), rank.reshape(len(idx), u, -1)
+                if self.viability is not None and stage.candidates is not None:
+                    rank = self.viability.dead_ends_last(SafetyState(*(f[idx] for f in state)), nodes, rank,
+                                                         available[idx])
             pending[idx[self._certified(state, tops, idx, nodes, rank, out, plan, stage, available)]] = False
         held = pending & self._plan.holds(state)                      # the backup plan's next move
         if held.any():
@@ -299,40 +311,6 @@ class SafetyFilter:
         self.stats.backups += int(held.sum())
         off_mask = ~np.take_along_axis(state.masks, out[..., None], axis=2)[..., 0]
         self.stats.widened += int((moved & off_mask).any(axis=1).sum())
-        return out
-
-    def _reach_next(self, state, nodes, available) -> np.ndarray:
-        """(B, U, M) how many of the next slot's lattice nodes (each copy's ``available``) are reachable from the
-        ends of the moves to ``nodes`` (B, U, M) (-1: none, and where the episode ends with this slot)."""
-        fl = Flights(self, state.xy, state.theta, state.q_next, state.phi_next, nodes, state.tops[:, :0],
-                     self.certificate_samples)
-        out = np.full(nodes.shape, -1, np.int64)
-        ci, ui, mi = np.nonzero((nodes >= 0) & (state.slots_left > 0)[:, None, None])
-        if len(ci):
-            reach = self._reach.reachable(fl.paths[ci, ui, mi, -1][:, None], fl.end_theta[ci, ui, mi][:, None],
-                                          state.q_ahead[ci, 0], state.phi_ahead[ci, 0], self.lattice, exact=False)
-            out[ci, ui, mi] = (reach[:, 0] & available[ci]).sum(axis=-1)
-        return out
-
-    def _viable(self, state, proposed, scores, available) -> np.ndarray:
-        """The proposals with the viability rule (``min_reach``): a dead end gives way to the first of 8 of the UAV's
-        allowed nodes (:meth:`_spread`: the 4 preferred, then 4 spread over the rest) that reaches ``min_reach``
-        nodes next slot, else to the one that reaches most, where that is more than the proposal's."""
-        now = self._reach_next(state, proposed[..., None], available)[..., 0]
-        dead = (now >= 0) & (now < self.min_reach)
-        if not dead.any():
-            return proposed
-        c, i = np.nonzero(dead)
-        nodes = np.full(proposed.shape + (8,), -1)
-        pref = self._proposal_pref(proposed[c], None if scores is None else scores[c])[np.arange(len(c)), i]
-        spread = self._spread(state.masks[c, i], pref, 8)[0]                          # (N, <= 8): fewer allowed
-        nodes[c, i, :spread.shape[1]] = spread
-        count = self._reach_next(state, nodes, available)[c, i]                        # (N, 8), -1: no node
-        good = count >= self.min_reach
-        pick = np.where(good.any(axis=1), np.argmax(good, axis=1), np.argmax(count, axis=1))
-        better = good.any(axis=1) | (count.max(axis=1) > now[c, i])
-        out = proposed.copy()
-        out[c[better], i[better]] = nodes[c, i][better, pick[better]]
         return out
 
     def _certified(self, state, tops, idx, nodes, rank, out, plan, stage: _Stage, available) -> np.ndarray:
