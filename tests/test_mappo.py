@@ -144,8 +144,8 @@ def test_safety_filter_run_flies_through_the_filter_and_evaluates_with_it(tmp_pa
     from covert_env.evaluation.evaluate import evaluate, load_policy
 
     with pytest.raises(SystemExit):
-        mappo.main([*TINY, "--safety-filter", "true", "--total-timesteps", "16"])
-    assert "--safety-filter replaces the separation shield" in capsys.readouterr().err
+        mappo.main([*TINY, "--safety-filter", "true", "--action-mode", "unicycle", "--total-timesteps", "16"])
+    assert "--safety-filter filters lattice nodes: it needs --action-mode waypoint" in capsys.readouterr().err
     run = mappo.main([*TINY, "--safety-filter", "true", "--separation-shield", "false", "--mask-mode", "kinematic",
                       "--tasks", "paper-3uav,towers-3uav", "--total-timesteps", "32", "--runs-dir", str(tmp_path),
                       "--run-name", "filt"])
@@ -174,6 +174,25 @@ def test_safety_filter_run_flies_through_the_filter_and_evaluates_with_it(tmp_pa
     card["viability_min_reach"] = None                   # a hand-made card: the shield's default bar, 1
     (run / "model.json").write_text(json.dumps(card))
     assert load_policy(f"mappo:{run}", 3)[0].filter_kw["min_reach"] == 1
+
+
+def test_a_shielded_team_can_train_and_fly_through_the_filter(tmp_path, train_extra):
+    """--separation-shield true --safety-filter true: the team proposes through its shield (one UAV after another)
+    and flies through the filter, in training and in the harness; the card keeps both."""
+    from covert_env.envs.safety_filter import ShieldedPolicy
+    from covert_env.evaluation.evaluate import evaluate, load_policy
+
+    run = mappo.main([*TINY, "--safety-filter", "true", "--viability-shield", "true", "--viability-min-reach", "10",
+                      "--mask-mode", "kinematic", "--total-timesteps", "32", "--runs-dir", str(tmp_path),
+                      "--run-name", "both"])
+    card = json.loads((run / "model.json").read_text())
+    assert card["safety_filter"] is True and card["separation_shield"] == 5.0 and card["viability_min_reach"] == 10
+    pol, settings = load_policy(f"mappo:{run}", 3)
+    assert isinstance(pol, ShieldedPolicy) and pol.filter_kw["min_reach"] == 10
+    assert pol.policy.shield is not None and pol.policy.viability
+    row = evaluate(pol, settings, 1, progress=False, env_kwargs={"task": "towers-3uav"})[0]
+    assert pol.policy.shield.choices > 0 and row["filter_team_slots"] > 0
+    assert row["separation_violations"] == 0 and row["terrain_violations"] == 0
 
 
 def test_learn_flown_nodes_credits_the_team_with_the_nodes_the_filter_flew(tmp_path, train_extra, capsys):

@@ -28,7 +28,8 @@ model card, ``.npz`` + JSON checkpoints: nothing is pickled); ``train``, which r
   path (:mod:`training.shield`; the env's ``waypoint_paths`` flies the candidates). The shielded masks are
   stored with the actions, so PPO's ratios use the masks the actions were sampled under, and the harness runs
   the same shield (the model card's ``separation_shield``).
-* **Safety filter** (waypoint mode, ``--safety-filter``, with ``--separation-shield false``): the team's sampled
+* **Safety filter** (waypoint mode, ``--safety-filter``; with the separation shield on too, the team proposes
+  through the shield): the team's sampled
   nodes are proposals, and the env flies the nodes of :class:`covert_env.envs.safety_filter.SafetyFilteredVectorEnv`,
   which keeps eqs. 2 and 3 along the flown path and certifies each move by a backup plan (action projection: PPO
   keeps the probabilities of the proposals, the rewards and costs are those of the moves flown). The harness

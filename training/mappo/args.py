@@ -98,9 +98,10 @@ class Args(TrainingArgs):
     d_safe1 + shield_margin to a teammate's chosen path (training.shield); in training and evaluation alike.
     The unicycle mode has no shield"""
     safety_filter: bool = False
-    """waypoint mode, with --separation-shield false: the team's nodes are proposals that fly through the safety
-    filter (covert_env.envs.safety_filter), which keeps eqs. 2 and 3 along the flown path; in training and
-    evaluation alike"""
+    """waypoint mode: the team's nodes are proposals that fly through the safety filter
+    (covert_env.envs.safety_filter), which keeps eqs. 2 and 3 along the flown path; in training and evaluation
+    alike. With the separation shield too, the team proposes through the shield (one UAV after another, each
+    around its teammates' choices) and the filter guarantees"""
     learn_flown_nodes: bool = False
     """with --safety-filter: where the filter replaced a proposal with a node of the mask, the PPO update learns
     from the node flown (its log-probability under the policy at the rollout) instead of the proposal, so the team
@@ -114,7 +115,7 @@ class Args(TrainingArgs):
     """waypoint mode, with the separation shield: a UAV also avoids a node from which it could reach no lattice
     node next slot (it would leave the zone): the end of the chosen path is tested with the env's onward_reach and,
     if a dead end, the UAV chooses again among the nodes that are not (training.shield); with the safety filter
-    instead: the filter's viability rule (SafetyFilter's min_reach), which replaces a dead-end proposal; in
+    (also): the filter's viability rule (SafetyFilter's min_reach), which replaces a dead-end proposal; in
     training and evaluation alike"""
     viability_min_reach: int = 1
     """with --viability-shield: a node counts as a dead end if fewer lattice nodes than this are reachable from its
@@ -204,10 +205,9 @@ def check_args(args: Args) -> None:
         raise ValueError("--learn-flown-nodes needs --safety-filter true (the nodes flown are the filter's)")
     if args.filter_scores and not args.safety_filter:
         raise ValueError("--filter-scores needs --safety-filter true (it orders the filter's alternatives)")
-    if args.safety_filter and (args.action_mode != "waypoint" or args.separation_shield):
-        raise ValueError(f"--safety-filter replaces the separation shield: it needs --action-mode waypoint and "
-                         f"--separation-shield false, got --action-mode {args.action_mode!r} --separation-shield "
-                         f"{str(args.separation_shield).lower()}")
+    if args.safety_filter and args.action_mode != "waypoint":
+        raise ValueError(f"--safety-filter filters lattice nodes: it needs --action-mode waypoint, got "
+                         f"--action-mode {args.action_mode!r}")
     if args.viability_min_reach != 1 and not args.viability_shield:
         raise ValueError(f"--viability-min-reach {args.viability_min_reach}: a bar of the viability rule, it needs "
                          "--viability-shield true")

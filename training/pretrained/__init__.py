@@ -308,8 +308,9 @@ def as_flown(pol: LearnedPolicy):
     (:class:`~covert_env.envs.safety_filter.ShieldedPolicy`), its alternatives ordered as in training (by its
     logits where the card says ``filter_scores``, else by the distance to the proposal, as
     :class:`~covert_env.envs.safety_filter.SafetyFilteredVectorEnv` orders them by default) and with the card's
-    viability rule (``viability_min_reach``, 1 if null); any other team as it is. The one rule of
-    ``covert-env evaluate`` and of the cards' scores."""
+    viability rule (``viability_min_reach``, 1 if null); a team that also has a separation shield proposes through
+    it, as in training; any other team as it is. The one rule of ``covert-env evaluate`` and of the cards'
+    scores."""
     if not pol.card.get("safety_filter"):
         return pol
     from covert_env.envs.safety_filter import ShieldedPolicy
@@ -353,9 +354,6 @@ def load_learned(path: str | Path) -> LearnedPolicy:
     if card.get("filter_scores") and not card.get("safety_filter"):
         raise ValueError(f"{card_path}: filter_scores orders the safety filter's alternatives, but safety_filter is "
                          "false")
-    if card.get("safety_filter") and card.get("separation_shield") is not None:
-        raise ValueError(f"{card_path}: safety_filter replaces the separation shield, but separation_shield is "
-                         f"{card['separation_shield']!r}")
     if not isinstance(card.get("shield_lookahead", False), bool):
         raise ValueError(f"{card_path}: shield_lookahead must be true or false, got {card['shield_lookahead']!r}")
     reach = card.get("viability_min_reach")
