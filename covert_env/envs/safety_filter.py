@@ -63,7 +63,7 @@ from covert_env.envs.joint_moves import (
     sample_bounds,
     top_clearance_along,
 )
-from covert_env.envs.viability import DEAD_END_PREF, ViabilityRule
+from covert_env.envs.viability import ViabilityRule, dead_ends_after
 from covert_env.envs.waypoint_queries import SafetyState
 from covert_env.geometry.reach import reach_table
 from covert_env.geometry.zone import to_target_frame
@@ -264,21 +264,21 @@ class SafetyFilter:
         demoted = None
         if self.viability is not None:
             proposed, demoted = self.viability.apply(
-                state, proposed, lambda c, i: self._proposal_pref(proposed[c], None if scores is None else
-                                                                  scores[c])[np.arange(len(c)), i], available)
+                state, given, lambda c, i: self._proposal_pref(given[c], None if scores is None else
+                                                               scores[c])[np.arange(len(c)), i], available)
         out, plan = proposed.copy(), Plan(b, u, self.depth)
         pending = np.ones(b, bool)
         # The preferences over the lattice, for the copies still pending when a stage first needs them (later
         # stages and the uncertified search take fewer).
         pref, have = np.empty((b, u, len(self.lattice))), np.zeros(b, bool)
 
-        def preferences(idx):
+        def preferences(idx, dead_last=False):
             new = idx[~have[idx]]
             if len(new):
                 pref[new] = self._proposal_pref(proposed[new], None if scores is None else scores[new])
-                if demoted is not None:                  # the viability rule's dead ends: last
-                    pref[new] = np.where(demoted[new], DEAD_END_PREF, pref[new])
                 have[new] = True
+            if dead_last and demoted is not None:        # the viability rule's dead ends, after the masks' others
+                return dead_ends_after(pref[idx], demoted[idx])
             return pref[idx]
 
         for stage in self._search:
@@ -291,7 +291,8 @@ class SafetyFilter:
                 allowed = np.repeat(available[idx, None], u, axis=1) if stage.widen else state.masks[idx]
                 allowed[np.arange(len(idx))[:, None], np.arange(u)[None], proposed[idx]] = True
                 nodes, rank = self._spread(allowed.reshape(len(idx) * u, -1),
-                                           preferences(idx).reshape(len(idx) * u, -1), stage.candidates)
+                                           preferences(idx, not stage.widen).reshape(len(idx) * u, -1),
+                                           stage.candidates)
                 nodes, rank = nodes.reshape(len(idx), u, -1), rank.reshape(len(idx), u, -1)
                 if self.viability is not None and stage.candidates is not None:
                     rank = self.viability.dead_ends_last(SafetyState(*(f[idx] for f in state)), nodes, rank,

@@ -4,12 +4,16 @@ slot's lattice nodes, for from there it leaves the zone (docs/decisions/learning
 A move's **onward reach** is how many of the next slot's nodes (a copy's available nodes) are reachable from the
 pose where the move ends: the reach table's count without the exact solver (a subset of the reachable nodes, within
 a cell). A proposal whose onward reach is below the bar ``min_reach`` is a **dead end**. Then every allowed node
-of that UAV is tested, the bar becomes what its best node reaches where no node reaches ``min_reach``, and the
-UAV proposes its most preferred node at the bar instead. The nodes below the bar are returned too, so that the
-filter's search ranks them last: otherwise a replacement whose certificate fails gives way to the policy's next
-favourites, which lie around the dead end (docs/decisions/learning.md#alternatives-in-the-policys-order).
+of that UAV is tested, the bar becomes what its best node (or its proposal) reaches where no node reaches
+``min_reach``, and the UAV proposes its most preferred node at the bar instead. The nodes below the bar are
+returned too, so that the filter's search ranks them last: otherwise a replacement whose certificate fails gives
+way to the policy's next favourites, which lie around the dead end
+(docs/decisions/learning.md#alternatives-in-the-policys-order). The search's stages of a bounded number of
+candidates (8 or 48 per UAV) test their candidates as well and rank those below the bar last
+(:meth:`ViabilityRule.dead_ends_last`).
 
-Only a UAV whose proposal is a dead end pays for testing its allowed nodes (a few hundred with the kinematic mask).
+Testing every allowed node (a few hundred with the kinematic mask) is paid only by a UAV whose proposal is a dead
+end; the candidates are tested only in copies whose proposals the filter could not keep.
 """
 
 from __future__ import annotations
@@ -22,14 +26,25 @@ from covert_env.geometry.angles import wrap_heading
 from covert_env.geometry.flight import fly_waypoints
 from covert_env.geometry.zone import to_world
 
-__all__ = ["DEAD_END_PREF", "ViabilityRule"]
+__all__ = ["DEAD_END_PREF", "ViabilityRule", "dead_ends_after"]
 
-#: The filter's preference for a node the rule found a dead end (lower first): after every other node, before the
-#: nodes whose score is -inf or NaN (1e300); dead ends keep their order among themselves (up to twice this).
-DEAD_END_PREF = 1e299
+#: The filter's preference (lower first) for a node the rule found a dead end: from this to twice this, in the
+#: order of the UAV's preferences, after every other node (the policy's -inf scores are at 1e300, the kept
+#: proposal at -1e300), so that in the pair repair, which adds two UAVs' ranks, one dead end outweighs keeping a
+#: proposal.
+DEAD_END_PREF = 1e302
 
 #: Moves whose onward reach is counted at once (bounds the (chunk, L) tables to a few MB).
 _CHUNK = 4096
+
+
+def dead_ends_after(pref: np.ndarray, dead: np.ndarray) -> np.ndarray:
+    """The preferences ``pref`` (..., L) (lower first) with the nodes ``dead`` (..., L) bool moved after all the
+    others, in their order among themselves (:data:`DEAD_END_PREF` to twice it)."""
+    if not dead.any():
+        return pref
+    order = np.argsort(np.argsort(pref, axis=-1, kind="stable"), axis=-1)
+    return np.where(dead, DEAD_END_PREF * (1.0 + order / pref.shape[-1]), pref)
 
 
 class ViabilityRule:
@@ -65,18 +80,19 @@ class ViabilityRule:
     def apply(self, state, proposed: np.ndarray, preferences: Callable, available: np.ndarray
               ) -> tuple[np.ndarray, np.ndarray | None]:
         """The proposals (B, U) with the rule applied, and (B, U, L) bool: the nodes found below the bar that the
-        UAV no longer proposes (None where no proposal was a dead end). ``preferences(c, i)`` gives copy ``c``'s
-        UAV ``i``'s preferences over the lattice (N, L), finite, lower first, for index arrays ``c``, ``i`` (N,)."""
+        UAV no longer proposes (None if no proposal of the batch was a dead end). ``preferences(c, i)`` gives copy
+        ``c``'s UAV ``i``'s preferences over the lattice (N, L), finite, lower first, for index arrays ``c``, ``i``
+        (N,). A UAV's candidates are its allowed nodes (its mask, within its copy's ``available``)."""
         now = self.onward(state, proposed[..., None], available)[..., 0]
         dead = (now >= 0) & (now < self.min_reach)
         if not dead.any():
             return proposed, None
         c, i = np.nonzero(dead)
-        allowed = state.masks[c, i]                                                               # (N, L)
+        allowed = state.masks[c, i] & available[c]                                                # (N, L)
         r, node = np.nonzero(allowed)
         count = np.full(allowed.shape, -1, np.int64)
         count[r, node] = self._onward_at(state, c[r], i[r], node, available)
-        bar = np.clip(count.max(axis=1), 1, self.min_reach)                                       # (N,)
+        bar = np.clip(np.maximum(count.max(axis=1), now[c, i]), 1, self.min_reach)                # (N,)
         good = count >= bar[:, None]
         pick = np.argmin(np.where(good, preferences(c, i), np.inf), axis=1)
         better = good.any(axis=1) & (bar > now[c, i])
