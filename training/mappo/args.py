@@ -103,7 +103,8 @@ class Args(TrainingArgs):
     alike. With the separation shield too, the team proposes through the shield (one UAV after another, each
     around its teammates' choices) and the filter guarantees"""
     learn_flown_nodes: bool = False
-    """with --safety-filter: where the filter replaced a proposal with a node of the mask, the PPO update learns
+    """with --safety-filter: where the filter replaced a proposal with a node of the mask (the separation shield's
+    mask where the shield is on too), the PPO update learns
     from the node flown (its log-probability under the policy at the rollout) instead of the proposal, so the team
     is credited with the move it made, as under the shield (action projection otherwise: the proposal keeps the
     credit of the replacement's outcome)"""
