@@ -1,6 +1,7 @@
 """The safety filter's guarantee, tested as an outsider would: masked-random waypoints flown through it on every task.
 
     python benchmarks/safety_filter.py [--episodes 4] [--tasks paper-6uav towers-6uav ...] [--policy random]
+        [--min-reach 0]
     python benchmarks/safety_filter.py --throughput [--sizes 16 64] [--samples 201 21] [--depth 3 1]
     python benchmarks/safety_filter.py --training [--sizes 256] [--steps 80] [--seed 0] [--min-reach 0]
 
@@ -48,12 +49,13 @@ COLUMNS = ("team_slots", "sep_slots", "terrain_slots", "min_sep", "changed", "wi
            "infeasible", "silent")
 
 
-def fly_task(task_name: str, episodes: int, policy: str = "random", samples: int = 201, shield: bool = True) -> dict:
+def fly_task(task_name: str, episodes: int, policy: str = "random", samples: int = 201, shield: bool = True,
+             min_reach: int = 0) -> dict:
     """One task's row: the counts above over its first ``episodes`` held-out scenes (``shield=False``: the policy
-    flown without the filter, whose columns are then 0)."""
+    flown without the filter, whose columns are then 0; ``min_reach``: the filter's viability rule, 0: off)."""
     task = get_task(task_name)
     env = covert_env.parallel_env(task=task.name, action_mode="waypoint", path_samples=samples)
-    pol = ShieldedPolicy(make_policy(policy)) if shield else _Unfiltered(make_policy(policy))
+    pol = ShieldedPolicy(make_policy(policy), min_reach=min_reach) if shield else _Unfiltered(make_policy(policy))
     row = dict.fromkeys(COLUMNS, 0)
     row["min_sep"] = np.inf
     c = env.config
@@ -185,7 +187,7 @@ def main(argv: list[str] | None = None) -> int:
                         "recipe trains (training scenes, kinematic mask, one vector env of its tasks)")
     parser.add_argument("--steps", type=int, default=80, help="--training's slots (default 80)")
     parser.add_argument("--seed", type=int, default=0, help="--training's reset seed (default 0)")
-    parser.add_argument("--min-reach", type=int, default=0, help="--training's viability rule (default 0: off)")
+    parser.add_argument("--min-reach", type=int, default=0, help="the filter's viability rule (default 0: off)")
     parser.add_argument("--no-progress", action="store_true")
     args = parser.parse_args(argv)
     if args.episodes < 1:
@@ -202,7 +204,8 @@ def main(argv: list[str] | None = None) -> int:
     total = dict.fromkeys(COLUMNS, 0)
     total["min_sep"] = np.inf
     for name in tqdm(args.tasks, desc="tasks", disable=args.no_progress, file=sys.stderr):
-        row = fly_task(name, args.episodes, args.policy, args.samples, shield=not args.no_filter)
+        row = fly_task(name, args.episodes, args.policy, args.samples, shield=not args.no_filter,
+                       min_reach=args.min_reach)
         print(f"| {name} | " + " | ".join(f"{row[k]:.2f}" if k == "min_sep" else str(row[k]) for k in COLUMNS) + " |",
               flush=True)
         for k in COLUMNS:
