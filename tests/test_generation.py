@@ -75,12 +75,15 @@ def test_polygon_gap_is_shapelys_distance(seed, v):
     assert (want == 0).any() and (want > 0).any()
 
 
-@pytest.mark.parametrize("name", ["paper", "downtown", "towers"])
-def test_generated_polytopes_keep_the_invariants(name):
+@pytest.mark.parametrize("name, seeds", [("paper", range(1_000_000, 1_000_012)),
+                                         ("downtown", range(1_000_000, 1_000_012)),
+                                         ("towers", range(1_000_000, 1_000_012)),
+                                         ("dense", [2312, 2313, 8570])])     # 2313, 8570: a second attempt
+def test_generated_polytopes_keep_the_invariants(name, seeds):
     """Every polytope valid for the full Polytope validator (convex CCW base, top inside it), footprints MIN_GAP
     apart, circumcircles road_clearance from the road, tops in [min_height, max_polytope_height]."""
     c = family_config(name)
-    seeds = np.arange(1_000_000, 1_000_012)
+    seeds = np.asarray(seeds)
     roads = random_roads(seeds, c)
     batch = random_terrains(seeds, roads, c)
     for i in range(len(seeds)):
@@ -98,6 +101,25 @@ def test_generated_polytopes_keep_the_invariants(name):
                    zip(polys, batch.centre[i], batch.radius[i], strict=True)) <= 1e-9
         z = np.concatenate([p.top[:, 2] for p in polys])
         assert z.min() >= c.min_height - 1e-9 and z.max() <= c.max_polytope_height + 1e-9
+
+
+def test_a_scene_left_incomplete_starts_again_and_the_others_do_not_change():
+    """Dense training scenes 2313 and 8570 lack a polytope after MAX_ROUNDS rounds (a training run drew 2313 and
+    stopped): they start again with the next rounds' numbers and are built, each as alone in a batch. A scene
+    complete in its first attempt is the same whether or not the batch holds one that starts again."""
+    c = family_config("dense")
+    seeds = np.array([2312, 2313, 2314, 8570])
+    roads = random_roads(seeds, c)
+    batch = random_terrains(seeds, roads, c)
+    for i in range(len(seeds)):
+        one = random_terrains(seeds[i:i + 1], roads[i:i + 1], c)
+        np.testing.assert_array_equal(one.base[0], batch.base[i])
+        np.testing.assert_array_equal(one.top[0], batch.top[i])
+    with pytest.raises(ValueError, match=r"random scenes \[2313\]: could not place all 48 polytopes .* in 1 "
+                                         r"attempts of 200 rounds"):
+        with pytest.MonkeyPatch.context() as mp:
+            mp.setattr("covert_env.world.generation.MAX_ATTEMPTS", 1)
+            random_terrains(seeds[1:2], roads[1:2], c)
 
 
 def test_a_scene_that_cannot_be_filled_is_named():

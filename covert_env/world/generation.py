@@ -39,9 +39,11 @@ BUILDING_SHRINK = (0.8, 0.95)
 HILL_SHRINK = (0.35, 0.75)
 #: Slope of a hill's cutting plane, as a share of the height the cut leaves.
 HILL_TILT = (0.3, 0.8)
-#: Rounds of proposals before a scene that still lacks a polytope is an error; the second half may place a
+#: Rounds of proposals in one attempt at placing a scene's polytopes; the second half of an attempt may place a
 #: polytope anywhere along the road, not only in its own stretch.
 MAX_ROUNDS = 200
+#: Attempts of MAX_ROUNDS rounds each at placing a scene's polytopes: a scene left incomplete starts again.
+MAX_ATTEMPTS = 5
 
 # Stream numbers: one per kind of draw, so that adding a draw of one kind leaves the others' numbers alone.
 _ROAD, _TERRAIN = 1, 2
@@ -298,11 +300,12 @@ def random_terrains(seeds, roads: np.ndarray, config: Config) -> TerrainBatch:
     """The polytopes of B scenes along their roads (B, P, 2): ``config.n_polytopes`` each.
 
     Polytope i is proposed at a random arc length in the i-th of M equal stretches of the road (anywhere in the
-    second half of :data:`MAX_ROUNDS`), on a random side, its circumcircle at least ``road_clearance`` from the
-    centreline and, radius permitting, its centre within ``road_max_offset`` of it; a proposal is kept if that
-    circle clears the whole road, and the footprint is at least :data:`MIN_GAP` from every kept footprint and from
-    the proposals of lower index in its round. Raises ValueError naming the seeds whose polytopes could not all be
-    placed."""
+    second half of an attempt's :data:`MAX_ROUNDS`), on a random side, its circumcircle at least
+    ``road_clearance`` from the centreline and, radius permitting, its centre within ``road_max_offset`` of it; a
+    proposal is kept if that circle clears the whole road, and the footprint is at least :data:`MIN_GAP` from every
+    kept footprint and from the proposals of lower index in its round. A scene not complete after an attempt starts
+    again with the next rounds' numbers; raises ValueError naming the seeds whose polytopes could not all be placed
+    in :data:`MAX_ATTEMPTS` attempts."""
     c = config
     seeds = np.asarray(seeds, dtype=np.int64)
     b, m, v = len(seeds), c.n_polytopes, c.max_vertices
@@ -316,12 +319,16 @@ def random_terrains(seeds, roads: np.ndarray, config: Config) -> TerrainBatch:
     seg_len = np.sqrt((seg * seg).sum(-1))
     arc = np.concatenate([np.zeros((b, 1)), np.cumsum(seg_len, axis=1)], axis=1)
     length = arc[:, -1]
-    for rnd in range(MAX_ROUNDS):
+    for rnd in range(MAX_ROUNDS * MAX_ATTEMPTS):
+        if rnd and rnd % MAX_ROUNDS == 0:
+            # A scene left incomplete after an attempt starts again, with the next rounds' numbers: rare (2 dense
+            # scenes in 10,000), and the scenes complete in the first attempt are the same as with one attempt.
+            placed[~placed.all(axis=1)] = False
         sb, si = np.nonzero(~placed)
         if len(sb) == 0:
             break
         u = uniforms(seeds[sb], _TERRAIN + 16 * (rnd * (m + 1) + si + 1), 12 + v)
-        stretch = rnd < MAX_ROUNDS // 2
+        stretch = rnd % MAX_ROUNDS < MAX_ROUNDS // 2
         s = (np.where(stretch, (si + u[:, 0]) / m, u[:, 0])) * length[sb]
         kk = c.min_vertices + np.minimum((u[:, 1] * (c.max_vertices - c.min_vertices + 1)).astype(int),
                                          c.max_vertices - c.min_vertices)
@@ -363,7 +370,8 @@ def random_terrains(seeds, roads: np.ndarray, config: Config) -> TerrainBatch:
     if not placed.all():
         bad = seeds[~placed.all(axis=1)].tolist()
         raise ValueError(f"random scenes {bad[:5]}{'...' if len(bad) > 5 else ''}: could not place all "
-                         f"{m} polytopes (Config.n_polytopes) after {MAX_ROUNDS} rounds; use fewer polytopes, a "
+                         f"{m} polytopes (Config.n_polytopes) in {MAX_ATTEMPTS} attempts of {MAX_ROUNDS} rounds; "
+                         f"use fewer polytopes, a "
                          f"smaller max_radius ({c.max_radius:g}) or road_clearance ({c.road_clearance:g})")
     flat_base = base.reshape(b * m, v, 2)
     top = _tops(flat_base, draws.reshape(b * m, 12 + v)[:, 7 + v:], c.min_height, c.max_polytope_height)
