@@ -9,7 +9,8 @@ from _extras import needs
 
 torch = needs("torch")
 
-from training.mappo.networks import Actor  # noqa: E402
+from training.mappo.networks import Actor, masked_categorical  # noqa: E402
+from training.mappo.node_categorical import NodePairs, node_log_prob_entropy  # noqa: E402
 from training.mappo.node_head import CHUNK, node_scores  # noqa: E402
 
 
@@ -76,3 +77,68 @@ def test_bad_inputs_are_refused_with_what_was_given():
     actor = Actor(5, 7, head="node", hidden=8, node_hidden=4, n_feat=3, log_std_init=-0.5)
     with pytest.raises(ValueError, match=r"float32 array, got float64 \(2, 7, 3\)"):
         node_scores(torch.zeros(2, 4), actor.node_feat, actor.node_out, np.zeros((2, 7, 3)), one, one, one)
+
+
+@pytest.mark.parametrize(("seed", "rows", "node_hidden"), [(0, 40, 32), (1, 130, 6), (2, 25, 13)])
+def test_fused_categorical_is_the_dense_one(seed, rows, node_hidden):
+    """``node_log_prob_entropy`` against the masked categorical over the torch head's logits: log-probabilities,
+    entropies and the gradients of a loss of both, with a row that allows no node, a row that allows one, and an
+    action outside its row's mask."""
+    torch.manual_seed(seed)
+    rng = np.random.default_rng(seed)
+    n_nodes, n_feat, width = 57, 13, 21
+    actor = Actor(width, n_nodes, head="node", hidden=16, node_hidden=node_hidden, n_feat=n_feat, log_std_init=-0.5)
+    for p in actor.node_out.parameters():
+        torch.nn.init.normal_(p, std=0.5)
+    obs = torch.randn(rows, width)
+    store = torch.randn(3 * rows, n_nodes, n_feat)
+    sample_of = rng.permutation(3 * rows)[:rows]
+    mask = torch.from_numpy(rng.random((rows, n_nodes)) < 0.4)
+    mask[3] = False
+    mask[4] = False
+    mask[4, 7] = True
+    probs = np.where(mask.numpy(), 1.0, 0.0) + 1e-9
+    actions = np.array([rng.choice(n_nodes, p=q / q.sum()) for q in probs])
+    actions[5] = int(np.flatnonzero(~mask[5].numpy())[0])        # a node the row's mask leaves out
+    g_lp, g_ent = torch.randn(rows), torch.randn(rows)
+
+    def run(fn):
+        actor.zero_grad()
+        logp, ent = fn()
+        ((logp * g_lp).sum() + (ent * g_ent).sum()).backward()
+        return logp.detach().numpy(), ent.detach().numpy(), {k: p.grad.clone() for k, p in actor.named_parameters()}
+
+    def dense():
+        d = masked_categorical(_reference(actor, obs, store, sample_of, mask), mask)
+        return d.log_prob(torch.from_numpy(actions)), d.entropy()
+
+    full_mask = np.zeros((3 * rows, n_nodes), bool)          # the store's samples, each under its row's mask
+    full_mask[sample_of] = mask.numpy()
+    pairs = NodePairs(store.numpy(), full_mask)
+
+    def fused():
+        return actor.log_prob_entropy(obs, actions, mask.numpy(), pairs, sample_of)
+
+    want_lp, want_ent, want_g = run(dense)
+    got_lp, got_ent, got_g = run(fused)
+    keep = np.ones(rows, bool)
+    keep[[3, 5]] = False                # float32 holds -1e8 - lse to 8 units (torch's row 3 gives -8, not -4.04)
+    np.testing.assert_allclose(got_lp[keep], want_lp[keep], rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(got_lp[5], want_lp[5], rtol=1e-6)
+    assert got_lp[3] == pytest.approx(-np.log(n_nodes), rel=1e-6)      # uniform over every node, as it should be
+    np.testing.assert_allclose(got_ent[keep], want_ent[keep], rtol=1e-5, atol=1e-5)
+    assert got_ent[3] == pytest.approx(np.log(n_nodes), rel=1e-6) and got_ent[4] == pytest.approx(0.0, abs=1e-6)
+    for name, g in want_g.items():
+        scale = float(g.abs().max()) + 1e-6
+        np.testing.assert_allclose(got_g[name].numpy() / scale, g.numpy() / scale, atol=2e-5, err_msg=name)
+    assert float(want_g["node_feat.weight"].abs().sum()) > 0 and float(want_g["node_out.bias"].abs().sum()) > 0
+
+
+def test_fused_categorical_refuses_mismatched_shapes():
+    actor = Actor(5, 7, head="node", hidden=8, node_hidden=4, n_feat=3, log_std_init=-0.5)
+    pairs = NodePairs(np.zeros((2, 7, 3), np.float32), np.ones((2, 7), bool))
+    with pytest.raises(ValueError, match=r"rows and actions must be \(2,\) .* got \(3,\), \(2,\) and 3"):
+        node_log_prob_entropy(torch.zeros(2, 4), actor.node_feat, actor.node_out, pairs, np.arange(3),
+                              np.zeros(2, np.int64))
+    with pytest.raises(ValueError, match=r"feats must be \(S, L, F\) and mask \(S, L\), got \(2, 7, 3\) and \(2, 6\)"):
+        NodePairs(np.zeros((2, 7, 3), np.float32), np.ones((2, 6), bool))

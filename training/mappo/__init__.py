@@ -9,7 +9,8 @@
 
 The modules, in the order the loop runs them: ``args`` (the settings and their checks); ``agents`` (the networks of
 ``networks``, whose node head scores nodes in ``node_head``, read and written as numpy rows); ``rollout`` (same-step
-autoreset, truncation bootstrap, episode statistics); ``ppo`` (GAE and the PPO update); ``checkpoints`` (progress,
+autoreset, truncation bootstrap, episode statistics); ``ppo`` (GAE and the PPO update, whose node head's
+log-probabilities and entropies are ``node_categorical``'s); ``checkpoints`` (progress,
 model card, ``.npz`` + JSON checkpoints: nothing is pickled); ``train``, which runs them in that order.
 
 * **Actor** (parameter-shared, every UAV of every copy): an MLP on the agent's own observation. Waypoint mode:

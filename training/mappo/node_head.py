@@ -23,7 +23,7 @@ import numba
 import numpy as np
 import torch
 
-__all__ = ["node_scores"]
+__all__ = ["check_head", "node_scores"]
 
 
 #: Pairs per chunk: their features are gathered into one (CHUNK, F) block, and W f of them all is one matrix
@@ -142,13 +142,18 @@ def node_scores(a: torch.Tensor, node_feat: torch.nn.Linear, node_out: torch.nn.
         sample_of: ``(R,)`` int64, the sample of ``feats`` each row reads.
         rows, nodes: ``(P,)`` int64, the pairs to score (a row's pairs next to each other keep ``a[r]`` in cache).
     """
-    if node_feat.bias is not None:
-        raise ValueError("node_scores: node_feat must have no bias (the node head's F -> H layer)")
-    dtypes = {str(t.dtype) for t in (a, node_feat.weight, node_out.weight, node_out.bias)}
-    if dtypes != {"torch.float32"}:
-        raise ValueError(f"node_scores: the node head runs in float32 (a and both layers' parameters), got "
-                         f"{sorted(dtypes)}")
+    check_head("node_scores", a, node_feat, node_out)
     if feats.dtype != np.float32 or not feats.flags.c_contiguous or feats.ndim != 3:
         raise ValueError(f"node_scores: feats must be a C-contiguous (S, L, F) float32 array, got {feats.dtype} "
                          f"{feats.shape}")
     return _NodeScores.apply(a, node_feat.weight, node_out.weight, node_out.bias, feats, sample_of, rows, nodes)
+
+
+def check_head(name: str, a, node_feat, node_out) -> None:
+    """What the compiled node head needs of the layers: a bias-free ``node_feat``, float32 throughout."""
+    if node_feat.bias is not None:
+        raise ValueError(f"{name}: node_feat must have no bias (the node head's F -> H layer)")
+    dtypes = {str(t.dtype) for t in (a, node_feat.weight, node_out.weight, node_out.bias)}
+    if dtypes != {"torch.float32"}:
+        raise ValueError(f"{name}: the node head runs in float32 (a and both layers' parameters), got "
+                         f"{sorted(dtypes)}")

@@ -6,6 +6,7 @@ import numpy as np
 import torch
 
 from training.mappo.agents import Agents
+from training.mappo.networks import NodePairs
 from training.mappo.rollout import Rollout
 
 __all__ = ["advantages", "ppo_update"]
@@ -35,9 +36,10 @@ def ppo_update(agents: Agents, optim, buf: Rollout, adv: np.ndarray, returns: np
     args, s, actor, critic, vnorm = agents.args, agents.sizes, agents.actor, agents.critic, agents.vnorm
     N = s.T * s.B * s.U
     f_x = agents.actor_in(buf.obs.reshape(N, s.obs))
-    f_feats = buf.feats.reshape(N, s.actions, s.feats) if s.head == "node" else None
-    f_cin = agents.critic_in(buf.obs, buf.state).reshape(N, s.critic_in).astype(np.float32)
     f_mask = buf.mask.reshape(N, -1)
+    # The node head reads each sample's allowed nodes and their features, laid out once for every minibatch.
+    pairs = NodePairs(buf.feats.reshape(N, s.actions, s.feats).numpy(), f_mask) if s.head == "node" else None
+    f_cin = agents.critic_in(buf.obs, buf.state).reshape(N, s.critic_in).astype(np.float32)
     f_act = buf.act.reshape(N, *buf.act.shape[3:])
     f_logp, f_adv, f_ret = buf.logp.reshape(N), adv.reshape(N), returns.reshape(N)
     f_ret_n = (f_ret - vnorm.mean) / vnorm.std if args.value_norm else f_ret
@@ -47,11 +49,12 @@ def ppo_update(agents: Agents, optim, buf: Rollout, adv: np.ndarray, returns: np
         perm = np.random.permutation(N)
         for start in range(0, N, mb):
             idx = perm[start:start + mb]
-            d = actor.dist(f_x[idx], f_feats, torch.from_numpy(f_mask[idx]) if s.waypoint else None,
-                           None if f_feats is None else idx)         # the rows read the rollout's features
-            a = torch.from_numpy(f_act[idx])
-            new_logp = d.log_prob(a) if s.waypoint else d.log_prob(a).sum(-1)
-            entropy = d.entropy() if s.waypoint else d.entropy().sum(-1)
+            if s.waypoint:
+                new_logp, entropy = actor.log_prob_entropy(f_x[idx], f_act[idx], f_mask[idx], pairs, idx)
+            else:
+                d = actor.dist(f_x[idx])
+                a = torch.from_numpy(f_act[idx])
+                new_logp, entropy = d.log_prob(a).sum(-1), d.entropy().sum(-1)
             ratio = (new_logp - torch.from_numpy(f_logp[idx])).exp()
             mb_adv = torch.from_numpy(f_adv[idx])
             mb_adv = (mb_adv - mb_adv.mean()) / (mb_adv.std() + 1e-8)
