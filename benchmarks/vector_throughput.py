@@ -1,7 +1,7 @@
 """Env-steps per second of the vector env, default (a new random scene per episode) vs cached scene vs VMAS.
 
     python benchmarks/vector_throughput.py [--sizes 1 64 256 1024] [--episodes 2] [--seconds 3] [--rounds 2]
-        [--modes unicycle waypoint] [--scenes default cached] [--no-vmas] [--no-memory] [--profile]
+        [--modes unicycle waypoint kinematic] [--scenes default cached] [--no-vmas] [--no-memory] [--profile]
     python benchmarks/vector_throughput.py --rss 1000000 [--rss-size 1024] [--rss-every 100000]
 
 The protocol: Ours, "default": ``covert_env.vector_env(num_envs=B, n_uavs=3)`` at its defaults, a new
@@ -14,14 +14,16 @@ have passed), so the automatic resets, and for "default" the scenes they build, 
 scenes" gives the scenes built in the timed steps per copy-episode (1.0: every episode built its scene; a little
 less: a seed drawn again while its scene was still in the pool). Unicycle actions are drawn up front; waypoint
 actions from the current masks (a uniform allowed node per agent, from pre-drawn noise: that cost is part of using
-masks). An env-step is one copy advancing one slot (all its agents), as VMAS counts them.
+masks). Mode "waypoint" is the waypoint env with its default (visible) mask, "kinematic" the same with
+``mask_mode="kinematic"`` (every reachable node; the suite's learned teams train with it). An env-step is one
+copy advancing one slot (all its agents), as VMAS counts them.
 
 Each configuration runs ``--rounds`` times, interleaved with the others, so load from other processes hits all of
 them alike; the table gives wall-clock and CPU-time throughput (CPU time is what the process itself used, robust
 to a loaded machine), the resident memory per copy (RSS growth over building and stepping the env through an
 automatic reset, / B, in a fresh interpreter; ``--no-memory`` skips it), then the ratios of the same run:
 default / cached (target >= 0.5), default / VMAS (target >= 1), cached / VMAS (target >= 2), waypoint / unicycle
-(target >= 0.5).
+and kinematic / unicycle (target >= 0.5 each).
 The command line is printed first.
 
 ``--profile`` also profiles one episode of each of our configurations at the largest B: the share of a step each
@@ -78,7 +80,8 @@ class Ours:
         import covert_env
 
         self.b, self.mode = b, mode
-        self.env = covert_env.vector_env(num_envs=b, n_uavs=3, action_mode=mode, **SCENES[scene], **EXTRA)
+        kwargs = dict(action_mode="waypoint", mask_mode="kinematic") if mode == "kinematic" else dict(action_mode=mode)
+        self.env = covert_env.vector_env(num_envs=b, n_uavs=3, **kwargs, **SCENES[scene], **EXTRA)
         assert self.env.episode_length == EPISODE
         # Counts the scenes built, to show that the timed episodes build theirs (a benchmark may read the pool).
         self.built, pool = 0, self.env._pool
@@ -242,7 +245,8 @@ def ratio_rows(res: dict) -> list[tuple[str, str, str]]:
     out.append(("default / VMAS, unicycle", "default unicycle", "vmas navigation", ">= 1"))
     out.append(("cached / VMAS, unicycle", "cached unicycle", "vmas navigation", ">= 2"))
     for scene in ("default", "cached"):
-        out.append((f"waypoint / unicycle, {scene}", f"{scene} waypoint", f"{scene} unicycle", ">= 0.5"))
+        for mode in ("waypoint", "kinematic"):
+            out.append((f"{mode} / unicycle, {scene}", f"{scene} {mode}", f"{scene} unicycle", ">= 0.5"))
     return [r for r in out if r[1] in res and r[2] in res]
 
 
@@ -270,7 +274,9 @@ def main(argv=None) -> None:
     parser.add_argument("--episodes", type=int, default=2, help="least whole episodes per configuration and round")
     parser.add_argument("--sizes", type=int, nargs="+", default=[1, 64, 256, 1024])
     parser.add_argument("--rounds", type=int, default=2)
-    parser.add_argument("--modes", nargs="+", choices=["unicycle", "waypoint"], default=["unicycle", "waypoint"])
+    parser.add_argument("--modes", nargs="+", choices=["unicycle", "waypoint", "kinematic"],
+                        default=["unicycle", "waypoint", "kinematic"],
+                        help="unicycle; waypoint (visible mask); kinematic (waypoint with the kinematic mask)")
     parser.add_argument("--scenes", nargs="+", choices=list(SCENES), default=list(SCENES))
     parser.add_argument("--no-vmas", action="store_true")
     parser.add_argument("--path-samples", type=int, metavar="P",
@@ -327,10 +333,10 @@ def main(argv=None) -> None:
         for name, (wall, cpu, mb, new, n) in res.items():
             new = "-" if name == "vmas navigation" else f"{new:.2f}"    # VMAS has no scenes to build
             print(f"{b:>5}  {name:<17} {wall:>12.0f} {cpu:>12.0f} {mb:>8.3f} {new:>10} {n:>11}")
-    print(f"\n{'B':>5}  {'ratio (same run)':<28} {'wall':>6} {'CPU':>6}  target")
+    print(f"\n{'B':>5}  {'ratio (same run)':<30} {'wall':>6} {'CPU':>6}  target")
     for b, res in rows:
         for label, num, den, target in ratio_rows(res):
-            print(f"{b:>5}  {label:<28} {res[num][0] / res[den][0]:>5.2f}x {res[num][1] / res[den][1]:>5.2f}x  "
+            print(f"{b:>5}  {label:<30} {res[num][0] / res[den][0]:>5.2f}x {res[num][1] / res[den][1]:>5.2f}x  "
                   f"{target}".rstrip())
     print(f"load average: {os.getloadavg()[0]:.1f} (1 min) on {os.cpu_count()} CPUs")
     if args.json:
