@@ -100,6 +100,7 @@ def test_fused_categorical_is_the_dense_one(seed, rows, node_hidden):
     probs = np.where(mask.numpy(), 1.0, 0.0) + 1e-9
     actions = np.array([rng.choice(n_nodes, p=q / q.sum()) for q in probs])
     actions[5] = int(np.flatnonzero(~mask[5].numpy())[0])        # a node the row's mask leaves out
+    sample_of[7], mask[7] = sample_of[6], mask[6]                 # two rows of one sample (other observations)
     g_lp, g_ent = torch.randn(rows), torch.randn(rows)
 
     def run(fn):
@@ -117,7 +118,7 @@ def test_fused_categorical_is_the_dense_one(seed, rows, node_hidden):
     pairs = NodePairs(store.numpy(), full_mask)
 
     def fused():
-        return actor.log_prob_entropy(obs, actions, mask.numpy(), pairs, sample_of)
+        return actor.log_prob_entropy(obs, actions, pairs=pairs, sample_of=sample_of)
 
     want_lp, want_ent, want_g = run(dense)
     got_lp, got_ent, got_g = run(fused)
@@ -131,6 +132,7 @@ def test_fused_categorical_is_the_dense_one(seed, rows, node_hidden):
     for name, g in want_g.items():
         scale = float(g.abs().max()) + 1e-6
         np.testing.assert_allclose(got_g[name].numpy() / scale, g.numpy() / scale, atol=2e-5, err_msg=name)
+    # The bias's gradient is 0 but for row 5, whose action is outside its mask (log pi = MASKED_LOGIT - lse).
     assert float(want_g["node_feat.weight"].abs().sum()) > 0 and float(want_g["node_out.bias"].abs().sum()) > 0
 
 
@@ -140,5 +142,11 @@ def test_fused_categorical_refuses_mismatched_shapes():
     with pytest.raises(ValueError, match=r"rows and actions must be \(2,\) .* got \(3,\), \(2,\) and 3"):
         node_log_prob_entropy(torch.zeros(2, 4), actor.node_feat, actor.node_out, pairs, np.arange(3),
                               np.zeros(2, np.int64))
+    with pytest.raises(ValueError, match=r"rows must be samples in \[0, 2\), got 0 \.\. 2"):
+        node_log_prob_entropy(torch.zeros(2, 4), actor.node_feat, actor.node_out, pairs, np.array([0, 2]),
+                              np.zeros(2, np.int64))
+    with pytest.raises(ValueError, match=r"actions must be nodes in \[0, 7\), got -1 \.\. 0"):
+        node_log_prob_entropy(torch.zeros(2, 4), actor.node_feat, actor.node_out, pairs, np.arange(2),
+                              np.array([0, -1]))
     with pytest.raises(ValueError, match=r"feats must be \(S, L, F\) and mask \(S, L\), got \(2, 7, 3\) and \(2, 6\)"):
         NodePairs(np.zeros((2, 7, 3), np.float32), np.ones((2, 6), bool))

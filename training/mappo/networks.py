@@ -11,11 +11,11 @@ import numpy as np
 import torch
 from torch import nn
 
-from training.mappo.node_categorical import NodePairs, node_log_prob_entropy
+from training.mappo.node_categorical import node_log_prob_entropy
 from training.mappo.node_head import node_scores
 from training.pretrained import MASKED_LOGIT
 
-__all__ = ["Actor", "Critic", "NodePairs", "layer", "masked_categorical"]
+__all__ = ["Actor", "Critic", "layer", "masked_categorical"]
 
 
 def layer(i: int, o: int, std: float = 2 ** 0.5, bias: bool = True) -> nn.Linear:
@@ -75,13 +75,13 @@ class Actor(nn.Module):
                              sample_of, rows.numpy(), nodes.numpy())
         return torch.full(mask.shape, MASKED_LOGIT).index_put((rows, nodes), scores)
 
-    def log_prob_entropy(self, obs, actions: np.ndarray, mask: np.ndarray, feats=None, sample_of=None):
+    def log_prob_entropy(self, obs, actions: np.ndarray, mask=None, pairs=None, sample_of=None):
         """``(log_prob, entropy)`` of the rows' node ``actions`` under the masked categorical (waypoint heads): what
-        the PPO update asks. For the node head ``feats`` is a :class:`~training.mappo.node_categorical.NodePairs`
-        of the samples and ``sample_of`` the sample of each row: one compiled pass over the allowed pairs
-        (:func:`~training.mappo.node_categorical.node_log_prob_entropy`); ``mask`` is then not read."""
+        the PPO update asks. The node head reads ``pairs`` (a :class:`~training.mappo.node_categorical.NodePairs`
+        of the samples) and ``sample_of``, the sample of each row, in one compiled pass over the allowed pairs
+        (:func:`~training.mappo.node_categorical.node_log_prob_entropy`); the flat head reads ``mask`` (R, L)."""
         if self.head == "node":
-            return node_log_prob_entropy(self.node_obs(self.trunk(obs)), self.node_feat, self.node_out, feats,
+            return node_log_prob_entropy(self.node_obs(self.trunk(obs)), self.node_feat, self.node_out, pairs,
                                          sample_of, actions)
         d = self.dist(obs, None, torch.from_numpy(mask))
         return d.log_prob(torch.from_numpy(actions)), d.entropy()

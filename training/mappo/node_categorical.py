@@ -9,12 +9,14 @@ logits, masks, probabilities and their gradients, and (pairs x hidden) pre-activ
 arithmetic, bounds it. Here:
 
 * :class:`NodePairs` lays the allowed pairs' features out once per update, feature-major (``ft[k, p]``), each
-  sample's pairs next to each other: a minibatch row reads its pairs' features as 13 contiguous runs.
+  sample's pairs next to each other: a minibatch row reads its pairs' features as F contiguous runs.
 * The forward pass computes every pair's logit a hidden unit at a time over the row's pairs (loops that
   vectorise), then the row's log-normaliser, ``log pi(action)`` and entropy in float64. The pairs' logits are
   kept for the backward pass; the pre-activations are recomputed there, not stored.
-* The masked nodes enter the normaliser and the entropy as the dense categorical's do (``exp(MASKED_LOGIT - lse)``
-  is 0 in float32 unless a row allows no node; such a row is uniform over every node).
+* The masked nodes enter the normaliser and the entropy as the dense categorical's do: their probability
+  ``exp(MASKED_LOGIT - lse)`` vanishes unless a row allows no node, and such a row is uniform over every node
+  (torch's float32 categorical rounds -1e8 - lse there and gives a log-probability of -8, not -log L; the env's
+  masks never leave a row empty).
 
 The compiled loops may reassociate sums (``fastmath`` without ``nnan``/``ninf``), so the last bits of a
 gradient depend on the CPU's vector width: like torch's own matrix products, the update is reproducible on one
@@ -82,8 +84,6 @@ class NodePairs:
             raise ValueError(f"NodePairs: feats must be (S, L, F) and mask (S, L), got {feats.shape} and {mask.shape}")
         self.n_nodes = feats.shape[1]
         self.start, self.count, self.nodes, self.ft = _lay_out(feats, mask)
-        #: Each pair's last logit (written by a forward pass, read by its backward pass).
-        self.logits = np.empty(len(self.nodes), np.float32)
 
 
 @numba.njit(cache=True, nogil=True, fastmath=_FAST)
@@ -100,11 +100,16 @@ def _row_pre(a, wt, ft, r, j, p0, n, acc):
 
 
 @numba.njit(cache=True, nogil=True, fastmath=_FAST)
-def _forward(a, wt, w, b, ft, start, count, nodes, rows, act, n_nodes, masked_logit, logits):
+def _forward(a, wt, w, b, ft, start, count, nodes, rows, act, n_nodes, masked_logit):
+    """Per row its log-normaliser, the action's log-probability and the entropy (float64), and the rows' pairs'
+    logits (row ``r``'s at ``logits[at[r]:at[r + 1]]``, this call's own: the backward pass reads them)."""
     rows_n, hidden = a.shape
     most = 0
+    at = np.zeros(rows_n + 1, np.int64)            # row r's logits are logits[at[r]:at[r] + count[rows[r]]]
     for r in range(rows_n):
         most = max(most, start[rows[r] + 1] - start[rows[r]])
+        at[r + 1] = at[r] + count[rows[r]]
+    logits = np.empty(at[rows_n], np.float32)
     acc = np.empty(most, np.float32)
     out = np.empty(most, np.float32)
     lse, logp, ent = np.empty(rows_n), np.empty(rows_n), np.empty(rows_n)
@@ -121,7 +126,7 @@ def _forward(a, wt, w, b, ft, start, count, nodes, rows, act, n_nodes, masked_lo
         n_masked = n_nodes - n
         top = masked_logit if n_masked > 0 else -np.inf
         for i in range(n):
-            logits[p0 + i] = out[i]
+            logits[at[r] + i] = out[i]
             top = max(top, np.float64(out[i]))
         z = n_masked * np.exp(masked_logit - top)
         for i in range(n):
@@ -136,11 +141,11 @@ def _forward(a, wt, w, b, ft, start, count, nodes, rows, act, n_nodes, masked_lo
                 chosen = np.float64(out[i])
         logp[r] = chosen - lse[r]
         ent[r] = h
-    return lse, logp, ent
+    return lse, logp, ent, logits, at
 
 
 @numba.njit(cache=True, nogil=True, fastmath=_FAST)
-def _backward(a, wt, w, ft, start, count, nodes, rows, act, logits, lse, ent, g_logp, g_ent):
+def _backward(a, wt, w, ft, start, count, nodes, rows, act, logits, at, lse, ent, g_logp, g_ent):
     """The gradients of ``sum_r g_logp[r] logp[r] + g_ent[r] ent[r]`` in ``a``, ``W`` (as ``wt``), ``w`` and ``b``:
     float32 within a row, float64 over rows."""
     rows_n, hidden = a.shape
@@ -158,7 +163,7 @@ def _backward(a, wt, w, ft, start, count, nodes, rows, act, logits, lse, ent, g_
             ds[i] = 0.0
         for i in range(n):
             # d log pi(act) / d s = [node = act] - pi; d H / d s = -pi (log pi + H)
-            d = logits[p0 + i] - lse[r]
+            d = logits[at[r] + i] - lse[r]
             pi = np.exp(d)
             g = -g_logp[r] * pi - g_ent[r] * pi * (d + ent[r])
             if nodes[p0 + i] == act[r]:
@@ -193,22 +198,23 @@ class _NodeCategorical(torch.autograd.Function):
         a_np = a.detach().numpy()
         wt = np.ascontiguousarray(weight.detach().numpy().T)
         w_np = np.ascontiguousarray(w.detach().numpy().reshape(-1))
-        lse, logp, ent = _forward(a_np, wt, w_np, np.float32(b.detach().reshape(-1)[0].item()), pairs.ft,
-                                  pairs.start, pairs.count, pairs.nodes, rows, act, pairs.n_nodes,
-                                  float(MASKED_LOGIT), pairs.logits)
-        ctx.kept = (a_np, wt, w_np, pairs, rows, act, lse, ent)
+        lse, logp, ent, logits, at = _forward(a_np, wt, w_np, np.float32(b.detach().reshape(-1)[0].item()),
+                                              pairs.ft, pairs.start, pairs.count, pairs.nodes, rows, act,
+                                              pairs.n_nodes, float(MASKED_LOGIT))
+        # Numpy views of a and w, not saved tensors: nothing changes them in place between the passes of an update.
+        ctx.kept = (a_np, wt, w_np, pairs, rows, act, lse, ent, logits, at)
         ctx.shapes = (weight.shape, w.shape, b.shape)
         return torch.from_numpy(logp.astype(np.float32)), torch.from_numpy(ent.astype(np.float32))
 
     @staticmethod
     def backward(ctx, g_logp, g_ent):
-        a_np, wt, w_np, pairs, rows, act, lse, ent = ctx.kept
+        a_np, wt, w_np, pairs, rows, act, lse, ent, logits, at = ctx.kept
         zero = np.zeros(len(a_np))
         g_lp = zero if g_logp is None else g_logp.detach().numpy().astype(np.float64)
         g_h = zero if g_ent is None else g_ent.detach().numpy().astype(np.float64)
         da, dwt, dw, db = _backward(a_np, wt, w_np, pairs.ft, pairs.start, pairs.count, pairs.nodes, rows, act,
-                                    pairs.logits, lse, ent, g_lp, g_h)
-        weight_shape, w_shape, b_shape = ctx.shapes
+                                    logits, at, lse, ent, g_lp, g_h)
+        _, w_shape, b_shape = ctx.shapes
         return (torch.from_numpy(da), torch.from_numpy(np.ascontiguousarray(dwt.T, np.float32)),
                 torch.from_numpy(dw.astype(np.float32).reshape(w_shape)),
                 torch.full(b_shape, db, dtype=torch.float32), None, None, None)
@@ -235,4 +241,14 @@ def node_log_prob_entropy(a: torch.Tensor, node_feat: torch.nn.Linear, node_out:
     if rows.shape != (len(a),) or actions.shape != (len(a),) or node_feat.weight.shape[1] != len(pairs.ft):
         raise ValueError(f"node_log_prob_entropy: rows and actions must be ({len(a)},) and the pairs' features "
                          f"{node_feat.weight.shape[1]} wide, got {rows.shape}, {actions.shape} and {len(pairs.ft)}")
+    if a.shape[1] != node_feat.weight.shape[0]:
+        raise ValueError(f"node_log_prob_entropy: a is {a.shape[1]} wide, node_feat has {node_feat.weight.shape[0]} "
+                         "outputs")
+    samples = len(pairs.count)
+    if len(rows) and (rows.min() < 0 or rows.max() >= samples):
+        raise ValueError(f"node_log_prob_entropy: rows must be samples in [0, {samples}), got {rows.min()} .. "
+                         f"{rows.max()}")
+    if len(actions) and (actions.min() < 0 or actions.max() >= pairs.n_nodes):
+        raise ValueError(f"node_log_prob_entropy: actions must be nodes in [0, {pairs.n_nodes}), got "
+                         f"{actions.min()} .. {actions.max()}")
     return _NodeCategorical.apply(a, node_feat.weight, node_out.weight, node_out.bias, pairs, rows, actions)

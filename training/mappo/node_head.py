@@ -6,15 +6,18 @@ The waypoint actor's node head (:class:`training.mappo.networks.Actor`) scores n
 
 with ``a[r]`` the trunk's projection of the row's observation (``node_obs``), ``f[r, n]`` the node's features
 (:func:`training.pretrained.node_features`), ``W`` the ``node_feat`` weights and ``w``, ``b`` the ``node_out``
-layer. Written with torch, one PPO minibatch of a few thousand rows with some 250 allowed nodes each makes
-several tensors of (rows x nodes x hidden) floats (the gathered features, the pre-activations, their gradients):
-memory traffic, not arithmetic, bounds it. :func:`node_scores` does the same arithmetic a chunk of :data:`CHUNK`
-pairs at a time: the chunk's features gathered into one block (compiled), ``W f`` of the whole block as one torch
-matrix product (on torch's threads: one in the training scripts, so a run's numbers do not depend on the number
-of cores), the rest pair by pair (compiled); the backward pass recomputes the products instead of storing them.
+layer. :func:`node_scores` gives the logits themselves: the rollout samples its nodes from them (no gradient),
+and behaviour cloning (:mod:`training.imitation`) trains on them. Written with torch, a few thousand rows with
+some 250 allowed nodes each make several tensors of (rows x nodes x hidden) floats (the gathered features, the
+pre-activations, their gradients): memory traffic, not arithmetic, bounds it. Here the same arithmetic runs a
+chunk of :data:`CHUNK` pairs at a time: the chunk's features gathered into one block (compiled), ``W f`` of the
+whole block as one torch matrix product (on torch's threads: one in the training scripts, so a run's numbers do
+not depend on the number of cores), the rest pair by pair (compiled); the backward pass recomputes the products
+instead of storing them. The PPO update needs only each row's log-probability and entropy, which
+:mod:`training.mappo.node_categorical` computes without the logits.
 
-The features stay where the rollout stored them, ``(samples, L, F)``; each row names its sample (``sample_of``),
-so a minibatch reads them without copying.
+The features stay where they are, ``(samples, L, F)``; each row names its sample (``sample_of``), so rows read
+them without copying.
 """
 
 from __future__ import annotations

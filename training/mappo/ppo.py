@@ -6,7 +6,7 @@ import numpy as np
 import torch
 
 from training.mappo.agents import Agents
-from training.mappo.networks import NodePairs
+from training.mappo.node_categorical import NodePairs
 from training.mappo.rollout import Rollout
 
 __all__ = ["advantages", "ppo_update"]
@@ -50,7 +50,9 @@ def ppo_update(agents: Agents, optim, buf: Rollout, adv: np.ndarray, returns: np
         for start in range(0, N, mb):
             idx = perm[start:start + mb]
             if s.waypoint:
-                new_logp, entropy = actor.log_prob_entropy(f_x[idx], f_act[idx], f_mask[idx], pairs, idx)
+                new_logp, entropy = actor.log_prob_entropy(f_x[idx], f_act[idx],
+                                                           None if pairs is not None else f_mask[idx],
+                                                           pairs, idx)
             else:
                 d = actor.dist(f_x[idx])
                 a = torch.from_numpy(f_act[idx])
