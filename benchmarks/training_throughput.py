@@ -2,15 +2,17 @@
 at the same B, tasks and mask mode, in the same run, with where the loop's time goes.
 
     python benchmarks/training_throughput.py [--sizes 16 64 256] [--updates 2] [--num-steps 16]
-        [--guards shield filter] [--recipe 3uav-suite]
+        [--guards filter none shield] [--recipe 3uav-suite]
 
 For each B: the raw env (the recipe's tasks as one vector env, ``covert_env.envs.task_mix``, kinematic mask,
 masked-random nodes, automatic resets), then the recipe's loop (``training.mappo``: rollout of ``--num-steps``
 slots, GAE, the PPO update) for
 ``--updates`` updates after one untimed update, with each guard of ``--guards``:
 
-* ``shield``: the recipe's separation shield (``training.shield``, with its look-ahead and viability rule);
-* ``filter``: the safety filter (``--safety-filter``: eqs. 2 and 3 along the flown path, certified moves);
+* ``filter``: the safety filter as ``3uav-suite`` trains through it (``--safety-filter``: eqs. 2 and 3 along the
+  flown path, certified moves; its viability rule at a bar of 10, the policy's logits as its preferences);
+* ``shield``: the separation shield as ``3uav-suite-shield`` trained with it (``training.shield``, with its
+  look-ahead and viability rule);
 * ``none``: no guard (what the loop costs without one).
 
 It prints the command, one row per (B, guard): env-steps per CPU-second, the ratio to the raw env of the same B,
@@ -34,6 +36,19 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import numpy as np  # noqa: E402
 
 PARTS = ("env step", "guard", "node features", "actor and critic", "PPO update", "other")
+
+#: Each guard's flags over the recipe's: the safety filter as ``3uav-suite`` trains through it, the separation
+#: shield as ``3uav-suite-shield`` did, and neither.
+_FILTER_OFF = ["--safety-filter", "false", "--learn-flown-nodes", "false", "--filter-scores", "false"]
+GUARDS = {
+    "filter": ["--safety-filter", "true", "--separation-shield", "false", "--shield-lookahead", "false",
+               "--viability-shield", "true", "--viability-min-reach", "10", "--learn-flown-nodes", "true",
+               "--filter-scores", "true"],
+    "shield": [*_FILTER_OFF, "--separation-shield", "true", "--shield-lookahead", "true", "--viability-shield",
+               "true", "--viability-min-reach", "10"],
+    "none": [*_FILTER_OFF, "--separation-shield", "false", "--shield-lookahead", "false", "--viability-shield",
+             "false", "--viability-min-reach", "1"],
+}
 
 
 class Timer:
@@ -111,10 +126,8 @@ def loop_rate(recipe: str, b: int, guard: str, updates: int, num_steps: int) -> 
     from training.task_mix import make_training_env
 
     torch.set_num_threads(1)
-    argv = ["--recipe", recipe, "--num-envs", str(b), "--num-steps", str(num_steps), "--progress-bar", "false",
-            "--separation-shield", str(guard == "shield").lower(), "--safety-filter", str(guard == "filter").lower()]
-    if guard != "shield":
-        argv += ["--viability-shield", "false", "--shield-lookahead", "false", "--viability-min-reach", "1"]
+    argv = ["--recipe", recipe, "--num-envs", str(b), "--num-steps", str(num_steps), "--progress-bar", "false"]
+    argv += GUARDS[guard]
     args = parse_args(mappo.Args, argv, description="", presets=MAPPO_RECIPES)
     mappo.check_args(args)
     np.random.seed(0)
@@ -163,7 +176,7 @@ def loop_rate(recipe: str, b: int, guard: str, updates: int, num_steps: int) -> 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", type=int, nargs="+", default=[16, 64, 256], help="B, copies (default 16 64 256)")
-    parser.add_argument("--guards", nargs="+", choices=["shield", "filter", "none"], default=["shield", "filter"])
+    parser.add_argument("--guards", nargs="+", choices=list(GUARDS), default=["filter", "none"])
     parser.add_argument("--recipe", default="3uav-suite", help="the training.mappo recipe (default 3uav-suite)")
     parser.add_argument("--updates", type=int, default=2, help="timed PPO updates per row (default 2)")
     parser.add_argument("--num-steps", type=int, default=16, help="rollout slots per update (default 16)")

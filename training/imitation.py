@@ -1,15 +1,15 @@
 """Behaviour cloning of the DP planner: a learned team's actor that starts where the paper's planner is.
 
-    OMP_NUM_THREADS=1 python -m training.imitation --recipe 3uav-suite --seed 0          # time: docs/training.md
+    OMP_NUM_THREADS=1 python -m training.imitation --recipe 3uav-suite-shield --seed 0   # time: docs/training.md
     covert-env benchmark --policies dp mappo:runs/<run>                           # score it on the suite
-    OMP_NUM_THREADS=1 python -m training.mappo --recipe 3uav-suite --init-actor runs/<run> # fine-tune it with RL
+    OMP_NUM_THREADS=1 python -m training.mappo --recipe 3uav-suite-shield --init-actor runs/<run>  # fine-tune (RL)
 
 The planner (``--teacher``, :mod:`baselines.policies`) flies training scenes of the recipe's tasks (run ``--seed s``
 takes scenes ``s * 1000 + i`` of ``covert_env.world.tasks.Task.train_seeds``, never a held-out one). Every slot, each
 UAV's observation, its action mask and the planner's node are recorded. The actor of the MAPPO recipe
 (:mod:`training.mappo.networks`, the same architecture, node features and card) is then trained to pick the
 planner's node under the mask: cross-entropy of the masked categorical, Adam, minibatches from one task at a time,
-since the node features depend on the task's lattice. The mask is the recipe's (``kinematic`` for ``3uav-suite``:
+since the node features depend on the task's lattice. The mask is the recipe's (``kinematic`` for the suite's:
 every reachable node), so whatever shadow the actor avoids it read from its observation; the planner never picks a
 shadowed node at a slot time.
 
@@ -53,8 +53,9 @@ SCENES_PER_SEED = 1000
 
 @dataclass
 class Args(RunArgs):
-    recipe: str = "3uav-suite"
-    """the training.mappo recipe whose actor, tasks, env settings and shield the cloned team takes"""
+    recipe: str = "3uav-suite-shield"
+    """the training.mappo recipe whose actor, tasks, env settings and shield the cloned team takes (the suite
+    team's before the safety filter: its DAgger rounds fly the clone through the shield)"""
     teacher: str = "dp"
     """the planner cloned: dp (the paper's), dp-binned or dp-path (baselines.policies)"""
     episodes_per_task: int = 24

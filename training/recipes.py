@@ -52,22 +52,27 @@ RECIPES: dict[str, dict] = {
 #: ``3uav-mappo``: MAPPO in the waypoint mode with the separation shield (training.shield) and the Lagrangian
 #: on the separation cost, 45 minutes of wall clock (three seeds at once on 2 cores; docs/training.md has the
 #: measured runs).
-#: ``3uav-suite``: the team of the task suite. It trains on the training scenes of the suite's eight 3-UAV core
-#: tasks at once (two copies each, training.task_mix), with the kinematic mask (every reachable node: the team
-#: must learn the shadows), the node head reading the 16 x 16 visibility map under each node (docs/training.md
-#: says what it is worth), a Lagrange multiplier per
-#: constraint (LoS at slot times, LoS along the path, the zone, separation) with a dual step of 1 and a bound of
-#: 4, the separation shield with its look-ahead and its viability rule (no node from which fewer than 10 nodes are
-#: reachable next slot, where another leaves 10); 45 minutes of wall clock (three seeds at once on 2 cores). The
+#: ``3uav-suite``: the team of the task suite, trained through the safety filter. It trains on the training
+#: scenes of the suite's eight 3-UAV core tasks at once (one vector env of 256 copies, 32 per task,
+#: covert_env.envs.task_mix; 16 slots per update), with the kinematic mask (every reachable node: the team must
+#: learn the shadows), the node head reading the 16 x 16 visibility map under each node (docs/training.md says what
+#: it is worth), a Lagrange multiplier per constraint (LoS at slot times, LoS along the path, the zone) with a dual
+#: step of 1 and a bound of 4, and the safety filter (covert_env.envs.safety_filter: eqs. 2 and 3 kept on the flown
+#: path, every move certified) with its viability rule at a bar of 10 (no node from which fewer than 10 nodes are
+#: reachable next slot, where another leaves 10). The team proposes, the filter's preferences are its logits, and
+#: a replacement inside the mask is learned as the action flown. 40 minutes of wall clock, one seed per core. The
 #: bound keeps a limit the team does not reach from drowning the reward (docs/decisions/learning.md, "Learned teams
-#: across the suite").
-#: ``3uav-suite-path``: ``3uav-suite`` with the target's path predicted over the planner's five slots in the
-#: observation (the env's ``target_path=5``): the DP planner plans on that path; ``3uav-suite`` sees one slot.
-#: ``3uav-suite-manoeuvre``: ``3uav-suite`` with the node head also reading the manoeuvre to each node (whether one
-#: exists, its length, the heading the UAV arrives with): the heading at a node sets what the next slot reaches,
-#: which the planner's search weighs and the node's position alone does not tell.
+#: across the suite" and "Safety filter").
+#: ``3uav-suite-shield``: the suite team before the filter (``pretrained:mappo-suite-shield``): 16
+#: copies, 64 slots per update, the separation shield with its look-ahead and its viability rule instead of the
+#: filter; 45 minutes (three seeds at once on 2 cores).
+#: ``3uav-suite-path``: ``3uav-suite-shield`` with the target's path predicted over the planner's five slots in the
+#: observation (the env's ``target_path=5``): the DP planner plans on that path; the suite team sees one slot.
+#: ``3uav-suite-manoeuvre``: ``3uav-suite-shield`` with the node head also reading the manoeuvre to each node
+#: (whether one exists, its length, the heading the UAV arrives with): the heading at a node sets what the next slot
+#: reaches, which the planner's search weighs and the node's position alone does not tell.
 MAPPO_RECIPES: dict[str, dict] = {
-    "3uav-suite": dict(
+    "3uav-suite-shield": dict(
         algo="mappo", n_uavs=3, num_envs=16, action_mode="waypoint", head="node", node_map=True, map_size=16,
         mask_mode="kinematic", learning_rate=1e-3, time_budget_minutes=45.0, separation_shield=True,
         viability_shield=True, viability_min_reach=10, shield_lookahead=True, shield_end_margin=10.0, lagrangian=True,
@@ -82,5 +87,10 @@ MAPPO_RECIPES: dict[str, dict] = {
         checkpoint_every=100_000,
     ),
 }
-MAPPO_RECIPES["3uav-suite-path"] = {**MAPPO_RECIPES["3uav-suite"], "target_path": 5}
-MAPPO_RECIPES["3uav-suite-manoeuvre"] = {**MAPPO_RECIPES["3uav-suite"], "node_manoeuvre": True}
+MAPPO_RECIPES["3uav-suite"] = {
+    **MAPPO_RECIPES["3uav-suite-shield"], "num_envs": 256, "num_steps": 16, "time_budget_minutes": 40.0,
+    "separation_shield": False, "shield_lookahead": False, "safety_filter": True, "filter_scores": True,
+    "learn_flown_nodes": True,
+}
+MAPPO_RECIPES["3uav-suite-path"] = {**MAPPO_RECIPES["3uav-suite-shield"], "target_path": 5}
+MAPPO_RECIPES["3uav-suite-manoeuvre"] = {**MAPPO_RECIPES["3uav-suite-shield"], "node_manoeuvre": True}
