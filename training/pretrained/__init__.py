@@ -316,7 +316,9 @@ def as_flown(pol: LearnedPolicy):
     from covert_env.envs.safety_filter import ShieldedPolicy
 
     min_reach = (pol.card.get("viability_min_reach") or 1) if pol.card.get("viability_shield") else 0
-    return ShieldedPolicy(pol, use_scores=bool(pol.card.get("filter_scores")), min_reach=min_reach)
+    flown = ShieldedPolicy(pol, use_scores=bool(pol.card.get("filter_scores")), min_reach=min_reach)
+    flown.card = pol.card                # the team is the card's, filter included
+    return flown
 
 
 def load_learned(path: str | Path) -> LearnedPolicy:
