@@ -68,6 +68,7 @@ def test_join_holds_out_the_last_episodes_and_drops_labels_outside_the_mask():
 @pytest.mark.parametrize("flags, match", [
     (["--teacher", "dp-blind"], "argument --teacher: invalid choice: 'dp-blind'"),
     (["--recipe", "3uav-ppo"], "--recipe '3uav-ppo'"),
+    (["--recipe", "3uav-suite"], "--recipe '3uav-suite': trains through the safety filter"),
     (["--val-episodes", "24"], "--val-episodes 24: must be below"),
     (["--epochs", "0"], "argument --epochs: must be an integer in [1, 100000], got 0"),
     (["--max-cycles", "0"], "argument --max-cycles: must be an integer >= 1, got 0"),
@@ -110,7 +111,7 @@ def test_cloning_fits_the_planners_choices():
     """Four hundred steps on 36 recorded UAV-slots: the cross-entropy falls by half and the actor ranks the planner's
     node first on at least 40 % of them (the node head scores nodes from smooth features, so it separates a node
     from its neighbours slowly; docs/decisions/learning.md, "Cloning the planner")."""
-    margs = imitation.mappo_args("3uav-suite")
+    margs = imitation.mappo_args("3uav-suite-shield")
     settings = imitation.env_settings(margs, 6)
     train, _ = imitation.join([imitation.teacher_episode("downtown-3uav", s, "dp", settings) for s in (0, 1)], 0)
     from training.mappo import make_networks, sizes_of

@@ -113,6 +113,26 @@ def test_bad_choices_are_one_line_errors(capsys):
     assert exc.value.code == 2 and "--algo" in capsys.readouterr().err
 
 
+def test_the_recipes_are_valid_and_the_shield_recipes_keep_their_settings():
+    """Every recipe passes the settings' checks. ``3uav-suite`` is the shield recipe with the safety filter in place
+    of the shield; ``-path`` and ``-manoeuvre`` are the shield recipe with one setting more (so their documented runs
+    still reproduce)."""
+    from training.common import parse_args
+    from training.recipes import MAPPO_RECIPES
+
+    for name in MAPPO_RECIPES:
+        mappo.check_args(parse_args(mappo.Args, ["--recipe", name], description="", presets=MAPPO_RECIPES))
+    shield = MAPPO_RECIPES["3uav-suite-shield"]
+    assert MAPPO_RECIPES["3uav-suite-path"] == {**shield, "target_path": 5}
+    assert MAPPO_RECIPES["3uav-suite-manoeuvre"] == {**shield, "node_manoeuvre": True}
+    suite = MAPPO_RECIPES["3uav-suite"]
+    changed = {k: v for k, v in suite.items() if shield.get(k) != v}
+    assert changed == {"num_envs": 256, "num_steps": 16, "time_budget_minutes": 40.0, "separation_shield": False,
+                       "shield_lookahead": False, "safety_filter": True, "filter_scores": True,
+                       "learn_flown_nodes": True}
+    assert suite["viability_shield"] and suite["viability_min_reach"] == 10
+
+
 def test_shielded_run_records_the_shield_and_evaluates_with_it(tmp_path, train_extra):
     """The recipe's shield: on by default in the waypoint mode, written to the card, used by the harness (a
     separation violation only in a slot where it found no separated nodes: its fallbacks); off in the unicycle

@@ -84,6 +84,12 @@ class Args(RunArgs):
     """torch threads"""
 
 
+def _recipes() -> list[str]:
+    from training.recipes import MAPPO_RECIPES
+
+    return list(MAPPO_RECIPES)
+
+
 def mappo_args(recipe: str):
     """The :class:`training.mappo.Args` of a MAPPO recipe: the actor, env and shield the cloned team takes."""
     from training.mappo import Args as MappoArgs
@@ -323,7 +329,10 @@ def save_actor(run_dir: Path, actor, card: dict, stats: dict) -> None:
 def check_args(args: Args) -> None:
     """The recipe, the teacher and the flags that bound each other: a ValueError naming the flag, its value and what
     is allowed (each numeric flag's own range is checked by the CLI, :func:`training.common.parse_args`)."""
-    mappo_args(args.recipe)
+    if mappo_args(args.recipe).safety_filter:
+        shield_recipes = sorted(r for r in _recipes() if not mappo_args(r).safety_filter)
+        raise ValueError(f"--recipe {args.recipe!r}: trains through the safety filter, which the DAgger rounds do not "
+                         f"fly; choose a recipe with the separation shield: {', '.join(shield_recipes)}")
     teachers = _ranges()["teacher"][1]
     if args.teacher not in teachers:
         raise ValueError(f"--teacher {args.teacher!r}: choose from {', '.join(teachers)}")

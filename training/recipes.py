@@ -52,17 +52,16 @@ RECIPES: dict[str, dict] = {
 #: ``3uav-mappo``: MAPPO in the waypoint mode with the separation shield (training.shield) and the Lagrangian
 #: on the separation cost, 45 minutes of wall clock (three seeds at once on 2 cores; docs/training.md has the
 #: measured runs).
-#: ``3uav-suite``: the team of the task suite, trained through the safety filter. It trains on the training
-#: scenes of the suite's eight 3-UAV core tasks at once (one vector env of 256 copies, 32 per task,
-#: covert_env.envs.task_mix; 16 slots per update), with the kinematic mask (every reachable node: the team must
-#: learn the shadows), the node head reading the 16 x 16 visibility map under each node (docs/training.md says what
-#: it is worth), a Lagrange multiplier per constraint (LoS at slot times, LoS along the path, the zone) with a dual
-#: step of 1 and a bound of 4, and the safety filter (covert_env.envs.safety_filter: eqs. 2 and 3 kept on the flown
-#: path, every move certified) with its viability rule at a bar of 10 (no node from which fewer than 10 nodes are
-#: reachable next slot, where another leaves 10). The team proposes, the filter's preferences are its logits, and
-#: a replacement inside the mask is learned as the action flown. 40 minutes of wall clock, one seed per core. The
-#: bound keeps a limit the team does not reach from drowning the reward (docs/decisions/learning.md, "Learned teams
-#: across the suite" and "Safety filter").
+#: ``3uav-suite``: the team of the task suite, trained through the safety filter. It trains on the training scenes of
+#: the suite's eight 3-UAV core tasks at once (one vector env of 256 copies, 32 per task, covert_env.envs.task_mix; 16
+#: slots per update), with the kinematic mask (every reachable node: the team must learn the shadows), the node head
+#: reading the 16 x 16 visibility map under each node (docs/training.md says what it is worth), a Lagrange multiplier
+#: per constraint (LoS at slot times, LoS along the path, the zone, separation) with a dual step of 1 and a bound of 4,
+#: and the safety filter (covert_env.envs.safety_filter: eqs. 2 and 3 kept on the flown path, every move certified) with
+#: its viability rule at a bar of 10 (no node from which fewer than 10 nodes are reachable next slot, where another
+#: leaves 10). The team proposes, the filter's preferences are its logits, and a replacement inside the mask is learned
+#: as the action flown. 40 minutes of wall clock, one seed per core. The bound keeps a limit the team does not reach
+#: from drowning the reward (docs/decisions/learning.md, "Learned teams across the suite" and "Safety filter").
 #: ``3uav-suite-shield``: the suite team before the filter (``pretrained:mappo-suite-shield``): 16
 #: copies, 64 slots per update, the separation shield with its look-ahead and its viability rule instead of the
 #: filter; 45 minutes (three seeds at once on 2 cores).

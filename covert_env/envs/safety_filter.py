@@ -451,6 +451,8 @@ class ShieldedPolicy:
         self.policy, self.filter_kw, self.use_scores = policy, filter_kw, use_scores
         self.name = f"{getattr(policy, 'name', 'policy')}+shield"
         self.env_settings = getattr(policy, "env_settings", None)
+        if hasattr(policy, "card"):                 # a shipped team flown through the filter is still its card's
+            self.card = policy.card
         self.safety: SafetyFilter | None = None
 
     @staticmethod

@@ -316,9 +316,7 @@ def as_flown(pol: LearnedPolicy):
     from covert_env.envs.safety_filter import ShieldedPolicy
 
     min_reach = (pol.card.get("viability_min_reach") or 1) if pol.card.get("viability_shield") else 0
-    flown = ShieldedPolicy(pol, use_scores=bool(pol.card.get("filter_scores")), min_reach=min_reach)
-    flown.card = pol.card                # the team is the card's, filter included
-    return flown
+    return ShieldedPolicy(pol, use_scores=bool(pol.card.get("filter_scores")), min_reach=min_reach)
 
 
 def load_learned(path: str | Path) -> LearnedPolicy:
