@@ -54,8 +54,8 @@ SCENES_PER_SEED = 1000
 @dataclass
 class Args(RunArgs):
     recipe: str = "3uav-suite-shield"
-    """the training.mappo recipe whose actor, tasks, env settings and shield the cloned team takes (the suite
-    team's before the safety filter: its DAgger rounds fly the clone through the shield)"""
+    """the training.mappo recipe (one with the separation shield, which the DAgger rounds fly) whose actor, tasks,
+    env settings and shield the clone takes"""
     teacher: str = "dp"
     """the planner cloned: dp (the paper's), dp-binned or dp-path (baselines.policies)"""
     episodes_per_task: int = 24
