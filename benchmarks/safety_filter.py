@@ -19,9 +19,9 @@ if a violation happened in a slot the filter did not report as infeasible (a sil
 
 ``--training`` flies masked-random proposals through
 :class:`~covert_env.envs.safety_filter.SafetyFilteredVectorEnv` as the ``3uav-suite`` recipe trains: its eight tasks
-as one vector env of ``--sizes`` copies, training scenes, the kinematic mask, automatic resets, ``--steps`` slots;
-it prints every team-slot with a separation or terrain cost (its task, its slot, whether the filter reported it
-infeasible) and the totals.
+as one vector env of ``--sizes`` copies, training scenes, the kinematic mask, automatic resets, ``--steps`` slots
+(the recipe's own batch and viability bar: ``--sizes 256 --min-reach 10``); it prints every team-slot with a
+separation or terrain cost (its task, its slot, whether the filter reported it infeasible) and the totals.
 
 ``--throughput`` instead measures what the filter costs a learner: env-steps per CPU-second of the waypoint vector
 env (``--task``, kinematic mask, masked-random actions, automatic resets) with and without
