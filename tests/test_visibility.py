@@ -780,3 +780,32 @@ def test_terrain_rows_table_follows_its_rows():
     assert 0 < (~got).sum() < len(got)
     with pytest.raises(TypeError, match="TerrainTable"):
         segments_blocked(tuple(second), q[None], np.zeros(1, np.int64), np.array([0, 200]), pts, H, LOS_TOLERANCE)
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), tol=st.sampled_from([LOS_TOLERANCE, SAFE_LOS_TOLERANCE, 0.0, -0.5, -2.0]),
+       altitude=st.sampled_from([H, 2.0]))
+def test_team_points_on_padded_rows_equal_the_all_pairs_clip(seed, tol, altitude):
+    """The env's layout, a few points per target at one height (a team at a slot end or a path instant), over rows of
+    0, 3 and 12 polytopes padded to one width: every segment is decided as the all-pairs clip of its own row's terrain
+    decides it, above and below the targets, grown and shrunk polytopes alike."""
+    from covert_env.world.visibility import TerrainRows
+
+    rng = np.random.default_rng(seed)
+    terrains = [Terrain([]), random_terrain(rng, 3), random_terrain(rng, 12)]
+    table = TerrainRows(capacity=3)
+    for r, terrain in enumerate(terrains):
+        table.set_row(r, terrain)
+    sizes = rng.integers(0, 16, 30)                                 # 0 to 15 points: below _MANY_POINTS
+    rows = rng.integers(0, 3, 30)
+    q = np.stack([random_target(rng) for _ in sizes])
+    pts = np.concatenate([disk_points(rng, q[j], int(n), radius=130.0) for j, n in enumerate(sizes)])
+    got = table.blocked(q, rows, np.concatenate([[0], np.cumsum(sizes)]), pts, altitude, tol)
+    owner = np.repeat(np.arange(30), sizes)
+    want = np.zeros(len(pts), bool)
+    for r, terrain in enumerate(terrains):
+        here = rows[owner] == r
+        if here.any():
+            want[here] = ~all_pairs_clear(terrain, np.column_stack([pts[here], np.full(here.sum(), altitude)]),
+                                          q[owner[here]], tol)
+    np.testing.assert_array_equal(got, want)

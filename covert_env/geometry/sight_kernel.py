@@ -30,10 +30,12 @@ meets both the pushed-out faces and the widened cylinder.)
 
 The kernel is compiled with numba, a loop per target. A target's many points at one height (the planner's path
 samples, the lattices and maps) go polytope by polytope, each kept polytope's footprint test over all the points in
-one branch-free pass, then the clips of the points near it; a target's few points (the env's team) and points at
-their own heights go point by point, stopping at the first blocking polytope. Both make the same decision for every
-(point, polytope) pair. It runs single-threaded and holds no state between calls. numba checks no bounds, so
-:func:`blocked_segments` checks every shape and index first.
+one branch-free pass, then the clips of the points near it. A target's few points at one height (the env's team at
+a slot end or a path instant) skip the broad phase per target: each point is tested against the footprint of every
+polytope of its row in one branch-free pass over the polytopes, then clipped against those it passes near, stopping
+at the first that blocks. Points at their own heights go point by point through both broad phases. All three make
+the same decision for every (point, polytope) pair: the clip's. It runs single-threaded and holds no state between
+calls. numba checks no bounds, so :func:`blocked_segments` checks every shape and index first.
 """
 
 from __future__ import annotations
@@ -55,7 +57,8 @@ _MANY_POINTS = 16
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _kernel(hs, cx, cy, radius, z_top, growth, targets, rows, start, points, heights, tol, out):  # pragma: no cover
     """``out[i]`` = segment i is blocked; arguments as :func:`blocked_segments`. A target's ``_MANY_POINTS`` or
-    more points at one height go polytope by polytope (:func:`_polytopes_first`), the others point by point
+    more points at one height go polytope by polytope (:func:`_polytopes_first`), fewer at one height point by point
+    over every polytope (:func:`_team_points`), points at their own heights point by point over the kept polytopes
     (:func:`_point_blocked`): the same decisions."""
     one_height = len(heights) == 1
     keep = np.empty(hs.shape[1], dtype=np.int64)
@@ -64,9 +67,13 @@ def _kernel(hs, cx, cy, radius, z_top, growth, targets, rows, start, points, hei
         if start[j + 1] - start[j] >= _MANY_POINTS:
             width = max(width, start[j + 1] - start[j])
     xs, ys, near = np.empty(width), np.empty(width), np.empty(width, dtype=np.bool_)
+    if one_height:
+        _team_points(hs, cx, cy, radius, z_top, growth, targets, rows, start, points, heights[0], tol, out)
     for j in range(len(targets)):
         a, b = start[j], start[j + 1]
         if a == b:
+            continue
+        if one_height and b - a < _MANY_POINTS:         # _team_points' (below)
             continue
         # The target's points: their farthest horizontal distance and lowest height.
         d2_max = 0.0
@@ -96,6 +103,66 @@ def _kernel(hs, cx, cy, radius, z_top, growth, targets, rows, start, points, hei
             if _point_blocked(hs, cx, cy, radius, z_top, growth, r, keep, n_keep, qx, qy, qz, points[i, 0],
                               points[i, 1], uz, tol):
                 out[i] = True
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _team_points(hs, cx, cy, radius, z_top, growth, targets, rows, start, points, uz, tol, out):  # pragma: no cover
+    """Sets ``out[i]`` for the points of every target with fewer than ``_MANY_POINTS`` points (all at height
+    ``uz``) whose segment to the target meets a polytope of the target's row.
+
+    A polytope's low part of the segments (``s0``, ``s1``) depends on the target and the height only, so it is
+    worked out once per target. Each point is then tested against every polytope's footprint circle in one
+    branch-free pass over the polytopes (contiguous: the compiler vectorises it), which costs less than
+    :func:`_near_polytopes`' pruning saves for a handful of points; the clips follow in polytope order. The
+    decisions are :func:`_point_blocked`'s: the same low part, footprint test and clip, over a superset of the
+    polytopes it keeps, and the broad phase only drops pairs the clip finds clear."""
+    n_m = z_top.shape[1]
+    s0s, s1s, rad2 = np.empty(n_m), np.empty(n_m), np.empty(n_m)
+    kept, near = np.empty(n_m, dtype=np.bool_), np.empty(n_m, dtype=np.bool_)
+    for j in range(len(targets)):
+        a, b = start[j], start[j + 1]
+        if a == b or b - a >= _MANY_POINTS:
+            continue
+        r = rows[j]
+        qx, qy, qz = targets[j, 0], targets[j, 1], targets[j, 2]
+        dz = qz - uz
+        inv_dz = 1.0 / (dz if dz != 0.0 else -1e-300)
+        n_r = n_m                                        # the row's columns up to its last polytope
+        while n_r > 0 and z_top[r, n_r - 1] == -np.inf:
+            n_r -= 1
+        for m in range(n_r):
+            # _low_part written out: its tuple return keeps this loop from compiling well (7x slower).
+            grow = growth[r, m] * -tol if tol < 0.0 else 0.0
+            rad = radius[r, m] + grow + 1e-9
+            sc = (z_top[r, m] + grow + 1e-9 - uz) * inv_dz
+            sc = min(max(sc, 0.0), 1.0)
+            s0 = sc if dz <= 0.0 else 0.0
+            s1 = 1.0 if dz <= 0.0 else sc
+            s0s[m], s1s[m], rad2[m] = s0, s1, rad * rad
+            kept[m] = z_top[r, m] != -np.inf and s1 > s0 - 1e-12
+        cxr, cyr = cx[r], cy[r]
+        for i in range(a, b):
+            ux, uy = points[i, 0], points[i, 1]
+            ex, ey = qx - ux, qy - uy
+            any_near = False
+            for m in range(n_r):
+                # _near_footprint's test, written out over contiguous arrays so that the loop vectorises.
+                s0, s1 = s0s[m], s1s[m]
+                acx = cxr[m] - (ux + s0 * ex)
+                acy = cyr[m] - (uy + s0 * ey)
+                abx, aby = (s1 - s0) * ex, (s1 - s0) * ey
+                ab2 = abx * abx + aby * aby
+                w = (acx * abx + acy * aby) / (ab2 if ab2 > 0 else 1.0)
+                w = min(max(w, 0.0), 1.0)
+                px, py = acx - w * abx, acy - w * aby
+                hit = kept[m] and not px * px + py * py > rad2[m]
+                near[m] = hit
+                any_near |= hit
+            if any_near:
+                for m in range(n_r):
+                    if near[m] and _clip_meets(hs, r, m, ux, uy, uz, qx, qy, qz, tol):
+                        out[i] = True
+                        break
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
