@@ -131,6 +131,9 @@ def test_the_recipes_are_valid_and_the_shield_recipes_keep_their_settings():
                        "shield_lookahead": False, "safety_filter": True, "filter_scores": True,
                        "learn_flown_nodes": True}
     assert suite["viability_shield"] and suite["viability_min_reach"] == 10
+    six = MAPPO_RECIPES["6uav-suite"]
+    assert {k: v for k, v in six.items() if suite.get(k) != v} == {
+        "n_uavs": 6, "num_envs": 128, "tasks": suite["tasks"].replace("3uav", "6uav")}
 
 
 def test_shielded_run_records_the_shield_and_evaluates_with_it(tmp_path, train_extra):

@@ -62,6 +62,8 @@ RECIPES: dict[str, dict] = {
 #: leaves 10). The team proposes, the filter's preferences are its logits, and a replacement inside the mask is learned
 #: as the action flown. 40 minutes of wall clock, one seed per core. The bound keeps a limit the team does not reach
 #: from drowning the reward (docs/decisions/learning.md, "Learned teams across the suite" and "Safety filter").
+#: ``6uav-suite``: ``3uav-suite`` for teams of six, on the eight 6-UAV tasks of the same families and deviations; 128
+#: copies (16 per task), so that an update holds as many agent-samples (128 x 16 x 6) as the 3-UAV recipe's.
 #: ``3uav-suite-shield``: the suite team before the filter (``pretrained:mappo-suite-shield``): 16
 #: copies, 64 slots per update, the separation shield with its look-ahead and its viability rule instead of the
 #: filter; 45 minutes (three seeds at once on 2 cores).
@@ -90,6 +92,11 @@ MAPPO_RECIPES["3uav-suite"] = {
     **MAPPO_RECIPES["3uav-suite-shield"], "num_envs": 256, "num_steps": 16, "time_budget_minutes": 40.0,
     "separation_shield": False, "shield_lookahead": False, "safety_filter": True, "filter_scores": True,
     "learn_flown_nodes": True,
+}
+MAPPO_RECIPES["6uav-suite"] = {
+    **MAPPO_RECIPES["3uav-suite"], "n_uavs": 6, "num_envs": 128,
+    "tasks": "sparse-6uav,paper-6uav,winding-6uav,dense-6uav,downtown-6uav,towers-6uav,paper-6uav-deviating,"
+             "downtown-6uav-deviating",
 }
 MAPPO_RECIPES["3uav-suite-path"] = {**MAPPO_RECIPES["3uav-suite-shield"], "target_path": 5}
 MAPPO_RECIPES["3uav-suite-manoeuvre"] = {**MAPPO_RECIPES["3uav-suite-shield"], "node_manoeuvre": True}
