@@ -29,14 +29,21 @@ _REPLAY = """
 import json, sys
 from covert_env.evaluation.evaluate import evaluate, load_policy
 from covert_env.evaluation.provenance import platform_record
-pol, settings = load_policy("pretrained:" + sys.argv[1], 3)
+pol, settings = load_policy("pretrained:" + sys.argv[1], int(sys.argv[3]))
 rows = evaluate(pol, settings, int(sys.argv[2]), progress=False)
 print(json.dumps({"platform": platform_record(), "rewards": {str(r["scene_seed"]): r["reward"] for r in rows}}))
 """
 
 
+def _team(name: str) -> int:
+    """The team size a shipped card acts for: its env's ``n_uavs`` (3 for the learned-cost planners, which plan for
+    any team)."""
+    card = json.loads((PRETRAINED / f"{name}.json").read_text())
+    return int(card.get("env_kwargs", {}).get("n_uavs", 3))
+
+
 def _replay(name: str, n: int) -> tuple[dict, dict]:
-    pol, settings = load_policy(f"pretrained:{name}", 3)
+    pol, settings = load_policy(f"pretrained:{name}", _team(name))
     rows = evaluate(pol, settings, n, progress=False)
     return pol.card, {str(r["scene_seed"]): r["reward"] for r in rows}
 
@@ -56,7 +63,7 @@ def test_every_card_records_its_platform_and_is_scored_on_this_env():
     from covert_env.envs.vector import CovertSensingVectorEnv
 
     for name in pretrained_names():
-        card = load_policy(f"pretrained:{name}", 3)[0].card
+        card = load_policy(f"pretrained:{name}", _team(name))[0].card
         # Scored on the env as it is now (export --rescore after every env version).
         assert card["env_id"] == CovertSensingVectorEnv.metadata["name"], name
         assert card["commit"] and card["training"]["env_steps"] > 0
@@ -83,7 +90,7 @@ def test_shipped_weights_reproduce_their_card(name):
 @pytest.mark.parametrize("name", ["mappo", "mappo-suite"])
 def test_a_card_replays_every_scene_within_its_interval(name):
     """All of a card's scenes, and the IQM of the replay inside the card's interval (the aggregate check)."""
-    pol, _ = load_policy(f"pretrained:{name}", 3)
+    pol, _ = load_policy(f"pretrained:{name}", _team(name))
     first, last = pol.card["scores"]["scenes"]
     card, rewards = _replay(name, last - first + 1)
     _assert_replays(card, rewards, platform_record())
@@ -103,11 +110,11 @@ def test_cards_replay_without_avx512(name):
     if not off:
         pytest.skip("this CPU has no AVX-512 dispatch in numpy: nothing to disable")
     env = {**os.environ, "NPY_DISABLE_CPU_FEATURES": " ".join(off)}
-    out = subprocess.run([sys.executable, "-c", _REPLAY, name, "2"], env=env, capture_output=True, text=True,
-                         check=True, cwd=Path(__file__).resolve().parents[1])
+    out = subprocess.run([sys.executable, "-c", _REPLAY, name, "2", str(_team(name))], env=env, capture_output=True,
+                         text=True, check=True, cwd=Path(__file__).resolve().parents[1])
     got = json.loads(out.stdout.strip().splitlines()[-1])
     assert not set(off) & set(got["platform"]["numpy_cpu_dispatch"])          # the child ran without AVX-512
-    card = load_policy(f"pretrained:{name}", 3)[0].card
+    card = load_policy(f"pretrained:{name}", _team(name))[0].card
     _assert_replays(card, got["rewards"], got["platform"])
 
 
