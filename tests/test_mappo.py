@@ -129,7 +129,7 @@ def test_the_recipes_are_valid_and_the_shield_recipes_keep_their_settings():
     changed = {k: v for k, v in suite.items() if shield.get(k) != v}
     assert changed == {"num_envs": 256, "num_steps": 16, "time_budget_minutes": 40.0, "separation_shield": False,
                        "shield_lookahead": False, "safety_filter": True, "filter_scores": True,
-                       "learn_flown_nodes": True}
+                       "learn_flown_nodes": True, "map_size": 24}
     assert suite["viability_shield"] and suite["viability_min_reach"] == 10
     six = MAPPO_RECIPES["6uav-suite"]
     assert {k: v for k, v in six.items() if suite.get(k) != v} == {

@@ -55,7 +55,7 @@ RECIPES: dict[str, dict] = {
 #: ``3uav-suite``: the team of the task suite, trained through the safety filter. It trains on the training scenes of
 #: the suite's eight 3-UAV core tasks at once (one vector env of 256 copies, 32 per task, covert_env.envs.task_mix; 16
 #: slots per update), with the kinematic mask (every reachable node: the team must learn the shadows), the node head
-#: reading the 16 x 16 visibility map under each node (docs/training.md says what it is worth), a Lagrange multiplier
+#: reading the 24 x 24 visibility map under each node (docs/training.md says what it is worth), a Lagrange multiplier
 #: per constraint (LoS at slot times, LoS along the path, the zone, separation) with a dual step of 1 and a bound of 4,
 #: and the safety filter (covert_env.envs.safety_filter: eqs. 2 and 3 kept on the flown path, every move certified) with
 #: its viability rule at a bar of 10 (no node from which fewer than 10 nodes are reachable next slot, where another
@@ -91,7 +91,7 @@ MAPPO_RECIPES: dict[str, dict] = {
 MAPPO_RECIPES["3uav-suite"] = {
     **MAPPO_RECIPES["3uav-suite-shield"], "num_envs": 256, "num_steps": 16, "time_budget_minutes": 40.0,
     "separation_shield": False, "shield_lookahead": False, "safety_filter": True, "filter_scores": True,
-    "learn_flown_nodes": True,
+    "learn_flown_nodes": True, "map_size": 24,
 }
 MAPPO_RECIPES["6uav-suite"] = {
     **MAPPO_RECIPES["3uav-suite"], "n_uavs": 6, "num_envs": 128,
