@@ -395,7 +395,7 @@ def _card_copy(tmp_path, name, edit, weights=None):
     ("mappo-suite", lambda c: c["env_kwargs"].update(max_cycles=0), None, r"env_kwargs: max_cycles"),
     ("mappo-suite", lambda c: c["actor"].update(hidden="128"), None, r"actor.hidden must be an integer"),
     ("mappo-suite", lambda c: c["env_kwargs"].update(map_size=8), None,
-     r"actor.obs_dim is 527, but env_kwargs .* give observations of 143 values"),
+     r"actor.obs_dim is 1167, but env_kwargs .* give observations of 143 values"),
     ("mappo-suite", lambda c: c["actor"].update(dropout=0.1), None, r"actor has unknown fields \['dropout'\]"),
     ("dp-cost", lambda c: c["planner"].update(horizon=7), None, r"planner has unknown fields \['horizon'\]"),
     ("dp-cost", lambda c: c["env_kwargs"].update(map_size=4), None, r"env_kwargs has unknown fields \['map_size'\]"),
