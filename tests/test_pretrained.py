@@ -338,7 +338,7 @@ def test_card_states_the_constraint_rates_and_the_suite_rows(tmp_path, capsys):
     assert card["constraints"]["zone_violation_rate"] == m["zone_violation_rate"][0]
     assert card["constraints"]["blocked_los_rate_along_path"] == m["occlusion_rate_path"][0]
     assert card["constraints"]["min_separation_m"] == card["scores"]["min_separation"]     # the smallest, no mean
-    assert card["constraints"]["measured_on"].startswith("held-out paper-family scenes 1000000..")
+    assert card["constraints"]["measured_on"].startswith("held-out paper-family scenes 1000000..1000000, 2 UAVs")
     assert card["suite"]["tasks"]["paper-2uav"]["score"] == pytest.approx(0.6)
     with pytest.raises(SystemExit):
         export_main([str(run), "--out-dir", str(tmp_path / "shipped"), "--suite", str(cells)])

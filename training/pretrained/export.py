@@ -102,20 +102,27 @@ def _scored_card(npz: Path, card: dict, episodes: int, progress: bool, suite: di
     card_path.write_text(json.dumps(card, indent=2))
     card["scores"] = _scores(npz, card["name"], episodes, progress)
     card["platform"] = platform_record()
-    card["constraints"] = _constraints(card["scores"])
+    card["constraints"] = _constraints(card["scores"], _team(card))
     if suite is not None:
         card["suite"] = {"env_id": card["env_id"], **suite}
     card_path.write_text(json.dumps(card, indent=2))
     return card_path
 
 
-def _constraints(scores: dict) -> dict:
+def _team(card: dict) -> int:
+    """The team a card is scored with: its env's ``n_uavs``, else the harness's default of 3 (the learned-cost
+    planners plan for any team)."""
+    return int(card.get("env_kwargs", {}).get("n_uavs", 3))
+
+
+def _constraints(scores: dict, n_uavs: int) -> dict:
     """Each constraint's rate (mean over the scored scenes) from the card's scores, named for a reader, with the
-    scenes they were measured on (the paper family's: a family that binds another constraint, such as towers for
-    eq. 3, is in the ``suite`` rows)."""
+    scenes and team they were measured on (the paper family's: a family that binds another constraint, such as
+    towers for eq. 3, is in the ``suite`` rows)."""
     m = {k: v[0] for k, v in scores["metrics_mean_std"].items()}
     first, last = scores["scenes"]
-    return {"measured_on": f"held-out paper-family scenes {first}..{last}, 3 UAVs (per suite task: the card's suite)",
+    return {"measured_on": f"held-out paper-family scenes {first}..{last}, {n_uavs} UAVs (per suite task: the "
+                           "card's suite)",
             "zone_violation_rate": m["zone_violation_rate"], "blocked_los_rate_slot_times": m["occlusion_rate"],
             "blocked_los_rate_along_path": m["occlusion_rate_path"], "blocked_path_share": m["blocked_path_share"],
             "separation_violation_slots_per_uav": m["separation_violations"],
@@ -160,7 +167,7 @@ def rescore(name: str, episodes: int | None = None, out_dir: Path = PRETRAINED_D
                          "wrote)") from None
     card["scores"] = _scores(npz, name, episodes or last - first + 1, progress)
     card["platform"] = platform_record()
-    card["constraints"] = _constraints(card["scores"])
+    card["constraints"] = _constraints(card["scores"], _team(card))
     if isinstance(card.get("suite"), dict):
         card["suite"] = {"env_id": card["suite"].get("env_id", card.get("env_id")), **card["suite"]}
     card.update(env_id=CovertSensingVectorEnv.metadata["name"], covert_env_version=covert_env.__version__,
