@@ -799,6 +799,10 @@ def test_team_points_on_padded_rows_equal_the_all_pairs_clip(seed, tol, altitude
     sizes = rng.integers(0, 16, 30)                                 # 0 to 15 points: below _MANY_POINTS
     rows = rng.integers(0, 3, 30)
     q = np.stack([random_target(rng) for _ in sizes])
+    # A padded column is a zero circle at the origin with faces that always hold: a target there (the first two,
+    # on the padded rows) is where a padded column would block if it were tested. Target 2 is at the UAVs' height.
+    q[:2, :2], rows[:2], sizes[:3] = 0.0, [0, 1], 5
+    q[2, 2] = altitude
     pts = np.concatenate([disk_points(rng, q[j], int(n), radius=130.0) for j, n in enumerate(sizes)])
     got = table.blocked(q, rows, np.concatenate([[0], np.cumsum(sizes)]), pts, altitude, tol)
     owner = np.repeat(np.arange(30), sizes)
