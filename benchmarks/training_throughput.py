@@ -1,8 +1,8 @@
-"""What the MAPPO training loop makes of the engine: env-steps per CPU-second of the loop against the raw vector env
-at the same B, tasks and mask mode, in the same run, with where the loop's time goes.
+"""What the MAPPO training loop makes of the engine: env-steps per CPU-second and per wall-second of the loop against
+the raw vector env at the same B, tasks and mask mode, in the same run, with where the loop's time goes.
 
     python benchmarks/training_throughput.py [--sizes 16 64 256] [--updates 2] [--num-steps 16]
-        [--guards filter none shield] [--recipe 3uav-suite]
+        [--guards filter none shield] [--recipe 3uav-suite] [--overlap]
 
 For each B: the raw env (the recipe's tasks as one vector env, ``covert_env.envs.task_mix``, kinematic mask,
 masked-random nodes, automatic resets), then the recipe's loop (``training.mappo``: rollout of ``--num-steps``
@@ -15,9 +15,13 @@ slots, GAE, the PPO update) for
   look-ahead and viability rule);
 * ``none``: no guard (what the loop costs without one).
 
-It prints the command, one row per (B, guard): env-steps per CPU-second, the ratio to the raw env of the same B,
-and the share of the loop's CPU time in the env's step, the guard, the node features, the actor and critic in the
-rollout, and the PPO update. ``torch`` runs on one thread, as the recipes do.
+With ``--overlap``, each guard also gets a row for the loop with ``--overlap-update`` (the next rollout collected
+while the PPO update runs, two threads: what a run makes of two cores); its time is not split by part.
+
+It prints the command, one row per (B, guard): env-steps per CPU-second and per wall-second, the ratio of the
+latter to the raw env's of the same B (one thread), and the share of the loop's CPU time in the env's step, the
+guard, the node features, the actor and critic in the rollout, and the PPO update. ``torch`` runs on one thread
+per thread of the loop, as the recipes do.
 """
 
 from __future__ import annotations
@@ -90,8 +94,8 @@ def env_kwargs(args) -> dict:
     return kw
 
 
-def raw_rate(tasks: list[str], b: int, seconds: float, kwargs: dict) -> float:
-    """Env-steps per CPU-second of the raw mix, masked-random nodes."""
+def raw_rate(tasks: list[str], b: int, seconds: float, kwargs: dict) -> tuple[float, float]:
+    """Env-steps per CPU-second and per wall-second of the raw mix, masked-random nodes."""
     from training.task_mix import make_training_env
 
     env = make_training_env(tasks, b, **kwargs)
@@ -104,18 +108,22 @@ def raw_rate(tasks: list[str], b: int, seconds: float, kwargs: dict) -> float:
 
     for _ in range(3):
         step()
-    t0, n = time.process_time(), 0
+    t0, w0, n = time.process_time(), time.perf_counter(), 0
     while time.process_time() - t0 < seconds or n < 10:
         step()
         n += 1
-    rate = b * n / (time.process_time() - t0)
+    rate, wall = b * n / (time.process_time() - t0), b * n / (time.perf_counter() - w0)
     env.close()
-    return rate
+    return rate, wall
 
 
-def loop_rate(recipe: str, b: int, guard: str, updates: int, num_steps: int) -> tuple[float, dict]:
-    """Env-steps per CPU-second of ``updates`` training updates of ``recipe`` at B = ``b`` with ``guard``, and the
-    CPU seconds by part."""
+def loop_rate(recipe: str, b: int, guard: str, updates: int, num_steps: int,
+              overlap: bool = False) -> tuple[float, float, dict]:
+    """Env-steps per CPU-second and per wall-second of ``updates`` training updates of ``recipe`` at B = ``b`` with
+    ``guard`` (with ``overlap``, each update beside the next rollout, as ``--overlap-update`` runs them), and the
+    CPU seconds by part (sequential only)."""
+    from concurrent.futures import ThreadPoolExecutor
+
     import torch
 
     from covert_env.envs.safety_filter import SafetyFilteredVectorEnv
@@ -154,23 +162,45 @@ def loop_rate(recipe: str, b: int, guard: str, updates: int, num_steps: int) -> 
     lam = dict.fromkeys(s.constrained, 0.0)
     obs, _ = env.reset(seed=0)
     state = env.state()
+    behaviour = mappo.behaviour_copy(agents) if overlap else agents
+    rollouts = (buf, mappo.Rollout(s)) if overlap else (buf, buf)
+    pool = ThreadPoolExecutor(1) if overlap else None
 
-    def update():
+    def collect(into):
         nonlocal obs, state
         with timer.part("other"):
-            obs, state = mappo.collect_rollout(agents, buf, episodes, obs, state, lam=lam)
-            adv, ret = mappo.advantages(buf, agents.value(obs, state), args.gamma, args.gae_lambda)
-        with timer.part("PPO update"):
-            mappo.ppo_update(agents, optim, buf, adv, ret)
+            obs, state = mappo.collect_rollout(behaviour, into, episodes, obs, state, lam=lam)
+            return behaviour.value(obs, state)
+
+    def learn(rollout, next_value):
+        adv, ret = mappo.advantages(rollout, next_value, args.gamma, args.gae_lambda)
+        mappo.ppo_update(agents, optim, rollout, adv, ret, rng=np.random.default_rng(0))
+
+    next_value, i = collect(rollouts[0]), 0
+
+    def update():
+        nonlocal next_value, i
+        if overlap:                          # training.mappo.train's --overlap-update loop
+            done = pool.submit(learn, rollouts[i], next_value)
+            next_value = collect(rollouts[1 - i])
+            done.result()
+            mappo.copy_weights(agents, behaviour)
+            i = 1 - i
+        else:
+            with timer.part("PPO update"):
+                learn(buf, next_value)
+            next_value = collect(buf)
 
     update()                                                   # untimed: first scenes, allocations
     timer.t = dict.fromkeys(PARTS, 0.0)
-    t0 = time.process_time()
+    t0, w0 = time.process_time(), time.perf_counter()
     for _ in range(updates):
         update()
-    cpu = time.process_time() - t0
+    cpu, wall = time.process_time() - t0, time.perf_counter() - w0
     env.close()
-    return b * num_steps * updates / cpu, timer.t
+    if pool is not None:
+        pool.shutdown()
+    return b * num_steps * updates / cpu, b * num_steps * updates / wall, timer.t
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -181,6 +211,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--updates", type=int, default=2, help="timed PPO updates per row (default 2)")
     parser.add_argument("--num-steps", type=int, default=16, help="rollout slots per update (default 16)")
     parser.add_argument("--seconds", type=float, default=4.0, help="CPU-seconds of the raw env per B (default 4)")
+    parser.add_argument("--overlap", action="store_true",
+                        help="also time each guard's loop with --overlap-update (two threads)")
     args = parser.parse_args(argv)
     from training import mappo
     from training.common import parse_args
@@ -200,16 +232,19 @@ def main(argv: list[str] | None = None) -> int:
 
     print(f"covert_env {covert_env.__version__}, recipe {args.recipe}: {len(tasks)} tasks, mask "
           f"{rec.get('mask_mode', 'visible')}, load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs")
-    print("| B | loop | env-steps per CPU-second | / raw env | " + " | ".join(PARTS) + " |")
-    print("|---|---|---|---|" + "---|" * len(PARTS))
+    print("| B | loop | env-steps per CPU-second | per wall-second | / raw env (wall) | " + " | ".join(PARTS) + " |")
+    print("|---|---|---|---|---|" + "---|" * len(PARTS))
     for b in args.sizes:
-        raw = raw_rate(tasks, b, args.seconds, env_kwargs(recipe_args))
-        print(f"| {b} | raw env | {raw:,.0f} | 1.00 |" + " |" * len(PARTS), flush=True)
+        raw, raw_wall = raw_rate(tasks, b, args.seconds, env_kwargs(recipe_args))
+        print(f"| {b} | raw env | {raw:,.0f} | {raw_wall:,.0f} | 1.00 |" + " |" * len(PARTS), flush=True)
         for guard in args.guards:
-            rate, parts = loop_rate(args.recipe, b, guard, args.updates, args.num_steps)
-            total = sum(parts.values())
-            print(f"| {b} | {guard} | {rate:,.0f} | {rate / raw:.3f} | "
-                  + " | ".join(f"{100 * parts[p] / total:.0f} %" for p in PARTS) + " |", flush=True)
+            for overlap in (False, True) if args.overlap else (False,):
+                rate, wall, parts = loop_rate(args.recipe, b, guard, args.updates, args.num_steps, overlap)
+                total = sum(parts.values())
+                shares = (" |" * len(PARTS) if overlap else
+                          " " + " | ".join(f"{100 * parts[p] / total:.0f} %" for p in PARTS) + " |")
+                name = f"{guard}, overlapped" if overlap else guard
+                print(f"| {b} | {name} | {rate:,.0f} | {wall:,.0f} | {wall / raw_wall:.3f} |" + shares, flush=True)
     print(f"load average at the end: {os.getloadavg()[0]:.1f}")
     return 0
 

@@ -301,8 +301,8 @@ def test_filter_scores_orders_the_filters_alternatives_by_the_policy(tmp_path, t
 
 
 def test_training_throughput_benchmark_measures_every_guard(train_extra, capsys):
-    """benchmarks/training_throughput.py: a row per B for the raw env and per guard, with the loop's time by part
-    adding up to 100 %."""
+    """benchmarks/training_throughput.py: a row per B for the raw env and per guard (and with --overlap, the guard's
+    loop with --overlap-update), with the sequential loop's time by part adding up to 100 %."""
     import importlib.util
 
     path = Path(__file__).resolve().parents[1] / "benchmarks" / "training_throughput.py"
@@ -313,13 +313,17 @@ def test_training_throughput_benchmark_measures_every_guard(train_extra, capsys)
         mod.main(["--sizes", "12"])
     assert "--sizes must be positive multiples of the recipe's 8 tasks" in capsys.readouterr().err
     assert mod.main(["--sizes", "8", "--updates", "1", "--num-steps", "2", "--seconds", "0.05",
-                     "--guards", "shield", "filter", "none"]) == 0
+                     "--guards", "shield", "filter", "none", "--overlap"]) == 0
     rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| 8 |")]
-    assert [r.split(" | ")[1] for r in rows] == ["raw env", "shield", "filter", "none"]
-    for r in rows[1:]:
-        shares = [float(x.strip(" %|")) for x in r.split(" | ")[4:]]
+    assert [r.split(" | ")[1] for r in rows] == ["raw env", "shield", "shield, overlapped", "filter",
+                                                 "filter, overlapped", "none", "none, overlapped"]
+    for r in rows:
+        rates = [float(x.replace(",", "")) for x in r.split(" | ")[2:5]]
+        assert all(x > 0 for x in rates), r
+    for r in rows[1::2]:
+        shares = [float(x.strip(" %|")) for x in r.split(" | ")[5:]]
         assert len(shares) == 6 and abs(sum(shares) - 100) <= 3, r
-    assert rows[3].split(" | ")[5].strip() == "0 %"                                  # no guard, no guard time
+    assert rows[5].split(" | ")[6].strip() == "0 %"                                  # no guard, no guard time
 
 
 @pytest.mark.slow
@@ -733,3 +737,44 @@ def test_init_actor_widening_puts_the_path_before_the_agent_id(tmp_path, train_e
     path = rng.normal(size=(3, 8)).astype(np.float32)
     np.testing.assert_allclose(new.actor.logits(np.concatenate([obs, path, onehot], 1), feats),
                                old.actor.logits(np.concatenate([obs, onehot], 1), feats), rtol=1e-5, atol=1e-5)
+
+
+def test_overlap_update_acts_one_update_behind_and_is_deterministic(tmp_path, train_extra, monkeypatch):
+    """--overlap-update: rollout r acts with the learner's weights from before update r - 1 (the update runs while
+    the rollout collects), each update learns from the rollout before it, every rollout is learned from, and the
+    thread timing cannot change a run: two runs with one seed end with the same weights."""
+    import training.mappo.train as train_mod
+
+    acted, collected, learned = [], [], []
+
+    def weights(agents):
+        return np.concatenate([v.numpy().ravel() for v in agents.actor.state_dict().values()])
+
+    def collect(agents, buf, *a, **k):
+        acted.append(weights(agents))
+        out = mappo.collect_rollout(agents, buf, *a, **k)
+        collected.append(buf.obs.copy())
+        return out
+
+    def update(agents, optim, buf, *a, **k):
+        learned.append((weights(agents), buf.obs.copy()))
+        return mappo.ppo_update(agents, optim, buf, *a, **k)
+
+    monkeypatch.setattr(train_mod, "collect_rollout", collect)
+    monkeypatch.setattr(train_mod, "ppo_update", update)
+    flags = [*TINY, "--overlap-update", "true", "--total-timesteps", "64", "--runs-dir", str(tmp_path)]
+    run = mappo.main([*flags, "--run-name", "a"])
+    summary = json.loads((run / "train_summary.json").read_text())
+    assert summary["env_steps"] == 64 and summary["updates"] == 4          # 4 rollouts of 2 copies x 8 steps
+    assert len(acted) == 4 and len(learned) == 4
+    assert np.array_equal(acted[0], acted[1])                            # rollouts 0 and 1 act before any update
+    for r in (2, 3):                                 # rollout r acts with the weights update r - 1 began with
+        assert np.array_equal(acted[r], learned[r - 1][0]) and not np.array_equal(acted[r], learned[r][0])
+    # The rollouts alternate between two buffers; update u learns from what rollout u collected.
+    assert all(np.array_equal(learned[u][1], collected[u]) for u in range(4))
+    assert not np.array_equal(collected[1], collected[2])
+    first = np.load(run / "model.npz")
+    again = np.load(mappo.main([*flags, "--run-name", "b"]) / "model.npz")
+    assert all(np.array_equal(first[k], again[k]) for k in first.files)
+    card = json.loads((run / "model.json").read_text())
+    assert card["global_step"] == 64 and card["updates"] == 4

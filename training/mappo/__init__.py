@@ -69,7 +69,8 @@ from training.recipes import MAPPO_RECIPES
 
 #: The loop's pieces and their modules: they need torch, so they are imported when first asked for.
 _LAZY = {
-    "Agents": "agents", "RunningNorm": "agents", "Sizes": "agents", "gumbel_pick": "agents",
+    "Agents": "agents", "RunningNorm": "agents", "Sizes": "agents", "behaviour_copy": "agents",
+    "copy_weights": "agents", "gumbel_pick": "agents",
     "load_initial_actor": "agents", "make_networks": "agents", "sizes_of": "agents",
     "COST_KEYS": "rollout", "Episodes": "rollout", "Rollout": "rollout", "collect_rollout": "rollout",
     "advantages": "ppo", "ppo_update": "ppo",

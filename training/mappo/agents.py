@@ -3,6 +3,7 @@ from trained weights, and :class:`Agents`, which turns numpy observations into s
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 
 import numpy as np
@@ -12,7 +13,8 @@ from training.mappo.args import Args, actor_fields, constraint_limits
 from training.mappo.networks import Actor, Critic, masked_categorical
 from training.pretrained import N_MAP_FEATURES, PRETRAINED_DIR, load_learned, n_node_features, node_features
 
-__all__ = ["Agents", "RunningNorm", "Sizes", "gumbel_pick", "load_initial_actor", "make_networks", "sizes_of"]
+__all__ = ["Agents", "RunningNorm", "Sizes", "behaviour_copy", "copy_weights", "gumbel_pick", "load_initial_actor",
+           "make_networks", "sizes_of"]
 
 
 class RunningNorm:
@@ -200,3 +202,17 @@ class Agents:
             self.log_probs = d.logits if s.waypoint else None
             logp = d.log_prob(a) if s.waypoint else d.log_prob(a).sum(-1)
         return a, logp, masks, feats
+
+
+def behaviour_copy(agents: Agents) -> Agents:
+    """The team of ``agents`` with its own copies of the actor, the critic and the value statistics (the env and the
+    shield shared): the team that acts while the learner's weights change (``--overlap-update``)."""
+    return Agents(agents.args, agents.sizes, agents.env, copy.deepcopy(agents.actor), copy.deepcopy(agents.critic),
+                  copy.deepcopy(agents.vnorm), agents.shield)
+
+
+def copy_weights(source: Agents, into: Agents) -> None:
+    """``into`` acts as ``source`` from now on: the actor's and the critic's weights and the value statistics."""
+    into.actor.load_state_dict(source.actor.state_dict())
+    into.critic.load_state_dict(source.critic.state_dict())
+    into.vnorm.mean, into.vnorm.var, into.vnorm.count = source.vnorm.mean, source.vnorm.var, source.vnorm.count

@@ -63,6 +63,11 @@ class Args(TrainingArgs):
     """discount factor (a ~33-slot horizon inside the 70-slot route)"""
     gae_lambda: float = 0.95
     """GAE lambda"""
+    overlap_update: bool = False
+    """collect the next rollout while the PPO update learns from the last one, in a second thread, so that the loop's
+    two halves run at once on two cores. The rollout then acts with the weights from before that update, one
+    update behind (PPO's ratio is taken against the weights that acted, as in asynchronous PPO); the Lagrange
+    multipliers, likewise. Off: rollout and update take turns on one core"""
     num_minibatches: int = 4
     """minibatches per epoch (over num_steps * num_envs * n_uavs agent-samples)"""
     update_epochs: int = 4

@@ -26,9 +26,10 @@ def advantages(buf: Rollout, next_value: np.ndarray, gamma: float, gae_lambda: f
     return adv, adv + buf.value
 
 
-def ppo_update(agents: Agents, optim, buf: Rollout, adv: np.ndarray, returns: np.ndarray, train_actor: bool = True):
+def ppo_update(agents: Agents, optim, buf: Rollout, adv: np.ndarray, returns: np.ndarray, train_actor: bool = True,
+               rng: np.random.Generator | None = None):
     """``update_epochs`` epochs of clipped PPO over minibatches of agent-samples (the critic's loss alone without
-    ``train_actor``).
+    ``train_actor``). The minibatches are drawn with ``rng`` (numpy's global generator if None).
 
     Returns the last minibatch's losses (``policy_loss``, ``value_loss``, ``entropy``, ``approx_kl``) and every
     minibatch's clip fraction.
@@ -46,7 +47,7 @@ def ppo_update(agents: Agents, optim, buf: Rollout, adv: np.ndarray, returns: np
     mb = max(N // args.num_minibatches, 1)
     clipfracs, losses = [], {}
     for _ in range(args.update_epochs):
-        perm = np.random.permutation(N)
+        perm = (np.random if rng is None else rng).permutation(N)
         for start in range(0, N, mb):
             idx = perm[start:start + mb]
             if s.waypoint:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import os
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -14,7 +15,15 @@ import torch
 from covert_env.envs.safety_filter import SafetyFilteredVectorEnv
 from training.budget import expected_steps
 from training.common import resumed_args, run_name, save_run, setup_torch
-from training.mappo.agents import Agents, RunningNorm, load_initial_actor, make_networks, sizes_of
+from training.mappo.agents import (
+    Agents,
+    RunningNorm,
+    behaviour_copy,
+    copy_weights,
+    load_initial_actor,
+    make_networks,
+    sizes_of,
+)
 from training.mappo.args import Args, check_args, task_list
 from training.mappo.checkpoints import Progress, model_card, resume, save_checkpoint, save_final
 from training.mappo.ppo import advantages, ppo_update
@@ -104,45 +113,83 @@ def train(args: Args) -> Path:
     state = env.state()
     bar = tqdm(total=args.total_timesteps, initial=prog.global_step, unit="step", disable=not args.progress_bar,
                mininterval=0.5 if os.isatty(2) else 30.0, smoothing=0.05)
-    t_start, stopped = time.monotonic() - prog.wall_seconds, False
+    t_start = time.monotonic() - prog.wall_seconds
     t_run, step_run = time.monotonic(), prog.global_step     # this process's rate projects the time budget's end
     last_ckpt = prog.global_step
-    while prog.global_step < args.total_timesteps:
-        if args.anneal_lr:
-            optim.param_groups[0]["lr"] = args.learning_rate * max(1.0 - prog.global_step / args.total_timesteps, 0.0)
-        obs, state = collect_rollout(agents, buf, episodes, obs, state, lam=prog.lam)
+    # The team that acts: the learner itself, or with --overlap-update a copy one update behind it.
+    behaviour = behaviour_copy(agents) if args.overlap_update else agents
+    update_rng = np.random.default_rng(args.seed + 7919 * prog.updates) if args.overlap_update else None
+
+    def collect(into: Rollout) -> np.ndarray:
+        """A rollout into ``into`` with the behaviour team; returns the values to bootstrap it from."""
+        nonlocal obs, state
+        obs, state = collect_rollout(behaviour, into, episodes, obs, state, lam=dict(prog.lam))
         prog.global_step += s.B * s.T
         now = time.monotonic()
         bar.total = expected_steps(args.total_timesteps, prog.global_step, now - t_start, args.time_budget_minutes,
                                    (prog.global_step - step_run) / max(now - t_run, 1e-9))
         bar.update(s.B * s.T)
+        return behaviour.value(obs, state)
 
-        adv, returns = advantages(buf, agents.value(obs, state), args.gamma, args.gae_lambda)
+    def learn(rollout: Rollout, next_value: np.ndarray):
+        """GAE and the PPO update of the learner from ``rollout``."""
+        adv, returns = advantages(rollout, next_value, args.gamma, args.gae_lambda)
         if args.value_norm:
             vnorm.update(returns)
-        losses, clipfracs = ppo_update(agents, optim, buf, adv, returns,
-                                       train_actor=prog.updates >= args.actor_warmup_updates)
+        losses, clipfracs = ppo_update(agents, optim, rollout, adv, returns,
+                                       train_actor=prog.updates >= args.actor_warmup_updates, rng=update_rng)
         if not all(np.isfinite(v) for v in losses.values()):
             raise FloatingPointError(f"non-finite losses at update {prog.updates}: {losses}")
+        return losses, clipfracs
+
+    def finish(rollout: Rollout, losses: dict, clipfracs: list) -> bool:
+        """The dual ascent on ``rollout``'s costs, the logs and the checkpoint of an update; True once the run's
+        time budget or total_timesteps is spent."""
+        nonlocal last_ckpt
         for j, (name, limit) in enumerate(s.constrained.items()):       # dual ascent, one multiplier each
-            prog.lam[name] = max(0.0, prog.lam[name] + args.lagrange_lr * (float(buf.costs[:, j].mean()) - limit))
+            prog.lam[name] = max(0.0, prog.lam[name] + args.lagrange_lr * (float(rollout.costs[:, j].mean()) - limit))
             if args.lambda_max:
                 prog.lam[name] = min(prog.lam[name], args.lambda_max)
         prog.updates += 1
-
         prog.wall_seconds = time.monotonic() - t_start
         log_update(writer, curve, bar, prog, losses=losses, clipfracs=clipfracs, shield=shield, episodes=episodes,
                    agents_env=env)
-        if args.time_budget_minutes > 0 and prog.wall_seconds > 60 * args.time_budget_minutes:
-            print(f"time budget of {args.time_budget_minutes:g} min reached at {prog.global_step} env steps: "
-                  "stopping", flush=True)
-            stopped = True
         if args.checkpoint_every and prog.global_step - last_ckpt >= args.checkpoint_every:
             save_checkpoint(run_dir / "checkpoints" / f"step_{prog.global_step}.npz", actor, critic, optim,
                             prog.meta(vnorm, card))
             last_ckpt = prog.global_step
-        if stopped:
-            break
+        return over_budget()
+
+    def over_budget() -> bool:
+        nonlocal stopped
+        stopped = args.time_budget_minutes > 0 and time.monotonic() - t_start > 60 * args.time_budget_minutes
+        return stopped or prog.global_step >= args.total_timesteps
+
+    stopped = False
+    if not args.overlap_update:
+        while not over_budget():
+            next_value = collect(buf)
+            finish(buf, *learn(buf, next_value))
+    elif not over_budget():
+        # Two rollouts take turns: the update learns from one while the behaviour team fills the other (the numpy
+        # and compiled parts of both release the GIL). Each rollout's ratios and GAE are against the behaviour
+        # team that acted; it takes the learner's weights when both halves are done.
+        rollouts, i = (buf, Rollout(s)), 0
+        next_value = collect(rollouts[0])
+        with ThreadPoolExecutor(1, thread_name_prefix="ppo-update") as pool:
+            while True:
+                last = over_budget()
+                update = pool.submit(learn, rollouts[i], next_value)
+                if not last:
+                    next_value = collect(rollouts[1 - i])
+                finish(rollouts[i], *update.result())
+                if last:
+                    break
+                copy_weights(agents, behaviour)
+                i = 1 - i
+    if stopped:
+        print(f"time budget of {args.time_budget_minutes:g} min reached at {prog.global_step} env steps: stopping",
+              flush=True)
     if stopped:
         bar.total = bar.n                       # the time budget ended the run here
     bar.close()
