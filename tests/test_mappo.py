@@ -778,3 +778,19 @@ def test_overlap_update_acts_one_update_behind_and_is_deterministic(tmp_path, tr
     assert all(np.array_equal(first[k], again[k]) for k in first.files)
     card = json.loads((run / "model.json").read_text())
     assert card["global_step"] == 64 and card["updates"] == 4
+
+
+@pytest.mark.parametrize("overlap", ["false", "true"])
+def test_anneal_lr_decays_the_rate_by_the_steps_before_each_update(tmp_path, train_extra, monkeypatch, overlap):
+    import training.mappo.train as train_mod
+
+    rates = []
+
+    def update(agents, optim, *a, **k):
+        rates.append(optim.param_groups[0]["lr"])
+        return mappo.ppo_update(agents, optim, *a, **k)
+
+    monkeypatch.setattr(train_mod, "ppo_update", update)
+    mappo.main([*TINY, "--anneal-lr", "true", "--learning-rate", "0.001", "--total-timesteps", "48",
+                "--overlap-update", overlap, "--runs-dir", str(tmp_path), "--run-name", "anneal"])
+    np.testing.assert_allclose(rates, [1e-3, 1e-3 * 32 / 48, 1e-3 * 16 / 48])      # 3 updates of 16 env-steps

@@ -131,6 +131,12 @@ def train(args: Args) -> Path:
         bar.update(s.B * s.T)
         return behaviour.value(obs, state)
 
+    def anneal() -> None:
+        """--anneal-lr: the learning rate of the next update, by the env-steps before the rollout it learns from."""
+        if args.anneal_lr:
+            before = prog.global_step - s.B * s.T
+            optim.param_groups[0]["lr"] = args.learning_rate * max(1.0 - before / args.total_timesteps, 0.0)
+
     def learn(rollout: Rollout, next_value: np.ndarray):
         """GAE and the PPO update of the learner from ``rollout``."""
         adv, returns = advantages(rollout, next_value, args.gamma, args.gae_lambda)
@@ -169,6 +175,7 @@ def train(args: Args) -> Path:
     if not args.overlap_update:
         while not over_budget():
             next_value = collect(buf)
+            anneal()
             finish(buf, *learn(buf, next_value))
     elif not over_budget():
         # Two rollouts take turns: the update learns from one while the behaviour team fills the other (the numpy
@@ -179,6 +186,7 @@ def train(args: Args) -> Path:
         with ThreadPoolExecutor(1, thread_name_prefix="ppo-update") as pool:
             while True:
                 last = over_budget()
+                anneal()
                 update = pool.submit(learn, rollouts[i], next_value)
                 if not last:
                     next_value = collect(rollouts[1 - i])
