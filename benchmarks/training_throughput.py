@@ -191,15 +191,17 @@ def loop_rate(recipe: str, b: int, guard: str, updates: int, num_steps: int,
                 learn(buf, next_value)
             next_value = collect(buf)
 
-    update()                                                   # untimed: first scenes, allocations
-    timer.t = dict.fromkeys(PARTS, 0.0)
-    t0, w0 = time.process_time(), time.perf_counter()
-    for _ in range(updates):
-        update()
-    cpu, wall = time.process_time() - t0, time.perf_counter() - w0
-    env.close()
-    if pool is not None:
-        pool.shutdown()
+    try:
+        update()                                               # untimed: first scenes, allocations
+        timer.t = dict.fromkeys(PARTS, 0.0)
+        t0, w0 = time.process_time(), time.perf_counter()
+        for _ in range(updates):
+            update()
+        cpu, wall = time.process_time() - t0, time.perf_counter() - w0
+    finally:
+        env.close()
+        if pool is not None:
+            pool.shutdown()
     return b * num_steps * updates / cpu, b * num_steps * updates / wall, timer.t
 
 

@@ -778,6 +778,9 @@ def test_overlap_update_acts_one_update_behind_and_is_deterministic(tmp_path, tr
     assert all(np.array_equal(first[k], again[k]) for k in first.files)
     card = json.loads((run / "model.json").read_text())
     assert card["global_step"] == 64 and card["updates"] == 4
+    # A checkpoint and a curve row name the env-steps learned from, not those collected ahead (16 per update).
+    for step in (16, 32, 48, 64):
+        assert json.loads((run / "checkpoints" / f"step_{step}.json").read_text())["updates"] == step // 16
 
 
 @pytest.mark.parametrize("overlap", ["false", "true"])

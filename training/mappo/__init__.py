@@ -51,6 +51,11 @@ model card, ``.npz`` + JSON checkpoints: nothing is pickled); ``train``, which r
   named env cost c (``covert_env.envs.batch.COSTS``), lambda_c >= 0 raised by dual ascent while the rollout's mean
   cost per UAV and slot exceeds its limit; ``--lagrangian`` adds ``separation=--cost-limit`` (eq. 2);
   ``--lambda-max`` bounds every multiplier.
+* **Two cores for one run** (``--overlap-update``, off by default): the PPO update of a rollout runs in a second
+  thread while the next rollout is collected, by a copy of the networks one update behind (PPO's ratios and GAE
+  against the weights that acted, as in asynchronous PPO). The update draws its minibatches from its own
+  generator, so a seed's run does not depend on the threads' timing. Checkpoints and logs count the env-steps
+  learned from. With it, the logged ``approx_kl`` and clip fraction include the lag.
 * **Warm start** (``--init-actor pretrained:NAME``): the actor starts from trained weights (with ``--node-map``
   added, its map inputs start at zero), and ``--actor-warmup-updates`` lets the fresh critic learn first.
 

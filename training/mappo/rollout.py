@@ -50,6 +50,11 @@ class Episodes:
                                 **{k: float(self.cost[i, b].mean()) for i, k in enumerate(COST_KEYS)}})
         self.ret[done], self.kappa[done], self.cost[:, done] = 0.0, 0.0, 0.0
 
+    def take_recent(self) -> list[dict]:
+        """The episodes finished since the last call (or :meth:`take_means`), removed from ``recent``."""
+        out, self.recent = self.recent, []
+        return out
+
     def take_means(self) -> dict:
         """The means over the episodes finished since the last call (at least one)."""
         means = {k: float(np.mean([e[k] for e in self.recent])) for k in self.recent[0]}

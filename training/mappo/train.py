@@ -116,26 +116,30 @@ def train(args: Args) -> Path:
     t_start = time.monotonic() - prog.wall_seconds
     t_run, step_run = time.monotonic(), prog.global_step     # this process's rate projects the time budget's end
     last_ckpt = prog.global_step
+    # prog.global_step counts the env-steps learned from; ``collected`` those stepped, one rollout more while an
+    # overlapped update runs.
+    collected = prog.global_step
     # The team that acts: the learner itself, or with --overlap-update a copy one update behind it.
     behaviour = behaviour_copy(agents) if args.overlap_update else agents
     update_rng = np.random.default_rng(args.seed + 7919 * prog.updates) if args.overlap_update else None
 
-    def collect(into: Rollout) -> np.ndarray:
-        """A rollout into ``into`` with the behaviour team; returns the values to bootstrap it from."""
-        nonlocal obs, state
+    def collect(into: Rollout) -> tuple[np.ndarray, list]:
+        """A rollout into ``into`` with the behaviour team; returns the values to bootstrap it from and the episodes
+        it finished."""
+        nonlocal obs, state, collected
         obs, state = collect_rollout(behaviour, into, episodes, obs, state, lam=dict(prog.lam))
-        prog.global_step += s.B * s.T
+        collected += s.B * s.T
         now = time.monotonic()
-        bar.total = expected_steps(args.total_timesteps, prog.global_step, now - t_start, args.time_budget_minutes,
-                                   (prog.global_step - step_run) / max(now - t_run, 1e-9))
+        bar.total = expected_steps(args.total_timesteps, collected, now - t_start, args.time_budget_minutes,
+                                   (collected - step_run) / max(now - t_run, 1e-9))
         bar.update(s.B * s.T)
-        return behaviour.value(obs, state)
+        return behaviour.value(obs, state), episodes.take_recent()
 
     def anneal() -> None:
-        """--anneal-lr: the learning rate of the next update, by the env-steps before the rollout it learns from."""
+        """--anneal-lr: the learning rate of the next update, by the env-steps learned from before it."""
         if args.anneal_lr:
-            before = prog.global_step - s.B * s.T
-            optim.param_groups[0]["lr"] = args.learning_rate * max(1.0 - before / args.total_timesteps, 0.0)
+            optim.param_groups[0]["lr"] = args.learning_rate * max(1.0 - prog.global_step / args.total_timesteps,
+                                                                   0.0)
 
     def learn(rollout: Rollout, next_value: np.ndarray):
         """GAE and the PPO update of the learner from ``rollout``."""
@@ -148,56 +152,57 @@ def train(args: Args) -> Path:
             raise FloatingPointError(f"non-finite losses at update {prog.updates}: {losses}")
         return losses, clipfracs
 
-    def finish(rollout: Rollout, losses: dict, clipfracs: list) -> bool:
-        """The dual ascent on ``rollout``'s costs, the logs and the checkpoint of an update; True once the run's
-        time budget or total_timesteps is spent."""
+    def finish(rollout: Rollout, finished: list, losses: dict, clipfracs: list) -> bool:
+        """The dual ascent on ``rollout``'s costs, the logs (with the episodes it ``finished``) and the checkpoint of
+        the update that learned from it; True if the run's time budget is spent."""
         nonlocal last_ckpt
+        prog.global_step += s.B * s.T
         for j, (name, limit) in enumerate(s.constrained.items()):       # dual ascent, one multiplier each
             prog.lam[name] = max(0.0, prog.lam[name] + args.lagrange_lr * (float(rollout.costs[:, j].mean()) - limit))
             if args.lambda_max:
                 prog.lam[name] = min(prog.lam[name], args.lambda_max)
         prog.updates += 1
         prog.wall_seconds = time.monotonic() - t_start
+        episodes.recent = finished
         log_update(writer, curve, bar, prog, losses=losses, clipfracs=clipfracs, shield=shield, episodes=episodes,
                    agents_env=env)
+        spent = args.time_budget_minutes > 0 and prog.wall_seconds > 60 * args.time_budget_minutes
+        if spent:
+            print(f"time budget of {args.time_budget_minutes:g} min reached at {prog.global_step} env steps: "
+                  "stopping", flush=True)
         if args.checkpoint_every and prog.global_step - last_ckpt >= args.checkpoint_every:
             save_checkpoint(run_dir / "checkpoints" / f"step_{prog.global_step}.npz", actor, critic, optim,
                             prog.meta(vnorm, card))
             last_ckpt = prog.global_step
-        return over_budget()
-
-    def over_budget() -> bool:
-        nonlocal stopped
-        stopped = args.time_budget_minutes > 0 and time.monotonic() - t_start > 60 * args.time_budget_minutes
-        return stopped or prog.global_step >= args.total_timesteps
+        return spent
 
     stopped = False
     if not args.overlap_update:
-        while not over_budget():
-            next_value = collect(buf)
+        while prog.global_step < args.total_timesteps:
+            next_value, finished = collect(buf)
             anneal()
-            finish(buf, *learn(buf, next_value))
-    elif not over_budget():
+            stopped = finish(buf, finished, *learn(buf, next_value))
+            if stopped:
+                break
+    elif prog.global_step < args.total_timesteps:
         # Two rollouts take turns: the update learns from one while the behaviour team fills the other (the numpy
         # and compiled parts of both release the GIL). Each rollout's ratios and GAE are against the behaviour
         # team that acted; it takes the learner's weights when both halves are done.
         rollouts, i = (buf, Rollout(s)), 0
-        next_value = collect(rollouts[0])
+        next_value, finished = collect(rollouts[0])
         with ThreadPoolExecutor(1, thread_name_prefix="ppo-update") as pool:
             while True:
-                last = over_budget()
+                last = stopped or collected >= args.total_timesteps
                 anneal()
                 update = pool.submit(learn, rollouts[i], next_value)
+                learned_finished = finished
                 if not last:
-                    next_value = collect(rollouts[1 - i])
-                finish(rollouts[i], *update.result())
+                    next_value, finished = collect(rollouts[1 - i])
+                stopped = finish(rollouts[i], learned_finished, *update.result()) or stopped
                 if last:
                     break
                 copy_weights(agents, behaviour)
                 i = 1 - i
-    if stopped:
-        print(f"time budget of {args.time_budget_minutes:g} min reached at {prog.global_step} env steps: stopping",
-              flush=True)
     if stopped:
         bar.total = bar.n                       # the time budget ended the run here
     bar.close()
