@@ -167,7 +167,7 @@ def train(args: Args) -> Path:
         log_update(writer, curve, bar, prog, losses=losses, clipfracs=clipfracs, shield=shield, episodes=episodes,
                    agents_env=env)
         spent = args.time_budget_minutes > 0 and prog.wall_seconds > 60 * args.time_budget_minutes
-        if spent:
+        if spent and not stopped:
             print(f"time budget of {args.time_budget_minutes:g} min reached at {prog.global_step} env steps: "
                   "stopping", flush=True)
         if args.checkpoint_every and prog.global_step - last_ckpt >= args.checkpoint_every:
